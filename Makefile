@@ -1,0 +1,42 @@
+# Two commands for a fresh clone: `make demo` and `make test`.
+PY      ?= python3
+VENV    := .venv
+BIN     := $(VENV)/bin
+STAMP   := $(VENV)/.installed
+DEMO    := demo-out
+
+.PHONY: demo test lint format report clean sysdeps
+
+$(STAMP): pyproject.toml
+	@$(MAKE) --no-print-directory sysdeps
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	touch $(STAMP)
+
+# open3d loads libusb-1.0 at import; install it with apt-get when it is missing.
+sysdeps:
+	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then \
+	  echo "installing libusb-1.0-0 (needed by open3d)"; \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libusb-1.0-0; \
+	fi
+
+demo: $(STAMP)
+	$(BIN)/python -m planner.demo $(DEMO)
+
+test: $(STAMP)
+	$(BIN)/ruff check planner schemas drivers tests benchmarks
+	$(BIN)/ruff format --check planner schemas drivers tests benchmarks
+	$(BIN)/mypy planner schemas drivers
+	$(BIN)/pytest
+
+lint: $(STAMP)
+	$(BIN)/ruff check --fix planner schemas drivers tests benchmarks
+	$(BIN)/ruff format planner schemas drivers tests benchmarks
+
+report: $(STAMP)
+	$(BIN)/beamrelay study all -o reports
+
+clean:
+	rm -rf $(VENV) $(DEMO) .pytest_cache .mypy_cache .ruff_cache

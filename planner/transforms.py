@@ -1,0 +1,148 @@
+"""Rigid transforms as 4x4 numpy arrays.
+
+Naming follows SPEC section 2: ``a_T_b`` maps coordinates in frame b to frame a,
+``p_a = a_T_b @ p_b``. Rotations in files are fixed-axis X-Y-Z (URDF) ``rpy``:
+``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``; quaternions are ``[x, y, z, w]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+Array = NDArray[np.float64]
+
+
+def rot_x(a: float) -> Array:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rot_y(a: float) -> Array:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rot_z(a: float) -> Array:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def rpy_to_matrix(rpy: ArrayLike) -> Array:
+    """Rotation matrix of fixed-axis roll-pitch-yaw (radians)."""
+    r, p, y = np.asarray(rpy, dtype=float)
+    return rot_z(y) @ rot_y(p) @ rot_x(r)
+
+
+def matrix_to_rpy(R: ArrayLike) -> Array:
+    """Inverse of :func:`rpy_to_matrix` (pitch in [-pi/2, pi/2])."""
+    R = np.asarray(R, dtype=float)
+    pitch = np.arctan2(-R[2, 0], np.hypot(R[0, 0], R[1, 0]))
+    if np.hypot(R[0, 0], R[1, 0]) < 1e-12:  # gimbal lock: put everything in roll
+        return np.array([np.arctan2(-R[1, 2], R[1, 1]), pitch, 0.0])
+    return np.array([np.arctan2(R[2, 1], R[2, 2]), pitch, np.arctan2(R[1, 0], R[0, 0])])
+
+
+def quat_to_matrix(quat: ArrayLike) -> Array:
+    """Rotation matrix of a quaternion ``[x, y, z, w]`` (normalised here)."""
+    x, y, z, w = np.asarray(quat, dtype=float) / np.linalg.norm(quat)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def matrix_to_quat(R: ArrayLike) -> Array:
+    """Quaternion ``[x, y, z, w]`` with w >= 0 of a rotation matrix."""
+    R = np.asarray(R, dtype=float)
+    tr = np.trace(R)
+    if tr > 0:
+        s = 2.0 * np.sqrt(tr + 1.0)
+        q = [(R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s, s / 4]
+    else:
+        i = int(np.argmax(np.diag(R)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = 2.0 * np.sqrt(1.0 + R[i, i] - R[j, j] - R[k, k])
+        q = [0.0, 0.0, 0.0, (R[k, j] - R[j, k]) / s]
+        q[i] = s / 4
+        q[j] = (R[j, i] + R[i, j]) / s
+        q[k] = (R[k, i] + R[i, k]) / s
+    out = np.array(q)
+    return out if out[3] >= 0 else -out
+
+
+def make_T(R: ArrayLike | None = None, p: ArrayLike | None = None) -> Array:
+    """Homogeneous transform from a rotation matrix and a translation."""
+    T = np.eye(4)
+    if R is not None:
+        T[:3, :3] = np.asarray(R, dtype=float)
+    if p is not None:
+        T[:3, 3] = np.asarray(p, dtype=float)
+    return T
+
+
+def inv_T(T: ArrayLike) -> Array:
+    """Inverse of a rigid transform (exact, no general matrix inverse)."""
+    T = np.asarray(T, dtype=float)
+    R, p = T[:3, :3], T[:3, 3]
+    return make_T(R.T, -R.T @ p)
+
+
+def transform_points(a_T_b: ArrayLike, p_b: ArrayLike) -> Array:
+    """Map points ``(..., 3)`` from frame b to frame a."""
+    T = np.asarray(a_T_b, dtype=float)
+    p = np.asarray(p_b, dtype=float)
+    return p @ T[:3, :3].T + T[:3, 3]
+
+
+def axis_angle_to_matrix(axis_angle: ArrayLike) -> Array:
+    """Rodrigues: rotation by |w| about w/|w| (the SO(3) exponential)."""
+    w = np.asarray(axis_angle, dtype=float)
+    th = float(np.linalg.norm(w))
+    K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+    if th < 1e-12:
+        return np.eye(3) + K
+    K = K / th
+    return np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * (K @ K)
+
+
+def matrix_to_axis_angle(R: ArrayLike) -> Array:
+    """SO(3) logarithm as an axis-angle vector (angle in [0, pi])."""
+    R = np.asarray(R, dtype=float)
+    c = np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)
+    th = float(np.arccos(c))
+    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    if th < 1e-9:
+        return v / 2
+    if np.pi - th < 1e-6:
+        # near pi: axis from the symmetric part
+        B = (R + np.eye(3)) / 2
+        axis = np.sqrt(np.clip(np.diag(B), 0, None))
+        i = int(np.argmax(axis))
+        axis = B[:, i] / np.sqrt(B[i, i])
+        return axis * th
+    return v * th / (2 * np.sin(th))
+
+
+def rotation_angle(R: ArrayLike) -> float:
+    """Angle (rad) of a rotation matrix."""
+    return float(np.arccos(np.clip((np.trace(np.asarray(R)) - 1) / 2, -1.0, 1.0)))
+
+
+def look_at(eye: ArrayLike, target: ArrayLike, up: ArrayLike = (0.0, 0.0, 1.0)) -> Array:
+    """``world_T_frame`` for a frame at ``eye`` whose +z points at ``target``.
+
+    x is chosen perpendicular to ``up`` (for an OpenCV camera: x right, y down).
+    """
+    eye = np.asarray(eye, dtype=float)
+    z = np.asarray(target, dtype=float) - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, np.asarray(up, dtype=float))
+    if np.linalg.norm(x) < 1e-9:
+        x = np.cross(z, [1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return make_T(np.column_stack([x, y, z]), eye)
