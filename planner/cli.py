@@ -1,0 +1,90 @@
+"""The ``beamrelay`` command line.
+
+Each area keeps its commands in its own module (``planner/cli_*.py``) with only light
+imports at module level, so ``beamrelay --help`` stays instant; heavy libraries (CasADi,
+Pinocchio, open3d, Zenoh, matplotlib) are imported inside the commands.
+
+Exit status (SPEC section 9): 0 success, 1 the work ran but something failed, 2 bad input
+(one line on stderr, no traceback).
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+import typer
+
+from planner.errors import InputError
+
+app = typer.Typer(
+    name="beamrelay",
+    help="Relay a free-space laser beam with robot-held mirrors: plan, check, calibrate, run.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+
+# (module, attribute, command name) of every top-level command, and sub-apps.
+_COMMANDS = [
+    ("planner.cli_core", "validate", "validate"),
+    ("planner.cli_core", "trace", "trace"),
+    ("planner.cli_plan", "plan", "plan"),
+    ("planner.cli_plan", "check", "check"),
+    ("planner.cli_node", "serve", "serve"),
+    ("planner.cli_node", "up", "up"),
+    ("planner.cli_node", "request", "request"),
+]
+_GROUPS = [
+    ("planner.cli_calibrate", "app", "calibrate"),
+    ("planner.cli_study", "app", "study"),
+    ("planner.cli_bench", "app", "bench"),
+    ("drivers.cli", "app", "driver"),
+]
+
+
+def _register() -> None:
+    for module, attr, name in _COMMANDS:
+        try:
+            fn = getattr(importlib.import_module(module), attr)
+        except (ImportError, AttributeError):
+            continue  # area not built yet
+        app.command(name)(fn)
+    for module, attr, name in _GROUPS:
+        try:
+            sub = getattr(importlib.import_module(module), attr)
+        except (ImportError, AttributeError):
+            continue
+        app.add_typer(sub, name=name)
+
+
+_register()
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point: user mistakes become one line and exit status 2."""
+    try:
+        app(args=argv, standalone_mode=False)
+    except InputError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        sys.exit(2)
+    except KeyboardInterrupt:
+        typer.echo("interrupted", err=True)
+        sys.exit(130)
+    except typer.Exit as exc:
+        sys.exit(exc.exit_code)
+    except SystemExit:
+        raise
+    except Exception as exc:  # click usage errors arrive here in non-standalone mode
+        import click
+
+        if isinstance(exc, click.exceptions.ClickException):
+            exc.show()
+            sys.exit(2)
+        if isinstance(exc, click.exceptions.Abort):
+            sys.exit(130)
+        raise
+
+
+if __name__ == "__main__":
+    main()
