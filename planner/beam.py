@@ -27,7 +27,15 @@ from planner.kinematics import RobotKinematics
 from planner.system import System
 from planner.transforms import Array
 
-BEAM_INPUTS = ["q", "world_T_laser", "world_T_base", "flange_T_mirror", "roi_half", "target", "normal"]
+BEAM_INPUTS = [
+    "q",
+    "world_T_laser",
+    "world_T_base",
+    "flange_T_mirror",
+    "roi_half",
+    "target",
+    "normal",
+]
 BEAM_OUTPUTS = [
     "spot",
     "hits",
@@ -63,9 +71,7 @@ def beam_chain(
     for i, kin in enumerate(kinematics):
         qi = q[i0 : i0 + kin.nq]
         i0 += kin.nq
-        world_T_mirror = ca.mtimes(
-            [world_T_base[i], kin.casadi_fk_expr(qi), flange_T_mirror[i]]
-        )
+        world_T_mirror = ca.mtimes([world_T_base[i], kin.casadi_fk_expr(qi), flange_T_mirror[i]])
         c = world_T_mirror[:3, 3]
         n = world_T_mirror[:3, 2]
         nv = ca.dot(n, v)
@@ -175,7 +181,9 @@ class BeamModel:
         self.function = beam_function(tuple(r.kinematics for r in system.robots))
         self.params = system_params(system)
 
-    def trace(self, q: Array, target: Array | None = None, normal: Array | None = None) -> BeamTrace:
+    def trace(
+        self, q: Array, target: Array | None = None, normal: Array | None = None
+    ) -> BeamTrace:
         """Trace the beam at stacked joints ``q``; without ``target`` the spot is the point
         of the last ray one metre beyond the last mirror."""
         q = np.asarray(q, dtype=float)

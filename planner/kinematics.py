@@ -80,7 +80,9 @@ class RobotKinematics:
         for frame in (flange_frame, base_frame):
             if not model.existFrame(frame):
                 names = ", ".join(f.name for f in model.frames)
-                raise InputError(f"frame {frame!r} not in the robot model (frames: {names})", source)
+                raise InputError(
+                    f"frame {frame!r} not in the robot model (frames: {names})", source
+                )
         if model.nq != model.nv:
             raise InputError("only 1-dof revolute or prismatic joints are supported", source)
         self.model = model
@@ -99,7 +101,9 @@ class RobotKinematics:
     def ur5e(cls) -> RobotKinematics:
         """The nominal UR5e (SPEC DH values), with the closed-form IK of ``ur-analytic-ik``."""
         path = ur5e_urdf_path()
-        return cls(pin.buildModelFromUrdf(str(path)), name="ur5e", source=str(path), analytic="ur5e")
+        return cls(
+            pin.buildModelFromUrdf(str(path)), name="ur5e", source=str(path), analytic="ur5e"
+        )
 
     @classmethod
     def from_urdf(
@@ -114,7 +118,11 @@ class RobotKinematics:
         except (RuntimeError, ValueError) as exc:
             raise InputError(f"cannot load URDF: {exc}", str(path)) from exc
         return cls(
-            model, name=path.stem, source=str(path), flange_frame=flange_frame, base_frame=base_frame
+            model,
+            name=path.stem,
+            source=str(path),
+            flange_frame=flange_frame,
+            base_frame=base_frame,
         )
 
     # properties ---------------------------------------------------------------------------

@@ -1,0 +1,33 @@
+"""Shared fixtures: small systems built in code (independent of the scenario loader)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from planner.kinematics import RobotKinematics
+from planner.system import DEFAULT_HOME, Limits, Mirror, Robot, System
+from planner.transforms import look_at, make_T, rpy_to_matrix
+
+
+def make_system(n: int, seed: int = 0) -> System:
+    """N UR5e robots on a circle, facing the centre, a laser aimed at robot 0's mirror."""
+    rng = np.random.default_rng(seed)
+    kin = RobotKinematics.ur5e()
+    robots = []
+    for i in range(n):
+        ang = 2 * np.pi * i / max(n, 1)
+        base = make_T(rpy_to_matrix([0, 0, ang + np.pi]), [1.2 * np.cos(ang), 1.2 * np.sin(ang), 0])
+        mount = make_T(rpy_to_matrix(rng.uniform(-0.1, 0.1, 3)), rng.uniform(-0.01, 0.01, 3))
+        mount[2, 3] += 0.03
+        home = np.array(DEFAULT_HOME) + rng.uniform(-0.2, 0.2, 6)
+        robots.append(Robot(f"arm{i}", kin, base, Mirror(mount), home, Limits.ur_default()))
+    first = robots[0]
+    c = (first.world_T_base @ kin.fk(first.home) @ first.mirror.flange_T_mirror)[:3, 3]
+    laser = look_at(c + np.array([0.3, 0.2, -0.4]), c)
+    return System(laser, tuple(robots))
+
+
+@pytest.fixture
+def system1() -> System:
+    return make_system(1)
