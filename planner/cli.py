@@ -11,6 +11,7 @@ Exit status (SPEC section 9): 0 success, 1 the work ran but something failed, 2 
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import sys
 
 import typer
@@ -43,19 +44,20 @@ _GROUPS = [
 ]
 
 
+def _exists(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except ModuleNotFoundError:
+        return False
+
+
 def _register() -> None:
     for module, attr, name in _COMMANDS:
-        try:
-            fn = getattr(importlib.import_module(module), attr)
-        except (ImportError, AttributeError):
-            continue  # area not built yet
-        app.command(name)(fn)
+        if _exists(module) and hasattr(mod := importlib.import_module(module), attr):
+            app.command(name)(getattr(mod, attr))
     for module, attr, name in _GROUPS:
-        try:
-            sub = getattr(importlib.import_module(module), attr)
-        except (ImportError, AttributeError):
-            continue
-        app.add_typer(sub, name=name)
+        if _exists(module):
+            app.add_typer(getattr(importlib.import_module(module), attr), name=name)
 
 
 _register()

@@ -5,6 +5,7 @@ taking at least ``--trials``, ``--seed``, ``-o/--out``, ``--workers`` and ``--js
 from __future__ import annotations
 
 import importlib
+import importlib.util
 
 import typer
 
@@ -13,8 +14,7 @@ app = typer.Typer(help="Studies: paper reproductions and reports.", no_args_is_h
 STUDIES = ("ik-grid", "calibration", "sensitivity", "mirror-sweep", "coverage", "tracking", "all")
 
 for _name in STUDIES:
-    try:
-        _mod = importlib.import_module(f"planner.studies.{_name.replace('-', '_')}")
-    except ImportError:
+    if importlib.util.find_spec(_module := f"planner.studies.{_name.replace('-', '_')}") is None:
         continue
+    _mod = importlib.import_module(_module)
     app.command(_name)(_mod.command)
