@@ -1,0 +1,346 @@
+"""Exact closed-form beam IK: the explicit family of mirror poses that hit a target.
+
+For N = 1 every solution is a member of a 4-parameter family: choose the hit point
+``h = p0 + s v0`` on the incoming beam; the mirror normal is then the bisector of ``-v0``
+and ``target - h``; the roll ``psi`` of the mirror about its normal and the in-plane offset
+``(u, v)`` of ``h`` from the mirror centre are free. ``world_T_flange = world_T_mirror @
+inv(flange_T_mirror)`` and the UR analytic IK gives up to 8 joint branches, each hitting the
+target to machine precision. For N > 1 the intermediate hit points are free too (seeded at
+the mirrors' current centres); every bounce normal is again a bisector.
+
+:class:`ClosedForm` searches (s, psi, u, v) in a fixed priority order, nearest the previous
+configuration first, and returns the first member inside the joint limits and the ROI, or
+the reason none is (with the numbers). World frame, metres, radians.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import NamedTuple
+
+import numpy as np
+
+from planner.ik.evaluate import mirror_poses
+from planner.kinematics import RobotKinematics
+from planner.system import System
+from planner.transforms import Array, inv_T
+
+TWO_PI = 2.0 * np.pi
+_DEGENERATE = 1e-9  # |d_out - d_in| below this: grazing, the bisector is undefined
+_S_OFFSETS = (0.0, 0.03, -0.03, 0.08, -0.08, 0.15, -0.15, 0.25, -0.25, 0.4, -0.4, 0.6, -0.6)
+_PSI = tuple(np.pi / 6 * k for k in (0, 1, -1, 2, -2, 3, -3, 4, -4, 5, -5, 6))
+_H_STEPS = (0.0, 0.05, 0.12, 0.25)
+_NOMINAL_TOL = 0.01  # a URDF arm whose flange is within 1 cm of the nominal UR5e
+
+
+class Stage(NamedTuple):
+    s_offsets: tuple[float, ...]
+    psi: tuple[float, ...]
+    uv_scale: tuple[float, ...]  # ring radii; as fractions of roi_half, or metres if outside
+
+
+@lru_cache(maxsize=8)
+def _nominal_ur5e() -> RobotKinematics:
+    return RobotKinematics.ur5e()
+
+
+def seed_kinematics(kin: RobotKinematics) -> RobotKinematics | None:
+    """The model whose analytic IK seeds ``kin``: itself, the nominal UR5e for a calibrated
+    UR5e URDF (flange within 1 cm of nominal at test poses), or None (IPOPT only)."""
+    if kin.has_analytic_ik:
+        return kin
+    if kin.nq != 6:
+        return None
+    nominal = _nominal_ur5e()
+    rng = np.random.default_rng(0)
+    for q in rng.uniform(-np.pi, np.pi, (8, 6)):
+        if np.abs(kin.fk(q)[:3, 3] - nominal.fk(q)[:3, 3]).max() > _NOMINAL_TOL:
+            return None
+    return nominal
+
+
+def bisector(d_in: Array, d_out: Array) -> Array | None:
+    """Unit mirror normal reflecting unit direction ``d_in`` into ``d_out``, None if grazing."""
+    n = d_out - d_in
+    norm = float(np.linalg.norm(n))
+    return None if norm < _DEGENERATE else n / norm
+
+
+def mirror_frame(h: Array, n: Array, x_ref: Array, psi: float, uv: Array) -> Array:
+    """``world_T_mirror`` with normal ``n``, x axis = ``x_ref`` projected on the mirror plane
+    and rolled by ``psi`` about ``n``, placed so that ``h`` sits at mirror coordinates uv."""
+    x = x_ref - (x_ref @ n) * n
+    nx = float(np.linalg.norm(x))
+    if nx < 1e-6:
+        x = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        x = x - (x @ n) * n
+        nx = float(np.linalg.norm(x))
+    x = x / nx
+    y = np.cross(n, x)
+    c, s = np.cos(psi), np.sin(psi)
+    x, y = c * x + s * y, c * y - s * x
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2] = x, y, n
+    T[:3, 3] = h - uv[0] * x - uv[1] * y
+    return T
+
+
+def pick_branch(
+    branches: Array, q_ref: Array, lower: Array, upper: Array
+) -> tuple[Array | None, float]:
+    """Branch (each joint shifted by 2 pi k toward ``q_ref``) nearest ``q_ref`` within limits.
+
+    Returns (q, 0) or (None, smallest limit violation in rad over the branches)."""
+    q = branches + TWO_PI * np.round((q_ref - branches) / TWO_PI)
+    q = np.where(q > upper, q - TWO_PI, q)
+    q = np.where(q < lower, q + TWO_PI, q)
+    viol = np.maximum(q - upper, 0.0).max(axis=1) + np.maximum(lower - q, 0.0).max(axis=1)
+    ok = viol <= 0.0
+    if not ok.any():
+        return None, float(viol.min())
+    dist = np.where(ok, ((q - q_ref) ** 2).sum(axis=1), np.inf)
+    return q[int(np.argmin(dist))], 0.0
+
+
+@dataclass
+class SearchStats:
+    """What the search saw; the evidence of a failure."""
+
+    members: int = 0
+    grazing: int = 0
+    no_ik: int = 0
+    limits: int = 0
+    incidence: int = 0
+    min_limit_violation: float = np.inf
+    min_incidence: float = np.inf
+    evidence: dict[str, object] = field(default_factory=dict)
+
+
+class ClosedFormResult(NamedTuple):
+    q: Array | None  # stacked joints of the chosen member, or None
+    reason: str | None  # failure reason (SPEC section 5) when q is None
+    evidence: dict[str, object]
+    members: int  # family members tried
+
+
+class ClosedForm:
+    """The closed-form family search for one system (requires a seed model for every arm)."""
+
+    def __init__(self, system: System) -> None:
+        seeds = [seed_kinematics(r.kinematics) for r in system.robots]
+        if any(s is None for s in seeds):
+            raise ValueError("closed form needs an analytic seed model for every robot")
+        self.system = system
+        self.seeds: list[RobotKinematics] = [s for s in seeds if s is not None]
+        self.exact = all(s is r.kinematics for s, r in zip(self.seeds, system.robots, strict=True))
+        self.base_T_world = [inv_T(r.world_T_base) for r in system.robots]
+        self.mirror_T_flange = [inv_T(r.mirror.flange_T_mirror) for r in system.robots]
+        self.p0 = system.world_T_laser[:3, 3].copy()
+        self.v0 = system.world_T_laser[:3, 2] / np.linalg.norm(system.world_T_laser[:3, 2])
+        self.roi_half = [r.mirror.roi_half for r in system.robots]
+        self.slices = []
+        i = 0
+        for r in system.robots:
+            self.slices.append(slice(i, i + r.nq))
+            i += r.nq
+
+    # --------------------------------------------------------------------------------------
+    def _combos(
+        self, s0: float, centres: list[Array], s_offsets: tuple[float, ...]
+    ) -> list[list[Array]]:
+        """Hit-point lists [h_1, ..., h_N] in priority order (nearest the seed first)."""
+        n_mid = len(centres) - 1
+        steps = [np.zeros(3)]
+        for a in _H_STEPS[1:]:
+            steps += [a * e for e in np.vstack([np.eye(3), -np.eye(3)])]
+        mids = list(itertools.product(range(len(steps)), repeat=n_mid)) if n_mid else [()]
+        mids = sorted(mids, key=lambda ks: sum(float(np.linalg.norm(steps[k])) for k in ks))[:25]
+        out = []
+        for ds, ks in sorted(
+            itertools.product(s_offsets, mids),
+            key=lambda c: abs(c[0]) + sum(float(np.linalg.norm(steps[k])) for k in c[1]),
+        ):
+            s = max(s0 + ds, 0.02)
+            out.append(
+                [self.p0 + s * self.v0]
+                + [c + steps[k] for c, k in zip(centres[1:], ks, strict=True)]
+            )
+        return out
+
+    def _normals(self, hits: list[Array], target: Array) -> tuple[list[Array] | None, Array]:
+        d_in = self.v0
+        normals = []
+        for i, h in enumerate(hits):
+            nxt = hits[i + 1] if i + 1 < len(hits) else target
+            d_out = nxt - h
+            d_out = d_out / np.linalg.norm(d_out)
+            n = bisector(d_in, d_out)
+            if n is None:
+                return None, d_out
+            normals.append(n)
+            d_in = d_out
+        return normals, d_in
+
+    def _robot(
+        self,
+        i: int,
+        T_args: tuple[Array, Array, Array],
+        stage: Stage,
+        inside: bool,
+        q_ref: Array,
+        stats: SearchStats,
+    ) -> tuple[Array | None, Array]:
+        h, n, x_ref = T_args
+        r = self.system.robots[i]
+        hu, hv = self.roi_half[i]
+        uvs = [np.zeros(2)] if inside and stage.uv_scale == (0.0,) else []
+        for a in stage.uv_scale:
+            for th in np.linspace(0, TWO_PI, 8, endpoint=False):
+                if a == 0.0:
+                    continue
+                uv = (
+                    np.array([a * hu * np.cos(th), a * hv * np.sin(th)])
+                    if inside
+                    else (a * np.array([np.cos(th), np.sin(th)]))
+                )
+                if inside or np.any(np.abs(uv) > [hu, hv]):
+                    uvs.append(uv)
+        for psi in stage.psi:
+            for uv in uvs:
+                T = mirror_frame(h, n, x_ref, psi, uv)
+                base_T_flange = self.base_T_world[i] @ T @ self.mirror_T_flange[i]
+                branches = self.seeds[i].analytic_ik(base_T_flange)
+                if not branches:
+                    stats.no_ik += 1
+                    continue
+                q, viol = pick_branch(np.array(branches), q_ref, r.limits.lower, r.limits.upper)
+                if q is None:
+                    stats.limits += 1
+                    stats.min_limit_violation = min(stats.min_limit_violation, viol)
+                    continue
+                return q, uv
+        return None, np.zeros(2)
+
+    def _run(
+        self,
+        target: Array,
+        normal: Array | None,
+        q_prev: Array,
+        max_incidence: float | None,
+        stage: Stage,
+        inside: bool,
+        stats: SearchStats,
+    ) -> Array | None:
+        prev = mirror_poses(self.system, q_prev)
+        centres = [M[:3, 3] for M in prev]
+        s0 = float(self.v0 @ (centres[0] - self.p0))
+        for hits in self._combos(s0, centres, stage.s_offsets):
+            stats.members += 1
+            normals, d_last = self._normals(hits, target)
+            if normals is None:
+                stats.grazing += 1
+                continue
+            if normal is not None and max_incidence is not None:
+                inc = float(np.arccos(min(abs(float(d_last @ normal)), 1.0)))
+                if inc > max_incidence:
+                    stats.incidence += 1
+                    stats.min_incidence = min(stats.min_incidence, inc)
+                    continue
+            qs = []
+            for i in range(len(hits)):
+                q_i, uv = self._robot(
+                    i,
+                    (hits[i], normals[i], prev[i][:3, 0]),
+                    stage,
+                    inside,
+                    q_prev[self.slices[i]],
+                    stats,
+                )
+                if q_i is None:
+                    break
+                qs.append(q_i)
+            else:
+                stats.evidence = {"s": float(self.v0 @ (hits[0] - self.p0)), "uv_last": uv.tolist()}
+                return np.concatenate(qs)
+        return None
+
+    def search(
+        self, target: Array, normal: Array | None, q_prev: Array, max_incidence: float | None = None
+    ) -> ClosedFormResult:
+        """First feasible family member nearest ``q_prev``, or the failure reason and evidence.
+
+        Stage 1: u = v = 0 over (s, psi); stage 2: (u, v) inside the ROI; stage 3 (diagnosis):
+        (u, v) outside the ROI, which turns "no IK" into ``outside_roi``.
+        """
+        stats = SearchStats()
+        target = np.asarray(target, dtype=float)
+        full = Stage(_S_OFFSETS, _PSI, (0.0,))
+        q = self._run(target, normal, q_prev, max_incidence, full, True, stats)
+        if q is not None:
+            return ClosedFormResult(q, None, stats.evidence, stats.members)
+        if stats.grazing == stats.members:
+            d = target - self.p0
+            off = float(np.linalg.norm(d - (d @ self.v0) * self.v0))
+            return ClosedFormResult(
+                None,
+                "back_face",
+                {
+                    "target_off_beam_m": off,
+                    "why": "target lies on the incoming beam past every reachable hit point: "
+                    "the mirror would be hit edge-on (front = -n.v = 0)",
+                },
+                stats.members,
+            )
+        coarse = Stage(_S_OFFSETS[:7], _PSI[::2], (0.5, 1.0))
+        q = self._run(target, normal, q_prev, max_incidence, coarse, True, stats)
+        if q is not None:
+            return ClosedFormResult(q, None, stats.evidence, stats.members)
+        if stats.limits:
+            return ClosedFormResult(
+                None,
+                "joint_limits",
+                {
+                    "min_limit_violation_rad": stats.min_limit_violation,
+                    "members_out_of_limits": stats.limits,
+                },
+                stats.members,
+            )
+        if stats.incidence and not stats.no_ik:
+            return ClosedFormResult(
+                None,
+                "unreachable",
+                {
+                    "min_incidence_deg": float(np.degrees(stats.min_incidence)),
+                    "max_incidence_deg": float(np.degrees(max_incidence or 0.0)),
+                },
+                stats.members,
+            )
+        roi = float(max(np.max(h) for h in self.roi_half))
+        outside = Stage(_S_OFFSETS[:7], _PSI[::2], (1.5 * roi + 0.005, 2 * roi + 0.02, 0.1))
+        probe = SearchStats()
+        if self._run(target, normal, q_prev, None, outside, False, probe) is not None:
+            uv = probe.evidence.get("uv_last", [0.0, 0.0])
+            return ClosedFormResult(
+                None,
+                "outside_roi",
+                {
+                    "offset_needed_mm": 1e3 * float(np.linalg.norm(np.asarray(uv))),
+                    "roi_half_mm": [1e3 * float(x) for x in self.roi_half[-1]],
+                    "why": "the arm reaches a mirror pose on this beam only with the hit off the ROI",
+                },
+                stats.members + probe.members,
+            )
+        return ClosedFormResult(
+            None,
+            "unreachable",
+            {
+                "members_without_ik": stats.no_ik,
+                "beam_distance_to_base_m": [
+                    float(np.linalg.norm(np.cross(r.world_T_base[:3, 3] - self.p0, self.v0)))
+                    for r in self.system.robots
+                ],
+            },
+            stats.members + probe.members,
+        )

@@ -1,0 +1,224 @@
+"""Per-target beam IK driver: closed form first, Newton to close calibration gaps, IPOPT for
+the optimal step and as the multi-start fallback. Data in, :class:`Solution` out.
+
+A failed target is a status with a machine-readable reason (SPEC section 5) and the numbers
+that show it (``evidence``); it never raises.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from planner.ik.closed_form import ClosedForm, seed_kinematics
+from planner.ik.evaluate import MIN_AHEAD, MIN_FRONT, Evaluation, evaluate
+from planner.ik.newton import Newton
+from planner.ik.nlp import BeamNLP
+from planner.system import System
+from planner.transforms import Array
+
+REASONS = ("unreachable", "outside_roi", "joint_limits", "back_face", "occluded", "solver_failed")
+EXACT = 1e-12  # metres: what "machine precision" means for a spot error here
+
+
+@dataclass(frozen=True)
+class IKOptions:
+    """Solver settings. ``tolerance``: largest accepted spot error (m, scenario
+    ``solver.tolerance``); ``max_incidence``: rad on targets with normals (None = off);
+    ``centre_weight``: NLP weight of sum |uv|^2 (1/m^2); ``starts``: multi-start seeds."""
+
+    tolerance: float = 1e-9
+    optimal: bool = False
+    max_iter: int = 200
+    max_incidence: float | None = None
+    centre_weight: float = 100.0
+    starts: int = 6
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class Solution:
+    """One target's result. ``q`` stacked (robot order), None when failed; world frame."""
+
+    status: str  # "ok" | "failed"
+    reason: str | None
+    q: Array | None
+    spot: Array | None
+    error: float  # metres (inf when nothing was traced)
+    hits: Array | None  # (N, 3)
+    uv: Array | None  # (N, 2)
+    solve_time: float  # seconds
+    iterations: int  # family members tried, or IPOPT iterations
+    method: str
+    incidence: float = 0.0
+    evidence: dict[str, object] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+
+def _limit_violation(system: System, q: Array) -> float:
+    return float(max(np.max(q - system.upper), np.max(system.lower - q), 0.0))
+
+
+class BeamIK:
+    """Beam IK for one system. Heavy pieces (Newton function, IPOPT NLP) are built lazily,
+    once, and reused for every target."""
+
+    def __init__(self, system: System, options: IKOptions | None = None) -> None:
+        self.system = system
+        self.options = options or IKOptions()
+        has_seed = all(seed_kinematics(r.kinematics) is not None for r in system.robots)
+        self.closed_form = ClosedForm(system) if has_seed else None
+
+    @cached_property
+    def newton(self) -> Newton:
+        return Newton(self.system)
+
+    @cached_property
+    def nlp(self) -> BeamNLP:
+        o = self.options
+        return BeamNLP(self.system, max_iter=o.max_iter, centre_weight=o.centre_weight)
+
+    # --------------------------------------------------------------------------------------
+    def accept(self, ev: Evaluation, q: Array) -> bool:
+        """Valid chain, error within tolerance, joints within limits, incidence within limit."""
+        inc_ok = self.options.max_incidence is None or ev.incidence <= self.options.max_incidence
+        return bool(
+            ev.valid
+            and ev.error <= self.options.tolerance
+            and _limit_violation(self.system, q) <= 0.0
+            and inc_ok
+        )
+
+    def classify(self, ev: Evaluation, q: Array, status: str) -> tuple[str, dict[str, object]]:
+        """Reason (SPEC section 5) of a rejected configuration, with its evidence."""
+        evidence: dict[str, object] = {
+            "error_m": ev.error,
+            "ipopt_status": status,
+            "front_min": float(ev.front.min()),
+            "roi_min_mm": 1e3 * float(ev.roi.min()),
+        }
+        viol = _limit_violation(self.system, q)
+        if not np.all(np.isfinite(q)) or not np.isfinite(ev.error):
+            return "solver_failed", evidence
+        if viol > 0.0:
+            return "joint_limits", {**evidence, "limit_violation_rad": viol}
+        if np.any(ev.front <= MIN_FRONT) or ev.target_ahead <= MIN_AHEAD:
+            return "back_face", {**evidence, "target_ahead_m": ev.target_ahead}
+        if np.any(ev.roi < 0.0):
+            return "outside_roi", evidence
+        if np.any(ev.ahead <= MIN_AHEAD) or status == "Infeasible_Problem_Detected":
+            return "unreachable", evidence
+        max_inc = self.options.max_incidence
+        if max_inc is not None and ev.incidence > max_inc:
+            return "unreachable", {**evidence, "incidence_deg": float(np.degrees(ev.incidence))}
+        return "solver_failed", evidence
+
+    def _nlp(
+        self, q0: Array, target: Array, normal: Array | None, q_prev: Array
+    ) -> tuple[Array, Evaluation, str, int]:
+        ev0 = evaluate(self.system, q0, target, normal)
+        m = target - ev0.hits[-1]
+        if np.linalg.norm(m) < 1e-9:
+            m = ev0.dirs[-1]
+        res = self.nlp.solve(q0, target, normal, q_prev, m, self.options.max_incidence)
+        q = res.q
+        if np.all(np.isfinite(q)):
+            q = self.newton.polish(q, target, normal).q
+        return q, evaluate(self.system, q, target, normal), res.status, res.iterations
+
+    def _multistart(
+        self, target: Array, normal: Array | None, q_prev: Array, first: list[Array]
+    ) -> tuple[Array | None, Evaluation | None, int, tuple[str, dict[str, object]]]:
+        rng = np.random.default_rng(self.options.seed)
+        lo, hi = np.maximum(self.system.lower, -np.pi), np.minimum(self.system.upper, np.pi)
+        seeds = [*first, q_prev, self.system.home]
+        seeds += [rng.uniform(lo, hi) for _ in range(self.options.starts)]
+        best: tuple[float, str, dict[str, object]] | None = None
+        iters = 0
+        for q0 in seeds:
+            q, ev, status, it = self._nlp(
+                np.clip(q0, self.system.lower, self.system.upper), target, normal, q_prev
+            )
+            iters += it
+            if self.accept(ev, q):
+                return q, ev, iters, ("", {})
+            reason, evidence = self.classify(ev, q, status)
+            if best is None or ev.error < best[0]:
+                best = (ev.error, reason, {**evidence, "starts": len(seeds)})
+        assert best is not None
+        return None, None, iters, (best[1], best[2])
+
+    def solve(
+        self, target: Array, normal: Array | None = None, q_prev: Array | None = None
+    ) -> Solution:
+        """Solve one target (world frame); ``q_prev`` (stacked) defaults to home."""
+        t0 = time.perf_counter()
+        target = np.asarray(target, dtype=float)
+        q_prev = self.system.home if q_prev is None else np.asarray(q_prev, dtype=float)
+        q: Array | None = None
+        ev: Evaluation | None = None
+        method, iters = "closed_form", 0
+        reason: str | None = None
+        evidence: dict[str, object] = {}
+        first: list[Array] = []
+        if self.closed_form is not None:
+            cf = self.closed_form.search(target, normal, q_prev, self.options.max_incidence)
+            iters = cf.members
+            reason, evidence = cf.reason, dict(cf.evidence)
+            if cf.q is not None:
+                q = cf.q
+                if not self.closed_form.exact:
+                    q = self.newton.polish(q, target, normal).q
+                    method = "closed_form+newton"
+                ev = evaluate(self.system, q, target, normal)
+                if not self.accept(ev, q):
+                    first, q, ev = [q], None, None
+                    reason, evidence = "solver_failed", {"why": "closed-form member rejected"}
+        if q is not None and ev is not None and self.options.optimal:
+            q2, ev2, _, it = self._nlp(q, target, normal, q_prev)
+            iters = it
+            if self.accept(ev2, q2) and ev2.error <= max(ev.error, EXACT):
+                q, ev, method = q2, ev2, method + "+ipopt"
+        if q is None:
+            method = "multistart"
+            q, ev, it, (r2, e2) = self._multistart(target, normal, q_prev, first)
+            iters += it
+            if q is None:
+                reason = reason or r2
+                evidence = {**evidence, "nlp": e2}
+        dt = time.perf_counter() - t0
+        if q is None or ev is None:
+            return Solution(
+                "failed",
+                reason or "solver_failed",
+                None,
+                None,
+                float("inf"),
+                None,
+                None,
+                dt,
+                iters,
+                method,
+                0.0,
+                evidence,
+            )
+        return Solution(
+            "ok",
+            None,
+            q,
+            ev.spot,
+            ev.error,
+            ev.hits,
+            ev.uv,
+            dt,
+            iters,
+            method,
+            ev.incidence,
+            evidence,
+        )
