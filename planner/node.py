@@ -1,0 +1,365 @@
+"""The planner node (SPEC section 6): a thin Zenoh adapter over the pure planning code.
+
+Two layers:
+
+- :class:`RequestHandler` (no Zenoh): a validated :class:`~schemas.messages.TargetRequest`
+  becomes world-frame :class:`~planner.system.Targets` (camera-frame points go through the
+  calibrated ``world_T_camera``) and then a plan.json dict through a *plan function*
+  ``plan_fn(targets, start, trajectory) -> dict`` (``start``: ``{robot: q}`` in rad or None
+  for the scenario's home; ``trajectory``: whether to time a trajectory).
+- :class:`PlannerNode`: the Zenoh side. Queryable ``<prefix>/plan`` replies with plan.json
+  (``application/json``) or an :class:`~schemas.messages.ErrorReply` via ``reply_err``;
+  subscriber ``<prefix>/targets`` publishes its result on ``<prefix>/plans``. With
+  ``execute: true`` it sends one :class:`~schemas.messages.JointTrajectory` per robot to
+  ``<prefix>/<robot>/trajectory``, planned from the robots' latest ``joint_states``; it
+  refuses while a robot driver's liveliness token ``<prefix>/alive/<robot>`` is missing.
+  It declares ``<prefix>/alive/planner``. One worker thread plans, requests queue up behind
+  it (bounded: a full queue gets a "busy" error), so any number of clients may call at once.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from planner.bus import JSON, Keys, decode, encode
+from planner.errors import BeamrelayError, InputError
+from planner.system import System, Targets
+from planner.transforms import Array, transform_points
+
+log = logging.getLogger("beamrelay.node")
+
+PlanFn = Callable[[Targets, dict[str, Array] | None, bool], dict[str, Any]]
+#: a joint state older than this (s, receiver clock) does not count as "current"
+STATE_MAX_AGE = 0.5
+#: requests waiting for the worker beyond this many get a "busy" error reply
+QUEUE_SIZE = 64
+
+
+class ExecuteError(BeamrelayError):
+    """``execute`` refused: a driver is down or its joint state is missing/stale.
+
+    ``robots`` names the robots concerned.
+    """
+
+    def __init__(self, reason: str, robots: list[str]) -> None:
+        self.reason = reason
+        self.robots = robots
+        super().__init__(reason)
+
+
+def make_plan_fn(
+    system: System,
+    scenario: dict[str, Any],
+    options: Any = None,
+    settings: dict[str, Any] | None = None,
+) -> PlanFn:
+    """The node's plan function over :mod:`planner.planning` for one (calibrated) system.
+
+    ``scenario`` is the resolved scenario dict echoed in every plan; ``options`` an
+    :class:`~planner.ik.IKOptions`; ``settings`` the scenario's ``trajectory`` section. Points
+    are solved in order, each seeded by the previous solution (the first by ``start``); the
+    trajectory starts at ``start`` (the robots' current joints) instead of home.
+    """
+    from dataclasses import replace
+
+    from planner.planning import plan_document, plan_path_targets, plan_points, trajectory_hook
+
+    settings = dict(settings or {})
+
+    def plan_fn(
+        targets: Targets, start: dict[str, Array] | None, trajectory: bool
+    ) -> dict[str, Any]:
+        q0 = None if start is None else system.stack_q(start)
+        if targets.kind == "path":
+            from planner.ik import IKOptions
+
+            sols = plan_path_targets(system, targets, options or IKOptions(), q0)
+        else:
+            sols = plan_points(system, targets, options, q0)
+        traj = None
+        if trajectory:
+            here = system
+            if start is not None:
+                robots = tuple(replace(r, home=np.asarray(start[r.name])) for r in system.robots)
+                here = replace(system, robots=robots)
+            traj = trajectory_hook(here, targets, sols, settings)
+        return plan_document(system, targets, sols, scenario, traj)
+
+    return plan_fn
+
+
+def handler_from_scenario(path: Any) -> RequestHandler:
+    """A :class:`RequestHandler` for a scenario file (calibration applied via ``include:``)."""
+    from planner.planning import ik_options
+    from planner.scenario import load_scenario, resolved_scenario_dict, system_from_scenario
+
+    scn = load_scenario(path)
+    system = system_from_scenario(scn)
+    model = scn.model
+    settings = model.trajectory.model_dump() if model.trajectory is not None else {}
+    plan_fn = make_plan_fn(system, resolved_scenario_dict(scn), ik_options(model.solver), settings)
+    return RequestHandler(system, plan_fn)
+
+
+def error_body(exc: Exception, request_id: str | None = None) -> bytes:
+    """An :class:`~schemas.messages.ErrorReply` JSON body for any error of ours."""
+    from schemas.messages import ErrorReply
+
+    if isinstance(exc, InputError):
+        msg = ErrorReply(id=request_id, error=exc.reason, field=exc.where or None)
+    elif isinstance(exc, ExecuteError):
+        msg = ErrorReply(id=request_id, error=exc.reason, field="execute")
+    else:
+        msg = ErrorReply(id=request_id, error=f"{type(exc).__name__}: {exc}")
+    return encode(msg)
+
+
+def request_id_of(payload: bytes) -> str | None:
+    """Best effort: the ``id`` of a (possibly invalid) request body, for error replies."""
+    try:
+        data = json.loads(payload)
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError):
+        return None
+    rid = data.get("id") if isinstance(data, dict) else None
+    return rid if isinstance(rid, str) else None
+
+
+@dataclass
+class RequestHandler:
+    """TargetRequest -> plan.json dict; pure (no Zenoh), used by the node and the tests."""
+
+    system: System
+    plan_fn: PlanFn
+
+    def targets(self, req: Any) -> Targets:
+        """World-frame targets of a validated TargetRequest (points in metres)."""
+        points = np.asarray(req.points, dtype=float).reshape(-1, 3)
+        normals = None if req.normals is None else np.asarray(req.normals, dtype=float)
+        if req.frame == "camera":
+            if self.system.camera is None:
+                raise InputError("frame is camera but the scenario has no camera", "frame")
+            world_T_camera = self.system.camera.world_T_camera
+            points = transform_points(world_T_camera, points)
+            if normals is not None:
+                normals = normals @ world_T_camera[:3, :3].T
+        kind = "path" if req.mode == "path" else "points"
+        return Targets(points, normals, kind=kind)
+
+    def parse(self, payload: bytes) -> Any:
+        """Validate a request body (raises InputError naming the field)."""
+        from schemas.messages import TargetRequest
+
+        return decode(payload, TargetRequest)
+
+    def plan(
+        self, req: Any, start: dict[str, Array] | None = None, trajectory: bool = False
+    ) -> dict[str, Any]:
+        """plan.json dict for a validated request, starting at ``start`` (rad) or home."""
+        return self.plan_fn(self.targets(req), start, trajectory)
+
+
+@dataclass
+class JointCache:
+    """Latest joint state per robot (receiver clock), thread safe."""
+
+    names: tuple[str, ...]
+    _q: dict[str, tuple[float, Array, Array]] = field(default_factory=dict)
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def update(self, robot: str, q: Array, qd: Array) -> None:
+        with self._lock:
+            self._q[robot] = (time.monotonic(), q, qd)
+
+    def get(self, robot: str) -> tuple[float, Array, Array] | None:
+        with self._lock:
+            return self._q.get(robot)
+
+    def current(self, max_age: float = STATE_MAX_AGE) -> dict[str, Array]:
+        """``{robot: q}`` for every robot, or ExecuteError naming the missing/stale ones."""
+        now = time.monotonic()
+        out, missing = {}, []
+        for name in self.names:
+            entry = self.get(name)
+            if entry is None or now - entry[0] > max_age:
+                missing.append(name)
+            else:
+                out[name] = entry[1]
+        if missing:
+            raise ExecuteError(
+                f"no current joint state from {', '.join(missing)} "
+                f"(none received in the last {max_age:g} s)",
+                missing,
+            )
+        return out
+
+
+def trajectory_messages(plan: dict[str, Any]) -> dict[str, bytes]:
+    """One JointTrajectory body per robot from a plan's ``trajectory`` (times from 0)."""
+    from schemas.messages import JointTrajectory
+
+    traj = plan.get("trajectory")
+    if not traj:
+        raise ExecuteError("the plan has no trajectory to execute", list(plan["robots"]))
+    t = np.asarray(traj["t"], dtype=float)
+    keep = np.concatenate([[True], np.diff(t) > 0])  # drivers require increasing times
+    out = {}
+    for robot in plan["robots"]:
+        rows = {k: np.asarray(traj[k][robot], dtype=float)[keep] for k in ("q", "qd", "qdd")}
+        msg = JointTrajectory(
+            robot=robot,
+            t=(t[keep] - t[0]).tolist(),
+            names=list(plan["joint_names"][robot]),
+            q=rows["q"].tolist(),
+            qd=rows["qd"].tolist(),
+            qdd=rows["qdd"].tolist(),
+        )
+        out[robot] = encode(msg)
+    return out
+
+
+class PlannerNode:
+    """The Zenoh adapter around a :class:`RequestHandler`. ``start()``, then ``close()``."""
+
+    def __init__(self, handler: RequestHandler, session: Any, keys: Keys | None = None) -> None:
+        self.handler = handler
+        self.session = session
+        self.keys = keys or Keys()
+        self.robots = handler.system.robot_names
+        self.joints = JointCache(self.robots)
+        self.alive: set[str] = set()
+        self._alive_lock = threading.Lock()
+        self._jobs: queue.Queue[tuple[str, Any, bytes] | None] = queue.Queue(QUEUE_SIZE)
+        self._handles: list[Any] = []
+        self._worker = threading.Thread(target=self._work, name="planner-worker", daemon=True)
+        self.on_alive_change: Callable[[str, bool], None] | None = None
+        self.served = 0
+
+    # --- lifecycle -------------------------------------------------------------------------
+    def start(self) -> PlannerNode:
+        s, k = self.session, self.keys
+        self._handles.append(s.liveliness().declare_token(k.alive("planner")))
+        self._handles.append(
+            s.liveliness().declare_subscriber(k.alive_all, self._on_alive, history=True)
+        )
+        for robot in self.robots:
+            self._handles.append(s.declare_subscriber(k.joint_states(robot), self._joint_cb(robot)))
+        self._publishers = {r: s.declare_publisher(k.trajectory(r)) for r in self.robots}
+        self._plans = s.declare_publisher(k.plans)
+        self._handles.append(s.declare_subscriber(k.targets, self._on_target))
+        self._handles.append(s.declare_queryable(k.plan, self._on_query))
+        self._worker.start()
+        return self
+
+    def close(self) -> None:
+        """Undeclare everything and stop the worker (the session stays open)."""
+        for h in reversed(self._handles):
+            h.undeclare()
+        self._handles.clear()
+        for p in [*self._publishers.values(), self._plans]:
+            p.undeclare()
+        self._publishers.clear()
+        self._jobs.put(None)
+        self._worker.join(timeout=5)
+
+    # --- callbacks (Zenoh threads: never plan here) ------------------------------------------
+    def _on_alive(self, sample: Any) -> None:
+        import zenoh
+
+        node = str(sample.key_expr).rsplit("/", 1)[-1]
+        up = sample.kind == zenoh.SampleKind.PUT
+        with self._alive_lock:
+            (self.alive.add if up else self.alive.discard)(node)
+        log.info("%s %s", node, "up" if up else "DOWN")
+        if self.on_alive_change is not None:
+            self.on_alive_change(node, up)
+
+    def _joint_cb(self, robot: str) -> Callable[[Any], None]:
+        from schemas.messages import JointState
+
+        n = self.handler.system.robot(robot).nq
+
+        def cb(sample: Any) -> None:
+            try:
+                msg = decode(sample.payload.to_bytes(), JointState)
+            except InputError as exc:
+                log.warning("bad joint state from %s: %s", robot, exc)
+                return
+            q, qd = np.asarray(msg.q), np.asarray(msg.qd)
+            if q.shape == (n,):
+                self.joints.update(robot, q, qd)
+
+        return cb
+
+    def _on_query(self, query: Any) -> None:
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        self._enqueue(("query", query, payload))
+
+    def _on_target(self, sample: Any) -> None:
+        self._enqueue(("topic", None, sample.payload.to_bytes()))
+
+    def _enqueue(self, job: tuple[str, Any, bytes]) -> None:
+        try:
+            self._jobs.put_nowait(job)
+        except queue.Full:
+            busy = InputError(f"planner busy ({QUEUE_SIZE} requests waiting), retry later")
+            self._respond(job, None, busy)
+
+    # --- the worker ------------------------------------------------------------------------
+    def _work(self) -> None:
+        while (job := self._jobs.get()) is not None:
+            try:
+                self._respond(job, self.serve(job[2]), None)
+            except BeamrelayError as exc:
+                self._respond(job, None, exc)
+            except Exception as exc:  # a bug must not kill the node: report it, keep serving
+                log.exception("request failed")
+                self._respond(job, None, exc)
+
+    def _respond(
+        self, job: tuple[str, Any, bytes], body: bytes | None, exc: Exception | None
+    ) -> None:
+        kind, query, payload = job
+        if exc is not None:
+            body = error_body(exc, request_id_of(payload))
+        assert body is not None
+        if kind == "query":
+            if exc is None:
+                query.reply(self.keys.plan, body, encoding=JSON)
+            else:
+                query.reply_err(body, encoding=JSON)
+            query.drop()
+        else:
+            self._plans.put(body, encoding=JSON)
+
+    def serve(self, payload: bytes) -> bytes:
+        """Handle one request body: validate, plan, maybe execute; the plan.json reply."""
+        req = self.handler.parse(payload)
+        start = None
+        if req.execute:
+            self.check_drivers()
+            start = self.joints.current()
+        plan = self.handler.plan(req, start, trajectory=req.execute)
+        if req.execute:
+            failed = [s["target"] for s in plan["solutions"] if s["status"] != "ok"]
+            if len(failed) == len(plan["solutions"]):
+                raise ExecuteError("no target could be solved, nothing to execute", [])
+            for robot, body in trajectory_messages(plan).items():
+                self._publishers[robot].put(body, encoding=JSON)
+        self.served += 1
+        return encode(plan)
+
+    def check_drivers(self) -> None:
+        """ExecuteError naming every robot whose driver's liveliness token is missing."""
+        with self._alive_lock:
+            down = [r for r in self.robots if r not in self.alive]
+        if down:
+            raise ExecuteError(f"robot driver down: {', '.join(down)}", down)
