@@ -1,0 +1,284 @@
+"""Laser line + mirror plane from 3D laser spots (paper Eq. 10), through the planner's beam graph.
+
+Each sample is a spot measured in the world at recorded joints ``q`` (all robots of the
+chain up to the calibrated one). The residual is the planner's own ``beam`` CasADi
+function evaluated with the spot as target and no normal: the vector from the spot to the
+closest point of the last ray. Unknowns are perturbations of ``world_T_laser`` (right,
+laser frame) and of the calibrated robot's ``flange_T_mirror`` (right, mirror frame).
+
+Identifiability: a spot constrains only the *line* of the laser and the *plane* of the
+mirror. Of the 12 pose parameters, the laser's roll and slide along its beam and the
+mirror's in-plane slide and spin are unobservable; :func:`calibrate_beam` finds them from
+the singular values of the full 12-column Jacobian, checks they are exactly these five,
+solves only the 7 observable ones (laser: 2 tilts, 2 offsets across the beam; mirror: 2
+tilts, the offset along its normal) and then fixes the gauge (:func:`apply_gauge`):
+the laser origin is the point of the calibrated line closest to the nominal origin; the
+mirror centre is the nominal (CAD) centre, or a measured one (fiducials), projected onto
+the calibrated plane; both orientations are the nominal ones turned by the smallest
+rotation onto the calibrated beam / normal. Units: metres, radians.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import casadi as ca
+import numpy as np
+
+from planner.beam import beam_function
+from planner.calibration.lsq import describe_direction, levenberg_marquardt, null_directions
+from planner.errors import CalibrationError, DatasetError
+from planner.kinematics import RobotKinematics
+from planner.system import System
+from planner.transforms import Array, axis_angle_to_matrix, make_T
+
+FULL_NAMES = [f"laser.{a}" for a in ("rx", "ry", "rz", "tx", "ty", "tz")] + [
+    f"mirror.{a}" for a in ("rx", "ry", "rz", "tx", "ty", "tz")
+]
+OBSERVABLE_LASER = [0, 1, 3, 4]  # tilts about laser x/y, offsets across the beam
+OBSERVABLE_MIRROR = [6, 7, 11]  # tilts about mirror x/y, offset along the normal
+GAUGE = {
+    "laser.rz": "laser roll about its own beam: irrelevant, kept from the scenario",
+    "laser.tz": "laser origin slides along its beam: fixed at the point of the calibrated"
+    " line closest to the nominal laser origin",
+    "mirror.rz": "mirror spin about its normal: kept from the scenario (CAD)",
+    "mirror.txy": "mirror centre slides in its plane: fixed at the nominal (CAD) centre, or"
+    " the measured fiducial centre, projected onto the calibrated plane",
+}
+REL_TOL = 1e-9
+
+
+@dataclass(frozen=True)
+class BeamData:
+    """A beam dataset (SPEC section 7): ``q`` (K, nq of the chain), ``spots_world`` (K, 3),
+    ``boards`` (K,) placement labels."""
+
+    robot: str
+    q: Array
+    spots_world: Array
+    boards: Array
+
+
+@dataclass(frozen=True)
+class BeamResult:
+    """Calibrated (gauge-fixed) poses, residuals in metres, observable std devs.
+
+    ``std`` maps observable parameter names (``laser.rx`` ... ``mirror.tz``) to one
+    standard deviation (rad or m); ``unobservable`` lists the directions found from the
+    Jacobian with the gauge that fixed each.
+    """
+
+    robot: str
+    world_T_laser: Array | None  # None when the laser is not an unknown
+    flange_T_mirror: Array
+    residuals: Array  # (K,) spot-to-ray distances
+    std: dict[str, float]
+    unobservable: list[dict[str, str]]
+    singular_values: Array
+    iterations: int
+    converged: bool
+    warnings: list[str] = field(default_factory=list)
+
+
+def _delta_T(d: ca.SX) -> ca.SX:
+    R = ca.SX.eye(3) + ca.skew(d[:3])
+    return ca.vertcat(ca.horzcat(R, d[3:]), ca.horzcat(0, 0, 0, 1))
+
+
+def _exp_T(d: Array) -> Array:
+    return make_T(axis_angle_to_matrix(d[:3]), d[3:])
+
+
+@lru_cache(maxsize=16)
+def beam_residual(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
+    """Spot residual through :func:`planner.beam.beam_function` for the last mirror's mount.
+
+    inputs: q, d_laser (6), d_mirror (6), world_T_laser, world_T_base (4x4N),
+    flange_T_mirror (4x4N), spot (3); outputs: r (3), J (3x12, w.r.t. [d_laser; d_mirror]).
+    """
+    N = len(kinematics)
+    nq = sum(k.nq for k in kinematics)
+    q = ca.SX.sym("q", nq)
+    dl, dm = ca.SX.sym("d_laser", 6), ca.SX.sym("d_mirror", 6)
+    L0 = ca.SX.sym("world_T_laser", 4, 4)
+    bases = ca.SX.sym("world_T_base", 4, 4 * N)
+    mounts = ca.SX.sym("flange_T_mirror", 4, 4 * N)
+    spot = ca.SX.sym("spot", 3)
+    last = mounts[:, 4 * (N - 1) :] @ _delta_T(dm)
+    mounts_d = ca.horzcat(mounts[:, : 4 * (N - 1)], last) if N > 1 else last
+    roi_half = ca.DM.ones(2, N)
+    out = beam_function(kinematics)(
+        q=q,
+        world_T_laser=L0 @ _delta_T(dl),
+        world_T_base=bases,
+        flange_T_mirror=mounts_d,
+        roi_half=roi_half,
+        target=spot,
+        normal=ca.DM.zeros(3),
+    )
+    r = out["residual"]
+    J = ca.jacobian(r, ca.vertcat(dl, dm))
+    return ca.Function(
+        "beam_calibration_residual",
+        [q, dl, dm, L0, bases, mounts, spot],
+        [r, J],
+        ["q", "d_laser", "d_mirror", "world_T_laser", "world_T_base", "flange_T_mirror", "spot"],
+        ["r", "J"],
+    )
+
+
+@lru_cache(maxsize=64)
+def _mapped(kinematics: tuple[RobotKinematics, ...], n: int) -> ca.Function:
+    return beam_residual(kinematics).map(n, "serial")
+
+
+def _min_rotation(a: Array, b: Array) -> Array:
+    """Smallest rotation taking unit vector a onto unit vector b."""
+    v, c = np.cross(a, b), float(np.dot(a, b))
+    s = float(np.linalg.norm(v))
+    if s < 1e-15:
+        return np.eye(3) if c > 0 else axis_angle_to_matrix(np.pi * _perpendicular(a))
+    return axis_angle_to_matrix(v / s * np.arctan2(s, c))
+
+
+def _perpendicular(a: Array) -> Array:
+    e = np.eye(3)[int(np.argmin(np.abs(a)))]
+    p = np.cross(a, e)
+    return p / np.linalg.norm(p)
+
+
+def apply_gauge(
+    world_T_laser: Array | None,
+    flange_T_mirror: Array,
+    nominal_world_T_laser: Array,
+    nominal_flange_T_mirror: Array,
+    mirror_centre: Array | None = None,
+) -> tuple[Array | None, Array]:
+    """Fix the unobservable directions as stated in the module docstring.
+
+    ``mirror_centre`` (3, flange frame) replaces the CAD centre when it was measured.
+    """
+    L = None
+    if world_T_laser is not None:
+        d, p = world_T_laser[:3, 2], world_T_laser[:3, 3]
+        p0 = nominal_world_T_laser[:3, 3]
+        R = _min_rotation(nominal_world_T_laser[:3, 2], d) @ nominal_world_T_laser[:3, :3]
+        L = make_T(R, p + d * float(d @ (p0 - p)))
+    n, c = flange_T_mirror[:3, 2], flange_T_mirror[:3, 3]
+    c0 = nominal_flange_T_mirror[:3, 3] if mirror_centre is None else np.asarray(mirror_centre)
+    R = _min_rotation(nominal_flange_T_mirror[:3, 2], n) @ nominal_flange_T_mirror[:3, :3]
+    return L, make_T(R, c0 - n * float(n @ (c0 - c)))
+
+
+def calibrate_beam(
+    data: BeamData,
+    system: System,
+    *,
+    loss: str = "none",
+    loss_scale: float = 0.005,
+    starts: int = 4,
+    seed: int = 0,
+    mirror_centre: Array | None = None,
+) -> BeamResult:
+    """Laser line (if ``data.robot`` is first in the chain) and the robot's mirror plane."""
+    names = system.robot_names
+    if data.robot not in names:
+        raise DatasetError(f"unknown robot {data.robot!r}; robots: {', '.join(names)}", "robot")
+    idx = names.index(data.robot)
+    chain = system.robots[: idx + 1]
+    kin = tuple(r.kinematics for r in chain)
+    nq = sum(k.nq for k in kin)
+    K = len(data.q)
+    if data.q.ndim != 2 or data.q.shape[1] != nq:
+        raise DatasetError(f"q: expected {nq} joints per sample (robots {names[: idx + 1]})")
+    cols = (OBSERVABLE_LASER if idx == 0 else []) + OBSERVABLE_MIRROR
+    if len(cols) >= 2 * K:
+        raise DatasetError(
+            f"{K} spots give {2 * K} equations for {len(cols)} unknowns; need at least"
+            f" {len(cols) // 2 + 1} spots (better: several boards, 16 poses each)"
+        )
+    if not np.all(np.isfinite(data.spots_world)):
+        raise DatasetError("spots contain non-finite values")
+    L_nom = system.world_T_laser
+    M_nom = chain[-1].mirror.flange_T_mirror
+    bases = np.hstack([r.world_T_base for r in chain])
+    others = np.hstack([r.mirror.flange_T_mirror for r in chain[:-1]]) if idx else np.zeros((4, 0))
+    fn = _mapped(kin, K)
+    q_h, spot_h = data.q.T, data.spots_world.T
+
+    def full_linearize(L: Array, M: Array) -> tuple[Array, Array]:
+        r, J = fn(q_h, np.zeros(6), np.zeros(6), L, bases, np.hstack([others, M]), spot_h)
+        J_a = np.asarray(J).reshape(3, K, 12).transpose(1, 0, 2).reshape(3 * K, 12)
+        return np.asarray(r).T.ravel(), J_a
+
+    def linearize(state: tuple[Array, Array]) -> tuple[Array, Array]:
+        r, J = full_linearize(*state)
+        return r, J[:, cols]
+
+    def retract(state: tuple[Array, Array], dx: Array) -> tuple[Array, Array]:
+        full = np.zeros(12)
+        full[cols] = dx
+        return state[0] @ _exp_T(full[:6]), state[1] @ _exp_T(full[6:])
+
+    rng = np.random.default_rng(seed)
+    best = None
+    for s in range(max(1, starts)):
+        state = (L_nom, M_nom)
+        if s:  # multi-start: +-3 deg tilts, +-10 mm offsets around the nominal values
+            d = np.concatenate([rng.uniform(-0.05, 0.05, 3), rng.uniform(-0.01, 0.01, 3)])
+            e = np.concatenate([rng.uniform(-0.05, 0.05, 3), rng.uniform(-0.01, 0.01, 3)])
+            state = (L_nom @ _exp_T(d) if idx == 0 else L_nom, M_nom @ _exp_T(e))
+        res = levenberg_marquardt(
+            linearize, retract, state, dof_per_group=2, loss=loss, loss_scale=loss_scale
+        )
+        cost = float(np.sum(res.weights * np.sum(res.residuals.reshape(-1, 3) ** 2, axis=1)))
+        if best is None or cost < best[0] - 1e-18:
+            best = (cost, res)
+    assert best is not None
+    res = best[1]
+
+    # identifiability: the full Jacobian's null space must be exactly the gauge
+    cand = list(range(12)) if idx == 0 else list(range(6, 12))
+    J_full = full_linearize(*res.state)[1][:, cand]
+    sv_full, Vt_full = np.linalg.svd(J_full, full_matrices=False)[1:]
+    n_null = int(np.sum(sv_full < REL_TOL * sv_full[0]))
+    expected_null = len(cand) - len(cols)
+    cand_names = [FULL_NAMES[c] for c in cand]
+    found = [describe_direction(Vt_full[-i - 1], cand_names) for i in range(n_null)]
+    missing = null_directions(res.singular_values, res.right_vectors, [FULL_NAMES[c] for c in cols])
+    boards = np.unique(data.boards)
+    if missing or n_null > expected_null:
+        hint = f" with a single board placement ({boards[0]})" if len(boards) == 1 else ""
+        raise CalibrationError(
+            f"the spots{hint} leave directions unobservable beyond the gauge: "
+            + "; ".join(missing or found[expected_null:])
+            + " (add board placements at other distances and more varied mirror poses)",
+            missing or found,
+        )
+    warnings = []
+    cond = res.singular_values[0] / res.singular_values[-1]
+    if cond > 1e6:
+        weak = describe_direction(res.right_vectors[-1], [FULL_NAMES[c] for c in cols])
+        warnings.append(f"weakly observable: {weak} (condition number {cond:.1e})")
+    if len(boards) == 1:
+        warnings.append("single board placement: use several at different distances")
+
+    L_est, M_est = res.state
+    L_out, M_out = apply_gauge(L_est if idx == 0 else None, M_est, L_nom, M_nom, mirror_centre)
+    sd = np.sqrt(np.maximum(np.diag(res.covariance), 0.0))
+    gauge_rows = [{"direction": k, "gauge": v} for k, v in GAUGE.items()]
+    if idx:
+        gauge_rows = gauge_rows[2:]
+    return BeamResult(
+        robot=data.robot,
+        world_T_laser=L_out,
+        flange_T_mirror=M_out,
+        residuals=np.linalg.norm(res.residuals.reshape(-1, 3), axis=1),
+        std={FULL_NAMES[c]: float(v) for c, v in zip(cols, sd, strict=True)},
+        unobservable=gauge_rows,
+        singular_values=res.singular_values,
+        iterations=res.iterations,
+        converged=res.converged,
+        warnings=warnings,
+    )

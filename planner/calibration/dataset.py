@@ -1,0 +1,124 @@
+"""Calibration datasets (SPEC section 7): JSON files <-> the arrays the solvers use.
+
+Validation happens here, at the boundary, with the pydantic models of
+``schemas.calibration``; inside, datasets are :class:`HandEyeData` / :class:`BeamData`.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from planner.calibration.beam import BeamData
+from planner.calibration.handeye import HandEyeData
+from planner.errors import DatasetError
+from planner.system import System
+from planner.transforms import transform_points
+
+
+def load_handeye(path: str | Path) -> HandEyeData:
+    """Read and validate a ``beamrelay.handeye/1`` file (DatasetError on any problem)."""
+    from schemas.calibration import HandEyeDataset
+    from schemas.yamlio import read_json, validate
+
+    raw = read_json(path, DatasetError)
+    ds = validate(HandEyeDataset, raw, source=str(path), error_cls=DatasetError)
+    nq = {len(s.q) for s in ds.samples}
+    if len(nq) != 1:
+        raise DatasetError(f"samples have different joint counts {sorted(nq)}", f"{path} samples")
+    nan3 = [np.nan] * 3
+    pts = np.array([[p if p is not None else nan3 for p in s.points_camera] for s in ds.samples])
+    return HandEyeData(
+        robot=ds.robot,
+        mode=ds.mode,
+        board_points=np.array(ds.board.points, dtype=float),
+        q=np.array([s.q for s in ds.samples], dtype=float),
+        points_camera=pts.astype(float),
+    )
+
+
+def load_beam(path: str | Path, system: System) -> BeamData:
+    """Read and validate a ``beamrelay.beam/1`` file; ``spot_camera`` goes to the world with
+    ``system.camera`` (the scenario after its includes)."""
+    from schemas.calibration import BeamDataset
+    from schemas.yamlio import read_json, validate
+
+    raw = read_json(path, DatasetError)
+    ds = validate(BeamDataset, raw, source=str(path), error_cls=DatasetError)
+    names = system.robot_names
+    if ds.robot not in names:
+        raise DatasetError(
+            f"unknown robot {ds.robot!r}; scenario robots: {', '.join(names)}", f"{path} robot"
+        )
+    chain = system.robots[: names.index(ds.robot) + 1]
+    qs, spots = [], []
+    for i, s in enumerate(ds.samples):
+        row = []
+        for r in chain:
+            if r.name not in s.q:
+                raise DatasetError(
+                    f"no joints for {r.name!r} (needed up to {ds.robot!r})",
+                    f"{path} samples[{i}].q",
+                )
+            if len(s.q[r.name]) != r.nq:
+                raise DatasetError(
+                    f"expected {r.nq} joints, got {len(s.q[r.name])}",
+                    f"{path} samples[{i}].q.{r.name}",
+                )
+            row.extend(s.q[r.name])
+        qs.append(row)
+        if s.spot_world is not None:
+            spots.append(np.array(s.spot_world, dtype=float))
+        else:
+            if system.camera is None:
+                raise DatasetError(
+                    "spot_camera needs a camera in the scenario", f"{path} samples[{i}]"
+                )
+            spots.append(transform_points(system.camera.world_T_camera, np.array(s.spot_camera)))
+    return BeamData(
+        robot=ds.robot,
+        q=np.array(qs, dtype=float),
+        spots_world=np.array(spots),
+        boards=np.array([s.board for s in ds.samples], dtype=int),
+    )
+
+
+def handeye_json(data: HandEyeData) -> dict[str, Any]:
+    """The ``beamrelay.handeye/1`` mapping of a dataset (NaN points -> null)."""
+    return {
+        "schema": "beamrelay.handeye/1",
+        "robot": data.robot,
+        "mode": data.mode,
+        "board": {"points": data.board_points.tolist()},
+        "samples": [
+            {
+                "q": q.tolist(),
+                "points_camera": [p.tolist() if np.all(np.isfinite(p)) else None for p in P],
+            }
+            for q, P in zip(data.q, data.points_camera, strict=True)
+        ],
+    }
+
+
+def beam_json(data: BeamData, system: System) -> dict[str, Any]:
+    """The ``beamrelay.beam/1`` mapping of a dataset (spots in the world)."""
+    names = system.robot_names
+    chain = system.robots[: names.index(data.robot) + 1]
+    samples = []
+    for q, spot, b in zip(data.q, data.spots_world, data.boards, strict=True):
+        split, i = {}, 0
+        for r in chain:
+            split[r.name] = q[i : i + r.nq].tolist()
+            i += r.nq
+        samples.append({"q": split, "spot_world": spot.tolist(), "board": int(b)})
+    return {"schema": "beamrelay.beam/1", "robot": data.robot, "samples": samples}
+
+
+def write_json(path: str | Path, document: dict[str, Any]) -> None:
+    """Write a dataset mapping as JSON (full float precision)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(document, indent=1) + "\n")
