@@ -18,7 +18,7 @@ Objective: |q - q_prev|^2 + w_centre * sum |uv_i|^2 (metres^2; the paper's centr
 from __future__ import annotations
 
 from functools import lru_cache
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import casadi as ca
 import numpy as np
@@ -89,7 +89,7 @@ def build_solver(
     f = ca.dot(dq, dq) + P["w_centre"] * sum(ca.dot(uv, uv) for uv in uvs)
     p_all = ca.vertcat(*[ca.vec(P[name]) for name, _ in _parameter_layout(N, nq)])
     nlp = {"x": q, "p": p_all, "f": f, "g": ca.vertcat(*g)}
-    opts = {
+    opts: dict[str, Any] = {
         "expand": True,
         "print_time": False,
         "ipopt.print_level": 0,

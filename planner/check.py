@@ -1,0 +1,271 @@
+"""Independent re-verification of a plan.json with plain numpy (no CasADi).
+
+The geometry comes from the plan's own resolved ``scenario`` echo; the UR5e forward
+kinematics here is this module's own standard-DH code (SPEC section 2), URDF arms use
+Pinocchio's numeric FK, and the reflection code is written again from SPEC section 3.
+
+Checks are plain functions ``check(ctx) -> CheckResult`` in :data:`CHECKS`; other stages
+(trajectory timing) append their own with :func:`register_check`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from planner.errors import InputError
+from planner.transforms import Array, make_T, quat_to_matrix, rpy_to_matrix
+
+UR5E_D = (0.1625, 0.0, 0.0, 0.1333, 0.0997, 0.0996)
+UR5E_A = (0.0, -0.425, -0.3922, 0.0, 0.0, 0.0)
+UR5E_ALPHA = (np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0)
+LIMIT_SLACK = 1e-12  # rad
+ROI_SLACK = 1e-12  # m
+
+
+def ur5e_dh_fk(q: Array) -> Array:
+    """``base_T_flange`` of the nominal UR5e by standard DH: Rz(q) Tz(d) Tx(a) Rx(alpha)."""
+    T = np.eye(4)
+    for th, d, a, al in zip(q, UR5E_D, UR5E_A, UR5E_ALPHA, strict=True):
+        ct, st, ca_, sa = np.cos(th), np.sin(th), np.cos(al), np.sin(al)
+        T = T @ np.array(
+            [[ct, -st * ca_, st * sa, a * ct], [st, ct * ca_, -ct * sa, a * st],
+             [0.0, sa, ca_, d], [0.0, 0.0, 0.0, 1.0]]
+        )  # fmt: skip
+    return T
+
+
+def pose(d: Any, where: str) -> Array:
+    """A pose mapping of SPEC section 2 ({matrix} | {xyz, rpy|rpy_deg|quat}) -> 4x4."""
+    if not isinstance(d, dict):
+        raise InputError("expected a pose mapping", where)
+    if "matrix" in d:
+        T = np.asarray(d["matrix"], dtype=float)
+        if T.shape != (4, 4):
+            raise InputError(f"matrix must be 4x4, got {T.shape}", where)
+        return T
+    R = np.eye(3)
+    if "rpy" in d:
+        R = rpy_to_matrix(d["rpy"])
+    elif "rpy_deg" in d:
+        R = rpy_to_matrix(np.radians(d["rpy_deg"]))
+    elif "quat" in d:
+        R = quat_to_matrix(d["quat"])
+    return make_T(R, d.get("xyz", [0.0, 0.0, 0.0]))
+
+
+@dataclass(frozen=True)
+class ArmGeometry:
+    """One robot as the checker sees it (all SI, world frame)."""
+
+    name: str
+    fk: Callable[[Array], Array]  # q -> base_T_flange
+    world_T_base: Array
+    flange_T_mirror: Array
+    roi_half: Array
+    lower: Array
+    upper: Array
+
+
+def _arm(r: dict[str, Any], i: int, base_dir: Path) -> ArmGeometry:
+    where = f"scenario.system.robots[{i}]"
+    try:
+        mirror = r["mirror"]
+        size = np.asarray(mirror["size"], dtype=float)
+        margin = float(mirror.get("roi_margin", 0.005))
+        if r.get("urdf"):
+            from planner.kinematics import RobotKinematics
+
+            urdf = Path(r["urdf"])
+            kin = RobotKinematics.from_urdf(urdf if urdf.is_absolute() else base_dir / urdf)
+            fk: Callable[[Array], Array] = kin.fk
+            n = kin.nq
+        else:
+            fk, n = ur5e_dh_fk, 6
+        upper_default = np.full(n, 2 * np.pi)
+        if n == 6:
+            upper_default[2] = np.pi
+        limits = r.get("limits") or {}
+        return ArmGeometry(
+            name=str(r["name"]),
+            fk=fk,
+            world_T_base=pose(r.get("world_T_base", {"matrix": np.eye(4).tolist()}), where),
+            flange_T_mirror=pose(mirror["flange_T_mirror"], f"{where}.mirror"),
+            roi_half=size / 2 - margin,
+            lower=np.asarray(limits.get("lower") or -upper_default, dtype=float),
+            upper=np.asarray(limits.get("upper") or upper_default, dtype=float),
+        )
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"cannot read robot geometry: {exc!r}", where) from exc
+
+
+class Trace:
+    """Numpy beam trace of one configuration (SPEC section 3)."""
+
+    def __init__(self, world_T_laser: Array, arms: list[ArmGeometry], q: dict[str, Array]):
+        p, v = world_T_laser[:3, 3], world_T_laser[:3, 2] / np.linalg.norm(world_T_laser[:3, 2])
+        self.hits, self.uv, self.front, self.ahead = [], [], [], []
+        for arm in arms:
+            M = (
+                arm.world_T_base
+                @ arm.fk(np.asarray(q[arm.name], dtype=float))
+                @ arm.flange_T_mirror
+            )
+            n, c = M[:3, 2], M[:3, 3]
+            t = float(np.dot(n, c - p) / np.dot(n, v))
+            h = p + t * v
+            self.hits.append(h)
+            self.uv.append(np.array([np.dot(M[:3, 0], h - c), np.dot(M[:3, 1], h - c)]))
+            self.front.append(-float(np.dot(n, v)))
+            self.ahead.append(t)
+            v = v - 2.0 * np.dot(v, n) * n
+            p = h
+        self.p, self.v = p, v
+
+    def spot(self, target: Array, normal: Array | None) -> tuple[Array, float, float]:
+        """(spot, ray parameter s, incidence rad) for a target (optionally with a normal)."""
+        if normal is None:
+            s = float(np.dot(self.v, target - self.p))
+            return self.p + s * self.v, s, 0.0
+        s = float(np.dot(normal, target - self.p) / np.dot(normal, self.v))
+        inc = float(np.arccos(min(abs(float(np.dot(self.v, normal))), 1.0)))
+        return self.p + s * self.v, s, inc
+
+
+@dataclass(frozen=True)
+class Finding:
+    check: str
+    target: int | None
+    message: str
+    value: float
+    bound: float
+
+
+@dataclass
+class CheckResult:
+    name: str
+    checked: int
+    findings: list[Finding] = field(default_factory=list)
+    figures: dict[str, float] = field(default_factory=dict)
+
+
+class PlanContext:
+    """A parsed plan: geometry, targets and solved configurations, traced once lazily."""
+
+    def __init__(self, plan: dict[str, Any], base_dir: Path = Path(".")) -> None:
+        try:
+            scn = plan["scenario"]
+            system = scn["system"]
+            self.world_T_laser = pose(system["laser"]["world_T_laser"], "scenario.system.laser")
+            self.arms = [_arm(r, i, base_dir) for i, r in enumerate(system["robots"])]
+            solver = scn.get("solver") or {}
+            self.tolerance = float(solver.get("tolerance", 1e-9))
+            inc = solver.get("max_incidence_deg")
+            self.max_incidence = None if inc is None else float(np.radians(inc))
+            self.targets = {int(t["id"]): t for t in plan["targets"]}
+            self.solutions = list(plan["solutions"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"not a plan document: missing or bad {exc!r}") from exc
+        self.plan = plan
+
+    @property
+    def solved(self) -> list[dict[str, Any]]:
+        return [s for s in self.solutions if s.get("status") == "ok"]
+
+    @cached_property
+    def traces(self) -> dict[int, Trace]:
+        return {int(s["target"]): Trace(self.world_T_laser, self.arms, s["q"]) for s in self.solved}
+
+    def target(self, k: int) -> tuple[Array, Array | None]:
+        t = self.targets[k]
+        n = t.get("n")
+        return np.asarray(t["p"], dtype=float), None if n is None else np.asarray(n, dtype=float)
+
+
+def check_spots(ctx: PlanContext) -> CheckResult:
+    """Spot error <= solver tolerance, target ahead, incidence limit, reported spot matches."""
+    res = CheckResult("spot", len(ctx.solved))
+    errors = []
+    for sol in ctx.solved:
+        k = int(sol["target"])
+        p, n = ctx.target(k)
+        spot, s, inc = ctx.traces[k].spot(p, n)
+        err = float(np.linalg.norm(spot - p))
+        errors.append(err)
+        if not err <= ctx.tolerance:
+            res.findings.append(
+                Finding("spot", k, "spot error above tolerance", err, ctx.tolerance)
+            )
+        if not s > 0:
+            res.findings.append(Finding("spot", k, "target behind the last mirror", s, 0.0))
+        if n is not None and ctx.max_incidence is not None and inc > ctx.max_incidence:
+            res.findings.append(Finding("spot", k, "incidence above limit", inc, ctx.max_incidence))
+        if sol.get("spot") is not None:
+            gap = float(np.linalg.norm(np.asarray(sol["spot"]) - spot))
+            if gap > max(1e-9, ctx.tolerance):
+                res.findings.append(Finding("spot", k, "reported spot differs", gap, 1e-9))
+    if errors:
+        res.figures = {"error_max_m": max(errors), "error_median_m": float(np.median(errors))}
+    return res
+
+
+def check_mirrors(ctx: PlanContext) -> CheckResult:
+    """Every bounce: mirror ahead (t > 0), front face (-n.v > 0), hit inside the ROI."""
+    res = CheckResult("mirrors", len(ctx.solved))
+    worst_roi = np.inf
+    for sol in ctx.solved:
+        k = int(sol["target"])
+        tr = ctx.traces[k]
+        for i, arm in enumerate(ctx.arms):
+            if not tr.ahead[i] > 0:
+                res.findings.append(Finding("mirrors", k, f"{arm.name}: mirror behind the beam",
+                                            tr.ahead[i], 0.0))  # fmt: skip
+            if not tr.front[i] > 0:
+                res.findings.append(Finding("mirrors", k, f"{arm.name}: back face hit",
+                                            tr.front[i], 0.0))  # fmt: skip
+            margin = float(np.min(arm.roi_half - np.abs(tr.uv[i])))
+            worst_roi = min(worst_roi, margin)
+            if margin < -ROI_SLACK:
+                res.findings.append(Finding("mirrors", k, f"{arm.name}: hit outside the ROI",
+                                            margin, 0.0))  # fmt: skip
+    if ctx.solved:
+        res.figures = {"roi_margin_min_m": worst_roi}
+    return res
+
+
+def check_limits(ctx: PlanContext) -> CheckResult:
+    """Every solved configuration within the joint position limits."""
+    res = CheckResult("joint limits", len(ctx.solved))
+    worst = -np.inf
+    for sol in ctx.solved:
+        k = int(sol["target"])
+        for arm in ctx.arms:
+            q = np.asarray(sol["q"][arm.name], dtype=float)
+            viol = float(max(np.max(q - arm.upper), np.max(arm.lower - q)))
+            worst = max(worst, viol)
+            if viol > LIMIT_SLACK:
+                res.findings.append(Finding("joint limits", k, f"{arm.name}: outside limits",
+                                            viol, 0.0))  # fmt: skip
+    if ctx.solved:
+        res.figures = {"limit_slack_min_rad": -worst}
+    return res
+
+
+CHECKS: list[Callable[[PlanContext], CheckResult]] = [check_spots, check_mirrors, check_limits]
+
+
+def register_check(fn: Callable[[PlanContext], CheckResult]) -> None:
+    """Add a check (e.g. the trajectory checks of the timing stage) to :data:`CHECKS`."""
+    if fn not in CHECKS:
+        CHECKS.append(fn)
+
+
+def check_plan(plan: dict[str, Any], base_dir: Path = Path(".")) -> list[CheckResult]:
+    """Run every registered check on a plan document."""
+    ctx = PlanContext(plan, base_dir)
+    return [check(ctx) for check in CHECKS]

@@ -1,0 +1,117 @@
+"""``beamrelay plan`` and ``beamrelay check`` (light imports only at module level)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from planner.errors import InputError
+
+
+def _fmt(x: float | None, scale: float, digits: str) -> str:
+    return "-" if x is None else format(scale * x, digits)
+
+
+def plan(
+    scenario: Annotated[Path, typer.Argument(help="Scenario YAML (SPEC section 4).")],
+    out: Annotated[Path, typer.Option("-o", "--out", help="plan.json to write.")],
+    optimal: Annotated[
+        bool, typer.Option("--optimal", help="IPOPT optimality step after the closed form.")
+    ] = False,
+    plot: Annotated[
+        Path | None, typer.Option("--plot", help="Also draw a 3D picture (PNG/PDF/SVG).")
+    ] = None,
+) -> None:
+    """Plan every target of a scenario and write plan.json; exit 1 if any target failed."""
+    import json
+
+    from rich.console import Console
+    from rich.table import Table
+
+    from planner.planning import plan_scenario
+
+    if out.parent and not out.parent.exists():
+        raise InputError(f"output directory does not exist: {out.parent}", "-o")
+    doc, system, targets = plan_scenario(scenario, optimal=optimal)
+    out.write_text(json.dumps(doc, indent=1))
+    m = doc["metrics"]
+    table = Table(title=f"plan: {doc['scenario'].get('name') or scenario.name}")
+    table.add_column("figure")
+    table.add_column("value", justify="right")
+    table.add_row("targets", str(m["n_targets"]))
+    table.add_row("solved", str(m["n_ok"]))
+    for key, count in sorted(m["extra"].items()):
+        if key.startswith("failed_"):
+            table.add_row(f"failed: {key[7:]}", f"[red]{int(count)}[/]")
+    table.add_row("error median (mm)", _fmt(m["error_median"], 1e3, ".3g"))
+    table.add_row("error max (mm)", _fmt(m["error_max"], 1e3, ".3g"))
+    table.add_row("solve time median (ms)", _fmt(m["solve_time_median"], 1e3, ".3f"))
+    table.add_row("solve time p95 (ms)", _fmt(m["solve_time_p95"], 1e3, ".3f"))
+    if m.get("duration") is not None:
+        table.add_row("trajectory duration (s)", f"{m['duration']:.2f}")
+    console = Console()
+    console.print(table)
+    console.print(f"wrote {out}")
+    if plot is not None:
+        from planner.plot import plot_plan
+
+        plot_plan(system, targets, doc, plot)
+        console.print(f"wrote {plot}")
+    if m["n_ok"] < m["n_targets"]:
+        raise typer.Exit(1)
+
+
+def _load_plan(path: Path) -> dict[str, Any]:
+    from schemas.plan import Plan
+    from schemas.yamlio import read_json, validate
+
+    data = read_json(path)
+    validate(Plan, data, source=str(path))
+    if not isinstance(data, dict):
+        raise InputError("expected a JSON object", str(path))
+    return data
+
+
+def check(
+    plan_file: Annotated[Path, typer.Argument(help="plan.json to re-verify.")],
+    json_out: Annotated[bool, typer.Option("--json", help="Figures as one JSON line.")] = False,
+) -> None:
+    """Re-verify a plan with plain numpy (own FK and reflection); exit 1 on any violation."""
+    import json
+
+    from rich.console import Console
+    from rich.table import Table
+
+    from planner.check import check_plan
+
+    plan_doc = _load_plan(plan_file)
+    results = check_plan(plan_doc, plan_file.parent)
+    console = Console()
+    table = Table(title=f"check: {plan_file}")
+    for col in ("check", "checked", "violations", "figures"):
+        table.add_column(col)
+    for r in results:
+        figs = ", ".join(f"{k} {v:.3g}" for k, v in r.figures.items())
+        bad = f"[red]{len(r.findings)}[/]" if r.findings else "0"
+        table.add_row(r.name, str(r.checked), bad, figs)
+    console.print(table)
+    n_failed = sum(1 for s in plan_doc["solutions"] if s.get("status") != "ok")
+    if n_failed:
+        console.print(f"{n_failed} target(s) unsolved in the plan (reported, not checked)")
+    findings = [f for r in results for f in r.findings]
+    for f in findings[:20]:
+        console.print(
+            f"[red]target {f.target}: {f.check}: {f.message} ({f.value:.3g} vs {f.bound:.3g})"
+        )
+    if len(findings) > 20:
+        console.print(f"[red]... and {len(findings) - 20} more violations")
+    if json_out:
+        figures: dict[str, Any] = {"violations": len(findings), "unsolved": n_failed}
+        for r in results:
+            figures.update({f"{r.name}.{k}": v for k, v in r.figures.items()})
+        print(json.dumps(figures))
+    if findings:
+        raise typer.Exit(1)
+    console.print("[green]plan OK[/]")
