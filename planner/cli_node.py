@@ -69,6 +69,39 @@ def serve(
         typer.echo(f"planner stopped after {node.served} requests")
 
 
+def up(
+    scenario: Annotated[Path, typer.Argument(help="Scenario YAML.")],
+    backend: Annotated[str, typer.Option(help="Robot driver backend: sim or ur.")] = "sim",
+    duration: Annotated[
+        float | None, typer.Option(help="Stop after this many seconds (default: Ctrl-C).")
+    ] = None,
+    endpoint: EndpointOpt = None,
+    prefix: PrefixOpt = "beamrelay",
+    log_dir: Annotated[
+        Path | None, typer.Option("--log-dir", help="Children's logs (default: a temp dir).")
+    ] = None,
+    live: Annotated[bool, typer.Option(help="Show the live health table.")] = True,
+) -> None:
+    """Start planner + camera + one robot driver per robot, supervised, until Ctrl-C."""
+    from planner.up import run_up
+
+    if backend not in ("sim", "ur"):
+        raise InputError(f"--backend {backend!r}: expected sim or ur")
+    if duration is not None and duration <= 0:
+        raise InputError(f"--duration {duration}: expected a positive number of seconds")
+    if not scenario.is_file():
+        raise InputError(f"scenario not found: {scenario}")
+    run_up(
+        scenario,
+        backend=backend,
+        duration=duration,
+        endpoint=endpoint,
+        prefix=prefix,
+        log_dir=log_dir,
+        live=live,
+    )
+
+
 def _parse_points(specs: list[str], what: str) -> list[list[float]]:
     out = []
     for spec in specs:

@@ -1,0 +1,140 @@
+"""Supervised child processes for ``beamrelay up``: start, watch, restart, stop.
+
+Each child runs in its own session (so a terminal's Ctrl-C reaches only the supervisor, which
+then stops the children in order) and, on Linux, gets SIGTERM if the supervisor dies. Output
+goes to ``<log_dir>/<name>.log``. A child that exits while the supervisor runs is restarted
+after ``RESTART_DELAY`` seconds (doubling for each quick crash, at most ``MAX_DELAY``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+RESTART_DELAY = 0.5  # s before the first restart
+MAX_DELAY = 8.0  # s, cap of the doubling back-off
+STABLE_AFTER = 10.0  # s of uptime after which the back-off resets
+
+
+def _die_with_parent() -> None:  # pragma: no cover - runs in the child before exec
+    """Ask Linux to send SIGTERM to this child when its parent dies (prctl PR_SET_PDEATHSIG)."""
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)
+
+
+@dataclass
+class Child:
+    """One supervised process: ``argv`` (the program and its arguments), state and history."""
+
+    name: str
+    argv: list[str]
+    proc: subprocess.Popen[bytes] | None = None
+    restarts: int = 0
+    started: float = 0.0
+    last_exit: int | None = None
+    next_start: float = 0.0
+    delay: float = RESTART_DELAY
+    log: IO[bytes] | None = field(default=None, repr=False)
+
+    @property
+    def pid(self) -> int | None:
+        return None if self.proc is None else self.proc.pid
+
+    @property
+    def running(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def uptime(self) -> float:
+        return time.monotonic() - self.started if self.running else 0.0
+
+
+class Supervisor:
+    """Start children, restart the ones that exit, stop them all on :meth:`stop`."""
+
+    def __init__(self, children: dict[str, list[str]], log_dir: Path) -> None:
+        self.children = {name: Child(name, argv) for name, argv in children.items()}
+        self.log_dir = Path(log_dir)
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.stopping = False
+
+    def _spawn(self, child: Child) -> None:
+        if child.log is None:
+            child.log = (self.log_dir / f"{child.name}.log").open("ab")
+        child.proc = subprocess.Popen(
+            child.argv,
+            stdin=subprocess.DEVNULL,
+            stdout=child.log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None,
+        )
+        child.started = time.monotonic()
+
+    def start(self) -> None:
+        for child in self.children.values():
+            self._spawn(child)
+
+    def poll(self) -> list[str]:
+        """Restart children that exited (after their back-off); the names restarted now."""
+        restarted = []
+        now = time.monotonic()
+        for child in self.children.values():
+            if self.stopping or child.proc is None or child.running:
+                continue
+            if child.next_start == 0.0:  # just noticed the exit
+                child.last_exit = child.proc.returncode
+                stable = now - child.started > STABLE_AFTER
+                child.delay = RESTART_DELAY if stable else min(2 * child.delay, MAX_DELAY)
+                child.next_start = now + child.delay
+            elif now >= child.next_start:
+                child.next_start = 0.0
+                child.restarts += 1
+                self._spawn(child)
+                restarted.append(child.name)
+        return restarted
+
+    def kill(self, name: str, sig: int = signal.SIGKILL) -> None:
+        """Send ``sig`` to one child (tests and fault drills)."""
+        child = self.children[name]
+        if child.running and child.proc is not None:
+            child.proc.send_signal(sig)
+
+    def stop(self, timeout: float = 5.0, order: list[str] | None = None) -> dict[str, int | None]:
+        """SIGTERM every child (in ``order`` first), SIGKILL what is left after ``timeout``."""
+        self.stopping = True
+        names = [*(order or []), *(n for n in self.children if n not in (order or []))]
+        for name in names:
+            child = self.children[name]
+            if child.running and child.proc is not None:
+                child.proc.terminate()
+        deadline = time.monotonic() + timeout
+        for name in names:
+            proc = self.children[name].proc
+            if proc is None:
+                continue
+            try:
+                proc.wait(max(deadline - time.monotonic(), 0.01))
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        out = {}
+        for name, child in self.children.items():
+            out[name] = None if child.proc is None else child.proc.returncode
+            if child.log is not None:
+                child.log.close()
+                child.log = None
+        return out
+
+    def __enter__(self) -> Supervisor:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if not self.stopping:
+            self.stop()
