@@ -28,12 +28,12 @@ LIMITS = Limits.ur_default()
 def smooth_move(
     q0: np.ndarray, dq: np.ndarray, duration: float, rate: float = 500.0
 ) -> JointTrajectory:
-    """Cosine blend from q0 to q0 + dq (zero velocity at both ends), sampled at ``rate``."""
+    """Minimum-jerk move from q0 to q0 + dq (rest at both ends), sampled at ``rate``."""
     t = np.arange(0.0, duration + 0.5 / rate, 1.0 / rate)
-    w = np.pi / duration
-    s = 0.5 * (1 - np.cos(w * t))
-    sd = 0.5 * w * np.sin(w * t)
-    sdd = 0.5 * w * w * np.cos(w * t)
+    x = t / duration
+    s = 10 * x**3 - 15 * x**4 + 6 * x**5
+    sd = (30 * x**2 - 60 * x**3 + 30 * x**4) / duration
+    sdd = (60 * x - 180 * x**2 + 120 * x**3) / duration**2
     return JointTrajectory(
         robot="arm0",
         t=t.tolist(),
@@ -51,15 +51,19 @@ def test_check_trajectory_accepts_and_rejects_with_field() -> None:
     np.testing.assert_allclose(ref.sample(0.5)[0], HOME + 0.05, atol=1e-9)
 
     with pytest.raises(InputError) as far:
-        check_trajectory(traj, "arm0", JOINT_NAMES_UR, LIMITS, HOME + np.array([0, 0, 0.02, 0, 0, 0]))
+        check_trajectory(
+            traj, "arm0", JOINT_NAMES_UR, LIMITS, HOME + np.array([0, 0, 0.02, 0, 0, 0])
+        )
     assert far.value.where == "q[0]" and "elbow" in far.value.reason
 
-    fast = smooth_move(HOME, np.array([0, 0, 0, 0, 0, 4.0]), 1.0)  # peak qd = 2 pi > pi
+    fast = smooth_move(HOME, np.array([0, 0, 0, 0, 0, 4.0]), 1.0)  # peak qd 7.5 > pi
     with pytest.raises(InputError) as vel:
         check_trajectory(fast, "arm0", JOINT_NAMES_UR, LIMITS, HOME)
     k = int(vel.value.where[3:-1])
     assert vel.value.where.startswith("qd[")
-    assert 0.5 * np.pi * 4.0 * np.sin(np.pi * k / 500) > np.pi  # first violating sample
+    x = np.array([k - 1, k]) / 500
+    v = 4.0 * 30 * x**2 * (1 - x) ** 2
+    assert v[0] <= np.pi < v[1]  # k is the first sample above the limit
 
     wide = smooth_move(HOME, np.array([0, 0, 2.0, 0, 0, 0]), 3.0)  # elbow to pi/2 + 2 > pi
     with pytest.raises(InputError) as pos:
@@ -153,7 +157,7 @@ def test_planner_killed_arm_stops_within_100_ms(hub: Any, endpoint: str, keys: K
     try:
         assert planner.stdout is not None and planner.stdout.readline().strip() == b"ready"
         wait_for(lambda: node.planner_alive, what="planner token")
-        dq = np.array([0.0, 0.0, 0.0, 0.3, 0.3, 0.3])  # peak 0.24 rad/s over 2 s
+        dq = np.array([0.0, 0.0, 0.0, 0.3, 0.3, 0.3])  # peak 0.28 rad/s over 2 s
         hub.put(keys.trajectory("arm0"), encode(smooth_move(HOME, dq, 2.0)))
         wait_for(lambda: node.n_accepted == 1 and np.max(np.abs(states.items[-1]["qd"])) > 0.1)
         killed = time.time()
