@@ -158,7 +158,10 @@ class RequestHandler:
         """Validate a request body (raises InputError naming the field)."""
         from schemas.messages import TargetRequest
 
-        return decode(payload, TargetRequest)
+        try:
+            return decode(payload, TargetRequest)
+        except RecursionError as exc:  # json.loads on absurdly deep nesting
+            raise InputError("JSON nested too deeply", "body") from exc
 
     def plan(
         self, req: Any, start: dict[str, Array] | None = None, trajectory: bool = False
