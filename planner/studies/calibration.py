@@ -198,6 +198,12 @@ _ERR_KEYS = {
 }
 
 
+def _sweep_row(rows: list[dict[str, Any]], kind: str, n: int) -> dict[str, Any]:
+    sel = [r for r in rows if r["kind"] == kind and r["noise"] == "d435" and r["poses"] == n]
+    rms = {f"rms_{k}": float(np.sqrt(np.mean([r[k] ** 2 for r in sel]))) for k in _ERR_KEYS[kind]}
+    return {"poses": n, **rms}
+
+
 def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """The figures of the report (and of ``--json``)."""
     out: dict[str, Any] = {}
@@ -225,34 +231,7 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
                 if kind == "beam"
                 else {}
             ),
-            "sweep": [
-                {
-                    "poses": n,
-                    **{
-                        f"rms_{k}": float(
-                            np.sqrt(
-                                np.mean(
-                                    [
-                                        r[k] ** 2
-                                        for r in rows
-                                        if r["kind"] == kind
-                                        and r["noise"] == "d435"
-                                        and r["poses"] == n
-                                    ]
-                                )
-                            )
-                        )
-                        for k in (
-                            "pos_err_mm",
-                            "rot_err_deg",
-                            "aux_pos_err_mm",
-                            "aux_rot_err_deg",
-                            "spot_err_mm",
-                        )
-                    },
-                }
-                for n in SWEEP[kind]
-            ],
+            "sweep": [_sweep_row(rows, kind, n) for n in SWEEP[kind]],
         }
     return out
 
