@@ -1,0 +1,240 @@
+"""Independent re-verification of a plan's trajectory with plain numpy (no CasADi, no
+Pinocchio): SPEC section 5 ``beamrelay check``.
+
+Samples the trajectory at the scenario ``rate``; checks the time grid, joint position
+limits, velocity/acceleration/jerk by finite differences (with a small slack), and the spot
+deviation from the target path at every sample of a ``path`` segment (and from the target
+during ``dwell``), through a numpy UR DH forward kinematics and mirror reflection model.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from planner.transforms import Array, make_T, quat_to_matrix, rpy_to_matrix
+
+UR_DH = {
+    "ur5e": (
+        (0.1625, 0.0, 0.0, 0.1333, 0.0997, 0.0996),
+        (0.0, -0.425, -0.3922, 0.0, 0.0, 0.0),
+        (np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0),
+    )
+}
+
+
+class Finding(NamedTuple):
+    """One check result: ``severity`` error | warning | info, a machine ``code``, a message
+    with the evidence, the worst ``value`` and the ``limit`` it was compared with."""
+
+    severity: str
+    code: str
+    message: str
+    value: float = float("nan")
+    limit: float = float("nan")
+
+
+def pose_matrix(pose: dict[str, Any] | None) -> Array:
+    """A SPEC pose mapping (``matrix`` | ``xyz`` + ``rpy`` | ``rpy_deg`` | ``quat``) as 4x4."""
+    if not pose:
+        return np.eye(4)
+    if "matrix" in pose:
+        return np.asarray(pose["matrix"], dtype=float)
+    R = np.eye(3)
+    if "rpy" in pose:
+        R = rpy_to_matrix(pose["rpy"])
+    elif "rpy_deg" in pose:
+        R = rpy_to_matrix(np.radians(pose["rpy_deg"]))
+    elif "quat" in pose:
+        R = quat_to_matrix(pose["quat"])
+    return make_T(R, pose.get("xyz", [0.0, 0.0, 0.0]))
+
+
+def dh_fk(q: Array, model: str = "ur5e") -> Array:
+    """``base_T_flange`` for joints ``q`` (M x 6) by standard DH: (M, 4, 4)."""
+    d, a, alpha = UR_DH[model]
+    q = np.atleast_2d(q)
+    T = np.tile(np.eye(4), (len(q), 1, 1))
+    for i in range(6):
+        ct, st = np.cos(q[:, i]), np.sin(q[:, i])
+        ca, sa = np.cos(alpha[i]), np.sin(alpha[i])
+        A = np.zeros((len(q), 4, 4))
+        A[:, 0, 0], A[:, 0, 1], A[:, 0, 2], A[:, 0, 3] = ct, -st * ca, st * sa, a[i] * ct
+        A[:, 1, 0], A[:, 1, 1], A[:, 1, 2], A[:, 1, 3] = st, ct * ca, -ct * sa, a[i] * st
+        A[:, 2, 1], A[:, 2, 2], A[:, 2, 3] = sa, ca, d[i]
+        A[:, 3, 3] = 1.0
+        T = T @ A
+    return T
+
+
+class _Robot(NamedTuple):
+    name: str
+    model: str
+    world_T_base: Array
+    flange_T_mirror: Array
+    limits: dict[str, Array]
+
+
+def _robots(scenario: dict[str, Any]) -> list[_Robot]:
+    out = []
+    for r in scenario["system"]["robots"]:
+        lim = r.get("limits") or {}
+        n = 6
+        upper = np.full(n, 2 * np.pi)
+        upper[2] = np.pi
+        default = {"lower": -upper, "upper": upper, "velocity": np.full(n, np.pi),
+                   "acceleration": np.full(n, 5.0), "jerk": np.full(n, 50.0)}  # fmt: skip
+        limits = {k: np.asarray(lim.get(k, v) if lim.get(k) is not None else v, dtype=float)
+                  for k, v in default.items()}  # fmt: skip
+        out.append(_Robot(r["name"], str(r.get("model", "ur5e")), pose_matrix(r.get("world_T_base")),
+                          pose_matrix(r["mirror"].get("flange_T_mirror")), limits))  # fmt: skip
+    return out
+
+
+def trace_last_ray(scenario: dict[str, Any], q: dict[str, Array]) -> tuple[Array, Array]:
+    """Last ray (origin, unit direction), each (M x 3), after every mirror (SPEC section 3)."""
+    wTl = pose_matrix(scenario["system"]["laser"]["world_T_laser"])
+    M = len(next(iter(q.values())))
+    p = np.tile(wTl[:3, 3], (M, 1))
+    v = np.tile(wTl[:3, 2] / np.linalg.norm(wTl[:3, 2]), (M, 1))
+    for r in _robots(scenario):
+        wTm = r.world_T_base @ dh_fk(np.asarray(q[r.name]), r.model) @ r.flange_T_mirror
+        c, n = wTm[:, :3, 3], wTm[:, :3, 2]
+        t = np.einsum("ij,ij->i", n, c - p) / np.einsum("ij,ij->i", n, v)
+        p = p + t[:, None] * v
+        v = v - 2 * np.einsum("ij,ij->i", v, n)[:, None] * n
+    return p, v
+
+
+def spot_deviation(
+    p: Array, v: Array, targets: Array, normals: Array | None, closed: bool
+) -> Array:
+    """Distance (m) from each sample's spot to the target polyline. The spot is where the ray
+    meets the plane of the nearest target (its normal, or perpendicular to the ray)."""
+    out = np.empty(len(p))
+    segs_a = targets if closed else targets[:-1]
+    segs_b = np.roll(targets, -1, axis=0) if closed else targets[1:]
+    ab = segs_b - segs_a
+    ab2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
+    for i0 in range(0, len(p), 256):
+        P, V = p[i0 : i0 + 256], v[i0 : i0 + 256]
+        w = targets[None, :, :] - P[:, None, :]
+        along = np.einsum("mkj,mj->mk", w, V)
+        perp = np.linalg.norm(w - along[..., None] * V[:, None, :], axis=2)
+        k = np.argmin(np.where(along > 0, perp, np.inf), axis=1)
+        nb = -V if normals is None else np.where(np.isfinite(normals[k]), normals[k], -V)
+        s = np.einsum("ij,ij->i", nb, targets[k] - P) / np.einsum("ij,ij->i", nb, V)
+        spot = P + s[:, None] * V
+        if len(segs_a) == 0:
+            out[i0 : i0 + 256] = np.linalg.norm(spot - targets[0], axis=1)
+            continue
+        u = np.clip(np.einsum("mkj,kj->mk", spot[:, None, :] - segs_a[None], ab) / ab2, 0, 1)
+        near = segs_a[None] + u[..., None] * ab[None]
+        out[i0 : i0 + 256] = np.linalg.norm(spot[:, None, :] - near, axis=2).min(axis=1)
+    return out
+
+
+def _limit_finding(code: str, X: Array, bound: Array, slack: float, t: Array, unit: str) -> Finding:
+    ratio = np.abs(X) / bound[None, :]
+    i, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+    worst, lim = float(abs(X[i, j])), float(bound[j])
+    bad = ratio[i, j] > 1 + slack
+    msg = f"{code}: max |{X[i, j]:.4g}| {unit} on joint {j} at t = {t[min(i, len(t) - 1)]:.3f} s"
+    msg += f" ({100 * ratio[i, j]:.1f}% of limit {lim:.4g})"
+    return Finding("error" if bad else "info", code, msg, worst, lim)
+
+
+def check_trajectory(
+    plan: dict[str, Any],
+    deviation_tol: float = 5e-5,
+    slack: float = 0.02,
+    rel_duration: float = 0.1,
+) -> list[Finding]:
+    """Re-verify ``plan["trajectory"]`` (plan.json mapping). Errors are violations; info
+    findings carry the measured figures (max deviation, duration, % of joint limits)."""
+    traj = plan.get("trajectory")
+    if not traj:
+        return [Finding("info", "trajectory_absent", "plan has no trajectory")]
+    scn = plan["scenario"]
+    rate = float((scn.get("trajectory") or {}).get("rate", 500.0))
+    t = np.asarray(traj["t"], dtype=float)
+    out: list[Finding] = []
+    dt = np.diff(t)
+    if len(dt) and np.abs(dt - 1 / rate).max() > 1e-6 / rate:
+        out.append(Finding("error", "time_grid", f"samples not on the 1/{rate:g} s grid "
+                           f"(dt in [{dt.min():.6g}, {dt.max():.6g}])", float(dt.max()), 1 / rate))  # fmt: skip
+    robots = _robots(scn)
+    for r in robots:
+        q = np.asarray(traj["q"][r.name], dtype=float)
+        if r.model not in UR_DH:
+            out.append(
+                Finding("warning", "model_unchecked", f"{r.name}: no numpy model for {r.model}")
+            )
+        lo, hi = r.limits["lower"], r.limits["upper"]
+        viol = np.maximum(lo - q, q - hi).max()
+        if viol > 1e-9:
+            out.append(Finding("error", "joint_limits", f"{r.name}: position limit exceeded by "
+                               f"{viol:.3g} rad", float(viol), 0.0))  # fmt: skip
+        for order, (code, unit) in enumerate(
+            [("velocity", "rad/s"), ("acceleration", "rad/s^2"), ("jerk", "rad/s^3")], start=1
+        ):
+            X = np.diff(q, n=order, axis=0) * rate**order
+            if len(X):
+                f = _limit_finding(f"{code}", X, r.limits[code], slack, t, unit)
+                out.append(f._replace(message=f"{r.name}: {f.message}"))
+    out += _check_spot(plan, robots, t, deviation_tol, rel_duration)
+    return out
+
+
+def _check_spot(
+    plan: dict[str, Any], robots: list[_Robot], t: Array, tol: float, rel_duration: float
+) -> list[Finding]:
+    traj, scn = plan["trajectory"], plan["scenario"]
+    if any(r.model not in UR_DH for r in robots) or not plan.get("targets"):
+        return []
+    P = np.array([tg["p"] for tg in plan["targets"]], dtype=float)
+    N = [tg.get("n") for tg in plan["targets"]]
+    normals = None if all(n is None for n in N) else np.array(
+        [n if n is not None else [np.nan] * 3 for n in N], dtype=float)  # fmt: skip
+    path_spec = (scn.get("targets") or {}).get("path")
+    closed = bool(path_spec.get("closed", False)) if isinstance(path_spec, dict) else False
+    out: list[Finding] = []
+    for kind in ("path", "dwell"):
+        mask = np.zeros(len(t), dtype=bool)
+        for s in traj.get("segments", []):
+            if s["kind"] == kind:
+                mask |= (t >= s["t0"] - 1e-9) & (t <= s["t1"] + 1e-9)
+        if not mask.any():
+            continue
+        q = {r.name: np.asarray(traj["q"][r.name], dtype=float)[mask] for r in robots}
+        p, v = trace_last_ray(scn, q)
+        if kind == "path":
+            dev = spot_deviation(p, v, P, normals, closed)
+        else:  # distance to the nearest target
+            dev = np.array([spot_deviation(p[i : i + 1], v[i : i + 1], P, normals, False)[0]
+                            if len(P) == 1 else _nearest(p[i], v[i], P) for i in range(len(p))])  # fmt: skip
+        i = int(np.argmax(dev))
+        msg = (f"{kind}: max spot deviation {1e3 * dev[i]:.4f} mm at t = {t[mask][i]:.3f} s "
+               f"(tolerance {1e3 * tol:.4f} mm, {mask.sum()} samples)")  # fmt: skip
+        out.append(Finding("error" if dev[i] > tol else "info", f"{kind}_deviation", msg,
+                           float(dev[i]), tol))  # fmt: skip
+    if path_spec is not None:
+        speed = float((scn.get("trajectory") or {}).get("spot_speed", 0.02))
+        length = float(np.linalg.norm(np.diff(P, axis=0), axis=1).sum())
+        length += float(np.linalg.norm(P[0] - P[-1])) if closed else 0.0
+        spent = sum(s["t1"] - s["t0"] for s in traj.get("segments", []) if s["kind"] == "path")
+        ideal = length / speed
+        sev = "warning" if abs(spent - ideal) > rel_duration * ideal else "info"
+        out.append(Finding(sev, "path_duration", f"path segments last {spent:.3f} s; length "
+                           f"{1e3 * length:.1f} mm / {1e3 * speed:.1f} mm/s = {ideal:.3f} s",
+                           spent, ideal))  # fmt: skip
+    return out
+
+
+def _nearest(p: Array, v: Array, P: Array) -> float:
+    """Distance from a ray to the nearest target point ahead of it (m)."""
+    w = P - p
+    along = w @ v
+    perp = np.linalg.norm(w - along[:, None] * v, axis=1)
+    return float(np.where(along > 0, perp, np.inf).min())
