@@ -40,6 +40,9 @@ log = logging.getLogger("beamrelay.node")
 PlanFn = Callable[[Targets, dict[str, Array] | None, bool], dict[str, Any]]
 #: a joint state older than this (s, receiver clock) does not count as "current"
 STATE_MAX_AGE = 0.5
+#: path requests are resampled every PATH_SPACING m, at most MAX_PATH_SAMPLES samples
+PATH_SPACING = 0.001
+MAX_PATH_SAMPLES = 2000
 #: requests waiting for the worker beyond this many get a "busy" error reply
 QUEUE_SIZE = 64
 
@@ -69,9 +72,7 @@ def make_plan_fn(
     are solved in order, each seeded by the previous solution (the first by ``start``); the
     trajectory starts at ``start`` (the robots' current joints) instead of home.
     """
-    from dataclasses import replace
-
-    from planner.planning import plan_document, plan_path_targets, plan_points, trajectory_hook
+    from planner.planning import plan_document, plan_path_targets, plan_points
 
     settings = dict(settings or {})
 
@@ -87,14 +88,49 @@ def make_plan_fn(
             sols = plan_points(system, targets, options, q0)
         traj = None
         if trajectory:
-            here = system
-            if start is not None:
-                robots = tuple(replace(r, home=np.asarray(start[r.name])) for r in system.robots)
-                here = replace(system, robots=robots)
-            traj = trajectory_hook(here, targets, sols, settings)
+            q_from = system.home if q0 is None else q0
+            traj = timed_trajectory(system, targets, sols, q_from, settings)
         return plan_document(system, targets, sols, scenario, traj)
 
     return plan_fn
+
+
+def timed_trajectory(
+    system: System,
+    targets: Targets,
+    sols: list[Any],
+    q_start: Array,
+    settings: dict[str, Any],
+) -> dict[str, Any]:
+    """plan.json ``trajectory`` from ``q_start`` (stacked, rad) through the solved targets.
+
+    Points: rest-to-rest moves in the requested order with the scenario's ``dwell`` (s) on
+    each. Path: each run of consecutive solved samples swept at ``spot_speed`` (m/s).
+    """
+    from planner import timing
+
+    rate = float(settings.get("rate", 500.0))
+    Q = np.array([np.full(system.nq, np.nan) if s.q is None else s.q for s in sols])
+    if targets.kind != "path":
+        dwell = float(settings.get("dwell", 0.0))
+        traj, _ = timing.points_trajectory(system, Q, q_start, dwell, rate, order="given")
+        return traj.to_plan_dict(system)
+    from planner.path import arc_length
+
+    arc = arc_length(targets.points, closed=False)
+    ok = np.all(np.isfinite(Q), axis=1)
+    runs, k = [], 0
+    while k < len(Q):
+        if not ok[k]:
+            k += 1
+            continue
+        k1 = k
+        while k1 < len(Q) and ok[k1]:
+            k1 += 1
+        runs.append((Q[k:k1], arc[k:k1]))
+        k = k1
+    speed = float(settings.get("spot_speed", 0.02))
+    return timing.path_trajectory(system, runs, q_start, speed, rate).to_plan_dict(system)
 
 
 def handler_from_scenario(path: Any) -> RequestHandler:
@@ -139,6 +175,7 @@ class RequestHandler:
 
     system: System
     plan_fn: PlanFn
+    path_spacing: float = PATH_SPACING
 
     def targets(self, req: Any) -> Targets:
         """World-frame targets of a validated TargetRequest (points in metres)."""
@@ -151,8 +188,22 @@ class RequestHandler:
             points = transform_points(world_T_camera, points)
             if normals is not None:
                 normals = normals @ world_T_camera[:3, :3].T
-        kind = "path" if req.mode == "path" else "points"
-        return Targets(points, normals, kind=kind)
+        if req.mode != "path":
+            return Targets(points, normals, kind="points")
+        from planner.scenario import resample_path
+
+        length = float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)))
+        if length / self.path_spacing > MAX_PATH_SAMPLES:
+            raise InputError(
+                f"path of {length:.3f} m needs more than {MAX_PATH_SAMPLES} samples "
+                f"at {1e3 * self.path_spacing:g} mm spacing",
+                "points",
+            )
+        try:
+            points, normals = resample_path(points, spacing=self.path_spacing, normals=normals)
+        except ValueError as exc:
+            raise InputError(str(exc), "normals" if "normal" in str(exc) else "points") from exc
+        return Targets(points, normals, kind="path")
 
     def parse(self, payload: bytes) -> Any:
         """Validate a request body (raises InputError naming the field)."""

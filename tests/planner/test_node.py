@@ -232,3 +232,47 @@ def test_trajectory_messages_split_per_robot() -> None:
     msg = JointTrajectory.model_validate_json(trajectory_messages(plan)["arm0"])
     assert msg.t == [0.0, 0.002, 0.004]
     assert msg.q == [q[0], q[1], q[3]] and msg.names == plan["joint_names"]["arm0"]
+
+
+def test_execute_moves_the_sim_arm_from_its_current_state(
+    system: System, bus: tuple[str, PlannerNode]
+) -> None:
+    from drivers.robot_node import RobotNode
+    from drivers.robot_sim import SimRobot
+
+    endpoint, node = bus
+    robot = system.robots[0]
+    q_now = robot.home + 0.05  # the arm is not at the scenario's home
+    session = open_session(listen=False, endpoint=endpoint)
+    sim = SimRobot(robot.joint_names, q_now, robot.limits)
+    driver = RobotNode(session, Keys(PREFIX), "arm0", sim, robot.limits).start()
+    trajs: list[JointTrajectory] = []
+    try:
+        with PlanClient(endpoint=endpoint, prefix=PREFIX) as c:
+            sub = c.session.declare_subscriber(
+                Keys(PREFIX).trajectory("arm0"),
+                lambda s: trajs.append(JointTrajectory.model_validate_json(s.payload.to_bytes())),
+            )
+            wait_for(lambda: driver.planner_alive and "arm0" in node.alive, what="both alive")
+            wait_for(lambda: node.joints.get("arm0") is not None, what="joint states")
+            points = reachable_targets(system, 2, seed=5)
+            plan = c.request(make_request(points, execute=True))
+            check_plan(system, plan, points)
+            wait_for(lambda: len(trajs) == 1, what="trajectory on the bus")
+            traj = trajs[0]
+            np.testing.assert_allclose(traj.q[0], q_now, atol=1e-9)
+            np.testing.assert_allclose(traj.q[-1], plan["solutions"][1]["q"]["arm0"], atol=1e-9)
+            assert traj.t[-1] == pytest.approx(plan["trajectory"]["t"][-1])
+            wait_for(lambda: driver.n_accepted == 1, what="driver accepted")
+            wait_for(
+                lambda: (
+                    sim.measured().mode == "idle"
+                    and np.allclose(sim.measured().q, traj.q[-1], atol=1e-6)
+                ),
+                timeout=traj.t[-1] + 10,
+                what="arm at the last target",
+            )
+            sub.undeclare()
+    finally:
+        driver.stop()
+        session.close()
