@@ -1,0 +1,166 @@
+"""``beamrelay bench service``: the planner node's request -> reply latency, and the rate and
+jitter of a simulated robot driver's ``joint_states``.
+
+Runs everything on a private loopback port: the planner node (:class:`planner.node.PlannerNode`
+on the scenario's system) listens, a client session sends TargetRequests over TCP (so the
+figures include Zenoh, JSON and validation on both sides, and the IK). Latency of one target
+(``--n-single`` requests, one grid point each) and of 100 targets in one request. Then a
+simulated arm (:class:`drivers.robot_node.RobotNode` + :class:`drivers.robot_sim.SimRobot`)
+publishes joint states for ``--seconds`` s; the rate and the period jitter are measured on
+the receiving side (receiver clock). Goal: single-target median <= 3 ms.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+ROOT = Path(__file__).resolve().parents[2]
+DEFAULT_SCENARIO = ROOT / "scenarios" / "paper_n1.yaml"
+GOAL_SINGLE_MS = 3.0
+
+
+def _free_endpoint() -> str:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+def _stats_ms(seconds: list[float]) -> dict[str, float]:
+    import numpy as np
+
+    a = 1e3 * np.asarray(seconds)
+    return {
+        "median_ms": float(np.median(a)),
+        "p95_ms": float(np.percentile(a, 95)),
+        "max_ms": float(a.max()),
+    }
+
+
+def measure_latency(
+    scenario: Path, n_single: int, n_batch: int, batch: int = 100
+) -> dict[str, Any]:
+    """Round-trip times (s) of single-target and ``batch``-target requests, plus solve rates."""
+    from planner.bus import Keys, open_session
+    from planner.client import PlanClient, make_request
+    from planner.node import PlannerNode, handler_from_scenario
+    from planner.scenario import load_scenario, targets_from_scenario
+
+    handler = handler_from_scenario(scenario)
+    points = targets_from_scenario(load_scenario(scenario), handler.system).points
+    endpoint = _free_endpoint()
+    hub = open_session(listen=True, endpoint=endpoint)
+    node = PlannerNode(handler, hub, Keys("bench")).start()
+    single, many, n_ok = [], [], 0
+    try:
+        with PlanClient(endpoint=endpoint, prefix="bench") as client:
+            if not client.wait_for_node("planner", 10.0):
+                raise RuntimeError("planner node not reachable on the private bus")
+            client.request(make_request(points[:1]))  # warm-up (CasADi, JIT caches)
+            for k in range(n_single):
+                t0 = time.perf_counter()
+                plan = client.request(make_request(points[k % len(points)][None]))
+                single.append(time.perf_counter() - t0)
+                n_ok += plan["metrics"]["n_ok"]
+            for k in range(n_batch):
+                sel = points[(k * batch + (k * batch + batch) // 7) % len(points) :][:batch]
+                t0 = time.perf_counter()
+                client.request(make_request(sel), timeout=60.0)
+                many.append(time.perf_counter() - t0)
+    finally:
+        node.close()
+        hub.close()
+    return {
+        "single": {**_stats_ms(single), "n": n_single, "solved": n_ok},
+        f"batch{batch}": {**_stats_ms(many), "n": n_batch},
+    }
+
+
+def measure_joint_states(seconds: float) -> dict[str, float]:
+    """Rate (Hz) and period jitter (ms) of a simulated arm's joint_states, receiver side."""
+    import numpy as np
+
+    from drivers.robot_node import RobotNode
+    from drivers.robot_sim import SimRobot
+    from planner.bus import Keys, open_session
+    from planner.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
+
+    endpoint = _free_endpoint()
+    hub = open_session(listen=True, endpoint=endpoint)
+    stamps: list[float] = []
+    sub = hub.declare_subscriber(
+        Keys("bench").joint_states("arm0"), lambda _s: stamps.append(time.perf_counter())
+    )
+    session = open_session(listen=False, endpoint=endpoint)
+    limits = Limits.ur_default()
+    backend = SimRobot(JOINT_NAMES_UR, np.array(DEFAULT_HOME), limits)
+    driver = RobotNode(session, Keys("bench"), "arm0", backend, limits, require_planner=False)
+    driver.start()
+    try:
+        time.sleep(1.0)  # connect and settle
+        n0 = len(stamps)
+        time.sleep(seconds)
+        window = np.diff(np.asarray(stamps[n0:]))
+    finally:
+        driver.stop()
+        sub.undeclare()
+        session.close()
+        hub.close()
+    if len(window) < 2:
+        raise RuntimeError("no joint states received")
+    return {
+        "rate_hz": float(1.0 / np.mean(window)),
+        "period_median_ms": float(1e3 * np.median(window)),
+        "jitter_std_ms": float(1e3 * np.std(window)),
+        "period_p99_ms": float(1e3 * np.percentile(window, 99)),
+        "period_max_ms": float(1e3 * window.max()),
+    }
+
+
+def command(
+    scenario: Annotated[Path, typer.Option(help="Scenario whose system and targets are used.")] = (
+        DEFAULT_SCENARIO
+    ),
+    n_single: Annotated[int, typer.Option("--n-single", help="Single-target requests.")] = 200,
+    n_batch: Annotated[int, typer.Option("--n-batch", help="100-target requests.")] = 10,
+    seconds: Annotated[float, typer.Option(help="Joint-state listening time (s).")] = 3.0,
+    as_json: Annotated[bool, typer.Option("--json", help="Figures as JSON on the last line.")] = (
+        False
+    ),
+) -> None:
+    """Request -> reply latency (1 and 100 targets) and joint_states rate and jitter."""
+    from rich.console import Console
+
+    from planner.errors import InputError
+
+    if not scenario.is_file():
+        raise InputError(f"scenario not found: {scenario}")
+    if n_single < 1 or n_batch < 1 or seconds <= 0:
+        raise InputError("--n-single and --n-batch must be >= 1, --seconds > 0")
+    console = Console(stderr=as_json)
+    with console.status("timing requests on a private bus..."):
+        lat = measure_latency(scenario, n_single, n_batch)
+    with console.status(f"listening to joint_states for {seconds:g} s..."):
+        js = measure_joint_states(seconds)
+    s, b = lat["single"], lat["batch100"]
+    goal = "meets" if s["median_ms"] <= GOAL_SINGLE_MS else "MISSES"
+    console.print(
+        f"1 target : median {s['median_ms']:.2f} ms, p95 {s['p95_ms']:.2f} ms, max "
+        f"{s['max_ms']:.2f} ms over {s['n']} requests ({s['solved']} solved); {goal} the "
+        f"{GOAL_SINGLE_MS:g} ms goal"
+    )
+    console.print(
+        f"100 targets: median {b['median_ms']:.1f} ms, p95 {b['p95_ms']:.1f} ms over {b['n']}"
+    )
+    console.print(
+        f"joint_states: {js['rate_hz']:.1f} Hz, period median {js['period_median_ms']:.2f} ms, "
+        f"jitter std {js['jitter_std_ms']:.3f} ms, p99 {js['period_p99_ms']:.2f} ms, max "
+        f"{js['period_max_ms']:.2f} ms"
+    )
+    if as_json:
+        print(json.dumps({"latency": lat, "joint_states": js, "goal_single_ms": GOAL_SINGLE_MS}))
