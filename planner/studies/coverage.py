@@ -1,0 +1,372 @@
+"""``beamrelay study coverage``: what N = 1, 2, 3 robots can light on an object.
+
+Layout (world = the floor under the object, z up, metres): a sphere of radius 0.08 m at
+``(0, 0, 0.35)``; a laser 1.3 m up on the object's axis pointing down; UR5e bases on the
+floor at 0.55 m from the axis, at azimuths 0°, 120°, 240°, each facing the object. The
+laser is on the object's axis, so any robot can put its mirror in the beam above the object.
+
+With N robots, the beam may be relayed by any ordered sub-chain of them (the robots left out
+park their mirrors outside the beam; parking and robot/beam collisions are not modelled). A
+surface point counts as reached when some sub-chain and relay geometry put the spot on it
+with every SPEC condition: joint limits (closed-form IK per robot), front-face hits inside
+the ROI (by construction the beam hits the mirror centre), incidence ≤ 60°, and no
+occlusion by the object of the beam segments (laser → mirror → ... → mirror → target;
+open3d raycasting on the object's mesh; the last segment must meet the surface first at
+the target). The search samples relay geometries (hit distances on the laser ray, mirror
+centre positions around the object, mirror spins), so coverage is a lower bound.
+
+Directions: the azimuths (10° sectors, 360° around the object) from which a beam reaches
+some surface point at less than 60° from the horizontal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from itertools import combinations, pairwise
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from planner.studies import runtime
+from planner.studies.relay_geometry import laser_ray, mirror_pose, robot_ik, unit
+from planner.system import System
+from planner.transforms import Array
+
+CENTER = np.array([0.0, 0.0, 0.35])
+RADIUS = 0.08
+BASE_RADIUS = 0.55
+AZIMUTHS_DEG = (0.0, 120.0, 240.0)
+MAX_INCIDENCE = np.deg2rad(60.0)
+SECTOR_DEG = 10.0
+PREFIXES_PER_HIT = 4
+
+
+def coverage_system(n: int = 3) -> System:
+    """The layout of the module docstring with the first ``n`` robots."""
+    from planner.kinematics import RobotKinematics
+    from planner.system import DEFAULT_HOME, Limits, Mirror, Robot
+    from planner.transforms import make_T, rot_x, rot_z
+
+    kin = RobotKinematics.ur5e()
+    robots = []
+    for i, az in enumerate(np.deg2rad(AZIMUTHS_DEG[:n])):
+        base = make_T(rot_z(az + np.pi), [BASE_RADIUS * np.cos(az), BASE_RADIUS * np.sin(az), 0.0])
+        mirror = Mirror(make_T(p=[0.0, 0.0, 0.03]), (0.075, 0.075), 0.01)
+        robots.append(
+            Robot(f"arm{i}", kin, base, mirror, np.array(DEFAULT_HOME), Limits.ur_default())
+        )
+    laser = make_T(rot_x(np.pi), [0.0, 0.0, 1.3])
+    return System(laser, tuple(robots))
+
+
+def sphere_points(n: int, seed: int = 0) -> tuple[Array, Array]:
+    """``n`` near-uniform surface points of the sphere (Fibonacci; ``seed`` != 0 rotates the
+    set about z) and their outward normals."""
+    k = np.arange(n) + 0.5
+    z = 1 - 2 * k / n
+    phi = np.pi * (1 + 5**0.5) * k + (
+        np.random.default_rng(seed).uniform(0, 2 * np.pi) if seed else 0
+    )
+    r = np.sqrt(1 - z**2)
+    normals = np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+    return CENTER + RADIUS * normals, normals
+
+
+def mirror_sites(system: System, robot: int) -> Array:
+    """Candidate mirror centres for a relay robot: a shell around the object on its side."""
+    az0 = np.deg2rad(AZIMUTHS_DEG[robot])
+    sites = []
+    for dist in (0.22, 0.32, 0.42):
+        for el in np.deg2rad([-15.0, 10.0, 35.0, 60.0]):
+            for daz in np.deg2rad([-60.0, -30.0, 0.0, 30.0, 60.0]):
+                a = az0 + daz
+                d = np.array([np.cos(el) * np.cos(a), np.cos(el) * np.sin(a), np.sin(el)])
+                sites.append(CENTER + dist * d)
+    return np.array(sites)
+
+
+@lru_cache(maxsize=4)
+def _scene(radius: float) -> Any:
+    import open3d as o3d
+
+    mesh = o3d.geometry.TriangleMesh.create_sphere(radius=radius, resolution=60)
+    mesh.translate(CENTER)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    return scene
+
+
+def first_hits(origins: Array, ends: Array) -> Array:
+    """Distance along each segment origin → end to the first object surface (inf: none)."""
+    import open3d as o3d
+
+    d = ends - origins
+    rays = np.hstack([origins, d / np.linalg.norm(d, axis=1, keepdims=True)]).astype(np.float32)
+    ans = _scene(RADIUS).cast_rays(o3d.core.Tensor.from_numpy(rays))
+    return ans["t_hit"].numpy().astype(float)
+
+
+def clear(origins: Array, ends: Array, slack: float = 1e-3) -> Array:
+    """Segments that do not touch the object (before ``slack`` of their end)."""
+    length = np.linalg.norm(ends - origins, axis=1)
+    return first_hits(origins, ends) > length - slack
+
+
+@dataclass(frozen=True)
+class Chain:
+    """One ordered sub-chain and its feasible relays: for each candidate centre of the last
+    mirror, up to ``PREFIXES_PER_HIT`` relays (the earlier hit points, laser side first;
+    empty for a one-mirror chain) that bring the beam there."""
+
+    robots: tuple[int, ...]
+    sites: Array  # (S, 3) candidate centres of the last mirror
+    prefixes: tuple[tuple[tuple[Array, ...], ...], ...]  # per site: relays
+
+
+def sub_chains(n: int) -> list[tuple[int, ...]]:
+    """Every ordered, non-empty subset of robots 0..n-1 (beam order = robot order)."""
+    return [c for k in range(1, n + 1) for c in combinations(range(n), k)]
+
+
+def build_chain(system: System, robots: tuple[int, ...]) -> Chain:
+    """Feasible relay prefixes of a sub-chain (target independent)."""
+    p0, v0 = laser_ray(system)
+    first = [p0 + t * v0 for t in np.linspace(0.2, 0.75, 6)]
+    # states: hit points so far (the last is the current mirror centre) and arriving beam
+    states: list[tuple[tuple[Array, ...], Array]]
+    states = [((h,), v0) for h in first if clear(p0[None], h[None])[0]]
+    for j_prev, j in pairwise(robots):
+        nxt: list[tuple[tuple[Array, ...], Array]] = []
+        for s in mirror_sites(system, j):
+            found = 0
+            for hits, v_in in states:
+                if found >= PREFIXES_PER_HIT:
+                    break
+                if not clear(hits[-1][None], s[None])[0]:
+                    continue
+                v_out = unit(s - hits[-1])
+                if _mirror_ik(system, j_prev, hits[-1], v_in, v_out) is not None:
+                    nxt.append(((*hits, s), v_out))
+                    found += 1
+        states = nxt
+    sites: list[Array] = []
+    prefixes: list[list[tuple[Array, ...]]] = []
+    for hits, _ in states:
+        for i, t in enumerate(sites):
+            if np.array_equal(t, hits[-1]):
+                prefixes[i].append(hits[:-1])
+                break
+        else:
+            sites.append(hits[-1])
+            prefixes.append([hits[:-1]])
+    return Chain(robots, np.array(sites).reshape(-1, 3), tuple(tuple(p) for p in prefixes))
+
+
+def arriving(system: System, prefix: tuple[Array, ...], site: Array) -> Array:
+    """Unit beam direction arriving at ``site`` after the relay ``prefix``."""
+    return unit(site - prefix[-1]) if prefix else laser_ray(system)[1]
+
+
+def _mirror_ik(system: System, robot: int, hit: Array, v_in: Array, v_out: Array) -> Array | None:
+    if float(v_in @ v_out) > 1 - 1e-9:
+        return None
+    for spin in np.linspace(0.0, 2 * np.pi, 6, endpoint=False):
+        q = robot_ik(system.robots[robot], mirror_pose(hit, v_in, v_out, spin))
+        if q is not None:
+            return q
+    return None
+
+
+def reach_target(
+    system: System, chain: Chain, target: Array, normal: Array
+) -> list[tuple[tuple[Array, ...], Array]]:
+    """Feasible relays for one target: (every hit point in chain order, unit beam direction
+    onto the target), at most one per candidate last-mirror centre."""
+    if len(chain.sites) == 0:
+        return []
+    d = target - chain.sites
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    cos_inc = -(d @ normal)
+    ok = cos_inc >= np.cos(MAX_INCIDENCE)
+    idx = np.flatnonzero(ok)
+    if len(idx) == 0:
+        return []
+    t_hit = first_hits(chain.sites[idx], np.repeat(target[None], len(idx), 0))
+    dist = np.linalg.norm(target - chain.sites[idx], axis=1)
+    idx = idx[np.abs(t_hit - dist) < 2e-3]
+    out = []
+    for i in idx:
+        for prefix in chain.prefixes[i]:
+            v_in = arriving(system, prefix, chain.sites[i])
+            if _mirror_ik(system, chain.robots[-1], chain.sites[i], v_in, d[i]) is not None:
+                out.append(((*prefix, chain.sites[i]), d[i]))
+                break
+    return out
+
+
+def targets_job(n_robots: int, points: Array, normals: Array, ids: Array) -> list[dict[str, Any]]:
+    """Reachability of some surface points by every sub-chain (one parallel job)."""
+    system = coverage_system(n_robots)
+    chains = _chains(n_robots)
+    rows = []
+    for k in ids:
+        for chain in chains:
+            feas = reach_target(system, chain, points[k], normals[k])
+            from_dirs = [-d for _, d in feas]
+            rows.append(
+                {
+                    "point": int(k),
+                    "chain": "-".join(map(str, chain.robots)),
+                    "n_needed": max(chain.robots) + 1,
+                    "reached": int(bool(feas)),
+                    "azimuths_deg": " ".join(
+                        f"{np.degrees(np.arctan2(u[1], u[0])) % 360:.1f}"
+                        for u in from_dirs
+                        if abs(u[2]) < np.sin(MAX_INCIDENCE)
+                    ),
+                }
+            )
+    return rows
+
+
+@lru_cache(maxsize=4)
+def _chains(n_robots: int) -> tuple[Chain, ...]:
+    system = coverage_system(n_robots)
+    return tuple(build_chain(system, c) for c in sub_chains(n_robots))
+
+
+def run(
+    trials: int = 400,
+    seed: int = 0,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    n_max: int = 3,
+) -> tuple[Array, Array, list[dict[str, Any]]]:
+    """``trials`` surface points, reachability per sub-chain (parallel over point chunks)."""
+    points, normals = sphere_points(trials, seed)
+    chunks = np.array_split(
+        np.arange(trials), max(1, min(trials, 4 * (workers or runtime.default_workers())))
+    )
+    jobs = [(n_max, points, normals, c) for c in chunks if len(c)]
+    per = runtime.parallel_map(
+        targets_job, jobs, workers=workers, scheduler=scheduler, label="coverage"
+    )
+    return points, normals, [r for rows in per for r in rows]
+
+
+def summarize(points: Array, rows: list[dict[str, Any]], n_max: int = 3) -> list[dict[str, Any]]:
+    """Per N: fraction of surface points and of 10° azimuth sectors reached."""
+    out = []
+    n_sectors = round(360 / SECTOR_DEG)
+    for n in range(1, n_max + 1):
+        sel = [r for r in rows if r["n_needed"] <= n]
+        reached = {r["point"] for r in sel if r["reached"]}
+        sectors = {int(float(a) // SECTOR_DEG) for r in sel for a in r["azimuths_deg"].split() if a}
+        out.append(
+            {
+                "N": n,
+                "points_reached": len(reached),
+                "points": len(points),
+                "surface_fraction": len(reached) / len(points),
+                "sectors_reached": len(sectors),
+                "direction_fraction": len(sectors) / n_sectors,
+            }
+        )
+    return out
+
+
+def reached_mask(points: Array, rows: list[dict[str, Any]], n: int) -> Array:
+    mask = np.zeros(len(points), bool)
+    for r in rows:
+        if r["n_needed"] <= n and r["reached"]:
+            mask[r["point"]] = True
+    return mask
+
+
+def plot(points: Array, rows: list[dict[str, Any]], path: Path, n_max: int = 3) -> None:
+    """Coverage maps (azimuth/elevation of each surface point) per N, plus direction sectors."""
+    plt = runtime.pyplot()
+    rel = (points - CENTER) / RADIUS
+    az = np.degrees(np.arctan2(rel[:, 1], rel[:, 0])) % 360
+    el = np.degrees(np.arcsin(np.clip(rel[:, 2], -1, 1)))
+    fig = plt.figure(figsize=(4 * n_max, 6.4))
+    for n in range(1, n_max + 1):
+        ax = fig.add_subplot(2, n_max, n)
+        m = reached_mask(points, rows, n)
+        ax.scatter(
+            az[np.logical_not(m)], el[np.logical_not(m)], s=6, c="lightgray", label="not reached"
+        )
+        ax.scatter(az[m], el[m], s=6, c="tab:red", label="reached")
+        for a in AZIMUTHS_DEG[:n]:
+            ax.axvline(a, color="k", lw=0.6, ls=":")
+        ax.set_title(f"N = {n}: {m.mean() * 100:.0f}% of the surface")
+        ax.set_xlabel("surface azimuth (deg; dotted: robot bases)")
+        ax.set_ylabel("surface elevation (deg)")
+        ax.set_xlim(0, 360)
+        pax = fig.add_subplot(2, n_max, n_max + n, projection="polar")
+        sel = [r for r in rows if r["n_needed"] <= n]
+        angles = [float(a) for r in sel for a in r["azimuths_deg"].split() if a]
+        bins = np.arange(0, 361, SECTOR_DEG)
+        hist, _ = np.histogram(angles, bins=bins)
+        pax.bar(
+            np.deg2rad(bins[:-1] + SECTOR_DEG / 2),
+            (hist > 0).astype(float),
+            width=np.deg2rad(SECTOR_DEG),
+            color="tab:red",
+            alpha=0.7,
+        )
+        pax.set_yticks([])
+        pax.set_title(f"beam azimuths, {np.mean(hist > 0) * 100:.0f}% of 360°", fontsize=9)
+    fig.axes[0].legend(fontsize=7, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def write(out: Path, points: Array, rows: list[dict[str, Any]], trials: int, seed: int) -> dict:
+    """CSV, plot and report.md; returns the ``--json`` figures."""
+    out.mkdir(parents=True, exist_ok=True)
+    runtime.write_csv(out / "coverage.csv", rows)
+    summary = summarize(points, rows)
+    runtime.write_csv(out / "summary.csv", summary)
+    plot(points, rows, out / "coverage.png")
+    lines = [
+        "# Coverage of an object's surface with N = 1, 2, 3 robots",
+        "",
+        f"Sphere r = {RADIUS * 1000:.0f} mm at {CENTER.tolist()} m, {trials} surface points "
+        f"(seed {seed}); laser overhead pointing down; UR5e bases at {BASE_RADIUS} m, azimuths "
+        f"{', '.join(f'{a:g}°' for a in AZIMUTHS_DEG)}. Reached = some ordered sub-chain of the N "
+        "robots lights the point with joint limits, ROI, incidence ≤ 60° and no occlusion by the "
+        "object (open3d raycasting of every beam segment). Sampled relay search: a lower bound. "
+        "Details in `planner/studies/coverage.py`.",
+        "",
+        "| N | surface reached | azimuth sectors reached (10°, beam < 60° from horizontal) "
+        "| paper |",
+        "|---|---|---|---|",
+    ]
+    for s in summary:
+        lines.append(
+            f"| {s['N']} | {100 * s['surface_fraction']:.1f}% ({s['points_reached']}/{s['points']}) "
+            f"| {100 * s['direction_fraction']:.0f}% ({s['sectors_reached']}/36) "
+            f"| {'motivation only (no figure)' if s['N'] > 1 else 'N = 1 experiments only'} |"
+        )
+    lines += ["", "![coverage maps](coverage.png)", ""]
+    (out / "report.md").write_text("\n".join(lines))
+    return {"study": "coverage", "trials": trials, "seed": seed, "summary": summary}
+
+
+def command(
+    trials: runtime.Trials = 400,
+    seed: runtime.Seed = 0,
+    out: runtime.Out = Path("reports/coverage"),
+    workers: runtime.Workers = None,
+    dask_scheduler: runtime.Scheduler = None,
+    json_out: runtime.JsonOut = False,
+) -> None:
+    """Fraction of an object's surface and of beam directions reached by N = 1, 2, 3 robots
+    (``--trials`` = number of surface points)."""
+    points, _, rows = run(trials, seed, workers, dask_scheduler)
+    figures = write(out, points, rows, trials, seed)
+    runtime.finish(out, figures, json_out)
