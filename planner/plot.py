@@ -24,7 +24,7 @@ def _mirror_corners(world_T_mirror: Array, size: tuple[float, float]) -> Array:
     return local @ world_T_mirror[:3, :3].T + world_T_mirror[:3, 3]
 
 
-def _draw_config(ax: Any, system: System, q: Array, target: Array, alpha: float) -> None:
+def _draw_config(ax: Any, system: System, q: Array, target: Array, alpha: float) -> Array:
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     ev = evaluate(system, q, target)
@@ -38,6 +38,7 @@ def _draw_config(ax: Any, system: System, q: Array, target: Array, alpha: float)
         flange = M @ np.linalg.inv(r.mirror.flange_T_mirror)
         base = r.world_T_base[:3, 3]
         ax.plot(*np.vstack([base, flange[:3, 3]]).T, color=col, lw=1.0, alpha=0.3 * alpha)
+    return path
 
 
 def plot_beam_chain(
@@ -67,12 +68,13 @@ def plot_beam_chain(
     pick: Any = (
         np.unique(np.linspace(0, len(qs) - 1, min(max_beams, len(qs))).astype(int)) if qs else []
     )
+    drawn = [points, laser[None], *[r.world_T_base[:3, 3][None] for r in system.robots]]
     for k in pick:
-        _draw_config(
-            ax, system, qs[k], points[min(k, len(points) - 1)], 0.8 if len(qs) == 1 else 0.5
-        )
-    pts = np.vstack([points, laser[None], *[r.world_T_base[:3, 3][None] for r in system.robots]])
-    centre, span = pts.mean(axis=0), float(np.ptp(pts, axis=0).max()) / 2 + 0.1
+        aim = points[min(k, len(points) - 1)]
+        drawn.append(_draw_config(ax, system, qs[k], aim, 0.8 if len(qs) == 1 else 0.5))
+    pts = np.vstack(drawn)
+    centre = (pts.min(axis=0) + pts.max(axis=0)) / 2
+    span = float(np.ptp(pts, axis=0).max()) / 2 + 0.05
     ax.set_xlim(centre[0] - span, centre[0] + span)
     ax.set_ylim(centre[1] - span, centre[1] + span)
     ax.set_zlim(max(centre[2] - span, -0.1), centre[2] + span)

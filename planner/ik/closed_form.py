@@ -236,7 +236,11 @@ class ClosedForm:
         prev = mirror_poses(self.system, q_prev)
         centres = [M[:3, 3] for M in prev]
         s0 = float(self.v0 @ (centres[0] - self.p0))
-        for hits in self._combos(s0, centres, stage.s_offsets):
+        # second seed: the beam point nearest robot 0's shoulder (the reach is centred there)
+        shoulder = self.system.robots[0].world_T_base @ np.array([0.0, 0.0, 0.163, 1.0])
+        ds = float(self.v0 @ (shoulder[:3] - self.p0)) - s0
+        offsets = stage.s_offsets + tuple(ds + x for x in (0.0, 0.1, -0.1, 0.25, -0.25))
+        for hits in self._combos(s0, centres, offsets):
             stats.members += 1
             normals, d_last = self._normals(hits, target)
             if normals is None:
@@ -293,7 +297,7 @@ class ClosedForm:
                 },
                 stats.members,
             )
-        coarse = Stage(_S_OFFSETS[:7], _PSI[::2], (0.5, 1.0))
+        coarse = Stage(_S_OFFSETS, _PSI[::2], (0.5, 1.0))
         q = self._run(target, normal, q_prev, max_incidence, coarse, True, stats)
         if q is not None:
             return ClosedFormResult(q, None, stats.evidence, stats.members)
@@ -318,7 +322,7 @@ class ClosedForm:
                 stats.members,
             )
         roi = float(max(np.max(h) for h in self.roi_half))
-        outside = Stage(_S_OFFSETS[:7], _PSI[::2], (1.5 * roi + 0.005, 2 * roi + 0.02, 0.1))
+        outside = Stage(_S_OFFSETS, _PSI[::2], (1.5 * roi + 0.005, 2 * roi + 0.02, 0.1))
         probe = SearchStats()
         if self._run(target, normal, q_prev, None, outside, False, probe) is not None:
             uv = probe.evidence.get("uv_last", [0.0, 0.0])

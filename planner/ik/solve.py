@@ -104,8 +104,11 @@ class BeamIK:
             "roi_min_mm": 1e3 * float(ev.roi.min()),
         }
         viol = _limit_violation(self.system, q)
+        converged = status in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
         if not np.all(np.isfinite(q)) or not np.isfinite(ev.error):
             return "solver_failed", evidence
+        if not converged and status != "Infeasible_Problem_Detected":
+            return "solver_failed", evidence  # the iterate says nothing about the target
         if viol > 0.0:
             return "joint_limits", {**evidence, "limit_violation_rad": viol}
         if np.any(ev.front <= MIN_FRONT) or ev.target_ahead <= MIN_AHEAD:
