@@ -46,7 +46,7 @@ class PathOptions:
     min_front: float = 0.02  # -n.v >= this: beam at most ~89 deg from the mirror normal
     weight_velocity: float = 1.0  # integral |dq/ds|^2 ds
     weight_acceleration: float = 1e-5  # integral |d2q/ds2|^2 ds
-    weight_centring: float = 1e-3  # integral |uv / roi_half|^2 ds
+    weight_centring: float = 0.05  # integral |uv / roi_half|^2 ds
     weight_reference: float = 1e-4  # integral |q - q_warm|^2 ds (regularises redundancy)
     verbose: bool = False
 
@@ -223,7 +223,7 @@ def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200) -> _N
             "print_level": 0,
             "sb": "yes",
             "max_iter": max_iter,
-            "tol": 1e-10,
+            "tol": 1e-8,
             "acceptable_tol": 1e-6,
             "mu_strategy": "adaptive",
             "warm_start_init_point": "yes",
@@ -261,7 +261,7 @@ def _pack_params(system: System, T: Array, NB: Array, HAS: Array, E: Array, QREF
 def _bounds_h(n_robots: int, K: int, has: Array, opts: PathOptions) -> Array:
     """Lower bounds of h per sample (K x (4N+2))."""
     lb = np.concatenate(
-        [np.zeros(2 * n_robots), np.full(n_robots, opts.min_front), np.full(n_robots, 1e-3),
+        [np.full(2 * n_robots, 1e-6), np.full(n_robots, opts.min_front), np.full(n_robots, 1e-3),
          [1e-3], [np.cos(np.radians(opts.max_incidence_deg))]]
     )  # fmt: skip
     out = np.tile(lb, (K, 1))
@@ -353,7 +353,7 @@ class _Ctx:
 
     def why(self, k: int, q: Array, g: Array, h: Array) -> str | None:
         """None if q is a valid solution of sample k, else a SPEC reason with evidence."""
-        N, lb, tol = self.N, self.lbh[k], 1e-9
+        N, lb, tol = self.N, self.lbh[k], 1e-7
         bad = np.flatnonzero(h.ravel() < lb - tol)
         if not np.all(np.isfinite(q)) or np.linalg.norm(g) > max(1e3 * self.opts.tolerance, 1e-7):
             return f"unreachable: spot error {np.linalg.norm(g):.2e} m"
