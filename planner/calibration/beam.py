@@ -79,6 +79,7 @@ class BeamResult:
     iterations: int
     converged: bool
     warnings: list[str] = field(default_factory=list)
+    detected: list[str] = field(default_factory=list)  # null directions of the full Jacobian
 
 
 def _delta_T(d: ca.SX) -> ca.SX:
@@ -281,4 +282,5 @@ def calibrate_beam(
         iterations=res.iterations,
         converged=res.converged,
         warnings=warnings,
+        detected=found,
     )

@@ -120,6 +120,7 @@ def beam_document(result: BeamResult, dataset: str = "") -> dict[str, Any]:
         "std": {k: float(v) for k, v in result.std.items()},
         "std_units": "rx/ry in rad, t* in m; laser in laser axes, mirror in mirror axes",
         "unobservable": list(result.unobservable),
+        "detected_null_space": list(result.detected),
         "singular_values": _vec(result.singular_values),
         "warnings": list(result.warnings),
         "solver": {"iterations": result.iterations, "converged": result.converged},

@@ -1,0 +1,40 @@
+"""Shared test systems for the calibration tests (no scenario file needed)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from planner.kinematics import RobotKinematics
+from planner.system import DEFAULT_HOME, Camera, Intrinsics, Limits, Mirror, Robot, System
+from planner.transforms import Array, axis_angle_to_matrix, look_at, make_T, rpy_to_matrix
+
+AIM = np.array([0.45, 0.1, 0.0])
+INTRINSICS = Intrinsics(848, 480, 430.0, 430.0, 424.0, 240.0)
+
+
+def nominal_system() -> System:
+    """N = 1: laser along -x into the UR5e's workspace, camera above the work area."""
+    laser = make_T(rpy_to_matrix(np.deg2rad([0.0, -90.0, 0.0])), [0.9, -0.13, 0.5])
+    robot = Robot(
+        "arm0",
+        RobotKinematics.ur5e(),
+        np.eye(4),
+        Mirror(make_T(p=[0.0, 0.0, 0.03])),
+        np.array(DEFAULT_HOME),
+        Limits.ur_default(),
+    )
+    return System(laser, (robot,), Camera(look_at([0.5, 0.8, 0.9], AIM), INTRINSICS))
+
+
+def two_robot_system() -> System:
+    """N = 2: arm0 as above, arm1 mounted 1 m along +y, its mirror receiving arm0's beam."""
+    base = nominal_system()
+    arm1 = replace(base.robots[0], name="arm1", world_T_base=make_T(p=[0.0, 0.9, 0.0]))
+    return replace(base, robots=(base.robots[0], arm1))
+
+
+def perturbation(rng: np.random.Generator, rad: float = 0.03, metres: float = 0.008) -> Array:
+    """A random rigid perturbation: rotation vector U(-rad, rad), translation U(-m, m)."""
+    return make_T(axis_angle_to_matrix(rng.uniform(-rad, rad, 3)), rng.uniform(-metres, metres, 3))
