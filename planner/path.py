@@ -156,7 +156,9 @@ def sample_hessian(kinematics: Chain) -> ca.Function:
     wc = ca.SX.sym("wc")
     L = ca.dot(lam, ca.vertcat(out["g"], out["h"])) + wc * ca.sumsqr(out["r"])
     H = ca.hessian(L, q)[0]
-    return ca.Function("path_hess", [*ins, lam, wc], [ca.densify(H)], [*_SAMPLE_IN, "lam", "wc"], ["H"])
+    return ca.Function(
+        "path_hess", [*ins, lam, wc], [ca.densify(H)], [*_SAMPLE_IN, "lam", "wc"], ["H"]
+    )
 
 
 def _smoothness_hessians(nq: int, K: int, closed: bool) -> tuple[ca.DM, ca.DM]:
@@ -363,9 +365,15 @@ class _Ctx:
         if bad.size:
             i = int(bad[0])
             kind = (
-                "outside_roi" if i < 2 * N else "back_face" if i < 3 * N
-                else "unreachable: mirror behind" if i < 4 * N
-                else "unreachable: target behind" if i == 4 * N else "unreachable: incidence"
+                "outside_roi"
+                if i < 2 * N
+                else "back_face"
+                if i < 3 * N
+                else "unreachable: mirror behind"
+                if i < 4 * N
+                else "unreachable: target behind"
+                if i == 4 * N
+                else "unreachable: incidence"
             )
             return f"{kind} (constraint {i}: {h.ravel()[i]:.3g} < {lb[i]:.3g})"
         return None

@@ -58,7 +58,9 @@ def test_curve_path_on_target_and_smooth(curve):
 
 def test_gap_is_reported(curve):
     system, targets, _ = curve
-    far = np.vstack([targets.points[:40], targets.points[39] + [[0, 0, 5.0]], targets.points[40:80]])
+    far = np.vstack(
+        [targets.points[:40], targets.points[39] + [[0, 0, 5.0]], targets.points[40:80]]
+    )
     nrm = np.vstack([targets.normals[:40], [[0, 0, 1.0]], targets.normals[40:80]])
     res = plan_path(system, Targets(far, nrm, kind="path"))
     assert [(g.k0, g.k1) for g in res.gaps] == [(40, 41)]

@@ -1,0 +1,82 @@
+"""Numpy trajectory check: DH FK check values, limit detection, curve_path end to end."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planner.check_trajectory import check_trajectory, dh_fk, pose_matrix
+from planner.kinematics import RobotKinematics
+
+SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "curve_path.yaml"
+
+
+def test_dh_fk_spec_check_value_and_pinocchio():
+    T = dh_fk(np.array([0, -np.pi / 2, 0, -np.pi / 2, 0, 0]))[0]
+    np.testing.assert_allclose(T[:3, 3], [0, -0.2329, 1.0794], atol=1e-4)
+    kin = RobotKinematics.ur5e()
+    q = np.random.default_rng(3).uniform(-3, 3, (10, 6))
+    np.testing.assert_allclose(dh_fk(q), np.stack([kin.fk(x) for x in q]), atol=1e-12)
+
+
+def test_pose_matrix_rpy_deg():
+    T = pose_matrix({"xyz": [1, 2, 3], "rpy_deg": [0, 0, 90]})
+    np.testing.assert_allclose(T[:3, :3] @ [1, 0, 0], [0, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(T[:3, 3], [1, 2, 3])
+
+
+def _scenario_dict(system, rate, speed):
+    robots = [{
+        "name": r.name, "model": "ur5e", "world_T_base": {"matrix": r.world_T_base.tolist()},
+        "mirror": {"flange_T_mirror": {"matrix": r.mirror.flange_T_mirror.tolist()}},
+        "limits": {k: getattr(r.limits, k).tolist()
+                   for k in ("lower", "upper", "velocity", "acceleration", "jerk")},
+    } for r in system.robots]  # fmt: skip
+    return {
+        "system": {"laser": {"world_T_laser": {"matrix": system.world_T_laser.tolist()}},
+                   "robots": robots},
+        "targets": {"path": {"closed": False}},
+        "trajectory": {"rate": rate, "spot_speed": speed},
+    }  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def plan():
+    from planner.path import plan_path
+    from planner.scenario import load_scenario, system_from_scenario, targets_from_scenario
+    from planner.timing import path_trajectory
+
+    loaded = load_scenario(SCENARIO)
+    system = system_from_scenario(loaded)
+    targets = targets_from_scenario(loaded, system)
+    res = plan_path(system, targets)
+    speed = loaded.model.trajectory.spot_speed
+    traj = path_trajectory(system, [(res.q, res.arc)], spot_speed=speed, rate=500.0)
+    return {
+        "scenario": _scenario_dict(system, 500.0, speed),
+        "targets": [{"id": i, "p": p.tolist(), "n": n.tolist()}
+                    for i, (p, n) in enumerate(zip(targets.points, targets.normals, strict=True))],
+        "trajectory": traj.to_plan_dict(system),
+    }  # fmt: skip
+
+
+def test_curve_path_meets_goals(plan):
+    found = {f.code: f for f in check_trajectory(plan)}
+    assert not [f for f in found.values() if f.severity != "info"], found
+    assert found["path_deviation"].value <= 5e-5  # issue goal: 0.05 mm
+    assert abs(found["path_duration"].value / found["path_duration"].limit - 1) < 0.1
+
+
+def test_violations_are_found(plan):
+    bad = copy.deepcopy(plan)
+    q = np.asarray(bad["trajectory"]["q"]["arm0"])
+    i = len(q) - 400  # inside the path segment
+    q[i, 2] += 1e-3  # a 1 mrad kink: jerk ~ 3e-3 * 500^3, and the spot leaves the line
+    bad["trajectory"]["q"]["arm0"] = q.tolist()
+    codes = {f.code for f in check_trajectory(bad) if f.severity == "error"}
+    assert {"jerk", "path_deviation"} <= codes
+    bad["trajectory"]["t"][5] += 1e-3
+    assert "time_grid" in {f.code for f in check_trajectory(bad) if f.severity == "error"}
