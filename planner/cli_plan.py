@@ -60,7 +60,7 @@ def plan(
         plot_plan(system, targets, doc, plot)
         console.print(f"wrote {plot}")
     if m["n_ok"] < m["n_targets"]:
-        raise typer.Exit(1)
+        raise SystemExit(1)  # planner.cli.main drops typer.Exit codes (non-standalone click)
 
 
 def _load_plan(path: Path) -> dict[str, Any]:
@@ -107,11 +107,12 @@ def check(
         )
     if len(findings) > 20:
         console.print(f"[red]... and {len(findings) - 20} more violations")
+    if not findings:
+        console.print("[green]plan OK[/]")
     if json_out:
         figures: dict[str, Any] = {"violations": len(findings), "unsolved": n_failed}
         for r in results:
             figures.update({f"{r.name}.{k}": v for k, v in r.figures.items()})
         print(json.dumps(figures))
     if findings:
-        raise typer.Exit(1)
-    console.print("[green]plan OK[/]")
+        raise SystemExit(1)  # planner.cli.main drops typer.Exit codes (non-standalone click)

@@ -1,0 +1,81 @@
+"""Independent checker: own DH FK against SPEC and Pinocchio, violations detected."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planner.check import check_plan, pose, ur5e_dh_fk
+from planner.errors import InputError
+from planner.kinematics import RobotKinematics
+from planner.planning import plan_scenario
+from planner.transforms import make_T, rpy_to_matrix
+from tests.planner.test_planning import write_scenario
+
+
+def test_dh_check_value_from_spec() -> None:
+    T = ur5e_dh_fk(np.array([0, -np.pi / 2, 0, -np.pi / 2, 0, 0]))
+    np.testing.assert_allclose(T[:3, 3], [0.0, -0.2329, 1.0794], atol=1e-4)
+
+
+def test_dh_matches_pinocchio_model() -> None:
+    kin = RobotKinematics.ur5e()
+    for q in np.random.default_rng(3).uniform(-np.pi, np.pi, (10, 6)):
+        np.testing.assert_allclose(ur5e_dh_fk(q), kin.fk(q), atol=1e-14)
+
+
+def test_pose_forms() -> None:
+    R = rpy_to_matrix([0.1, -0.2, 0.3])
+    expect = make_T(R, [1, 2, 3])
+    np.testing.assert_allclose(pose({"xyz": [1, 2, 3], "rpy": [0.1, -0.2, 0.3]}, "x"), expect)
+    got = pose({"xyz": [1, 2, 3], "rpy_deg": np.degrees([0.1, -0.2, 0.3]).tolist()}, "x")
+    np.testing.assert_allclose(got, expect)
+    np.testing.assert_allclose(pose({"matrix": expect.tolist()}, "x"), expect)
+    with pytest.raises(InputError):
+        pose({"matrix": [[1, 0], [0, 1]]}, "x")
+
+
+@pytest.fixture(scope="module")
+def plan_doc(tmp_path_factory: pytest.TempPathFactory) -> dict:  # type: ignore[type-arg]
+    doc, _, _ = plan_scenario(write_scenario(tmp_path_factory.mktemp("c")), progress=False)
+    return doc
+
+
+def _violations(doc: dict) -> dict[str, int]:  # type: ignore[type-arg]
+    return {r.name: len(r.findings) for r in check_plan(doc, Path("."))}
+
+
+def test_clean_plan_passes(plan_doc: dict) -> None:  # type: ignore[type-arg]
+    results = check_plan(plan_doc)
+    assert all(not r.findings for r in results)
+    spot = next(r for r in results if r.name == "spot")
+    assert spot.checked == 18
+    assert spot.figures["error_max_m"] <= 1e-12
+
+
+def test_perturbed_joint_is_a_spot_violation(plan_doc: dict) -> None:  # type: ignore[type-arg]
+    doc = copy.deepcopy(plan_doc)
+    doc["solutions"][1]["q"]["arm0"][4] += 1e-4  # wrist 2 tilts the mirror: spot moves ~0.1 mm
+    v = _violations(doc)
+    assert v["spot"] >= 1
+    assert v["joint limits"] == 0
+
+
+def test_limits_and_roi_violations(plan_doc: dict) -> None:  # type: ignore[type-arg]
+    doc = copy.deepcopy(plan_doc)
+    pans = [s["q"]["arm0"][0] for s in doc["solutions"]]
+    bound = float(np.median(pans))
+    doc["scenario"]["system"]["robots"][0]["limits"]["upper"][0] = bound
+    doc["scenario"]["system"]["robots"][0]["mirror"]["roi_margin"] = 0.0385  # ROI half -1 mm
+    v = _violations(doc)
+    assert v["joint limits"] == sum(1 for p in pans if p > bound + 1e-12) > 0
+    assert v["mirrors"] == 18  # every hit is 1 mm outside an ROI of negative size
+    assert v["spot"] == 0
+
+
+def test_not_a_plan_is_input_error() -> None:
+    with pytest.raises(InputError):
+        check_plan({"scenario": {}})

@@ -1,0 +1,57 @@
+"""``beamrelay plan`` / ``check`` end to end through the CLI entry point (exit statuses)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from planner.cli import main
+from tests.planner.test_planning import SCENARIO, write_scenario
+
+
+def run(args: list[str]) -> int:
+    with pytest.raises(SystemExit) as exc:
+        main(args)
+        raise SystemExit(0)
+    return int(exc.value.code or 0)
+
+
+def test_plan_then_check(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out, png = tmp_path / "plan.json", tmp_path / "plan.png"
+    assert run(["plan", str(write_scenario(tmp_path)), "-o", str(out), "--plot", str(png)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["metrics"]["n_ok"] == 18
+    assert png.stat().st_size > 10_000
+    text = capsys.readouterr().out
+    assert "solved" in text and "18" in text
+    assert run(["check", str(out), "--json"]) == 0
+    figures = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert figures["violations"] == 0 and figures["spot.error_max_m"] <= 1e-12
+    doc["solutions"][0]["q"]["arm0"][4] += 1e-3
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc))
+    assert run(["check", str(bad)]) == 1
+
+
+def test_unsolved_target_exits_1_and_still_writes(tmp_path: Path) -> None:
+    text = SCENARIO.replace(
+        "grid: {center: [0.3, 0.3, 0.3], size: [0.1, 0.1, 0.1], n: [3, 3, 2]}",
+        "points: [[0.3, 0.3, 0.3], [-3.0, -0.4, 0.3]]",
+    )
+    out = tmp_path / "plan.json"
+    assert run(["plan", str(write_scenario(tmp_path, text)), "-o", str(out)]) == 1
+    doc = json.loads(out.read_text())
+    assert [s["reason"] for s in doc["solutions"]] == [None, "back_face"]
+
+
+def test_bad_inputs_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert run(["plan", str(tmp_path / "missing.yaml"), "-o", str(tmp_path / "p.json")]) == 2
+    junk = tmp_path / "junk.json"
+    junk.write_text("{not json")
+    assert run(["check", str(junk)]) == 2
+    junk.write_text(json.dumps({"schema": "beamrelay.plan/1"}))
+    assert run(["check", str(junk)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 3
