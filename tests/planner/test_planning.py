@@ -47,7 +47,7 @@ def test_plan_points_keeps_going_after_a_failure() -> None:
 
 
 def test_plan_scenario_document(tmp_path: Path) -> None:
-    doc, system, targets = plan_scenario(write_scenario(tmp_path), progress=False)
+    doc, system, _ = plan_scenario(write_scenario(tmp_path), progress=False)
     plan = Plan.model_validate(doc)
     assert len(plan.targets) == 18 and plan.metrics.n_ok == 18
     assert plan.robots == ["arm0"]
