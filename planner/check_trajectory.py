@@ -137,7 +137,7 @@ def spot_deviation(
 
 def _limit_finding(code: str, X: Array, bound: Array, slack: float, t: Array, unit: str) -> Finding:
     ratio = np.abs(X) / bound[None, :]
-    i, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+    i, j = (int(x) for x in np.unravel_index(int(np.argmax(ratio)), ratio.shape))
     worst, lim = float(abs(X[i, j])), float(bound[j])
     bad = ratio[i, j] > 1 + slack
     msg = f"{code}: max |{X[i, j]:.4g}| {unit} on joint {j} at t = {t[min(i, len(t) - 1)]:.3f} s"

@@ -23,7 +23,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import casadi as ca
 import numpy as np
@@ -220,7 +220,7 @@ def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200) -> _N
     f = w[0] / ds * ca.sumsqr(dQ) + w[1] / ds**3 * ca.sumsqr(d2Q)
     f += ds * (w[2] * ca.sum2(C) + w[3] * ca.sumsqr(Q - syms["q_ref"]))
     p = ca.vertcat(*[ca.vec(s) for s in syms.values()])
-    opts = {
+    opts: dict[str, Any] = {
         "ipopt": {
             "print_level": 0,
             "sb": "yes",
@@ -247,7 +247,8 @@ def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200) -> _N
     Hl = blocks + lam_f * (w[0] / ds * M1 + w[1] / ds**3 * M2 + 2 * w[3] * ds * ca.DM.eye(nq * K))
     hess = ca.Function("path_hess_lag", [x, p, lam_f, lam_g], [ca.triu(Hl)])
     opts["hess_lag"] = hess
-    solver = ca.nlpsol("path_nlp", "ipopt", {"x": x, "p": p, "f": f, "g": g}, opts)
+    problem: dict[str, Any] = {"x": x, "p": p, "f": f, "g": g}
+    solver = ca.nlpsol("path_nlp", "ipopt", problem, opts)
     return _Nlp(solver, int(H.size1()), time.perf_counter() - t0)
 
 
@@ -307,7 +308,7 @@ def resample_polyline(points: Array, spacing: float, closed: bool = False,
 # ------------------------------------------------------------------------------------------
 # warm start: seed + continuation chain
 # ------------------------------------------------------------------------------------------
-def _closed_form(system: System) -> object | None:
+def _closed_form(system: System) -> Any:
     """The IK engineer's closed-form family search for this system, if it applies."""
     try:
         from planner.ik.closed_form import ClosedForm

@@ -168,7 +168,7 @@ def tour_cost(C: Array, tour: Array) -> float:
     return float(C[tour[:-1], tour[1:]].sum())
 
 
-def visit_order(Q: Array, q_start: Array, lim: JointLimits, max_passes: int = 50) -> Array:
+def visit_order(Q: Array, q_start: Array, lim: JointLimits, max_passes: int = 50) -> np.ndarray:
     """Order of the rows of ``Q`` (n x nq) that shortens the total move time from
     ``q_start``: nearest neighbour, then 2-opt (open tour, fixed start). Returns indices."""
     n = len(Q)
@@ -189,10 +189,10 @@ def visit_order(Q: Array, q_start: Array, lim: JointLimits, max_passes: int = 50
         improved = False
         for i in range(1, n):
             js = np.arange(i + 1, n + 1)
-            nxt = np.where(js < n, t[np.minimum(js + 1, n)], -1)
+            after = np.where(js < n, t[np.minimum(js + 1, n)], -1)
             gain = C[t[i - 1], t[i]] - C[t[i - 1], t[js]]
             gain += np.where(
-                nxt >= 0, C[t[js], np.maximum(nxt, 0)] - C[t[i], np.maximum(nxt, 0)], 0
+                after >= 0, C[t[js], np.maximum(after, 0)] - C[t[i], np.maximum(after, 0)], 0
             )
             k = int(np.argmax(gain))
             if gain[k] > 1e-12:
@@ -205,7 +205,7 @@ def visit_order(Q: Array, q_start: Array, lim: JointLimits, max_passes: int = 50
 
 
 class VisitReport(NamedTuple):
-    order: Array  # indices into the solved targets
+    order: np.ndarray  # indices into the solved targets
     duration: float  # s, the optimised (or given) trajectory
     duration_given: float  # s, estimate visiting in the given order (same dwell)
     duration_optimised: float  # s, estimate in the chosen order
@@ -249,7 +249,7 @@ def points_trajectory(
     given = np.arange(len(idx))
     seq = visit_order(Q[idx], q0, lim) if order == "optimal" else given
 
-    def estimate(o: Array) -> float:
+    def estimate(o: np.ndarray) -> float:
         P = np.vstack([q0, Q[idx][o]])
         return float(move_time(P[:-1], P[1:], lim).sum() + dwell * len(o))
 
