@@ -38,3 +38,33 @@ def two_robot_system() -> System:
 def perturbation(rng: np.random.Generator, rad: float = 0.03, metres: float = 0.008) -> Array:
     """A random rigid perturbation: rotation vector U(-rad, rad), translation U(-m, m)."""
     return make_T(axis_angle_to_matrix(rng.uniform(-rad, rad, 3)), rng.uniform(-metres, metres, 3))
+
+
+def write_scenario(path, truth: bool = True) -> None:
+    """The :func:`nominal_system` as a scenario YAML (with a ``truth:`` section) at ``path``."""
+    from planner.transforms import matrix_to_quat
+
+    cam = nominal_system().camera
+    assert cam is not None
+    T = cam.world_T_camera
+    text = f"""name: calib-test
+system:
+  laser: {{world_T_laser: {{xyz: [0.9, -0.13, 0.5], rpy_deg: [0, -90, 0]}}}}
+  robots:
+    - name: arm0
+      mirror: {{flange_T_mirror: {{xyz: [0, 0, 0.03]}}, size: [0.075, 0.075], roi_margin: 0.005}}
+  camera:
+    world_T_camera: {{xyz: {T[:3, 3].tolist()}, quat: {matrix_to_quat(T[:3, :3]).tolist()}}}
+    intrinsics: {{width: 848, height: 480, fx: 430.0, fy: 430.0, cx: 424.0, cy: 240.0}}
+targets:
+  grid: {{center: {AIM.tolist()}, size: [0.1, 0.1, 0.1], n: [2, 2, 2]}}
+"""
+    if truth:
+        text += """truth:
+  system:
+    laser: {world_T_laser: {xyz: [0.905, -0.127, 0.496], rpy_deg: [0.5, -89.0, 1.0]}}
+    robots:
+      - name: arm0
+        mirror: {flange_T_mirror: {xyz: [0.002, -0.003, 0.034], rpy_deg: [1.0, -0.7, 2.0]}}
+"""
+    path.write_text(text)

@@ -10,7 +10,6 @@ from planner.calibration.beam import BeamData, apply_gauge, calibrate_beam
 from planner.calibration.simulate import DepthNoise, simulate_beam
 from planner.errors import CalibrationError, DatasetError
 
-
 from .cal_systems import AIM, nominal_system, perturbation, two_robot_system
 
 
@@ -27,16 +26,32 @@ def test_exact_spots_recover_line_and_plane():
     truth = _truth(system, rng)
     data = simulate_beam(truth, "arm0", 10, 3, aim_world=AIM, rng=rng)
     res = calibrate_beam(data, system)
-    L_t, M_t = apply_gauge(truth.world_T_laser, truth.robots[0].mirror.flange_T_mirror, system.world_T_laser, system.robots[0].mirror.flange_T_mirror)
+    L_t, M_t = apply_gauge(
+        truth.world_T_laser,
+        truth.robots[0].mirror.flange_T_mirror,
+        system.world_T_laser,
+        system.robots[0].mirror.flange_T_mirror,
+    )
     assert np.abs(res.world_T_laser - L_t).max() <= 1e-9
     assert np.abs(res.flange_T_mirror - M_t).max() <= 1e-9
     assert res.residuals.max() < 1e-9
     # the calibrated model predicts the true spots exactly, although origin/centre differ
-    model = BeamModel(system.with_params(world_T_laser=res.world_T_laser, flange_T_mirror={"arm0": res.flange_T_mirror}))
-    assert max(model.trace(q, p).error for q, p in zip(data.q, data.spots_world, strict=True)) < 1e-9
+    model = BeamModel(
+        system.with_params(
+            world_T_laser=res.world_T_laser, flange_T_mirror={"arm0": res.flange_T_mirror}
+        )
+    )
+    assert (
+        max(model.trace(q, p).error for q, p in zip(data.q, data.spots_world, strict=True)) < 1e-9
+    )
     # five unobservable directions found from the Jacobian, the four gauge statements reported
     assert len(res.detected) == 5
-    assert {u["direction"] for u in res.unobservable} == {"laser.rz", "laser.tz", "mirror.rz", "mirror.txy"}
+    assert {u["direction"] for u in res.unobservable} == {
+        "laser.rz",
+        "laser.tz",
+        "mirror.rz",
+        "mirror.txy",
+    }
 
 
 def test_gauge_keeps_line_and_plane_and_puts_origin_nearest_nominal():
@@ -64,7 +79,12 @@ def test_second_robot_mirror_only():
     data = simulate_beam(truth, "arm1", 8, 3, aim_world=AIM, rng=rng)
     res = calibrate_beam(data, system)
     assert res.world_T_laser is None
-    _, M_t = apply_gauge(None, truth.robots[1].mirror.flange_T_mirror, system.world_T_laser, system.robots[1].mirror.flange_T_mirror)
+    _, M_t = apply_gauge(
+        None,
+        truth.robots[1].mirror.flange_T_mirror,
+        system.world_T_laser,
+        system.robots[1].mirror.flange_T_mirror,
+    )
     assert np.abs(res.flange_T_mirror - M_t).max() <= 1e-9
     assert set(res.std) == {"mirror.rx", "mirror.ry", "mirror.tz"}
 
@@ -77,7 +97,12 @@ def test_noisy_plane_offset_within_three_sigma():
         truth = _truth(system, rng)
         data = simulate_beam(truth, "arm0", 16, 3, aim_world=AIM, noise=DepthNoise(), rng=rng)
         res = calibrate_beam(data, system, starts=1)
-        _, M_t = apply_gauge(None, truth.robots[0].mirror.flange_T_mirror, system.world_T_laser, system.robots[0].mirror.flange_T_mirror)
+        _, M_t = apply_gauge(
+            None,
+            truth.robots[0].mirror.flange_T_mirror,
+            system.world_T_laser,
+            system.robots[0].mirror.flange_T_mirror,
+        )
         n_t, n = M_t[:3, 2], res.flange_T_mirror[:3, 2]
         z.append((n @ res.flange_T_mirror[:3, 3] - n_t @ M_t[:3, 3]) / res.std["mirror.tz"])
         # normal tilt error against the two tilt std devs (small-angle, mirror axes)

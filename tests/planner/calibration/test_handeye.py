@@ -55,7 +55,16 @@ def test_noisy_errors_are_within_three_reported_sigma():
     z = []
     for seed in range(8):
         rng = np.random.default_rng(100 + seed)
-        data = simulate_handeye(system, "arm0", "eye_to_hand", 20, camera_pose=cam, board_pose=board, noise=DepthNoise(), rng=rng)
+        data = simulate_handeye(
+            system,
+            "arm0",
+            "eye_to_hand",
+            20,
+            camera_pose=cam,
+            board_pose=board,
+            noise=DepthNoise(),
+            rng=rng,
+        )
         res = calibrate_handeye(data, system)
         for est, true, key in ((res.camera_pose, cam, "camera"), (res.board_pose, board, "board")):
             E = inv_T(est) @ true
@@ -71,10 +80,16 @@ def test_robust_loss_resists_outliers():
     cam, board = default_handeye_truth(system, "arm0", "eye_to_hand")
     rng = np.random.default_rng(7)
     noise = DepthNoise(outliers=0.05)
-    data = simulate_handeye(system, "arm0", "eye_to_hand", 20, camera_pose=cam, board_pose=board, noise=noise, rng=rng)
+    data = simulate_handeye(
+        system, "arm0", "eye_to_hand", 20, camera_pose=cam, board_pose=board, noise=noise, rng=rng
+    )
     plain = _pose_error(calibrate_handeye(data, system).camera_pose, cam)[0]
-    huber = _pose_error(calibrate_handeye(data, system, loss="huber", loss_scale=0.005).camera_pose, cam)[0]
-    cauchy = _pose_error(calibrate_handeye(data, system, loss="cauchy", loss_scale=0.005).camera_pose, cam)[0]
+    huber = _pose_error(
+        calibrate_handeye(data, system, loss="huber", loss_scale=0.005).camera_pose, cam
+    )[0]
+    cauchy = _pose_error(
+        calibrate_handeye(data, system, loss="cauchy", loss_scale=0.005).camera_pose, cam
+    )[0]
     assert huber < plain and cauchy < plain
 
 
@@ -116,7 +131,9 @@ def test_weak_excitation_warns_with_axis():
     q[:, 4] += np.linspace(-0.01, 0.01, len(q))
     r = system.robots[0]
     cam, board = default_handeye_truth(system, "arm0", "eye_to_hand")
-    obs = np.array([transform_points(inv_T(cam) @ r.kinematics.fk(qk) @ board, data.board_points) for qk in q])
+    obs = np.array(
+        [transform_points(inv_T(cam) @ r.kinematics.fk(qk) @ board, data.board_points) for qk in q]
+    )
     res = calibrate_handeye(HandEyeData("arm0", "eye_to_hand", data.board_points, q, obs), system)
     assert any("missing excitation" in w for w in res.warnings)
     assert _pose_error(res.camera_pose, cam)[0] < 1e-6

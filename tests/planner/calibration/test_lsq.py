@@ -38,14 +38,24 @@ def test_nonlinear_exponential_fit_recovers_exact_parameters():
         e = np.exp(x[1] * t)
         return x[0] * e - y, np.column_stack([e, x[0] * t * e])
 
-    res = levenberg_marquardt(lin, lambda x, dx: x + dx, np.array([1.0, 0.0]), group=1, dof_per_group=1)
+    res = levenberg_marquardt(
+        lin, lambda x, dx: x + dx, np.array([1.0, 0.0]), group=1, dof_per_group=1
+    )
     assert np.allclose(res.state, [1.7, -0.8], atol=1e-12)
 
 
 def test_rank_deficiency_is_reported_and_too_few_equations_raise():
     A = np.array([[1.0, 1.0], [2.0, 2.0], [3.0, 3.0]])
-    res = levenberg_marquardt(lambda x: (A @ x - 1.0, A), lambda x, dx: x + dx, np.zeros(2), group=1, dof_per_group=1)
+    res = levenberg_marquardt(
+        lambda x: (A @ x - 1.0, A), lambda x, dx: x + dx, np.zeros(2), group=1, dof_per_group=1
+    )
     found = null_directions(res.singular_values, res.right_vectors, ["a", "b"])
     assert len(found) == 1 and "a" in found[0] and "b" in found[0]
     with pytest.raises(CalibrationError, match="equations"):
-        levenberg_marquardt(lambda x: (A[:1] @ x, A[:1]), lambda x, dx: x + dx, np.zeros(2), group=1, dof_per_group=1)
+        levenberg_marquardt(
+            lambda x: (A[:1] @ x, A[:1]),
+            lambda x, dx: x + dx,
+            np.zeros(2),
+            group=1,
+            dof_per_group=1,
+        )
