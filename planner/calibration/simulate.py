@@ -247,7 +247,7 @@ def default_handeye_truth(system: System, robot: str, mode: str) -> tuple[Array,
 
     eye_to_hand: the system's ``world_T_camera`` and a board 10 mm off the flange, facing
     out along flange z. eye_in_hand: a camera 60 mm off the flange axis looking along flange
-    z, and a board 0.5 m in front of it at the robot's home pose, facing it.
+    z, and a board 0.4 m in front of it at the robot's home pose, facing it.
     """
     if mode == "eye_to_hand":
         if system.camera is None:
@@ -256,5 +256,5 @@ def default_handeye_truth(system: System, robot: str, mode: str) -> tuple[Array,
     r = system.robot(robot)
     flange_T_camera = make_T(axis_angle_to_matrix([0.0, 0.0, np.pi / 2]), [0.0, 0.06, 0.02])
     world_T_camera = r.world_T_base @ r.kinematics.fk(r.home) @ flange_T_camera
-    camera_T_board = make_T(axis_angle_to_matrix([np.pi, 0.0, 0.0]), [0.0, 0.0, 0.5])
+    camera_T_board = make_T(axis_angle_to_matrix([np.pi, 0.0, 0.0]), [0.0, 0.0, 0.4])
     return flange_T_camera, world_T_camera @ camera_T_board
