@@ -66,7 +66,7 @@ _register()
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: user mistakes become one line and exit status 2."""
     try:
-        app(args=argv, standalone_mode=False)
+        status = app(args=argv, standalone_mode=False)
     except InputError as exc:
         typer.echo(f"error: {exc}", err=True)
         sys.exit(2)
@@ -86,6 +86,9 @@ def main(argv: list[str] | None = None) -> None:
         if isinstance(exc, click.exceptions.Abort):
             sys.exit(130)
         raise
+    # in non-standalone mode click returns the exit code of ``typer.Exit`` instead of exiting
+    if isinstance(status, int) and status != 0:
+        sys.exit(status)
 
 
 if __name__ == "__main__":
