@@ -85,7 +85,7 @@ def trace(
 
     console = Console()
     table = Table(title=f"beam trace: {scn.model.name}")
-    for col in ("mirror", "hit x y z [m]", "u v [mm]", "front", "ahead", "in ROI"):
+    for col in ("mirror", "hit x y z (m)", "u v (mm)", "front", "ahead", "in ROI"):
         table.add_column(col)
     for i, r in enumerate(system.robots):
         ok_front, ok_ahead, ok_roi = tr.front[i] > 0, tr.ahead[i] > 0, bool(np.all(tr.roi[i] >= 0))
@@ -99,7 +99,7 @@ def trace(
         )
     console.print(table)
     console.print(f"outgoing direction: {' '.join(f'{x:+.4f}' for x in tr.dirs[-1])}")
-    console.print(f"spot [m]: {' '.join(f'{x:+.5f}' for x in tr.spot)}")
+    console.print(f"spot (m): {' '.join(f'{x:+.5f}' for x in tr.spot)}")
     if p_target is not None:
         console.print(f"spot error: {1e3 * tr.error:.6f} mm")
     console.print("chain valid" if tr.valid else "[red]chain NOT valid[/]")
