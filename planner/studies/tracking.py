@@ -206,8 +206,10 @@ def observe(system: System, scene: Any, p_world: Array, rng: np.random.Generator
     return np.array([(u + du - k.cx) / k.fx, (w + dv - k.cy) / k.fy, 1.0]) * z
 
 
-def trial_rows(trial: int, seed: int, err: CalibrationErrors) -> list[dict[str, Any]]:
-    """Every experiment of one trial: spot error per marker (mm)."""
+def trial_rows(
+    trial: int, seed: int, err: CalibrationErrors, experiments: tuple[str, ...] = EXPERIMENTS
+) -> list[dict[str, Any]]:
+    """The experiments of one trial: spot error per marker (mm)."""
     from planner.beam import BeamModel
     from planner.studies.relay_geometry import solve_single
 
@@ -218,7 +220,7 @@ def trial_rows(trial: int, seed: int, err: CalibrationErrors) -> list[dict[str, 
     cam_nominal, beam = nominal.camera.world_T_camera, BeamModel(truth)
     R_est = cam_nominal[:3, :3] @ truth.camera.world_T_camera[:3, :3].T
     rows = []
-    for name in EXPERIMENTS:
+    for name in experiments:
         pts, normals, scene = _scene(name)
         for k, (p, n) in enumerate(zip(pts, normals, strict=True)):
             row: dict[str, Any] = {"trial": trial, "experiment": name, "marker": k}
