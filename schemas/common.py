@@ -1,0 +1,198 @@
+"""Shared building blocks of every schema: strict numbers, vectors and poses.
+
+Units are SI (metres, radians) except where a key says otherwise (``rpy_deg``). A pose maps
+coordinates of its child frame into its parent frame (``a_T_b``, SPEC section 2). Every model
+rejects unknown keys.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Any, Self
+
+import numpy as np
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
+from pydantic_core import PydanticCustomError
+
+from planner import transforms as tf
+
+RIGID_TOL = 1e-6
+QUAT_MIN_NORM = 1e-6
+
+
+class FieldError(ValueError):
+    """A validation error raised by a model-level check that belongs to one of its keys.
+
+    ``loc`` is the key path below the model (``("home",)``, ``("normals", 3)``); the YAML
+    error reporter appends it to the model's own path so the message points at that key.
+    """
+
+    def __init__(self, loc: tuple[str | int, ...], reason: str) -> None:
+        self.loc = loc
+        self.reason = reason
+        path = ".".join(str(p) for p in loc)
+        super().__init__(f"{path}: {reason}" if path else reason)
+
+
+class StrictModel(BaseModel):
+    """Base of every schema model: unknown keys are errors; dumps use the file's key names."""
+
+    model_config = ConfigDict(extra="forbid", serialize_by_alias=True)
+
+
+def _number(v: object) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float | np.integer | np.floating):
+        raise PydanticCustomError("number_type", "expected a number")
+    f = float(v)
+    if not math.isfinite(f):
+        raise PydanticCustomError(
+            "finite_number", "expected a finite number, got {value}", {"value": f}
+        )
+    return f
+
+
+def _integer(v: object) -> int:
+    if isinstance(v, float | np.floating) and float(v).is_integer():
+        return int(v)
+    if isinstance(v, bool) or not isinstance(v, int | np.integer):
+        raise PydanticCustomError("int_type", "expected an integer")
+    return int(v)
+
+
+Num = Annotated[float, BeforeValidator(_number)]
+"""A finite number (int or float; bools, strings, NaN and infinities are rejected)."""
+PosNum = Annotated[Num, Field(gt=0)]
+NonNegNum = Annotated[Num, Field(ge=0)]
+Int = Annotated[int, BeforeValidator(_integer)]
+"""An integer (an integral float such as ``848.0`` is accepted; bools and strings are not)."""
+PosInt = Annotated[Int, Field(ge=1)]
+NonNegInt = Annotated[Int, Field(ge=0)]
+
+
+def exact_length(n: int, noun: str = "numbers") -> BeforeValidator:
+    """A check that a list has exactly ``n`` entries ("expected 3 numbers, got 2").
+
+    numpy arrays are accepted and turned into lists.
+    """
+
+    def check(v: object) -> object:
+        if isinstance(v, np.ndarray):
+            v = v.tolist()
+        if isinstance(v, list | tuple) and len(v) != n:
+            raise PydanticCustomError(
+                "wrong_length",
+                "expected {n} {noun}, got {got}",
+                {"n": n, "noun": noun, "got": len(v)},
+            )
+        return v
+
+    return BeforeValidator(check)
+
+
+def _as_list(v: object) -> object:
+    return v.tolist() if isinstance(v, np.ndarray) else v
+
+
+Vec2 = Annotated[list[Num], exact_length(2)]
+Vec3 = Annotated[list[Num], exact_length(3)]
+Vec4 = Annotated[list[Num], exact_length(4)]
+JointVector = Annotated[list[Num], BeforeValidator(_as_list), Field(min_length=1)]
+Mat4 = Annotated[list[Vec4], exact_length(4, "rows")]
+
+
+def unit_rows(rows: list[list[float]], what: str = "normal") -> list[list[float]]:
+    """Normalise 3-vectors; a row shorter than 1e-9 is a :class:`FieldError` at its index."""
+    out = []
+    for i, row in enumerate(rows):
+        n = math.sqrt(sum(x * x for x in row))
+        if n < 1e-9:
+            raise FieldError((i,), f"zero-length {what}")
+        out.append([x / n for x in row])
+    return out
+
+
+def check_rigid(rows: list[list[float]], tol: float = RIGID_TOL) -> None:
+    """Raise ``ValueError`` unless a 4x4 matrix is a rigid transform (to ``tol``)."""
+    T = np.asarray(rows, dtype=float)
+    R = T[:3, :3]
+    ortho = float(np.max(np.abs(R.T @ R - np.eye(3))))
+    if ortho > tol:
+        raise ValueError(f"rotation part is not orthonormal (error {ortho:.2g} > {tol:g})")
+    det = float(np.linalg.det(R))
+    if abs(det - 1.0) > tol:
+        raise ValueError(f"rotation part has determinant {det:.3g}, expected +1")
+    if float(np.max(np.abs(T[3] - [0.0, 0.0, 0.0, 1.0]))) > tol:
+        raise ValueError("last row must be [0, 0, 0, 1]")
+
+
+_ROTATION_KEYS = ("rpy", "rpy_deg", "quat", "matrix")
+
+
+class Pose(StrictModel):
+    """A rigid transform ``parent_T_child``: translation ``xyz`` (m) and one rotation form.
+
+    Forms: ``{xyz, rpy}`` (fixed-axis X-Y-Z, rad), ``{xyz, rpy_deg}`` (same, degrees),
+    ``{xyz, quat}`` (``[x, y, z, w]``, normalised on load) or ``{matrix}`` (4x4 rows, rigid
+    to 1e-6). ``xyz`` defaults to zeros and the rotation to the identity.
+    """
+
+    xyz: Vec3 | None = None
+    rpy: Vec3 | None = None
+    rpy_deg: Vec3 | None = None
+    quat: Vec4 | None = None
+    matrix_rows: Mat4 | None = Field(default=None, alias="matrix")
+
+    @field_validator("quat")
+    @classmethod
+    def _normalise_quat(cls, q: list[float] | None) -> list[float] | None:
+        if q is None:
+            return None
+        n = math.sqrt(sum(x * x for x in q))
+        if n < QUAT_MIN_NORM:
+            raise PydanticCustomError(
+                "bad_quaternion", f"quaternion has length {n:.3g}, cannot be normalised"
+            )
+        return [x / n for x in q]
+
+    @field_validator("matrix_rows")
+    @classmethod
+    def _rigid(cls, rows: list[list[float]] | None) -> list[list[float]] | None:
+        if rows is not None:
+            check_rigid(rows)
+        return rows
+
+    @model_validator(mode="after")
+    def _one_rotation(self) -> Self:
+        given = [k for k in _ROTATION_KEYS if self._field(k) is not None]
+        if len(given) > 1:
+            raise FieldError((given[1],), f"give only one of {', '.join(given)}")
+        if self.matrix_rows is not None and self.xyz is not None:
+            raise FieldError(("xyz",), "not allowed with matrix (put the translation in it)")
+        return self
+
+    def _field(self, key: str) -> Any:
+        return self.matrix_rows if key == "matrix" else getattr(self, key)
+
+    def matrix(self) -> tf.Array:
+        """The 4x4 homogeneous matrix ``parent_T_child``."""
+        if self.matrix_rows is not None:
+            return np.asarray(self.matrix_rows, dtype=float)
+        if self.rpy is not None:
+            R = tf.rpy_to_matrix(self.rpy)
+        elif self.rpy_deg is not None:
+            R = tf.rpy_to_matrix(np.radians(self.rpy_deg))
+        elif self.quat is not None:
+            R = tf.quat_to_matrix(self.quat)
+        else:
+            R = np.eye(3)
+        return tf.make_T(R, self.xyz if self.xyz is not None else np.zeros(3))
+
+    @classmethod
+    def from_matrix(cls, T: tf.Array | list[list[float]]) -> Pose:
+        """``{matrix: T}`` from a 4x4 rigid transform (validated)."""
+        rows = np.asarray(T, dtype=float).tolist()
+        return cls.model_validate({"matrix": rows})
+
+    def to_dict(self) -> dict[str, Any]:
+        """The pose as written in files (only the keys that were given)."""
+        return self.model_dump(exclude_none=True)

@@ -1,0 +1,125 @@
+"""Zenoh message bodies (SPEC section 6). JSON, encoding ``application/json``.
+
+Points in metres (in the frame a message names), joints in rad, rad/s, rad/s^2, times in
+seconds (``t`` is the sender's clock, UNIX time unless stated otherwise).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Final, Literal, Self
+
+from pydantic import Field, StrictBool, model_validator
+
+from schemas.common import FieldError, JointVector, Num, StrictModel, Vec3
+from schemas.scenario import check_normals, unit_normals
+
+REQUEST_SCHEMA: Final = "beamrelay.request/1"
+TRAJECTORY_SCHEMA: Final = "beamrelay.trajectory/1"
+ERROR_SCHEMA: Final = "beamrelay.error/1"
+JOINT_STATE_SCHEMA: Final = "beamrelay.joint_state/1"
+STATUS_SCHEMA: Final = "beamrelay.status/1"
+SPOT_SCHEMA: Final = "beamrelay.spot/1"
+MAX_REQUEST_POINTS = 10_000
+
+
+class TargetRequest(StrictModel):
+    """Targets to plan for: ``points`` (+ optional unit ``normals``) in ``frame``.
+
+    ``mode: path`` sweeps the points as one polyline; ``execute`` sends the trajectory to the
+    robots after planning.
+    """
+
+    schema_: Literal["beamrelay.request/1"] = Field(alias="schema")
+    id: Annotated[str, Field(min_length=1)]
+    frame: Literal["world", "camera"] = "world"
+    points: Annotated[list[Vec3], Field(min_length=1, max_length=MAX_REQUEST_POINTS)]
+    normals: list[Vec3] | None = None
+    mode: Literal["points", "path"] = "points"
+    execute: StrictBool = False
+
+    @model_validator(mode="after")
+    def _normals(self) -> Self:
+        check_normals(self.points, self.normals)
+        self.normals = unit_normals(self.normals)
+        if self.mode == "path" and len(self.points) < 2:
+            raise FieldError(("points",), "a path needs at least 2 points")
+        return self
+
+
+class JointState(StrictModel):
+    """A robot's measured joints at time ``t`` (published at >= 100 Hz)."""
+
+    schema_: Literal["beamrelay.joint_state/1"] = Field(default=JOINT_STATE_SCHEMA, alias="schema")
+    t: Num
+    names: list[str]
+    q: JointVector
+    qd: JointVector
+
+    @model_validator(mode="after")
+    def _lengths(self) -> Self:
+        for key in ("q", "qd"):
+            n = len(getattr(self, key))
+            if n != len(self.names):
+                raise FieldError(
+                    (key,), f"expected {len(self.names)} numbers (one per name), got {n}"
+                )
+        return self
+
+
+class JointTrajectory(StrictModel):
+    """A trajectory for one robot: ``q[k]`` (rad) at ``t[k]`` (s from its start)."""
+
+    schema_: Literal["beamrelay.trajectory/1"] = Field(default=TRAJECTORY_SCHEMA, alias="schema")
+    robot: str
+    t: Annotated[list[Num], Field(min_length=1)]
+    names: list[str]
+    q: list[JointVector]
+    qd: list[JointVector]
+    qdd: list[JointVector]
+
+    @model_validator(mode="after")
+    def _shapes(self) -> Self:
+        for k in range(1, len(self.t)):
+            if self.t[k] <= self.t[k - 1]:
+                raise FieldError(("t", k), "times must increase")
+        for key in ("q", "qd", "qdd"):
+            rows: list[list[float]] = getattr(self, key)
+            if len(rows) != len(self.t):
+                raise FieldError(
+                    (key,), f"expected {len(self.t)} rows (one per t), got {len(rows)}"
+                )
+            for k, row in enumerate(rows):
+                if len(row) != len(self.names):
+                    raise FieldError(
+                        (key, k), f"expected {len(self.names)} numbers, got {len(row)}"
+                    )
+        return self
+
+
+class RobotStatus(StrictModel):
+    """Controller state: ``mode`` (driver-defined text), protective stop flag, fault text."""
+
+    schema_: Literal["beamrelay.status/1"] = Field(default=STATUS_SCHEMA, alias="schema")
+    robot: str
+    t: Num
+    mode: str
+    protective_stop: StrictBool = False
+    fault: str | None = None
+
+
+class SpotMessage(StrictModel):
+    """Detected laser spot in the camera optical frame (m), or null when none was seen."""
+
+    schema_: Literal["beamrelay.spot/1"] = Field(default=SPOT_SCHEMA, alias="schema")
+    t: Num
+    p_camera: Vec3 | None = None
+    confidence: Annotated[Num, Field(ge=0, le=1)] = 0.0
+
+
+class ErrorReply(StrictModel):
+    """Reply to an invalid request: ``field`` is the offending key path (``points[3]``)."""
+
+    schema_: Literal["beamrelay.error/1"] = Field(default=ERROR_SCHEMA, alias="schema")
+    id: str | None = None
+    error: str
+    field: str | None = None

@@ -1,0 +1,176 @@
+"""plan.json (SPEC section 5): the output of planning and the body of a plan reply.
+
+Every point (``p``, ``spot``, hit ``p``) is in the world frame, in metres; joint values in
+rad (rad/s, rad/s^2); times in seconds from the trajectory start.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Final, Literal, Self
+
+from pydantic import Field, model_validator
+
+from schemas.common import (
+    FieldError,
+    JointVector,
+    NonNegInt,
+    NonNegNum,
+    Num,
+    StrictModel,
+    Vec2,
+    Vec3,
+)
+
+PLAN_SCHEMA: Final = "beamrelay.plan/1"
+FAILURE_REASONS = (
+    "unreachable",
+    "outside_roi",
+    "joint_limits",
+    "back_face",
+    "occluded",
+    "solver_failed",
+)
+Reason = Literal[
+    "unreachable", "outside_roi", "joint_limits", "back_face", "occluded", "solver_failed"
+]
+JointRows = list[JointVector]
+
+
+class PlanTarget(StrictModel):
+    """Target ``id`` at ``p`` with optional unit surface normal ``n`` (world frame)."""
+
+    id: NonNegInt
+    p: Vec3
+    n: Vec3 | None = None
+
+
+class Hit(StrictModel):
+    """Where the beam meets ``robot``'s mirror: ``p`` in the world, ``uv`` in mirror x/y (m)."""
+
+    robot: str
+    p: Vec3
+    uv: Vec2
+
+
+class Solution(StrictModel):
+    """The IK result for one target. ``error`` is the spot error (m), ``incidence`` the angle
+    between the arriving beam and the target normal (rad, only with a normal)."""
+
+    target: NonNegInt
+    status: Literal["ok", "failed"]
+    reason: Reason | None = None
+    q: dict[str, JointVector] = Field(default_factory=dict)
+    spot: Vec3 | None = None
+    error: NonNegNum | None = None
+    incidence: Num | None = None
+    hits: list[Hit] = Field(default_factory=list)
+    solve_time: NonNegNum = 0.0
+    iterations: NonNegInt = 0
+
+    @model_validator(mode="after")
+    def _reason(self) -> Self:
+        if self.status == "ok" and self.reason is not None:
+            raise FieldError(("reason",), "must be null when status is ok")
+        if self.status == "failed" and self.reason is None:
+            raise FieldError(
+                ("reason",), f"required when status is failed: {', '.join(FAILURE_REASONS)}"
+            )
+        return self
+
+
+class Segment(StrictModel):
+    """A labelled time span ``[t0, t1]`` (s) of the trajectory."""
+
+    kind: Literal["approach", "move", "path", "dwell"]
+    t0: Num
+    t1: Num
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Self:
+        if self.t1 < self.t0:
+            raise FieldError(("t1",), f"ends before t0 ({self.t0:g})")
+        return self
+
+
+class Trajectory(StrictModel):
+    """Dense joint trajectory at the scenario's rate: ``q[robot][k]`` at time ``t[k]``."""
+
+    t: list[Num]
+    q: dict[str, JointRows]
+    qd: dict[str, JointRows]
+    qdd: dict[str, JointRows]
+    segments: list[Segment] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _shapes(self) -> Self:
+        for k in range(1, len(self.t)):
+            if self.t[k] < self.t[k - 1]:
+                raise FieldError(("t", k), "times must not decrease")
+        for key in ("q", "qd", "qdd"):
+            table: dict[str, list[list[float]]] = getattr(self, key)
+            if set(table) != set(self.q):
+                raise FieldError((key,), f"robots {sorted(table)} differ from q's {sorted(self.q)}")
+            for robot, rows in table.items():
+                if len(rows) != len(self.t):
+                    raise FieldError(
+                        (key, robot), f"expected {len(self.t)} rows (one per t), got {len(rows)}"
+                    )
+        return self
+
+
+class Metrics(StrictModel):
+    """Summary figures; medians over solved targets (None when nothing was solved).
+
+    Errors in m, times in s. Further numeric figures go in ``extra``.
+    """
+
+    n_targets: NonNegInt
+    n_ok: NonNegInt
+    error_max: NonNegNum | None = None
+    error_median: NonNegNum | None = None
+    solve_time_median: NonNegNum | None = None
+    solve_time_p95: NonNegNum | None = None
+    duration: NonNegNum | None = None
+    extra: dict[str, Num] = Field(default_factory=dict)
+
+
+class Plan(StrictModel):
+    """The plan document. ``scenario`` is the resolved scenario (every pose a matrix)."""
+
+    schema_: Literal["beamrelay.plan/1"] = Field(default=PLAN_SCHEMA, alias="schema")
+    scenario: dict[str, Any]
+    robots: Annotated[list[str], Field(min_length=1)]
+    joint_names: dict[str, list[str]]
+    targets: list[PlanTarget]
+    solutions: list[Solution]
+    trajectory: Trajectory | None = None
+    metrics: Metrics
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Self:
+        if set(self.joint_names) != set(self.robots):
+            raise FieldError(("joint_names",), f"expected one entry per robot {self.robots}")
+        ids = {t.id for t in self.targets}
+        for i, sol in enumerate(self.solutions):
+            if sol.target not in ids:
+                raise FieldError(("solutions", i, "target"), f"no target with id {sol.target}")
+            for robot, q in sol.q.items():
+                _check_robot_row(("solutions", i, "q", robot), robot, q, self.joint_names)
+        if self.trajectory is not None:
+            for key in ("q", "qd", "qdd"):
+                table: dict[str, list[list[float]]] = getattr(self.trajectory, key)
+                for robot, rows in table.items():
+                    for k, row in enumerate(rows):
+                        _check_robot_row(
+                            ("trajectory", key, robot, k), robot, row, self.joint_names
+                        )
+        return self
+
+
+def _check_robot_row(
+    loc: tuple[str | int, ...], robot: str, q: list[float], joint_names: dict[str, list[str]]
+) -> None:
+    if robot not in joint_names:
+        raise FieldError(loc, f"unknown robot {robot!r}")
+    if len(q) != len(joint_names[robot]):
+        raise FieldError(loc, f"expected {len(joint_names[robot])} numbers, got {len(q)}")
