@@ -166,10 +166,10 @@ def print_summary(console: object, plan: dict, spots: list | None) -> None:
 
     assert isinstance(console, Console)
     table = Table(title=f"plan: {len(plan['targets'])} targets, robots {', '.join(plan['robots'])}")
-    for col in ("id", "target x y z [m]", "status", "planned error [mm]", "solve [ms]"):
+    for col in ("id", "target x y z \\[m]", "status", "planned error \\[mm]", "solve \\[ms]"):
         table.add_column(col)
     if spots is not None:
-        table.add_column("measured error [mm]")
+        table.add_column("measured error \\[mm]")
     for k, (tgt, sol) in enumerate(zip(plan["targets"], plan["solutions"], strict=True)):
         row = [
             str(tgt["id"]),

@@ -5,8 +5,9 @@ sends a TargetRequest to ``<prefix>/plan`` and returns the plan.json dict (or ra
 :class:`RequestError` with the node's :class:`~schemas.messages.ErrorReply`). While a
 request executes, the client records every robot's ``joint_states`` and the camera's
 ``camera/spot``; a spot sample counts for target k when every robot is at rest (|qd| below
-``REST_QD`` rad/s) within ``AT_TARGET_Q`` rad of the plan's solution ``q_k``. The measured spot
-of target k is the median of its samples, mapped to the world with the plan's camera pose.
+``REST_QD`` rad/s, for ``SETTLE`` s) within ``AT_TARGET_Q`` rad of the plan's solution ``q_k``.
+The measured spot of target k is the mean of its samples, mapped to the world with the plan's
+camera pose.
 """
 
 from __future__ import annotations
@@ -25,9 +26,11 @@ from planner.bus import JSON, Keys, decode, encode, open_session
 from planner.errors import BeamrelayError, InputError
 from planner.transforms import Array, transform_points
 
-#: a robot within this of q_k (rad, every joint) and slower than REST_QD (rad/s) is "at k"
-AT_TARGET_Q = 2e-3
-REST_QD = 5e-3
+#: a robot within AT_TARGET_Q of q_k (rad, every joint), slower than REST_QD (rad/s) for at
+#: least SETTLE s (so the camera's frame was taken at rest too) is "at k"
+AT_TARGET_Q = 1e-4
+REST_QD = 1e-3
+SETTLE = 0.07
 
 
 class RequestError(BeamrelayError):
@@ -75,23 +78,34 @@ class Recorder:
     """Joint states and spots seen on the bus (receiver monotonic clock), thread safe."""
 
     joints: dict[str, tuple[float, Array, Array]] = field(default_factory=dict)
+    rest_since: dict[str, float] = field(default_factory=dict)
     spots: list[tuple[float, Array, dict[str, Array], bool]] = field(default_factory=list)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def on_joints(self, robot: str, q: Array, qd: Array) -> None:
+        now = time.monotonic()
         with self.lock:
-            self.joints[robot] = (time.monotonic(), q, qd)
+            if float(np.max(np.abs(qd))) >= REST_QD:
+                self.rest_since[robot] = np.inf
+            elif self.rest_since.get(robot, np.inf) == np.inf:
+                self.rest_since[robot] = now
+            self.joints[robot] = (now, q, qd)
 
     def on_spot(self, p_camera: Array) -> None:
         """Record a spot with the joints at that moment (``at_rest``: all robots still)."""
+        now = time.monotonic()
         with self.lock:
             q = {r: v[1] for r, v in self.joints.items()}
-            rest = all(float(np.max(np.abs(v[2]))) < REST_QD for v in self.joints.values())
-            self.spots.append((time.monotonic(), p_camera, q, rest))
+            rest = all(now - self.rest_since.get(r, np.inf) >= SETTLE for r in self.joints)
+            self.spots.append((now, p_camera, q, rest))
 
     def moving(self) -> bool:
         with self.lock:
             return any(float(np.max(np.abs(v[2]))) >= REST_QD for v in self.joints.values())
+
+    def n_spots(self) -> int:
+        with self.lock:
+            return len(self.spots)
 
 
 def measured_spots(plan: dict[str, Any], rec: Recorder, since: float) -> list[Array | None]:
@@ -115,7 +129,7 @@ def measured_spots(plan: dict[str, Any], rec: Recorder, since: float) -> list[Ar
         if not hits:
             out.append(None)
             continue
-        p_camera = np.median(np.asarray(hits), axis=0)
+        p_camera = np.mean(np.asarray(hits), axis=0)
         out.append(transform_points(world_T_camera, p_camera[None])[0])
     return out
 

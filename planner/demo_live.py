@@ -93,7 +93,7 @@ def run_live_demo(scenario_path: Path | str, seconds: float = 5.0, n_targets: in
                         console.print(f"[red]{node} did not come up; logs in {log_dir}[/]")
                         return
             table = Table(title="live loop: executed requests (simulated camera)")
-            for col in ("target x y z [m]", "measured x y z [m]", "error [mm]"):
+            for col in ("target x y z \\[m]", "measured x y z \\[m]", "error \\[mm]"):
                 table.add_column(col)
             for p in targets:
                 try:

@@ -104,7 +104,7 @@ def health_table(sup: Supervisor, health: Health, title: str) -> Any:
     from rich.table import Table
 
     table = Table(title=title)
-    for col in ("node", "pid", "process", "alive", "rate [Hz]", "restarts", "uptime [s]"):
+    for col in ("node", "pid", "process", "alive", "rate \\[Hz]", "restarts", "uptime \\[s]"):
         table.add_column(col)
     for name, c in sup.children.items():
         if c.running:
