@@ -1,13 +1,7 @@
 """The planner node (SPEC section 6): a thin Zenoh adapter over the pure planning code.
 
-Two layers:
-
-- :class:`RequestHandler` (no Zenoh): a validated :class:`~schemas.messages.TargetRequest`
-  becomes world-frame :class:`~planner.system.Targets` (camera-frame points go through the
-  calibrated ``world_T_camera``) and then a plan.json dict through a *plan function*
-  ``plan_fn(targets, start, trajectory) -> dict`` (``start``: ``{robot: q}`` in rad or None
-  for the scenario's home; ``trajectory``: whether to time a trajectory).
-- :class:`PlannerNode`: the Zenoh side. Queryable ``<prefix>/plan`` replies with plan.json
+The pure side (request -> targets -> plan.json) is :mod:`planner.node_core`.
+:class:`PlannerNode` is the Zenoh side: queryable ``<prefix>/plan`` replies with plan.json
   (``application/json``) or an :class:`~schemas.messages.ErrorReply` via ``reply_err``;
   subscriber ``<prefix>/targets`` publishes its result on ``<prefix>/plans``. With
   ``execute: true`` it sends one :class:`~schemas.messages.JointTrajectory` per robot to
@@ -32,17 +26,22 @@ import numpy as np
 
 from planner.bus import JSON, Keys, decode, encode
 from planner.errors import BeamrelayError, InputError
-from planner.system import System, Targets
-from planner.transforms import Array, transform_points
+from planner.node_core import RequestHandler, handler_from_scenario, make_plan_fn
+from planner.transforms import Array
+
+__all__ = [
+    "ExecuteError",
+    "PlannerNode",
+    "RequestHandler",
+    "handler_from_scenario",
+    "make_plan_fn",
+    "trajectory_messages",
+]
 
 log = logging.getLogger("beamrelay.node")
 
-PlanFn = Callable[[Targets, dict[str, Array] | None, bool], dict[str, Any]]
 #: a joint state older than this (s, receiver clock) does not count as "current"
 STATE_MAX_AGE = 0.5
-#: path requests are resampled every PATH_SPACING m, at most MAX_PATH_SAMPLES samples
-PATH_SPACING = 0.001
-MAX_PATH_SAMPLES = 2000
 #: requests waiting for the worker beyond this many get a "busy" error reply
 QUEUE_SIZE = 64
 
@@ -57,93 +56,6 @@ class ExecuteError(BeamrelayError):
         self.reason = reason
         self.robots = robots
         super().__init__(reason)
-
-
-def make_plan_fn(
-    system: System,
-    scenario: dict[str, Any],
-    options: Any = None,
-    settings: dict[str, Any] | None = None,
-) -> PlanFn:
-    """The node's plan function over :mod:`planner.planning` for one (calibrated) system.
-
-    ``scenario`` is the resolved scenario dict echoed in every plan; ``options`` an
-    :class:`~planner.ik.IKOptions`; ``settings`` the scenario's ``trajectory`` section. Points
-    are solved in order, each seeded by the previous solution (the first by ``start``); the
-    trajectory starts at ``start`` (the robots' current joints) instead of home.
-    """
-    from planner.planning import plan_document, plan_path_targets, plan_points
-
-    settings = dict(settings or {})
-
-    def plan_fn(
-        targets: Targets, start: dict[str, Array] | None, trajectory: bool
-    ) -> dict[str, Any]:
-        q0 = None if start is None else system.stack_q(start)
-        if targets.kind == "path":
-            from planner.ik import IKOptions
-
-            sols = plan_path_targets(system, targets, options or IKOptions(), q0)
-        else:
-            sols = plan_points(system, targets, options, q0)
-        traj = None
-        if trajectory:
-            q_from = system.home if q0 is None else q0
-            traj = timed_trajectory(system, targets, sols, q_from, settings)
-        return plan_document(system, targets, sols, scenario, traj)
-
-    return plan_fn
-
-
-def timed_trajectory(
-    system: System,
-    targets: Targets,
-    sols: list[Any],
-    q_start: Array,
-    settings: dict[str, Any],
-) -> dict[str, Any]:
-    """plan.json ``trajectory`` from ``q_start`` (stacked, rad) through the solved targets.
-
-    Points: rest-to-rest moves in the requested order with the scenario's ``dwell`` (s) on
-    each. Path: each run of consecutive solved samples swept at ``spot_speed`` (m/s).
-    """
-    from planner import timing
-
-    rate = float(settings.get("rate", 500.0))
-    Q = np.array([np.full(system.nq, np.nan) if s.q is None else s.q for s in sols])
-    if targets.kind != "path":
-        dwell = float(settings.get("dwell", 0.0))
-        traj, _ = timing.points_trajectory(system, Q, q_start, dwell, rate, order="given")
-        return traj.to_plan_dict(system)
-    from planner.path import arc_length
-
-    arc = arc_length(targets.points, closed=False)
-    ok = np.all(np.isfinite(Q), axis=1)
-    runs, k = [], 0
-    while k < len(Q):
-        if not ok[k]:
-            k += 1
-            continue
-        k1 = k
-        while k1 < len(Q) and ok[k1]:
-            k1 += 1
-        runs.append((Q[k:k1], arc[k:k1]))
-        k = k1
-    speed = float(settings.get("spot_speed", 0.02))
-    return timing.path_trajectory(system, runs, q_start, speed, rate).to_plan_dict(system)
-
-
-def handler_from_scenario(path: Any) -> RequestHandler:
-    """A :class:`RequestHandler` for a scenario file (calibration applied via ``include:``)."""
-    from planner.planning import ik_options
-    from planner.scenario import load_scenario, resolved_scenario_dict, system_from_scenario
-
-    scn = load_scenario(path)
-    system = system_from_scenario(scn)
-    model = scn.model
-    settings = model.trajectory.model_dump() if model.trajectory is not None else {}
-    plan_fn = make_plan_fn(system, resolved_scenario_dict(scn), ik_options(model.solver), settings)
-    return RequestHandler(system, plan_fn)
 
 
 def error_body(exc: Exception, request_id: str | None = None) -> bytes:
@@ -167,58 +79,6 @@ def request_id_of(payload: bytes) -> str | None:
         return None
     rid = data.get("id") if isinstance(data, dict) else None
     return rid if isinstance(rid, str) else None
-
-
-@dataclass
-class RequestHandler:
-    """TargetRequest -> plan.json dict; pure (no Zenoh), used by the node and the tests."""
-
-    system: System
-    plan_fn: PlanFn
-    path_spacing: float = PATH_SPACING
-
-    def targets(self, req: Any) -> Targets:
-        """World-frame targets of a validated TargetRequest (points in metres)."""
-        points = np.asarray(req.points, dtype=float).reshape(-1, 3)
-        normals = None if req.normals is None else np.asarray(req.normals, dtype=float)
-        if req.frame == "camera":
-            if self.system.camera is None:
-                raise InputError("frame is camera but the scenario has no camera", "frame")
-            world_T_camera = self.system.camera.world_T_camera
-            points = transform_points(world_T_camera, points)
-            if normals is not None:
-                normals = normals @ world_T_camera[:3, :3].T
-        if req.mode != "path":
-            return Targets(points, normals, kind="points")
-        from planner.scenario import resample_path
-
-        length = float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)))
-        if length / self.path_spacing > MAX_PATH_SAMPLES:
-            raise InputError(
-                f"path of {length:.3f} m needs more than {MAX_PATH_SAMPLES} samples "
-                f"at {1e3 * self.path_spacing:g} mm spacing",
-                "points",
-            )
-        try:
-            points, normals = resample_path(points, spacing=self.path_spacing, normals=normals)
-        except ValueError as exc:
-            raise InputError(str(exc), "normals" if "normal" in str(exc) else "points") from exc
-        return Targets(points, normals, kind="path")
-
-    def parse(self, payload: bytes) -> Any:
-        """Validate a request body (raises InputError naming the field)."""
-        from schemas.messages import TargetRequest
-
-        try:
-            return decode(payload, TargetRequest)
-        except RecursionError as exc:  # json.loads on absurdly deep nesting
-            raise InputError("JSON nested too deeply", "body") from exc
-
-    def plan(
-        self, req: Any, start: dict[str, Array] | None = None, trajectory: bool = False
-    ) -> dict[str, Any]:
-        """plan.json dict for a validated request, starting at ``start`` (rad) or home."""
-        return self.plan_fn(self.targets(req), start, trajectory)
 
 
 @dataclass

@@ -16,7 +16,7 @@ from planner.bus import Keys, encode, open_session
 from planner.client import PlanClient, RequestError, make_request
 from planner.node import PlannerNode, RequestHandler, make_plan_fn, trajectory_messages
 from planner.system import Camera, Intrinsics, System
-from planner.transforms import inv_T, look_at, transform_points
+from planner.transforms import look_at
 from schemas.messages import JointTrajectory
 from tests.conftest import make_system
 from tests.drivers.conftest import free_port, wait_for
@@ -73,19 +73,6 @@ def check_plan(system: System, plan: dict[str, Any], points: np.ndarray) -> None
         assert sol["status"] == "ok", sol
         tr = model.trace(system.stack_q(sol["q"]), p)
         assert tr.valid and tr.error < 1e-8
-
-
-def test_camera_frame_targets_use_world_T_camera(system: System) -> None:
-    handler = RequestHandler(system, make_plan_fn(system, {}))
-    p_world = reachable_targets(system, 3)
-    camera_T_world = inv_T(system.camera.world_T_camera)  # type: ignore[union-attr]
-    p_cam = transform_points(camera_T_world, p_world)
-    n_world = np.array([[0, 0, 1.0], [0, 1.0, 0], [1.0, 0, 0]])
-    n_cam = n_world @ camera_T_world[:3, :3].T
-    req = handler.parse(encode(make_request(p_cam, frame="camera", normals=n_cam)))
-    t = handler.targets(req)
-    np.testing.assert_allclose(t.points, p_world, atol=1e-12)
-    np.testing.assert_allclose(t.normals, n_world, atol=1e-12)
 
 
 def test_plan_reply_puts_spot_on_target(
