@@ -1,0 +1,188 @@
+"""``beamrelay driver robot|camera``: run one driver process on the Zenoh bus.
+
+Light imports only at module level (``beamrelay --help`` stays instant). Both commands run
+until Ctrl-C or SIGTERM, then stop the hardware (``servoStop`` / pipeline stop), withdraw
+their liveliness token and close the session.
+"""
+
+from __future__ import annotations
+
+import signal
+from enum import StrEnum
+from pathlib import Path
+from typing import Any
+
+import typer
+
+app = typer.Typer(help="Robot and camera drivers (simulated or real) for the running system.")
+
+SCENARIO = typer.Option(
+    ..., "--scenario", "-s", help="Scenario YAML (robots, limits, camera, scene)."
+)
+ENDPOINT = typer.Option(
+    None,
+    "--endpoint",
+    help="Bus endpoint (default $BEAMRELAY_ZENOH_ENDPOINT or tcp/127.0.0.1:7447).",
+)
+ZCONFIG = typer.Option(
+    None, "--zenoh-config", help="Zenoh config file (routers, TLS, access control)."
+)
+PREFIX = typer.Option("beamrelay", "--prefix", help="Key namespace prefix.")
+LISTEN = typer.Option(
+    False, "--listen", help="Listen on the endpoint (when no planner node hosts the bus)."
+)
+
+
+class RobotBackendName(StrEnum):
+    sim = "sim"
+    ur = "ur"
+
+
+class CameraBackendName(StrEnum):
+    sim = "sim"
+    realsense = "realsense"
+
+
+ROBOT_BACKEND = typer.Option(RobotBackendName.sim, "--backend", help="sim or ur.")
+CAMERA_BACKEND = typer.Option(CameraBackendName.sim, "--backend", help="sim or realsense.")
+BAG = typer.Option(None, "--file", help="realsense: play a .bag recording instead of a device.")
+
+
+@app.command("robot")
+def robot(
+    name: str = typer.Option(..., "--name", help="Robot name in the scenario (e.g. arm0)."),
+    backend: RobotBackendName = ROBOT_BACKEND,
+    scenario: Path = SCENARIO,
+    host: str | None = typer.Option(
+        None, "--host", envvar="BEAMRELAY_UR_HOST", help="UR controller IP (backend ur)."
+    ),
+    endpoint: str | None = ENDPOINT,
+    zenoh_config: Path | None = ZCONFIG,
+    prefix: str = PREFIX,
+    listen: bool = LISTEN,
+    rate: float = typer.Option(500.0, "--rate", help="Control rate, Hz."),
+    state_rate: float = typer.Option(250.0, "--state-rate", help="joint_states rate, Hz (>= 100)."),
+    lookahead: float = typer.Option(
+        0.1, "--lookahead", help="servoJ lookahead time, s [0.03, 0.2]."
+    ),
+    gain: float = typer.Option(300.0, "--gain", help="servoJ gain [100, 2000]."),
+    watchdog_hz: float = typer.Option(
+        10.0, "--rtde-watchdog", help="RTDE watchdog minimum rate, Hz."
+    ),
+    start_tolerance: float = typer.Option(
+        0.01, "--start-tolerance", help="Largest start offset accepted, rad."
+    ),
+    require_planner: bool = typer.Option(
+        True,
+        "--require-planner/--no-require-planner",
+        help="Refuse to move while no planner is alive.",
+    ),
+) -> None:
+    """Run a robot driver: joint_states, status, trajectories, planner watchdog."""
+    from drivers.robot_node import RobotNode
+    from planner.bus import Keys, open_session
+    from planner.errors import InputError
+    from planner.scenario import load_scenario, system_from_scenario
+
+    scn = load_scenario(scenario)
+    system = system_from_scenario(scn)
+    if name not in system.robot_names:
+        raise InputError(
+            f"unknown robot {name!r}; the scenario has {', '.join(system.robot_names)}", "--name"
+        )
+    if state_rate < 100:
+        raise InputError(f"must be >= 100 Hz, got {state_rate:g}", "--state-rate")
+    r = system.robot(name)
+    backend_obj: Any
+    if backend == RobotBackendName.sim:
+        from drivers.robot_sim import SimRobot
+
+        backend_obj = SimRobot(r.joint_names, r.home, r.limits, rate=rate)
+    else:
+        from drivers.robot_ur import URRobot
+
+        if not host:
+            raise InputError("the ur backend needs the controller's address", "--host")
+        backend_obj = URRobot(
+            host,
+            r.joint_names,
+            r.limits,
+            rate=rate,
+            lookahead_time=lookahead,
+            gain=gain,
+            watchdog_hz=watchdog_hz,
+        )
+    session = open_session(listen=listen, endpoint=endpoint, config_file=zenoh_config)
+    node = RobotNode(
+        session,
+        Keys(prefix),
+        name,
+        backend_obj,
+        r.limits,
+        state_rate=state_rate,
+        start_tolerance=start_tolerance,
+        require_planner=require_planner,
+    )
+    _run(node, session, f"{name}: {backend.value} robot driver up (prefix {prefix})")
+
+
+@app.command("camera")
+def camera(
+    backend: CameraBackendName = CAMERA_BACKEND,
+    scenario: Path = SCENARIO,
+    endpoint: str | None = ENDPOINT,
+    zenoh_config: Path | None = ZCONFIG,
+    prefix: str = PREFIX,
+    listen: bool = LISTEN,
+    spot_rate: float = typer.Option(30.0, "--spot-rate", help="camera/spot rate, Hz."),
+    points_rate: float = typer.Option(15.0, "--points-rate", help="camera/points rate, Hz."),
+    stride: int = typer.Option(
+        1, "--stride", help="sim: use every n-th pixel (1 = full 848 x 480)."
+    ),
+    seed: int | None = typer.Option(None, "--seed", help="sim: noise seed."),
+    serial: str | None = typer.Option(None, "--serial", help="realsense: device serial number."),
+    file: Path | None = BAG,
+) -> None:
+    """Run a camera driver: point cloud and laser spot."""
+    from drivers.camera_node import CameraNode
+    from planner.bus import Keys, open_session
+    from planner.errors import InputError
+    from planner.scenario import load_scenario, scene_objects, system_from_scenario
+
+    if stride < 1:
+        raise InputError(f"must be >= 1, got {stride}", "--stride")
+    scn = load_scenario(scenario)
+    source: Any
+    if backend == CameraBackendName.sim:
+        from drivers.camera_sim import SimCamera
+
+        source = SimCamera(
+            system_from_scenario(scn, truth=True), scene_objects(scn), stride=stride, seed=seed
+        )
+    else:
+        from drivers.camera_realsense import RealSenseCamera
+
+        if file is not None and not file.is_file():
+            raise InputError("recording not found", f"--file {file}")
+        source = RealSenseCamera(serial=serial, file=file)
+    session = open_session(listen=listen, endpoint=endpoint, config_file=zenoh_config)
+    node = CameraNode(session, Keys(prefix), source, spot_rate=spot_rate, points_rate=points_rate)
+    _run(node, session, f"camera: {backend.value} driver up (prefix {prefix})")
+
+
+def _run(node: Any, session: Any, banner: str) -> None:
+    """Start a node, block until Ctrl-C / SIGTERM, then stop it and close the session."""
+
+    def _terminate(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, _terminate)
+    try:
+        node.start()
+        typer.echo(banner, err=True)
+        node.wait()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.stop()
+        session.close()
