@@ -185,13 +185,19 @@ def print_summary(console: object, plan: dict, spots: list | None) -> None:
         table.add_row(*row)
     console.print(table)
     m = plan["metrics"]
-    console.print(f"solved {m['n_ok']}/{m['n_targets']}; trajectory {m.get('duration') or 0:.2f} s")
+    traj = f"trajectory {m['duration']:.2f} s" if m.get("duration") else "no trajectory"
+    console.print(f"solved {m['n_ok']}/{m['n_targets']}; {traj}")
     if spots is not None:
         errs = [
             float(np.linalg.norm(s - np.asarray(t["p"])))
             for s, t in zip(spots, plan["targets"], strict=True)
             if s is not None
         ]
+        if len(errs) < sum(s["status"] == "ok" for s in plan["solutions"]):
+            console.print(
+                "spots are measured while the robots rest on a target: targets passed without "
+                "a pause (scenario trajectory.dwell = 0) or hidden from the camera are not seen"
+            )
         if errs:
             console.print(
                 f"measured spot error: median {1e3 * np.median(errs):.2f} mm, "
