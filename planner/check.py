@@ -4,8 +4,11 @@ The geometry comes from the plan's own resolved ``scenario`` echo; the UR5e forw
 kinematics here is this module's own standard-DH code (SPEC section 2), URDF arms use
 Pinocchio's numeric FK, and the reflection code is written again from SPEC section 3.
 
-Checks are plain functions ``check(ctx) -> CheckResult`` in :data:`CHECKS`; other stages
-(trajectory timing) append their own with :func:`register_check`.
+Checks are plain functions ``check(ctx) -> CheckResult`` in :data:`CHECKS`: the solved
+targets (spot, mirrors, joint limits) and the dense trajectory sampled at the scenario
+``rate`` (:mod:`planner.check_trajectory`: time grid, position/velocity/acceleration/jerk
+limits, spot deviation on path/dwell segments and at every arrival). Other stages may append
+their own with :func:`register_check`.
 """
 
 from __future__ import annotations
@@ -14,12 +17,15 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from planner.errors import InputError
 from planner.transforms import Array, make_T, quat_to_matrix, rpy_to_matrix
+
+if TYPE_CHECKING:
+    from planner.check_trajectory import Finding as TrajectoryFinding
 
 UR5E_D = (0.1625, 0.0, 0.0, 0.1333, 0.0997, 0.0996)
 UR5E_A = (0.0, -0.425, -0.3922, 0.0, 0.0, 0.0)
@@ -150,8 +156,9 @@ class Finding:
 class CheckResult:
     name: str
     checked: int
-    findings: list[Finding] = field(default_factory=list)
+    findings: list[Finding] = field(default_factory=list)  # violations: exit status 1
     figures: dict[str, float] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)  # worth a look, not a violation
 
 
 class PlanContext:
@@ -180,6 +187,12 @@ class PlanContext:
     @cached_property
     def traces(self) -> dict[int, Trace]:
         return {int(s["target"]): Trace(self.world_T_laser, self.arms, s["q"]) for s in self.solved}
+
+    @cached_property
+    def trajectory_findings(self) -> list[TrajectoryFinding]:
+        from planner.check_trajectory import check_trajectory
+
+        return check_trajectory(self.plan)
 
     def target(self, k: int) -> tuple[Array, Array | None]:
         t = self.targets[k]
@@ -256,7 +269,56 @@ def check_limits(ctx: PlanContext) -> CheckResult:
     return res
 
 
-CHECKS: list[Callable[[PlanContext], CheckResult]] = [check_spots, check_mirrors, check_limits]
+_LIMIT_CODES = ("time_grid", "joint_limits", "velocity", "acceleration", "jerk")
+_SPOT_CODES = ("path_deviation", "dwell_deviation", "arrival_deviation", "path_duration")
+
+
+def _trajectory_result(ctx: PlanContext, name: str, codes: tuple[str, ...]) -> CheckResult:
+    """Trajectory findings of some codes as a CheckResult: errors are violations, warnings
+    are listed, figures are the worst value per code (ratios to the limit for joint rates)."""
+    traj = ctx.plan.get("trajectory") or {}
+    res = CheckResult(name, len(traj.get("t") or []))
+    for f in ctx.trajectory_findings:
+        if f.code not in codes:
+            continue
+        if f.severity == "error":
+            res.findings.append(Finding(name, None, f.message, f.value, f.limit))
+        elif f.severity == "warning":
+            res.warnings.append(f.message)
+        if f.code in ("velocity", "acceleration", "jerk"):
+            key, value = f"{f.code}_max_ratio", f.value / f.limit
+        elif f.code == "path_duration":
+            res.figures["path_duration_ideal_s"] = f.limit
+            key, value = "path_duration_s", f.value
+        elif f.code.endswith("deviation"):
+            key, value = f"{f.code}_max_m", f.value
+        else:
+            continue
+        res.figures[key] = max(value, res.figures.get(key, -np.inf))
+    if not traj:
+        res.warnings.append("plan has no trajectory")
+    return res
+
+
+def check_trajectory_limits(ctx: PlanContext) -> CheckResult:
+    """The dense trajectory on the 1/rate grid, within position, velocity, acceleration and
+    jerk limits (finite differences, small slack)."""
+    return _trajectory_result(ctx, "trajectory limits", _LIMIT_CODES)
+
+
+def check_trajectory_spot(ctx: PlanContext) -> CheckResult:
+    """The spot on the path during ``path`` segments, on a target during ``dwell`` and at the
+    end of every move; path duration vs length / spot speed."""
+    return _trajectory_result(ctx, "trajectory spot", _SPOT_CODES)
+
+
+CHECKS: list[Callable[[PlanContext], CheckResult]] = [
+    check_spots,
+    check_mirrors,
+    check_limits,
+    check_trajectory_limits,
+    check_trajectory_spot,
+]
 
 
 def register_check(fn: Callable[[PlanContext], CheckResult]) -> None:

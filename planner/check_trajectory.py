@@ -3,8 +3,9 @@ Pinocchio): SPEC section 5 ``beamrelay check``.
 
 Samples the trajectory at the scenario ``rate``; checks the time grid, joint position
 limits, velocity/acceleration/jerk by finite differences (with a small slack), and the spot
-deviation from the target path at every sample of a ``path`` segment (and from the target
-during ``dwell``), through a numpy UR DH forward kinematics and mirror reflection model.
+deviation from the target path at every sample of a ``path`` segment, from the nearest
+target during ``dwell`` and at the last sample of every ``approach``/``move`` (arrival),
+through a numpy UR DH forward kinematics and mirror reflection model.
 """
 
 from __future__ import annotations
@@ -80,14 +81,16 @@ def _robots(scenario: dict[str, Any]) -> list[_Robot]:
     out = []
     for r in scenario["system"]["robots"]:
         lim = r.get("limits") or {}
-        n = 6
+        n = len(lim.get("lower") or [0.0] * 6)
         upper = np.full(n, 2 * np.pi)
-        upper[2] = np.pi
+        if n == 6:
+            upper[2] = np.pi  # the elbow (UR description package)
         default = {"lower": -upper, "upper": upper, "velocity": np.full(n, np.pi),
                    "acceleration": np.full(n, 5.0), "jerk": np.full(n, 50.0)}  # fmt: skip
         limits = {k: np.asarray(lim.get(k, v) if lim.get(k) is not None else v, dtype=float)
                   for k, v in default.items()}  # fmt: skip
-        out.append(_Robot(r["name"], str(r.get("model", "ur5e")), pose_matrix(r.get("world_T_base")),
+        model = "urdf:" + str(r["urdf"]) if r.get("urdf") else str(r.get("model") or "ur5e")
+        out.append(_Robot(r["name"], model, pose_matrix(r.get("world_T_base")),
                           pose_matrix(r["mirror"].get("flange_T_mirror")), limits))  # fmt: skip
     return out
 
@@ -107,28 +110,41 @@ def trace_last_ray(scenario: dict[str, Any], q: dict[str, Array]) -> tuple[Array
     return p, v
 
 
+def nearest_spots(p: Array, v: Array, targets: Array, normals: Array | None) -> tuple[Array, Array]:
+    """Per ray: the index k of the target it passes nearest (ahead of it), and the spot where
+    the ray meets that target's plane (its normal, or perpendicular to the ray)."""
+    w = targets[None, :, :] - p[:, None, :]
+    along = np.einsum("mkj,mj->mk", w, v)
+    perp = np.linalg.norm(w - along[..., None] * v[:, None, :], axis=2)
+    k = np.argmin(np.where(along > 0, perp, np.inf), axis=1)
+    nb = -v if normals is None else np.where(np.isfinite(normals[k]), normals[k], -v)
+    s = np.einsum("ij,ij->i", nb, targets[k] - p) / np.einsum("ij,ij->i", nb, v)
+    return k, p + s[:, None] * v
+
+
+def point_deviation(p: Array, v: Array, targets: Array, normals: Array | None) -> Array:
+    """Distance (m) from each ray's spot to the nearest target point (dwell, arrivals)."""
+    out = np.empty(len(p))
+    for i0 in range(0, len(p), 256):
+        k, spot = nearest_spots(p[i0 : i0 + 256], v[i0 : i0 + 256], targets, normals)
+        out[i0 : i0 + 256] = np.linalg.norm(spot - targets[k], axis=1)
+    return out
+
+
 def spot_deviation(
     p: Array, v: Array, targets: Array, normals: Array | None, closed: bool
 ) -> Array:
     """Distance (m) from each sample's spot to the target polyline. The spot is where the ray
     meets the plane of the nearest target (its normal, or perpendicular to the ray)."""
+    if len(targets) < 2:
+        return point_deviation(p, v, targets, normals)
     out = np.empty(len(p))
     segs_a = targets if closed else targets[:-1]
     segs_b = np.roll(targets, -1, axis=0) if closed else targets[1:]
     ab = segs_b - segs_a
     ab2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
     for i0 in range(0, len(p), 256):
-        P, V = p[i0 : i0 + 256], v[i0 : i0 + 256]
-        w = targets[None, :, :] - P[:, None, :]
-        along = np.einsum("mkj,mj->mk", w, V)
-        perp = np.linalg.norm(w - along[..., None] * V[:, None, :], axis=2)
-        k = np.argmin(np.where(along > 0, perp, np.inf), axis=1)
-        nb = -V if normals is None else np.where(np.isfinite(normals[k]), normals[k], -V)
-        s = np.einsum("ij,ij->i", nb, targets[k] - P) / np.einsum("ij,ij->i", nb, V)
-        spot = P + s[:, None] * V
-        if len(segs_a) == 0:
-            out[i0 : i0 + 256] = np.linalg.norm(spot - targets[0], axis=1)
-            continue
+        _, spot = nearest_spots(p[i0 : i0 + 256], v[i0 : i0 + 256], targets, normals)
         u = np.clip(np.einsum("mkj,kj->mk", spot[:, None, :] - segs_a[None], ab) / ab2, 0, 1)
         near = segs_a[None] + u[..., None] * ab[None]
         out[i0 : i0 + 256] = np.linalg.norm(spot[:, None, :] - near, axis=2).min(axis=1)
@@ -200,9 +216,14 @@ def _check_spot(
     path_spec = (scn.get("targets") or {}).get("path")
     closed = bool(path_spec.get("closed", False)) if isinstance(path_spec, dict) else False
     out: list[Finding] = []
-    for kind in ("path", "dwell"):
-        mask = np.zeros(len(t), dtype=bool)
-        for s in traj.get("segments", []):
+    segments = traj.get("segments", [])
+    arrivals = np.zeros(len(t), dtype=bool)
+    for s in segments:
+        if s["kind"] in ("approach", "move"):
+            arrivals[int(np.argmin(np.abs(t - s["t1"])))] = True
+    for kind in ("path", "dwell", "arrival"):
+        mask = arrivals.copy() if kind == "arrival" else np.zeros(len(t), dtype=bool)
+        for s in segments:
             if s["kind"] == kind:
                 mask |= (t >= s["t0"] - 1e-9) & (t <= s["t1"] + 1e-9)
         if not mask.any():
@@ -211,9 +232,8 @@ def _check_spot(
         p, v = trace_last_ray(scn, q)
         if kind == "path":
             dev = spot_deviation(p, v, P, normals, closed)
-        else:  # distance to the nearest target
-            dev = np.array([spot_deviation(p[i : i + 1], v[i : i + 1], P, normals, False)[0]
-                            if len(P) == 1 else _nearest(p[i], v[i], P) for i in range(len(p))])  # fmt: skip
+        else:
+            dev = point_deviation(p, v, P, normals)
         i = int(np.argmax(dev))
         msg = (f"{kind}: max spot deviation {1e3 * dev[i]:.4f} mm at t = {t[mask][i]:.3f} s "
                f"(tolerance {1e3 * tol:.4f} mm, {mask.sum()} samples)")  # fmt: skip
@@ -230,11 +250,3 @@ def _check_spot(
                            f"{1e3 * length:.1f} mm / {1e3 * speed:.1f} mm/s = {ideal:.3f} s",
                            spent, ideal))  # fmt: skip
     return out
-
-
-def _nearest(p: Array, v: Array, P: Array) -> float:
-    """Distance from a ray to the nearest target point ahead of it (m)."""
-    w = P - p
-    along = w @ v
-    perp = np.linalg.norm(w - along[:, None] * v, axis=1)
-    return float(np.where(along > 0, perp, np.inf).min())

@@ -1,17 +1,18 @@
 """Batch planning: a scenario's targets -> the plan.json document of SPEC section 5.
 
 Point and grid targets are solved one by one with :class:`planner.ik.BeamIK`, each seeded by
-the previous solution (smooth sequences); paths go to :func:`planner.path.plan_path`, and the
-``trajectory`` field comes from :mod:`planner.timing` when that module is available
-(``trajectory: null`` otherwise). A failed target is a status; it never stops the others.
+the previous solution (smooth sequences); paths go to :func:`planner.path.plan_path`. The
+``trajectory`` field comes from :mod:`planner.timing` (:func:`time_solutions`): Ruckig
+rest-to-rest moves through the solved points (visit order optimised unless the scenario says
+``order: given``), or each feasible path run swept at the scenario's spot speed, dense at
+``rate``. A failed target is a status; it never stops the others.
 """
 
 from __future__ import annotations
 
-import importlib
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -19,6 +20,10 @@ from planner.ik import REASONS, BeamIK, IKOptions, Solution
 from planner.ik.evaluate import evaluate
 from planner.system import System, Targets
 from planner.transforms import Array
+
+if TYPE_CHECKING:
+    from planner.path import PathResult
+    from planner.timing import Trajectory, VisitReport
 
 PLAN_SCHEMA = "beamrelay.plan/1"
 Progress = Callable[[int], None]
@@ -46,19 +51,18 @@ def plan_points(
     return out
 
 
-def plan_path_targets(
+def solve_path(
     system: System, targets: Targets, options: IKOptions, q_start: Array | None = None
-) -> list[Solution]:
-    """A continuous sweep through :func:`planner.path.plan_path`, as per-sample solutions."""
-    from planner.path import plan_path
+) -> tuple[list[Solution], PathResult]:
+    """A continuous sweep through :func:`planner.path.plan_path`: per-sample solutions (a
+    sample in a gap is ``failed`` with the gap's reason and evidence) and the path result."""
+    from planner.path import PathOptions, plan_path
 
+    inc = 90.0 if options.max_incidence is None else float(np.degrees(options.max_incidence))
+    opts = PathOptions(tolerance=options.tolerance, max_iter=options.max_iter,
+                       max_incidence_deg=inc)  # fmt: skip
     t0 = time.perf_counter()
-    res = plan_path(
-        system,
-        targets,
-        q_start,
-        {"tolerance": options.tolerance, "max_iter": options.max_iter},
-    )
+    res = plan_path(system, targets, q_start, opts)
     per_sample = (time.perf_counter() - t0) / max(len(targets), 1)
     gap_of = {k: g for g in res.gaps for k in range(g.k0, g.k1)}
     out = []
@@ -73,7 +77,14 @@ def plan_path_targets(
             evidence: dict[str, object] = {"detail": gap.detail if gap is not None else ""}
             out.append(Solution("failed", reason, None, None, float("inf"), None, None,
                                 per_sample, 0, "path", 0.0, evidence))  # fmt: skip
-    return out
+    return out, res
+
+
+def plan_path_targets(
+    system: System, targets: Targets, options: IKOptions, q_start: Array | None = None
+) -> list[Solution]:
+    """A continuous sweep through :func:`planner.path.plan_path`, as per-sample solutions."""
+    return solve_path(system, targets, options, q_start)[0]
 
 
 def solution_json(system: System, k: int, sol: Solution) -> dict[str, Any]:
@@ -126,11 +137,14 @@ def plan_document(
     solutions: list[Solution],
     scenario: dict[str, Any],
     trajectory: dict[str, Any] | None = None,
+    extra: dict[str, float] | None = None,
 ) -> dict[str, Any]:
-    """The whole plan.json dict (SPEC section 5)."""
+    """The whole plan.json dict (SPEC section 5); ``extra`` figures go in ``metrics.extra``."""
     duration = None
     if trajectory is not None and trajectory.get("t"):
         duration = float(trajectory["t"][-1])
+    metrics = plan_metrics(solutions, duration)
+    metrics["extra"] |= extra or {}
     return {
         "schema": PLAN_SCHEMA,
         "scenario": scenario,
@@ -139,27 +153,128 @@ def plan_document(
         "targets": [_target_json(targets, k) for k in range(len(targets))],
         "solutions": [solution_json(system, k, s) for k, s in enumerate(solutions)],
         "trajectory": trajectory,
-        "metrics": plan_metrics(solutions, duration),
+        "metrics": metrics,
     }
 
 
+class Timed(NamedTuple):
+    """A timed trajectory and how it was made: ``visit`` for points (durations in the given
+    vs the chosen order), ``figures`` for plan.json ``metrics.extra`` (SI units)."""
+
+    trajectory: Trajectory
+    visit: VisitReport | None
+    figures: dict[str, float]
+
+
+def time_solutions(
+    system: System,
+    targets: Targets,
+    solutions: list[Solution],
+    settings: dict[str, Any],
+    *,
+    q_start: Array | None = None,
+    order: str = "optimal",
+    path: PathResult | None = None,
+    progress: Progress | None = None,
+) -> Timed | None:
+    """Time the solved targets from ``q_start`` (stacked rad, default home) at the scenario
+    ``rate`` (Hz). Points/grid: rest-to-rest Ruckig moves in the ``optimal`` (or ``given``)
+    order with ``dwell`` s on each. Path: each feasible run (``path.segments``, else runs of
+    consecutive solved samples) swept at ``spot_speed`` (m/s). None if nothing was solved."""
+    from planner.timing import path_trajectory, points_trajectory
+
+    rate = float(settings.get("rate", 500.0))
+    q0 = system.home if q_start is None else np.asarray(q_start, dtype=float)
+    Q = np.array([np.full(system.nq, np.nan) if s.q is None else s.q for s in solutions])
+    if not len(Q) or not np.isfinite(Q).all(axis=1).any():
+        return None
+    if targets.kind != "path":
+        dwell = float(settings.get("dwell", 0.0))
+        traj, visit = points_trajectory(system, Q, q0, dwell, rate, order, progress=progress)
+        figures = {"duration_given_order": visit.duration_given,
+                   "duration_chosen_order": visit.duration_optimised}  # fmt: skip
+        return Timed(traj, visit, figures | limit_ratios(system, traj))
+    from planner.path import arc_length
+
+    arc = path.arc if path is not None else arc_length(targets.points)
+    ok = np.isfinite(Q).all(axis=1)
+    spans = [(s.k0, s.k1) for s in path.segments] if path is not None else _runs(ok)
+    runs = [(Q[k0:k1], arc[k0:k1]) for k0, k1 in spans if ok[k0:k1].all()]
+    traj = path_trajectory(system, runs, q0, float(settings.get("spot_speed", 0.02)), rate)
+    figures = {"path_time": traj.span("path"), "path_length": float(arc[-1]),
+               "path_deviation_max": path_deviation(system, targets, traj),
+               "slowdowns": float(len(traj.slowdowns))}  # fmt: skip
+    return Timed(traj, None, figures | limit_ratios(system, traj))
+
+
+def _runs(ok: Array) -> list[tuple[int, int]]:
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]])))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def limit_ratios(system: System, traj: Trajectory) -> dict[str, float]:
+    """Largest |qd|, |qdd| of the trajectory as a fraction of each joint's limit."""
+    from planner.timing import JointLimits
+
+    lim = JointLimits.of(system)
+    if not len(traj.t):
+        return {}
+    out = {
+        "joint_speed_max_ratio": float((np.abs(traj.qd) / lim.velocity).max()),
+        "joint_acceleration_max_ratio": float((np.abs(traj.qdd) / lim.acceleration).max()),
+    }
+    on_path = _mask(traj, "path")
+    if on_path.any():
+        out["path_joint_speed_max_ratio"] = float((np.abs(traj.qd[on_path]) / lim.velocity).max())
+    return out
+
+
+def _mask(traj: Trajectory, kind: str) -> Array:
+    """Samples of the trajectory inside segments of one kind."""
+    mask = np.zeros(len(traj.t), dtype=bool)
+    for s in traj.segments:
+        if s.kind == kind:
+            mask |= (traj.t >= s.t0 - 1e-9) & (traj.t <= s.t1 + 1e-9)
+    return mask
+
+
+def spot_rays(system: System, Q: Array) -> tuple[Array, Array]:
+    """Last ray (origin, unit direction), each M x 3 in the world frame, of configurations
+    ``Q`` (M x nq) through the planner's beam function."""
+    from planner.beam import beam_function, system_params
+
+    N = system.n_robots
+    f = beam_function(tuple(r.kinematics for r in system.robots)).map(len(Q))
+    zeros = np.zeros((3, len(Q)))
+    out = f(q=Q.T, **system_params(system), target=zeros, normal=zeros)
+    hits, dirs = np.asarray(out["hits"]), np.asarray(out["dirs"])
+    return hits[:, N - 1 :: N].T, dirs[:, N :: N + 1].T
+
+
+def path_deviation(system: System, targets: Targets, traj: Trajectory) -> float:
+    """Largest distance (m) of the spot from the target polyline over the ``path`` segments
+    (the spot is where the ray meets the nearest sample's plane)."""
+    from planner.check_trajectory import spot_deviation
+
+    mask = _mask(traj, "path")
+    if not mask.any():
+        return 0.0
+    p, v = spot_rays(system, traj.q[mask])
+    dev = spot_deviation(p, v, targets.points, targets.normals, bool(targets.closed))
+    return float(dev.max())
+
+
 def trajectory_hook(
-    system: System, targets: Targets, solutions: list[Solution], settings: dict[str, Any]
+    system: System,
+    targets: Targets,
+    solutions: list[Solution],
+    settings: dict[str, Any],
+    q_start: Array | None = None,
+    order: str = "optimal",
 ) -> dict[str, Any] | None:
-    """``planner.timing.plan_trajectory(system, q_waypoints (K x nq), kind=, settings=)`` when
-    the timing module exists, else None. Failed targets are skipped (not waypoints)."""
-    try:
-        timing = importlib.import_module("planner.timing")
-    except ImportError:
-        return None
-    fn = getattr(timing, "plan_trajectory", None)
-    solved = [s.q for s in solutions if s.q is not None]
-    if fn is None or not solved:
-        return None
-    result: dict[str, Any] | None = fn(
-        system, np.array(solved), kind=targets.kind, settings=settings
-    )
-    return result
+    """plan.json ``trajectory`` (see :func:`time_solutions`), or None if nothing is solved."""
+    timed = time_solutions(system, targets, solutions, settings, q_start=q_start, order=order)
+    return None if timed is None else timed.trajectory.to_plan_dict(system)
 
 
 def ik_options(solver: Any, optimal: bool = False) -> IKOptions:
@@ -174,10 +289,20 @@ def ik_options(solver: Any, optimal: bool = False) -> IKOptions:
     )
 
 
-def plan_scenario(
+class PlanOutcome(NamedTuple):
+    """Everything :func:`run_scenario` made: the plan.json dict and the objects behind it."""
+
+    doc: dict[str, Any]
+    system: System
+    targets: Targets
+    timed: Timed | None
+    path: PathResult | None
+
+
+def run_scenario(
     scenario_path: Any, *, optimal: bool = False, progress: bool = True
-) -> tuple[dict[str, Any], System, Targets]:
-    """Load, plan and assemble plan.json for a scenario file (with a rich progress bar)."""
+) -> PlanOutcome:
+    """Load, plan, time and assemble plan.json for a scenario file (rich progress bars)."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 
     from planner.scenario import (
@@ -193,16 +318,57 @@ def plan_scenario(
     targets = targets_from_scenario(loaded, system)
     options = ik_options(scn.solver, optimal)
     settings = scn.trajectory.model_dump() if scn.trajectory is not None else {}
-    if targets.kind == "path":
-        solutions = plan_path_targets(system, targets, options)
-    else:
-        columns = ("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
-                   TimeRemainingColumn())  # fmt: skip
-        with Progress(*columns, disable=not progress, transient=True) as bar:
+    order = "given" if scn.targets.order == "given" else "optimal"
+    columns = ("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
+               TimeRemainingColumn())  # fmt: skip
+    path = None
+    with Progress(*columns, disable=not progress, transient=True) as bar:
+        if targets.kind == "path":
+            task = bar.add_task("path NLP", total=None)
+            solutions, path = solve_path(system, targets, options)
+            bar.update(task, total=1, completed=1)
+        else:
             task = bar.add_task("solving targets", total=len(targets))
             solutions = plan_points(
                 system, targets, options, progress=lambda k: bar.update(task, completed=k + 1)
             )
-    trajectory = trajectory_hook(system, targets, solutions, settings)
-    doc = plan_document(system, targets, solutions, resolved_scenario_dict(loaded), trajectory)
-    return doc, system, targets
+        n_ok = sum(s.ok for s in solutions)
+        timing = bar.add_task("timing", total=n_ok if targets.kind != "path" else None)
+        timed = time_solutions(system, targets, solutions, settings, order=order, path=path,
+                               progress=lambda k: bar.update(timing, completed=k + 1))  # fmt: skip
+    traj = None if timed is None else timed.trajectory.to_plan_dict(system)
+    extra = None if timed is None else timed.figures
+    doc = plan_document(system, targets, solutions, resolved_scenario_dict(loaded), traj, extra)
+    return PlanOutcome(doc, system, targets, timed, path)
+
+
+def plan_scenario(
+    scenario_path: Any, *, optimal: bool = False, progress: bool = True
+) -> tuple[dict[str, Any], System, Targets]:
+    """Load, plan and assemble plan.json for a scenario file (with a rich progress bar)."""
+    out = run_scenario(scenario_path, optimal=optimal, progress=progress)
+    return out.doc, out.system, out.targets
+
+
+def plan_json(doc: dict[str, Any], digits: int = 10) -> str:
+    """plan.json text: indented, but the dense ``trajectory`` rows written compactly with
+    times, joints and their derivatives rounded to ``digits`` decimals (1e-10 rad by
+    default; solutions keep full precision)."""
+    import json
+
+    traj = doc.get("trajectory")
+    if not traj:
+        return json.dumps(doc, indent=1)
+
+    def rows(x: Any) -> str:
+        return json.dumps(np.round(np.asarray(x, dtype=float), digits).tolist(),
+                          separators=(",", ":"))  # fmt: skip
+
+    def table(d: dict[str, Any]) -> str:
+        return "{" + ",".join(f"{json.dumps(k)}:{rows(v)}" for k, v in d.items()) + "}"
+
+    body = [f'"t":{rows(traj["t"])}'] + [f'"{k}":{table(traj[k])}' for k in ("q", "qd", "qdd")]
+    body.append(f'"segments":{json.dumps(traj.get("segments", []))}')
+    marker = "__TRAJECTORY__"
+    text = json.dumps({**doc, "trajectory": marker}, indent=1)
+    return text.replace(json.dumps(marker), "{" + ",\n".join(body) + "}", 1)

@@ -1,7 +1,11 @@
-"""3D matplotlib pictures: robots' mirror poses, beam paths and targets (world frame, metres).
+"""Matplotlib pictures of plans (world frame; metres, radians, seconds).
 
-:func:`plot_beam_chain` draws one or several configurations (``make demo`` uses it for the
-README picture); :func:`plot_plan` draws a plan.json document's solutions.
+:func:`plot_beam_chain` draws configurations in 3D: each arm as the chain of its joint
+origins (Pinocchio FK of every joint), the mirror as a square patch, the beam from the laser
+through every mirror to the spot (``make demo`` uses it for the README picture).
+:func:`plot_plan` draws a plan.json document's solutions that way. :func:`plot_profiles`
+draws the timed trajectory: joint profiles (q, qd and qdd as % of the limits) vs t, the spot
+trace against the target path, and the spot's deviation (or the move durations for points).
 """
 
 from __future__ import annotations
@@ -12,10 +16,35 @@ from typing import Any
 import numpy as np
 
 from planner.ik.evaluate import evaluate, mirror_poses
+from planner.kinematics import RobotKinematics
 from planner.system import System, Targets
-from planner.transforms import Array
+from planner.transforms import Array, inv_T
 
 _COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:purple")
+_SEGMENT_COLOURS = {"approach": "0.92", "move": "0.92", "path": "#e3f2e1", "dwell": "#fdf0d5"}
+
+
+def joint_origins(kinematics: RobotKinematics, q: Array) -> Array:
+    """``base``-frame origins of every joint, then the flange (nq + 1 x 3, metres)."""
+    import pinocchio as pin
+
+    model, data = kinematics.model, kinematics.data
+    pin.framesForwardKinematics(model, data, np.asarray(q, dtype=float))
+    universe_T_base = data.oMf[kinematics.base_id].homogeneous
+    base_T_universe = inv_T(universe_T_base)
+    pts = [base_T_universe @ data.oMi[j].homogeneous[:, 3] for j in range(1, model.njoints)]
+    pts.append(np.append(kinematics.fk(q)[:3, 3], 1.0))
+    return np.array(pts)[:, :3]
+
+
+def arm_points(system: System, q: Array) -> list[Array]:
+    """Per robot, the world points base origin -> joint origins -> flange (stacked ``q``)."""
+    out, i = [], 0
+    for r in system.robots:
+        local = np.vstack([np.zeros(3), joint_origins(r.kinematics, q[i : i + r.nq])])
+        out.append(local @ r.world_T_base[:3, :3].T + r.world_T_base[:3, 3])
+        i += r.nq
+    return out
 
 
 def _mirror_corners(world_T_mirror: Array, size: tuple[float, float]) -> Array:
@@ -24,21 +53,31 @@ def _mirror_corners(world_T_mirror: Array, size: tuple[float, float]) -> Array:
     return local @ world_T_mirror[:3, :3].T + world_T_mirror[:3, 3]
 
 
-def _draw_config(ax: Any, system: System, q: Array, target: Array, alpha: float) -> Array:
+def _draw_config(
+    ax: Any, system: System, q: Array, target: Array, alpha: float, arms: bool
+) -> Array:
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     ev = evaluate(system, q, target)
     path = np.vstack([system.world_T_laser[:3, 3], ev.hits, ev.spot])
     ax.plot(*path.T, color="red", lw=0.8, alpha=alpha)
+    drawn = [path]
     for i, (r, M) in enumerate(zip(system.robots, mirror_poses(system, q), strict=True)):
         col = _COLOURS[i % len(_COLOURS)]
-        quad = Poly3DCollection([_mirror_corners(M, r.mirror.size)], alpha=0.35 * alpha + 0.1)
+        quad = Poly3DCollection([_mirror_corners(M, r.mirror.size)], alpha=0.35 * alpha + 0.25)
         quad.set_facecolor(col)
+        quad.set_edgecolor("k")
+        quad.set_linewidth(0.3)
         ax.add_collection3d(quad)
-        flange = M @ np.linalg.inv(r.mirror.flange_T_mirror)
-        base = r.world_T_base[:3, 3]
-        ax.plot(*np.vstack([base, flange[:3, 3]]).T, color=col, lw=1.0, alpha=0.3 * alpha)
-    return path
+        flange = (M @ inv_T(r.mirror.flange_T_mirror))[:3, 3]
+        ax.plot(*np.vstack([flange, M[:3, 3]]).T, color=col, lw=1.0, alpha=alpha)
+    if arms:
+        for i, pts in enumerate(arm_points(system, q)):
+            col = _COLOURS[i % len(_COLOURS)]
+            ax.plot(*pts.T, color=col, lw=3.0, alpha=0.85, solid_capstyle="round")
+            ax.scatter(*pts[1:-1].T, color="k", s=10, depthshade=False)
+            drawn.append(pts)
+    return np.vstack(drawn)
 
 
 def plot_beam_chain(
@@ -50,7 +89,8 @@ def plot_beam_chain(
     max_beams: int = 25,
 ) -> None:
     """Draw configurations ``q`` (one stacked vector or a list, one per target) with the laser,
-    robot bases, mirrors, beam paths and all targets; save to ``path``."""
+    the arms (joint chains of one representative configuration), mirrors, beam paths and all
+    targets; save to ``path``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -69,18 +109,21 @@ def plot_beam_chain(
         np.unique(np.linspace(0, len(qs) - 1, min(max_beams, len(qs))).astype(int)) if qs else []
     )
     drawn = [points, laser[None], *[r.world_T_base[:3, 3][None] for r in system.robots]]
+    show_arms = pick[len(pick) // 2] if len(pick) else -1
     for k in pick:
         aim = points[min(k, len(points) - 1)]
-        drawn.append(_draw_config(ax, system, qs[k], aim, 0.8 if len(qs) == 1 else 0.5))
+        alpha = 0.8 if len(qs) == 1 else 0.5
+        drawn.append(_draw_config(ax, system, qs[k], aim, alpha, arms=k == show_arms))
     pts = np.vstack(drawn)
     centre = (pts.min(axis=0) + pts.max(axis=0)) / 2
     span = float(np.ptp(pts, axis=0).max()) / 2 + 0.05
     ax.set_xlim(centre[0] - span, centre[0] + span)
     ax.set_ylim(centre[1] - span, centre[1] + span)
     ax.set_zlim(max(centre[2] - span, -0.1), centre[2] + span)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_zlabel("z [m]")
+    ax.set_box_aspect((1, 1, (centre[2] + span - max(centre[2] - span, -0.1)) / (2 * span)))
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
     ax.set_title(title)
     ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
@@ -103,3 +146,118 @@ def plot_plan(system: System, targets: Targets, plan: dict[str, Any], path: str 
     # one beam per drawn configuration, aimed at its own target
     order = np.argsort([np.linalg.norm(p) for p in pts])
     plot_beam_chain(system, [qs[i] for i in order], np.array([pts[i] for i in order]), path, title)
+
+
+def profiles_path(plot: str | Path) -> Path:
+    """Where :func:`plot_profiles` goes next to a ``--plot`` file: ``plan.png`` ->
+    ``plan_profiles.png``."""
+    p = Path(plot)
+    return p.with_name(f"{p.stem}_profiles{p.suffix or '.png'}")
+
+
+def _plane_axes(points: Array) -> tuple[Array, Array, Array]:
+    """Centroid and the two principal directions of a point set (for a 2D view)."""
+    c = points.mean(axis=0)
+    _, _, vt = np.linalg.svd(points - c) if len(points) > 1 else (None, None, np.eye(3))
+    return c, vt[0], vt[1]
+
+
+def _shade(ax: Any, segments: list[dict[str, Any]]) -> None:
+    for s in segments:
+        ax.axvspan(s["t0"], s["t1"], color=_SEGMENT_COLOURS.get(s["kind"], "white"), lw=0)
+
+
+def plot_profiles(system: System, targets: Targets, plan: dict[str, Any], path: str | Path) -> None:
+    """Joint profiles (q rad; qd, qdd in % of each joint's limit) vs t with the segments
+    shaded, the spot trace vs the target path (mm, in the targets' principal plane) and the
+    spot deviation (µm) on a path, or the move durations for points; save to ``path``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from planner.check_trajectory import nearest_spots, spot_deviation
+    from planner.planning import spot_rays
+
+    traj = plan["trajectory"]
+    t = np.asarray(traj["t"], dtype=float)
+    segments = traj.get("segments", [])
+    fig = plt.figure(figsize=(13, 8.5))
+    grid = fig.add_gridspec(3, 2, width_ratios=(1.6, 1.0))
+    axes = [fig.add_subplot(grid[i, 0]) for i in range(3)]
+    for ax in axes[1:]:
+        ax.sharex(axes[0])
+    scales = [None, "velocity", "acceleration"]
+    labels = ["q (rad)", "qd (% of limit)", "qdd (% of limit)"]
+    for i, r in enumerate(system.robots):
+        style = ("-", "--", ":", "-.")[i % 4]
+        for key, ax, lim in zip(("q", "qd", "qdd"), axes, scales, strict=True):
+            X = np.asarray(traj[key][r.name], dtype=float)
+            if lim is not None:
+                X = 100 * X / getattr(r.limits, lim)[None, :]
+            for j in range(X.shape[1]):
+                name = f"{r.name}.{r.kinematics.joint_names[j].replace('_joint', '')}"
+                ax.plot(t, X[:, j], style, lw=0.9, color=f"C{j}", label=name)
+    for ax, label in zip(axes, labels, strict=True):
+        _shade(ax, segments)
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    for ax in axes[1:]:
+        ax.axhline(100, color="r", lw=0.6, ls="--")
+        ax.axhline(-100, color="r", lw=0.6, ls="--")
+    axes[2].set_xlabel("t (s)")
+    handles, names = axes[0].get_legend_handles_labels()
+    fig.legend(handles, names, loc="lower center", ncol=6, fontsize=7, frameon=False)
+    shades = {"path": "path green", "dwell": "dwell amber", "approach": "moves grey"}
+    shown = {shades.get(s["kind"], "moves grey") for s in segments}
+    axes[0].set_title(f"joint profiles (shaded: {', '.join(sorted(shown))})", fontsize=9)
+
+    P = targets.points
+    c, e1, e2 = _plane_axes(P)
+    ax_xy = fig.add_subplot(grid[0:2, 1])
+    if targets.kind == "path":
+        ax_xy.plot(1e3 * (P - c) @ e1, 1e3 * (P - c) @ e2, "k-", lw=3, alpha=0.25,
+                   label="target path")  # fmt: skip
+    else:
+        ax_xy.plot(1e3 * (P - c) @ e1, 1e3 * (P - c) @ e2, "k.", ms=3, alpha=0.4,
+                   label="targets")  # fmt: skip
+    ax_low = fig.add_subplot(grid[2, 1])
+    on_path = np.zeros(len(t), dtype=bool)
+    for s in segments:
+        if s["kind"] == "path":
+            on_path |= (t >= s["t0"] - 1e-9) & (t <= s["t1"] + 1e-9)
+    Q = np.hstack([np.asarray(traj["q"][r.name], dtype=float) for r in system.robots])
+    if targets.kind == "path" and on_path.any():
+        p, v = spot_rays(system, Q[on_path])
+        _, spots = nearest_spots(p, v, P, targets.normals)
+        ax_xy.plot(1e3 * (spots - c) @ e1, 1e3 * (spots - c) @ e2, "r-", lw=0.8, label="spot")
+        dev = spot_deviation(p, v, P, targets.normals, bool(targets.closed))
+        ax_low.plot(t[on_path], 1e6 * dev, "r.", ms=1)
+        ax_low.set_ylabel("spot deviation (µm)")
+        ax_low.set_xlabel("t (s)")
+        ax_low.set_title(f"max {1e3 * dev.max():.4f} mm", fontsize=9)
+    else:
+        ends = [s for s in segments if s["kind"] in ("approach", "move")]
+        idx = [int(np.argmin(np.abs(t - s["t1"]))) for s in ends]
+        if idx:
+            p, v = spot_rays(system, Q[idx])
+            _, spots = nearest_spots(p, v, P, targets.normals)
+            ax_xy.plot(1e3 * (spots - c) @ e1, 1e3 * (spots - c) @ e2, "r-", lw=0.5,
+                       alpha=0.6, label="spot, visit order")  # fmt: skip
+        ax_low.bar(np.arange(len(ends)), [s["t1"] - s["t0"] for s in ends], width=1.0)
+        ax_low.set_xlabel("move (visit order)")
+        ax_low.set_ylabel("move time (s)")
+    ax_xy.set_aspect("equal", adjustable="datalim")
+    ax_xy.set_xlabel("along 1st principal axis (mm)")
+    ax_xy.set_ylabel("along 2nd principal axis (mm)")
+    ax_xy.set_title("spot trace vs targets", fontsize=9)
+    ax_xy.legend(fontsize=8)
+    ax_xy.grid(alpha=0.3)
+    ax_low.grid(alpha=0.3)
+    name = plan["scenario"].get("name") or ""
+    fig.suptitle(f"{name}: trajectory {t[-1]:.2f} s at {1 / np.diff(t[:2])[0]:.0f} Hz"
+                 if len(t) > 1 else name)  # fmt: skip
+    rows = int(np.ceil(len(names) / 6))
+    fig.tight_layout(rect=(0.0, 0.025 * rows + 0.01, 1.0, 1.0))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

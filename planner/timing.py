@@ -14,6 +14,7 @@ joints of all robots stacked in robot order. Check the result by sampling
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -239,10 +240,11 @@ def _hold(q: Array, seconds: float, rate: float, kind: str) -> _Piece:
 
 def points_trajectory(
     system: System, Q: Array, q_start: Array | None = None, dwell: float = 0.0,
-    rate: float = 500.0, order: str = "optimal",
+    rate: float = 500.0, order: str = "optimal", progress: Callable[[int], None] | None = None,
 ) -> tuple[Trajectory, VisitReport]:  # fmt: skip
     """Rest-to-rest moves visiting every row of ``Q`` (solved targets, n x nq; NaN rows are
-    skipped), ``dwell`` s on each; ``order`` is ``optimal`` or ``given``."""
+    skipped), ``dwell`` s on each; ``order`` is ``optimal`` or ``given``. ``progress(n)`` is
+    called after the n-th move."""
     lim = JointLimits.of(system)
     q0 = system.home if q_start is None else np.asarray(q_start, dtype=float)
     idx = np.flatnonzero(np.all(np.isfinite(Q), axis=1))
@@ -261,6 +263,8 @@ def points_trajectory(
         if dwell > 0:
             pieces.append(_hold(Q[k], dwell, rate, "dwell"))
         prev = Q[k]
+        if progress is not None:
+            progress(n)
     if not pieces:
         pieces.append(_hold(q0, 0.0, rate, "dwell"))
     traj = _assemble(pieces, rate)
