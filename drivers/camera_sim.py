@@ -16,8 +16,9 @@ Laser spot: the *true* beam - the latest joint states of every robot traced with
 (ahead, front face, inside each ROI), else no spot. Each beam segment is raycast against the
 scene (an object in the way catches the beam there), the last one gives the spot. It must be
 inside the image and visible from the camera (no object between), else no spot. The
-detection is the spot plus depth noise averaged over the ``spot_pixels`` pixels of the blob
-(``sigma_z / sqrt(spot_pixels)`` along the ray, and ``sigma_px = 0.1`` px laterally);
+detection deprojects the spot's centroid pixel (noise ``SIGMA_PX`` = 0.05 px per axis) with
+the depth of a plane fitted to the ``SPOT_WINDOW`` x ``SPOT_WINDOW`` pixels around it (noise
+``sigma_z / SPOT_WINDOW`` along the ray): 0.2 mm at 0.87 m, the paper_n1 camera distance;
 confidence = |cos| of the angle between the beam and the surface normal (a grazing beam
 makes a long, dim spot), at least 0.05.
 """
@@ -37,8 +38,8 @@ from planner.transforms import Array, inv_T
 
 SUBPIXEL = 0.08  # px, D435 disparity RMS
 BASELINE = 0.050  # m, D435 stereo baseline
-SIGMA_PX = 0.1  # px, lateral noise of the spot centroid
-SPOT_PIXELS = 16  # pixels the spot blob covers (its depth is their mean)
+SIGMA_PX = 0.05  # px, noise of the spot centroid per image axis
+SPOT_WINDOW = 15  # px, side of the window whose plane fit gives the spot depth
 EPS = 1e-6  # m, offset of a ray start off the surface it leaves
 F32 = NDArray[np.float32]
 
@@ -185,7 +186,7 @@ class SimCamera:
         u, w = k.fx * p_c[0] / p_c[2] + k.cx, k.fy * p_c[1] / p_c[2] + k.cy
         if not (0 <= u < k.width and 0 <= w < k.height):
             return None
-        z = p_c[2] + depth_sigma(p_c[2], k.fx) / np.sqrt(SPOT_PIXELS) * self.rng.standard_normal()
+        z = p_c[2] + depth_sigma(p_c[2], k.fx) / SPOT_WINDOW * self.rng.standard_normal()
         du, dv = SIGMA_PX * self.rng.standard_normal(2)
         ray = np.array([(u + du - k.cx) / k.fx, (w + dv - k.cy) / k.fy, 1.0])
         confidence = max(0.05, abs(float(np.dot(v, normal))))
