@@ -90,9 +90,10 @@ class Supervisor:
                 continue
             if child.next_start == 0.0:  # just noticed the exit
                 child.last_exit = child.proc.returncode
-                stable = now - child.started > STABLE_AFTER
-                child.delay = RESTART_DELAY if stable else min(2 * child.delay, MAX_DELAY)
+                if now - child.started > STABLE_AFTER:
+                    child.delay = RESTART_DELAY
                 child.next_start = now + child.delay
+                child.delay = min(2 * child.delay, MAX_DELAY)
             elif now >= child.next_start:
                 child.next_start = 0.0
                 child.restarts += 1
