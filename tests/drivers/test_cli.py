@@ -1,0 +1,102 @@
+"""Driver processes as users start them: ``beamrelay driver robot|camera`` over a real bus."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivers.camera_node import decode_points
+from planner.bus import Keys, decode
+from planner.scenario import load_scenario, system_from_scenario
+from planner.transforms import inv_T
+from schemas.messages import JointState, SpotMessage
+from tests.drivers.conftest import wait_for
+from tests.drivers.test_camera_sim import analytic_spot
+
+SCENARIO = Path(__file__).parents[2] / "scenarios" / "paper_n1.yaml"
+CLI = [sys.executable, "-m", "planner.cli", "driver"]
+
+
+def run(args: list[str], endpoint: str, prefix: str) -> subprocess.Popen[bytes]:
+    bus = ["--scenario", str(SCENARIO), "--endpoint", endpoint, "--prefix", prefix]
+    env = dict(os.environ, PYTHONPATH=os.getcwd())
+    return subprocess.Popen([*CLI, *args, *bus], stderr=subprocess.PIPE, env=env)
+
+
+def test_robot_and_camera_drivers_publish_and_stop_on_sigterm(
+    hub: Any, endpoint: str, keys: Keys
+) -> None:
+    got: dict[str, list[Any]] = {"js": [], "spot": [], "pts": []}
+    subs = [
+        hub.declare_subscriber(keys.joint_states("arm0"), got["js"].append),
+        hub.declare_subscriber(keys.camera_spot, got["spot"].append),
+        hub.declare_subscriber(keys.camera_points, got["pts"].append),
+    ]
+    robot = run(["robot", "--name", "arm0"], endpoint, keys.prefix)
+    camera = run(["camera", "--stride", "4", "--seed", "1"], endpoint, keys.prefix)
+    try:
+        wait_for(lambda: len(got["spot"]) > 10 and len(got["pts"]) > 3, timeout=30, what="camera")
+        alive = {str(r.ok.key_expr) for r in hub.liveliness().get(keys.alive_all)}
+        assert alive == {keys.alive("arm0"), keys.alive("camera")}
+        js = decode(got["js"][-1].payload.to_bytes(), JointState)
+        system = system_from_scenario(load_scenario(SCENARIO))
+        np.testing.assert_allclose(js.q, system.robots[0].home, atol=1e-12)
+        # the camera traced the beam at the published home pose: spot on the board
+        truth = system_from_scenario(load_scenario(SCENARIO), truth=True)
+        assert truth.camera is not None
+        expected = inv_T(truth.camera.world_T_camera) @ np.append(analytic_spot(truth, js.q), 1)
+        spots = [decode(s.payload.to_bytes(), SpotMessage) for s in got["spot"][-10:]]
+        p = np.array([s.p_camera for s in spots if s.p_camera is not None])
+        assert len(p) == 10
+        assert np.linalg.norm(p.mean(axis=0) - expected[:3]) < 5e-4
+        last = got["pts"][-1]
+        pts, meta = decode_points(last.payload.to_bytes(), last.attachment.to_bytes())
+        assert meta["stride"] == 4 and pts.shape == (meta["count"], 3) and meta["count"] > 500
+        w = (
+            pts.astype(float) @ truth.camera.world_T_camera[:3, :3].T
+            + truth.camera.world_T_camera[:3, 3]
+        )
+        assert np.median(np.abs(w[:, 2] + 0.06)) < 2e-3  # on the board's top face
+        # rates over the last second of messages (by their own timestamps)
+        t_js = np.array([decode(s.payload.to_bytes(), JointState).t for s in got["js"][-200:]])
+        t_pts = np.array(
+            [
+                decode_points(s.payload.to_bytes(), s.attachment.to_bytes())[1]["t"]
+                for s in got["pts"][-10:]
+            ]
+        )
+        print(
+            f"joint_states {1 / np.median(np.diff(t_js)):.0f} Hz, points {1 / np.median(np.diff(t_pts)):.1f} Hz"
+        )
+        assert 1 / np.median(np.diff(t_js)) >= 100 and 1 / np.median(np.diff(t_pts)) >= 14
+    finally:
+        for proc in (robot, camera):
+            proc.send_signal(signal.SIGTERM)
+        codes = [proc.wait(timeout=10) for proc in (robot, camera)]
+        for s in subs:
+            s.undeclare()
+    assert codes == [0, 0]
+    time.sleep(0.2)
+    assert not list(hub.liveliness().get(keys.alive_all))  # tokens withdrawn
+
+
+def test_user_mistakes_exit_2_with_one_line(endpoint: str) -> None:
+    cases = [
+        (["robot", "--name", "arm7"], "unknown robot 'arm7'"),
+        (["robot", "--name", "arm0", "--backend", "ur"], "--host"),
+        (["robot", "--name", "arm0", "--state-rate", "50"], "--state-rate"),
+        (["camera", "--stride", "0"], "--stride"),
+    ]
+    for args, needle in cases:
+        proc = run(args, endpoint, "brbad")
+        _, err = proc.communicate(timeout=60)
+        lines = err.decode().strip().splitlines()
+        assert proc.returncode == 2, err
+        assert len(lines) == 1 and needle in lines[0], lines
