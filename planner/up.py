@@ -171,5 +171,6 @@ def run_up(
         session.close()
         for s, h in previous.items():
             signal.signal(s, h)
+    console.print()
     console.print(f"stopped: {', '.join(f'{n}={c}' for n, c in codes.items())}")
     return codes
