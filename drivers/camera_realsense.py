@@ -21,6 +21,7 @@ Without hardware: :func:`write_recording` writes a ``.db3`` recording through
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 from typing import Any
 
@@ -118,7 +119,6 @@ class RealSenseCamera:
         if found is None:
             return None
         (u, v), peak = found
-        h, w = depth_m.shape
         r = SPOT_WINDOW // 2
         win = depth_m[max(0, int(v) - r) : int(v) + r + 1, max(0, int(u) - r) : int(u) + r + 1]
         valid = win[win > 0]
@@ -131,10 +131,8 @@ class RealSenseCamera:
         return SpotReading(p, float(peak / 255.0 * valid.size / win.size))
 
     def close(self) -> None:
-        try:
+        with contextlib.suppress(RuntimeError):  # already stopped
             self.pipeline.stop()
-        except RuntimeError:  # already stopped
-            pass
 
 
 def detect_red_spot(rgb: Array) -> tuple[tuple[float, float], float] | None:
