@@ -114,14 +114,17 @@ class JointLimits:
 # ------------------------------------------------------------------------------------------
 # rest-to-rest moves
 # ------------------------------------------------------------------------------------------
-def rest_to_rest_time(d: Array, v: Array, a: Array, j: Array) -> Array:
+def rest_to_rest_time(
+    d: Array | float, v: Array | float, a: Array | float, j: Array | float
+) -> Array:
     """Time-optimal jerk-limited 1-DOF rest-to-rest duration (s) for distances ``|d|``.
 
     Closed form: cruise at v if reachable; else a peak velocity below v, with or without a
     constant-acceleration phase. Broadcasts over all arguments.
     """
-    d = np.abs(np.asarray(d, dtype=float))
-    v, a, j = (np.broadcast_to(np.asarray(x, dtype=float), d.shape) for x in (v, a, j))
+    dist = np.abs(np.asarray(d, dtype=float))
+    v, a, j = (np.broadcast_to(np.asarray(x, dtype=float), dist.shape) for x in (v, a, j))
+    d = dist
     t_acc = np.where(v * j >= a * a, v / a + a / j, 2 * np.sqrt(v / j))  # 0 -> v
     cruise = d >= v * t_acc
     vp_a = a * (-a / j + np.sqrt((a / j) ** 2 + 4 * d / a)) / 2  # peak with an a-limited phase

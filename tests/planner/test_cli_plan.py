@@ -5,10 +5,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from planner.cli import main
-from tests.planner.test_planning import SCENARIO, write_scenario
+from tests.planner.test_check import ramp_trajectory
+from tests.planner.test_planning import CURVE, SCENARIO, write_scenario
 
 
 def run(args: list[str]) -> int:
@@ -55,3 +57,39 @@ def test_bad_inputs_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     assert run(["check", str(junk)]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 3
+
+
+def test_path_plan_check_and_profiles(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out, png = tmp_path / "c.json", tmp_path / "c.png"
+    assert run(["plan", str(CURVE), "-o", str(out), "--plot", str(png)]) == 0
+    text = capsys.readouterr().out
+    for words in ("on the path (s)", "max spot deviation (mm)", "max joint speed", "slowdowns"):
+        assert words in text
+    assert png.stat().st_size > 10_000
+    assert (tmp_path / "c_profiles.png").stat().st_size > 30_000
+    doc = json.loads(out.read_text())
+    assert run(["check", str(out), "--json"]) == 0
+    figures = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert figures["violations"] == 0
+    assert figures["trajectory spot.path_deviation_max_m"] <= 5e-5
+    dev = doc["metrics"]["extra"]["path_deviation_max"]
+    assert f"{1e3 * dev:.4f}" in text  # the printed figure is the plan's
+    # the sweep at 20 mm/s over the path length, within 10 %
+    length = doc["metrics"]["extra"]["path_length"]
+    assert figures["trajectory spot.path_duration_s"] == pytest.approx(length / 0.02, rel=0.1)
+
+
+def test_check_exits_1_on_a_too_fast_trajectory(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "plan.json"
+    assert run(["plan", str(write_scenario(tmp_path)), "-o", str(out)]) == 0
+    fast = tmp_path / "fast.json"
+    fast.write_text(json.dumps(ramp_trajectory(json.loads(out.read_text()), 1.2 * np.pi)))
+    capsys.readouterr()
+    assert run(["check", str(fast), "--json"]) == 1
+    text = capsys.readouterr().out
+    assert "velocity" in text and "120.0% of limit" in text
+    figures = json.loads(text.strip().splitlines()[-1])
+    assert figures["violations"] == 1
+    assert figures["trajectory limits.velocity_max_ratio"] == pytest.approx(1.2, rel=1e-9)

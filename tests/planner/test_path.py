@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from planner.beam import BeamModel
-from planner.path import plan_path, resample_polyline, tangents
+from planner.path import PathOptions, plan_path, resample_polyline, tangents
+from planner.path_nlp import constraint_lower_bounds
 from planner.system import Targets
 
 SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "curve_path.yaml"
@@ -66,3 +67,12 @@ def test_gap_is_reported(curve):
     assert [(g.k0, g.k1) for g in res.gaps] == [(40, 41)]
     assert res.gaps[0].reason in {"unreachable", "outside_roi", "joint_limits", "back_face"}
     assert res.ok.sum() == 80 and np.nanmax(res.error) < 1e-8
+
+
+def test_constraint_lower_bounds():
+    has = np.array([1.0, 0.0, 1.0])
+    lb = constraint_lower_bounds(2, 3, has, PathOptions(max_incidence_deg=60.0, min_front=0.05))
+    assert lb.shape == (3, 4 * 2 + 2)
+    np.testing.assert_allclose(lb[0, :4], 1e-6)  # ROI margins of both mirrors (m)
+    np.testing.assert_allclose(lb[0, 4:6], 0.05)  # front face: -n.v
+    np.testing.assert_allclose(lb[:, -1], [0.5, -np.inf, 0.5])  # cos 60 deg where a normal is

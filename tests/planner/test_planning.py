@@ -1,13 +1,27 @@
-"""Batch planning: plan.json shape (schema), metrics vs independent figures, failures."""
+"""Batch planning: plan.json shape (schema), metrics vs independent figures, failures,
+trajectories (points and paths) re-verified by the checker."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
-from planner.ik import IKOptions
-from planner.planning import plan_document, plan_points, plan_scenario
+from planner.check import ArmGeometry, Trace, check_plan, ur5e_dh_fk
+from planner.ik import IKOptions, Solution
+from planner.planning import (
+    PlanOutcome,
+    plan_document,
+    plan_json,
+    plan_points,
+    plan_scenario,
+    run_scenario,
+    solve_path,
+    spot_rays,
+    time_solutions,
+)
 from planner.system import Targets
 from schemas.plan import Plan
 from tests.planner.ik import ik_systems as sy
@@ -43,6 +57,7 @@ def test_plan_points_keeps_going_after_a_failure() -> None:
     assert m["error_max"] == max(sols[0].error, sols[2].error)
     assert m["extra"] == {"failed_back_face": 1}
     assert "q" not in doc["solutions"][1]
+    assert sols[2].q is not None
     np.testing.assert_allclose(doc["solutions"][2]["q"]["arm0"], sols[2].q)
 
 
@@ -61,3 +76,115 @@ def test_plan_scenario_document(tmp_path: Path) -> None:
     for sol in plan.solutions:
         np.testing.assert_allclose(sol.hits[0].p, np.asarray(sol.hits[0].p))
         assert np.all(np.abs(sol.hits[0].uv) <= system.robots[0].mirror.roi_half)
+
+
+CURVE = Path(__file__).resolve().parents[2] / "scenarios" / "curve_path.yaml"
+
+
+@pytest.fixture(scope="module")
+def grid_outcome(tmp_path_factory: pytest.TempPathFactory) -> PlanOutcome:
+    return run_scenario(write_scenario(tmp_path_factory.mktemp("g")), progress=False)
+
+
+@pytest.fixture(scope="module")
+def curve_outcome() -> PlanOutcome:
+    return run_scenario(CURVE, progress=False)
+
+
+def test_points_trajectory_visits_every_solution(grid_outcome: PlanOutcome) -> None:
+    doc, system = grid_outcome.doc, grid_outcome.system
+    traj = doc["trajectory"]
+    assert traj is not None and doc["metrics"]["duration"] == traj["t"][-1]
+    ends = [s for s in traj["segments"] if s["kind"] in ("approach", "move")]
+    assert len(ends) == 18 and ends[0]["kind"] == "approach"
+    q = np.asarray(traj["q"]["arm0"])
+    np.testing.assert_allclose(q[0], system.home, atol=1e-12)  # starts at home
+    rate = doc["scenario"]["trajectory"]["rate"]
+    arrived = q[[round(s["t1"] * rate) for s in ends]]
+    solved = np.array([s["q"]["arm0"] for s in doc["solutions"]])
+    # every solution is visited exactly once, at the end of a move
+    match = np.linalg.norm(arrived[:, None, :] - solved[None], axis=2)
+    assert np.allclose(np.sort(match.min(axis=1)), 0, atol=1e-12)
+    assert sorted(match.argmin(axis=1).tolist()) == list(range(18))
+    x = doc["metrics"]["extra"]
+    assert x["duration_chosen_order"] <= x["duration_given_order"]
+    assert traj["t"][-1] == pytest.approx(x["duration_chosen_order"], rel=0.05)
+    lim = system.robots[0].limits
+    np.testing.assert_allclose(x["joint_speed_max_ratio"],
+                               (np.abs(np.asarray(traj["qd"]["arm0"])) / lim.velocity).max())  # fmt: skip
+
+
+def test_given_order_is_kept(grid_outcome: PlanOutcome) -> None:
+    o = grid_outcome
+    sols = [Solution(s["status"], None, o.system.stack_q(s["q"]), None, 0.0, None, None, 0.0, 0,
+                     "t") for s in o.doc["solutions"]]  # fmt: skip
+    timed = time_solutions(o.system, o.targets, sols, {"rate": 500.0}, order="given")
+    assert timed is not None and timed.visit is not None
+    assert timed.visit.order.tolist() == list(range(18))
+    assert timed.trajectory.duration == pytest.approx(
+        timed.figures["duration_given_order"], rel=0.05
+    )
+
+
+def test_plan_json_compact_and_equal(grid_outcome: PlanOutcome) -> None:
+    doc = grid_outcome.doc
+    text = plan_json(doc)
+    back = json.loads(text)
+    Plan.model_validate(back)
+    assert back["solutions"] == doc["solutions"]  # full precision for the solutions
+    for key in ("q", "qd", "qdd"):
+        np.testing.assert_allclose(back["trajectory"][key]["arm0"], doc["trajectory"][key]["arm0"],
+                                   rtol=0, atol=5e-11)  # fmt: skip
+    assert len(text) < 0.8 * len(json.dumps(doc, indent=1))
+
+
+def test_spot_rays_match_numpy_trace() -> None:
+    system = sy.n2()
+    arms = [ArmGeometry(r.name, ur5e_dh_fk, r.world_T_base, r.mirror.flange_T_mirror,
+                        r.mirror.roi_half, r.limits.lower, r.limits.upper)
+            for r in system.robots]  # fmt: skip
+    rng = np.random.default_rng(4)
+    Q = system.home + rng.uniform(-0.05, 0.05, (5, system.nq))
+    p, v = spot_rays(system, Q)
+    for k in range(5):
+        tr = Trace(system.world_T_laser, arms, system.split_q(Q[k]))
+        np.testing.assert_allclose(p[k], tr.p, atol=1e-12)
+        np.testing.assert_allclose(v[k], tr.v, atol=1e-12)
+
+
+def test_curve_path_end_to_end(curve_outcome: PlanOutcome) -> None:
+    doc = curve_outcome.doc
+    Plan.model_validate(doc)
+    assert doc["metrics"]["n_ok"] == doc["metrics"]["n_targets"] == len(curve_outcome.targets)
+    results = {r.name: r for r in check_plan(doc)}
+    assert not [f for r in results.values() for f in r.findings]
+    spot = results["trajectory spot"]
+    assert spot.checked == len(doc["trajectory"]["t"])
+    x = doc["metrics"]["extra"]
+    # the planner's deviation (CasADi beam) and the checker's (numpy DH) agree
+    assert x["path_deviation_max"] == pytest.approx(spot.figures["path_deviation_max_m"], abs=1e-8)
+    assert x["path_deviation_max"] <= 5e-5  # issue 5 goal: 0.05 mm
+    length = float(np.linalg.norm(np.diff(curve_outcome.targets.points, axis=0), axis=1).sum())
+    assert x["path_length"] == pytest.approx(length, rel=1e-12)
+    assert x["path_time"] == pytest.approx(length / 0.02, rel=0.1)
+    assert [s["kind"] for s in doc["trajectory"]["segments"]] == ["approach", "path"]
+
+
+def test_path_gap_becomes_a_move(curve_outcome: PlanOutcome) -> None:
+    system, targets = curve_outcome.system, curve_outcome.targets
+    assert targets.normals is not None
+    pts = np.vstack(
+        [targets.points[:30], targets.points[29] + [[0, 0, 5.0]], targets.points[30:60]]
+    )
+    nrm = np.vstack([targets.normals[:30], [[0, 0, 1.0]], targets.normals[30:60]])
+    gapped = Targets(pts, nrm, kind="path")
+    sols, res = solve_path(system, gapped, IKOptions())
+    assert [s.status for s in sols].count("failed") == 1 and sols[30].reason is not None
+    timed = time_solutions(system, gapped, sols, {"rate": 500.0, "spot_speed": 0.02}, path=res)
+    assert timed is not None
+    kinds = [s.kind for s in timed.trajectory.segments]
+    assert kinds == ["approach", "path", "move", "path"]
+    t_path = timed.trajectory.span("path")
+    # two runs of 29 mm each, at 20 mm/s plus ramps
+    runs = [res.arc[29] - res.arc[0], res.arc[60] - res.arc[31]]
+    assert t_path == pytest.approx(sum(runs) / 0.02, rel=0.1)

@@ -90,3 +90,16 @@ def test_path_speed_and_slowdown(system):
     for n, bound in ((1, lim.velocity), (2, lim.acceleration), (3, lim.jerk)):
         assert (np.abs(_fd(traj.q, n)) <= bound * 1.02 + 1e-9).all()
     np.testing.assert_allclose(_fd(traj.q, 1), (traj.qd[1:] + traj.qd[:-1]) / 2, atol=0.01)
+
+
+def test_points_progress_and_arrivals(system):
+    rng = np.random.default_rng(2)
+    Q = system.home + rng.uniform(-0.3, 0.3, (6, 6))
+    Q[2] = np.nan  # a failed target is skipped
+    calls: list[int] = []
+    traj, rep = points_trajectory(system, Q, rate=RATE, order="given", progress=calls.append)
+    assert calls == list(range(5))
+    assert rep.order.tolist() == [0, 1, 3, 4, 5]
+    ends = [round(s.t1 * RATE) for s in traj.segments]
+    np.testing.assert_allclose(traj.q[ends], Q[[0, 1, 3, 4, 5]], atol=1e-12)
+    np.testing.assert_allclose(traj.qd[ends], 0.0, atol=1e-9)  # rest to rest

@@ -1,0 +1,44 @@
+"""Pictures: arm joint chains against the SPEC DH lengths; the profile figure is written."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from planner.check import ur5e_dh_fk
+from planner.kinematics import RobotKinematics
+from planner.planning import run_scenario
+from planner.plot import arm_points, joint_origins, plot_profiles, profiles_path
+from tests.planner.test_planning import write_scenario
+
+DH_LENGTHS = [0.1625, 0.425, 0.3922, 0.1333, 0.0997, 0.0996]  # SPEC section 2: d and a
+
+
+def test_joint_chain_lengths_and_flange() -> None:
+    kin = RobotKinematics.ur5e()
+    for q in np.random.default_rng(5).uniform(-np.pi, np.pi, (5, 6)):
+        P = joint_origins(kin, q)
+        links = np.linalg.norm(np.diff(P, axis=0), axis=1)
+        np.testing.assert_allclose(links[links > 1e-9], DH_LENGTHS, atol=1e-9)
+        np.testing.assert_allclose(P[-1], ur5e_dh_fk(q)[:3, 3], atol=1e-12)
+
+
+def test_arm_points_in_world() -> None:
+    from tests.planner.ik import ik_systems as sy
+
+    system = sy.n2()
+    pts = arm_points(system, system.home)
+    for r, P in zip(system.robots, pts, strict=True):
+        np.testing.assert_allclose(P[0], r.world_T_base[:3, 3], atol=1e-15)
+        flange = r.world_T_base @ ur5e_dh_fk(system.split_q(system.home)[r.name])
+        np.testing.assert_allclose(P[-1], flange[:3, 3], atol=1e-12)
+
+
+def test_profiles_written_next_to_the_plot(tmp_path: Path) -> None:
+    assert profiles_path("out/plan.png") == Path("out/plan_profiles.png")
+    assert profiles_path("plan.svg") == Path("plan_profiles.svg")
+    out = run_scenario(write_scenario(tmp_path), progress=False)
+    png = tmp_path / "p.png"
+    plot_profiles(out.system, out.targets, out.doc, png)
+    assert png.stat().st_size > 30_000
