@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
-from pydantic import BaseModel, ValidationError
+from pydantic import BaseModel
 
 from planner.errors import InputError
 
@@ -118,16 +118,17 @@ def encode(model: BaseModel | dict[str, Any]) -> bytes:
 
 
 def decode(payload: bytes, cls: type[M]) -> M:
-    """Parse and validate a JSON body; errors name the offending field (InputError)."""
+    """Parse and validate a JSON body. Errors are :class:`InputError` whose ``where`` is the
+    offending key path (``points[3]``), ready for an error reply's ``field``."""
+    from schemas.yamlio import parse_message
+
     if len(payload) > MAX_PAYLOAD_BYTES:
         raise InputError(f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD_BYTES}", "body")
     try:
-        data = json.loads(payload)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"not JSON: {exc}", "body") from exc
-    try:
-        return cls.model_validate(data)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        where = ".".join(str(p) for p in err["loc"]) or "body"
-        raise InputError(err["msg"], where) from exc
+        return parse_message(payload, cls)
+    except RecursionError:
+        raise InputError("JSON nested too deeply", "body") from None
+    except InputError as exc:
+        if exc.where:
+            raise
+        raise InputError(exc.reason, "body") from None

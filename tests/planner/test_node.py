@@ -88,11 +88,15 @@ def test_plan_reply_puts_spot_on_target(
 @pytest.mark.parametrize(
     ("body", "field", "words"),
     [
-        (b"{not json", "body", "not JSON"),
+        (b"{not json", "body", "invalid JSON"),
         (b"[" * 100_000 + b"]" * 100_000, "body", "nested too deeply"),
         (b" " * (5 * 1024 * 1024), "body", "exceeds"),
-        (b'{"schema":"beamrelay.request/1","id":"a","points":[[NaN,0,0]]}', "points.0.0", "finite"),
-        (b'{"schema":"beamrelay.request/1","id":"a","points":[[1,0]]}', "points.0", ""),
+        (
+            b'{"schema":"beamrelay.request/1","id":"a","points":[[NaN,0,0]]}',
+            "points[0][0]",
+            "finite",
+        ),
+        (b'{"schema":"beamrelay.request/1","id":"a","points":[[1,0]]}', "points[0]", ""),
         (
             b'{"schema":"beamrelay.request/1","id":"a","points":[[1,0,0]],"robots":["x"]}',
             "robots",
@@ -191,7 +195,7 @@ def test_targets_topic_publishes_plan_and_errors(
     wait_for(lambda: len(got) == 2, what="two publications on plans")
     sub.undeclare()
     check_plan(system, got[0], points)
-    assert got[1]["schema"] == "beamrelay.error/1" and got[1]["field"] == "schema"
+    assert got[1]["schema"] == "beamrelay.error/1" and got[1]["field"] == "id"
 
 
 def test_liveliness_token_follows_the_node(system: System) -> None:
