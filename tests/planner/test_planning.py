@@ -118,12 +118,19 @@ def test_given_order_is_kept(grid_outcome: PlanOutcome) -> None:
     o = grid_outcome
     sols = [Solution(s["status"], None, o.system.stack_q(s["q"]), None, 0.0, None, None, 0.0, 0,
                      "t") for s in o.doc["solutions"]]  # fmt: skip
-    timed = time_solutions(o.system, o.targets, sols, {"rate": 500.0}, order="given")
+    settings = {"rate": 500.0, "dwell": 0.05}
+    timed = time_solutions(o.system, o.targets, sols, settings, order="given")
     assert timed is not None and timed.visit is not None
     assert timed.visit.order.tolist() == list(range(18))
     assert timed.trajectory.duration == pytest.approx(
         timed.figures["duration_given_order"], rel=0.05
     )
+    assert timed.trajectory.span("dwell") == pytest.approx(18 * 0.05, abs=1e-9)
+    doc = {**o.doc, "trajectory": timed.trajectory.to_plan_dict(o.system)}
+    results = {r.name: r for r in check_plan(doc)}
+    assert not [f for r in results.values() for f in r.findings]
+    # 25 samples held on each of the 18 targets, all on target
+    assert results["trajectory spot"].figures["dwell_deviation_max_m"] <= 1e-9
 
 
 def test_plan_json_compact_and_equal(grid_outcome: PlanOutcome) -> None:
