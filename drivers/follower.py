@@ -16,11 +16,12 @@ Modes (one of :data:`MODES`):
    velocity and acceleration limits on receipt (:mod:`drivers.robot_node`).
 3. ``settle`` - after the last sample Ruckig brings the arm to rest on the final position.
 4. ``braking`` - watchdog or fault: Ruckig's velocity interface takes the velocity to zero
-   at once, with the acceleration limit and a jerk of ``brake_jerk_scale`` times the
-   motion jerk limit (default 10x: full deceleration is reached in a = 5 / 500 -> 10 ms).
-   Time to rest from joint speed v: ``2 sqrt(v / j_b)`` for ``v <= a^2 / j_b``, else
-   ``v / a + a / j_b``; with the SPEC defaults (a = 5, j_b = 500) that is <= 100 ms up to
-   0.45 rad/s, and 0.64 s from the 3.14 rad/s velocity limit.
+   at once with the *stop* deceleration ``stop_acceleration`` (default 40 rad/s^2) and jerk
+   ``stop_jerk`` (default 4000 rad/s^3: full deceleration within 10 ms), like a UR
+   protective stop (category 2) rather than a planned motion, whose limits (SPEC default
+   5 rad/s^2) are for work near people, not for stopping. Time to rest from joint speed v:
+   ``2 sqrt(v / j)`` for ``v <= a^2 / j``, else ``v / a + a / j``: at most 89 ms from the
+   3.14 rad/s velocity limit, so the arm is still within 100 ms of a fault from any speed.
 5. ``idle`` / ``stopped`` - at rest (``stopped``: after a brake, until the next command).
 """
 
@@ -37,6 +38,8 @@ from planner.transforms import Array
 
 MODES = ("idle", "approach", "following", "settle", "braking", "stopped")
 REST_VELOCITY = 1e-9  # rad/s: below this (every joint) the arm counts as at rest
+STOP_ACCELERATION = 40.0  # rad/s^2, deceleration of a watchdog/fault stop
+STOP_JERK = 4000.0  # rad/s^3
 
 
 @dataclass(frozen=True)
@@ -78,7 +81,12 @@ class TrajectoryFollower:
     """Ruckig-based follower for one arm (see the module docstring for the modes)."""
 
     def __init__(
-        self, q0: Array, limits: Limits, dt: float = 0.002, brake_jerk_scale: float = 10.0
+        self,
+        q0: Array,
+        limits: Limits,
+        dt: float = 0.002,
+        stop_acceleration: float = STOP_ACCELERATION,
+        stop_jerk: float = STOP_JERK,
     ) -> None:
         self.n = len(q0)
         self.dt = dt
@@ -86,7 +94,8 @@ class TrajectoryFollower:
         self._otg = Ruckig(self.n, dt)
         self._inp = InputParameter(self.n)
         self._out = OutputParameter(self.n)
-        self._brake_jerk = np.asarray(limits.jerk, dtype=float) * brake_jerk_scale
+        self._stop_acceleration = np.full(self.n, float(stop_acceleration))
+        self._stop_jerk = np.full(self.n, float(stop_jerk))
         self.reset(q0)
 
     def reset(self, q: Array, qd: Array | None = None) -> None:
@@ -141,13 +150,14 @@ class TrajectoryFollower:
             self.mode = "stopped"
         return self.state
 
-    def _load(self, jerk: Array) -> InputParameter:
+    def _load(self, jerk: Array, acceleration: Array | None = None) -> InputParameter:
         inp = self._inp
         inp.current_position = self.q.tolist()
         inp.current_velocity = self.qd.tolist()
         inp.current_acceleration = self.qdd.tolist()
         inp.max_velocity = np.asarray(self.limits.velocity, dtype=float).tolist()
-        inp.max_acceleration = np.asarray(self.limits.acceleration, dtype=float).tolist()
+        acc = self.limits.acceleration if acceleration is None else acceleration
+        inp.max_acceleration = np.asarray(acc, dtype=float).tolist()
         inp.max_jerk = np.asarray(jerk, dtype=float).tolist()
         return inp
 
@@ -173,7 +183,7 @@ class TrajectoryFollower:
         return done
 
     def _ruckig_brake(self) -> bool:
-        inp = self._load(self._brake_jerk)
+        inp = self._load(self._stop_jerk, self._stop_acceleration)
         inp.control_interface = ControlInterface.Velocity
         inp.target_velocity = [0.0] * self.n
         inp.target_acceleration = [0.0] * self.n

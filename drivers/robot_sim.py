@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 
-from drivers.follower import FollowerState, Reference, TrajectoryFollower
+from drivers.follower import STOP_ACCELERATION, FollowerState, Reference, TrajectoryFollower
 from drivers.robot_node import Measured
 from planner.system import Limits
 from planner.transforms import Array
@@ -33,13 +33,13 @@ class SimRobot:
         q0: Array,
         limits: Limits,
         rate: float = 500.0,
-        brake_jerk_scale: float = 10.0,
+        stop_acceleration: float = STOP_ACCELERATION,
         realtime: bool = True,
     ) -> None:
         self.names = tuple(names)
         self.rate = float(rate)
         self.dt = 1.0 / self.rate
-        self.follower = TrajectoryFollower(q0, limits, self.dt, brake_jerk_scale)
+        self.follower = TrajectoryFollower(q0, limits, self.dt, stop_acceleration)
         self.realtime = realtime
         self.sim_time = 0.0
         self._next = time.monotonic()

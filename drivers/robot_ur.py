@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.follower import Reference, TrajectoryFollower
+from drivers.follower import STOP_ACCELERATION, Reference, TrajectoryFollower
 from drivers.robot_node import Measured
 from planner.errors import InputError
 from planner.system import Limits
@@ -54,7 +54,7 @@ class URRobot:
         lookahead_time: float = 0.1,
         gain: float = 300.0,
         watchdog_hz: float = 10.0,
-        brake_jerk_scale: float = 10.0,
+        stop_acceleration: float = STOP_ACCELERATION,
         control: Any = None,
         receive: Any = None,
     ) -> None:
@@ -75,7 +75,7 @@ class URRobot:
         self.receive = receive
         self.control.setWatchdog(watchdog_hz)
         self.follower = TrajectoryFollower(
-            np.asarray(self.receive.getActualQ(), dtype=float), limits, self.dt, brake_jerk_scale
+            np.asarray(self.receive.getActualQ(), dtype=float), limits, self.dt, stop_acceleration
         )
         self.servoing = False
         self.fault: str | None = None

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from drivers.follower import Reference
+from drivers.follower import STOP_JERK, Reference
 from drivers.robot_node import RobotNode
 from drivers.robot_ur import URRobot
 from planner.bus import Keys, encode, open_session
@@ -200,7 +200,7 @@ def test_stale_planner_brakes_then_servo_stop(hub: Any, endpoint: str, keys: Key
         v = np.abs(np.diff(servo[:, 0])) / 0.002
         k = int(np.argmax(v))  # peak speed when the brake began (mid-move)
         assert np.all(np.diff(v[k:]) <= 1e-9)  # monotone deceleration to the servoStop
-        assert v[-1] <= 500.0 * 0.002**2  # last step: brake jerk (10 x 50) x dt^2 at most
+        assert v[-1] <= STOP_JERK * 0.002**2  # last step: stop jerk x dt^2 at most
         assert fake.q[0] < HOME[0] + 0.3 - 1e-3  # stopped short of the target
     finally:
         node.stop()
