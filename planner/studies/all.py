@@ -1,23 +1,22 @@
 """``beamrelay study all -o reports``: every study at paper scale, and ``reports/index.md``.
 
-Order: ik-grid, calibration, sensitivity, mirror-sweep, coverage, tracking. The tracking
-study takes its calibration errors from the calibration study's D435 figures when that
-study ran (else the documented 1 mm / 0.1° levels). Studies whose module is not installed
-are listed as skipped. Each study writes into ``OUT/<name>/``; the index links the reports
-and records the wall time of each.
+Order: ik-grid, calibration, sensitivity, mirror-sweep, coverage, tracking. Each study runs
+its ``main`` at its paper-scale ``TRIALS`` and writes into ``OUT/<name>/``. The tracking
+study takes its calibration errors from the calibration study's D435 figures (else the
+documented 1 mm / 0.1° levels). Studies whose module is not installed are listed as
+skipped. The index links the reports and records the wall time of each.
 """
 
 from __future__ import annotations
 
 import importlib
-import json
 import time
 from pathlib import Path
 from typing import Any
 
 import typer
 
-from planner.studies import runtime
+from planner.studies.common import out_dir, study_command
 
 ORDER = ("ik-grid", "calibration", "sensitivity", "mirror-sweep", "coverage", "tracking")
 
@@ -32,41 +31,28 @@ def _module(name: str) -> Any | None:
 def run_one(
     name: str, out: Path, seed: int, workers: int | None, scheduler: str | None, calib: Any
 ) -> dict[str, Any] | None:
-    """Run one study at its default (paper) scale; returns its figures when available."""
+    """Run one study at its paper scale; returns its figures (None: not installed)."""
     mod = _module(name)
     if mod is None:
         return None
-    common = {"seed": seed, "out": out / name, "workers": workers, "dask_scheduler": scheduler}
-    if name == "calibration":
-        rows = mod.run(100, seed, workers, scheduler)
-        return dict(mod.write(out / name, rows, 100, seed))
-    if name == "tracking":
-        from planner.studies.tracking import CalibrationErrors
-
-        err = CalibrationErrors.from_calibration_figures(calib) if calib else CalibrationErrors()
-        rows = mod.run(10, seed, workers, scheduler, err)
-        return dict(mod.write(out / name, rows, 10, seed, err))
-    mod.command(**common, json_out=False)
-    return {}
+    extra: dict[str, Any] = {}
+    if name == "tracking" and calib:
+        extra["err"] = mod.CalibrationErrors.from_calibration_figures(calib)
+    return dict(mod.main(mod.TRIALS, seed, out / name, workers, scheduler, **extra))
 
 
-def command(
-    trials: runtime.Trials = 1,
-    seed: runtime.Seed = 0,
-    out: runtime.Out = Path("reports"),
-    workers: runtime.Workers = None,
-    dask_scheduler: runtime.Scheduler = None,
-    json_out: runtime.JsonOut = False,
-) -> None:
-    """Run every study at paper scale and write OUT/index.md (``--trials`` is ignored: each
-    study uses its paper-scale default)."""
-    out.mkdir(parents=True, exist_ok=True)
+def main(
+    trials: int, seed: int, out: Path, workers: int | None, sched: str | None
+) -> dict[str, Any]:
+    """Every study in :data:`ORDER`, then ``out/index.md``; ``trials`` is ignored (each
+    study uses its paper-scale ``TRIALS``). Returns the wall time of each study."""
+    out_dir(out)
     timings: dict[str, float | None] = {}
     calib: dict[str, Any] | None = None
     for name in ORDER:
         typer.echo(f"== study {name}")
         t0 = time.perf_counter()
-        figures = run_one(name, out, seed, workers, dask_scheduler, calib)
+        figures = run_one(name, out, seed, workers, sched, calib)
         timings[name] = None if figures is None else time.perf_counter() - t0
         if name == "calibration" and figures:
             calib = figures
@@ -86,6 +72,14 @@ def command(
         lines.append(f"| {name} | {link} | {'-' if t is None else f'{t:.0f}'} |")
     lines.append("")
     (out / "index.md").write_text("\n".join(lines))
-    typer.echo(f"index: {out / 'index.md'}")
-    if json_out:
-        typer.echo(json.dumps({"study": "all", "seconds": timings}))
+    return {"study": "all", "seconds": timings}
+
+
+command = study_command(
+    main,
+    trials=1,
+    out=Path("reports"),
+    doc="Run every study at paper scale and write OUT/index.md (--trials is ignored: each "
+    "study uses its paper-scale default).",
+    report="index.md",
+)

@@ -20,10 +20,18 @@ from typing import Any
 
 import numpy as np
 
-from planner.studies import runtime
+from planner.studies.common import (
+    out_dir,
+    parallel_map,
+    pyplot,
+    save_figure,
+    study_command,
+    write_report,
+)
 from planner.system import System
 from planner.transforms import Array
 
+TRIALS = 100  # paper scale: the default of --trials and of `study all`
 EXACT_POSES = {"handeye": 20, "beam": 16}
 SWEEP = {"handeye": (5, 10, 20, 40), "beam": (4, 8, 16, 32)}
 BOARDS = 3
@@ -187,7 +195,7 @@ def run(trials: int, seed: int, workers: int | None, scheduler: str | None) -> l
         jobs += [(kind, seed, t, EXACT_POSES[kind], False) for t in range(trials)]
         for n in SWEEP[kind]:
             jobs += [(kind, seed, t, n, True) for t in range(trials)]
-    return runtime.parallel_map(
+    return parallel_map(
         _job, jobs, workers=workers, scheduler=scheduler, label="calibration trials"
     )
 
@@ -238,7 +246,7 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 def plot(summary: dict[str, Any], path: Path) -> None:
     """Parameter error (RMS over trials) vs number of poses, D435 noise."""
-    plt = runtime.pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
     labels = {
         "handeye": ("camera pos (mm)", "camera rot (deg)", "board pos (mm)", "board rot (deg)"),
@@ -254,17 +262,13 @@ def plot(summary: dict[str, Any], path: Path) -> None:
         ax.set_title(f"{kind}: RMS parameter error, D435 noise")
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def write(out: Path, rows: list[dict[str, Any]], trials: int, seed: int) -> dict[str, Any]:
     """CSV, PNG and report.md; returns the ``--json`` figures."""
-    out.mkdir(parents=True, exist_ok=True)
-    runtime.write_csv(out / "calibration.csv", rows)
     s = summarize(rows)
-    plot(s, out / "calibration_vs_poses.png")
+    plot(s, out_dir(out) / "calibration_vs_poses.png")
     he, bm = s["handeye"], s["beam"]
     lines = [
         "# Calibration study (paper section on calibration, Eqs. 8-10)",
@@ -312,19 +316,18 @@ def write(out: Path, rows: list[dict[str, Any]], trials: int, seed: int) -> dict
         "![parameter error vs poses](calibration_vs_poses.png)",
         "",
     ]
-    (out / "report.md").write_text("\n".join(lines))
+    write_report(out, lines, {"calibration.csv": rows})
     return {"study": "calibration", "trials": trials, "seed": seed, **s}
 
 
-def command(
-    trials: runtime.Trials = 100,
-    seed: runtime.Seed = 0,
-    out: runtime.Out = Path("reports/calibration"),
-    workers: runtime.Workers = None,
-    dask_scheduler: runtime.Scheduler = None,
-    json_out: runtime.JsonOut = False,
-) -> None:
-    """Calibration accuracy: exact data, D435 noise at paper counts, error vs poses."""
-    rows = run(trials, seed, workers, dask_scheduler)
-    figures = write(out, rows, trials, seed)
-    runtime.finish(out, figures, json_out)
+def main(trials: int, seed: int, out: Path, workers: int | None, sched: str | None) -> dict:
+    """Run the study and write its report; returns the ``--json`` figures."""
+    return write(out, run(trials, seed, workers, sched), trials, seed)
+
+
+command = study_command(
+    main,
+    trials=TRIALS,
+    out=Path("reports/calibration"),
+    doc="Calibration accuracy: exact data, D435 noise at paper counts, error vs poses.",
+)

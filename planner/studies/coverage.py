@@ -29,11 +29,20 @@ from typing import Any
 
 import numpy as np
 
-from planner.studies import runtime
-from planner.studies.relay_geometry import laser_ray, mirror_pose, robot_ik, unit
+from planner.studies.common import (
+    default_workers,
+    out_dir,
+    parallel_map,
+    pyplot,
+    save_figure,
+    study_command,
+    write_report,
+)
+from planner.studies.relay_geometry import laser_ray, mirror_ik, unit
 from planner.system import System
 from planner.transforms import Array
 
+TRIALS = 400  # paper scale: the default of --trials and of `study all`
 CENTER = np.array([0.0, 0.0, 0.35])
 RADIUS = 0.08
 BASE_RADIUS = 0.55
@@ -41,6 +50,7 @@ AZIMUTHS_DEG = (0.0, 120.0, 240.0)
 MAX_INCIDENCE = np.deg2rad(60.0)
 SECTOR_DEG = 10.0
 PREFIXES_PER_HIT = 4
+SPINS = tuple(np.linspace(0.0, 2 * np.pi, 6, endpoint=False))  # mirror rolls tried (rad)
 
 
 def coverage_system(n: int = 3) -> System:
@@ -172,11 +182,7 @@ def arriving(system: System, prefix: tuple[Array, ...], site: Array) -> Array:
 def _mirror_ik(system: System, robot: int, hit: Array, v_in: Array, v_out: Array) -> Array | None:
     if float(v_in @ v_out) > 1 - 1e-9:
         return None
-    for spin in np.linspace(0.0, 2 * np.pi, 6, endpoint=False):
-        q = robot_ik(system.robots[robot], mirror_pose(hit, v_in, v_out, spin))
-        if q is not None:
-            return q
-    return None
+    return mirror_ik(system.robots[robot], hit, v_in, v_out, SPINS)
 
 
 def reach_target(
@@ -238,7 +244,7 @@ def _chains(n_robots: int) -> tuple[Chain, ...]:
 
 
 def run(
-    trials: int = 400,
+    trials: int = TRIALS,
     seed: int = 0,
     workers: int | None = None,
     scheduler: str | None = None,
@@ -247,12 +253,10 @@ def run(
     """``trials`` surface points, reachability per sub-chain (parallel over point chunks)."""
     points, normals = sphere_points(trials, seed)
     chunks = np.array_split(
-        np.arange(trials), max(1, min(trials, 4 * (workers or runtime.default_workers())))
+        np.arange(trials), max(1, min(trials, 4 * (workers or default_workers())))
     )
     jobs = [(n_max, points, normals, c) for c in chunks if len(c)]
-    per = runtime.parallel_map(
-        targets_job, jobs, workers=workers, scheduler=scheduler, label="coverage"
-    )
+    per = parallel_map(targets_job, jobs, workers=workers, scheduler=scheduler, label="coverage")
     return points, normals, [r for rows in per for r in rows]
 
 
@@ -287,7 +291,7 @@ def reached_mask(points: Array, rows: list[dict[str, Any]], n: int) -> Array:
 
 def plot(points: Array, rows: list[dict[str, Any]], path: Path, n_max: int = 3) -> None:
     """Coverage maps (azimuth/elevation of each surface point) per N, plus direction sectors."""
-    plt = runtime.pyplot()
+    plt = pyplot()
     rel = (points - CENTER) / RADIUS
     az = np.degrees(np.arctan2(rel[:, 1], rel[:, 0])) % 360
     el = np.degrees(np.arcsin(np.clip(rel[:, 2], -1, 1)))
@@ -320,18 +324,13 @@ def plot(points: Array, rows: list[dict[str, Any]], path: Path, n_max: int = 3) 
         pax.set_yticks([])
         pax.set_title(f"beam azimuths, {np.mean(hist > 0) * 100:.0f}% of 360°", fontsize=9)
     fig.axes[0].legend(fontsize=7, loc="lower left")
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    save_figure(fig, path, dpi=80)
 
 
 def write(out: Path, points: Array, rows: list[dict[str, Any]], trials: int, seed: int) -> dict:
     """CSV, plot and report.md; returns the ``--json`` figures."""
-    out.mkdir(parents=True, exist_ok=True)
-    runtime.write_csv(out / "coverage.csv", rows)
     summary = summarize(points, rows)
-    runtime.write_csv(out / "summary.csv", summary)
-    plot(points, rows, out / "coverage.png")
+    plot(points, rows, out_dir(out) / "coverage.png")
     lines = [
         "# Coverage of an object's surface with N = 1, 2, 3 robots",
         "",
@@ -353,20 +352,20 @@ def write(out: Path, points: Array, rows: list[dict[str, Any]], trials: int, see
             f"| {'motivation only (no figure)' if s['N'] > 1 else 'N = 1 experiments only'} |"
         )
     lines += ["", "![coverage maps](coverage.png)", ""]
-    (out / "report.md").write_text("\n".join(lines))
+    write_report(out, lines, {"coverage.csv": rows, "summary.csv": summary})
     return {"study": "coverage", "trials": trials, "seed": seed, "summary": summary}
 
 
-def command(
-    trials: runtime.Trials = 400,
-    seed: runtime.Seed = 0,
-    out: runtime.Out = Path("reports/coverage"),
-    workers: runtime.Workers = None,
-    dask_scheduler: runtime.Scheduler = None,
-    json_out: runtime.JsonOut = False,
-) -> None:
-    """Fraction of an object's surface and of beam directions reached by N = 1, 2, 3 robots
-    (``--trials`` = number of surface points)."""
-    points, _, rows = run(trials, seed, workers, dask_scheduler)
-    figures = write(out, points, rows, trials, seed)
-    runtime.finish(out, figures, json_out)
+def main(trials: int, seed: int, out: Path, workers: int | None, sched: str | None) -> dict:
+    """Run the study and write its report; returns the ``--json`` figures."""
+    points, _, rows = run(trials, seed, workers, sched)
+    return write(out, points, rows, trials, seed)
+
+
+command = study_command(
+    main,
+    trials=TRIALS,
+    out=Path("reports/coverage"),
+    doc="Fraction of an object's surface and of beam directions reached by N = 1, 2, 3 "
+    "robots (--trials = number of surface points).",
+)

@@ -13,9 +13,26 @@ from typing import Annotated, Any
 
 import typer
 
-from planner.studies.common import markdown_table, out_dir, parallel_map, trial_rng, write_csv
+from planner.errors import InputError
+from planner.studies.common import (
+    JsonOut,
+    Out,
+    Scheduler,
+    Seed,
+    Trials,
+    Workers,
+    finish,
+    markdown_table,
+    out_dir,
+    parallel_map,
+    pyplot,
+    save_figure,
+    trial_rng,
+    write_report,
+)
 
-ROOT = Path(__file__).resolve().parents[2]
+TRIALS = 10  # paper scale
+SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "paper_n1.yaml"
 PAPER = "typically < 1e-5 mm, max < 5e-4 mm (paper Fig. 3a)"
 
 
@@ -68,66 +85,74 @@ def run_trial(scenario: str, seed: int, trial: int) -> dict[str, Any]:
     }
 
 
-def command(
-    trials: Annotated[int, typer.Option("--trials", min=1, help="Random trials.")] = 10,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of every random draw.")] = 0,
-    out: Annotated[Path, typer.Option("-o", "--out", help="Output folder.")] = Path(
-        "reports/ik-grid"
-    ),
-    scenario: Annotated[Path, typer.Option("--scenario", help="Grid scenario.")] = ROOT
-    / "scenarios"
-    / "paper_n1.yaml",
-    workers: Annotated[int, typer.Option("--workers", min=1, help="Local processes.")] = 1,
-    dask_scheduler: Annotated[
-        str | None, typer.Option("--dask-scheduler", help="Dask cluster, tcp://host:8786.")
-    ] = None,
-    json_out: Annotated[bool, typer.Option("--json", help="Figures as one JSON line.")] = False,
-) -> None:
-    """Paper Fig. 3a: IK error over the 1000-point grid under perturbed geometry."""
-    import json
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def plot(errors_mm: Any, path: Path) -> None:
+    """Histogram of log10 spot error (mm) with the paper's maximum marked."""
     import numpy as np
-    from rich.console import Console
 
-    from planner.errors import InputError
-
-    if not scenario.is_file():
-        raise InputError(f"scenario not found: {scenario}")
-    folder = out_dir(out)
-    jobs = [(str(scenario), seed, t) for t in range(trials)]
-    rows = parallel_map(run_trial, jobs, workers=workers, scheduler=dask_scheduler)
-    all_e = np.concatenate([np.asarray(r.pop("_errors_mm")) for r in rows])
-    all_e = all_e[np.isfinite(all_e)]
-    write_csv(folder / "trials.csv", rows)
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 4))
-    ax.hist(np.log10(np.maximum(all_e, 1e-18)), bins=50)
+    ax.hist(np.log10(np.maximum(errors_mm, 1e-18)), bins=50)
     ax.axvline(np.log10(5e-4), color="red", ls="--", label="paper max 5e-4 mm")
     ax.set_xlabel("log10 spot error [mm]")
     ax.set_ylabel("targets")
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(folder / "errors.png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, path, dpi=120)
+
+
+def main(
+    trials: int,
+    seed: int,
+    out: Path,
+    workers: int | None,
+    sched: str | None,
+    scenario: Path = SCENARIO,
+) -> dict[str, Any]:
+    """Run the study and write its report; returns the ``--json`` figures."""
+    import numpy as np
+
+    if not scenario.is_file():
+        raise InputError(f"scenario not found: {scenario}", str(scenario))
+    jobs = [(str(scenario), seed, t) for t in range(trials)]
+    rows = parallel_map(run_trial, jobs, workers=workers, scheduler=sched, label="ik-grid")
+    all_e = np.concatenate([np.asarray(r.pop("_errors_mm")) for r in rows])
+    all_e = all_e[np.isfinite(all_e)]
+    plot(all_e, out_dir(out) / "errors.png")
     figures = {
+        "study": "ik-grid",
         "trials": trials,
+        "seed": seed,
         "targets": int(sum(r["targets"] for r in rows)),
         "solved": int(sum(r["solved"] for r in rows)),
         "error_median_mm": float(np.median(all_e)) if all_e.size else None,
         "error_max_mm": float(np.max(all_e)) if all_e.size else None,
     }
-    (folder / "report.md").write_text(
-        f"# IK grid (paper Fig. 3a)\n\nScenario `{scenario.name}`, {trials} trials, seed "
-        f"{seed}; laser pose and mirror mount perturbed by U(-1,1)*(5 deg, 10 mm).\n\n"
-        + markdown_table(rows)
-        + f"\nOverall: {figures['solved']}/{figures['targets']} solved, error median "
+    lines = [
+        "# IK grid (paper Fig. 3a)",
+        "",
+        f"Scenario `{scenario.name}`, {trials} trials, seed {seed}; laser pose and mirror mount "
+        "perturbed by U(-1,1)*(5 deg, 10 mm).",
+        "",
+        markdown_table(rows),
+        f"Overall: {figures['solved']}/{figures['targets']} solved, error median "
         f"{figures['error_median_mm']:.3g} mm, max {figures['error_max_mm']:.3g} mm. "
-        f"Paper: {PAPER}.\n\n![errors](errors.png)\n"
-    )
-    Console().print(markdown_table(rows))
-    typer.echo(f"report: {folder / 'report.md'}")
-    if json_out:
-        print(json.dumps(figures))
+        f"Paper: {PAPER}.",
+        "",
+        "![errors](errors.png)",
+        "",
+    ]
+    write_report(out, lines, {"trials.csv": rows})
+    typer.echo(markdown_table(rows))
+    return figures
+
+
+def command(
+    trials: Trials = TRIALS,
+    seed: Seed = 0,
+    out: Out = Path("reports/ik-grid"),
+    scenario: Annotated[Path, typer.Option("--scenario", help="Grid scenario.")] = SCENARIO,
+    workers: Workers = None,
+    dask_scheduler: Scheduler = None,
+    json_out: JsonOut = False,
+) -> None:
+    """Paper Fig. 3a: IK error over the 1000-point grid under perturbed geometry."""
+    finish(out, main(trials, seed, out, workers, dask_scheduler, scenario), json_out)

@@ -1,7 +1,9 @@
 """``beamrelay study mirror-sweep``: paper Fig. 5 — error vs mirror mount offset.
 
 Targets are drawn uniformly in the sensitivity study's 20 cm cube (``--trials`` of them,
-seeded) and solved with the nominal N = 1 system. The mirror mount is then offset along one
+seeded) and solved with the nominal N = 1 system (:func:`planner.studies.sensitivity.
+solve_nominal`: the product's beam IK, whose closed-form member puts the hit point at the
+mirror centre, so the mount rotations below turn the mirror about the hit point). The mirror mount is then offset along one
 axis at a time, orientation −1..+1° (step 0.2°) and position −10..+10 mm (step 2 mm), and
 the spot error (distance from target to the perturbed last ray) is recorded.
 
@@ -29,10 +31,18 @@ from typing import Any
 
 import numpy as np
 
-from planner.studies import runtime
+from planner.studies.common import (
+    out_dir,
+    parallel_map,
+    pyplot,
+    save_figure,
+    study_command,
+    write_report,
+)
 from planner.studies.sensitivity import CUBE_CENTER, CUBE_SIZE, Nominal, perturb
 from planner.transforms import Array
 
+TRIALS = 64  # paper scale: the default of --trials and of `study all`
 ROT_AXES = ("tilt_in", "tilt_across", "spin")
 POS_AXES = ("normal", "in_plane_a", "in_plane_b")
 ROT_OFFSETS_DEG = tuple(np.round(np.arange(-1.0, 1.0001, 0.2), 10))
@@ -108,14 +118,14 @@ def random_targets(n: int, seed: int) -> Array:
 
 
 def run(
-    trials: int = 64, seed: int = 0, workers: int | None = None, scheduler: str | None = None
+    trials: int = TRIALS, seed: int = 0, workers: int | None = None, scheduler: str | None = None
 ) -> tuple[Nominal, list[dict[str, Any]]]:
     """Solve ``trials`` random targets, then sweep each (parallel over targets)."""
     from planner.studies.sensitivity import default_system, solve_nominal
 
     nominal = solve_nominal(default_system(), random_targets(trials, seed))
     jobs = [(nominal, int(k)) for k in np.flatnonzero(nominal.solved)]
-    per_target = runtime.parallel_map(
+    per_target = parallel_map(
         sweep_target, jobs, workers=workers, scheduler=scheduler, label="mirror sweep"
     )
     return nominal, [r for rows in per_target for r in rows]
@@ -141,7 +151,7 @@ def curves(rows: list[dict[str, Any]]) -> dict[str, dict[str, Array]]:
 
 def plot(rows: list[dict[str, Any]], mean_L: float, path: Path) -> None:
     """Error vs offset, orientation and position, with the 2·Δθ·L lever-arm line."""
-    plt = runtime.pyplot()
+    plt = pyplot()
     c = curves(rows)
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.6))
     for name in ROT_AXES:
@@ -159,9 +169,7 @@ def plot(rows: list[dict[str, Any]], mean_L: float, path: Path) -> None:
     for ax in (a1, a2):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def slopes(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -188,13 +196,11 @@ def slopes(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 def write(out: Path, nominal: Nominal, rows: list[dict[str, Any]], trials: int, seed: int) -> dict:
     """CSV, plot and report.md; returns the ``--json`` figures."""
-    out.mkdir(parents=True, exist_ok=True)
-    runtime.write_csv(out / "mirror_sweep.csv", rows)
     L = np.array(
         [r["beam_length_m"] for r in rows if r["axis"] == "tilt_in" and r["offset"] == 1.0]
     )
     mean_L = float(L.mean())
-    plot(rows, mean_L, out / "mirror_sweep.png")
+    plot(rows, mean_L, out_dir(out) / "mirror_sweep.png")
     table = slopes(rows)
     lines = [
         "# Mirror mount sweep (paper Fig. 5)",
@@ -227,7 +233,7 @@ def write(out: Path, nominal: Nominal, rows: list[dict[str, Any]], trials: int, 
         "![error vs offset](mirror_sweep.png)",
         "",
     ]
-    (out / "report.md").write_text("\n".join(lines))
+    write_report(out, lines, {"mirror_sweep.csv": rows})
     return {
         "study": "mirror-sweep",
         "trials": trials,
@@ -237,15 +243,14 @@ def write(out: Path, nominal: Nominal, rows: list[dict[str, Any]], trials: int, 
     }
 
 
-def command(
-    trials: runtime.Trials = 64,
-    seed: runtime.Seed = 0,
-    out: runtime.Out = Path("reports/mirror-sweep"),
-    workers: runtime.Workers = None,
-    dask_scheduler: runtime.Scheduler = None,
-    json_out: runtime.JsonOut = False,
-) -> None:
-    """Fig. 5: spot error vs mirror orientation / position offset (``--trials`` targets)."""
-    nominal, rows = run(trials, seed, workers, dask_scheduler)
-    figures = write(out, nominal, rows, trials, seed)
-    runtime.finish(out, figures, json_out)
+def main(trials: int, seed: int, out: Path, workers: int | None, sched: str | None) -> dict:
+    """Run the study and write its report; returns the ``--json`` figures."""
+    return write(out, *run(trials, seed, workers, sched), trials, seed)
+
+
+command = study_command(
+    main,
+    trials=TRIALS,
+    out=Path("reports/mirror-sweep"),
+    doc="Fig. 5: spot error vs mirror orientation / position offset (--trials targets).",
+)

@@ -1,8 +1,8 @@
 """``beamrelay study sensitivity``: paper Fig. 4 — spot error under geometry errors.
 
-64 targets on a 4x4x4 grid in a 20 cm cube are solved with the NOMINAL system (exact
-closed-form relay IK, :mod:`planner.studies.relay_geometry`); the joints are then traced
-with a PERTURBED system. Four groups of perturbation, each a 3-vector with components
+64 targets on a 4x4x4 grid in a 20 cm cube are solved with the NOMINAL system (the
+product's beam IK, :class:`planner.ik.BeamIK`: its closed-form member, which hits the mirror
+centre, each target from home); the joints are then traced with a PERTURBED system. Four groups of perturbation, each a 3-vector with components
 ``U(−1, 1) × level``:
 
 - ``laser_rot``  rotation vector applied in the laser frame, ``world_T_laser · R(δ)``
@@ -28,10 +28,18 @@ from typing import Any
 
 import numpy as np
 
-from planner.studies import runtime
+from planner.studies.common import (
+    out_dir,
+    parallel_map,
+    pyplot,
+    save_figure,
+    study_command,
+    write_report,
+)
 from planner.system import System
 from planner.transforms import Array
 
+TRIALS = 10  # paper scale: the default of --trials and of `study all`
 GROUPS = ("laser_rot", "laser_pos", "mirror_rot", "mirror_pos")
 ROT_LEVELS_DEG = (0.25, 0.5, 1.0)
 POS_LEVELS_MM = (2.5, 5.0, 10.0)
@@ -174,14 +182,17 @@ class Nominal:
 
 
 def solve_nominal(system: System, targets: Array) -> Nominal:
-    """Closed-form relay IK for every target with the nominal system, plus Jacobians."""
-    from planner.studies.relay_geometry import solve_single
+    """Beam IK (:class:`planner.ik.BeamIK`) of every target from home with the nominal
+    system, plus the Jacobians. Targets are independent of each other (any order, any
+    executor)."""
+    from planner.ik import BeamIK
 
+    ik = BeamIK(system)
     qs = np.full((len(targets), system.nq), np.nan)
     for k, t in enumerate(targets):
-        q = solve_single(system, t)
-        if q is not None:
-            qs[k] = q
+        sol = ik.solve(t, None, system.home)
+        if sol.q is not None:
+            qs[k] = sol.q
     ok = np.all(np.isfinite(qs), axis=1)
     J = np.full((len(targets), 3, 6 + 6 * system.n_robots), np.nan)
     if ok.any():
@@ -270,11 +281,11 @@ def default_system() -> System:
 
 
 def run(
-    trials: int = 10, seed: int = 0, workers: int | None = None, scheduler: str | None = None
+    trials: int = TRIALS, seed: int = 0, workers: int | None = None, scheduler: str | None = None
 ) -> tuple[Nominal, list[dict[str, Any]]]:
     """The whole study: nominal solve, then every trial (parallel over trials)."""
     nominal = solve_nominal(default_system(), grid_targets())
-    per_trial = runtime.parallel_map(
+    per_trial = parallel_map(
         trial_rows,
         [(nominal, t, seed) for t in range(trials)],
         workers=workers,
@@ -286,7 +297,7 @@ def run(
 
 def plot(rows: list[dict[str, Any]], path: Path) -> None:
     """Box plots of the sampled error per group and level, predicted mean marked."""
-    plt = runtime.pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 4, figsize=(13, 3.4), sharey=False)
     for ax, group in zip(axes, GROUPS, strict=True):
         lv = levels(group)
@@ -305,18 +316,13 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("spot error (mm)")
     axes[0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def write(out: Path, nominal: Nominal, rows: list[dict[str, Any]], trials: int, seed: int) -> dict:
     """CSV, plot and report.md; returns the figures printed with ``--json``."""
-    out.mkdir(parents=True, exist_ok=True)
-    runtime.write_csv(out / "sensitivity.csv", rows)
     summary = summarize(nominal, rows)
-    runtime.write_csv(out / "summary.csv", summary)
-    plot(rows, out / "sensitivity.png")
+    plot(rows, out_dir(out) / "sensitivity.png")
     lines = [
         "# Sensitivity of the spot to geometry errors (paper Fig. 4)",
         "",
@@ -341,19 +347,18 @@ def write(out: Path, nominal: Nominal, rows: list[dict[str, Any]], trials: int, 
             f"| {100 * s['valid_frac']:.0f}% |"
         )
     lines += ["", "![box plots](sensitivity.png)", ""]
-    (out / "report.md").write_text("\n".join(lines))
+    write_report(out, lines, {"sensitivity.csv": rows, "summary.csv": summary})
     return {"study": "sensitivity", "trials": trials, "seed": seed, "summary": summary}
 
 
-def command(
-    trials: runtime.Trials = 10,
-    seed: runtime.Seed = 0,
-    out: runtime.Out = Path("reports/sensitivity"),
-    workers: runtime.Workers = None,
-    dask_scheduler: runtime.Scheduler = None,
-    json_out: runtime.JsonOut = False,
-) -> None:
-    """Fig. 4: spot error under laser/mirror orientation and position errors."""
-    nominal, rows = run(trials, seed, workers, dask_scheduler)
-    figures = write(out, nominal, rows, trials, seed)
-    runtime.finish(out, figures, json_out)
+def main(trials: int, seed: int, out: Path, workers: int | None, sched: str | None) -> dict:
+    """Run the study and write its report; returns the ``--json`` figures."""
+    return write(out, *run(trials, seed, workers, sched), trials, seed)
+
+
+command = study_command(
+    main,
+    trials=TRIALS,
+    out=Path("reports/sensitivity"),
+    doc="Fig. 4: spot error under laser/mirror orientation and position errors.",
+)

@@ -11,9 +11,10 @@ One trial:
    are the ``CalibrationErrors`` (default ~1 mm / ~0.1°, documented levels; ``study all``
    passes the calibration study's D435 figures instead);
 2. the camera sees each marker with D435 noise (model of :mod:`drivers.camera_sim`:
-   depth RMS z²·0.08 px/(fx·b), 0.1 px centroid noise); the planner maps it to the world
-   with its camera pose and solves the beam IK with its nominal system (exact closed-form
-   relay IK, incidence ≤ 80°);
+   depth RMS z²·0.08 px/(fx·b) reduced by the ``SPOT_WINDOW`` plane fit, ``SIGMA_PX``
+   centroid noise); the planner maps it to the world with its camera pose and solves the
+   beam IK with its nominal system (the product's :class:`planner.ik.BeamIK` with the
+   scenario's solver settings, incidence ≤ 80°, each marker from home);
 3. the true beam at those joints is traced onto the true objects (open3d raycasting) and
    the camera measures the spot with the same noise; error = |measured spot − measured
    marker| in the camera frame, as in the paper. Spots hidden from the camera are skipped.
@@ -28,10 +29,18 @@ from typing import Any
 
 import numpy as np
 
-from planner.studies import runtime
+from planner.studies.common import (
+    out_dir,
+    parallel_map,
+    pyplot,
+    save_figure,
+    study_command,
+    write_report,
+)
 from planner.system import System
 from planner.transforms import Array, axis_angle_to_matrix, inv_T, make_T
 
+TRIALS = 10  # paper scale: the default of --trials and of `study all`
 PAPER_MM = {"chessboard": (1.61, 0.77), "curve": (3.61, 1.58), "face": (3.29, 1.72)}
 PAPER_MM["finger"] = (2.65, 1.13)
 EXPERIMENTS = tuple(PAPER_MM)
@@ -83,6 +92,17 @@ def nominal_system() -> System:
     from planner.scenario import load_scenario, system_from_scenario
 
     return system_from_scenario(load_scenario(SCENARIO))
+
+
+@lru_cache(maxsize=1)
+def planner_ik() -> Any:
+    """The planner's beam IK: :class:`planner.ik.BeamIK` on :func:`nominal_system` with the
+    scenario's ``solver`` settings (built once per process)."""
+    from planner.ik import BeamIK
+    from planner.planning import ik_options
+    from planner.scenario import load_scenario
+
+    return BeamIK(nominal_system(), ik_options(load_scenario(SCENARIO).model.solver))
 
 
 def true_system(nominal: System, err: CalibrationErrors, rng: np.random.Generator) -> System:
@@ -193,7 +213,7 @@ def _cast(scene: Any, p: Array, v: Array) -> float:
 
 def observe(system: System, scene: Any, p_world: Array, rng: np.random.Generator) -> Array | None:
     """The D435 measurement of a world point (camera frame), None if hidden or off-image."""
-    from drivers.camera_sim import SIGMA_PX, SPOT_PIXELS, depth_sigma
+    from drivers.camera_sim import SIGMA_PX, SPOT_WINDOW, depth_sigma
 
     assert system.camera is not None
     T, k = system.camera.world_T_camera, system.camera.intrinsics
@@ -205,7 +225,7 @@ def observe(system: System, scene: Any, p_world: Array, rng: np.random.Generator
     u, w = k.fx * p_c[0] / p_c[2] + k.cx, k.fy * p_c[1] / p_c[2] + k.cy
     if p_c[2] <= 0 or not (0 <= u < k.width and 0 <= w < k.height):
         return None
-    z = p_c[2] + depth_sigma(p_c[2], k.fx) / np.sqrt(SPOT_PIXELS) * rng.standard_normal()
+    z = p_c[2] + depth_sigma(p_c[2], k.fx) / SPOT_WINDOW * rng.standard_normal()
     du, dv = SIGMA_PX * rng.standard_normal(2)
     return np.array([(u + du - k.cx) / k.fx, (w + dv - k.cy) / k.fy, 1.0]) * z
 
@@ -215,9 +235,8 @@ def trial_rows(
 ) -> list[dict[str, Any]]:
     """The experiments of one trial: spot error per marker (mm)."""
     from planner.beam import BeamModel
-    from planner.studies.relay_geometry import solve_single
 
-    nominal = nominal_system()
+    nominal, ik = nominal_system(), planner_ik()
     rng = np.random.default_rng([seed, trial])
     truth = true_system(nominal, err, rng)
     assert nominal.camera is not None and truth.camera is not None
@@ -232,7 +251,7 @@ def trial_rows(
             q = None
             if marker_c is not None:
                 target = cam_nominal[:3, :3] @ marker_c + cam_nominal[:3, 3]
-                q = solve_single(nominal, target, R_est @ n, max_incidence=np.deg2rad(80))
+                q = ik.solve(target, R_est @ n, nominal.home).q
             spot_c = None
             if q is not None:
                 tr = beam.trace(q)
@@ -253,7 +272,7 @@ def trial_rows(
 
 
 def run(
-    trials: int = 10,
+    trials: int = TRIALS,
     seed: int = 0,
     workers: int | None = None,
     scheduler: str | None = None,
@@ -262,9 +281,7 @@ def run(
     """All trials (parallel over trials)."""
     err = err or CalibrationErrors()
     jobs = [(t, seed, err) for t in range(trials)]
-    per = runtime.parallel_map(
-        trial_rows, jobs, workers=workers, scheduler=scheduler, label="tracking"
-    )
+    per = parallel_map(trial_rows, jobs, workers=workers, scheduler=scheduler, label="tracking")
     return [r for rows in per for r in rows]
 
 
@@ -289,7 +306,7 @@ def summarize(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def plot(rows: list[dict[str, Any]], path: Path) -> None:
-    plt = runtime.pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.5, 3.4))
     data = [
         [r["error_mm"] for r in rows if r["experiment"] == n and r["status"] == "ok"]
@@ -305,19 +322,15 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     ax.set_ylabel("spot error (mm)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def write(
     out: Path, rows: list[dict[str, Any]], trials: int, seed: int, err: CalibrationErrors
 ) -> dict:
     """CSV, plot and report.md; returns the ``--json`` figures."""
-    out.mkdir(parents=True, exist_ok=True)
-    runtime.write_csv(out / "tracking.csv", rows)
     summary = summarize(rows)
-    plot(rows, out / "tracking.png")
+    plot(rows, out_dir(out) / "tracking.png")
     lines = [
         "# Tracking experiments, simulated (paper: real chessboard, curve, face, finger)",
         "",
@@ -336,7 +349,7 @@ def write(
             f"| {s['measured']}/{s['markers']} | {s['paper_mean_mm']:.2f} ± {s['paper_std_mm']:.2f} |"
         )
     lines += ["", "![spot errors](tracking.png)", ""]
-    (out / "report.md").write_text("\n".join(lines))
+    write_report(out, lines, {"tracking.csv": rows})
     return {
         "study": "tracking",
         "trials": trials,
@@ -346,16 +359,24 @@ def write(
     }
 
 
-def command(
-    trials: runtime.Trials = 10,
-    seed: runtime.Seed = 0,
-    out: runtime.Out = Path("reports/tracking"),
-    workers: runtime.Workers = None,
-    dask_scheduler: runtime.Scheduler = None,
-    json_out: runtime.JsonOut = False,
-) -> None:
-    """Simulated chessboard / curve / face / finger experiments with calibration error."""
-    err = CalibrationErrors()
-    rows = run(trials, seed, workers, dask_scheduler, err)
-    figures = write(out, rows, trials, seed, err)
-    runtime.finish(out, figures, json_out)
+def main(
+    trials: int,
+    seed: int,
+    out: Path,
+    workers: int | None,
+    sched: str | None,
+    err: CalibrationErrors | None = None,
+) -> dict:
+    """Run the study and write its report; returns the ``--json`` figures. ``err``: the
+    calibration errors (default: the documented levels; ``study all`` passes the
+    calibration study's)."""
+    err = err or CalibrationErrors()
+    return write(out, run(trials, seed, workers, sched, err), trials, seed, err)
+
+
+command = study_command(
+    main,
+    trials=TRIALS,
+    out=Path("reports/tracking"),
+    doc="Simulated chessboard / curve / face / finger experiments with calibration error.",
+)

@@ -1,4 +1,4 @@
-"""Closed-form relay IK: exact reflection, exact spot, joint limits."""
+"""Beam IK at a prescribed relay geometry: exact reflection, exact spot, joint limits."""
 
 from __future__ import annotations
 
@@ -7,34 +7,46 @@ import pytest
 
 from planner.beam import BeamModel
 from planner.studies.coverage import coverage_system
-from planner.studies.relay_geometry import mirror_pose, solve_chain, solve_single
+from planner.studies.relay_geometry import laser_ray, mirror_ik, solve_chain
 from planner.studies.sensitivity import default_system, grid_targets
 
 
-def test_mirror_pose_reflects_v_in_into_v_out() -> None:
+def test_mirror_ik_reflects_v_in_into_v_out() -> None:
+    """FK of the returned joints (Pinocchio) puts the mirror at the hit with the bisector
+    normal: the numpy reflection of v_in is v_out."""
+    system = default_system()
+    robot = system.robots[0]
+    p0, v_in = laser_ray(system)
+    hit = p0 + 0.8 * v_in
     rng = np.random.default_rng(1)
-    for _ in range(50):
-        v_in, v_out = rng.standard_normal((2, 3))
-        v_in /= np.linalg.norm(v_in)
-        v_out /= np.linalg.norm(v_out)
-        M = mirror_pose(np.zeros(3), v_in, v_out, rng.uniform(0, 6))
+    checked = 0
+    for t in rng.uniform(-0.1, 0.1, (10, 3)) + np.array([0.45, 0.15, 0.0]):
+        v_out = (t - hit) / np.linalg.norm(t - hit)
+        q = mirror_ik(robot, hit, v_in, v_out)
+        if q is None:
+            continue
+        M = robot.world_T_base @ robot.kinematics.fk(q) @ robot.mirror.flange_T_mirror
         n = M[:3, 2]
-        assert np.allclose(v_in - 2 * (v_in @ n) * n, v_out, atol=1e-12)
+        assert np.allclose(M[:3, 3], hit, atol=1e-9)
+        assert np.allclose(v_in - 2 * (v_in @ n) * n, v_out, atol=1e-9)
         assert n @ v_in < 0  # front face
-        assert np.allclose(M[:3, :3].T @ M[:3, :3], np.eye(3), atol=1e-12)
+        assert np.all(q >= robot.limits.lower) and np.all(q <= robot.limits.upper)
+        checked += 1
+    assert checked >= 8
 
 
-def test_mirror_pose_rejects_straight_through() -> None:
+def test_mirror_ik_rejects_straight_through() -> None:
+    system = default_system()
     v = np.array([0.0, 0.0, 1.0])
-    with pytest.raises(ValueError):
-        mirror_pose(np.zeros(3), v, v, 0.0)
+    assert mirror_ik(system.robots[0], np.array([0.4, 0.0, 0.3]), v, v) is None
 
 
-def test_solve_single_puts_the_spot_on_the_target() -> None:
+def test_solve_chain_one_robot_hits_the_mirror_centre() -> None:
     system = default_system()
     model = BeamModel(system)
+    p0, v0 = laser_ray(system)
     for t in grid_targets(n=2):
-        q = solve_single(system, t)
+        q = solve_chain(system, [p0 + 0.8 * v0], t)
         assert q is not None
         tr = model.trace(q, t)
         assert tr.error < 1e-9 and tr.valid

@@ -15,10 +15,15 @@ def nominal() -> sens.Nominal:
 
 
 def test_nominal_is_exact(nominal: sens.Nominal) -> None:
+    """BeamIK's closed-form member: spot on the target, hit at the mirror centre (the
+    mirror sweep's lever-arm laws rotate the mount about that point), within limits."""
     assert nominal.solved.all()
     model = BeamModel(nominal.system)
     for q, t in zip(nominal.q, nominal.targets, strict=True):
-        assert model.trace(q, t).error < 1e-9
+        tr = model.trace(q, t)
+        assert tr.error < 1e-9 and tr.valid
+        assert np.all(tr.uv == pytest.approx(0.0, abs=1e-9))
+        assert np.all(q >= nominal.system.lower) and np.all(q <= nominal.system.upper)
 
 
 def test_jacobian_matches_finite_differences(nominal: sens.Nominal) -> None:
