@@ -166,6 +166,13 @@ class RobotKinematics:
         R = self._base_T_universe[:3, :3]
         return np.vstack([R @ J[:3], R @ J[3:]])
 
+    def joint_origins(self, q: Array) -> Array:
+        """``base``-frame origins of every joint, then the flange ((nq + 1) x 3, metres)."""
+        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
+        pts = [_se3(self.data.oMi[j])[:, 3] for j in range(1, self.model.njoints)]
+        pts.append(_se3(self.data.oMf[self.flange_id])[:, 3])
+        return (np.array(pts) @ self._base_T_universe.T)[:, :3]
+
     def analytic_ik(self, base_T_flange: Array) -> list[Array]:
         """All closed-form IK branches (up to 8) for the nominal UR model; [] otherwise."""
         if self.analytic is None:

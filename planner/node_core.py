@@ -70,36 +70,13 @@ def timed_trajectory(
     sols: list[Any],
     q_start: Array,
     settings: dict[str, Any],
-) -> dict[str, Any]:
-    """plan.json ``trajectory`` from ``q_start`` (stacked, rad) through the solved targets.
+) -> dict[str, Any] | None:
+    """plan.json ``trajectory`` from ``q_start`` (stacked, rad, the robots' current joints)
+    through the solved targets, in the requested order (``planning.time_solutions``)."""
+    from planner.planning import time_solutions
 
-    Points: rest-to-rest moves in the requested order with the scenario's ``dwell`` (s) on
-    each. Path: each run of consecutive solved samples swept at ``spot_speed`` (m/s).
-    """
-    from planner import timing
-
-    rate = float(settings.get("rate", 500.0))
-    Q = np.array([np.full(system.nq, np.nan) if s.q is None else s.q for s in sols])
-    if targets.kind != "path":
-        dwell = float(settings.get("dwell", 0.0))
-        traj, _ = timing.points_trajectory(system, Q, q_start, dwell, rate, order="given")
-        return traj.to_plan_dict(system)
-    from planner.path import arc_length
-
-    arc = arc_length(targets.points, closed=False)
-    ok = np.all(np.isfinite(Q), axis=1)
-    runs, k = [], 0
-    while k < len(Q):
-        if not ok[k]:
-            k += 1
-            continue
-        k1 = k
-        while k1 < len(Q) and ok[k1]:
-            k1 += 1
-        runs.append((Q[k:k1], arc[k:k1]))
-        k = k1
-    speed = float(settings.get("spot_speed", 0.02))
-    return timing.path_trajectory(system, runs, q_start, speed, rate).to_plan_dict(system)
+    timed = time_solutions(system, targets, sols, settings, q_start=q_start, order="given")
+    return None if timed is None else timed.trajectory.to_plan_dict(system)
 
 
 def handler_from_scenario(path: Any) -> RequestHandler:

@@ -16,7 +16,6 @@ from typing import Any
 import numpy as np
 
 from planner.ik.evaluate import evaluate, mirror_poses
-from planner.kinematics import RobotKinematics
 from planner.system import System, Targets
 from planner.transforms import Array, inv_T
 
@@ -24,24 +23,11 @@ _COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:purple")
 _SEGMENT_COLOURS = {"approach": "0.92", "move": "0.92", "path": "#e3f2e1", "dwell": "#fdf0d5"}
 
 
-def joint_origins(kinematics: RobotKinematics, q: Array) -> Array:
-    """``base``-frame origins of every joint, then the flange (nq + 1 x 3, metres)."""
-    import pinocchio as pin
-
-    model, data = kinematics.model, kinematics.data
-    pin.framesForwardKinematics(model, data, np.asarray(q, dtype=float))
-    universe_T_base = data.oMf[kinematics.base_id].homogeneous
-    base_T_universe = inv_T(universe_T_base)
-    pts = [base_T_universe @ data.oMi[j].homogeneous[:, 3] for j in range(1, model.njoints)]
-    pts.append(np.append(kinematics.fk(q)[:3, 3], 1.0))
-    return np.array(pts)[:, :3]
-
-
 def arm_points(system: System, q: Array) -> list[Array]:
     """Per robot, the world points base origin -> joint origins -> flange (stacked ``q``)."""
     out, i = [], 0
     for r in system.robots:
-        local = np.vstack([np.zeros(3), joint_origins(r.kinematics, q[i : i + r.nq])])
+        local = np.vstack([np.zeros(3), r.kinematics.joint_origins(q[i : i + r.nq])])
         out.append(local @ r.world_T_base[:3, :3].T + r.world_T_base[:3, 3])
         i += r.nq
     return out

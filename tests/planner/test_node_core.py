@@ -55,6 +55,7 @@ def test_timed_trajectory_starts_at_the_current_joints(system: System) -> None:
     sols = plan_points(system, targets)
     q_now = system.home + 0.03
     traj = timed_trajectory(system, targets, sols, q_now, {"dwell": 0.2, "rate": 500.0})
+    assert traj is not None
     q = np.asarray(traj["q"]["arm0"])
     t = np.asarray(traj["t"])
     np.testing.assert_allclose(q[0], q_now, atol=1e-12)

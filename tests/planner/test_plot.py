@@ -9,7 +9,7 @@ import numpy as np
 from planner.check import ur5e_dh_fk
 from planner.kinematics import RobotKinematics
 from planner.planning import run_scenario
-from planner.plot import arm_points, joint_origins, plot_profiles, profiles_path
+from planner.plot import arm_points, plot_profiles, profiles_path
 from tests.planner.test_planning import write_scenario
 
 DH_LENGTHS = [0.1625, 0.425, 0.3922, 0.1333, 0.0997, 0.0996]  # SPEC section 2: d and a
@@ -18,7 +18,7 @@ DH_LENGTHS = [0.1625, 0.425, 0.3922, 0.1333, 0.0997, 0.0996]  # SPEC section 2: 
 def test_joint_chain_lengths_and_flange() -> None:
     kin = RobotKinematics.ur5e()
     for q in np.random.default_rng(5).uniform(-np.pi, np.pi, (5, 6)):
-        P = joint_origins(kin, q)
+        P = kin.joint_origins(q)
         links = np.linalg.norm(np.diff(P, axis=0), axis=1)
         np.testing.assert_allclose(links[links > 1e-9], DH_LENGTHS, atol=1e-9)
         np.testing.assert_allclose(P[-1], ur5e_dh_fk(q)[:3, 3], atol=1e-12)
