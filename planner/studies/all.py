@@ -16,7 +16,7 @@ from typing import Any
 
 import typer
 
-from planner.studies.common import out_dir, study_command
+from planner.studies import common
 
 ORDER = ("ik-grid", "calibration", "sensitivity", "mirror-sweep", "coverage", "tracking")
 
@@ -44,9 +44,8 @@ def run_one(
 def main(
     trials: int, seed: int, out: Path, workers: int | None, sched: str | None
 ) -> dict[str, Any]:
-    """Every study in :data:`ORDER`, then ``out/index.md``; ``trials`` is ignored (each
-    study uses its paper-scale ``TRIALS``). Returns the wall time of each study."""
-    out_dir(out)
+    """Every study at its paper scale (--trials ignored), then OUT/index.md."""
+    common.out_dir(out)
     timings: dict[str, float | None] = {}
     calib: dict[str, Any] | None = None
     for name in ORDER:
@@ -75,11 +74,4 @@ def main(
     return {"study": "all", "seconds": timings}
 
 
-command = study_command(
-    main,
-    trials=1,
-    out=Path("reports"),
-    doc="Run every study at paper scale and write OUT/index.md (--trials is ignored: each "
-    "study uses its paper-scale default).",
-    report="index.md",
-)
+command = common.study_command(main, 1, Path("reports"), report="index.md")

@@ -20,14 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.studies.common import (
-    out_dir,
-    parallel_map,
-    pyplot,
-    save_figure,
-    study_command,
-    write_report,
-)
+from planner.studies import common
 from planner.system import System
 from planner.transforms import Array
 
@@ -195,7 +188,7 @@ def run(trials: int, seed: int, workers: int | None, scheduler: str | None) -> l
         jobs += [(kind, seed, t, EXACT_POSES[kind], False) for t in range(trials)]
         for n in SWEEP[kind]:
             jobs += [(kind, seed, t, n, True) for t in range(trials)]
-    return parallel_map(
+    return common.parallel_map(
         _job, jobs, workers=workers, scheduler=scheduler, label="calibration trials"
     )
 
@@ -246,7 +239,7 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 def plot(summary: dict[str, Any], path: Path) -> None:
     """Parameter error (RMS over trials) vs number of poses, D435 noise."""
-    plt = pyplot()
+    plt = common.pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
     labels = {
         "handeye": ("camera pos (mm)", "camera rot (deg)", "board pos (mm)", "board rot (deg)"),
@@ -262,13 +255,13 @@ def plot(summary: dict[str, Any], path: Path) -> None:
         ax.set_title(f"{kind}: RMS parameter error, D435 noise")
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=7)
-    save_figure(fig, path)
+    common.save_figure(fig, path)
 
 
 def write(out: Path, rows: list[dict[str, Any]], trials: int, seed: int) -> dict[str, Any]:
     """CSV, PNG and report.md; returns the ``--json`` figures."""
     s = summarize(rows)
-    plot(s, out_dir(out) / "calibration_vs_poses.png")
+    plot(s, common.out_dir(out) / "calibration_vs_poses.png")
     he, bm = s["handeye"], s["beam"]
     lines = [
         "# Calibration study (paper section on calibration, Eqs. 8-10)",
@@ -316,18 +309,13 @@ def write(out: Path, rows: list[dict[str, Any]], trials: int, seed: int) -> dict
         "![parameter error vs poses](calibration_vs_poses.png)",
         "",
     ]
-    write_report(out, lines, {"calibration.csv": rows})
+    common.write_report(out, lines, {"calibration.csv": rows})
     return {"study": "calibration", "trials": trials, "seed": seed, **s}
 
 
 def main(trials: int, seed: int, out: Path, workers: int | None, sched: str | None) -> dict:
-    """Run the study and write its report; returns the ``--json`` figures."""
+    """Calibration accuracy: exact data, D435 noise at paper counts, error vs poses."""
     return write(out, run(trials, seed, workers, sched), trials, seed)
 
 
-command = study_command(
-    main,
-    trials=TRIALS,
-    out=Path("reports/calibration"),
-    doc="Calibration accuracy: exact data, D435 noise at paper counts, error vs poses.",
-)
+command = common.study_command(main, TRIALS, Path("reports/calibration"))

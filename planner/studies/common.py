@@ -185,12 +185,12 @@ StudyMain = Callable[[int, int, Path, int | None, str | None], Mapping[str, Any]
 
 
 def study_command(
-    main: StudyMain, *, trials: int, out: Path, doc: str, report: str = "report.md"
+    main: StudyMain, trials: int, out: Path, report: str = "report.md"
 ) -> Callable[..., None]:
-    """The typer command of a study: the common options (``--trials`` defaulting to
-    ``trials``, ``--seed``, ``-o`` defaulting to ``out``, ``--workers``,
-    ``--dask-scheduler``, ``--json``), then ``main`` and :func:`finish` (which names
-    ``out/report``)."""
+    """The typer command of a study, its help = ``main``'s docstring: the common options
+    (``--trials`` defaulting to ``trials``, ``--seed``, ``-o`` defaulting to ``out``,
+    ``--workers``, ``--dask-scheduler``, ``--json``), then ``main`` and :func:`finish`
+    (which names ``out/report``)."""
     default_trials, default_out = trials, out
 
     def command(
@@ -204,5 +204,5 @@ def study_command(
         figures = main(trials, seed, out, workers, dask_scheduler)
         finish(out, figures, json_out, report)
 
-    command.__doc__ = doc
+    command.__doc__ = main.__doc__
     return command

@@ -29,15 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.studies.common import (
-    default_workers,
-    out_dir,
-    parallel_map,
-    pyplot,
-    save_figure,
-    study_command,
-    write_report,
-)
+from planner.studies import common
 from planner.studies.relay_geometry import laser_ray, mirror_ik, unit
 from planner.system import System
 from planner.transforms import Array
@@ -253,10 +245,12 @@ def run(
     """``trials`` surface points, reachability per sub-chain (parallel over point chunks)."""
     points, normals = sphere_points(trials, seed)
     chunks = np.array_split(
-        np.arange(trials), max(1, min(trials, 4 * (workers or default_workers())))
+        np.arange(trials), max(1, min(trials, 4 * (workers or common.default_workers())))
     )
     jobs = [(n_max, points, normals, c) for c in chunks if len(c)]
-    per = parallel_map(targets_job, jobs, workers=workers, scheduler=scheduler, label="coverage")
+    per = common.parallel_map(
+        targets_job, jobs, workers=workers, scheduler=scheduler, label="coverage"
+    )
     return points, normals, [r for rows in per for r in rows]
 
 
@@ -291,7 +285,7 @@ def reached_mask(points: Array, rows: list[dict[str, Any]], n: int) -> Array:
 
 def plot(points: Array, rows: list[dict[str, Any]], path: Path, n_max: int = 3) -> None:
     """Coverage maps (azimuth/elevation of each surface point) per N, plus direction sectors."""
-    plt = pyplot()
+    plt = common.pyplot()
     rel = (points - CENTER) / RADIUS
     az = np.degrees(np.arctan2(rel[:, 1], rel[:, 0])) % 360
     el = np.degrees(np.arcsin(np.clip(rel[:, 2], -1, 1)))
@@ -324,13 +318,13 @@ def plot(points: Array, rows: list[dict[str, Any]], path: Path, n_max: int = 3) 
         pax.set_yticks([])
         pax.set_title(f"beam azimuths, {np.mean(hist > 0) * 100:.0f}% of 360°", fontsize=9)
     fig.axes[0].legend(fontsize=7, loc="lower left")
-    save_figure(fig, path, dpi=80)
+    common.save_figure(fig, path, dpi=80)
 
 
 def write(out: Path, points: Array, rows: list[dict[str, Any]], trials: int, seed: int) -> dict:
     """CSV, plot and report.md; returns the ``--json`` figures."""
     summary = summarize(points, rows)
-    plot(points, rows, out_dir(out) / "coverage.png")
+    plot(points, rows, common.out_dir(out) / "coverage.png")
     lines = [
         "# Coverage of an object's surface with N = 1, 2, 3 robots",
         "",
@@ -352,20 +346,14 @@ def write(out: Path, points: Array, rows: list[dict[str, Any]], trials: int, see
             f"| {'motivation only (no figure)' if s['N'] > 1 else 'N = 1 experiments only'} |"
         )
     lines += ["", "![coverage maps](coverage.png)", ""]
-    write_report(out, lines, {"coverage.csv": rows, "summary.csv": summary})
+    common.write_report(out, lines, {"coverage.csv": rows, "summary.csv": summary})
     return {"study": "coverage", "trials": trials, "seed": seed, "summary": summary}
 
 
 def main(trials: int, seed: int, out: Path, workers: int | None, sched: str | None) -> dict:
-    """Run the study and write its report; returns the ``--json`` figures."""
+    """Surface and beam-direction coverage of a sphere by N = 1, 2, 3 robots."""
     points, _, rows = run(trials, seed, workers, sched)
     return write(out, points, rows, trials, seed)
 
 
-command = study_command(
-    main,
-    trials=TRIALS,
-    out=Path("reports/coverage"),
-    doc="Fraction of an object's surface and of beam directions reached by N = 1, 2, 3 "
-    "robots (--trials = number of surface points).",
-)
+command = common.study_command(main, TRIALS, Path("reports/coverage"))

@@ -14,22 +14,7 @@ from typing import Annotated, Any
 import typer
 
 from planner.errors import InputError
-from planner.studies.common import (
-    JsonOut,
-    Out,
-    Scheduler,
-    Seed,
-    Trials,
-    Workers,
-    finish,
-    markdown_table,
-    out_dir,
-    parallel_map,
-    pyplot,
-    save_figure,
-    trial_rng,
-    write_report,
-)
+from planner.studies import common
 
 TRIALS = 10  # paper scale
 SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "paper_n1.yaml"
@@ -56,7 +41,7 @@ def run_trial(scenario: str, seed: int, trial: int) -> dict[str, Any]:
     loaded = load_scenario(scenario)
     nominal = system_from_scenario(loaded)
     targets = targets_from_scenario(loaded, nominal)
-    rng = trial_rng(seed, trial)
+    rng = common.trial_rng(seed, trial)
     system = nominal.with_params(
         world_T_laser=perturb(nominal.world_T_laser, rng),
         flange_T_mirror={r.name: perturb(r.mirror.flange_T_mirror, rng) for r in nominal.robots},
@@ -89,14 +74,14 @@ def plot(errors_mm: Any, path: Path) -> None:
     """Histogram of log10 spot error (mm) with the paper's maximum marked."""
     import numpy as np
 
-    plt = pyplot()
+    plt = common.pyplot()
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.hist(np.log10(np.maximum(errors_mm, 1e-18)), bins=50)
     ax.axvline(np.log10(5e-4), color="red", ls="--", label="paper max 5e-4 mm")
     ax.set_xlabel("log10 spot error [mm]")
     ax.set_ylabel("targets")
     ax.legend()
-    save_figure(fig, path, dpi=120)
+    common.save_figure(fig, path, dpi=120)
 
 
 def main(
@@ -113,10 +98,10 @@ def main(
     if not scenario.is_file():
         raise InputError(f"scenario not found: {scenario}", str(scenario))
     jobs = [(str(scenario), seed, t) for t in range(trials)]
-    rows = parallel_map(run_trial, jobs, workers=workers, scheduler=sched, label="ik-grid")
+    rows = common.parallel_map(run_trial, jobs, workers=workers, scheduler=sched, label="ik-grid")
     all_e = np.concatenate([np.asarray(r.pop("_errors_mm")) for r in rows])
     all_e = all_e[np.isfinite(all_e)]
-    plot(all_e, out_dir(out) / "errors.png")
+    plot(all_e, common.out_dir(out) / "errors.png")
     figures = {
         "study": "ik-grid",
         "trials": trials,
@@ -132,7 +117,7 @@ def main(
         f"Scenario `{scenario.name}`, {trials} trials, seed {seed}; laser pose and mirror mount "
         "perturbed by U(-1,1)*(5 deg, 10 mm).",
         "",
-        markdown_table(rows),
+        common.markdown_table(rows),
         f"Overall: {figures['solved']}/{figures['targets']} solved, error median "
         f"{figures['error_median_mm']:.3g} mm, max {figures['error_max_mm']:.3g} mm. "
         f"Paper: {PAPER}.",
@@ -140,19 +125,19 @@ def main(
         "![errors](errors.png)",
         "",
     ]
-    write_report(out, lines, {"trials.csv": rows})
-    typer.echo(markdown_table(rows))
+    common.write_report(out, lines, {"trials.csv": rows})
+    typer.echo(common.markdown_table(rows))
     return figures
 
 
 def command(
-    trials: Trials = TRIALS,
-    seed: Seed = 0,
-    out: Out = Path("reports/ik-grid"),
+    trials: common.Trials = TRIALS,
+    seed: common.Seed = 0,
+    out: common.Out = Path("reports/ik-grid"),
     scenario: Annotated[Path, typer.Option("--scenario", help="Grid scenario.")] = SCENARIO,
-    workers: Workers = None,
-    dask_scheduler: Scheduler = None,
-    json_out: JsonOut = False,
+    workers: common.Workers = None,
+    dask_scheduler: common.Scheduler = None,
+    json_out: common.JsonOut = False,
 ) -> None:
     """Paper Fig. 3a: IK error over the 1000-point grid under perturbed geometry."""
-    finish(out, main(trials, seed, out, workers, dask_scheduler, scenario), json_out)
+    common.finish(out, main(trials, seed, out, workers, dask_scheduler, scenario), json_out)

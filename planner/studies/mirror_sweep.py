@@ -31,14 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.studies.common import (
-    out_dir,
-    parallel_map,
-    pyplot,
-    save_figure,
-    study_command,
-    write_report,
-)
+from planner.studies import common
 from planner.studies.sensitivity import CUBE_CENTER, CUBE_SIZE, Nominal, perturb
 from planner.transforms import Array
 
@@ -125,7 +118,7 @@ def run(
 
     nominal = solve_nominal(default_system(), random_targets(trials, seed))
     jobs = [(nominal, int(k)) for k in np.flatnonzero(nominal.solved)]
-    per_target = parallel_map(
+    per_target = common.parallel_map(
         sweep_target, jobs, workers=workers, scheduler=scheduler, label="mirror sweep"
     )
     return nominal, [r for rows in per_target for r in rows]
@@ -151,7 +144,7 @@ def curves(rows: list[dict[str, Any]]) -> dict[str, dict[str, Array]]:
 
 def plot(rows: list[dict[str, Any]], mean_L: float, path: Path) -> None:
     """Error vs offset, orientation and position, with the 2·Δθ·L lever-arm line."""
-    plt = pyplot()
+    plt = common.pyplot()
     c = curves(rows)
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.6))
     for name in ROT_AXES:
@@ -169,7 +162,7 @@ def plot(rows: list[dict[str, Any]], mean_L: float, path: Path) -> None:
     for ax in (a1, a2):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-    save_figure(fig, path)
+    common.save_figure(fig, path)
 
 
 def slopes(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -200,7 +193,7 @@ def write(out: Path, nominal: Nominal, rows: list[dict[str, Any]], trials: int, 
         [r["beam_length_m"] for r in rows if r["axis"] == "tilt_in" and r["offset"] == 1.0]
     )
     mean_L = float(L.mean())
-    plot(rows, mean_L, out_dir(out) / "mirror_sweep.png")
+    plot(rows, mean_L, common.out_dir(out) / "mirror_sweep.png")
     table = slopes(rows)
     lines = [
         "# Mirror mount sweep (paper Fig. 5)",
@@ -233,7 +226,7 @@ def write(out: Path, nominal: Nominal, rows: list[dict[str, Any]], trials: int, 
         "![error vs offset](mirror_sweep.png)",
         "",
     ]
-    write_report(out, lines, {"mirror_sweep.csv": rows})
+    common.write_report(out, lines, {"mirror_sweep.csv": rows})
     return {
         "study": "mirror-sweep",
         "trials": trials,
@@ -244,13 +237,8 @@ def write(out: Path, nominal: Nominal, rows: list[dict[str, Any]], trials: int, 
 
 
 def main(trials: int, seed: int, out: Path, workers: int | None, sched: str | None) -> dict:
-    """Run the study and write its report; returns the ``--json`` figures."""
+    """Fig. 5: spot error vs mirror orientation / position offset (--trials targets)."""
     return write(out, *run(trials, seed, workers, sched), trials, seed)
 
 
-command = study_command(
-    main,
-    trials=TRIALS,
-    out=Path("reports/mirror-sweep"),
-    doc="Fig. 5: spot error vs mirror orientation / position offset (--trials targets).",
-)
+command = common.study_command(main, TRIALS, Path("reports/mirror-sweep"))

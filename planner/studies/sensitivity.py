@@ -28,14 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.studies.common import (
-    out_dir,
-    parallel_map,
-    pyplot,
-    save_figure,
-    study_command,
-    write_report,
-)
+from planner.studies import common
 from planner.system import System
 from planner.transforms import Array
 
@@ -285,7 +278,7 @@ def run(
 ) -> tuple[Nominal, list[dict[str, Any]]]:
     """The whole study: nominal solve, then every trial (parallel over trials)."""
     nominal = solve_nominal(default_system(), grid_targets())
-    per_trial = parallel_map(
+    per_trial = common.parallel_map(
         trial_rows,
         [(nominal, t, seed) for t in range(trials)],
         workers=workers,
@@ -297,7 +290,7 @@ def run(
 
 def plot(rows: list[dict[str, Any]], path: Path) -> None:
     """Box plots of the sampled error per group and level, predicted mean marked."""
-    plt = pyplot()
+    plt = common.pyplot()
     fig, axes = plt.subplots(1, 4, figsize=(13, 3.4), sharey=False)
     for ax, group in zip(axes, GROUPS, strict=True):
         lv = levels(group)
@@ -316,13 +309,13 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("spot error (mm)")
     axes[0].legend(fontsize=7)
-    save_figure(fig, path)
+    common.save_figure(fig, path)
 
 
 def write(out: Path, nominal: Nominal, rows: list[dict[str, Any]], trials: int, seed: int) -> dict:
     """CSV, plot and report.md; returns the figures printed with ``--json``."""
     summary = summarize(nominal, rows)
-    plot(rows, out_dir(out) / "sensitivity.png")
+    plot(rows, common.out_dir(out) / "sensitivity.png")
     lines = [
         "# Sensitivity of the spot to geometry errors (paper Fig. 4)",
         "",
@@ -347,18 +340,13 @@ def write(out: Path, nominal: Nominal, rows: list[dict[str, Any]], trials: int, 
             f"| {100 * s['valid_frac']:.0f}% |"
         )
     lines += ["", "![box plots](sensitivity.png)", ""]
-    write_report(out, lines, {"sensitivity.csv": rows, "summary.csv": summary})
+    common.write_report(out, lines, {"sensitivity.csv": rows, "summary.csv": summary})
     return {"study": "sensitivity", "trials": trials, "seed": seed, "summary": summary}
 
 
 def main(trials: int, seed: int, out: Path, workers: int | None, sched: str | None) -> dict:
-    """Run the study and write its report; returns the ``--json`` figures."""
+    """Fig. 4: spot error under laser/mirror orientation and position errors."""
     return write(out, *run(trials, seed, workers, sched), trials, seed)
 
 
-command = study_command(
-    main,
-    trials=TRIALS,
-    out=Path("reports/sensitivity"),
-    doc="Fig. 4: spot error under laser/mirror orientation and position errors.",
-)
+command = common.study_command(main, TRIALS, Path("reports/sensitivity"))

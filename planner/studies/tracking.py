@@ -29,14 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.studies.common import (
-    out_dir,
-    parallel_map,
-    pyplot,
-    save_figure,
-    study_command,
-    write_report,
-)
+from planner.studies import common
 from planner.system import System
 from planner.transforms import Array, axis_angle_to_matrix, inv_T, make_T
 
@@ -281,7 +274,9 @@ def run(
     """All trials (parallel over trials)."""
     err = err or CalibrationErrors()
     jobs = [(t, seed, err) for t in range(trials)]
-    per = parallel_map(trial_rows, jobs, workers=workers, scheduler=scheduler, label="tracking")
+    per = common.parallel_map(
+        trial_rows, jobs, workers=workers, scheduler=scheduler, label="tracking"
+    )
     return [r for rows in per for r in rows]
 
 
@@ -306,7 +301,7 @@ def summarize(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def plot(rows: list[dict[str, Any]], path: Path) -> None:
-    plt = pyplot()
+    plt = common.pyplot()
     fig, ax = plt.subplots(figsize=(6.5, 3.4))
     data = [
         [r["error_mm"] for r in rows if r["experiment"] == n and r["status"] == "ok"]
@@ -322,7 +317,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     ax.set_ylabel("spot error (mm)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
-    save_figure(fig, path)
+    common.save_figure(fig, path)
 
 
 def write(
@@ -330,7 +325,7 @@ def write(
 ) -> dict:
     """CSV, plot and report.md; returns the ``--json`` figures."""
     summary = summarize(rows)
-    plot(rows, out_dir(out) / "tracking.png")
+    plot(rows, common.out_dir(out) / "tracking.png")
     lines = [
         "# Tracking experiments, simulated (paper: real chessboard, curve, face, finger)",
         "",
@@ -349,7 +344,7 @@ def write(
             f"| {s['measured']}/{s['markers']} | {s['paper_mean_mm']:.2f} ± {s['paper_std_mm']:.2f} |"
         )
     lines += ["", "![spot errors](tracking.png)", ""]
-    write_report(out, lines, {"tracking.csv": rows})
+    common.write_report(out, lines, {"tracking.csv": rows})
     return {
         "study": "tracking",
         "trials": trials,
@@ -367,16 +362,9 @@ def main(
     sched: str | None,
     err: CalibrationErrors | None = None,
 ) -> dict:
-    """Run the study and write its report; returns the ``--json`` figures. ``err``: the
-    calibration errors (default: the documented levels; ``study all`` passes the
-    calibration study's)."""
+    """Simulated chessboard / curve / face / finger experiments with calibration error."""
     err = err or CalibrationErrors()
     return write(out, run(trials, seed, workers, sched, err), trials, seed, err)
 
 
-command = study_command(
-    main,
-    trials=TRIALS,
-    out=Path("reports/tracking"),
-    doc="Simulated chessboard / curve / face / finger experiments with calibration error.",
-)
+command = common.study_command(main, TRIALS, Path("reports/tracking"))

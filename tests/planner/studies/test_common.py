@@ -82,11 +82,12 @@ def test_out_dir_under_a_file_is_an_input_error(tmp_path: Path) -> None:
 
 
 def _fake_main(trials: int, seed: int, out: Path, workers: int | None, sched: str | None) -> dict:
+    """Fake study."""
     return {"trials": trials, "seed": seed, "out": str(out), "workers": workers, "s": sched}
 
 
 def test_study_command_options_and_json(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
-    cmd = common.study_command(_fake_main, trials=7, out=tmp_path, doc="Fake study.")
+    cmd = common.study_command(_fake_main, 7, tmp_path)
     params = inspect.signature(cmd).parameters
     assert list(params) == ["trials", "seed", "out", "workers", "dask_scheduler", "json_out"]
     assert params["trials"].default == 7 and params["out"].default == tmp_path
@@ -108,7 +109,7 @@ def test_study_command_through_typer(tmp_path: Path) -> None:
     from typer.testing import CliRunner
 
     app = typer.Typer()
-    app.command("fake")(common.study_command(_fake_main, trials=7, out=tmp_path, doc="Fake."))
+    app.command("fake")(common.study_command(_fake_main, 7, tmp_path))
     app.command("other")(lambda: None)
     res = CliRunner().invoke(
         app, ["fake", "--trials", "3", "--seed", "9", "--workers", "2", "--json"]
