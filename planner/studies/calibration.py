@@ -69,6 +69,18 @@ def _between(a: Array, b: Array) -> float:
     return float(np.arctan2(np.linalg.norm(np.cross(a, b)), a @ b))
 
 
+def _row_head(kind: str, noisy: bool, n_poses: int, trial: int, residuals: Any) -> dict[str, Any]:
+    """The columns every trial row starts with (residuals in metres, reported in mm)."""
+    return {
+        "kind": kind,
+        "noise": "d435" if noisy else "none",
+        "poses": n_poses,
+        "trial": trial,
+        "residual_mean_mm": 1e3 * float(np.mean(residuals)),
+        "residual_std_mm": 1e3 * float(np.std(residuals)),
+    }
+
+
 def handeye_trial(seed: int, trial: int, n_poses: int, noisy: bool) -> dict[str, Any]:
     """One hand-eye trial (eye_to_hand): errors of camera and board poses, residuals."""
     from dataclasses import replace
@@ -107,12 +119,7 @@ def handeye_trial(seed: int, trial: int, n_poses: int, noisy: bool) -> dict[str,
         )
     )
     return {
-        "kind": "handeye",
-        "noise": "d435" if noisy else "none",
-        "poses": n_poses,
-        "trial": trial,
-        "residual_mean_mm": 1e3 * float(np.mean(res.point_residuals)),
-        "residual_std_mm": 1e3 * float(np.std(res.point_residuals)),
+        **_row_head("handeye", noisy, n_poses, trial, res.point_residuals),
         "pos_err_mm": 1e3 * float(np.linalg.norm(e_cam[:3, 3])),
         "rot_err_deg": _angle(e_cam[:3, :3]),
         "aux_pos_err_mm": 1e3 * float(np.linalg.norm(e_board[:3, 3])),
@@ -161,12 +168,7 @@ def beam_trial(seed: int, trial: int, n_poses: int, noisy: bool) -> dict[str, An
     model = BeamModel(calibrated)
     spot_err = [model.trace(q, p).error for q, p in zip(check.q, check.spots_world, strict=True)]
     return {
-        "kind": "beam",
-        "noise": "d435" if noisy else "none",
-        "poses": n_poses,
-        "trial": trial,
-        "residual_mean_mm": 1e3 * float(np.mean(res.residuals)),
-        "residual_std_mm": 1e3 * float(np.std(res.residuals)),
+        **_row_head("beam", noisy, n_poses, trial, res.residuals),
         "pos_err_mm": 1e3 * float(np.linalg.norm(L[:3, 3] - L_true[:3, 3])),
         "rot_err_deg": float(np.rad2deg(dir_err)),
         "aux_pos_err_mm": 1e3 * float(off_err),
@@ -289,16 +291,20 @@ def write(out: Path, rows: list[dict[str, Any]], trials: int, seed: int) -> dict
         "",
         "## Parameter error vs number of poses (RMS over trials, D435 noise)",
         "",
-        "| calibration | poses | pos (mm) | rot (deg) | aux pos (mm) | aux rot (deg) | spot (mm) |",
-        "|---|---|---|---|---|---|---|",
     ]
-    for kind in ("handeye", "beam"):
-        for r in s[kind]["sweep"]:
-            lines.append(
-                f"| {kind} | {r['poses']} | {r['rms_pos_err_mm']:.3f} | {r['rms_rot_err_deg']:.4f} "
-                f"| {r['rms_aux_pos_err_mm']:.3f} | {r['rms_aux_rot_err_deg']:.4f} "
-                f"| {r.get('rms_spot_err_mm', float('nan')):.3f} |".replace("nan", "-")
-            )
+    header = ["calibration", "poses", "pos (mm)", "rot (deg)", "aux pos (mm)", "aux rot (deg)"]
+    row = "{kind} | {poses} | {rms_pos_err_mm:.3f} | {rms_rot_err_deg:.4f} "
+    row += "| {rms_aux_pos_err_mm:.3f} | {rms_aux_rot_err_deg:.4f} | {spot}"
+    cells = [
+        {
+            **r,
+            "kind": kind,
+            "spot": f"{r.get('rms_spot_err_mm', 0.0):.3f}" if kind == "beam" else "-",
+        }
+        for kind in ("handeye", "beam")
+        for r in s[kind]["sweep"]
+    ]
+    lines += common.table_lines([*header, "spot (mm)"], cells, row)
     lines += [
         "",
         "hand-eye: pos/rot = world_T_camera, aux = flange_T_board. beam: pos = laser origin "
@@ -306,10 +312,8 @@ def write(out: Path, rows: list[dict[str, Any]], trials: int, seed: int) -> dict
         "spot = RMS distance of the true spot from the calibrated beam at 20 fresh poses (what "
         "the planner feels: line and plane errors largely compensate each other).",
         "",
-        "![parameter error vs poses](calibration_vs_poses.png)",
-        "",
     ]
-    common.write_report(out, lines, {"calibration.csv": rows})
+    common.write_report(out, lines, {"calibration.csv": rows}, image="calibration_vs_poses.png")
     return {"study": "calibration", "trials": trials, "seed": seed, **s}
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import csv
 import json
 import os
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -129,8 +129,15 @@ def write_csv(path: Path, rows: Rows) -> None:
         w.writerows(rows)
 
 
+def table_lines(header: Sequence[str], rows: Iterable[Mapping[str, Any]], row: str) -> list[str]:
+    """Lines of a GitHub markdown table: the header, the rule, then each of ``rows`` through
+    ``row``, a ``str.format`` template of the cells separated by `` | ``."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return lines + ["| " + row.format(**r) + " |" for r in rows]
+
+
 def markdown_table(rows: Rows, fmt: str = ".3g") -> str:
-    """A GitHub markdown table of rows (floats formatted with ``fmt``)."""
+    """A GitHub markdown table of rows of equal keys (floats formatted with ``fmt``)."""
     if not rows:
         return "(no rows)\n"
     keys = list(rows[0])
@@ -160,14 +167,17 @@ def save_figure(fig: Any, path: Path, dpi: int = 90) -> None:
     pyplot().close(fig)
 
 
-def write_report(out: Path, lines: Sequence[str], tables: Mapping[str, Rows]) -> Path:
-    """``out/report.md`` from ``lines`` and each table as ``out/<name>`` CSV; returns the
-    report's path."""
+def write_report(
+    out: Path, lines: Sequence[str], tables: Mapping[str, Rows], image: str | None = None
+) -> Path:
+    """``out/report.md`` from ``lines`` (then the PNG ``image`` of ``out``, if given) and
+    each table as ``out/<name>`` CSV; returns the report's path."""
     folder = out_dir(out)
     for name, rows in tables.items():
         write_csv(folder / name, rows)
+    text = list(lines) + ([f"![{Path(image).stem}]({image})", ""] if image else [])
     report = folder / "report.md"
-    report.write_text("\n".join(lines))
+    report.write_text("\n".join(text))
     return report
 
 

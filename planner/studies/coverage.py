@@ -335,18 +335,15 @@ def write(out: Path, points: Array, rows: list[dict[str, Any]], trials: int, see
         "object (open3d raycasting of every beam segment). Sampled relay search: a lower bound. "
         "Details in `planner/studies/coverage.py`.",
         "",
-        "| N | surface reached | azimuth sectors reached (10°, beam < 60° from horizontal) "
-        "| paper |",
-        "|---|---|---|---|",
     ]
-    for s in summary:
-        lines.append(
-            f"| {s['N']} | {100 * s['surface_fraction']:.1f}% ({s['points_reached']}/{s['points']}) "
-            f"| {100 * s['direction_fraction']:.0f}% ({s['sectors_reached']}/36) "
-            f"| {'motivation only (no figure)' if s['N'] > 1 else 'N = 1 experiments only'} |"
-        )
-    lines += ["", "![coverage maps](coverage.png)", ""]
-    common.write_report(out, lines, {"coverage.csv": rows, "summary.csv": summary})
+    header = ["N", "surface reached", "azimuth sectors reached (10°, beam < 60° from horizontal)"]
+    row = "{N} | {surface_fraction:.1%} ({points_reached}/{points}) "
+    row += "| {direction_fraction:.0%} ({sectors_reached}/36) | {paper}"
+    paper = {1: "N = 1 experiments only"}
+    cells = [{**s, "paper": paper.get(s["N"], "motivation only (no figure)")} for s in summary]
+    lines += common.table_lines([*header, "paper"], cells, row)
+    tables = {"coverage.csv": rows, "summary.csv": summary}
+    common.write_report(out, [*lines, ""], tables, image="coverage.png")
     return {"study": "coverage", "trials": trials, "seed": seed, "summary": summary}
 
 

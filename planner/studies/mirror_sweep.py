@@ -207,14 +207,11 @@ def write(out: Path, nominal: Nominal, rows: list[dict[str, Any]], trials: int, 
         f" Predicted slope of `tilt_in`: 2·L·π/180 = {2 * mean_L * np.pi / 180 * 1000:.2f} mm/deg;"
         " of a normal shift: 2·sin i ≤ 2 mm/mm.",
         "",
-        "| axis | slope (ours) | predicted | max error (mm) | max dev. from prediction (mm) |",
-        "|---|---|---|---|---|",
     ]
-    for s in table:
-        lines.append(
-            f"| {s['axis']} | {s['slope']:.3f} {s['unit']} | {s['predicted_slope']:.3f} "
-            f"| {s['max_error_mm']:.2f} | {s['max_abs_dev_mm']:.2e} |"
-        )
+    header = ["axis", "slope (ours)", "predicted", "max error (mm)"]
+    row = "{axis} | {slope:.3f} {unit} | {predicted_slope:.3f} | {max_error_mm:.2f} "
+    row += "| {max_abs_dev_mm:.2e}"
+    lines += common.table_lines([*header, "max dev. from prediction (mm)"], table, row)
     lines += [
         "",
         "Paper (Fig. 5, plots only): orientation errors of the mirror dominate position "
@@ -223,10 +220,8 @@ def write(out: Path, nominal: Nominal, rows: list[dict[str, Any]], trials: int, 
         f"{table[3]['max_error_mm']:.1f} mm: the tilt error grows with the lever arm L, the "
         "shift error does not.",
         "",
-        "![error vs offset](mirror_sweep.png)",
-        "",
     ]
-    common.write_report(out, lines, {"mirror_sweep.csv": rows})
+    common.write_report(out, lines, {"mirror_sweep.csv": rows}, image="mirror_sweep.png")
     return {
         "study": "mirror-sweep",
         "trials": trials,

@@ -328,19 +328,16 @@ def write(out: Path, nominal: Nominal, rows: list[dict[str, Any]], trials: int, 
         "are ours: `pred mean` = mean of |J δ| for the same draws, `pred RMS` = level·‖J‖_F/√3 "
         "(no sampling), `max rel dev` = max |pred − sampled| / max sampled.",
         "",
-        "| group | level | mean ± std (mm) | median | max | RMS | pred mean | pred RMS "
-        "| max rel dev | valid ROI |",
-        "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for s in summary:
-        lines.append(
-            f"| {s['group']} | {s['level']} | {s['mean_mm']:.2f} ± {s['std_mm']:.2f} "
-            f"| {s['median_mm']:.2f} | {s['max_mm']:.2f} | {s['rms_mm']:.2f} "
-            f"| {s['pred_mean_mm']:.2f} | {s['pred_rms_mm']:.2f} | {s['rel_dev']:.1e} "
-            f"| {100 * s['valid_frac']:.0f}% |"
-        )
-    lines += ["", "![box plots](sensitivity.png)", ""]
-    common.write_report(out, lines, {"sensitivity.csv": rows, "summary.csv": summary})
+    header = ["group", "level", "mean ± std (mm)", "median", "max", "RMS", "pred mean"]
+    header += ["pred RMS", "max rel dev", "valid ROI"]
+    row = "{group} | {level} | {mean_mm:.2f} ± {std_mm:.2f} | {median_mm:.2f} | {max_mm:.2f} "
+    row += (
+        "| {rms_mm:.2f} | {pred_mean_mm:.2f} | {pred_rms_mm:.2f} | {rel_dev:.1e} | {valid_frac:.0%}"
+    )
+    lines += common.table_lines(header, summary, row)
+    tables = {"sensitivity.csv": rows, "summary.csv": summary}
+    common.write_report(out, [*lines, ""], tables, image="sensitivity.png")
     return {"study": "sensitivity", "trials": trials, "seed": seed, "summary": summary}
 
 

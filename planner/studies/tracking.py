@@ -335,16 +335,12 @@ def write(
         f"{err.camera_pos * 1e3:.2f} mm / {np.rad2deg(err.camera_rot):.3f}° (RMS, independent "
         "draws). D435 noise on markers and spots. Error = |spot − marker| as the camera sees them.",
         "",
-        "| experiment | ours mean ± std (mm) | max | measured/markers | paper (real robot) |",
-        "|---|---|---|---|---|",
     ]
-    for s in summary:
-        lines.append(
-            f"| {s['experiment']} | {s['mean_mm']:.2f} ± {s['std_mm']:.2f} | {s['max_mm']:.2f} "
-            f"| {s['measured']}/{s['markers']} | {s['paper_mean_mm']:.2f} ± {s['paper_std_mm']:.2f} |"
-        )
-    lines += ["", "![spot errors](tracking.png)", ""]
-    common.write_report(out, lines, {"tracking.csv": rows})
+    header = ["experiment", "ours mean ± std (mm)", "max", "measured/markers"]
+    row = "{experiment} | {mean_mm:.2f} ± {std_mm:.2f} | {max_mm:.2f} | {measured}/{markers} "
+    row += "| {paper_mean_mm:.2f} ± {paper_std_mm:.2f}"
+    lines += common.table_lines([*header, "paper (real robot)"], summary, row)
+    common.write_report(out, [*lines, ""], {"tracking.csv": rows}, image="tracking.png")
     return {
         "study": "tracking",
         "trials": trials,
