@@ -4,6 +4,9 @@ Layout (world = the floor under the object, z up, metres): a sphere of radius 0.
 ``(0, 0, 0.35)``; a laser 1.3 m up on the object's axis pointing down; UR5e bases on the
 floor at 0.55 m from the axis, at azimuths 0°, 120°, 240°, each facing the object. The
 laser is on the object's axis, so any robot can put its mirror in the beam above the object.
+The layout is defined here, in code (:func:`coverage_system`), not in a scenario file: the
+study's geometry (mirror sites, sectors) is built around the sphere's centre and the bases'
+azimuths, which a scenario does not carry as such.
 
 With N robots, the beam may be relayed by any ordered sub-chain of them (the robots left out
 park their mirrors outside the beam; parking and robot/beam collisions are not modelled). A
@@ -13,7 +16,9 @@ the ROI (by construction the beam hits the mirror centre), incidence ≤ 60°, a
 occlusion by the object of the beam segments (laser → mirror → ... → mirror → target;
 open3d raycasting on the object's mesh; the last segment must meet the surface first at
 the target). The search samples relay geometries (hit distances on the laser ray, mirror
-centre positions around the object, mirror spins), so coverage is a lower bound.
+centre positions around the object, mirror spins), so coverage is a lower bound. The IK at a
+sampled relay geometry is :func:`planner.studies.relay_geometry.mirror_ik` (closed-form
+helpers of :mod:`planner.ik`; ``ClosedForm.search`` picks its own hit points, see there).
 
 Directions: the azimuths (10° sectors, 360° around the object) from which a beam reaches
 some surface point at less than 60° from the horizontal.
