@@ -313,7 +313,12 @@ def write(out: Path, rows: list[dict[str, Any]], trials: int, seed: int) -> dict
         "the planner feels: line and plane errors largely compensate each other).",
         "",
     ]
-    common.write_report(out, lines, {"calibration.csv": rows}, image="calibration_vs_poses.png")
+    common.write_report(
+        out,
+        lines,
+        {"calibration.csv": rows},
+        image=("parameter error vs poses", "calibration_vs_poses.png"),
+    )
     return {"study": "calibration", "trials": trials, "seed": seed, **s}
 
 

@@ -168,14 +168,17 @@ def save_figure(fig: Any, path: Path, dpi: int = 90) -> None:
 
 
 def write_report(
-    out: Path, lines: Sequence[str], tables: Mapping[str, Rows], image: str | None = None
+    out: Path,
+    lines: Sequence[str],
+    tables: Mapping[str, Rows],
+    image: tuple[str, str] | None = None,
 ) -> Path:
-    """``out/report.md`` from ``lines`` (then the PNG ``image`` of ``out``, if given) and
-    each table as ``out/<name>`` CSV; returns the report's path."""
+    """``out/report.md`` from ``lines`` (then ``image`` = (alt text, PNG file in ``out``)
+    if given) and each table as ``out/<name>`` CSV; returns the report's path."""
     folder = out_dir(out)
     for name, rows in tables.items():
         write_csv(folder / name, rows)
-    text = list(lines) + ([f"![{Path(image).stem}]({image})", ""] if image else [])
+    text = list(lines) + ([f"![{image[0]}]({image[1]})", ""] if image else [])
     report = folder / "report.md"
     report.write_text("\n".join(text))
     return report

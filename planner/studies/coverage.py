@@ -348,7 +348,7 @@ def write(out: Path, points: Array, rows: list[dict[str, Any]], trials: int, see
     cells = [{**s, "paper": paper.get(s["N"], "motivation only (no figure)")} for s in summary]
     lines += common.table_lines([*header, "paper"], cells, row)
     tables = {"coverage.csv": rows, "summary.csv": summary}
-    common.write_report(out, [*lines, ""], tables, image="coverage.png")
+    common.write_report(out, [*lines, ""], tables, image=("coverage maps", "coverage.png"))
     return {"study": "coverage", "trials": trials, "seed": seed, "summary": summary}
 
 

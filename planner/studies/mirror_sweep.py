@@ -221,7 +221,9 @@ def write(out: Path, nominal: Nominal, rows: list[dict[str, Any]], trials: int, 
         "shift error does not.",
         "",
     ]
-    common.write_report(out, lines, {"mirror_sweep.csv": rows}, image="mirror_sweep.png")
+    common.write_report(
+        out, lines, {"mirror_sweep.csv": rows}, image=("error vs offset", "mirror_sweep.png")
+    )
     return {
         "study": "mirror-sweep",
         "trials": trials,

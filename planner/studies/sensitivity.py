@@ -337,7 +337,7 @@ def write(out: Path, nominal: Nominal, rows: list[dict[str, Any]], trials: int, 
     )
     lines += common.table_lines(header, summary, row)
     tables = {"sensitivity.csv": rows, "summary.csv": summary}
-    common.write_report(out, [*lines, ""], tables, image="sensitivity.png")
+    common.write_report(out, [*lines, ""], tables, image=("box plots", "sensitivity.png"))
     return {"study": "sensitivity", "trials": trials, "seed": seed, "summary": summary}
 
 

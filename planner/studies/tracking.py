@@ -340,7 +340,9 @@ def write(
     row = "{experiment} | {mean_mm:.2f} ± {std_mm:.2f} | {max_mm:.2f} | {measured}/{markers} "
     row += "| {paper_mean_mm:.2f} ± {paper_std_mm:.2f}"
     lines += common.table_lines([*header, "paper (real robot)"], summary, row)
-    common.write_report(out, [*lines, ""], {"tracking.csv": rows}, image="tracking.png")
+    common.write_report(
+        out, [*lines, ""], {"tracking.csv": rows}, image=("spot errors", "tracking.png")
+    )
     return {
         "study": "tracking",
         "trials": trials,

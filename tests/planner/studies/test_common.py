@@ -69,9 +69,11 @@ def test_csv_and_markdown(tmp_path: Path) -> None:
 
 
 def test_write_report_writes_lines_and_tables(tmp_path: Path) -> None:
-    path = common.write_report(tmp_path / "r", ["# t", "", "x"], {"a.csv": [{"k": 3}]})
+    path = common.write_report(
+        tmp_path / "r", ["# t", ""], {"a.csv": [{"k": 3}]}, ("plot", "p.png")
+    )
     assert path == tmp_path / "r" / "report.md"
-    assert path.read_text() == "# t\n\nx"
+    assert path.read_text() == "# t\n\n![plot](p.png)\n"
     assert (tmp_path / "r" / "a.csv").read_text().splitlines() == ["k", "3"]
 
 
