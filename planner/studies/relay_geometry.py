@@ -21,7 +21,6 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from planner.ik.closed_form import bisector, mirror_frame, pick_branch
 from planner.system import Robot, System
 from planner.transforms import Array, inv_T
 
@@ -51,6 +50,8 @@ def mirror_ik(
     """Joints of ``robot`` whose mirror, centred at ``hit``, reflects unit ``v_in`` into unit
     ``v_out``: the first roll in ``spins`` with an analytic IK branch inside the joint limits
     (the branch nearest home), or None (also when ``v_out == v_in``: grazing)."""
+    from planner.ik.closed_form import bisector, mirror_frame, pick_branch  # heavy: lazy
+
     n = bisector(v_in, v_out)
     if n is None:
         return None
