@@ -16,6 +16,7 @@ the reason none is (with the numbers). World frame, metres, radians.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import NamedTuple
@@ -32,7 +33,21 @@ _DEGENERATE = 1e-9  # |d_out - d_in| below this: grazing, the bisector is undefi
 _S_OFFSETS = (0.0, 0.03, -0.03, 0.08, -0.08, 0.15, -0.15, 0.25, -0.25, 0.4, -0.4, 0.6, -0.6)
 _PSI = tuple(np.pi / 6 * k for k in (0, 1, -1, 2, -2, 3, -3, 4, -4, 5, -5, 6))
 _H_STEPS = (0.0, 0.05, 0.12, 0.25)
+_RING = tuple(np.linspace(0.0, TWO_PI, 8, endpoint=False))  # (u, v) ring angles, rad
+_AXES = np.vstack([np.eye(3), -np.eye(3)])
 _NOMINAL_TOL = 0.01  # a URDF arm whose flange is within 1 cm of the nominal UR5e
+
+
+@lru_cache(maxsize=4)
+def _mid_steps(n_mid: int) -> tuple[Array, list[tuple[int, ...]], Array]:
+    """Offsets (metres) tried for the N - 1 intermediate hit points: the step vectors, the
+    25 cheapest index combinations (nearest the current centres first) and their costs."""
+    steps = np.vstack([np.zeros(3)] + [a * e for a in _H_STEPS[1:] for e in _AXES])
+    norms = np.linalg.norm(steps, axis=1)
+    combos = list(itertools.product(range(len(steps)), repeat=n_mid)) if n_mid else [()]
+    combos = sorted(combos, key=lambda ks: sum(float(norms[k]) for k in ks))[:25]
+    cost = np.array([sum(float(norms[k]) for k in ks) for ks in combos])
+    return steps, combos, cost
 
 
 class Stage(NamedTuple):
@@ -78,7 +93,7 @@ def mirror_frame(h: Array, n: Array, x_ref: Array, psi: float, uv: Array) -> Arr
         x = x - (x @ n) * n
         nx = float(np.linalg.norm(x))
     x = x / nx
-    y = np.cross(n, x)
+    y = np.array([n[1] * x[2] - n[2] * x[1], n[2] * x[0] - n[0] * x[2], n[0] * x[1] - n[1] * x[0]])
     c, s = np.cos(psi), np.sin(psi)
     x, y = c * x + s * y, c * y - s * x
     T = np.eye(4)
@@ -149,25 +164,19 @@ class ClosedForm:
     # --------------------------------------------------------------------------------------
     def _combos(
         self, s0: float, centres: list[Array], s_offsets: tuple[float, ...]
-    ) -> list[list[Array]]:
-        """Hit-point lists [h_1, ..., h_N] in priority order (nearest the seed first)."""
-        n_mid = len(centres) - 1
-        steps = [np.zeros(3)]
-        for a in _H_STEPS[1:]:
-            steps += [a * e for e in np.vstack([np.eye(3), -np.eye(3)])]
-        mids = list(itertools.product(range(len(steps)), repeat=n_mid)) if n_mid else [()]
-        mids = sorted(mids, key=lambda ks: sum(float(np.linalg.norm(steps[k])) for k in ks))[:25]
-        out = []
-        for ds, ks in sorted(
-            itertools.product(s_offsets, mids),
-            key=lambda c: abs(c[0]) + sum(float(np.linalg.norm(steps[k])) for k in c[1]),
-        ):
-            s = max(s0 + ds, 0.02)
-            out.append(
-                [self.p0 + s * self.v0]
-                + [c + steps[k] for c, k in zip(centres[1:], ks, strict=True)]
-            )
-        return out
+    ) -> Iterator[list[Array]]:
+        """Hit-point lists [h_1, ..., h_N] in priority order (nearest the seed first), lazily:
+        the common case uses the first one, so only the order is computed up front."""
+        steps, mids, mid_cost = _mid_steps(len(centres) - 1)
+        offsets = np.asarray(s_offsets, dtype=float)
+        cost = np.abs(offsets)[:, None] + mid_cost[None, :]
+        n_mids = len(mids)
+        for flat in np.argsort(cost, axis=None, kind="stable"):
+            i, j = divmod(int(flat), n_mids)
+            s = max(s0 + offsets[i], 0.02)
+            yield [self.p0 + s * self.v0] + [
+                c + steps[k] for c, k in zip(centres[1:], mids[j], strict=True)
+            ]
 
     def _normals(self, hits: list[Array], target: Array) -> tuple[list[Array] | None, Array]:
         d_in = self.v0
@@ -197,7 +206,7 @@ class ClosedForm:
         hu, hv = self.roi_half[i]
         uvs = [np.zeros(2)] if inside and stage.uv_scale == (0.0,) else []
         for a in stage.uv_scale:
-            for th in np.linspace(0, TWO_PI, 8, endpoint=False):
+            for th in _RING:
                 if a == 0.0:
                     continue
                 uv = (
