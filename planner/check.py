@@ -1,8 +1,9 @@
 """Independent re-verification of a plan.json with plain numpy (no CasADi).
 
 The geometry comes from the plan's own resolved ``scenario`` echo; the UR5e forward
-kinematics here is this module's own standard-DH code (SPEC section 2), URDF arms use
-Pinocchio's numeric FK, and the reflection code is written again from SPEC section 3.
+kinematics (standard DH, SPEC section 2) and the reflection chain (written again from SPEC
+section 3) are :mod:`planner.numpy_beam`'s, shared with the trajectory check; URDF arms use
+Pinocchio's numeric FK.
 
 Checks are plain functions ``check(ctx) -> CheckResult`` in :data:`CHECKS`: the solved
 targets (spot, mirrors, joint limits) and the dense trajectory sampled at the scenario
@@ -22,47 +23,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from planner.errors import InputError
-from planner.transforms import Array, make_T, quat_to_matrix, rpy_to_matrix
+from planner.numpy_beam import limits_from_dict, trace_rays, ur5e_dh_fk
+from planner.numpy_beam import pose_matrix as pose
+from planner.transforms import Array
 
 if TYPE_CHECKING:
     from planner.check_trajectory import Finding as TrajectoryFinding
 
-UR5E_D = (0.1625, 0.0, 0.0, 0.1333, 0.0997, 0.0996)
-UR5E_A = (0.0, -0.425, -0.3922, 0.0, 0.0, 0.0)
-UR5E_ALPHA = (np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0)
 LIMIT_SLACK = 1e-12  # rad
 ROI_SLACK = 1e-12  # m
-
-
-def ur5e_dh_fk(q: Array) -> Array:
-    """``base_T_flange`` of the nominal UR5e by standard DH: Rz(q) Tz(d) Tx(a) Rx(alpha)."""
-    T = np.eye(4)
-    for th, d, a, al in zip(q, UR5E_D, UR5E_A, UR5E_ALPHA, strict=True):
-        ct, st, ca_, sa = np.cos(th), np.sin(th), np.cos(al), np.sin(al)
-        T = T @ np.array(
-            [[ct, -st * ca_, st * sa, a * ct], [st, ct * ca_, -ct * sa, a * st],
-             [0.0, sa, ca_, d], [0.0, 0.0, 0.0, 1.0]]
-        )  # fmt: skip
-    return T
-
-
-def pose(d: Any, where: str) -> Array:
-    """A pose mapping of SPEC section 2 ({matrix} | {xyz, rpy|rpy_deg|quat}) -> 4x4."""
-    if not isinstance(d, dict):
-        raise InputError("expected a pose mapping", where)
-    if "matrix" in d:
-        T = np.asarray(d["matrix"], dtype=float)
-        if T.shape != (4, 4):
-            raise InputError(f"matrix must be 4x4, got {T.shape}", where)
-        return T
-    R = np.eye(3)
-    if "rpy" in d:
-        R = rpy_to_matrix(d["rpy"])
-    elif "rpy_deg" in d:
-        R = rpy_to_matrix(np.radians(d["rpy_deg"]))
-    elif "quat" in d:
-        R = quat_to_matrix(d["quat"])
-    return make_T(R, d.get("xyz", [0.0, 0.0, 0.0]))
 
 
 @dataclass(frozen=True)
@@ -93,18 +62,15 @@ def _arm(r: dict[str, Any], i: int, base_dir: Path) -> ArmGeometry:
             n = kin.nq
         else:
             fk, n = ur5e_dh_fk, 6
-        upper_default = np.full(n, 2 * np.pi)
-        if n == 6:
-            upper_default[2] = np.pi
-        limits = r.get("limits") or {}
+        limits = limits_from_dict(r.get("limits"), n)
         return ArmGeometry(
             name=str(r["name"]),
             fk=fk,
             world_T_base=pose(r.get("world_T_base", {"matrix": np.eye(4).tolist()}), where),
             flange_T_mirror=pose(mirror["flange_T_mirror"], f"{where}.mirror"),
             roi_half=size / 2 - margin,
-            lower=np.asarray(limits.get("lower") or -upper_default, dtype=float),
-            upper=np.asarray(limits.get("upper") or upper_default, dtype=float),
+            lower=limits.lower,
+            upper=limits.upper,
         )
     except (KeyError, TypeError, ValueError) as exc:
         raise InputError(f"cannot read robot geometry: {exc!r}", where) from exc
@@ -114,24 +80,16 @@ class Trace:
     """Numpy beam trace of one configuration (SPEC section 3)."""
 
     def __init__(self, world_T_laser: Array, arms: list[ArmGeometry], q: dict[str, Array]):
-        p, v = world_T_laser[:3, 3], world_T_laser[:3, 2] / np.linalg.norm(world_T_laser[:3, 2])
-        self.hits, self.uv, self.front, self.ahead = [], [], [], []
-        for arm in arms:
-            M = (
-                arm.world_T_base
-                @ arm.fk(np.asarray(q[arm.name], dtype=float))
-                @ arm.flange_T_mirror
-            )
-            n, c = M[:3, 2], M[:3, 3]
-            t = float(np.dot(n, c - p) / np.dot(n, v))
-            h = p + t * v
-            self.hits.append(h)
-            self.uv.append(np.array([np.dot(M[:3, 0], h - c), np.dot(M[:3, 1], h - c)]))
-            self.front.append(-float(np.dot(n, v)))
-            self.ahead.append(t)
-            v = v - 2.0 * np.dot(v, n) * n
-            p = h
-        self.p, self.v = p, v
+        world_T_mirrors = [
+            arm.world_T_base @ arm.fk(np.asarray(q[arm.name], dtype=float)) @ arm.flange_T_mirror
+            for arm in arms
+        ]
+        rays = trace_rays(world_T_laser, [M[None] for M in world_T_mirrors])
+        self.hits = [h[0] for h in rays.hits]
+        self.uv = [uv[0] for uv in rays.uv]
+        self.front = [float(f[0]) for f in rays.front]
+        self.ahead = [float(t[0]) for t in rays.ahead]
+        self.p, self.v = rays.p[0], rays.v[0]
 
     def spot(self, target: Array, normal: Array | None) -> tuple[Array, float, float]:
         """(spot, ray parameter s, incidence rad) for a target (optionally with a normal)."""

@@ -5,7 +5,8 @@ Samples the trajectory at the scenario ``rate``; checks the time grid, joint pos
 limits, velocity/acceleration/jerk by finite differences (with a small slack), and the spot
 deviation from the target path at every sample of a ``path`` segment, from the nearest
 target during ``dwell`` and at the last sample of every ``approach``/``move`` (arrival),
-through a numpy UR DH forward kinematics and mirror reflection model.
+through the numpy UR DH forward kinematics and mirror reflection model of
+:mod:`planner.numpy_beam` (shared with :mod:`planner.check`).
 """
 
 from __future__ import annotations
@@ -14,15 +15,11 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from planner.transforms import Array, make_T, quat_to_matrix, rpy_to_matrix
+from planner.numpy_beam import limits_from_dict, pose_matrix, trace_rays, ur5e_dh_fk
+from planner.system import Limits
+from planner.transforms import Array
 
-UR_DH = {
-    "ur5e": (
-        (0.1625, 0.0, 0.0, 0.1333, 0.0997, 0.0996),
-        (0.0, -0.425, -0.3922, 0.0, 0.0, 0.0),
-        (np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0),
-    )
-}
+NUMPY_FK = {"ur5e": ur5e_dh_fk}  # model -> batched base_T_flange (M x 6 -> M x 4 x 4)
 
 
 class Finding(NamedTuple):
@@ -36,78 +33,33 @@ class Finding(NamedTuple):
     limit: float = float("nan")
 
 
-def pose_matrix(pose: dict[str, Any] | None) -> Array:
-    """A SPEC pose mapping (``matrix`` | ``xyz`` + ``rpy`` | ``rpy_deg`` | ``quat``) as 4x4."""
-    if not pose:
-        return np.eye(4)
-    if "matrix" in pose:
-        return np.asarray(pose["matrix"], dtype=float)
-    R = np.eye(3)
-    if "rpy" in pose:
-        R = rpy_to_matrix(pose["rpy"])
-    elif "rpy_deg" in pose:
-        R = rpy_to_matrix(np.radians(pose["rpy_deg"]))
-    elif "quat" in pose:
-        R = quat_to_matrix(pose["quat"])
-    return make_T(R, pose.get("xyz", [0.0, 0.0, 0.0]))
-
-
-def dh_fk(q: Array, model: str = "ur5e") -> Array:
-    """``base_T_flange`` for joints ``q`` (M x 6) by standard DH: (M, 4, 4)."""
-    d, a, alpha = UR_DH[model]
-    q = np.atleast_2d(q)
-    T = np.tile(np.eye(4), (len(q), 1, 1))
-    for i in range(6):
-        ct, st = np.cos(q[:, i]), np.sin(q[:, i])
-        ca, sa = np.cos(alpha[i]), np.sin(alpha[i])
-        A = np.zeros((len(q), 4, 4))
-        A[:, 0, 0], A[:, 0, 1], A[:, 0, 2], A[:, 0, 3] = ct, -st * ca, st * sa, a[i] * ct
-        A[:, 1, 0], A[:, 1, 1], A[:, 1, 2], A[:, 1, 3] = st, ct * ca, -ct * sa, a[i] * st
-        A[:, 2, 1], A[:, 2, 2], A[:, 2, 3] = sa, ca, d[i]
-        A[:, 3, 3] = 1.0
-        T = T @ A
-    return T
-
-
 class _Robot(NamedTuple):
     name: str
     model: str
     world_T_base: Array
     flange_T_mirror: Array
-    limits: dict[str, Array]
+    limits: Limits
 
 
 def _robots(scenario: dict[str, Any]) -> list[_Robot]:
     out = []
     for r in scenario["system"]["robots"]:
         lim = r.get("limits") or {}
-        n = len(lim.get("lower") or [0.0] * 6)
-        upper = np.full(n, 2 * np.pi)
-        if n == 6:
-            upper[2] = np.pi  # the elbow (UR description package)
-        default = {"lower": -upper, "upper": upper, "velocity": np.full(n, np.pi),
-                   "acceleration": np.full(n, 5.0), "jerk": np.full(n, 50.0)}  # fmt: skip
-        limits = {k: np.asarray(lim.get(k, v) if lim.get(k) is not None else v, dtype=float)
-                  for k, v in default.items()}  # fmt: skip
+        limits = limits_from_dict(lim, len(lim.get("lower") or [0.0] * 6))
         model = "urdf:" + str(r["urdf"]) if r.get("urdf") else str(r.get("model") or "ur5e")
-        out.append(_Robot(r["name"], model, pose_matrix(r.get("world_T_base")),
-                          pose_matrix(r["mirror"].get("flange_T_mirror")), limits))  # fmt: skip
+        out.append(_Robot(r["name"], model, pose_matrix(r.get("world_T_base") or {}),
+                          pose_matrix(r["mirror"].get("flange_T_mirror") or {}), limits))  # fmt: skip
     return out
 
 
 def trace_last_ray(scenario: dict[str, Any], q: dict[str, Array]) -> tuple[Array, Array]:
     """Last ray (origin, unit direction), each (M x 3), after every mirror (SPEC section 3)."""
-    wTl = pose_matrix(scenario["system"]["laser"]["world_T_laser"])
-    M = len(next(iter(q.values())))
-    p = np.tile(wTl[:3, 3], (M, 1))
-    v = np.tile(wTl[:3, 2] / np.linalg.norm(wTl[:3, 2]), (M, 1))
-    for r in _robots(scenario):
-        wTm = r.world_T_base @ dh_fk(np.asarray(q[r.name]), r.model) @ r.flange_T_mirror
-        c, n = wTm[:, :3, 3], wTm[:, :3, 2]
-        t = np.einsum("ij,ij->i", n, c - p) / np.einsum("ij,ij->i", n, v)
-        p = p + t[:, None] * v
-        v = v - 2 * np.einsum("ij,ij->i", v, n)[:, None] * n
-    return p, v
+    world_T_mirrors = [
+        r.world_T_base @ NUMPY_FK[r.model](np.atleast_2d(q[r.name])) @ r.flange_T_mirror
+        for r in _robots(scenario)
+    ]
+    rays = trace_rays(pose_matrix(scenario["system"]["laser"]["world_T_laser"]), world_T_mirrors)
+    return rays.p, rays.v
 
 
 def nearest_spots(p: Array, v: Array, targets: Array, normals: Array | None) -> tuple[Array, Array]:
@@ -183,11 +135,11 @@ def check_trajectory(
     robots = _robots(scn)
     for r in robots:
         q = np.asarray(traj["q"][r.name], dtype=float)
-        if r.model not in UR_DH:
+        if r.model not in NUMPY_FK:
             out.append(
                 Finding("warning", "model_unchecked", f"{r.name}: no numpy model for {r.model}")
             )
-        lo, hi = r.limits["lower"], r.limits["upper"]
+        lo, hi = r.limits.lower, r.limits.upper
         viol = np.maximum(lo - q, q - hi).max()
         if viol > 1e-9:
             out.append(Finding("error", "joint_limits", f"{r.name}: position limit exceeded by "
@@ -197,7 +149,7 @@ def check_trajectory(
         ):
             X = np.diff(q, n=order, axis=0) * rate**order
             if len(X):
-                f = _limit_finding(f"{code}", X, r.limits[code], slack, t, unit)
+                f = _limit_finding(f"{code}", X, getattr(r.limits, code), slack, t, unit)
                 out.append(f._replace(message=f"{r.name}: {f.message}"))
     out += _check_spot(plan, robots, t, deviation_tol, rel_duration)
     return out
@@ -207,7 +159,7 @@ def _check_spot(
     plan: dict[str, Any], robots: list[_Robot], t: Array, tol: float, rel_duration: float
 ) -> list[Finding]:
     traj, scn = plan["trajectory"], plan["scenario"]
-    if any(r.model not in UR_DH for r in robots) or not plan.get("targets"):
+    if any(r.model not in NUMPY_FK for r in robots) or not plan.get("targets"):
         return []
     P = np.array([tg["p"] for tg in plan["targets"]], dtype=float)
     N = [tg.get("n") for tg in plan["targets"]]

@@ -1,4 +1,4 @@
-"""Numpy trajectory check: DH FK check values, limit detection, curve_path end to end."""
+"""Numpy trajectory check: limit detection, spot deviation, curve_path end to end."""
 
 from __future__ import annotations
 
@@ -8,30 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planner.check_trajectory import (
-    check_trajectory,
-    dh_fk,
-    point_deviation,
-    pose_matrix,
-    spot_deviation,
-)
-from planner.kinematics import RobotKinematics
+from planner.check_trajectory import check_trajectory, point_deviation, spot_deviation
 
 SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "curve_path.yaml"
-
-
-def test_dh_fk_spec_check_value_and_pinocchio():
-    T = dh_fk(np.array([0, -np.pi / 2, 0, -np.pi / 2, 0, 0]))[0]
-    np.testing.assert_allclose(T[:3, 3], [0, -0.2329, 1.0794], atol=1e-4)
-    kin = RobotKinematics.ur5e()
-    q = np.random.default_rng(3).uniform(-3, 3, (10, 6))
-    np.testing.assert_allclose(dh_fk(q), np.stack([kin.fk(x) for x in q]), atol=1e-12)
-
-
-def test_pose_matrix_rpy_deg():
-    T = pose_matrix({"xyz": [1, 2, 3], "rpy_deg": [0, 0, 90]})
-    np.testing.assert_allclose(T[:3, :3] @ [1, 0, 0], [0, 1, 0], atol=1e-12)
-    np.testing.assert_allclose(T[:3, 3], [1, 2, 3])
 
 
 def _scenario_dict(system, rate, speed):
