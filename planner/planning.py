@@ -214,9 +214,7 @@ def _runs(ok: Array) -> list[tuple[int, int]]:
 
 def limit_ratios(system: System, traj: Trajectory) -> dict[str, float]:
     """Largest |qd|, |qdd| of the trajectory as a fraction of each joint's limit."""
-    from planner.timing import JointLimits
-
-    lim = JointLimits.of(system)
+    lim = system.limits
     if not len(traj.t):
         return {}
     out = {

@@ -6,7 +6,7 @@ inside the planner works on these, never on pydantic models. Units SI, poses ``a
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -146,6 +146,16 @@ class System:
     @property
     def upper(self) -> Array:
         return self.stack_q([r.limits.upper for r in self.robots])
+
+    @property
+    def limits(self) -> Limits:
+        """Every robot's joint limits stacked in robot order, like the joint vector."""
+        return Limits(
+            *(
+                self.stack_q([getattr(r.limits, f.name) for r in self.robots])
+                for f in fields(Limits)
+            )
+        )
 
     def with_params(
         self,

@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from planner.errors import PlanError
-from planner.system import System
+from planner.system import Limits, System
 from planner.transforms import Array
 
 SEGMENT_KINDS = ("approach", "move", "path", "dwell")
@@ -89,28 +89,6 @@ class _Piece(NamedTuple):
     kind: str
 
 
-@dataclass(frozen=True)
-class JointLimits:
-    """Stacked per-joint limits of the whole system (rad, rad/s, rad/s^2, rad/s^3)."""
-
-    lower: Array
-    upper: Array
-    velocity: Array
-    acceleration: Array
-    jerk: Array
-
-    @staticmethod
-    def of(system: System) -> JointLimits:
-        rs = system.robots
-        return JointLimits(
-            system.lower,
-            system.upper,
-            np.concatenate([r.limits.velocity for r in rs]),
-            np.concatenate([r.limits.acceleration for r in rs]),
-            np.concatenate([r.limits.jerk for r in rs]),
-        )
-
-
 # ------------------------------------------------------------------------------------------
 # rest-to-rest moves
 # ------------------------------------------------------------------------------------------
@@ -133,13 +111,13 @@ def rest_to_rest_time(
     return np.where(cruise, d / np.maximum(v, 1e-300) + t_acc, no_cruise)
 
 
-def move_time(q0: Array, q1: Array, lim: JointLimits) -> Array:
+def move_time(q0: Array, q1: Array, lim: Limits) -> Array:
     """Estimated synchronised move time: the slowest joint's rest-to-rest time (broadcasts
     over leading axes of ``q1 - q0``)."""
     return rest_to_rest_time(q1 - q0, lim.velocity, lim.acceleration, lim.jerk).max(axis=-1)
 
 
-def ruckig_move(q0: Array, q1: Array, lim: JointLimits, rate: float) -> tuple[Array, Array, Array]:
+def ruckig_move(q0: Array, q1: Array, lim: Limits, rate: float) -> tuple[Array, Array, Array]:
     """Time-optimal jerk-limited rest-to-rest move sampled at ``rate`` (includes both ends;
     the last interval is padded at rest so the move lasts a whole number of periods)."""
     from ruckig import InputParameter, Result, Ruckig
@@ -172,7 +150,7 @@ def tour_cost(C: Array, tour: Array) -> float:
     return float(C[tour[:-1], tour[1:]].sum())
 
 
-def visit_order(Q: Array, q_start: Array, lim: JointLimits, max_passes: int = 50) -> np.ndarray:
+def visit_order(Q: Array, q_start: Array, lim: Limits, max_passes: int = 50) -> np.ndarray:
     """Order of the rows of ``Q`` (n x nq) that shortens the total move time from
     ``q_start``: nearest neighbour, then 2-opt (open tour, fixed start). Returns indices."""
     n = len(Q)
@@ -248,7 +226,7 @@ def points_trajectory(
     """Rest-to-rest moves visiting every row of ``Q`` (solved targets, n x nq; NaN rows are
     skipped), ``dwell`` s on each; ``order`` is ``optimal`` or ``given``. ``progress(n)`` is
     called after the n-th move."""
-    lim = JointLimits.of(system)
+    lim = system.limits
     q0 = system.home if q_start is None else np.asarray(q_start, dtype=float)
     idx = np.flatnonzero(np.all(np.isfinite(Q), axis=1))
     given = np.arange(len(idx))
@@ -281,7 +259,7 @@ _SHARE_V, _SHARE_A, _SHARE_J = 0.9, 0.5, 0.3  # share of each limit given to eac
 
 
 def path_speed_limit(
-    spline: object, arc: Array, lim: JointLimits, spot_speed: float, a_s: float
+    spline: object, arc: Array, lim: Limits, spot_speed: float, a_s: float
 ) -> tuple[Array, Array, Array]:
     """Largest spot speed (m/s) at each sample keeping q' sd, q'' sd^2 and the jerk terms
     within their shares of the limits; returns (speed, limit code 0..3, joint index)."""
@@ -322,7 +300,7 @@ def _slowdowns(arc: Array, speed: Array, code: Array, joint: Array) -> tuple[Slo
 
 
 def time_path(
-    q_path: Array, arc: Array, lim: JointLimits, spot_speed: float, rate: float
+    q_path: Array, arc: Array, lim: Limits, spot_speed: float, rate: float
 ) -> tuple[_Piece, tuple[Slowdown, ...]]:
     """Sample s(t) from rest to rest along the path at ``rate`` and map it to joints."""
     from ruckig import InputParameter, OutputParameter, Result, Ruckig
@@ -368,7 +346,7 @@ def path_trajectory(
     """Approach from ``q_start`` (default home), then each feasible run ``(q_k K x nq,
     arc_k K)`` swept at ``spot_speed`` (m/s); rest-to-rest ``move`` (laser gated) between
     runs. Slowdowns carry the arc length along the whole path."""
-    lim = JointLimits.of(system)
+    lim = system.limits
     prev = system.home if q_start is None else np.asarray(q_start, dtype=float)
     pieces: list[_Piece] = []
     slow: list[Slowdown] = []

@@ -9,7 +9,6 @@ from ruckig import InputParameter, Result, Ruckig, Trajectory
 from planner.kinematics import RobotKinematics
 from planner.system import DEFAULT_HOME, Limits, Mirror, Robot, System
 from planner.timing import (
-    JointLimits,
     move_time,
     path_trajectory,
     points_trajectory,
@@ -46,7 +45,7 @@ def _fd(q, n):
 
 
 def test_ruckig_move_respects_limits(system):
-    lim = JointLimits.of(system)
+    lim = system.limits
     q0, q1 = system.home, system.home + np.array([1.0, -0.5, 0.3, 0.0, 0.2, -2.0])
     Q, QD, _ = ruckig_move(q0, q1, lim, RATE)
     np.testing.assert_allclose(Q[[0, -1]], [q0, q1], atol=1e-12)
@@ -57,7 +56,7 @@ def test_ruckig_move_respects_limits(system):
 
 
 def test_visit_order_beats_given_on_shuffled_line(system):
-    lim = JointLimits.of(system)
+    lim = system.limits
     rng = np.random.default_rng(0)
     xs = np.linspace(0.1, 1.0, 30)
     Q = system.home + np.outer(rng.permutation(xs), np.ones(6)) * 0.5
@@ -75,7 +74,7 @@ def test_visit_order_beats_given_on_shuffled_line(system):
 
 
 def test_path_speed_and_slowdown(system):
-    lim = JointLimits.of(system)
+    lim = system.limits
     arc = np.linspace(0.0, 0.1, 101)
     slow = system.home + np.outer(arc, np.ones(6))  # 1 rad per m: the spot speed binds
     traj = path_trajectory(system, [(slow, arc)], spot_speed=0.02, rate=RATE)
