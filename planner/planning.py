@@ -23,6 +23,7 @@ from planner.transforms import Array
 
 if TYPE_CHECKING:
     from planner.path import PathResult
+    from planner.scene import SceneModel
     from planner.timing import Trajectory, VisitReport
 
 PLAN_SCHEMA = "beamrelay.plan/1"
@@ -35,9 +36,12 @@ def plan_points(
     options: IKOptions | None = None,
     q_start: Array | None = None,
     progress: Progress | None = None,
+    scene: SceneModel | None = None,
 ) -> list[Solution]:
     """Solve every target in order; each solve starts from the last solved configuration
-    (``q_start``, default home, at first). ``progress(k)`` is called after target k."""
+    (``q_start``, default home, at first). ``progress(k)`` is called after target k. With a
+    ``scene``, beams that cross it are re-solved or fail as ``occluded``
+    (:func:`planner.occlusion.check_points`)."""
     ik = BeamIK(system, options)
     q_prev = system.home if q_start is None else np.asarray(q_start, dtype=float)
     out = []
@@ -48,14 +52,24 @@ def plan_points(
         out.append(sol)
         if progress is not None:
             progress(k)
+    if scene is not None and not scene.empty:
+        from planner.occlusion import check_points
+
+        out = check_points(ik, scene, targets, out)
     return out
 
 
 def solve_path(
-    system: System, targets: Targets, options: IKOptions, q_start: Array | None = None
+    system: System,
+    targets: Targets,
+    options: IKOptions,
+    q_start: Array | None = None,
+    scene: SceneModel | None = None,
 ) -> tuple[list[Solution], PathResult]:
     """A continuous sweep through :func:`planner.path.plan_path`: per-sample solutions (a
-    sample in a gap is ``failed`` with the gap's reason and evidence) and the path result."""
+    sample in a gap is ``failed`` with the gap's reason and evidence) and the path result.
+    With a ``scene``, samples whose beam crosses it become ``occluded`` gaps
+    (:func:`planner.occlusion.check_path`)."""
     from planner.path import PathOptions, plan_path
 
     inc = 90.0 if options.max_incidence is None else float(np.degrees(options.max_incidence))
@@ -77,14 +91,22 @@ def solve_path(
             evidence: dict[str, object] = {"detail": gap.detail if gap is not None else ""}
             out.append(Solution("failed", reason, None, None, float("inf"), None, None,
                                 per_sample, 0, "path", 0.0, evidence))  # fmt: skip
+    if scene is not None and not scene.empty:
+        from planner.occlusion import check_path
+
+        return check_path(system, scene, out, res)
     return out, res
 
 
 def plan_path_targets(
-    system: System, targets: Targets, options: IKOptions, q_start: Array | None = None
+    system: System,
+    targets: Targets,
+    options: IKOptions,
+    q_start: Array | None = None,
+    scene: SceneModel | None = None,
 ) -> list[Solution]:
     """A continuous sweep through :func:`planner.path.plan_path`, as per-sample solutions."""
-    return solve_path(system, targets, options, q_start)[0]
+    return solve_path(system, targets, options, q_start, scene)[0]
 
 
 def solution_json(system: System, k: int, sol: Solution) -> dict[str, Any]:
@@ -298,9 +320,10 @@ class PlanOutcome(NamedTuple):
 
 
 def run_scenario(
-    scenario_path: Any, *, optimal: bool = False, progress: bool = True
+    scenario_path: Any, *, optimal: bool = False, progress: bool = True, scene: bool = True
 ) -> PlanOutcome:
-    """Load, plan, time and assemble plan.json for a scenario file (rich progress bars)."""
+    """Load, plan, time and assemble plan.json for a scenario file (rich progress bars);
+    ``scene=False`` skips the occlusion check against the scenario's ``scene:``."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 
     from planner.scenario import (
@@ -309,11 +332,13 @@ def run_scenario(
         system_from_scenario,
         targets_from_scenario,
     )
+    from planner.scene import SceneModel
 
     loaded = load_scenario(scenario_path)
     scn = loaded.model
     system = system_from_scenario(loaded)
     targets = targets_from_scenario(loaded, system)
+    model = SceneModel.from_scenario(loaded) if scene else None
     options = ik_options(scn.solver, optimal)
     settings = scn.trajectory.model_dump() if scn.trajectory is not None else {}
     order = "given" if scn.targets.order == "given" else "optimal"
@@ -323,13 +348,12 @@ def run_scenario(
     with Progress(*columns, disable=not progress, transient=True) as bar:
         if targets.kind == "path":
             task = bar.add_task("path NLP", total=None)
-            solutions, path = solve_path(system, targets, options)
+            solutions, path = solve_path(system, targets, options, scene=model)
             bar.update(task, total=1, completed=1)
         else:
             task = bar.add_task("solving targets", total=len(targets))
-            solutions = plan_points(
-                system, targets, options, progress=lambda k: bar.update(task, completed=k + 1)
-            )
+            solutions = plan_points(system, targets, options, scene=model,
+                                    progress=lambda k: bar.update(task, completed=k + 1))  # fmt: skip
         n_ok = sum(s.ok for s in solutions)
         timing = bar.add_task("timing", total=n_ok if targets.kind != "path" else None)
         timed = time_solutions(system, targets, solutions, settings, order=order, path=path,

@@ -1,0 +1,155 @@
+"""The ``occluded`` post-check of planning (SPEC section 5): a solved beam must not cross the
+scene.
+
+The IK solves the beam as pure geometry; afterwards every segment of each solved beam - laser
+exit -> mirror hit 1, hit i -> hit i + 1, last hit -> spot - is raycast against the scene
+(:class:`planner.scene.SceneModel`, world frame, metres), all targets in one batch. A
+surface within ``END_MARGIN`` (1 mm) of a segment's end does not count, so a target lying on
+a board is not occluded by that board. A blocked target becomes ``failed`` / ``occluded``
+with evidence: the segment (``laser->arm0``, ``arm0->arm1``, ``arm1->target``), the object,
+the world point where the beam meets it and the blocked configuration. For points, other
+members of the closed-form family (other branches, found from other seeds) are tried before
+giving up; path samples become gaps. An empty scene returns the input untouched.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from planner.scene import END_MARGIN, START_MARGIN, SceneModel
+from planner.system import System, Targets
+from planner.transforms import Array
+
+if TYPE_CHECKING:
+    from planner.ik import BeamIK, Solution
+    from planner.path import PathResult
+
+#: extra seeds tried for an occluded point target (home, then random configurations)
+RETRY_SEEDS = 4
+
+
+def segment_labels(system: System) -> list[str]:
+    """Names of the N + 1 beam segments: ``laser->arm0``, ..., ``armN->target``."""
+    ends = ["laser", *system.robot_names, "target"]
+    return [f"{a}->{b}" for a, b in itertools.pairwise(ends)]
+
+
+def beam_points(system: System, hits: Array, spot: Array) -> Array:
+    """The beam's N + 2 vertices (world, m): laser exit, the N mirror hits, the spot."""
+    return np.vstack([system.world_T_laser[:3, 3], np.asarray(hits), np.asarray(spot)])
+
+
+def occlusions(
+    system: System, scene: SceneModel, solutions: list[Solution]
+) -> dict[int, dict[str, object]]:
+    """Evidence of every solved target whose beam is blocked, by solution index (the first
+    blocked segment along the beam)."""
+    idx = [k for k, s in enumerate(solutions) if s.ok and s.hits is not None]
+    if scene.empty or not idx:
+        return {}
+    n_seg = system.n_robots + 1
+    pts = [beam_points(system, solutions[k].hits, solutions[k].spot) for k in idx]  # type: ignore[arg-type]
+    P = np.stack(pts)  # (M, N + 2, 3)
+    blocked = scene.blocked_segments(
+        P[:, :-1].reshape(-1, 3), P[:, 1:].reshape(-1, 3), START_MARGIN, END_MARGIN
+    )
+    labels = segment_labels(system)
+    out: dict[int, dict[str, object]] = {}
+    for hit in blocked:  # ordered by segment index: the first blocked segment comes first
+        k = idx[hit.segment // n_seg]
+        if k in out:
+            continue
+        q = solutions[k].q
+        out[k] = {
+            "segment": labels[hit.segment % n_seg],
+            "object": hit.object,
+            "point": [float(x) for x in hit.point],
+            "distance_m": hit.distance,
+            "segment_length_m": hit.length,
+            "q": None if q is None else [float(x) for x in q],
+        }
+    return out
+
+
+def failed_occluded(sol: Solution, evidence: dict[str, object]) -> Solution:
+    """``sol`` as a failed ``occluded`` target (no configuration, spot or hits)."""
+    return dataclasses.replace(
+        sol, status="failed", reason="occluded", q=None, spot=None, error=float("inf"),
+        hits=None, uv=None, incidence=0.0, evidence={**sol.evidence, "occluded": evidence},
+    )  # fmt: skip
+
+
+def check_points(
+    ik: BeamIK,
+    scene: SceneModel,
+    targets: Targets,
+    solutions: list[Solution],
+    retry_seeds: int = RETRY_SEEDS,
+) -> list[Solution]:
+    """Point targets with blocked beams re-solved from other seeds (home, then random joints
+    within limits, seeded by target index); the first clear member wins, else ``occluded``."""
+    system = ik.system
+    blocked = occlusions(system, scene, solutions)
+    if not blocked:
+        return solutions
+    out = list(solutions)
+    lo, hi = np.maximum(system.lower, -np.pi), np.minimum(system.upper, np.pi)
+    for k, evidence in blocked.items():
+        rng = np.random.default_rng(k)
+        seeds = [system.home] + [rng.uniform(lo, hi) for _ in range(retry_seeds - 1)]
+        tried = 0
+        for tried, seed in enumerate(seeds[:retry_seeds], start=1):
+            sol = ik.solve(targets.points[k], targets.normal(k), seed)
+            if sol.ok and not occlusions(system, scene, [sol]):
+                out[k] = dataclasses.replace(
+                    sol, solve_time=sol.solve_time + solutions[k].solve_time,
+                    evidence={**sol.evidence, "occlusion_retry": tried},
+                )  # fmt: skip
+                break
+        else:
+            out[k] = failed_occluded(solutions[k], {**evidence, "retries": tried})
+    return out
+
+
+def check_path(
+    system: System, scene: SceneModel, solutions: list[Solution], path: PathResult
+) -> tuple[list[Solution], PathResult]:
+    """Path samples with blocked beams become ``occluded`` gaps: their solutions fail, the
+    path result loses them (q NaN, ok False) and its feasible segments split around them."""
+    blocked = occlusions(system, scene, solutions)
+    if not blocked:
+        return solutions, path
+    from planner.path import PathGap
+
+    out = list(solutions)
+    for k, evidence in blocked.items():
+        out[k] = failed_occluded(solutions[k], evidence)
+    mask = np.zeros(len(solutions), dtype=bool)
+    mask[list(blocked)] = True
+    q, ok = path.q.copy(), path.ok & ~mask
+    q[mask] = np.nan
+    gaps = list(path.gaps)
+    for k0, k1 in _runs(mask):
+        ev = blocked[k0]
+        detail = (f"beam {ev['segment']} blocked by {ev['object']} at "
+                  f"{np.round(np.asarray(ev['point']), 4).tolist()} m")  # fmt: skip
+        p = np.asarray(solutions[k0].spot if solutions[k0].spot is not None else ev["point"])
+        gaps.append(PathGap(k0, k1, float(path.arc[k0]), float(path.arc[k1 - 1]), p,
+                            "occluded", detail))  # fmt: skip
+    segments = []
+    for seg in path.segments:
+        for a, b in _runs(ok[seg.k0 : seg.k1]):
+            segments.append(seg._replace(k0=seg.k0 + a, k1=seg.k0 + b))
+    new = dataclasses.replace(path, q=q, ok=ok, segments=tuple(segments),
+                              gaps=tuple(sorted(gaps, key=lambda g: g.k0)))  # fmt: skip
+    return out, new
+
+
+def _runs(mask: Array) -> list[tuple[int, int]]:
+    """Half-open index ranges of consecutive True values."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(int), [0]])))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
