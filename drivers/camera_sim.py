@@ -50,38 +50,11 @@ def depth_sigma(z: Any, fx: float) -> Any:
 
 
 def build_scene(items: list[SceneItem]) -> Any:
-    """An open3d ``RaycastingScene`` of the scene objects, in the world frame."""
-    import open3d as o3d
+    """An open3d ``RaycastingScene`` of the scene objects, in the world frame (the planner's
+    :class:`planner.scene.SceneModel`, so the camera and the occlusion check see one scene)."""
+    from planner.scene import SceneModel
 
-    scene = o3d.t.geometry.RaycastingScene()
-    for item in items:
-        scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(_mesh(item)))
-    return scene
-
-
-def _mesh(item: SceneItem) -> Any:
-    import open3d as o3d
-
-    from planner.errors import InputError
-
-    G = o3d.geometry.TriangleMesh
-    if item.shape == "box":
-        assert item.extents is not None
-        m = G.create_box(*item.extents).translate(-np.asarray(item.extents) / 2)
-    elif item.shape == "sphere":
-        m = G.create_sphere(float(item.radius or 0), resolution=48)
-    elif item.shape == "cylinder":
-        m = G.create_cylinder(float(item.radius or 0), float(item.height or 0), resolution=96)
-    elif item.shape == "mesh":
-        m = o3d.io.read_triangle_mesh(item.mesh_path)  # type: ignore[arg-type]
-        if len(m.triangles) == 0:
-            raise InputError(
-                "mesh has no triangles (unreadable?)", f"scene {item.name}: {item.mesh_path}"
-            )
-        m.scale(item.scale, center=np.zeros(3))
-    else:
-        raise InputError(f"unknown shape {item.shape!r}", f"scene {item.name}")
-    return m.transform(item.world_T_object)
+    return SceneModel(items).raycasting_scene
 
 
 def pixel_grid(camera: Camera, stride: int = 1) -> tuple[Array, Array]:

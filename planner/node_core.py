@@ -33,13 +33,15 @@ def make_plan_fn(
     scenario: dict[str, Any],
     options: Any = None,
     settings: dict[str, Any] | None = None,
+    scene: Any = None,
 ) -> PlanFn:
     """The node's plan function over :mod:`planner.planning` for one (calibrated) system.
 
     ``scenario`` is the resolved scenario dict echoed in every plan; ``options`` an
     :class:`~planner.ik.IKOptions`; ``settings`` the scenario's ``trajectory`` section. Points
     are solved in order, each seeded by the previous solution (the first by ``start``); the
-    trajectory starts at ``start`` (the robots' current joints) instead of home.
+    trajectory starts at ``start`` (the robots' current joints) instead of home. ``scene``
+    (a :class:`~planner.scene.SceneModel`) makes beams that cross it fail as ``occluded``.
     """
     from planner.planning import plan_document, plan_path_targets, plan_points
 
@@ -52,9 +54,9 @@ def make_plan_fn(
         if targets.kind == "path":
             from planner.ik import IKOptions
 
-            sols = plan_path_targets(system, targets, options or IKOptions(), q0)
+            sols = plan_path_targets(system, targets, options or IKOptions(), q0, scene)
         else:
-            sols = plan_points(system, targets, options, q0)
+            sols = plan_points(system, targets, options, q0, scene=scene)
         traj = None
         if trajectory:
             q_from = system.home if q0 is None else q0
@@ -83,12 +85,14 @@ def handler_from_scenario(path: Any) -> RequestHandler:
     """A :class:`RequestHandler` for a scenario file (calibration applied via ``include:``)."""
     from planner.planning import ik_options
     from planner.scenario import load_scenario, resolved_scenario_dict, system_from_scenario
+    from planner.scene import SceneModel
 
     scn = load_scenario(path)
     system = system_from_scenario(scn)
     model = scn.model
     settings = model.trajectory.model_dump() if model.trajectory is not None else {}
-    plan_fn = make_plan_fn(system, resolved_scenario_dict(scn), ik_options(model.solver), settings)
+    plan_fn = make_plan_fn(system, resolved_scenario_dict(scn), ik_options(model.solver), settings,
+                           SceneModel.from_scenario(scn))  # fmt: skip
     return RequestHandler(system, plan_fn)
 
 
