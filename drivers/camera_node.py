@@ -16,13 +16,13 @@
 from __future__ import annotations
 
 import json
-import threading
 import time
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
 
+from drivers.loop_node import LoopNode
 from planner.bus import JSON, Keys, decode, encode
 from planner.errors import InputError
 from planner.transforms import Array
@@ -83,8 +83,10 @@ def decode_points(payload: bytes, attachment: bytes) -> tuple[Any, dict[str, Any
     return np.frombuffer(payload, dtype=np.float32).reshape(count, len(fields)), meta
 
 
-class CameraNode:
+class CameraNode(LoopNode):
     """Runs one camera source on the bus (see the module docstring)."""
+
+    join_timeout = 5.0  # s: a real camera may block for a frame
 
     def __init__(
         self,
@@ -95,14 +97,12 @@ class CameraNode:
         spot_rate: float = 30.0,
         points_rate: float = 15.0,
     ) -> None:
+        super().__init__()
         self.session = session
         self.keys = keys
         self.source = source
         self.period = 1.0 / spot_rate
         self._points_every = max(1, round(spot_rate / points_rate))
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._handles: list[Any] = []
         self.frames = 0
         self.error: str | None = None
 
@@ -113,23 +113,11 @@ class CameraNode:
         for robot in self.source.robot_names:
             self._handles.append(s.declare_subscriber(k.joint_states(robot), self._joints(robot)))
         self._handles.append(s.liveliness().declare_token(k.alive("camera")))
-        self._thread = threading.Thread(target=self._loop, name="camera", daemon=True)
-        self._thread.start()
+        self._start_loop("camera")
         return self
 
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
+    def _close(self) -> None:
         self.source.close()
-        for h in reversed(self._handles):
-            h.undeclare()
-        self._handles = []
-
-    def wait(self) -> None:
-        """Block until the loop ends (Ctrl-C raises KeyboardInterrupt here)."""
-        while self._thread is not None and self._thread.is_alive():
-            self._thread.join(timeout=0.2)
 
     def _joints(self, robot: str) -> Any:
         def on_state(sample: Any) -> None:

@@ -25,6 +25,7 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from drivers.follower import Reference
+from drivers.loop_node import LoopNode
 from planner.bus import JSON, Keys, decode, encode
 from planner.errors import InputError
 from planner.system import Limits
@@ -113,7 +114,7 @@ def check_trajectory(
     return Reference(t, q, qd, qdd)
 
 
-class RobotNode:
+class RobotNode(LoopNode):
     """Runs one backend on the bus (see the module docstring)."""
 
     def __init__(
@@ -129,6 +130,7 @@ class RobotNode:
         start_tolerance: float = START_TOLERANCE,
         require_planner: bool = True,
     ) -> None:
+        super().__init__()
         self.session = session
         self.keys = keys
         self.robot = robot
@@ -139,14 +141,11 @@ class RobotNode:
         self._state_every = max(1, round(backend.rate / state_rate))
         self._status_every = max(1, round(backend.rate / status_rate))
         self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
         self.planner_alive = False
         self.planner_lost_at: float | None = None  # UNIX time the planner's token went away
         self.rejection: str | None = None
         self.n_accepted = 0
         self.n_rejected = 0
-        self._handles: list[Any] = []
 
     # -- lifecycle ---------------------------------------------------------------------
     def start(self) -> RobotNode:
@@ -158,27 +157,13 @@ class RobotNode:
             s.liveliness().declare_subscriber(k.alive("planner"), self._on_planner, history=True),
             s.liveliness().declare_token(k.alive(self.robot)),
         ]
-        self._thread = threading.Thread(
-            target=self._loop, name=f"{self.robot}-control", daemon=True
-        )
-        self._thread.start()
+        self._start_loop(f"{self.robot}-control")
         return self
 
-    def stop(self) -> None:
-        """Stop the loop, stop the arm (backend ``close``) and withdraw the token."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
+    def _close(self) -> None:
+        """Stop the arm (backend ``close``)."""
         with self._lock:
             self.backend.close()
-        for h in reversed(self._handles):
-            h.undeclare()
-        self._handles = []
-
-    def wait(self) -> None:
-        """Block until the control loop ends (Ctrl-C raises KeyboardInterrupt here)."""
-        while self._thread is not None and self._thread.is_alive():
-            self._thread.join(timeout=0.2)
 
     # -- callbacks (Zenoh threads) -------------------------------------------------------
     def _on_planner(self, sample: Any) -> None:
