@@ -27,7 +27,13 @@ import casadi as ca
 import numpy as np
 
 from planner.beam import beam_function
-from planner.calibration.lsq import describe_direction, levenberg_marquardt, null_directions
+from planner.calibration.lsq import (
+    delta_T,
+    describe_direction,
+    exp_T,
+    levenberg_marquardt,
+    null_directions,
+)
 from planner.errors import CalibrationError, DatasetError
 from planner.kinematics import RobotKinematics
 from planner.system import System
@@ -82,15 +88,6 @@ class BeamResult:
     detected: list[str] = field(default_factory=list)  # null directions of the full Jacobian
 
 
-def _delta_T(d: ca.SX) -> ca.SX:
-    R = ca.SX.eye(3) + ca.skew(d[:3])
-    return ca.vertcat(ca.horzcat(R, d[3:]), ca.horzcat(0, 0, 0, 1))
-
-
-def _exp_T(d: Array) -> Array:
-    return make_T(axis_angle_to_matrix(d[:3]), d[3:])
-
-
 @lru_cache(maxsize=16)
 def beam_residual(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
     """Spot residual through :func:`planner.beam.beam_function` for the last mirror's mount.
@@ -106,12 +103,12 @@ def beam_residual(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
     bases = ca.SX.sym("world_T_base", 4, 4 * N)
     mounts = ca.SX.sym("flange_T_mirror", 4, 4 * N)
     spot = ca.SX.sym("spot", 3)
-    last = mounts[:, 4 * (N - 1) :] @ _delta_T(dm)
+    last = mounts[:, 4 * (N - 1) :] @ delta_T(dm)
     mounts_d = ca.horzcat(mounts[:, : 4 * (N - 1)], last) if N > 1 else last
     roi_half = ca.DM.ones(2, N)
     out = beam_function(kinematics)(
         q=q,
-        world_T_laser=L0 @ _delta_T(dl),
+        world_T_laser=L0 @ delta_T(dl),
         world_T_base=bases,
         flange_T_mirror=mounts_d,
         roi_half=roi_half,
@@ -220,7 +217,7 @@ def calibrate_beam(
     def retract(state: tuple[Array, Array], dx: Array) -> tuple[Array, Array]:
         full = np.zeros(12)
         full[cols] = dx
-        return state[0] @ _exp_T(full[:6]), state[1] @ _exp_T(full[6:])
+        return state[0] @ exp_T(full[:6]), state[1] @ exp_T(full[6:])
 
     rng = np.random.default_rng(seed)
     best = None
@@ -229,7 +226,7 @@ def calibrate_beam(
         if s:  # multi-start: +-3 deg tilts, +-10 mm offsets around the nominal values
             d = np.concatenate([rng.uniform(-0.05, 0.05, 3), rng.uniform(-0.01, 0.01, 3)])
             e = np.concatenate([rng.uniform(-0.05, 0.05, 3), rng.uniform(-0.01, 0.01, 3)])
-            state = (L_nom @ _exp_T(d) if idx == 0 else L_nom, M_nom @ _exp_T(e))
+            state = (L_nom @ exp_T(d) if idx == 0 else L_nom, M_nom @ exp_T(e))
         res = levenberg_marquardt(
             linearize, retract, state, dof_per_group=2, loss=loss, loss_scale=loss_scale
         )

@@ -25,10 +25,16 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from planner.calibration.lsq import LsqResult, levenberg_marquardt, null_directions
+from planner.calibration.lsq import (
+    LsqResult,
+    delta_T,
+    exp_T,
+    levenberg_marquardt,
+    null_directions,
+)
 from planner.errors import CalibrationError, DatasetError
 from planner.system import System
-from planner.transforms import Array, axis_angle_to_matrix, inv_T, make_T, matrix_to_axis_angle
+from planner.transforms import Array, inv_T, make_T, matrix_to_axis_angle
 
 MODES = ("eye_to_hand", "eye_in_hand")
 MIN_SAMPLES = 3
@@ -118,20 +124,13 @@ def solve_ax_yb(A: list[Array], B: list[Array]) -> tuple[Array, Array]:
 
 
 # --- CasADi residual ------------------------------------------------------------------------
-def _delta_T(d: ca.SX) -> ca.SX:
-    """First-order rigid increment [I + skew(w), t] (exact derivative at zero)."""
-    w, t = d[:3], d[3:]
-    R = ca.SX.eye(3) + ca.skew(w)
-    return ca.vertcat(ca.horzcat(R, t), ca.horzcat(0, 0, 0, 1))
-
-
 @lru_cache(maxsize=8)
 def handeye_residual() -> ca.Function:
     """``r = (E(dz) Z0) A (Y0 E(dy)) b - p`` and its Jacobian w.r.t. ``[dz; dy]``."""
     dz, dy = ca.SX.sym("dz", 6), ca.SX.sym("dy", 6)
     Z0, A, Y0 = ca.SX.sym("Z0", 4, 4), ca.SX.sym("A", 4, 4), ca.SX.sym("Y0", 4, 4)
     b, p = ca.SX.sym("b", 3), ca.SX.sym("p", 3)
-    T = ca.mtimes([_delta_T(dz), Z0, A, Y0, _delta_T(dy)])
+    T = ca.mtimes([delta_T(dz), Z0, A, Y0, delta_T(dy)])
     r = T[:3, :3] @ b + T[:3, 3] - p
     J = ca.jacobian(r, ca.vertcat(dz, dy))
     return ca.Function(
@@ -150,9 +149,7 @@ def _mapped(n: int) -> ca.Function:
 
 def _retract(state: tuple[Array, Array], dx: Array) -> tuple[Array, Array]:
     Z, Y = state
-    Ez = make_T(axis_angle_to_matrix(dx[:3]), dx[3:6])
-    Ey = make_T(axis_angle_to_matrix(dx[6:9]), dx[9:12])
-    return Ez @ Z, Y @ Ey
+    return exp_T(dx[:6]) @ Z, Y @ exp_T(dx[6:12])
 
 
 # --- excitation -----------------------------------------------------------------------------

@@ -13,16 +13,34 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Generic, TypeVar
+from typing import TYPE_CHECKING, Generic, TypeVar
 
 import numpy as np
 
 from planner.errors import CalibrationError
-from planner.transforms import Array
+from planner.transforms import Array, axis_angle_to_matrix, make_T
+
+if TYPE_CHECKING:
+    import casadi as ca
 
 S = TypeVar("S")
 
 LOSSES = ("none", "huber", "cauchy")
+
+
+def delta_T(d: ca.SX) -> ca.SX:
+    """Symbolic rigid increment ``[I + skew(w), t]`` of ``d = [w (rad); t (m)]``: first order,
+    with the exact derivative at zero (what the linearised residuals differentiate)."""
+    import casadi as ca
+
+    R = ca.SX.eye(3) + ca.skew(d[:3])
+    return ca.vertcat(ca.horzcat(R, d[3:]), ca.horzcat(0, 0, 0, 1))
+
+
+def exp_T(d: Array) -> Array:
+    """Numeric rigid increment of ``d = [w (rad); t (m)]``: rotation exp(skew(w)),
+    translation t; the retraction matching :func:`delta_T` (same derivative at zero)."""
+    return make_T(axis_angle_to_matrix(d[:3]), d[3:])
 
 
 def robust_weights(norms: Array, loss: str, scale: float) -> Array:

@@ -59,3 +59,32 @@ def test_rank_deficiency_is_reported_and_too_few_equations_raise():
             group=1,
             dof_per_group=1,
         )
+
+
+def test_rigid_increments_agree_to_first_order():
+    import casadi as ca
+
+    from planner.calibration.lsq import delta_T, exp_T
+
+    d = ca.SX.sym("d", 6)
+    f = ca.Function("f", [d], [ca.reshape(delta_T(d), 16, 1)])
+    x = np.array([0.1, -0.2, 0.3, 0.01, 0.02, -0.03])
+    E = np.asarray(f(x)).reshape(4, 4, order="F")
+    skew = np.array([[0, -0.3, -0.2], [0.3, 0, -0.1], [0.2, 0.1, 0]])
+    np.testing.assert_allclose(E[:3, :3], np.eye(3) + skew, atol=1e-15)
+    np.testing.assert_allclose(E[:3, 3], x[3:], atol=1e-15)
+    np.testing.assert_allclose(E[3], [0, 0, 0, 1])
+    # exp_T: a proper rotation by |w| about w/|w| (Rodrigues), translation t
+    R = exp_T(x)[:3, :3]
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-14)
+    np.testing.assert_allclose(R @ x[:3], x[:3], atol=1e-15)
+    assert np.arccos((np.trace(R) - 1) / 2) == pytest.approx(np.linalg.norm(x[:3]), rel=1e-12)
+    np.testing.assert_allclose(exp_T(x)[:3, 3], x[3:])
+    # the same derivative at zero: central differences of exp_T vs the symbolic Jacobian
+    J = np.asarray(ca.Function("J", [d], [ca.jacobian(ca.reshape(delta_T(d), 16, 1), d)])(0))
+    h = 1e-6
+    for i in range(6):
+        e = np.zeros(6)
+        e[i] = h
+        fd = (exp_T(e) - exp_T(-e)).reshape(-1, order="F") / (2 * h)
+        np.testing.assert_allclose(fd, J[:, i], atol=1e-9)
