@@ -11,6 +11,7 @@ from typing import Annotated
 
 import typer
 
+from planner.cli_args import parse_xyz
 from planner.errors import InputError
 
 app = typer.Typer(
@@ -40,9 +41,11 @@ def _fail_on_calibration_error(exc: Exception) -> None:
     raise typer.Exit(2)
 
 
-def _print(document: dict[str, object], out: Path) -> None:
-    from planner.calibration.report import summary_lines
+def _write(document: dict[str, object], out: Path) -> None:
+    """Write the calibration YAML and print its summary."""
+    from planner.calibration.report import summary_lines, write_calibration
 
+    write_calibration(out, document)
     for line in summary_lines(document):  # type: ignore[arg-type]
         typer.echo(line)
     typer.echo(f"wrote {out}")
@@ -59,7 +62,7 @@ def handeye(
     """Camera pose and marker-board pose, jointly (eye_to_hand or eye_in_hand)."""
     from planner.calibration.dataset import load_handeye
     from planner.calibration.handeye import calibrate_handeye
-    from planner.calibration.report import handeye_document, write_calibration
+    from planner.calibration.report import handeye_document
     from planner.errors import CalibrationError
     from planner.scenario import load_scenario, system_from_scenario
 
@@ -77,20 +80,7 @@ def handeye(
         _fail_on_calibration_error(exc)
         return
     document = handeye_document(result, ds.robot, str(data))
-    write_calibration(out, document)
-    _print(document, out)
-
-
-def _parse_vec3(text: str | None, name: str) -> list[float] | None:
-    if text is None:
-        return None
-    try:
-        v = [float(x) for x in text.split(",")]
-    except ValueError as exc:
-        raise InputError(f"{name} {text!r}: expected X,Y,Z in metres") from exc
-    if len(v) != 3:
-        raise InputError(f"{name} {text!r}: expected X,Y,Z in metres")
-    return v
+    _write(document, out)
 
 
 @app.command("beam")
@@ -111,12 +101,12 @@ def beam(
 
     from planner.calibration.beam import calibrate_beam
     from planner.calibration.dataset import load_beam
-    from planner.calibration.report import beam_document, write_calibration
+    from planner.calibration.report import beam_document
     from planner.errors import CalibrationError
     from planner.scenario import load_scenario, system_from_scenario
 
     _check_loss(loss, loss_scale)
-    centre = _parse_vec3(mirror_centre, "--mirror-centre")
+    centre = None if mirror_centre is None else parse_xyz(mirror_centre, "--mirror-centre")
     system = system_from_scenario(load_scenario(scenario))
     ds = load_beam(data, system)
     try:
@@ -132,8 +122,7 @@ def beam(
         _fail_on_calibration_error(exc)
         return
     document = beam_document(result, str(data))
-    write_calibration(out, document)
-    _print(document, out)
+    _write(document, out)
 
 
 @app.command("simulate")

@@ -7,6 +7,7 @@ from typing import Annotated
 
 import typer
 
+from planner.cli_args import parse_xyz
 from planner.errors import InputError
 
 
@@ -74,12 +75,7 @@ def trace(
         raise InputError(f"--q: unknown robot {next(iter(given))!r} (robots: {names})")
     p_target = None
     if target is not None:
-        try:
-            p_target = np.array([float(x) for x in target.split(",")])
-        except ValueError as exc:
-            raise InputError(f"--target {target!r}: expected X,Y,Z") from exc
-        if p_target.shape != (3,):
-            raise InputError(f"--target {target!r}: expected X,Y,Z")
+        p_target = np.array(parse_xyz(target, "--target"))
     model = BeamModel(system)
     tr = model.trace(system.stack_q(joints), p_target)
 

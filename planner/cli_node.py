@@ -11,6 +11,7 @@ from typing import Annotated
 
 import typer
 
+from planner.cli_args import parse_xyz
 from planner.errors import InputError
 
 EndpointOpt = Annotated[
@@ -102,19 +103,6 @@ def up(
     )
 
 
-def _parse_points(specs: list[str], what: str) -> list[list[float]]:
-    out = []
-    for spec in specs:
-        try:
-            p = [float(x) for x in spec.split(",")]
-        except ValueError as exc:
-            raise InputError(f"{what} {spec!r}: expected X,Y,Z numbers") from exc
-        if len(p) != 3:
-            raise InputError(f"{what} {spec!r}: expected X,Y,Z (3 numbers), got {len(p)}")
-        out.append(p)
-    return out
-
-
 def request(
     points: Annotated[
         list[str], typer.Option("--points", help="X,Y,Z target in metres (repeat for more).")
@@ -136,8 +124,8 @@ def request(
 
     if frame not in ("world", "camera"):
         raise InputError(f"--frame {frame!r}: expected world or camera")
-    pts = _parse_points(points, "--points")
-    nrm = _parse_points(normals, "--normals") if normals else None
+    pts = [parse_xyz(p, "--points") for p in points]
+    nrm = [parse_xyz(n, "--normals") for n in normals] if normals else None
     if nrm is not None and len(nrm) != len(pts):
         raise InputError(f"--normals: {len(nrm)} given for {len(pts)} points")
     req = make_request(pts, frame=frame, normals=nrm, path=path, execute=execute)
