@@ -284,19 +284,6 @@ def path_deviation(system: System, targets: Targets, traj: Trajectory) -> float:
     return float(dev.max())
 
 
-def trajectory_hook(
-    system: System,
-    targets: Targets,
-    solutions: list[Solution],
-    settings: dict[str, Any],
-    q_start: Array | None = None,
-    order: str = "optimal",
-) -> dict[str, Any] | None:
-    """plan.json ``trajectory`` (see :func:`time_solutions`), or None if nothing is solved."""
-    timed = time_solutions(system, targets, solutions, settings, q_start=q_start, order=order)
-    return None if timed is None else timed.trajectory.to_plan_dict(system)
-
-
 def ik_options(solver: Any, optimal: bool = False) -> IKOptions:
     """IKOptions from a scenario's ``solver`` section (pydantic model or None)."""
     if solver is None:
