@@ -6,6 +6,8 @@ from dataclasses import replace
 
 import numpy as np
 
+from planner.calibration.handeye import HandEyeData
+from planner.calibration.simulate import DepthNoise, default_handeye_truth, simulate_handeye
 from planner.kinematics import RobotKinematics
 from planner.system import DEFAULT_HOME, Camera, Intrinsics, Limits, Mirror, Robot, System
 from planner.transforms import Array, axis_angle_to_matrix, look_at, make_T, rpy_to_matrix
@@ -38,6 +40,17 @@ def two_robot_system() -> System:
 def perturbation(rng: np.random.Generator, rad: float = 0.03, metres: float = 0.008) -> Array:
     """A random rigid perturbation: rotation vector U(-rad, rad), translation U(-m, m)."""
     return make_T(axis_angle_to_matrix(rng.uniform(-rad, rad, 3)), rng.uniform(-metres, metres, 3))
+
+
+def eye_to_hand_data(
+    system: System, n: int, rng: np.random.Generator, noise: DepthNoise | None = None
+) -> tuple[HandEyeData, Array, Array]:
+    """``n`` simulated eye_to_hand samples of arm0 at the default true poses:
+    (data, world_T_camera, flange_T_board)."""
+    cam, board = default_handeye_truth(system, "arm0", "eye_to_hand")
+    data = simulate_handeye(system, "arm0", "eye_to_hand", n, camera_pose=cam,
+                            board_pose=board, noise=noise, rng=rng)  # fmt: skip
+    return data, cam, board
 
 
 def write_scenario(path, truth: bool = True) -> None:

@@ -22,28 +22,16 @@ def _run(argv):
     return 0
 
 
+def _simulate(scn, out, *options):
+    """``beamrelay calibrate simulate SCN OPTIONS -o OUT``; its exit status."""
+    return _run(["calibrate", "simulate", scn, *options, "-o", out])
+
+
 def test_simulate_then_calibrate_beam(tmp_path, capsys):
     scn = tmp_path / "scn.yaml"
     write_scenario(scn)
     data, out = tmp_path / "beam.json", tmp_path / "cal.yaml"
-    assert (
-        _run(
-            [
-                "calibrate",
-                "simulate",
-                scn,
-                "--kind",
-                "beam",
-                "--poses",
-                "6",
-                "--noise",
-                "none",
-                "-o",
-                data,
-            ]
-        )
-        == 0
-    )
+    assert _simulate(scn, data, "--kind", "beam", "--poses", "6", "--noise", "none") == 0
     assert len(json.loads(data.read_text())["samples"]) == 18
     assert _run(["calibrate", "beam", data, "--scenario", scn, "-o", out]) == 0
     doc = YAML(typ="safe").load(out.read_text())
@@ -59,20 +47,7 @@ def test_simulate_then_calibrate_handeye(tmp_path, mode):
     scn = tmp_path / "scn.yaml"
     write_scenario(scn)
     data, out = tmp_path / "he.json", tmp_path / "he.yaml"
-    argv = [
-        "calibrate",
-        "simulate",
-        scn,
-        "--kind",
-        "handeye",
-        "--mode",
-        mode,
-        "--poses",
-        "8",
-        "-o",
-        data,
-    ]
-    assert _run(argv) == 0
+    assert _simulate(scn, data, "--kind", "handeye", "--mode", mode, "--poses", "8") == 0
     assert _run(["calibrate", "handeye", data, "-s", scn, "-o", out, "--loss", "huber"]) == 0
     doc = YAML(typ="safe").load(out.read_text())
     assert doc["report"]["mode"] == mode
@@ -84,23 +59,7 @@ def test_user_mistakes_exit_2_with_one_line(tmp_path, capsys):
     scn = tmp_path / "scn.yaml"
     write_scenario(scn)
     data = tmp_path / "beam.json"
-    _run(
-        [
-            "calibrate",
-            "simulate",
-            scn,
-            "--kind",
-            "beam",
-            "--poses",
-            "2",
-            "--boards",
-            "1",
-            "--noise",
-            "none",
-            "-o",
-            data,
-        ]
-    )
+    _simulate(scn, data, "--kind", "beam", "--poses", "2", "--boards", "1", "--noise", "none")
     capsys.readouterr()
     cases = [
         (["calibrate", "beam", data, "-s", scn, "--loss", "tukey"], "--loss"),

@@ -8,25 +8,16 @@ import numpy as np
 import pytest
 
 from planner.calibration.dataset import beam_json, handeye_json, load_beam, load_handeye, write_json
-from planner.calibration.simulate import default_handeye_truth, simulate_beam, simulate_handeye
+from planner.calibration.simulate import simulate_beam
 from planner.errors import DatasetError
 from planner.transforms import inv_T, transform_points
 
-from .cal_systems import AIM, nominal_system
+from .cal_systems import AIM, eye_to_hand_data, nominal_system
 
 
 def test_handeye_round_trip_with_unseen_markers(tmp_path):
     system = nominal_system()
-    cam, board = default_handeye_truth(system, "arm0", "eye_to_hand")
-    data = simulate_handeye(
-        system,
-        "arm0",
-        "eye_to_hand",
-        4,
-        camera_pose=cam,
-        board_pose=board,
-        rng=np.random.default_rng(0),
-    )
+    data, _, _ = eye_to_hand_data(system, 4, np.random.default_rng(0))
     P = data.points_camera.copy()
     P[1, 3] = np.nan
     doc = handeye_json(type(data)(data.robot, data.mode, data.board_points, data.q, P))

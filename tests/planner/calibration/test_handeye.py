@@ -10,7 +10,7 @@ from planner.calibration.simulate import DepthNoise, default_handeye_truth, simu
 from planner.errors import CalibrationError, DatasetError
 from planner.transforms import inv_T, matrix_to_axis_angle, transform_points
 
-from .cal_systems import nominal_system, perturbation
+from .cal_systems import eye_to_hand_data, nominal_system, perturbation
 
 
 def _pose_error(T_est, T_true):
@@ -51,19 +51,10 @@ def test_exact_data_recovers_poses(mode):
 
 def test_noisy_errors_are_within_three_reported_sigma():
     system = nominal_system()
-    cam, board = default_handeye_truth(system, "arm0", "eye_to_hand")
     z = []
     for seed in range(8):
-        rng = np.random.default_rng(100 + seed)
-        data = simulate_handeye(
-            system,
-            "arm0",
-            "eye_to_hand",
-            20,
-            camera_pose=cam,
-            board_pose=board,
-            noise=DepthNoise(),
-            rng=rng,
+        data, cam, board = eye_to_hand_data(
+            system, 20, np.random.default_rng(100 + seed), DepthNoise()
         )
         res = calibrate_handeye(data, system)
         for est, true, key in ((res.camera_pose, cam, "camera"), (res.board_pose, board, "board")):
@@ -77,12 +68,7 @@ def test_noisy_errors_are_within_three_reported_sigma():
 
 def test_robust_loss_resists_outliers():
     system = nominal_system()
-    cam, board = default_handeye_truth(system, "arm0", "eye_to_hand")
-    rng = np.random.default_rng(7)
-    noise = DepthNoise(outliers=0.05)
-    data = simulate_handeye(
-        system, "arm0", "eye_to_hand", 20, camera_pose=cam, board_pose=board, noise=noise, rng=rng
-    )
+    data, cam, _ = eye_to_hand_data(system, 20, np.random.default_rng(7), DepthNoise(outliers=0.05))
     plain = _pose_error(calibrate_handeye(data, system).camera_pose, cam)[0]
     huber = _pose_error(
         calibrate_handeye(data, system, loss="huber", loss_scale=0.005).camera_pose, cam

@@ -10,13 +10,11 @@ from planner.calibration.simulate import (
     DepthNoise,
     aim_chain,
     board_grid,
-    default_handeye_truth,
     simulate_beam,
-    simulate_handeye,
 )
 from planner.transforms import inv_T, transform_points
 
-from .cal_systems import AIM, INTRINSICS, nominal_system, two_robot_system
+from .cal_systems import AIM, INTRINSICS, eye_to_hand_data, nominal_system, two_robot_system
 
 
 def test_d435_depth_rms_formula_and_empirical_spread():
@@ -63,16 +61,7 @@ def test_beam_samples_are_valid_and_on_their_boards():
 
 def test_handeye_samples_are_visible_and_consistent():
     system = nominal_system()
-    cam, board = default_handeye_truth(system, "arm0", "eye_to_hand")
-    data = simulate_handeye(
-        system,
-        "arm0",
-        "eye_to_hand",
-        8,
-        camera_pose=cam,
-        board_pose=board,
-        rng=np.random.default_rng(2),
-    )
+    data, cam, board = eye_to_hand_data(system, 8, np.random.default_rng(2))
     r = system.robots[0]
     k = INTRINSICS
     for q, pts in zip(data.q, data.points_camera, strict=True):
