@@ -89,22 +89,49 @@ def beam_chain(
     return hits, uvs, dirs, fronts, aheads, mirrors
 
 
+class ChainSymbols(NamedTuple):
+    """Symbolic chain parameters, named and shaped as the beam function's inputs."""
+
+    q: ca.SX  # nq x 1, every robot's joints stacked (rad)
+    world_T_laser: ca.SX  # 4 x 4
+    world_T_base: ca.SX  # 4 x 4N, horizontally stacked
+    flange_T_mirror: ca.SX  # 4 x 4N, horizontally stacked
+    roi_half: ca.SX  # 2 x N (m)
+
+    @property
+    def bases(self) -> list[ca.SX]:
+        """``world_T_base`` of each robot (4 x 4 blocks, chain order)."""
+        return [self.world_T_base[:, 4 * i : 4 * i + 4] for i in range(self.roi_half.shape[1])]
+
+    @property
+    def mounts(self) -> list[ca.SX]:
+        """``flange_T_mirror`` of each robot (4 x 4 blocks, chain order)."""
+        return [self.flange_T_mirror[:, 4 * i : 4 * i + 4] for i in range(self.roi_half.shape[1])]
+
+
+def chain_symbols(kinematics: tuple[RobotKinematics, ...]) -> ChainSymbols:
+    """Fresh symbols for a chain's parameters (reuse them in NLPs and residuals)."""
+    N = len(kinematics)
+    return ChainSymbols(
+        ca.SX.sym("q", sum(k.nq for k in kinematics)),
+        ca.SX.sym("world_T_laser", 4, 4),
+        ca.SX.sym("world_T_base", 4, 4 * N),
+        ca.SX.sym("flange_T_mirror", 4, 4 * N),
+        ca.SX.sym("roi_half", 2, N),
+    )
+
+
 @lru_cache(maxsize=32)
 def beam_function(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
     """The named beam function for a chain of robot models (cached per chain)."""
-    N = len(kinematics)
-    nq = sum(k.nq for k in kinematics)
-    q = ca.SX.sym("q", nq)
-    world_T_laser = ca.SX.sym("world_T_laser", 4, 4)
-    world_T_base = ca.SX.sym("world_T_base", 4, 4 * N)
-    flange_T_mirror = ca.SX.sym("flange_T_mirror", 4, 4 * N)
-    roi_half = ca.SX.sym("roi_half", 2, N)
+    sym = chain_symbols(kinematics)
+    q, world_T_laser, world_T_base, flange_T_mirror, roi_half = sym
     target = ca.SX.sym("target", 3)
     normal = ca.SX.sym("normal", 3)
 
-    bases = [world_T_base[:, 4 * i : 4 * i + 4] for i in range(N)]
-    mounts = [flange_T_mirror[:, 4 * i : 4 * i + 4] for i in range(N)]
-    hits, uvs, dirs, fronts, aheads, _ = beam_chain(q, world_T_laser, bases, mounts, kinematics)
+    hits, uvs, dirs, fronts, aheads, _ = beam_chain(
+        q, world_T_laser, sym.bases, sym.mounts, kinematics
+    )
     p, v = hits[-1], dirs[-1]
 
     has_normal = ca.dot(normal, normal) > 0

@@ -26,7 +26,7 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from planner.beam import beam_function
+from planner.beam import beam_function, chain_symbols
 from planner.calibration.lsq import (
     delta_T,
     describe_direction,
@@ -96,12 +96,8 @@ def beam_residual(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
     flange_T_mirror (4x4N), spot (3); outputs: r (3), J (3x12, w.r.t. [d_laser; d_mirror]).
     """
     N = len(kinematics)
-    nq = sum(k.nq for k in kinematics)
-    q = ca.SX.sym("q", nq)
+    q, L0, bases, mounts, _ = chain_symbols(kinematics)
     dl, dm = ca.SX.sym("d_laser", 6), ca.SX.sym("d_mirror", 6)
-    L0 = ca.SX.sym("world_T_laser", 4, 4)
-    bases = ca.SX.sym("world_T_base", 4, 4 * N)
-    mounts = ca.SX.sym("flange_T_mirror", 4, 4 * N)
     spot = ca.SX.sym("spot", 3)
     last = mounts[:, 4 * (N - 1) :] @ delta_T(dm)
     mounts_d = ca.horzcat(mounts[:, : 4 * (N - 1)], last) if N > 1 else last

@@ -154,3 +154,19 @@ def test_jacobians_match_finite_differences(n: int) -> None:
             d_uv = (np.array(fp["uv"]) - np.array(fm["uv"])).ravel(order="F") / (2 * eps)
             np.testing.assert_allclose(J_spot[:, j], d_spot, atol=2e-6, rtol=1e-5)
             np.testing.assert_allclose(J_uv[:, j], d_uv, atol=2e-6, rtol=1e-5)
+
+
+def test_chain_symbols_shapes_and_blocks() -> None:
+    from planner.beam import chain_symbols
+    from planner.kinematics import RobotKinematics
+
+    kin = RobotKinematics.ur5e()
+    sym = chain_symbols((kin, kin))
+    assert sym.q.shape == (12, 1) and sym.world_T_laser.shape == (4, 4)
+    assert sym.world_T_base.shape == (4, 8) and sym.roi_half.shape == (2, 2)
+    # block i of the stacked parameters is columns 4i..4i+3
+    f = ca.Function("f", [sym.world_T_base, sym.flange_T_mirror], [sym.bases[1], sym.mounts[0]])
+    W, F = np.arange(32.0).reshape(4, 8), -np.arange(32.0).reshape(4, 8)
+    b1, m0 = (np.asarray(x) for x in f(W, F))
+    np.testing.assert_array_equal(b1, W[:, 4:8])
+    np.testing.assert_array_equal(m0, F[:, 0:4])
