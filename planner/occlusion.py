@@ -6,16 +6,18 @@ exit -> mirror hit 1, hit i -> hit i + 1, last hit -> spot - is raycast against 
 (:class:`planner.scene.SceneModel`, world frame, metres), all targets in one batch. A
 surface within ``END_MARGIN`` (1 mm) of a segment's end does not count, so a target lying on
 a board is not occluded by that board. A blocked target becomes ``failed`` / ``occluded``
-with evidence: the segment (``laser->arm0``, ``arm0->arm1``, ``arm1->target``), the object,
-the world point where the beam meets it and the blocked configuration. For points, other
-members of the closed-form family (other branches, found from other seeds) are tried before
-giving up; path samples become gaps. An empty scene returns the input untouched.
+with evidence: the segment (``laser->arm0``, ``arm0->arm1``, ``arm1->target``) and its end
+points, the object, the world point where the beam meets it and the blocked configuration.
+Point targets first try other members of the closed-form family (the first hit slid along
+the incoming beam, :func:`check_points`); path samples become gaps (:func:`check_path`).
+An empty scene returns the input untouched.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import itertools
+import time
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -28,8 +30,8 @@ if TYPE_CHECKING:
     from planner.ik import BeamIK, Solution
     from planner.path import PathResult
 
-#: extra seeds tried for an occluded point target (home, then random configurations)
-RETRY_SEEDS = 4
+#: m, slides of the first mirror's hit along the laser beam tried for an occluded target
+RETRY_SHIFTS = (0.05, -0.05, 0.12, -0.12, 0.25, -0.25)
 
 
 def segment_labels(system: System) -> list[str]:
@@ -63,9 +65,12 @@ def occlusions(
         k = idx[hit.segment // n_seg]
         if k in out:
             continue
-        q = solutions[k].q
+        q, j = solutions[k].q, hit.segment % n_seg
+        start, end = P[hit.segment // n_seg, j], P[hit.segment // n_seg, j + 1]
         out[k] = {
-            "segment": labels[hit.segment % n_seg],
+            "segment": labels[j],
+            "start": [float(x) for x in start],
+            "end": [float(x) for x in end],
             "object": hit.object,
             "point": [float(x) for x in hit.point],
             "distance_m": hit.distance,
@@ -88,31 +93,72 @@ def check_points(
     scene: SceneModel,
     targets: Targets,
     solutions: list[Solution],
-    retry_seeds: int = RETRY_SEEDS,
+    shifts: tuple[float, ...] = RETRY_SHIFTS,
 ) -> list[Solution]:
-    """Point targets with blocked beams re-solved from other seeds (home, then random joints
-    within limits, seeded by target index); the first clear member wins, else ``occluded``."""
+    """Point targets with blocked beams re-solved with other family members: the first
+    mirror's hit slid along the incoming beam by each of ``shifts`` (m), then the member
+    nearest home; the first clear one wins, else the target fails as ``occluded``."""
     system = ik.system
     blocked = occlusions(system, scene, solutions)
     if not blocked:
         return solutions
     out = list(solutions)
-    lo, hi = np.maximum(system.lower, -np.pi), np.minimum(system.upper, np.pi)
     for k, evidence in blocked.items():
-        rng = np.random.default_rng(k)
-        seeds = [system.home] + [rng.uniform(lo, hi) for _ in range(retry_seeds - 1)]
-        tried = 0
-        for tried, seed in enumerate(seeds[:retry_seeds], start=1):
-            sol = ik.solve(targets.points[k], targets.normal(k), seed)
-            if sol.ok and not occlusions(system, scene, [sol]):
+        t0 = time.perf_counter()
+        q_blocked = solutions[k].q
+        assert q_blocked is not None  # only solved targets are checked
+        seeds = [_slid(system, q_blocked, ds) for ds in shifts] + [system.home]
+        for tried, seed in enumerate(seeds, start=1):
+            sol = _member(ik, targets.points[k], targets.normal(k), seed)
+            if sol is not None and not occlusions(system, scene, [sol]):
+                dt = solutions[k].solve_time + time.perf_counter() - t0
                 out[k] = dataclasses.replace(
-                    sol, solve_time=sol.solve_time + solutions[k].solve_time,
-                    evidence={**sol.evidence, "occlusion_retry": tried},
-                )  # fmt: skip
+                    sol, solve_time=dt, evidence={**sol.evidence, "occlusion_retry": tried}
+                )
                 break
         else:
-            out[k] = failed_occluded(solutions[k], {**evidence, "retries": tried})
+            out[k] = failed_occluded(solutions[k], {**evidence, "retries": len(seeds)})
     return out
+
+
+def _slid(system: System, q: Array, ds: float) -> Array:
+    """Joints (stacked, rad) that move robot 0's mirror centre by ``ds`` m along the laser
+    beam (one least-squares step through the finite-difference Jacobian of the centre)."""
+    from planner.ik.evaluate import mirror_poses
+
+    nq0 = system.robots[0].nq
+    c0 = mirror_poses(system, q)[0][:3, 3]
+    J = np.empty((3, nq0))
+    for j in range(nq0):
+        dq = np.zeros_like(q)
+        dq[j] = 1e-6
+        J[:, j] = (mirror_poses(system, q + dq)[0][:3, 3] - c0) / 1e-6
+    v0 = system.world_T_laser[:3, 2] / np.linalg.norm(system.world_T_laser[:3, 2])
+    out = q.copy()
+    out[:nq0] += np.linalg.lstsq(J, ds * v0, rcond=None)[0]
+    return out
+
+
+def _member(ik: BeamIK, target: Array, normal: Array | None, seed: Array) -> Solution | None:
+    """The closed-form member nearest ``seed`` if the IK accepts it (no multi-start: a retry
+    looks for another member, not for a solution at any price); arms without a closed form
+    go through the full :meth:`BeamIK.solve`."""
+    if ik.closed_form is None:
+        sol = ik.solve(target, normal, seed)
+        return sol if sol.ok else None
+    from planner.ik import Solution
+    from planner.ik.evaluate import evaluate
+
+    t0 = time.perf_counter()
+    cf = ik.closed_form.search(target, normal, seed, ik.options.max_incidence)
+    if cf.q is None:
+        return None
+    q = cf.q if ik.closed_form.exact else ik.newton.polish(cf.q, target, normal).q
+    ev = evaluate(ik.system, q, target, normal)
+    if not ik.accept(ev, q):
+        return None
+    return Solution("ok", None, q, ev.spot, ev.error, ev.hits, ev.uv, time.perf_counter() - t0,
+                    cf.members, "closed_form+retry", ev.incidence, dict(cf.evidence))  # fmt: skip
 
 
 def check_path(
