@@ -96,23 +96,20 @@ def mirror_sites(system: System, robot: int) -> Array:
 
 @lru_cache(maxsize=4)
 def _scene(radius: float) -> Any:
+    """The object (a sphere of ``radius`` m about ``CENTER``) as a :class:`SceneModel`."""
     import open3d as o3d
+
+    from planner.scene import SceneModel
 
     mesh = o3d.geometry.TriangleMesh.create_sphere(radius=radius, resolution=60)
     mesh.translate(CENTER)
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-    return scene
+    return SceneModel(meshes=[("object", mesh)])
 
 
 def first_hits(origins: Array, ends: Array) -> Array:
     """Distance along each segment origin → end to the first object surface (inf: none)."""
-    import open3d as o3d
-
     d = ends - origins
-    rays = np.hstack([origins, d / np.linalg.norm(d, axis=1, keepdims=True)]).astype(np.float32)
-    ans = _scene(RADIUS).cast_rays(o3d.core.Tensor.from_numpy(rays))
-    return ans["t_hit"].numpy().astype(float)
+    return _scene(RADIUS).cast(origins, d / np.linalg.norm(d, axis=1, keepdims=True)).t
 
 
 def clear(origins: Array, ends: Array, slack: float = 1e-3) -> Array:

@@ -189,19 +189,16 @@ def _merge(a: Any, b: Any) -> Any:
 
 @lru_cache(maxsize=8)
 def _scene(name: str) -> tuple[Array, Array, Any]:
-    import open3d as o3d
+    """Markers, their normals and the experiment's object as a :class:`SceneModel`."""
+    from planner.scene import SceneModel
 
     pts, normals, mesh = experiment(name)
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-    return pts, normals, scene
+    return pts, normals, SceneModel(meshes=[(name, mesh)])
 
 
 def _cast(scene: Any, p: Array, v: Array) -> float:
-    import open3d as o3d
-
-    ray = np.hstack([p + 1e-6 * v, v]).astype(np.float32)[None]
-    return float(scene.cast_rays(o3d.core.Tensor.from_numpy(ray))["t_hit"].numpy()[0])
+    """Distance along the unit ray (p, v) to the object (inf = miss), from 1 µm off ``p``."""
+    return float(scene.cast(p + 1e-6 * v, v).t[0])
 
 
 def observe(system: System, scene: Any, p_world: Array, rng: np.random.Generator) -> Array | None:
