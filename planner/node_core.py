@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -21,6 +21,9 @@ from planner.bus import decode
 from planner.errors import InputError
 from planner.system import System, Targets
 from planner.transforms import Array, transform_points
+
+if TYPE_CHECKING:
+    from planner.scene import SceneModel
 
 PlanFn = Callable[[Targets, dict[str, Array] | None, bool], dict[str, Any]]
 #: path requests are resampled every PATH_SPACING m, at most MAX_PATH_SAMPLES samples
@@ -33,7 +36,7 @@ def make_plan_fn(
     scenario: dict[str, Any],
     options: Any = None,
     settings: dict[str, Any] | None = None,
-    scene: Any = None,
+    scene: SceneModel | None = None,
 ) -> PlanFn:
     """The node's plan function over :mod:`planner.planning` for one (calibrated) system.
 
