@@ -42,7 +42,20 @@ def test_robot_and_camera_drivers_publish_and_stop_on_sigterm(
     robot = run(["robot", "--name", "arm0"], endpoint, keys.prefix)
     camera = run(["camera", "--stride", "4", "--seed", "1"], endpoint, keys.prefix)
     try:
-        wait_for(lambda: len(got["spot"]) > 10 and len(got["pts"]) > 3, timeout=30, what="camera")
+
+        def last_spots() -> list[SpotMessage]:
+            return [decode(s.payload.to_bytes(), SpotMessage) for s in got["spot"][-10:]]
+
+        # the camera reports no spot until the robot's first joint state reaches it
+        wait_for(
+            lambda: (
+                len(got["pts"]) > 3
+                and len(got["spot"]) >= 10
+                and all(s.p_camera is not None for s in last_spots())
+            ),
+            timeout=30,
+            what="camera: 10 spots in a row",
+        )
         alive = {str(r.ok.key_expr) for r in hub.liveliness().get(keys.alive_all)}
         assert alive == {keys.alive("arm0"), keys.alive("camera")}
         js = decode(got["js"][-1].payload.to_bytes(), JointState)
@@ -52,8 +65,7 @@ def test_robot_and_camera_drivers_publish_and_stop_on_sigterm(
         truth = system_from_scenario(load_scenario(SCENARIO), truth=True)
         assert truth.camera is not None
         expected = inv_T(truth.camera.world_T_camera) @ np.append(analytic_spot(truth, js.q), 1)
-        spots = [decode(s.payload.to_bytes(), SpotMessage) for s in got["spot"][-10:]]
-        p = np.array([s.p_camera for s in spots if s.p_camera is not None])
+        p = np.array([s.p_camera for s in last_spots() if s.p_camera is not None])
         assert len(p) == 10
         assert np.linalg.norm(p.mean(axis=0) - expected[:3]) < 5e-4
         last = got["pts"][-1]
