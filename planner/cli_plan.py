@@ -37,6 +37,8 @@ def plan(
     out.write_text(plan_json(doc))
     console = Console()
     console.print(_summary(doc, scenario.name))
+    if any(not sol.ok for sol in outcome.solutions):
+        console.print(_failures(outcome.solutions))
     if outcome.timed is not None and outcome.timed.trajectory.slowdowns:
         console.print(_slowdowns(outcome))
     console.print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB)")
@@ -51,6 +53,35 @@ def plan(
     m = doc["metrics"]
     if m["n_ok"] < m["n_targets"]:
         raise SystemExit(1)  # planner.cli.main drops typer.Exit codes (non-standalone click)
+
+
+def _evidence_text(evidence: dict[str, Any]) -> str:
+    """Compact ``key=value`` evidence (numbers to 4 significant digits, q left out)."""
+    import numpy as np
+
+    parts = []
+    for key, value in evidence.items():
+        if key == "q":
+            continue
+        if isinstance(value, float | int | np.floating):
+            value = f"{float(value):.4g}"
+        elif isinstance(value, list | tuple | np.ndarray):
+            value = "[" + " ".join(f"{float(v):.4g}" for v in np.ravel(value)) + "]"
+        parts.append(f"{key}={value}")
+    return ", ".join(parts)
+
+
+def _failures(solutions: list[Any], most: int = 8) -> Any:
+    """The first failed targets with their reason and the numbers that show it."""
+    from rich.table import Table
+
+    failed = [(k, s) for k, s in enumerate(solutions) if not s.ok]
+    table = Table(title=f"failed targets (first {min(most, len(failed))} of {len(failed)})")
+    for col in ("target", "reason", "evidence"):
+        table.add_column(col)
+    for k, sol in failed[:most]:
+        table.add_row(str(k), str(sol.reason), _evidence_text(dict(sol.evidence or {})))
+    return table
 
 
 def _summary(doc: dict[str, Any], fallback_name: str) -> Any:

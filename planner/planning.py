@@ -304,6 +304,7 @@ class PlanOutcome(NamedTuple):
     targets: Targets
     timed: Timed | None
     path: PathResult | None
+    solutions: list[Solution]
 
 
 def run_scenario(
@@ -348,7 +349,7 @@ def run_scenario(
     traj = None if timed is None else timed.trajectory.to_plan_dict(system)
     extra = None if timed is None else timed.figures
     doc = plan_document(system, targets, solutions, resolved_scenario_dict(loaded), traj, extra)
-    return PlanOutcome(doc, system, targets, timed, path)
+    return PlanOutcome(doc, system, targets, timed, path, solutions)
 
 
 def plan_scenario(

@@ -93,3 +93,25 @@ def test_check_exits_1_on_a_too_fast_trajectory(
     figures = json.loads(text.strip().splitlines()[-1])
     assert figures["violations"] == 1
     assert figures["trajectory limits.velocity_max_ratio"] == pytest.approx(1.2, rel=1e-9)
+
+
+def test_failure_table_shows_reason_and_evidence() -> None:
+    import numpy as np
+    from rich.console import Console
+
+    from planner.cli_plan import _failures
+    from planner.ik import Solution
+
+    ok = Solution("ok", None, np.zeros(6), np.zeros(3), 0.0, None, None, 0.0, 0, "closed_form", 0.0)
+    bad = Solution(
+        "failed", "occluded", None, None, float("inf"), None, None, 0.0, 0, "closed_form", 0.0,
+        {"segment": "arm0->target", "distance_m": 0.123456, "point": np.array([1.0, 2.0, 3.0]),
+         "q": [0.0] * 6},
+    )  # fmt: skip
+    console = Console(width=200, record=True)
+    console.print(_failures([ok, bad, bad]))
+    text = console.export_text()
+    assert "first 2 of 2" in text
+    assert "occluded" in text and "segment=arm0->target" in text
+    assert "distance_m=0.1235" in text and "point=[1 2 3]" in text
+    assert "q=" not in text
