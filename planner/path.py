@@ -13,12 +13,17 @@ import time
 from dataclasses import dataclass
 from typing import NamedTuple
 
-import casadi as ca
 import numpy as np
 
 from planner.beam import system_params
-from planner.path_nlp import PathOptions, path_nlp, sample_function, tangents
-from planner.path_warm import PathContext, continuation_chain
+from planner.path_nlp import PathOptions, path_nlp, tangents
+from planner.path_warm import (
+    PathContext,
+    coarse_indices,
+    continuation_chain,
+    project,
+    valid_samples,
+)
 from planner.system import System, Targets
 from planner.transforms import Array
 
@@ -125,6 +130,57 @@ def sample_errors(system: System, Q: Array, points: Array, normals: Array | None
     return err
 
 
+def _solve_run(ctx: PathContext, ks: Array, Q0: Array, NB: Array, ds: float, closed: bool
+               ) -> tuple[Array, PathSegment, bool]:  # fmt: skip
+    """One path NLP over samples ``ks`` (``ds`` m apart) from ``Q0``; returns (Q, segment,
+    every sample valid). An invalid NLP result is reported; the caller keeps ``Q0``."""
+    opts, n = ctx.opts, len(ks)
+    weights = (opts.weight_velocity, opts.weight_acceleration, opts.weight_centring,
+               opts.weight_reference, ds)  # fmt: skip
+    cached = path_nlp.cache_info().hits
+    nlp = path_nlp(ctx.kin, n, closed, opts.max_iter)
+    build = 0.0 if path_nlp.cache_info().hits > cached else nlp.build_time
+    t0 = time.perf_counter()
+    Qs, stats = ctx.solve(nlp, list(ks), Q0, NB, weights)
+    solve_time = time.perf_counter() - t0
+    status = str(stats.get("return_status", "unknown"))
+    valid = bool(valid_samples(ctx, ks, Qs, NB).all())
+    seg = PathSegment(int(ks[0]), int(ks[-1]) + 1, status if valid else f"warm_start ({status})",
+                      int(stats.get("iter_count", 0)), solve_time, build)  # fmt: skip
+    return Qs, seg, valid
+
+
+def _coarse_to_fine(ctx: PathContext, q_start: Array, arc: Array, closed: bool
+                    ) -> tuple[Array, Array] | None:  # fmt: skip
+    """Warm start of a finely sampled path: the continuation chain on every m-th sample
+    (about ``coarse_spacing`` apart), a cubic spline of the joints in arc length through
+    them, then every sample projected onto its target at once (:func:`project`). Smoother
+    than a per-sample chain at fine spacing and ~m times cheaper. None when that does not
+    give a valid configuration at every sample (the caller then walks every sample)."""
+    from scipy.interpolate import CubicSpline
+
+    K = len(ctx.P)
+    ds = float(arc[-1] / max(K - 1, 1))
+    idx = coarse_indices(K, ds, ctx.opts.coarse_spacing)
+    if closed:
+        idx = idx[idx <= K - 1 - (idx[1] - idx[0]) // 2]  # the wrap-around step ~ m samples
+    if len(idx) < 4 or len(idx) * 2 > K:
+        return None
+    Qc, _, _ = continuation_chain(ctx, q_start, idx)
+    if not np.all(np.isfinite(Qc)):
+        return None
+    x = arc[idx]
+    if closed:
+        x = np.append(x, arc[-1] + np.linalg.norm(ctx.P[-1] - ctx.P[0]))
+        Qc = np.vstack([Qc, Qc[:1]])
+    spline = CubicSpline(x, Qc, axis=0, bc_type="periodic" if closed else "not-a-knot")
+    ks = np.arange(K)
+    Q, NB, _ = project(ctx, ks, spline(arc))
+    if not valid_samples(ctx, ks, Q, NB).all():
+        return None
+    return Q, NB
+
+
 def plan_path(
     system: System,
     targets: Targets,
@@ -134,7 +190,9 @@ def plan_path(
     """Joint configurations sweeping the spot along ``targets`` (resampled path, world frame).
 
     ``q_start`` (stacked joints, default the robots' home) seeds the first sample. Infeasible
-    stretches are reported as :class:`PathGap` and the feasible runs solved separately.
+    stretches are reported as :class:`PathGap` and the feasible runs solved separately. Long
+    finely sampled paths are warm-started coarse-to-fine; every solved sample is finally
+    polished to machine precision by a minimum-norm Gauss-Newton step (never worse).
     """
     opts = (
         solver_options if isinstance(solver_options, PathOptions)
@@ -145,47 +203,34 @@ def plan_path(
     K, P = len(ctx.P), ctx.P
     arc = arc_length(P)
     t0 = time.perf_counter()
-    Q, NB, why = continuation_chain(ctx, q_start)
+    closed_path = bool(targets.closed)
+    warm = _coarse_to_fine(ctx, q_start, arc, closed_path) if K > 2 else None
+    segments: list[PathSegment] = []
+    if warm is not None:
+        Q, NB = warm
+        why: list[str | None] = [None] * K
+    else:
+        Q, NB, why = continuation_chain(ctx, q_start)
     warm_time = time.perf_counter() - t0
     ok = np.all(np.isfinite(Q), axis=1)
     ds = float(arc[-1] / max(K - 1, 1)) or 1e-3
-    weights = (opts.weight_velocity, opts.weight_acceleration, opts.weight_centring,
-               opts.weight_reference, ds)  # fmt: skip
-    segments, t1 = [], time.perf_counter()
+    t1 = time.perf_counter()
     runs = _runs(ok)
-    closed = bool(targets.closed) and runs == [(0, K)]
+    closed = closed_path and runs == [(0, K)]
     for k0, k1 in runs:
-        n = k1 - k0
-        if n < 2:
+        if k1 - k0 < 2:
             segments.append(PathSegment(k0, k1, "warm_start", 0, 0.0, 0.0))
             continue
-        cached = path_nlp.cache_info().hits
-        nlp = path_nlp(ctx.kin, n, closed, opts.max_iter)
-        build = 0.0 if path_nlp.cache_info().hits > cached else nlp.build_time
-        ks = list(range(k0, k1))
-        Qs, stats = ctx.solve(nlp, ks, Q[k0:k1], NB[k0:k1], weights)
-        status = str(stats.get("return_status", "unknown"))
-        G, H, _ = sample_function(ctx.kin).map(n)(
-            Qs.T, *[ca.repmat(g, 1, n) for g in ctx.geo], P[k0:k1].T, NB[k0:k1].T,
-            ctx.has[k0:k1][None, :].astype(float),
-            np.concatenate([tangents(nb) for nb in NB[k0:k1]], axis=1),
-        )  # fmt: skip
-        G, H = np.asarray(G), np.asarray(H)
-        valid = all(ctx.why(k, Qs[i], G[:, i], H[:, i]) is None for i, k in enumerate(ks))
+        ks = np.arange(k0, k1)
+        Qs, seg, valid = _solve_run(ctx, ks, Q[k0:k1], NB[k0:k1], ds, closed)
         if valid:
             Q[k0:k1] = Qs
-        else:
-            status = f"warm_start ({status})"
-        segments.append(
-            PathSegment(
-                k0,
-                k1,
-                status,
-                int(stats.get("iter_count", 0)),
-                float(stats.get("t_wall_total", 0.0)),
-                build,
-            )
-        )
+        segments.append(seg)
+    if opts.polish and ok.any():
+        ks = np.flatnonzero(ok)
+        Qp, _, _ = project(ctx, ks, Q[ks], NB[ks])
+        keep = valid_samples(ctx, ks, Qp, NB[ks])
+        Q[ks[keep]] = Qp[keep]
     nlp_time = time.perf_counter() - t1
     gaps = []
     for k0, k1 in _runs(~ok):

@@ -47,6 +47,8 @@ class PathOptions:
     weight_centring: float = 0.05  # integral |uv / roi_half|^2 ds
     weight_reference: float = 1e-4  # integral |q - q_warm|^2 ds (regularises redundancy)
     verbose: bool = False
+    coarse_spacing: float = 1e-3  # m: finer paths are warm-started from every m-th sample
+    polish: bool = True  # final per-sample min-norm Gauss-Newton to machine precision
 
 
 SAMPLE_INPUTS = ["q", "world_T_laser", "world_T_base", "flange_T_mirror", "roi_half"]
@@ -98,6 +100,16 @@ def step_function(kinematics: Chain) -> ca.Function:
     return ca.Function(
         "path_step", ins, [*outs, out["h"], out["dir"], out["spot"]], SAMPLE_INPUTS, names
     )
+
+
+@lru_cache(maxsize=16)
+def sample_jacobian(kinematics: Chain) -> ca.Function:
+    """Per-sample constraints [g; h] (2 + 4N + 2) and their dense Jacobian in q, expanded
+    SX: mapped over K it gives the block-diagonal constraint Jacobian of the path NLP."""
+    ins, out = _sample_exprs(kinematics)
+    gh = ca.vertcat(out["g"], out["h"])
+    J = ca.densify(ca.jacobian(gh, ins[0]))
+    return ca.Function("path_jac", ins, [gh, J], SAMPLE_INPUTS, ["gh", "J"])
 
 
 @lru_cache(maxsize=16)
@@ -190,11 +202,17 @@ def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200) -> Pa
     }
     g = ca.vec(ca.vertcat(G, H))
     x = ca.vec(Q)
+    # constraint Jacobian, assembled: mapped dense per-sample blocks on the block diagonal
+    data = [syms[n] for n in SAMPLE_INPUTS[5:]]
+    GH, JB = sample_jacobian(kinematics).map(K)(Q, *geo, *data)
+    m = int(GH.size1())
+    jac = ca.MX(ca.diagcat(*[ca.Sparsity.dense(m, nq)] * K), ca.vec(JB))
+    opts["jac_g"] = ca.Function("path_jac_g", [x, p], [ca.vec(GH), jac])
     # Hessian of the Lagrangian, assembled: constant smoothness band + mapped per-sample blocks
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.size1())
     LG = ca.reshape(lam_g, g.size1() // K, K)
     wc = ca.repmat(lam_f * w[2] * ds, 1, K)
-    B = sample_hessian(kinematics).map(K)(Q, *geo, *[syms[n] for n in SAMPLE_INPUTS[5:]], LG, wc)
+    B = sample_hessian(kinematics).map(K)(Q, *geo, *data, LG, wc)
     blocks = ca.MX(ca.diagcat(*[ca.Sparsity.dense(nq, nq)] * K), ca.vec(B))
     M1, M2 = _smoothness_hessians(nq, K, closed) if K > 1 else (ca.DM(nq, nq), ca.DM(nq, nq))
     Hl = blocks + lam_f * (w[0] / ds * M1 + w[1] / ds**3 * M2 + 2 * w[3] * ds * ca.DM.eye(nq * K))
@@ -210,7 +228,9 @@ def pack_params(system: System, T: Array, NB: Array, HAS: Array, E: Array, QREF:
     """Column-major packing matching ``path_nlp``'s parameter vector (arrays K-major)."""
     geo = system_params(system)
     parts = [geo[n] for n in SAMPLE_INPUTS[1:5]]
-    parts += [T.T, NB.T, HAS[None, :], np.concatenate(list(E), axis=1), QREF.T, weights]
+    E = np.asarray(E, dtype=float)
+    E = E if E.ndim == 2 else np.concatenate(list(E), axis=1)  # K x 3 x 2 or 3 x 2K
+    parts += [T.T, NB.T, HAS[None, :], E, QREF.T, weights]
     return np.concatenate([np.asarray(a, dtype=float).ravel(order="F") for a in parts])
 
 
@@ -233,21 +253,36 @@ def tangents(n: Array) -> Array:
     return np.column_stack([e1, np.cross(n, e1)])
 
 
+def tangents_batch(N: Array) -> Array:
+    """:func:`tangents` of every row of unit normals ``N`` (K x 3), as one 3 x 2K matrix
+    [e1_0, e2_0, e1_1, e2_1, ...] (the layout of the NLP's ``tangents`` parameter)."""
+    N = np.asarray(N, dtype=float)
+    A = np.where((np.abs(N[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    e1 = np.cross(N, A)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    E = np.stack([e1, np.cross(N, e1)], axis=2)  # K x 3 x 2
+    return np.asarray(E.transpose(1, 0, 2).reshape(3, -1))
+
+
 def solve_window(
     nlp: PathNlp, system: System, P: Array, has: Array, lbh: Array, Q0: Array, NB: Array,
-    weights: tuple[float, ...],
+    weights: tuple[float, ...], lam0: Array | None = None,
 ) -> tuple[Array, dict[str, Any]]:  # fmt: skip
     """Run ``nlp`` on the K samples ``P`` (K x 3 world targets, ``has`` which carry a normal,
     ``lbh`` K x (4N+2) lower bounds of h) from ``Q0`` (K x nq) with target-plane normals
-    ``NB`` (K x 3). Returns (Q K x nq, IPOPT stats)."""
+    ``NB`` (K x 3); ``lam0`` (K x (4N+4)) warm-starts the constraint multipliers. Returns
+    (Q K x nq, IPOPT stats plus ``lam_g``, the final multipliers K x (4N+4))."""
     K = len(P)
-    E = np.stack([tangents(n) for n in NB])
+    E = tangents_batch(NB)
     p = pack_params(system, P, NB, has.astype(float), E, Q0, np.array(weights))
     nh = nlp.n_h
     lbg = np.column_stack([np.zeros((K, 2)), lbh]).ravel()
     ubg = np.column_stack([np.zeros((K, 2)), np.full((K, nh), np.inf)]).ravel()
+    lam = np.zeros(K * (nh + 2)) if lam0 is None else np.asarray(lam0, dtype=float).ravel()
     sol = nlp.solver(
         x0=Q0.ravel(), p=p, lbx=np.tile(system.lower, K), ubx=np.tile(system.upper, K),
-        lbg=lbg, ubg=ubg,
+        lbg=lbg, ubg=ubg, lam_g0=lam,
     )  # fmt: skip
-    return np.asarray(sol["x"], dtype=float).reshape(K, -1), dict(nlp.solver.stats())
+    stats = dict(nlp.solver.stats())
+    stats["lam_g"] = np.asarray(sol["lam_g"], dtype=float).reshape(K, nh + 2)
+    return np.asarray(sol["x"], dtype=float).reshape(K, -1), stats

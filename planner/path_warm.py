@@ -9,6 +9,7 @@ with evidence, and the chain re-seeds further on and extends backward into the g
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import casadi as ca
@@ -22,9 +23,11 @@ from planner.path_nlp import (
     PathOptions,
     constraint_lower_bounds,
     path_nlp,
+    sample_function,
     solve_window,
     step_function,
     tangents,
+    tangents_batch,
 )
 from planner.system import System, Targets
 from planner.transforms import Array
@@ -150,53 +153,124 @@ class PathContext:
         return best
 
     def solve(self, nlp: PathNlp, ks: list[int], Q0: Array, NB: Array,
-              weights: tuple[float, ...]) -> tuple[Array, dict[str, Any]]:  # fmt: skip
+              weights: tuple[float, ...], lam0: Array | None = None
+              ) -> tuple[Array, dict[str, Any]]:  # fmt: skip
         """Run the NLP on samples ``ks`` from ``Q0`` (len(ks) x nq); returns (Q, IPOPT stats)."""
         return solve_window(nlp, self.system, self.P[ks], self.has[ks], self.lbh[ks], Q0, NB,
-                            weights)  # fmt: skip
+                            weights, lam0)  # fmt: skip
 
 
-def continuation_chain(ctx: PathContext, q_start: Array) -> tuple[Array, Array, list[str | None]]:
+def continuation_chain(
+    ctx: PathContext, q_start: Array, ks: Sequence[int] | None = None
+) -> tuple[Array, Array, list[str | None]]:
     """Per-sample warm start: seeds where needed, Newton continuation forward, backward
-    extension after a re-seed. Returns (q K x nq with NaN, nbar K x 3, reason per sample)."""
-    K, nq = len(ctx.P), len(q_start)
+    extension after a re-seed. ``ks``: the sample indices to walk (default all, in order).
+    Returns (q len(ks) x nq with NaN, nbar len(ks) x 3, reason per walked sample)."""
+    idx = list(range(len(ctx.P))) if ks is None else [int(k) for k in ks]
+    K, nq = len(idx), len(q_start)
     Q = np.full((K, nq), np.nan)
-    NB = np.array(ctx.nbar, dtype=float)
+    NB = np.array(ctx.nbar[idx], dtype=float)
     why: list[str | None] = [None] * K
     ok = np.zeros(K, dtype=bool)
     stride = max(1, K // 50)
     last = np.asarray(q_start, dtype=float)
-    k = 0
-    while k < K:
-        q, nb, reason = ctx.seed(k, [last, np.asarray(q_start, dtype=float)])
+    i = 0
+    while i < K:
+        q, nb, reason = ctx.seed(idx[i], [last, np.asarray(q_start, dtype=float)])
         if reason is not None:
-            why[k] = reason
-            k += 1 if k == 0 or ok[k - 1] else stride
+            why[i] = reason
+            i += 1 if i == 0 or ok[i - 1] else stride
             continue
-        Q[k], NB[k], ok[k] = q, nb, True
-        j = k - 1  # backward extension into the gap before this seed
+        Q[i], NB[i], ok[i] = q, nb, True
+        j = i - 1  # backward extension into the gap before this seed
         while j >= 0 and not ok[j]:
-            nb = ctx.plane(j, Q[j + 1])
-            q, reason = ctx.newton(j, Q[j + 1], nb)
+            nb = ctx.plane(idx[j], Q[j + 1])
+            q, reason = ctx.newton(idx[j], Q[j + 1], nb)
             if reason is not None:
                 why[j] = reason
                 break
             Q[j], NB[j], ok[j], why[j] = q, nb, True, None
             j -= 1
-        k += 1
-        while k < K:  # forward continuation
-            pred = 2 * Q[k - 1] - Q[k - 2] if k >= 2 and ok[k - 2] else Q[k - 1]
-            nb = ctx.plane(k, Q[k - 1])
-            q, reason = ctx.newton(k, pred, nb)
+        i += 1
+        while i < K:  # forward continuation
+            pred = 2 * Q[i - 1] - Q[i - 2] if i >= 2 and ok[i - 2] else Q[i - 1]
+            nb = ctx.plane(idx[i], Q[i - 1])
+            q, reason = ctx.newton(idx[i], pred, nb)
             if reason is not None:
-                why[k] = reason
-                last = Q[k - 1]
-                k += 1
+                why[i] = reason
+                last = Q[i - 1]
+                i += 1
                 break
-            Q[k], NB[k], ok[k] = q, nb, True
-            k += 1
+            Q[i], NB[i], ok[i] = q, nb, True
+            i += 1
     for i in range(K):  # samples skipped inside a gap take the nearest attempted reason
         if not ok[i] and why[i] is None:
             tried = [j for j in range(K) if why[j] is not None]
             why[i] = why[min(tried, key=lambda j: abs(j - i))] if tried else "unreachable"
     return Q, NB, why
+
+
+def project(
+    ctx: PathContext, ks: Array, Q0: Array, NB: Array | None = None, iters: int = 8
+) -> tuple[Array, Array, Array]:
+    """Minimum-norm Gauss-Newton onto "spot on sample k", all samples ``ks`` at once.
+
+    One mapped CasADi call per iteration; each sample steps ``dq = -Jg^T (Jg Jg^T)^-1 g``
+    (the smallest joint change that zeroes the 2-vector spot offset g on the target plane)
+    and keeps a step only where it lowers |g|. ``NB``: target-plane normals (default: the
+    sample's normal, else the reversed arriving beam at ``Q0``). Returns (Q, NB, |g| in m).
+    """
+    ks = np.asarray(ks, dtype=int)
+    n, nq = len(ks), Q0.shape[1]
+    F = ctx.step.map(n)
+    P, has = ctx.P[ks].T, ctx.has[ks][None, :].astype(float)
+
+    def run(Q: Array, nb: Array) -> tuple[Array, Array, Array]:
+        E = tangents_batch(nb)
+        g, Jg, _, _, _, d, _ = F(Q.T, *ctx.geo, P, nb.T, has, E)
+        Jg = np.asarray(Jg, dtype=float).reshape(2, n, nq).transpose(1, 0, 2)
+        return np.asarray(g, dtype=float).T, Jg, np.asarray(d, dtype=float).T
+
+    Q = np.array(Q0, dtype=float)
+    if NB is None:
+        NB = np.where(ctx.has[ks][:, None], ctx.nbar[ks], np.array([0.0, 0.0, 1.0]))
+        NB = np.where(ctx.has[ks][:, None], NB, -run(Q, NB)[2])
+    g, J, _ = run(Q, NB)
+    err = np.linalg.norm(g, axis=1)
+    for _ in range(iters):
+        todo = err > 1e-16
+        if not todo.any():
+            break
+        y = np.linalg.solve(J @ J.transpose(0, 2, 1), g[:, :, None])
+        dq = -(J.transpose(0, 2, 1) @ y)[:, :, 0]
+        dq[~todo | ~np.isfinite(dq).all(axis=1)] = 0.0
+        g2, J2, _ = run(Q + dq, NB)
+        err2 = np.linalg.norm(g2, axis=1)
+        better = np.isfinite(err2) & (err2 < err)
+        if not better.any():
+            break
+        Q[better] += dq[better]
+        g[better], J[better], err[better] = g2[better], J2[better], err2[better]
+    return Q, NB, err
+
+
+def valid_samples(ctx: PathContext, ks: Array, Q: Array, NB: Array) -> Array:
+    """Which rows of ``Q`` are valid solutions of samples ``ks`` (vectorised
+    :meth:`PathContext.why`: spot on target, joint limits, every reflection constraint)."""
+    ks = np.asarray(ks, dtype=int)
+    E = tangents_batch(NB)
+    has = ctx.has[ks][None, :].astype(float)
+    G, H, _ = sample_function(ctx.kin).map(len(ks))(Q.T, *ctx.geo, ctx.P[ks].T, NB.T, has, E)
+    G, H = np.asarray(G, dtype=float).T, np.asarray(H, dtype=float).T
+    tol = 1e-7
+    ok = np.linalg.norm(G, axis=1) <= max(1e3 * ctx.opts.tolerance, tol)
+    ok &= np.all(ctx.lower - tol <= Q, axis=1) & np.all(ctx.upper + tol >= Q, axis=1)
+    ok &= np.all(ctx.lbh[ks] - tol <= H, axis=1)
+    return np.asarray(ok & np.all(np.isfinite(Q), axis=1), dtype=bool)
+
+
+def coarse_indices(n: int, spacing: float, coarse_spacing: float) -> Array:
+    """Sample indices 0..n-1 about ``coarse_spacing`` apart (ends included), for a run of n
+    samples ``spacing`` m apart."""
+    m = max(1, round(coarse_spacing / max(spacing, 1e-12)))
+    return np.unique(np.concatenate([np.arange(0, n, m), [n - 1]]))
