@@ -18,6 +18,7 @@ import numpy as np
 from planner.beam import system_params
 from planner.path_nlp import PathOptions, path_nlp, tangents
 from planner.path_warm import (
+    Indices,
     PathContext,
     coarse_indices,
     continuation_chain,
@@ -130,7 +131,7 @@ def sample_errors(system: System, Q: Array, points: Array, normals: Array | None
     return err
 
 
-def _solve_run(ctx: PathContext, ks: Array, Q0: Array, NB: Array, ds: float, closed: bool
+def _solve_run(ctx: PathContext, ks: Indices, Q0: Array, NB: Array, ds: float, closed: bool
                ) -> tuple[Array, PathSegment, bool]:  # fmt: skip
     """One path NLP over samples ``ks`` (``ds`` m apart) from ``Q0``; returns (Q, segment,
     every sample valid). An invalid NLP result is reported; the caller keeps ``Q0``."""

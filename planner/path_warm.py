@@ -14,6 +14,7 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+import numpy.typing as npt
 
 from planner.beam import system_params
 from planner.path_nlp import (
@@ -31,6 +32,8 @@ from planner.path_nlp import (
 )
 from planner.system import System, Targets
 from planner.transforms import Array
+
+Indices = Sequence[int] | npt.NDArray[np.integer[Any]]  # sample indices
 
 
 def _closed_form(system: System) -> Any:
@@ -161,7 +164,7 @@ class PathContext:
 
 
 def continuation_chain(
-    ctx: PathContext, q_start: Array, ks: Sequence[int] | None = None
+    ctx: PathContext, q_start: Array, ks: Indices | None = None
 ) -> tuple[Array, Array, list[str | None]]:
     """Per-sample warm start: seeds where needed, Newton continuation forward, backward
     extension after a re-seed. ``ks``: the sample indices to walk (default all, in order).
@@ -211,7 +214,7 @@ def continuation_chain(
 
 
 def project(
-    ctx: PathContext, ks: Array, Q0: Array, NB: Array | None = None, iters: int = 8
+    ctx: PathContext, ks: Indices, Q0: Array, NB: Array | None = None, iters: int = 8
 ) -> tuple[Array, Array, Array]:
     """Minimum-norm Gauss-Newton onto "spot on sample k", all samples ``ks`` at once.
 
@@ -254,7 +257,7 @@ def project(
     return Q, NB, err
 
 
-def valid_samples(ctx: PathContext, ks: Array, Q: Array, NB: Array) -> Array:
+def valid_samples(ctx: PathContext, ks: Indices, Q: Array, NB: Array) -> Array:
     """Which rows of ``Q`` are valid solutions of samples ``ks`` (vectorised
     :meth:`PathContext.why`: spot on target, joint limits, every reflection constraint)."""
     ks = np.asarray(ks, dtype=int)
@@ -269,7 +272,7 @@ def valid_samples(ctx: PathContext, ks: Array, Q: Array, NB: Array) -> Array:
     return np.asarray(ok & np.all(np.isfinite(Q), axis=1), dtype=bool)
 
 
-def coarse_indices(n: int, spacing: float, coarse_spacing: float) -> Array:
+def coarse_indices(n: int, spacing: float, coarse_spacing: float) -> npt.NDArray[np.intp]:
     """Sample indices 0..n-1 about ``coarse_spacing`` apart (ends included), for a run of n
     samples ``spacing`` m apart."""
     m = max(1, round(coarse_spacing / max(spacing, 1e-12)))
