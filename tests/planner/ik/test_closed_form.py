@@ -97,3 +97,29 @@ def test_closed_form_needs_seed_models(tmp_path) -> None:  # type: ignore[no-unt
     far = RobotKinematics.from_urdf(sy.perturbed_urdf(tmp_path, 0.05))
     with pytest.raises(ValueError, match="analytic seed"):
         ClosedForm(sy.n1(kin=far))
+
+
+def test_combos_follow_the_documented_priority_order() -> None:
+    """The lazy generator yields hit lists in the order of an explicit full sort: cost =
+    |s offset| + sum of the intermediate steps' lengths (ties in product order)."""
+    import itertools
+
+    from planner.ik.closed_form import _H_STEPS
+
+    cf = ClosedForm(sy.n2())
+    centres = [np.zeros(3), np.array([0.1, 0.2, 0.3])]
+    offsets = (0.0, 0.03, -0.03, 0.3)
+    steps = [np.zeros(3)] + [
+        a * e for a in _H_STEPS[1:] for e in np.vstack([np.eye(3), -np.eye(3)])
+    ]
+    mids = sorted(itertools.product(range(len(steps)), repeat=1),
+                  key=lambda ks: sum(np.linalg.norm(steps[k]) for k in ks))[:25]  # fmt: skip
+    expected = sorted(
+        itertools.product(offsets, mids),
+        key=lambda c: abs(c[0]) + sum(np.linalg.norm(steps[k]) for k in c[1]),
+    )
+    got = list(cf._combos(0.5, centres, offsets))
+    assert len(got) == len(expected) == 4 * len(steps)  # 19 steps for one free hit
+    for hits, (ds, ks) in zip(got, expected, strict=True):
+        np.testing.assert_allclose(hits[0], cf.p0 + max(0.5 + ds, 0.02) * cf.v0, atol=1e-15)
+        np.testing.assert_allclose(hits[1], centres[1] + steps[ks[0]], atol=1e-15)
