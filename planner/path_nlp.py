@@ -43,7 +43,7 @@ class PathOptions:
     max_incidence_deg: float = 80.0
     min_front: float = 0.02  # -n.v >= this: beam at most ~89 deg from the mirror normal
     weight_velocity: float = 1.0  # integral |dq/ds|^2 ds
-    weight_acceleration: float = 1e-5  # integral |d2q/ds2|^2 ds
+    weight_acceleration: float = 1e-6  # integral |d2q/ds2|^2 ds (m^2: ~1 mm correlation)
     weight_centring: float = 0.05  # integral |uv / roi_half|^2 ds
     weight_reference: float = 1e-4  # integral |q - q_warm|^2 ds (regularises redundancy)
     verbose: bool = False
