@@ -76,3 +76,132 @@ def test_constraint_lower_bounds():
     np.testing.assert_allclose(lb[0, :4], 1e-6)  # ROI margins of both mirrors (m)
     np.testing.assert_allclose(lb[0, 4:6], 0.05)  # front face: -n.v
     np.testing.assert_allclose(lb[:, -1], [0.5, -np.inf, 0.5])  # cos 60 deg where a normal is
+
+
+def test_curve_path_is_exact_after_polish(curve):
+    """The final Gauss-Newton polish brings every sample to machine precision (IPOPT alone
+    stops at ~1e-11 m), checked by the independent numpy beam model."""
+    system, targets, res = curve
+    model = BeamModel(system)
+    errs = [model.trace(q, p, n).error for q, p, n in zip(res.q, targets.points, targets.normals,
+                                                          strict=True)]  # fmt: skip
+    assert max(errs) < 1e-14
+
+
+def test_tangents_batch_matches_tangents():
+    from planner.path_nlp import tangents_batch
+
+    rng = np.random.default_rng(3)
+    N = rng.normal(size=(9, 3))
+    N[4] = [0.95, 0.1, 0.0]  # the other reference axis
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    ref = np.concatenate([tangents(n) for n in N], axis=1)
+    np.testing.assert_allclose(tangents_batch(N), ref, atol=1e-15)
+
+
+def test_coarse_indices_spacing_and_ends():
+    from planner.path_warm import coarse_indices
+
+    idx = coarse_indices(1000, 0.15e-3, 1e-3)
+    assert idx[0] == 0 and idx[-1] == 999
+    assert set(np.diff(idx[:-1])) == {7}  # 1 mm / 0.15 mm rounds to 7
+    np.testing.assert_array_equal(coarse_indices(5, 2e-3, 1e-3), np.arange(5))
+
+
+@pytest.fixture(scope="module")
+def fine(curve):
+    """The curve resampled every 0.25 mm, with its context and the per-sample chain."""
+    from planner.path_warm import PathContext, continuation_chain
+
+    system, targets, _ = curve
+    pts, nrm = resample_polyline(targets.points, 0.25e-3, False, targets.normals)
+    pts, nrm = pts[:240], nrm[:240]
+    ctx = PathContext(system, Targets(pts, nrm, kind="path"), PathOptions())
+    Q, NB, why = continuation_chain(ctx, system.home)
+    assert all(w is None for w in why)
+    return ctx, Q, NB
+
+
+def test_project_reaches_targets_and_never_worsens(fine):
+    from planner.path_warm import project
+
+    ctx, Q, NB = fine
+    ks = np.arange(len(Q))
+    rng = np.random.default_rng(0)
+    Q0 = Q + rng.normal(scale=2e-3, size=Q.shape)  # ~mm spot errors
+    Q0[5] = np.nan  # a bad row stays bad, the others are unaffected
+    Qp, _, err = project(ctx, ks, Q0, NB)
+    model = BeamModel(ctx.system)
+    good = np.delete(ks, 5)
+    before = [model.trace(Q0[k], ctx.P[k], ctx.nbar[k]).error for k in good]
+    after = [model.trace(Qp[k], ctx.P[k], ctx.nbar[k]).error for k in good]
+    assert min(before) > 1e-6 and max(after) < 1e-14
+    np.testing.assert_allclose(err[good], after, atol=1e-14)
+    assert np.all(np.isnan(Qp[5]))
+    # the step is the minimum-norm one: far smaller than the perturbation it undoes
+    assert np.abs(Qp[good] - Q0[good]).max() < 2e-2
+
+
+def test_valid_samples_agrees_with_why(fine):
+    from planner.path_nlp import sample_function
+    from planner.path_warm import valid_samples
+
+    ctx, Q, NB = fine
+    ks = np.arange(len(Q))
+    Qb = Q.copy()
+    Qb[10, 2] = ctx.upper[2] + 0.1  # beyond the elbow limit
+    Qb[20] += 0.3  # spot far off
+    ok = valid_samples(ctx, ks, Qb, NB)
+    G, H, _ = sample_function(ctx.kin)(Qb[30], *ctx.geo, ctx.P[30], NB[30], 1.0, tangents(NB[30]))
+    assert ctx.why(30, Qb[30], np.asarray(G), np.asarray(H)) is None
+    for k in (10, 20, 30, 100):
+        E = tangents(NB[k])
+        G, H, _ = sample_function(ctx.kin)(Qb[k], *ctx.geo, ctx.P[k], NB[k], 1.0, E)
+        assert ok[k] == (ctx.why(k, Qb[k], np.asarray(G), np.asarray(H)) is None)
+    assert not ok[10] and not ok[20] and ok.sum() == len(Q) - 2
+
+
+def test_coarse_to_fine_warm_start_matches_the_chain(fine):
+    """The spline-and-project warm start lands on every target and stays within a few mrad
+    of the per-sample continuation chain it replaces."""
+    from planner.path import _coarse_to_fine, arc_length
+
+    ctx, Q, _ = fine
+    warm = _coarse_to_fine(ctx, ctx.system.home, arc_length(ctx.P), False)
+    assert warm is not None
+    Qw, _ = warm
+    model = BeamModel(ctx.system)
+    assert max(model.trace(Qw[k], ctx.P[k], ctx.nbar[k]).error for k in range(len(Qw))) < 1e-12
+    assert np.abs(Qw - Q).max() < 5e-3
+
+
+def test_acceleration_weight_scaling():
+    from planner.path import acceleration_weight
+
+    o = PathOptions(weight_acceleration=2e-6, acceleration_spacing=1e-3)
+    assert acceleration_weight(o, 2e-3) == 2e-6  # coarser than the reference: unchanged
+    assert acceleration_weight(o, 0.5e-3) == pytest.approx(0.5e-6)  # (0.5)^2
+
+
+def test_fine_closed_path_coarse_to_fine(curve):
+    """A closed 10 mm circle every 0.25 mm: warm-started coarse-to-fine (periodic spline),
+    one closed NLP, every sample exact, and the joints close up smoothly."""
+    import planner.path as path_mod
+
+    system, _, _ = curve
+    th = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    ring = np.column_stack([-0.4918 + 0.01 * np.cos(th), -0.5679 + 0.01 * np.sin(th),
+                            np.full(40, -0.06)])  # fmt: skip
+    pts, nrm = resample_polyline(ring, 0.25e-3, True, np.tile([0.0, 0.0, 1.0], (40, 1)))
+    calls = []
+    real = path_mod._coarse_to_fine
+    path_mod._coarse_to_fine = lambda *a: calls.append(a[-1]) or real(*a)  # type: ignore[assignment]
+    try:
+        res = plan_path(system, Targets(pts, nrm, kind="path", closed=True))
+    finally:
+        path_mod._coarse_to_fine = real
+    assert calls == [True] and res.complete
+    assert res.segments[-1].status == "Solve_Succeeded"
+    assert np.nanmax(res.error) < 1e-14
+    steps = np.abs(np.diff(np.vstack([res.q, res.q[:1]]), axis=0)).max(axis=1)
+    assert steps[-1] < 3 * np.median(steps) + 1e-4  # the wrap-around step is like the others
