@@ -198,6 +198,9 @@ def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200) -> Pa
             "mu_init": 1e-4,
             "bound_push": 1e-9,
             "bound_frac": 1e-9,
+            # AMD ordering: the KKT matrix is banded; MUMPS' automatic choice spent 1.3 s of
+            # symbolic analysis at K = 5000 (AMD: 0.05 s)
+            "mumps_pivot_order": 0,
         },
         "print_time": False,
     }
