@@ -1,10 +1,14 @@
 """Path tracking (SPEC section 4 ``targets.path``, issue 5): the public entry point.
 
 :func:`plan_path` sweeps the spot along a resampled polyline: a warm start per sample
-(:mod:`planner.path_warm`), then one IPOPT NLP over every feasible run of samples
-(:mod:`planner.path_nlp`). Where the warm start finds no valid configuration the path is
-split: each feasible run is solved separately and each gap is reported with where (samples,
-arc length, point) and why. Points are in the world frame, lengths in metres, joints in rad.
+(:mod:`planner.path_warm`: the continuation chain, or for paths sampled finer than
+``coarse_spacing`` the chain on every m-th sample, splined and projected onto every target
+at once), then one IPOPT NLP over every feasible run of samples (:mod:`planner.path_nlp`),
+then a batched minimum-norm Gauss-Newton polish that puts every sample at machine precision
+(IPOPT stops at its ~1e-11 m tolerance; the correction is far below any smoothness scale).
+Where the warm start finds no valid configuration the path is split: each feasible run is
+solved separately and each gap is reported with where (samples, arc length, point) and why.
+Points are in the world frame, lengths in metres, joints in rad.
 """
 
 from __future__ import annotations

@@ -5,6 +5,10 @@ A single sample is seeded by the closed-form family search of :mod:`planner.ik.c
 equality-constrained Newton steps (spot on the sample, a centring pull), extrapolating the
 previous two samples. Where no valid configuration is found the sample gets a SPEC reason
 with evidence, and the chain re-seeds further on and extends backward into the gap.
+
+Batched helpers (one mapped CasADi call for all samples): :func:`project` (minimum-norm
+Gauss-Newton onto the targets; the coarse-to-fine warm start and the final polish) and
+:func:`valid_samples` (the vectorised :meth:`PathContext.why`).
 """
 
 from __future__ import annotations
