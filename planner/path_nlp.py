@@ -270,23 +270,19 @@ def tangents_batch(N: Array) -> Array:
 
 def solve_window(
     nlp: PathNlp, system: System, P: Array, has: Array, lbh: Array, Q0: Array, NB: Array,
-    weights: tuple[float, ...], lam0: Array | None = None,
+    weights: tuple[float, ...],
 ) -> tuple[Array, dict[str, Any]]:  # fmt: skip
     """Run ``nlp`` on the K samples ``P`` (K x 3 world targets, ``has`` which carry a normal,
     ``lbh`` K x (4N+2) lower bounds of h) from ``Q0`` (K x nq) with target-plane normals
-    ``NB`` (K x 3); ``lam0`` (K x (4N+4)) warm-starts the constraint multipliers. Returns
-    (Q K x nq, IPOPT stats plus ``lam_g``, the final multipliers K x (4N+4))."""
+    ``NB`` (K x 3). Returns (Q K x nq, IPOPT stats)."""
     K = len(P)
     E = tangents_batch(NB)
     p = pack_params(system, P, NB, has.astype(float), E, Q0, np.array(weights))
     nh = nlp.n_h
     lbg = np.column_stack([np.zeros((K, 2)), lbh]).ravel()
     ubg = np.column_stack([np.zeros((K, 2)), np.full((K, nh), np.inf)]).ravel()
-    lam = np.zeros(K * (nh + 2)) if lam0 is None else np.asarray(lam0, dtype=float).ravel()
     sol = nlp.solver(
         x0=Q0.ravel(), p=p, lbx=np.tile(system.lower, K), ubx=np.tile(system.upper, K),
-        lbg=lbg, ubg=ubg, lam_g0=lam,
+        lbg=lbg, ubg=ubg,
     )  # fmt: skip
-    stats = dict(nlp.solver.stats())
-    stats["lam_g"] = np.asarray(sol["lam_g"], dtype=float).reshape(K, nh + 2)
-    return np.asarray(sol["x"], dtype=float).reshape(K, -1), stats
+    return np.asarray(sol["x"], dtype=float).reshape(K, -1), dict(nlp.solver.stats())

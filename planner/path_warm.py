@@ -160,11 +160,10 @@ class PathContext:
         return best
 
     def solve(self, nlp: PathNlp, ks: list[int], Q0: Array, NB: Array,
-              weights: tuple[float, ...], lam0: Array | None = None
-              ) -> tuple[Array, dict[str, Any]]:  # fmt: skip
+              weights: tuple[float, ...]) -> tuple[Array, dict[str, Any]]:  # fmt: skip
         """Run the NLP on samples ``ks`` from ``Q0`` (len(ks) x nq); returns (Q, IPOPT stats)."""
         return solve_window(nlp, self.system, self.P[ks], self.has[ks], self.lbh[ks], Q0, NB,
-                            weights, lam0)  # fmt: skip
+                            weights)  # fmt: skip
 
 
 def continuation_chain(
