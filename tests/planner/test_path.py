@@ -205,3 +205,23 @@ def test_fine_closed_path_coarse_to_fine(curve):
     assert np.nanmax(res.error) < 1e-14
     steps = np.abs(np.diff(np.vstack([res.q, res.q[:1]]), axis=0)).max(axis=1)
     assert steps[-1] < 3 * np.median(steps) + 1e-4  # the wrap-around step is like the others
+
+
+def test_compiled_functions_match_the_sx_originals(tmp_path, monkeypatch):
+    """The C-compiled per-sample Hessian gives the SX virtual machine's numbers; without a
+    compiler the original function is used."""
+    import casadi as ca
+
+    from planner.kinematics import RobotKinematics
+    from planner.path_nlp import compiled, sample_hessian
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    f = sample_hessian((RobotKinematics.ur5e(),))
+    fc = compiled(f)
+    assert fc is not f and list(tmp_path.joinpath("beamrelay").glob("*.so"))
+    rng = np.random.default_rng(2)
+    args = [rng.normal(size=f.size_in(i)) for i in range(f.n_in())]
+    np.testing.assert_allclose(np.asarray(fc(*args)), np.asarray(f(*args)), rtol=1e-12, atol=1e-12)
+    monkeypatch.setattr("shutil.which", lambda name: None)
+    assert compiled(f) is f
+    assert isinstance(fc, ca.Function)
