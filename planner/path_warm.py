@@ -26,6 +26,7 @@ from planner.path_nlp import (
     Chain,
     PathNlp,
     PathOptions,
+    compiled,
     constraint_lower_bounds,
     path_nlp,
     sample_function,
@@ -58,7 +59,7 @@ class PathContext:
     def __init__(self, system: System, targets: Targets, opts: PathOptions) -> None:
         self.system, self.opts = system, opts
         self.kin: Chain = tuple(r.kinematics for r in system.robots)
-        self.step = step_function(self.kin)
+        self.step = compiled(step_function(self.kin))
         geo = system_params(system)
         self.geo = [ca.DM(geo[n]) for n in SAMPLE_INPUTS[1:5]]
         self.P = np.asarray(targets.points, dtype=float)
@@ -266,7 +267,9 @@ def valid_samples(ctx: PathContext, ks: Indices, Q: Array, NB: Array) -> Array:
     ks = np.asarray(ks, dtype=int)
     E = tangents_batch(NB)
     has = ctx.has[ks][None, :].astype(float)
-    G, H, _ = sample_function(ctx.kin).map(len(ks))(Q.T, *ctx.geo, ctx.P[ks].T, NB.T, has, E)
+    G, H, _ = compiled(sample_function(ctx.kin)).map(len(ks))(
+        Q.T, *ctx.geo, ctx.P[ks].T, NB.T, has, E
+    )
     G, H = np.asarray(G, dtype=float).T, np.asarray(H, dtype=float).T
     tol = 1e-7
     ok = np.linalg.norm(G, axis=1) <= max(1e3 * ctx.opts.tolerance, tol)
