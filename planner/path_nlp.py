@@ -26,7 +26,7 @@ from typing import Any, NamedTuple
 import casadi as ca
 import numpy as np
 
-from planner.beam import beam_chain, system_params
+from planner.beam import beam_chain, chain_symbols, system_params
 from planner.kinematics import RobotKinematics
 from planner.system import System
 from planner.transforms import Array
@@ -57,17 +57,11 @@ SAMPLE_INPUTS += ["target", "nbar", "has_normal", "tangents"]
 
 
 def _sample_exprs(kinematics: Chain) -> tuple[list[ca.SX], dict[str, ca.SX]]:
-    N = len(kinematics)
-    nq = sum(k.nq for k in kinematics)
-    q = ca.SX.sym("q", nq)
-    wTl = ca.SX.sym("world_T_laser", 4, 4)
-    wTb = ca.SX.sym("world_T_base", 4, 4 * N)
-    fTm = ca.SX.sym("flange_T_mirror", 4, 4 * N)
-    roi_half = ca.SX.sym("roi_half", 2, N)
+    sym = chain_symbols(kinematics)
+    q, wTl, wTb, fTm, roi_half = sym
     target, nbar = ca.SX.sym("target", 3), ca.SX.sym("nbar", 3)
     has, E = ca.SX.sym("has_normal"), ca.SX.sym("tangents", 3, 2)
-    bases = [wTb[:, 4 * i : 4 * i + 4] for i in range(N)]
-    mounts = [fTm[:, 4 * i : 4 * i + 4] for i in range(N)]
+    bases, mounts = sym.bases, sym.mounts
     hits, uvs, dirs, fronts, aheads, _ = beam_chain(q, wTl, bases, mounts, kinematics)
     p, v = hits[-1], dirs[-1]
     s = ca.dot(nbar, target - p) / ca.dot(nbar, v)

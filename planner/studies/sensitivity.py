@@ -100,14 +100,11 @@ def sensitivity_function(kinematics: tuple[Any, ...]) -> Any:
     """
     import casadi as ca
 
-    from planner.beam import beam_chain
+    from planner.beam import beam_chain, chain_symbols
 
     N = len(kinematics)
-    nq = sum(k.nq for k in kinematics)
-    q = ca.SX.sym("q", nq)
-    world_T_laser = ca.SX.sym("world_T_laser", 4, 4)
-    world_T_base = ca.SX.sym("world_T_base", 4, 4 * N)
-    flange_T_mirror = ca.SX.sym("flange_T_mirror", 4, 4 * N)
+    sym = chain_symbols(kinematics)
+    q, world_T_laser, world_T_base, flange_T_mirror, _ = sym
     target = ca.SX.sym("target", 3)
     delta = ca.SX.sym("delta", 6 + 6 * N)
 
@@ -125,11 +122,9 @@ def sensitivity_function(kinematics: tuple[Any, ...]) -> Any:
     mounts = []
     for i in range(N):
         d = delta[6 + 6 * i : 12 + 6 * i]
-        M = flange_T_mirror[:, 4 * i : 4 * i + 4]
-        M_rot = ca.mtimes(M, small_T(d[0:3], zero))
+        M_rot = ca.mtimes(sym.mounts[i], small_T(d[0:3], zero))
         mounts.append(M_rot + ca.vertcat(ca.horzcat(ca.SX.zeros(3, 3), d[3:6]), ca.SX.zeros(1, 4)))
-    bases = [world_T_base[:, 4 * i : 4 * i + 4] for i in range(N)]
-    hits, _, dirs, _, _, _ = beam_chain(q, laser, bases, mounts, kinematics)
+    hits, _, dirs, _, _, _ = beam_chain(q, laser, sym.bases, mounts, kinematics)
     p, v = hits[-1], dirs[-1]
     residual = p + ca.dot(v, target - p) * v - target
     J = ca.substitute(ca.jacobian(residual, delta), delta, ca.SX.zeros(delta.shape))
