@@ -61,6 +61,17 @@ class Keys:
     def camera_spot(self) -> str:
         return f"{self.prefix}/camera/spot"
 
+    @property
+    def heartbeat(self) -> str:
+        return f"{self.prefix}/heartbeat"
+
+    @property
+    def stop(self) -> str:
+        return f"{self.prefix}/stop"
+
+    def setpoint(self, robot: str) -> str:
+        return f"{self.prefix}/{robot}/setpoint"
+
     def alive(self, node: str) -> str:
         return f"{self.prefix}/alive/{node}"
 

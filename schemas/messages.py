@@ -10,7 +10,7 @@ from typing import Annotated, Final, Literal, Self
 
 from pydantic import Field, StrictBool, model_validator
 
-from schemas.common import FieldError, JointVector, Num, StrictModel, Vec3
+from schemas.common import FieldError, JointVector, NonNegInt, Num, StrictModel, Vec3
 from schemas.scenario import check_normals, unit_normals
 
 REQUEST_SCHEMA: Final = "beamrelay.request/1"
@@ -19,7 +19,12 @@ ERROR_SCHEMA: Final = "beamrelay.error/1"
 JOINT_STATE_SCHEMA: Final = "beamrelay.joint_state/1"
 STATUS_SCHEMA: Final = "beamrelay.status/1"
 SPOT_SCHEMA: Final = "beamrelay.spot/1"
+HEARTBEAT_SCHEMA: Final = "beamrelay.heartbeat/1"
+STOP_SCHEMA: Final = "beamrelay.stop/1"
 MAX_REQUEST_POINTS = 10_000
+MAX_ID_LENGTH = 256
+#: a request/session id: 1..256 characters, no lone surrogates (they cannot be encoded)
+Ident = Annotated[str, Field(min_length=1, max_length=MAX_ID_LENGTH)]
 
 
 class TargetRequest(StrictModel):
@@ -30,7 +35,7 @@ class TargetRequest(StrictModel):
     """
 
     schema_: Literal["beamrelay.request/1"] = Field(alias="schema")
-    id: Annotated[str, Field(min_length=1)]
+    id: Ident
     frame: Literal["world", "camera"] = "world"
     points: Annotated[list[Vec3], Field(min_length=1, max_length=MAX_REQUEST_POINTS)]
     normals: list[Vec3] | None = None
@@ -67,10 +72,16 @@ class JointState(StrictModel):
 
 
 class JointTrajectory(StrictModel):
-    """A trajectory for one robot: ``q[k]`` (rad) at ``t[k]`` (s from its start)."""
+    """A trajectory for one robot: ``q[k]`` (rad) at ``t[k]`` (s from its start).
+
+    ``id`` is the request it executes; ``session`` the planner session (its heartbeat's
+    ``session``) that sent it: the driver follows that planner's heartbeat while it moves.
+    """
 
     schema_: Literal["beamrelay.trajectory/1"] = Field(default=TRAJECTORY_SCHEMA, alias="schema")
     robot: str
+    id: Ident | None = None
+    session: Ident | None = None
     t: Annotated[list[Num], Field(min_length=1)]
     names: list[str]
     q: list[JointVector]
@@ -96,8 +107,22 @@ class JointTrajectory(StrictModel):
         return self
 
 
+class TrajectoryAck(StrictModel):
+    """A driver's verdict on the trajectory with request ``id``: accepted, or rejected with
+    the reason (``"<field>: <what>"``, e.g. ``"q[12]: joint wrist_3 moves 0.5 rad in 2 ms"``)."""
+
+    id: str | None = None
+    accepted: StrictBool
+    reason: str | None = None
+    t: Num
+
+
 class RobotStatus(StrictModel):
-    """Controller state: ``mode`` (driver-defined text), protective stop flag, fault text."""
+    """Controller state: ``mode`` (driver-defined text), protective stop flag, fault text.
+
+    ``trajectory`` is the verdict on the latest trajectory received (published at once on
+    receipt, then repeated with every status).
+    """
 
     schema_: Literal["beamrelay.status/1"] = Field(default=STATUS_SCHEMA, alias="schema")
     robot: str
@@ -105,6 +130,27 @@ class RobotStatus(StrictModel):
     mode: str
     protective_stop: StrictBool = False
     fault: str | None = None
+    trajectory: TrajectoryAck | None = None
+
+
+class Heartbeat(StrictModel):
+    """The planner's heartbeat (>= 50 Hz): ``session`` is random per planner process,
+    ``seq`` counts up from 0, ``t`` is the sender's UNIX time (s)."""
+
+    schema_: Literal["beamrelay.heartbeat/1"] = Field(default=HEARTBEAT_SCHEMA, alias="schema")
+    t: Num
+    session: Ident
+    seq: NonNegInt
+
+
+class StopMessage(StrictModel):
+    """What ``beamrelay/stop`` carries when we send it. Nodes stop on *any* sample on that
+    key, whatever its body (a stop must never be lost to a parse error)."""
+
+    schema_: Literal["beamrelay.stop/1"] = Field(default=STOP_SCHEMA, alias="schema")
+    t: Num
+    source: str = ""
+    reason: str = ""
 
 
 class SpotMessage(StrictModel):

@@ -145,6 +145,12 @@ class Plan(StrictModel):
     solutions: list[Solution]
     trajectory: Trajectory | None = None
     metrics: Metrics
+    id: str | None = None
+    """the request id (plans made for a TargetRequest)"""
+    execution: Literal["accepted", "rejected"] | None = None
+    """for an ``execute`` request: did every robot driver accept its trajectory"""
+    execution_reason: str | None = None
+    """with ``rejected``: which driver rejected it and why"""
 
     @model_validator(mode="after")
     def _consistent(self) -> Self:
