@@ -79,10 +79,10 @@ def robot(
     ),
 ) -> None:
     """Run a robot driver: joint_states, status, trajectories, planner watchdog."""
-    from drivers.robot_node import RobotNode
-    from planner.bus import Keys, open_session
+    from drivers.robot.node import RobotNode
     from planner.errors import InputError
-    from planner.scenario import load_scenario, system_from_scenario
+    from planner.io.scenario import load_scenario, system_from_scenario
+    from planner.service.bus import Keys, open_session
 
     scn = load_scenario(scenario)
     system = system_from_scenario(scn)
@@ -95,11 +95,11 @@ def robot(
     r = system.robot(name)
     backend_obj: Any
     if backend == RobotBackendName.sim:
-        from drivers.robot_sim import SimRobot
+        from drivers.robot.sim import SimRobot
 
         backend_obj = SimRobot(r.joint_names, r.home, r.limits, rate=rate)
     else:
-        from drivers.robot_ur import URRobot
+        from drivers.robot.ur import URRobot
 
         if not host:
             raise InputError("the ur backend needs the controller's address", "--host")
@@ -144,23 +144,23 @@ def camera(
     file: Path | None = BAG,
 ) -> None:
     """Run a camera driver: point cloud and laser spot."""
-    from drivers.camera_node import CameraNode
-    from planner.bus import Keys, open_session
+    from drivers.camera.node import CameraNode
     from planner.errors import InputError
-    from planner.scenario import load_scenario, scene_objects, system_from_scenario
+    from planner.io.scenario import load_scenario, scene_objects, system_from_scenario
+    from planner.service.bus import Keys, open_session
 
     if stride < 1:
         raise InputError(f"must be >= 1, got {stride}", "--stride")
     scn = load_scenario(scenario)
     source: Any
     if backend == CameraBackendName.sim:
-        from drivers.camera_sim import SimCamera
+        from drivers.camera.sim import SimCamera
 
         source = SimCamera(
             system_from_scenario(scn, truth=True), scene_objects(scn), stride=stride, seed=seed
         )
     else:
-        from drivers.camera_realsense import RealSenseCamera
+        from drivers.camera.realsense import RealSenseCamera
 
         if file is not None and not file.is_file():
             raise InputError("recording not found", f"--file {file}")

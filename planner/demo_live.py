@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from planner.transforms import Array
+from planner.model.transforms import Array
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -38,16 +38,16 @@ def surface_targets(scenario_path: Path, n: int) -> Array:
     (spread over the target set) land: each target moved along its own beam (metres)."""
     import open3d as o3d
 
-    from drivers.camera_sim import build_scene
+    from drivers.camera.sim import build_scene
     from planner.ik.evaluate import evaluate
-    from planner.planning import plan_points
-    from planner.scenario import (
+    from planner.io.scenario import (
         load_scenario,
         scene_objects,
         system_from_scenario,
         targets_from_scenario,
     )
-    from planner.system import Targets
+    from planner.model.system import Targets
+    from planner.planning import plan_points
 
     scn = load_scenario(scenario_path)
     system = system_from_scenario(scn)
@@ -73,7 +73,7 @@ def run_live_demo(scenario_path: Path | str, seconds: float = 5.0, n_targets: in
     from rich.console import Console
     from rich.table import Table
 
-    from planner.client import PlanClient, RequestError, make_request
+    from planner.service.client import PlanClient, RequestError, make_request
 
     console = Console()
     scenario_path = Path(scenario_path).resolve()
@@ -118,7 +118,7 @@ def run_live_demo(scenario_path: Path | str, seconds: float = 5.0, n_targets: in
 
 
 def _robot_names(scenario_path: Path) -> list[str]:
-    from planner.scenario import load_scenario
+    from planner.io.scenario import load_scenario
 
     return [r.name for r in load_scenario(scenario_path).model.system.robots]
 

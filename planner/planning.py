@@ -1,8 +1,8 @@
 """Batch planning: a scenario's targets -> the plan.json document of SPEC section 5.
 
 Point and grid targets are solved one by one with :class:`planner.ik.BeamIK`, each seeded by
-the previous solution (smooth sequences); paths go to :func:`planner.path.plan_path`. The
-``trajectory`` field comes from :mod:`planner.timing` (:func:`time_solutions`): Ruckig
+the previous solution (smooth sequences); paths go to :func:`planner.path.solve.plan_path`. The
+``trajectory`` field comes from :mod:`planner.path.timing` (:func:`time_solutions`): Ruckig
 rest-to-rest moves through the solved points (visit order optimised unless the scenario says
 ``order: given``), or each feasible path run swept at the scenario's spot speed, dense at
 ``rate``. A failed target is a status; it never stops the others.
@@ -18,13 +18,13 @@ import numpy as np
 
 from planner.ik import REASONS, BeamIK, IKOptions, Solution
 from planner.ik.evaluate import evaluate
-from planner.system import System, Targets
-from planner.transforms import Array
+from planner.model.system import System, Targets
+from planner.model.transforms import Array
 
 if TYPE_CHECKING:
-    from planner.path import PathResult
-    from planner.scene import SceneModel
-    from planner.timing import Trajectory, VisitReport
+    from planner.model.scene import SceneModel
+    from planner.path.solve import PathResult
+    from planner.path.timing import Trajectory, VisitReport
 
 PLAN_SCHEMA = "beamrelay.plan/1"
 Progress = Callable[[int], None]
@@ -41,7 +41,7 @@ def plan_points(
     """Solve every target in order; each solve starts from the last solved configuration
     (``q_start``, default home, at first). ``progress(k)`` is called after target k. With a
     ``scene``, beams that cross it are re-solved or fail as ``occluded``
-    (:func:`planner.occlusion.check_points`)."""
+    (:func:`planner.beam.occlusion.check_points`)."""
     ik = BeamIK(system, options)
     q_prev = system.home if q_start is None else np.asarray(q_start, dtype=float)
     out = []
@@ -53,7 +53,7 @@ def plan_points(
         if progress is not None:
             progress(k)
     if scene is not None and not scene.empty:
-        from planner.occlusion import check_points
+        from planner.beam.occlusion import check_points
 
         out = check_points(ik, scene, targets, out)
     return out
@@ -66,11 +66,11 @@ def solve_path(
     q_start: Array | None = None,
     scene: SceneModel | None = None,
 ) -> tuple[list[Solution], PathResult]:
-    """A continuous sweep through :func:`planner.path.plan_path`: per-sample solutions (a
+    """A continuous sweep through :func:`planner.path.solve.plan_path`: per-sample solutions (a
     sample in a gap is ``failed`` with the gap's reason and evidence) and the path result.
     With a ``scene``, samples whose beam crosses it become ``occluded`` gaps
-    (:func:`planner.occlusion.check_path`)."""
-    from planner.path import PathOptions, plan_path
+    (:func:`planner.beam.occlusion.check_path`)."""
+    from planner.path.solve import PathOptions, plan_path
 
     inc = 90.0 if options.max_incidence is None else float(np.degrees(options.max_incidence))
     opts = PathOptions(tolerance=options.tolerance, max_iter=options.max_iter,
@@ -92,7 +92,7 @@ def solve_path(
             out.append(Solution("failed", reason, None, None, float("inf"), None, None,
                                 per_sample, 0, "path", 0.0, evidence))  # fmt: skip
     if scene is not None and not scene.empty:
-        from planner.occlusion import check_path
+        from planner.beam.occlusion import check_path
 
         return check_path(system, scene, out, res)
     return out, res
@@ -105,7 +105,7 @@ def plan_path_targets(
     q_start: Array | None = None,
     scene: SceneModel | None = None,
 ) -> list[Solution]:
-    """A continuous sweep through :func:`planner.path.plan_path`, as per-sample solutions."""
+    """A continuous sweep through :func:`planner.path.solve.plan_path`, as per-sample solutions."""
     return solve_path(system, targets, options, q_start, scene)[0]
 
 
@@ -203,7 +203,7 @@ def time_solutions(
     ``rate`` (Hz). Points/grid: rest-to-rest Ruckig moves in the ``optimal`` (or ``given``)
     order with ``dwell`` s on each. Path: each feasible run (``path.segments``, else runs of
     consecutive solved samples) swept at ``spot_speed`` (m/s). None if nothing was solved."""
-    from planner.timing import path_trajectory, points_trajectory
+    from planner.path.timing import path_trajectory, points_trajectory
 
     rate = float(settings.get("rate", 500.0))
     q0 = system.home if q_start is None else np.asarray(q_start, dtype=float)
@@ -216,7 +216,7 @@ def time_solutions(
         figures = {"duration_given_order": visit.duration_given,
                    "duration_chosen_order": visit.duration_optimised}  # fmt: skip
         return Timed(traj, visit, figures | limit_ratios(system, traj))
-    from planner.path import arc_length
+    from planner.path.solve import arc_length
 
     arc = path.arc if path is not None else arc_length(targets.points)
     ok = np.isfinite(Q).all(axis=1)
@@ -261,7 +261,7 @@ def _mask(traj: Trajectory, kind: str) -> Array:
 def spot_rays(system: System, Q: Array) -> tuple[Array, Array]:
     """Last ray (origin, unit direction), each M x 3 in the world frame, of configurations
     ``Q`` (M x nq) through the planner's beam function."""
-    from planner.beam import beam_function, system_params
+    from planner.beam.graph import beam_function, system_params
 
     N = system.n_robots
     f = beam_function(tuple(r.kinematics for r in system.robots)).map(len(Q))
@@ -274,7 +274,7 @@ def spot_rays(system: System, Q: Array) -> tuple[Array, Array]:
 def path_deviation(system: System, targets: Targets, traj: Trajectory) -> float:
     """Largest distance (m) of the spot from the target polyline over the ``path`` segments
     (the spot is where the ray meets the nearest sample's plane)."""
-    from planner.check_trajectory import spot_deviation
+    from planner.verify.trajectory import spot_deviation
 
     mask = _mask(traj, "path")
     if not mask.any():
@@ -314,13 +314,13 @@ def run_scenario(
     ``scene=False`` skips the occlusion check against the scenario's ``scene:``."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 
-    from planner.scenario import (
+    from planner.io.scenario import (
         load_scenario,
         resolved_scenario_dict,
         system_from_scenario,
         targets_from_scenario,
     )
-    from planner.scene import SceneModel
+    from planner.model.scene import SceneModel
 
     loaded = load_scenario(scenario_path)
     scn = loaded.model

@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 
 from planner.ik.evaluate import evaluate, mirror_poses
-from planner.system import System, Targets
-from planner.transforms import Array, inv_T
+from planner.model.system import System, Targets
+from planner.model.transforms import Array, inv_T
 
 _COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:purple")
 _SEGMENT_COLOURS = {"approach": "0.92", "move": "0.92", "path": "#e3f2e1", "dwell": "#fdf0d5"}
@@ -162,8 +162,8 @@ def plot_profiles(system: System, targets: Targets, plan: dict[str, Any], path: 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from planner.check_trajectory import nearest_spots, spot_deviation
     from planner.planning import spot_rays
+    from planner.verify.trajectory import nearest_spots, spot_deviation
 
     traj = plan["trajectory"]
     t = np.asarray(traj["t"], dtype=float)

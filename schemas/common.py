@@ -14,7 +14,7 @@ import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
-from planner import transforms as tf
+from planner.model import transforms as tf
 
 RIGID_TOL = 1e-6
 QUAT_MIN_NORM = 1e-6

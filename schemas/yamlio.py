@@ -231,7 +231,7 @@ def validate_file(path: str | Path) -> tuple[str, BaseModel]:
             CalibrationFile, data, origins=origins, source=shown, error_cls=ScenarioError
         )
     if "system" in data or "targets" in data:
-        from planner.scenario import load_scenario, system_from_scenario, targets_from_scenario
+        from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
 
         scn = load_scenario(path)
         system = system_from_scenario(scn)

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planner.kinematics import RobotKinematics
-from planner.system import DEFAULT_HOME, Limits, Mirror, Robot, System
-from planner.transforms import look_at, make_T, rpy_to_matrix
+from planner.model.kinematics import RobotKinematics
+from planner.model.system import DEFAULT_HOME, Limits, Mirror, Robot, System
+from planner.model.transforms import look_at, make_T, rpy_to_matrix
 
 
 def make_system(n: int, seed: int = 0) -> System:

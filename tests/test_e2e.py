@@ -25,10 +25,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from planner.beam import BeamModel
-from planner.bus import Keys, open_session
-from planner.client import PlanClient, make_request
-from planner.up import child_commands
+from planner.beam.graph import BeamModel
+from planner.service.bus import Keys, open_session
+from planner.service.client import PlanClient, make_request
+from planner.service.up import child_commands
 from tests.drivers.conftest import free_port, wait_for
 
 pytestmark = pytest.mark.timeout(180)
@@ -148,14 +148,14 @@ def bus(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Bus]:
 
 @pytest.fixture(scope="module")
 def system(bus: Bus) -> Any:
-    from planner.scenario import load_scenario, system_from_scenario
+    from planner.io.scenario import load_scenario, system_from_scenario
 
     return system_from_scenario(load_scenario(bus.scenario))
 
 
 @pytest.fixture(scope="module")
 def truth_system(bus: Bus) -> Any:
-    from planner.scenario import load_scenario, system_from_scenario
+    from planner.io.scenario import load_scenario, system_from_scenario
 
     return system_from_scenario(load_scenario(bus.truth), truth=True)
 
@@ -305,7 +305,7 @@ def brake_time_bound(qd: np.ndarray, qdd: np.ndarray, a_max: float, j_max: float
 
 def test_planner_killed_sim_robot_stops_within_100ms(bus: Bus, system: Any) -> None:
     """The arm is still within 100 ms of the planner's death: the watchdog on its liveliness
-    token brakes at once with the stop deceleration (drivers.follower.STOP_ACCELERATION)."""
+    token brakes at once with the stop deceleration (drivers.robot.follower.STOP_ACCELERATION)."""
     near, far = [-0.44, -0.47, BOARD_Z], [-0.62, -0.65, BOARD_Z]
     bus.client.execute(make_request([near]), 20.0)
     states: list[tuple[float, np.ndarray]] = []
@@ -341,7 +341,7 @@ def test_planner_killed_sim_robot_stops_within_100ms(bus: Bus, system: Any) -> N
     stopped = next((t for t, qd in states if t > t_brake and np.max(np.abs(qd)) == 0.0), None)
     assert stopped is not None, "the arm never stopped"
     assert all(np.max(np.abs(qd)) == 0.0 for t, qd in states if t >= stopped)
-    from drivers.follower import STOP_ACCELERATION, STOP_JERK
+    from drivers.robot.follower import STOP_ACCELERATION, STOP_JERK
 
     bound = brake_time_bound(qd0, qdd0, STOP_ACCELERATION, STOP_JERK)
     print(

@@ -1,7 +1,7 @@
 """``beamrelay bench ik [SCENARIO]``: per-target IK time and error, default vs ``--optimal``,
 next to the paper's numbers (MATLAB LM: 20 +- 22 ms per target, max error 5e-4 mm).
 
-Figures are printed, never asserted. Every solution is re-verified by :mod:`planner.check`.
+Figures are printed, never asserted. Every solution is re-verified by :mod:`planner.verify.check`.
 """
 
 from __future__ import annotations
@@ -18,15 +18,15 @@ ROOT = Path(__file__).resolve().parents[2]
 def _run(scenario: Path, optimal: bool) -> dict[str, Any]:
     import numpy as np
 
-    from planner.check import check_plan
     from planner.ik import BeamIK
-    from planner.planning import ik_options, plan_document
-    from planner.scenario import (
+    from planner.io.scenario import (
         load_scenario,
         resolved_scenario_dict,
         system_from_scenario,
         targets_from_scenario,
     )
+    from planner.planning import ik_options, plan_document
+    from planner.verify.check import check_plan
 
     loaded = load_scenario(scenario)
     system = system_from_scenario(loaded)

@@ -28,9 +28,9 @@ def command(
     from rich.table import Table
 
     from planner.errors import InputError
-    from planner.path import arc_length, plan_path, resample_polyline
-    from planner.scenario import load_scenario, system_from_scenario, targets_from_scenario
-    from planner.system import Targets
+    from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
+    from planner.model.system import Targets
+    from planner.path.solve import arc_length, plan_path, resample_polyline
 
     try:
         Ks = [int(k) for k in sizes.split(",")]

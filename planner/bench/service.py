@@ -1,11 +1,11 @@
 """``beamrelay bench service``: the planner node's request -> reply latency, and the rate and
 jitter of a simulated robot driver's ``joint_states``.
 
-Runs everything on a private loopback port: the planner node (:class:`planner.node.PlannerNode`
+Runs everything on a private loopback port: the planner node (:class:`planner.service.node.PlannerNode`
 on the scenario's system) listens, a client session sends TargetRequests over TCP (so the
 figures include Zenoh, JSON and validation on both sides, and the IK). Latency of one target
 (``--n-single`` requests, one grid point each) and of 100 targets in one request. Then a
-simulated arm (:class:`drivers.robot_node.RobotNode` + :class:`drivers.robot_sim.SimRobot`)
+simulated arm (:class:`drivers.robot.node.RobotNode` + :class:`drivers.robot.sim.SimRobot`)
 publishes joint states for ``--seconds`` s; the rate and the period jitter are measured on
 the receiving side (receiver clock). Goal: single-target median <= 3 ms.
 """
@@ -46,10 +46,10 @@ def measure_latency(
     scenario: Path, n_single: int, n_batch: int, batch: int = 100
 ) -> dict[str, Any]:
     """Round-trip times (s) of single-target and ``batch``-target requests, plus solve rates."""
-    from planner.bus import Keys, open_session
-    from planner.client import PlanClient, make_request
-    from planner.node import PlannerNode, handler_from_scenario
-    from planner.scenario import load_scenario, targets_from_scenario
+    from planner.io.scenario import load_scenario, targets_from_scenario
+    from planner.service.bus import Keys, open_session
+    from planner.service.client import PlanClient, make_request
+    from planner.service.node import PlannerNode, handler_from_scenario
 
     handler = handler_from_scenario(scenario)
     points = targets_from_scenario(load_scenario(scenario), handler.system).points
@@ -85,10 +85,10 @@ def measure_joint_states(seconds: float) -> dict[str, float]:
     """Rate (Hz) and period jitter (ms) of a simulated arm's joint_states, receiver side."""
     import numpy as np
 
-    from drivers.robot_node import RobotNode
-    from drivers.robot_sim import SimRobot
-    from planner.bus import Keys, open_session
-    from planner.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
+    from drivers.robot.node import RobotNode
+    from drivers.robot.sim import SimRobot
+    from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
+    from planner.service.bus import Keys, open_session
 
     endpoint = _free_endpoint()
     hub = open_session(listen=True, endpoint=endpoint)

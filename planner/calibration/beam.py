@@ -26,7 +26,7 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from planner.beam import beam_function, chain_symbols
+from planner.beam.graph import beam_function, chain_symbols
 from planner.calibration.lsq import (
     delta_T,
     describe_direction,
@@ -35,9 +35,9 @@ from planner.calibration.lsq import (
     null_directions,
 )
 from planner.errors import CalibrationError, DatasetError
-from planner.kinematics import RobotKinematics
-from planner.system import System
-from planner.transforms import Array, axis_angle_to_matrix, make_T
+from planner.model.kinematics import RobotKinematics
+from planner.model.system import System
+from planner.model.transforms import Array, axis_angle_to_matrix, make_T
 
 FULL_NAMES = [f"laser.{a}" for a in ("rx", "ry", "rz", "tx", "ty", "tz")] + [
     f"mirror.{a}" for a in ("rx", "ry", "rz", "tx", "ty", "tz")
@@ -90,7 +90,7 @@ class BeamResult:
 
 @lru_cache(maxsize=16)
 def beam_residual(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
-    """Spot residual through :func:`planner.beam.beam_function` for the last mirror's mount.
+    """Spot residual through :func:`planner.beam.graph.beam_function` for the last mirror's mount.
 
     inputs: q, d_laser (6), d_mirror (6), world_T_laser, world_T_base (4x4N),
     flange_T_mirror (4x4N), spot (3); outputs: r (3), J (3x12, w.r.t. [d_laser; d_mirror]).

@@ -15,8 +15,8 @@ import numpy as np
 from planner.calibration.beam import BeamData
 from planner.calibration.handeye import HandEyeData
 from planner.errors import DatasetError
-from planner.system import System
-from planner.transforms import transform_points
+from planner.model.system import System
+from planner.model.transforms import transform_points
 
 
 def load_handeye(path: str | Path) -> HandEyeData:

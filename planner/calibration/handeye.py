@@ -33,8 +33,8 @@ from planner.calibration.lsq import (
     null_directions,
 )
 from planner.errors import CalibrationError, DatasetError
-from planner.system import System
-from planner.transforms import Array, inv_T, make_T, matrix_to_axis_angle
+from planner.model.system import System
+from planner.model.transforms import Array, inv_T, make_T, matrix_to_axis_angle
 
 MODES = ("eye_to_hand", "eye_in_hand")
 MIN_SAMPLES = 3

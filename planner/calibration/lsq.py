@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Generic, TypeVar
 import numpy as np
 
 from planner.errors import CalibrationError
-from planner.transforms import Array, axis_angle_to_matrix, make_T
+from planner.model.transforms import Array, axis_angle_to_matrix, make_T
 
 if TYPE_CHECKING:
     import casadi as ca

@@ -15,7 +15,7 @@ import numpy as np
 from planner.calibration.beam import BeamResult
 from planner.calibration.handeye import HandEyeResult
 from planner.errors import InputError
-from planner.transforms import Array, matrix_to_quat
+from planner.model.transforms import Array, matrix_to_quat
 
 PAPER_HANDEYE_MM = (1.13, 0.50)
 PAPER_BEAM_MM = (2.04, 1.25)

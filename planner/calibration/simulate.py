@@ -13,12 +13,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.beam import BeamModel
+from planner.beam.graph import BeamModel
 from planner.calibration.beam import BeamData, _min_rotation
 from planner.calibration.handeye import HandEyeData
 from planner.errors import InputError
-from planner.system import Robot, System
-from planner.transforms import Array, axis_angle_to_matrix, inv_T, make_T, transform_points
+from planner.model.system import Robot, System
+from planner.model.transforms import Array, axis_angle_to_matrix, inv_T, make_T, transform_points
 
 PERTURB_SIGMA = np.array([0.02, 0.02, 0.02, 0.06, 0.06, 0.06])  # rad, around the aimed pose
 BOARD_HALF = 0.15  # m, half side of a square spot board

@@ -24,9 +24,9 @@ from typing import NamedTuple
 import numpy as np
 
 from planner.ik.evaluate import mirror_poses
-from planner.kinematics import RobotKinematics
-from planner.system import System
-from planner.transforms import Array, inv_T
+from planner.model.kinematics import RobotKinematics
+from planner.model.system import System
+from planner.model.transforms import Array, inv_T
 
 TWO_PI = 2.0 * np.pi
 _DEGENERATE = 1e-9  # |d_out - d_in| below this: grazing, the bisector is undefined

@@ -1,6 +1,6 @@
 """Fast numeric beam trace for the IK hot path (numpy + Pinocchio FK, no CasADi call).
 
-Same model as :mod:`planner.beam` (SPEC section 3): the ray leaves the laser along +z of
+Same model as :mod:`planner.beam.graph` (SPEC section 3): the ray leaves the laser along +z of
 ``world_T_laser``, hits each mirror plane in robot order and reflects ``v' = v - 2 (v.n) n``.
 Everything is in the world frame, metres and radians.
 """
@@ -11,8 +11,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from planner.system import System
-from planner.transforms import Array
+from planner.model.system import System
+from planner.model.transforms import Array
 
 #: smallest accepted ``-n.v`` (front-face cosine) and ray parameters (metres)
 MIN_FRONT = 1e-9

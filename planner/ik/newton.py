@@ -14,10 +14,10 @@ from typing import NamedTuple
 import casadi as ca
 import numpy as np
 
-from planner.beam import beam_function, system_params
-from planner.kinematics import RobotKinematics
-from planner.system import System
-from planner.transforms import Array
+from planner.beam.graph import beam_function, system_params
+from planner.model.kinematics import RobotKinematics
+from planner.model.system import System
+from planner.model.transforms import Array
 
 
 @lru_cache(maxsize=16)

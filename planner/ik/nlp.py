@@ -3,7 +3,7 @@
 Decision variables: the stacked joints q of all N robots (bounds = joint limits, passed per
 call). Parameters (never baked in): target (3), target normal (3, zeros = none), spot-plane
 basis (3x3: plane normal m, in-plane axes e1, e2), previous q, cos of the maximum incidence
-(-2 = off), centre weight, and the system geometry of :func:`planner.beam.system_params`.
+(-2 = off), centre weight, and the system geometry of :func:`planner.beam.graph.system_params`.
 
 Constraints (SPEC section 3):
     e1.(spot - target) = e2.(spot - target) = 0   spot on target (spot = ray ∩ plane ⊥ m)
@@ -23,11 +23,11 @@ from typing import Any, NamedTuple
 import casadi as ca
 import numpy as np
 
-from planner.beam import beam_chain, system_params
+from planner.beam.graph import beam_chain, system_params
 from planner.ik.evaluate import MIN_AHEAD, MIN_FRONT
-from planner.kinematics import RobotKinematics
-from planner.system import System
-from planner.transforms import Array
+from planner.model.kinematics import RobotKinematics
+from planner.model.system import System
+from planner.model.transforms import Array
 
 INACTIVE_COS = -2.0
 

@@ -17,8 +17,8 @@ from planner.ik.closed_form import ClosedForm, seed_kinematics
 from planner.ik.evaluate import MIN_AHEAD, MIN_FRONT, Evaluation, evaluate
 from planner.ik.newton import Newton
 from planner.ik.nlp import BeamNLP
-from planner.system import System
-from planner.transforms import Array
+from planner.model.system import System
+from planner.model.transforms import Array
 
 REASONS = ("unreachable", "outside_roi", "joint_limits", "back_face", "occluded", "solver_failed")
 EXACT = 1e-12  # metres: what "machine precision" means for a spot error here

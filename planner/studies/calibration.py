@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
+from planner.model.system import System
+from planner.model.transforms import Array
 from planner.studies import common
-from planner.system import System
-from planner.transforms import Array
 
 TRIALS = 100  # paper scale: the default of --trials and of `study all`
 EXACT_POSES = {"handeye": 20, "beam": 16}
@@ -33,9 +33,9 @@ AIM = np.array([0.45, 0.1, 0.0])
 
 def default_system() -> System:
     """Paper-like N = 1 setup: UR5e at the origin, laser along -x, camera above the work."""
-    from planner.kinematics import RobotKinematics
-    from planner.system import DEFAULT_HOME, Camera, Intrinsics, Limits, Mirror, Robot
-    from planner.transforms import look_at, make_T, rpy_to_matrix
+    from planner.model.kinematics import RobotKinematics
+    from planner.model.system import DEFAULT_HOME, Camera, Intrinsics, Limits, Mirror, Robot
+    from planner.model.transforms import look_at, make_T, rpy_to_matrix
 
     laser = make_T(rpy_to_matrix(np.deg2rad([0.0, -90.0, 0.0])), [0.9, -0.13, 0.5])
     robot = Robot(
@@ -51,7 +51,7 @@ def default_system() -> System:
 
 
 def _rand_T(rng: np.random.Generator, deg: float, metres: float) -> Array:
-    from planner.transforms import make_T, rpy_to_matrix
+    from planner.model.transforms import make_T, rpy_to_matrix
 
     return make_T(
         rpy_to_matrix(np.deg2rad(rng.uniform(-deg, deg, 3))), rng.uniform(-metres, metres, 3)
@@ -87,7 +87,7 @@ def handeye_trial(seed: int, trial: int, n_poses: int, noisy: bool) -> dict[str,
 
     from planner.calibration.handeye import calibrate_handeye
     from planner.calibration.simulate import DepthNoise, simulate_handeye
-    from planner.transforms import inv_T, look_at
+    from planner.model.transforms import inv_T, look_at
 
     rng = np.random.default_rng([seed, trial, n_poses, int(noisy), 1])
     nominal = default_system()
@@ -131,7 +131,7 @@ def handeye_trial(seed: int, trial: int, n_poses: int, noisy: bool) -> dict[str,
 
 def beam_trial(seed: int, trial: int, n_poses: int, noisy: bool) -> dict[str, Any]:
     """One laser + mirror trial: errors of the observable line / plane parameters."""
-    from planner.beam import BeamModel
+    from planner.beam.graph import BeamModel
     from planner.calibration.beam import apply_gauge, calibrate_beam
     from planner.calibration.simulate import DepthNoise, simulate_beam
 

@@ -34,10 +34,10 @@ from typing import Any
 
 import numpy as np
 
+from planner.model.system import System
+from planner.model.transforms import Array
 from planner.studies import common
 from planner.studies.relay_geometry import laser_ray, mirror_ik, unit
-from planner.system import System
-from planner.transforms import Array
 
 TRIALS = 400  # paper scale: the default of --trials and of `study all`
 CENTER = np.array([0.0, 0.0, 0.35])
@@ -52,9 +52,9 @@ SPINS = tuple(np.linspace(0.0, 2 * np.pi, 6, endpoint=False))  # mirror rolls tr
 
 def coverage_system(n: int = 3) -> System:
     """The layout of the module docstring with the first ``n`` robots."""
-    from planner.kinematics import RobotKinematics
-    from planner.system import DEFAULT_HOME, Limits, Mirror, Robot
-    from planner.transforms import make_T, rot_x, rot_z
+    from planner.model.kinematics import RobotKinematics
+    from planner.model.system import DEFAULT_HOME, Limits, Mirror, Robot
+    from planner.model.transforms import make_T, rot_x, rot_z
 
     kin = RobotKinematics.ur5e()
     robots = []
@@ -99,7 +99,7 @@ def _scene(radius: float) -> Any:
     """The object (a sphere of ``radius`` m about ``CENTER``) as a :class:`SceneModel`."""
     import open3d as o3d
 
-    from planner.scene import SceneModel
+    from planner.model.scene import SceneModel
 
     mesh = o3d.geometry.TriangleMesh.create_sphere(radius=radius, resolution=60)
     mesh.translate(CENTER)

@@ -23,7 +23,7 @@ PAPER = "typically < 1e-5 mm, max < 5e-4 mm (paper Fig. 3a)"
 
 def perturb(T: Any, rng: Any, deg: float = 5.0, mm: float = 10.0) -> Any:
     """``T`` moved by U(-1,1)*deg about each axis (rpy) and U(-1,1)*mm along each axis."""
-    from planner.transforms import make_T, rpy_to_matrix
+    from planner.model.transforms import make_T, rpy_to_matrix
 
     d = make_T(rpy_to_matrix(rng.uniform(-1, 1, 3) * 3.141592653589793 / 180 * deg),
                rng.uniform(-1, 1, 3) * mm * 1e-3)  # fmt: skip
@@ -35,8 +35,8 @@ def run_trial(scenario: str, seed: int, trial: int) -> dict[str, Any]:
     import numpy as np
 
     from planner.ik import BeamIK
+    from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
     from planner.planning import ik_options
-    from planner.scenario import load_scenario, system_from_scenario, targets_from_scenario
 
     loaded = load_scenario(scenario)
     nominal = system_from_scenario(loaded)

@@ -31,9 +31,9 @@ from typing import Any
 
 import numpy as np
 
+from planner.model.transforms import Array
 from planner.studies import common
 from planner.studies.sensitivity import CUBE_CENTER, CUBE_SIZE, Nominal, perturb
-from planner.transforms import Array
 
 TRIALS = 64  # paper scale: the default of --trials and of `study all`
 ROT_AXES = ("tilt_in", "tilt_across", "spin")
@@ -44,7 +44,7 @@ POS_OFFSETS_MM = tuple(np.round(np.arange(-10.0, 10.001, 2.0), 10))
 
 def reflection_axes(nominal: Nominal, k: int) -> dict[str, Any]:
     """Unit axes of target ``k``'s reflection in the mirror frame, plus ``L`` and ``cos i``."""
-    from planner.beam import BeamModel
+    from planner.beam.graph import BeamModel
 
     model = BeamModel(nominal.system)
     tr = model.trace(nominal.q[k], nominal.targets[k])
@@ -69,7 +69,7 @@ def reflection_axes(nominal: Nominal, k: int) -> dict[str, Any]:
 
 def sweep_target(nominal: Nominal, k: int) -> list[dict[str, Any]]:
     """Every axis and offset for target ``k``: measured and predicted spot errors."""
-    from planner.beam import BeamModel
+    from planner.beam.graph import BeamModel
 
     ax = reflection_axes(nominal, k)
     flange_R_mirror = nominal.system.robots[0].mirror.flange_T_mirror[:3, :3]

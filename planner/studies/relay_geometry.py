@@ -21,8 +21,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from planner.system import Robot, System
-from planner.transforms import Array, inv_T
+from planner.model.system import Robot, System
+from planner.model.transforms import Array, inv_T
 
 #: mirror rolls (rad) tried about the normal, and the in-plane reference of roll 0
 DEFAULT_SPINS = tuple(np.linspace(0.0, 2 * np.pi, 8, endpoint=False))

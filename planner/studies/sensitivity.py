@@ -28,9 +28,9 @@ from typing import Any
 
 import numpy as np
 
+from planner.model.system import System
+from planner.model.transforms import Array
 from planner.studies import common
-from planner.system import System
-from planner.transforms import Array
 
 TRIALS = 10  # paper scale: the default of --trials and of `study all`
 GROUPS = ("laser_rot", "laser_pos", "mirror_rot", "mirror_pos")
@@ -55,7 +55,7 @@ def levels(group: str) -> tuple[float, ...]:
 
 def rotvec_matrix(w: Array) -> Array:
     """Rotation matrix of a rotation vector (rad), Rodrigues."""
-    from planner.transforms import axis_angle_to_matrix
+    from planner.model.transforms import axis_angle_to_matrix
 
     return axis_angle_to_matrix(np.asarray(w, dtype=float))
 
@@ -96,11 +96,11 @@ def sensitivity_function(kinematics: tuple[Any, ...]) -> Any:
     """CasADi function ``J(q, params, target) -> ∂residual/∂δ`` (3 x (6 + 6N)).
 
     δ = [laser_rot, laser_pos, mirror_rot_0, mirror_pos_0, ...], each 3 components, applied
-    as in :func:`perturb`. Built from :func:`planner.beam.beam_chain`, cached per chain.
+    as in :func:`perturb`. Built from :func:`planner.beam.graph.beam_chain`, cached per chain.
     """
     import casadi as ca
 
-    from planner.beam import beam_chain, chain_symbols
+    from planner.beam.graph import beam_chain, chain_symbols
 
     N = len(kinematics)
     sym = chain_symbols(kinematics)
@@ -139,7 +139,7 @@ def sensitivity_function(kinematics: tuple[Any, ...]) -> Any:
 
 def jacobians(system: System, qs: Array, targets: Array) -> Array:
     """``∂residual/∂δ`` per target, shape (K, 3, 6 + 6N) (metres per rad / per metre)."""
-    from planner.beam import system_params
+    from planner.beam.graph import system_params
 
     fn = sensitivity_function(tuple(r.kinematics for r in system.robots))
     par = system_params(system)
@@ -190,7 +190,7 @@ def solve_nominal(system: System, targets: Array) -> Nominal:
 
 def trial_rows(nominal: Nominal, trial: int, seed: int) -> list[dict[str, Any]]:
     """Every group and level of one trial: spot errors sampled and predicted, per target."""
-    from planner.beam import BeamModel
+    from planner.beam.graph import BeamModel
 
     rows = []
     for gi, group in enumerate(GROUPS):
@@ -251,9 +251,9 @@ def summarize(nominal: Nominal, rows: list[dict[str, Any]]) -> list[dict[str, An
 
 def default_system() -> System:
     """The paper's N = 1 setup (SPEC section 4 example): laser along −x at 0.3 m height."""
-    from planner.kinematics import RobotKinematics
-    from planner.system import DEFAULT_HOME, Limits, Mirror, Robot
-    from planner.transforms import make_T, rpy_to_matrix
+    from planner.model.kinematics import RobotKinematics
+    from planner.model.system import DEFAULT_HOME, Limits, Mirror, Robot
+    from planner.model.transforms import make_T, rpy_to_matrix
 
     laser = make_T(rpy_to_matrix(np.deg2rad([0.0, -90.0, 0.0])), [0.60, -0.40, 0.30])
     mirror = Mirror(make_T(p=[0.0, 0.0, 0.03]), (0.075, 0.075), 0.01)

@@ -10,7 +10,7 @@ One trial:
    mount and camera pose each get a random rotation and translation whose RMS magnitudes
    are the ``CalibrationErrors`` (default ~1 mm / ~0.1°, documented levels; ``study all``
    passes the calibration study's D435 figures instead);
-2. the camera sees each marker with D435 noise (model of :mod:`drivers.camera_sim`:
+2. the camera sees each marker with D435 noise (model of :mod:`drivers.camera.sim`:
    depth RMS z²·0.08 px/(fx·b) reduced by the ``SPOT_WINDOW`` plane fit, ``SIGMA_PX``
    centroid noise); the planner maps it to the world with its camera pose and solves the
    beam IK with its nominal system (the product's :class:`planner.ik.BeamIK` with the
@@ -29,9 +29,9 @@ from typing import Any
 
 import numpy as np
 
+from planner.model.system import System
+from planner.model.transforms import Array, axis_angle_to_matrix, inv_T, make_T
 from planner.studies import common
-from planner.system import System
-from planner.transforms import Array, axis_angle_to_matrix, inv_T, make_T
 
 TRIALS = 10  # paper scale: the default of --trials and of `study all`
 PAPER_MM = {"chessboard": (1.61, 0.77), "curve": (3.61, 1.58), "face": (3.29, 1.72)}
@@ -82,7 +82,7 @@ def _rand_T(rng: np.random.Generator, rot: float, pos: float) -> Array:
 @lru_cache(maxsize=1)
 def nominal_system() -> System:
     """The planner's system (``scenarios/paper_n1.yaml``)."""
-    from planner.scenario import load_scenario, system_from_scenario
+    from planner.io.scenario import load_scenario, system_from_scenario
 
     return system_from_scenario(load_scenario(SCENARIO))
 
@@ -92,8 +92,8 @@ def planner_ik() -> Any:
     """The planner's beam IK: :class:`planner.ik.BeamIK` on :func:`nominal_system` with the
     scenario's ``solver`` settings (built once per process)."""
     from planner.ik import BeamIK
+    from planner.io.scenario import load_scenario
     from planner.planning import ik_options
-    from planner.scenario import load_scenario
 
     return BeamIK(nominal_system(), ik_options(load_scenario(SCENARIO).model.solver))
 
@@ -190,7 +190,7 @@ def _merge(a: Any, b: Any) -> Any:
 @lru_cache(maxsize=8)
 def _scene(name: str) -> tuple[Array, Array, Any]:
     """Markers, their normals and the experiment's object as a :class:`SceneModel`."""
-    from planner.scene import SceneModel
+    from planner.model.scene import SceneModel
 
     pts, normals, mesh = experiment(name)
     return pts, normals, SceneModel(meshes=[(name, mesh)])
@@ -203,7 +203,7 @@ def _cast(scene: Any, p: Array, v: Array) -> float:
 
 def observe(system: System, scene: Any, p_world: Array, rng: np.random.Generator) -> Array | None:
     """The D435 measurement of a world point (camera frame), None if hidden or off-image."""
-    from drivers.camera_sim import SIGMA_PX, SPOT_WINDOW, depth_sigma
+    from drivers.camera.sim import SIGMA_PX, SPOT_WINDOW, depth_sigma
 
     assert system.camera is not None
     T, k = system.camera.world_T_camera, system.camera.intrinsics
@@ -224,7 +224,7 @@ def trial_rows(
     trial: int, seed: int, err: CalibrationErrors, experiments: tuple[str, ...] = EXPERIMENTS
 ) -> list[dict[str, Any]]:
     """The experiments of one trial: spot error per marker (mm)."""
-    from planner.beam import BeamModel
+    from planner.beam.graph import BeamModel
 
     nominal, ik = nominal_system(), planner_ik()
     rng = np.random.default_rng([seed, trial])

@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from planner.bus import Keys, open_session
+from planner.service.bus import Keys, open_session
 
 
 def free_port() -> int:

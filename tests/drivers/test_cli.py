@@ -7,20 +7,20 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from drivers.camera_node import decode_points
-from planner.bus import Keys, decode
-from planner.scenario import load_scenario, system_from_scenario
-from planner.transforms import inv_T
+from drivers.camera.node import decode_points
+from planner.io.scenario import load_scenario, system_from_scenario
+from planner.model.transforms import inv_T
+from planner.service.bus import Keys, decode
 from schemas.messages import JointState, SpotMessage
 from tests.drivers.conftest import wait_for
-from tests.drivers.test_camera_sim import analytic_spot
+from tests.drivers.camera.test_camera_sim import analytic_spot
+from tests.paths import REPO
 
-SCENARIO = Path(__file__).parents[2] / "scenarios" / "paper_n1.yaml"
+SCENARIO = REPO / "scenarios" / "paper_n1.yaml"
 CLI = [sys.executable, "-m", "planner.cli", "driver"]
 
 

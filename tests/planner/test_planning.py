@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planner.check import ArmGeometry, Trace, check_plan, ur5e_dh_fk
 from planner.ik import IKOptions, Solution
+from planner.model.system import Targets
 from planner.planning import (
     PlanOutcome,
     plan_document,
@@ -22,8 +22,9 @@ from planner.planning import (
     spot_rays,
     time_solutions,
 )
-from planner.system import Targets
+from planner.verify.check import ArmGeometry, Trace, check_plan, ur5e_dh_fk
 from schemas.plan import Plan
+from tests.paths import REPO
 from tests.planner.ik import ik_systems as sy
 
 SCENARIO = """\
@@ -78,7 +79,7 @@ def test_plan_scenario_document(tmp_path: Path) -> None:
         assert np.all(np.abs(sol.hits[0].uv) <= system.robots[0].mirror.roi_half)
 
 
-CURVE = Path(__file__).resolve().parents[2] / "scenarios" / "curve_path.yaml"
+CURVE = REPO / "scenarios" / "curve_path.yaml"
 
 
 @pytest.fixture(scope="module")

@@ -8,9 +8,9 @@ import numpy as np
 
 from planner.calibration.handeye import HandEyeData
 from planner.calibration.simulate import DepthNoise, default_handeye_truth, simulate_handeye
-from planner.kinematics import RobotKinematics
-from planner.system import DEFAULT_HOME, Camera, Intrinsics, Limits, Mirror, Robot, System
-from planner.transforms import Array, axis_angle_to_matrix, look_at, make_T, rpy_to_matrix
+from planner.model.kinematics import RobotKinematics
+from planner.model.system import DEFAULT_HOME, Camera, Intrinsics, Limits, Mirror, Robot, System
+from planner.model.transforms import Array, axis_angle_to_matrix, look_at, make_T, rpy_to_matrix
 
 AIM = np.array([0.45, 0.1, 0.0])
 INTRINSICS = Intrinsics(848, 480, 430.0, 430.0, 424.0, 240.0)
@@ -55,7 +55,7 @@ def eye_to_hand_data(
 
 def write_scenario(path, truth: bool = True) -> None:
     """The :func:`nominal_system` as a scenario YAML (with a ``truth:`` section) at ``path``."""
-    from planner.transforms import matrix_to_quat
+    from planner.model.transforms import matrix_to_quat
 
     cam = nominal_system().camera
     assert cam is not None

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planner.beam import BeamModel
+from planner.beam.graph import BeamModel
 from planner.calibration.beam import BeamData, apply_gauge, calibrate_beam
 from planner.calibration.simulate import DepthNoise, simulate_beam
 from planner.errors import CalibrationError, DatasetError

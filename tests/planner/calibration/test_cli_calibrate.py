@@ -9,7 +9,7 @@ import pytest
 from ruamel.yaml import YAML
 
 from planner.cli import main
-from planner.scenario import load_scenario, system_from_scenario
+from planner.io.scenario import load_scenario, system_from_scenario
 
 from .cal_systems import write_scenario
 

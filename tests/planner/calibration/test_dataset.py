@@ -10,7 +10,7 @@ import pytest
 from planner.calibration.dataset import beam_json, handeye_json, load_beam, load_handeye, write_json
 from planner.calibration.simulate import simulate_beam
 from planner.errors import DatasetError
-from planner.transforms import inv_T, transform_points
+from planner.model.transforms import inv_T, transform_points
 
 from .cal_systems import AIM, eye_to_hand_data, nominal_system
 

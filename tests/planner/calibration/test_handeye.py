@@ -8,7 +8,7 @@ import pytest
 from planner.calibration.handeye import HandEyeData, calibrate_handeye, fit_rigid, solve_ax_yb
 from planner.calibration.simulate import DepthNoise, default_handeye_truth, simulate_handeye
 from planner.errors import CalibrationError, DatasetError
-from planner.transforms import inv_T, matrix_to_axis_angle, transform_points
+from planner.model.transforms import inv_T, matrix_to_axis_angle, transform_points
 
 from .cal_systems import eye_to_hand_data, nominal_system, perturbation
 

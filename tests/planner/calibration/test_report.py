@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planner.beam import BeamModel
+from planner.beam.graph import BeamModel
 from planner.calibration.beam import apply_gauge, calibrate_beam
 from planner.calibration.handeye import calibrate_handeye
 from planner.calibration.report import (
@@ -17,8 +17,8 @@ from planner.calibration.report import (
     write_calibration,
 )
 from planner.calibration.simulate import default_handeye_truth, simulate_beam, simulate_handeye
-from planner.scenario import load_scenario, system_from_scenario
-from planner.transforms import quat_to_matrix
+from planner.io.scenario import load_scenario, system_from_scenario
+from planner.model.transforms import quat_to_matrix
 
 from .cal_systems import AIM, write_scenario
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from planner.beam import BeamModel
+from planner.beam.graph import BeamModel
 from planner.calibration.simulate import (
     BOARD_HALF,
     DepthNoise,
@@ -12,7 +12,7 @@ from planner.calibration.simulate import (
     board_grid,
     simulate_beam,
 )
-from planner.transforms import inv_T, transform_points
+from planner.model.transforms import inv_T, transform_points
 
 from .cal_systems import AIM, INTRINSICS, eye_to_hand_data, nominal_system, two_robot_system
 

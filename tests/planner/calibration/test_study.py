@@ -23,7 +23,7 @@ def test_exact_trials_meet_paper_bounds():
 
 
 def test_angle_helpers_are_accurate_near_zero():
-    from planner.transforms import axis_angle_to_matrix
+    from planner.model.transforms import axis_angle_to_matrix
 
     assert np.isclose(
         study._angle(axis_angle_to_matrix([1e-10, 0, 0])), np.rad2deg(1e-10), rtol=1e-6

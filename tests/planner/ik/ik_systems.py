@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from planner.kinematics import RobotKinematics, ur5e_urdf_path
-from planner.system import DEFAULT_HOME, Limits, Mirror, Robot, System
-from planner.transforms import look_at, make_T, rot_z
+from planner.model.kinematics import RobotKinematics, ur5e_urdf_path
+from planner.model.system import DEFAULT_HOME, Limits, Mirror, Robot, System
+from planner.model.transforms import look_at, make_T, rot_z
 
 LASER = look_at([0.6, -0.4, 0.3], [0.0, -0.4, 0.3])  # beam along -x, 0.4 m in front of arm0
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planner.beam import BeamModel
+from planner.beam.graph import BeamModel
 from planner.ik.closed_form import ClosedForm, bisector, mirror_frame, pick_branch, seed_kinematics
-from planner.kinematics import RobotKinematics
-from planner.transforms import inv_T
+from planner.model.kinematics import RobotKinematics
+from planner.model.transforms import inv_T
 from tests.planner.ik import ik_systems as sy
 
 

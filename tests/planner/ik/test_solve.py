@@ -8,12 +8,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from planner.check import ArmGeometry, Trace, ur5e_dh_fk
 from planner.ik import BeamIK, IKOptions
 from planner.ik.evaluate import evaluate, mirror_poses
-from planner.kinematics import RobotKinematics
-from planner.system import DEFAULT_HOME, Limits, System
-from planner.transforms import look_at
+from planner.model.kinematics import RobotKinematics
+from planner.model.system import DEFAULT_HOME, Limits, System
+from planner.model.transforms import look_at
+from planner.verify.check import ArmGeometry, Trace, ur5e_dh_fk
 from tests.planner.ik import ik_systems as sy
 
 

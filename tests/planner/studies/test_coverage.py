@@ -7,10 +7,10 @@ import itertools
 import numpy as np
 import pytest
 
-from planner.beam import BeamModel
+from planner.beam.graph import BeamModel
+from planner.model.system import System
 from planner.studies import coverage as cov
 from planner.studies.relay_geometry import solve_chain
-from planner.system import System
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planner.beam import BeamModel
+from planner.beam.graph import BeamModel
 from planner.studies.coverage import coverage_system
 from planner.studies.relay_geometry import laser_ray, mirror_ik, solve_chain
 from planner.studies.sensitivity import default_system, grid_targets

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planner.beam import BeamModel
+from planner.beam.graph import BeamModel
 from planner.studies import sensitivity as sens
 
 

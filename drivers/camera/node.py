@@ -1,0 +1,160 @@
+"""The Zenoh side of a camera driver, common to the ``sim`` and ``realsense`` backends.
+
+:class:`CameraNode` runs the source in a thread at ``spot_rate`` (30 Hz by default) and
+
+- publishes ``<prefix>/camera/spot`` (:class:`schemas.messages.SpotMessage`: ``p_camera`` in
+  the camera optical frame, m, or null; ``confidence`` in [0, 1]) every frame,
+- publishes ``<prefix>/camera/points`` every ``spot_rate / points_rate`` frames (15 Hz by
+  default): payload = the raw float32 array, row-major, ``count`` rows of ``fields``
+  (``x, y, z`` in m, camera frame; the RealSense source adds ``r, g, b`` in [0, 1]);
+  attachment = JSON metadata (:func:`points_metadata`), decoded by :func:`decode_points`,
+- subscribes ``<prefix>/<robot>/joint_states`` of the robots the source asks for (the
+  simulated camera needs them to trace the true beam),
+- declares the liveliness token ``<prefix>/alive/camera``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+from drivers.loop_node import LoopNode
+from planner.errors import InputError
+from planner.model.transforms import Array
+from planner.service.bus import JSON, Keys, decode, encode
+from schemas.messages import JointState, SpotMessage
+
+POINTS_SCHEMA = "beamrelay.points/1"
+
+
+@dataclass(frozen=True)
+class SpotReading:
+    """A detected spot: position in the camera optical frame (m) and confidence in [0, 1]."""
+
+    p_camera: Array
+    confidence: float
+
+
+class CameraSource(Protocol):
+    """What :class:`CameraNode` needs from a backend (``camera_sim`` / ``camera_realsense``)."""
+
+    kind: str
+    robot_names: tuple[str, ...]
+
+    def on_joint_state(self, robot: str, q: Array) -> None: ...
+    def grab(self) -> None: ...
+    def points(self) -> tuple[Any, dict[str, Any]]: ...
+    def spot(self) -> SpotReading | None: ...
+    def close(self) -> None: ...
+
+
+def points_metadata(points: Array, t: float, seq: int, extra: dict[str, Any]) -> dict[str, Any]:
+    """Attachment of a ``camera/points`` sample (all lengths in m, camera optical frame)."""
+    fields = ["x", "y", "z", "r", "g", "b"][: points.shape[1]]
+    return {
+        "schema": POINTS_SCHEMA,
+        "t": t,
+        "seq": seq,
+        "frame": "camera",
+        "dtype": "float32",
+        "fields": fields,
+        "count": int(points.shape[0]),
+        **extra,
+    }
+
+
+def decode_points(payload: bytes, attachment: bytes) -> tuple[Any, dict[str, Any]]:
+    """``camera/points`` sample -> (count x len(fields) float32 array, metadata)."""
+    try:
+        meta = json.loads(attachment)
+        fields, count = meta["fields"], int(meta["count"])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"bad points metadata: {exc}", "attachment") from exc
+    if meta.get("schema") != POINTS_SCHEMA or meta.get("dtype") != "float32":
+        raise InputError(
+            f"expected {POINTS_SCHEMA} float32, got {meta.get('schema')}", "attachment"
+        )
+    if len(payload) != 4 * count * len(fields):
+        raise InputError(f"{len(payload)} bytes for {count} x {len(fields)} float32", "payload")
+    return np.frombuffer(payload, dtype=np.float32).reshape(count, len(fields)), meta
+
+
+class CameraNode(LoopNode):
+    """Runs one camera source on the bus (see the module docstring)."""
+
+    join_timeout = 5.0  # s: a real camera may block for a frame
+
+    def __init__(
+        self,
+        session: Any,
+        keys: Keys,
+        source: CameraSource,
+        *,
+        spot_rate: float = 30.0,
+        points_rate: float = 15.0,
+    ) -> None:
+        super().__init__()
+        self.session = session
+        self.keys = keys
+        self.source = source
+        self.period = 1.0 / spot_rate
+        self._points_every = max(1, round(spot_rate / points_rate))
+        self.frames = 0
+        self.error: str | None = None
+
+    def start(self) -> CameraNode:
+        s, k = self.session, self.keys
+        self._pub_spot = s.declare_publisher(k.camera_spot, encoding=JSON)
+        self._pub_points = s.declare_publisher(k.camera_points)
+        for robot in self.source.robot_names:
+            self._handles.append(s.declare_subscriber(k.joint_states(robot), self._joints(robot)))
+        self._handles.append(s.liveliness().declare_token(k.alive("camera")))
+        self._start_loop("camera")
+        return self
+
+    def _close(self) -> None:
+        self.source.close()
+
+    def _joints(self, robot: str) -> Any:
+        def on_state(sample: Any) -> None:
+            try:
+                msg = decode(sample.payload.to_bytes(), JointState)
+            except InputError:
+                return  # a malformed state is ignored; the last good one stays
+            self.source.on_joint_state(robot, np.asarray(msg.q, dtype=float))
+
+        return on_state
+
+    def _loop(self) -> None:
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            self.publish_frame()
+            next_t += self.period
+            delay = next_t - time.monotonic()
+            if delay > 0:
+                self._stop.wait(delay)
+            else:
+                next_t = time.monotonic()  # late: do not try to catch up
+
+    def publish_frame(self) -> None:
+        """Grab one frame (blocks at the device rate for a real camera), publish its spot and and, when due, its cloud."""
+        self.source.grab()
+        now = time.time()
+        if self.frames % self._points_every == 0:
+            pts, extra = self.source.points()
+            pts = np.ascontiguousarray(pts, dtype=np.float32)
+            meta = points_metadata(pts, now, self.frames, extra)
+            self._pub_points.put(pts.tobytes(), attachment=json.dumps(meta).encode())
+        reading = self.source.spot()
+        if reading is None:
+            msg = SpotMessage(t=now, p_camera=None, confidence=0.0)
+        else:
+            msg = SpotMessage(
+                t=now, p_camera=reading.p_camera.tolist(), confidence=reading.confidence
+            )
+        self._pub_spot.put(encode(msg))
+        self.frames += 1

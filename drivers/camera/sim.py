@@ -1,0 +1,178 @@
+"""Simulated RGB-D camera (backend ``sim``): the scenario's scene seen by a D435 model.
+
+Point cloud: the scene objects (:func:`planner.io.scenario.scene_objects`: box, mesh, sphere,
+cylinder, in the world) go into one open3d ``RaycastingScene``; one ray per pixel (every
+``stride``-th pixel) from the *true* camera pose (``truth:`` system) gives the noiseless
+depth z (m, along the optical axis). The scene is static, so that raycast is done once;
+every frame only redraws the D435 depth noise, Gaussian along the pixel's ray with
+
+    sigma_z = z^2 * subpixel / (fx * baseline),   subpixel = 0.08 px, baseline = 0.050 m
+
+(Intel's RMS-error model; 1.3 mm at 0.6 m with fx = 430 px). Points are in the camera
+optical frame (x right, y down, z forward), float32; pixels that see nothing are dropped.
+
+Laser spot: the *true* beam - the latest joint states of every robot traced with the
+``truth:`` geometry (:class:`planner.beam.graph.BeamModel`) - must be a valid reflection chain
+(ahead, front face, inside each ROI), else no spot. Each beam segment is raycast against the
+scene (an object in the way catches the beam there), the last one gives the spot. It must be
+inside the image and visible from the camera (no object between), else no spot. The
+detection deprojects the spot's centroid pixel (noise ``SIGMA_PX`` = 0.05 px per axis) with
+the depth of a plane fitted to the ``SPOT_WINDOW`` x ``SPOT_WINDOW`` pixels around it (noise
+``sigma_z / SPOT_WINDOW`` along the ray): 0.2 mm at 0.87 m, the paper_n1 camera distance;
+confidence = |cos| of the angle between the beam and the surface normal (a grazing beam
+makes a long, dim spot), at least 0.05.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drivers.camera.node import SpotReading
+from planner.beam.graph import BeamModel
+from planner.io.scenario import SceneItem
+from planner.model.system import Camera, System
+from planner.model.transforms import Array, inv_T
+
+SUBPIXEL = 0.08  # px, D435 disparity RMS
+BASELINE = 0.050  # m, D435 stereo baseline
+SIGMA_PX = 0.05  # px, noise of the spot centroid per image axis
+SPOT_WINDOW = 15  # px, side of the window whose plane fit gives the spot depth
+EPS = 1e-6  # m, offset of a ray start off the surface it leaves
+F32 = NDArray[np.float32]
+
+
+def depth_sigma(z: Any, fx: float) -> Any:
+    """D435 depth RMS error (m) at depth ``z`` (m) for focal length ``fx`` (px)."""
+    return np.asarray(z) ** 2 * SUBPIXEL / (fx * BASELINE)
+
+
+def build_scene(items: list[SceneItem]) -> Any:
+    """An open3d ``RaycastingScene`` of the scene objects, in the world frame (the planner's
+    :class:`planner.model.scene.SceneModel`, so the camera and the occlusion check see one scene)."""
+    from planner.model.scene import SceneModel
+
+    return SceneModel(items).raycasting_scene
+
+
+def pixel_grid(camera: Camera, stride: int = 1) -> tuple[Array, Array]:
+    """Pixel centres (u, v) of every ``stride``-th pixel, and their rays (x/z, y/z, 1)."""
+    k = camera.intrinsics
+    u, v = np.meshgrid(np.arange(0, k.width, stride), np.arange(0, k.height, stride))
+    uv = np.column_stack([u.ravel(), v.ravel()]).astype(float)
+    rays = np.column_stack([(uv[:, 0] - k.cx) / k.fx, (uv[:, 1] - k.cy) / k.fy, np.ones(len(uv))])
+    return uv, rays
+
+
+def render_depth(scene: Any, camera: Camera, stride: int = 1) -> tuple[Array, Array]:
+    """Noiseless depth z (m, inf = nothing) of every ``stride``-th pixel and its ray."""
+    import open3d as o3d
+
+    _, rays_c = pixel_grid(camera, stride)
+    R, c = camera.world_T_camera[:3, :3], camera.world_T_camera[:3, 3]
+    rays = np.hstack([np.broadcast_to(c, rays_c.shape), rays_c @ R.T]).astype(np.float32)
+    hit = scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
+    return hit["t_hit"].numpy().astype(float), rays_c  # t along (x/z, y/z, 1) is z
+
+
+class SimCamera:
+    """Camera source for :class:`drivers.camera.node.CameraNode` (see module docstring).
+
+    ``system`` is the *true* system (``system_from_scenario(scn, truth=True)``); it must
+    have a camera.
+    """
+
+    kind = "sim"
+
+    def __init__(
+        self, system: System, items: list[SceneItem], *, stride: int = 1, seed: int | None = None
+    ) -> None:
+        from planner.errors import InputError
+
+        if system.camera is None:
+            raise InputError(
+                "the camera driver needs system.camera in the scenario", "system.camera"
+            )
+        self.system = system
+        self.camera: Camera = system.camera
+        self.stride = stride
+        self.rng = np.random.default_rng(seed)
+        self.scene = build_scene(items)
+        self.beam = BeamModel(system)
+        self.robot_names = system.robot_names
+        self.q: dict[str, Array] = {}
+        z, rays = render_depth(self.scene, self.camera, stride)
+        ok = np.isfinite(z)
+        self._z = z[ok].astype(np.float32)
+        self._rays = rays[ok].astype(np.float32)
+        self._sigma = depth_sigma(self._z, self.camera.intrinsics.fx).astype(np.float32)
+        self.camera_T_world = inv_T(self.camera.world_T_camera)
+
+    def on_joint_state(self, robot: str, q: Array) -> None:
+        """Latest measured joints of one robot (rad)."""
+        self.q[robot] = np.asarray(q, dtype=float)
+
+    def grab(self) -> None:
+        """Nothing to grab: the scene is rendered on demand."""
+
+    def points(self) -> tuple[F32, dict[str, Any]]:
+        """One noisy cloud (M x 3 float32, camera frame) and its metadata."""
+        z = self._z + self._sigma * self.rng.standard_normal(len(self._z), dtype=np.float32)
+        pts = self._rays * z[:, None]
+        k = self.camera.intrinsics
+        meta = {"width": k.width, "height": k.height, "stride": self.stride, "organized": False}
+        return pts, meta
+
+    def true_spot_world(self) -> tuple[Array, Array, Array] | None:
+        """Noiseless spot in the world, the beam direction and surface normal there, or None."""
+        if not all(r in self.q for r in self.robot_names):
+            return None
+        tr = self.beam.trace(self.system.stack_q(self.q))
+        if not (np.all(tr.front > 0) and np.all(tr.ahead > 0) and np.all(tr.roi >= 0)):
+            return None
+        starts = [self.system.world_T_laser[:3, 3], *tr.hits]
+        for i, (p, v) in enumerate(zip(starts, tr.dirs, strict=True)):
+            t_max = np.linalg.norm(tr.hits[i] - p) if i < len(tr.hits) else np.inf
+            t_hit, normal = self._cast(p, v)
+            if t_hit < t_max - EPS:  # caught by an object before the next mirror (or the last ray)
+                return p + t_hit * v, v, normal
+        return None
+
+    def spot(self) -> SpotReading | None:
+        """Detected spot (noisy, camera frame) or None."""
+        hit = self.true_spot_world()
+        if hit is None:
+            return None
+        spot_w, v, normal = hit
+        c = self.camera.world_T_camera[:3, 3]
+        to_spot = spot_w - c
+        dist = float(np.linalg.norm(to_spot))
+        t_hit, _ = self._cast(c, to_spot / dist)
+        if t_hit < dist - 1e-4:  # something hides the spot from the camera
+            return None
+        p_c = self.camera_T_world[:3, :3] @ spot_w + self.camera_T_world[:3, 3]
+        k = self.camera.intrinsics
+        if p_c[2] <= 0:
+            return None
+        u, w = k.fx * p_c[0] / p_c[2] + k.cx, k.fy * p_c[1] / p_c[2] + k.cy
+        if not (0 <= u < k.width and 0 <= w < k.height):
+            return None
+        z = p_c[2] + depth_sigma(p_c[2], k.fx) / SPOT_WINDOW * self.rng.standard_normal()
+        du, dv = SIGMA_PX * self.rng.standard_normal(2)
+        ray = np.array([(u + du - k.cx) / k.fx, (w + dv - k.cy) / k.fy, 1.0])
+        confidence = max(0.05, abs(float(np.dot(v, normal))))
+        return SpotReading(ray * z, min(confidence, 1.0))
+
+    def _cast(self, p: Array, v: Array) -> tuple[float, Array]:
+        """Distance along unit ray (p, v) to the scene (inf = miss) and the surface normal."""
+        import open3d as o3d
+
+        ray = np.hstack([p + EPS * v, v]).astype(np.float32)[None]
+        hit = self.scene.cast_rays(o3d.core.Tensor.from_numpy(ray))
+        t = float(hit["t_hit"].numpy()[0])
+        return t + EPS, hit["primitive_normals"].numpy()[0].astype(float)
+
+    def close(self) -> None:
+        """Nothing to release."""

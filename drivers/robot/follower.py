@@ -1,0 +1,194 @@
+"""Jerk-limited trajectory following with Ruckig, stepped once per control period.
+
+:class:`TrajectoryFollower` is the motion generator of both robot backends (the simulated
+arm *is* its output; the UR backend sends its output to ``servoJ``). Joints in rad, rad/s,
+rad/s^2; time in s. It is pure: no threads, no clock, one :meth:`TrajectoryFollower.step`
+per period ``dt``.
+
+Modes (one of :data:`MODES`):
+
+1. ``approach`` - Ruckig (position interface, online: re-evaluated every period) drives the
+   current state (q, qd, qdd) onto the start state of a newly received trajectory. This is
+   what makes *any* command smooth: a trajectory sent while the arm is moving, or one that
+   starts a little away from it, is joined without a jump.
+2. ``following`` - the validated reference is played exactly (sampled at the period,
+   linear interpolation between its samples). It was checked against the position,
+   velocity and acceleration limits on receipt (:mod:`drivers.robot.node`).
+3. ``settle`` - after the last sample Ruckig brings the arm to rest on the final position.
+4. ``braking`` - watchdog or fault: Ruckig's velocity interface takes the velocity to zero
+   at once with the *stop* deceleration ``stop_acceleration`` (default 40 rad/s^2) and jerk
+   ``stop_jerk`` (default 4000 rad/s^3: full deceleration within 10 ms), like a UR
+   protective stop (category 2) rather than a planned motion, whose limits (SPEC default
+   5 rad/s^2) are for work near people, not for stopping. Time to rest from joint speed v:
+   ``2 sqrt(v / j)`` for ``v <= a^2 / j``, else ``v / a + a / j``: at most 89 ms from the
+   3.14 rad/s velocity limit, so the arm is still within 100 ms of a fault from any speed.
+5. ``idle`` / ``stopped`` - at rest (``stopped``: after a brake, until the next command).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig
+
+from planner.model.system import Limits
+from planner.model.transforms import Array
+
+MODES = ("idle", "approach", "following", "settle", "braking", "stopped")
+REST_VELOCITY = 1e-9  # rad/s: below this (every joint) the arm counts as at rest
+STOP_ACCELERATION = 40.0  # rad/s^2, deceleration of a watchdog/fault stop
+STOP_JERK = 4000.0  # rad/s^3
+
+
+@dataclass(frozen=True)
+class Reference:
+    """A joint trajectory: ``q[k], qd[k], qdd[k]`` (K x n) at ``t[k]`` s from its start."""
+
+    t: Array
+    q: Array
+    qd: Array
+    qdd: Array
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1] - self.t[0])
+
+    def sample(self, tau: float) -> tuple[Array, Array, Array]:
+        """State at ``tau`` s after the first sample (clamped to the ends; linear)."""
+        t = self.t - self.t[0]
+        k = int(np.clip(np.searchsorted(t, tau, side="right") - 1, 0, len(t) - 1))
+        if k >= len(t) - 1:
+            return self.q[-1], self.qd[-1], self.qdd[-1]
+        s = (tau - t[k]) / (t[k + 1] - t[k])
+        s = min(max(s, 0.0), 1.0)
+        return tuple(  # type: ignore[return-value]
+            a[k] + s * (a[k + 1] - a[k]) for a in (self.q, self.qd, self.qdd)
+        )
+
+
+class FollowerState(NamedTuple):
+    """Output of one period: commanded joint state and the follower's mode."""
+
+    q: Array
+    qd: Array
+    qdd: Array
+    mode: str
+
+
+class TrajectoryFollower:
+    """Ruckig-based follower for one arm (see the module docstring for the modes)."""
+
+    def __init__(
+        self,
+        q0: Array,
+        limits: Limits,
+        dt: float = 0.002,
+        stop_acceleration: float = STOP_ACCELERATION,
+        stop_jerk: float = STOP_JERK,
+    ) -> None:
+        self.n = len(q0)
+        self.dt = dt
+        self.limits = limits
+        self._otg = Ruckig(self.n, dt)
+        self._inp = InputParameter(self.n)
+        self._out = OutputParameter(self.n)
+        self._stop_acceleration = np.full(self.n, float(stop_acceleration))
+        self._stop_jerk = np.full(self.n, float(stop_jerk))
+        self.reset(q0)
+
+    def reset(self, q: Array, qd: Array | None = None) -> None:
+        """Re-synchronise to a measured state (rest unless ``qd`` given) and go idle."""
+        self.q = np.asarray(q, dtype=float).copy()
+        self.qd = np.zeros(self.n) if qd is None else np.asarray(qd, dtype=float).copy()
+        self.qdd = np.zeros(self.n)
+        self.mode = "idle"
+        self.reference: Reference | None = None
+        self._tau = 0.0
+
+    @property
+    def state(self) -> FollowerState:
+        return FollowerState(self.q.copy(), self.qd.copy(), self.qdd.copy(), self.mode)
+
+    def follow(self, reference: Reference) -> None:
+        """Start a new trajectory (replaces any current one): approach its start, then play."""
+        self.reference = reference
+        self._tau = 0.0
+        self.mode = "approach"
+
+    def brake(self) -> None:
+        """Decelerate to rest now (no-op when already at rest or braking)."""
+        if self.mode in ("braking", "stopped"):
+            return
+        self.reference = None
+        self.mode = "braking" if np.any(np.abs(self.qd) > REST_VELOCITY) else "stopped"
+        if self.mode == "stopped":
+            self.qd[:] = 0.0
+            self.qdd[:] = 0.0
+
+    def step(self) -> FollowerState:
+        """Advance one period ``dt`` and return the new commanded state."""
+        if self.mode == "approach":
+            assert self.reference is not None
+            q0, qd0, qdd0 = self.reference.sample(0.0)
+            if self._ruckig(q0, qd0, qdd0):
+                self.mode = "following"
+                self._tau = 0.0
+        elif self.mode == "following":
+            assert self.reference is not None
+            self._tau += self.dt
+            self.q, self.qd, self.qdd = (np.array(a) for a in self.reference.sample(self._tau))
+            if self._tau >= self.reference.duration:
+                self.mode = "settle"
+        elif self.mode == "settle":
+            assert self.reference is not None
+            if self._ruckig(self.reference.q[-1], np.zeros(self.n), np.zeros(self.n)):
+                self.mode = "idle"
+                self.reference = None
+        elif self.mode == "braking" and self._ruckig_brake():
+            self.mode = "stopped"
+        return self.state
+
+    def _load(self, jerk: Array, acceleration: Array | None = None) -> InputParameter:
+        inp = self._inp
+        inp.current_position = self.q.tolist()
+        inp.current_velocity = self.qd.tolist()
+        inp.current_acceleration = self.qdd.tolist()
+        inp.max_velocity = np.asarray(self.limits.velocity, dtype=float).tolist()
+        acc = self.limits.acceleration if acceleration is None else acceleration
+        inp.max_acceleration = np.asarray(acc, dtype=float).tolist()
+        inp.max_jerk = np.asarray(jerk, dtype=float).tolist()
+        return inp
+
+    def _take(self, result: Result) -> bool:
+        if result not in (Result.Working, Result.Finished):
+            raise RuntimeError(f"Ruckig failed with {result} from q={self.q}, qd={self.qd}")
+        out = self._out
+        self.q = np.array(out.new_position)
+        self.qd = np.array(out.new_velocity)
+        self.qdd = np.array(out.new_acceleration)
+        return result == Result.Finished
+
+    def _ruckig(self, q: Array, qd: Array, qdd: Array) -> bool:
+        """One online Ruckig step toward state (q, qd, qdd); True once it is reached."""
+        inp = self._load(self.limits.jerk)
+        inp.control_interface = ControlInterface.Position
+        inp.target_position = np.asarray(q, dtype=float).tolist()
+        inp.target_velocity = np.asarray(qd, dtype=float).tolist()
+        inp.target_acceleration = np.asarray(qdd, dtype=float).tolist()
+        done = self._take(self._otg.update(inp, self._out))
+        if done:  # land exactly on the target (Ruckig finishes within numerical noise)
+            self.q, self.qd, self.qdd = (np.asarray(a, dtype=float).copy() for a in (q, qd, qdd))
+        return done
+
+    def _ruckig_brake(self) -> bool:
+        inp = self._load(self._stop_jerk, self._stop_acceleration)
+        inp.control_interface = ControlInterface.Velocity
+        inp.target_velocity = [0.0] * self.n
+        inp.target_acceleration = [0.0] * self.n
+        done = self._take(self._otg.update(inp, self._out))
+        if done:
+            self.qd[:] = 0.0
+            self.qdd[:] = 0.0
+        return done

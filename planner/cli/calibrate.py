@@ -1,0 +1,193 @@
+"""``beamrelay calibrate handeye|beam|simulate`` (SPEC section 7).
+
+Heavy imports (CasADi, Pinocchio) happen inside the commands. Bad files and insufficient
+or degenerate data end with one line on stderr and exit status 2.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from planner.cli.args import parse_xyz
+from planner.errors import InputError
+
+app = typer.Typer(
+    help="Calibrate the camera hand-eye and the laser line + mirror plane; simulate datasets.",
+    no_args_is_help=True,
+)
+
+ScenarioOpt = Annotated[
+    Path, typer.Option("--scenario", "-s", help="Scenario YAML (models, nominal values, gauge).")
+]
+OutOpt = Annotated[Path, typer.Option("--out", "-o", help="Calibration YAML to write.")]
+LossOpt = Annotated[str, typer.Option(help="Robust loss: none, huber or cauchy.")]
+ScaleOpt = Annotated[float, typer.Option(help="Robust loss scale, metres.")]
+
+
+def _check_loss(loss: str, scale: float) -> None:
+    from planner.calibration.lsq import LOSSES
+
+    if loss not in LOSSES:
+        raise InputError(f"--loss {loss!r}: expected one of {', '.join(LOSSES)}")
+    if not scale > 0:
+        raise InputError(f"--loss-scale {scale}: must be > 0 (metres)")
+
+
+def _fail_on_calibration_error(exc: Exception) -> None:
+    typer.echo(f"error: {exc}", err=True)
+    raise typer.Exit(2)
+
+
+def _write(document: dict[str, object], out: Path) -> None:
+    """Write the calibration YAML and print its summary."""
+    from planner.calibration.report import summary_lines, write_calibration
+
+    write_calibration(out, document)
+    for line in summary_lines(document):  # type: ignore[arg-type]
+        typer.echo(line)
+    typer.echo(f"wrote {out}")
+
+
+@app.command("handeye")
+def handeye(
+    data: Annotated[Path, typer.Argument(help="beamrelay.handeye/1 JSON dataset.")],
+    scenario: ScenarioOpt,
+    out: OutOpt = Path("calibration.yaml"),
+    loss: LossOpt = "none",
+    loss_scale: ScaleOpt = 0.005,
+) -> None:
+    """Camera pose and marker-board pose, jointly (eye_to_hand or eye_in_hand)."""
+    from planner.calibration.dataset import load_handeye
+    from planner.calibration.handeye import calibrate_handeye
+    from planner.calibration.report import handeye_document
+    from planner.errors import CalibrationError
+    from planner.io.scenario import load_scenario, system_from_scenario
+
+    _check_loss(loss, loss_scale)
+    system = system_from_scenario(load_scenario(scenario))
+    ds = load_handeye(data)
+    if ds.robot not in system.robot_names:
+        raise InputError(
+            f"robot {ds.robot!r} is not in the scenario ({', '.join(system.robot_names)})",
+            str(data),
+        )
+    try:
+        result = calibrate_handeye(ds, system, loss=loss, loss_scale=loss_scale)
+    except CalibrationError as exc:
+        _fail_on_calibration_error(exc)
+        return
+    document = handeye_document(result, ds.robot, str(data))
+    _write(document, out)
+
+
+@app.command("beam")
+def beam(
+    data: Annotated[Path, typer.Argument(help="beamrelay.beam/1 JSON dataset.")],
+    scenario: ScenarioOpt,
+    out: OutOpt = Path("calibration.yaml"),
+    loss: LossOpt = "none",
+    loss_scale: ScaleOpt = 0.005,
+    mirror_centre: Annotated[
+        str | None,
+        typer.Option(help="Measured mirror centre X,Y,Z in the flange frame (fiducials) as gauge."),
+    ] = None,
+    starts: Annotated[int, typer.Option(help="Multi-start count (1 = nominal only).")] = 4,
+) -> None:
+    """Laser line (if the robot is first) and the robot's mirror plane from 3D spots."""
+    import numpy as np
+
+    from planner.calibration.beam import calibrate_beam
+    from planner.calibration.dataset import load_beam
+    from planner.calibration.report import beam_document
+    from planner.errors import CalibrationError
+    from planner.io.scenario import load_scenario, system_from_scenario
+
+    _check_loss(loss, loss_scale)
+    centre = None if mirror_centre is None else parse_xyz(mirror_centre, "--mirror-centre")
+    system = system_from_scenario(load_scenario(scenario))
+    ds = load_beam(data, system)
+    try:
+        result = calibrate_beam(
+            ds,
+            system,
+            loss=loss,
+            loss_scale=loss_scale,
+            starts=max(1, starts),
+            mirror_centre=None if centre is None else np.array(centre),
+        )
+    except CalibrationError as exc:
+        _fail_on_calibration_error(exc)
+        return
+    document = beam_document(result, str(data))
+    _write(document, out)
+
+
+@app.command("simulate")
+def simulate(
+    scenario: Annotated[
+        Path, typer.Argument(help="Scenario YAML; its truth: section is the real geometry.")
+    ],
+    kind: Annotated[str, typer.Option(help="handeye or beam.")] = "beam",
+    mode: Annotated[
+        str, typer.Option(help="Hand-eye mode: eye_to_hand or eye_in_hand.")
+    ] = "eye_to_hand",
+    poses: Annotated[int, typer.Option(help="Poses (per board for beam).")] = 16,
+    boards: Annotated[int, typer.Option(help="Board placements (beam).")] = 3,
+    noise: Annotated[str, typer.Option(help="d435 or none.")] = "d435",
+    outliers: Annotated[float, typer.Option(help="Fraction of points displaced by 1-5 cm.")] = 0.0,
+    robot: Annotated[str | None, typer.Option(help="Robot (default: the first).")] = None,
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Dataset JSON to write.")] = Path(
+        "data.json"
+    ),
+) -> None:
+    """Generate a synthetic dataset from the scenario's true geometry."""
+    import numpy as np
+
+    from planner.calibration import simulate as sim
+    from planner.calibration.dataset import beam_json, handeye_json, write_json
+    from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
+    from planner.model.transforms import matrix_to_quat
+
+    if kind not in ("handeye", "beam"):
+        raise InputError(f"--kind {kind!r}: expected handeye or beam")
+    if mode not in ("eye_to_hand", "eye_in_hand"):
+        raise InputError(f"--mode {mode!r}: expected eye_to_hand or eye_in_hand")
+    if noise not in ("d435", "none"):
+        raise InputError(f"--noise {noise!r}: expected d435 or none")
+    if poses < 1 or boards < 1:
+        raise InputError("--poses and --boards must be >= 1")
+    if not 0.0 <= outliers < 1.0:
+        raise InputError(f"--outliers {outliers}: expected a fraction in [0, 1)")
+    scn = load_scenario(scenario)
+    nominal = system_from_scenario(scn)
+    truth = system_from_scenario(scn, truth=True)
+    name = robot or truth.robot_names[0]
+    if name not in truth.robot_names:
+        raise InputError(f"--robot {name!r}: scenario robots are {', '.join(truth.robot_names)}")
+    rng = np.random.default_rng(seed)
+    model = sim.DepthNoise(outliers=outliers) if noise == "d435" else None
+    if kind == "beam":
+        aim = targets_from_scenario(scn, nominal).points.mean(axis=0)
+        data = sim.simulate_beam(truth, name, poses, boards, aim_world=aim, noise=model, rng=rng)
+        write_json(out, beam_json(data, truth))
+        typer.echo(f"{len(data.q)} spots on {boards} boards -> {out}")
+        return
+    cam_pose, board_pose = sim.default_handeye_truth(truth, name, mode)
+    hd = sim.simulate_handeye(
+        truth, name, mode, poses, camera_pose=cam_pose, board_pose=board_pose, noise=model, rng=rng
+    )
+    write_json(out, handeye_json(hd))
+    keys = (
+        ("world_T_camera", "flange_T_board")
+        if mode == "eye_to_hand"
+        else ("flange_T_camera", "world_T_board")
+    )
+    for key, T in zip(keys, (cam_pose, board_pose), strict=True):
+        typer.echo(
+            f"true {key}: xyz {np.round(T[:3, 3], 6).tolist()} quat {np.round(matrix_to_quat(T[:3, :3]), 6).tolist()}"
+        )
+    typer.echo(f"{len(hd.q)} {mode} samples -> {out}")

@@ -1,0 +1,193 @@
+"""``beamrelay serve``, ``beamrelay up`` and ``beamrelay request``: the running system.
+
+Light imports only at module level (``beamrelay --help`` stays instant); Zenoh, CasADi and
+the planner are imported inside the commands.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from planner.cli.args import parse_xyz
+from planner.errors import InputError
+
+EndpointOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--endpoint",
+        help="Bus endpoint (default tcp/127.0.0.1:7447 or $BEAMRELAY_ZENOH_ENDPOINT).",
+    ),
+]
+PrefixOpt = Annotated[str, typer.Option("--prefix", help="Key-expression namespace prefix.")]
+
+
+def serve(
+    scenario: Annotated[
+        Path, typer.Argument(help="Scenario YAML (calibrated values via include:).")
+    ],
+    endpoint: EndpointOpt = None,
+    zenoh_config: Annotated[
+        Path | None, typer.Option("--zenoh-config", help="Zenoh config file (routers, TLS, ACL).")
+    ] = None,
+    prefix: PrefixOpt = "beamrelay",
+    connect: Annotated[
+        bool,
+        typer.Option("--connect", help="Connect to the endpoint instead of listening on it."),
+    ] = False,
+) -> None:
+    """Run the planner node until Ctrl-C / SIGTERM (SPEC section 6)."""
+    import signal
+    import threading
+
+    from planner.service.bus import Keys, open_session
+    from planner.service.node import PlannerNode, handler_from_scenario
+
+    handler = handler_from_scenario(scenario)
+    session = open_session(listen=not connect, endpoint=endpoint, config_file=zenoh_config)
+    node = PlannerNode(handler, session, Keys(prefix))
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: object) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    node.on_alive_change = lambda name, up: typer.echo(
+        f"{'up' if up else 'DOWN'}: {name}", err=not up
+    )
+    node.start()
+    names = ", ".join(handler.system.robot_names)
+    typer.echo(f"planner ready: {prefix}/plan, robots {names}", err=False)
+    try:
+        while not stop.wait(0.2):
+            pass
+    finally:
+        node.close()
+        session.close()
+        typer.echo(f"planner stopped after {node.served} requests")
+
+
+def up(
+    scenario: Annotated[Path, typer.Argument(help="Scenario YAML.")],
+    backend: Annotated[str, typer.Option(help="Robot driver backend: sim or ur.")] = "sim",
+    duration: Annotated[
+        float | None, typer.Option(help="Stop after this many seconds (default: Ctrl-C).")
+    ] = None,
+    endpoint: EndpointOpt = None,
+    prefix: PrefixOpt = "beamrelay",
+    log_dir: Annotated[
+        Path | None, typer.Option("--log-dir", help="Children's logs (default: a temp dir).")
+    ] = None,
+    live: Annotated[bool, typer.Option(help="Show the live health table.")] = True,
+) -> None:
+    """Start planner + camera + one robot driver per robot, supervised, until Ctrl-C."""
+    from planner.service.up import run_up
+
+    if backend not in ("sim", "ur"):
+        raise InputError(f"--backend {backend!r}: expected sim or ur")
+    if duration is not None and duration <= 0:
+        raise InputError(f"--duration {duration}: expected a positive number of seconds")
+    if not scenario.is_file():
+        raise InputError(f"scenario not found: {scenario}")
+    run_up(
+        scenario,
+        backend=backend,
+        duration=duration,
+        endpoint=endpoint,
+        prefix=prefix,
+        log_dir=log_dir,
+        live=live,
+    )
+
+
+def request(
+    points: Annotated[
+        list[str], typer.Option("--points", help="X,Y,Z target in metres (repeat for more).")
+    ],
+    frame: Annotated[str, typer.Option(help="world or camera.")] = "world",
+    path: Annotated[bool, typer.Option("--path", help="Sweep the points as one path.")] = False,
+    execute: Annotated[bool, typer.Option("--execute", help="Move the robots.")] = False,
+    normals: Annotated[
+        list[str] | None, typer.Option("--normals", help="NX,NY,NZ per point (optional).")
+    ] = None,
+    timeout: Annotated[float, typer.Option(help="Seconds to wait for the reply.")] = 10.0,
+    endpoint: EndpointOpt = None,
+    prefix: PrefixOpt = "beamrelay",
+) -> None:
+    """Send one TargetRequest, print the plan summary (and the measured spots if executing)."""
+    from rich.console import Console
+
+    from planner.service.client import PlanClient, RequestError, make_request
+
+    if frame not in ("world", "camera"):
+        raise InputError(f"--frame {frame!r}: expected world or camera")
+    pts = [parse_xyz(p, "--points") for p in points]
+    nrm = [parse_xyz(n, "--normals") for n in normals] if normals else None
+    if nrm is not None and len(nrm) != len(pts):
+        raise InputError(f"--normals: {len(nrm)} given for {len(pts)} points")
+    req = make_request(pts, frame=frame, normals=nrm, path=path, execute=execute)
+    console = Console()
+    with PlanClient(endpoint=endpoint, prefix=prefix) as client:
+        try:
+            if execute:
+                client.watch()
+                client.wait_for_node("planner", timeout)
+                plan, spots = client.execute(req, timeout)
+            else:
+                plan, spots = client.request(req, timeout), None
+        except RequestError as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(1) from exc
+    print_summary(console, plan, spots)
+    if any(s["status"] != "ok" for s in plan["solutions"]):
+        raise typer.Exit(1)
+
+
+def print_summary(console: object, plan: dict, spots: list | None) -> None:
+    """A table of the plan's targets: status, planned error, and measured spot error."""
+    import numpy as np
+    from rich.console import Console
+    from rich.table import Table
+
+    assert isinstance(console, Console)
+    table = Table(title=f"plan: {len(plan['targets'])} targets, robots {', '.join(plan['robots'])}")
+    for col in ("id", "target x y z \\[m]", "status", "planned error \\[mm]", "solve \\[ms]"):
+        table.add_column(col)
+    if spots is not None:
+        table.add_column("measured error \\[mm]")
+    for k, (tgt, sol) in enumerate(zip(plan["targets"], plan["solutions"], strict=True)):
+        row = [
+            str(tgt["id"]),
+            " ".join(f"{x:+.4f}" for x in tgt["p"]),
+            sol["status"] if sol["status"] == "ok" else f"[red]{sol['reason']}[/]",
+            f"{1e3 * sol['error']:.2e}" if sol.get("error") is not None else "-",
+            f"{1e3 * sol['solve_time']:.2f}" if sol.get("solve_time") is not None else "-",
+        ]
+        if spots is not None:
+            s = spots[k]
+            err = None if s is None else float(np.linalg.norm(s - np.asarray(tgt["p"])))
+            row.append("not seen" if err is None else f"{1e3 * err:.2f}")
+        table.add_row(*row)
+    console.print(table)
+    m = plan["metrics"]
+    traj = f"trajectory {m['duration']:.2f} s" if m.get("duration") else "no trajectory"
+    console.print(f"solved {m['n_ok']}/{m['n_targets']}; {traj}")
+    if spots is not None:
+        errs = [
+            float(np.linalg.norm(s - np.asarray(t["p"])))
+            for s, t in zip(spots, plan["targets"], strict=True)
+            if s is not None
+        ]
+        if len(errs) < sum(s["status"] == "ok" for s in plan["solutions"]):
+            console.print(
+                "spots are measured while the robots rest on a target: targets passed without "
+                "a pause (scenario trajectory.dwell = 0) or hidden from the camera are not seen"
+            )
+        if errs:
+            console.print(
+                f"measured spot error: median {1e3 * np.median(errs):.2f} mm, "
+                f"max {1e3 * max(errs):.2f} mm over {len(errs)} targets"
+            )

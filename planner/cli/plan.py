@@ -1,0 +1,197 @@
+"""``beamrelay plan`` and ``beamrelay check`` (light imports only at module level)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from planner.errors import InputError
+
+
+def _fmt(x: float | None, scale: float, digits: str) -> str:
+    return "-" if x is None else format(scale * x, digits)
+
+
+def plan(
+    scenario: Annotated[Path, typer.Argument(help="Scenario YAML (SPEC section 4).")],
+    out: Annotated[Path, typer.Option("-o", "--out", help="plan.json to write.")],
+    optimal: Annotated[
+        bool, typer.Option("--optimal", help="IPOPT optimality step after the closed form.")
+    ] = False,
+    plot: Annotated[
+        Path | None, typer.Option("--plot", help="Also draw a 3D picture (PNG/PDF/SVG).")
+    ] = None,
+) -> None:
+    """Plan every target of a scenario, time the trajectory, write plan.json; exit 1 if any
+    target failed."""
+    from rich.console import Console
+
+    from planner.planning import plan_json, run_scenario
+
+    if out.parent and not out.parent.exists():
+        raise InputError(f"output directory does not exist: {out.parent}", "-o")
+    outcome = run_scenario(scenario, optimal=optimal)
+    doc = outcome.doc
+    out.write_text(plan_json(doc))
+    console = Console()
+    console.print(_summary(doc, scenario.name))
+    if any(not sol.ok for sol in outcome.solutions):
+        console.print(_failures(outcome.solutions))
+    if outcome.timed is not None and outcome.timed.trajectory.slowdowns:
+        console.print(_slowdowns(outcome))
+    console.print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB)")
+    if plot is not None:
+        from planner.plot import plot_plan, plot_profiles, profiles_path
+
+        plot_plan(outcome.system, outcome.targets, doc, plot)
+        console.print(f"wrote {plot}")
+        if doc["trajectory"] is not None:
+            plot_profiles(outcome.system, outcome.targets, doc, profiles_path(plot))
+            console.print(f"wrote {profiles_path(plot)}")
+    m = doc["metrics"]
+    if m["n_ok"] < m["n_targets"]:
+        raise SystemExit(1)  # planner.cli.main drops typer.Exit codes (non-standalone click)
+
+
+def _evidence_text(evidence: dict[str, Any]) -> str:
+    """Compact ``key=value`` evidence (numbers to 4 significant digits, q left out)."""
+    import numpy as np
+
+    parts = []
+    for key, value in evidence.items():
+        if key == "q":
+            continue
+        if isinstance(value, float | int | np.floating):
+            value = f"{float(value):.4g}"
+        elif isinstance(value, list | tuple | np.ndarray):
+            value = "[" + " ".join(f"{float(v):.4g}" for v in np.ravel(value)) + "]"
+        parts.append(f"{key}={value}")
+    return ", ".join(parts)
+
+
+def _failures(solutions: list[Any], most: int = 8) -> Any:
+    """The first failed targets with their reason and the numbers that show it."""
+    from rich.table import Table
+
+    failed = [(k, s) for k, s in enumerate(solutions) if not s.ok]
+    table = Table(title=f"failed targets (first {min(most, len(failed))} of {len(failed)})")
+    for col in ("target", "reason", "evidence"):
+        table.add_column(col)
+    for k, sol in failed[:most]:
+        table.add_row(str(k), str(sol.reason), _evidence_text(dict(sol.evidence or {})))
+    return table
+
+
+def _summary(doc: dict[str, Any], fallback_name: str) -> Any:
+    """The plan summary table: targets, failures, errors, solve times, trajectory figures."""
+    from rich.table import Table
+
+    m, x = doc["metrics"], doc["metrics"]["extra"]
+    table = Table(title=f"plan: {doc['scenario'].get('name') or fallback_name}")
+    table.add_column("figure")
+    table.add_column("value", justify="right")
+    table.add_row("targets", str(m["n_targets"]))
+    table.add_row("solved", str(m["n_ok"]))
+    for key, count in sorted(x.items()):
+        if key.startswith("failed_"):
+            table.add_row(f"failed: {key[7:]}", f"[red]{int(count)}[/]")
+    table.add_row("error median (mm)", _fmt(m["error_median"], 1e3, ".3g"))
+    table.add_row("error max (mm)", _fmt(m["error_max"], 1e3, ".3g"))
+    table.add_row("solve time median (ms)", _fmt(m["solve_time_median"], 1e3, ".3f"))
+    table.add_row("solve time p95 (ms)", _fmt(m["solve_time_p95"], 1e3, ".3f"))
+    if m.get("duration") is None:
+        table.add_row("trajectory", "none (nothing solved)")
+        return table
+    table.add_row("trajectory duration (s)", f"{m['duration']:.2f}")
+    if "path_time" in x:
+        speed = float(doc["scenario"]["trajectory"]["spot_speed"])
+        ideal = x["path_length"] / speed
+        table.add_row("  on the path (s)", f"{x['path_time']:.2f} (length/speed {ideal:.2f})")
+        table.add_row("  path length (mm)", f"{1e3 * x['path_length']:.1f}")
+        table.add_row("  max spot deviation (mm)", f"{1e3 * x['path_deviation_max']:.4f}")
+        table.add_row(
+            "  max joint speed on the path", f"{100 * x['path_joint_speed_max_ratio']:.1f} %"
+        )
+        table.add_row("  slowdowns (a limit binds)", str(int(x["slowdowns"])))
+    if "duration_given_order" in x:
+        table.add_row("  given order, estimate (s)", f"{x['duration_given_order']:.2f}")
+        table.add_row("  chosen order, estimate (s)", f"{x['duration_chosen_order']:.2f}")
+    table.add_row("  max joint speed (% of limit)", f"{100 * x['joint_speed_max_ratio']:.1f} %")
+    table.add_row(
+        "  max joint acc. (% of limit)", f"{100 * x['joint_acceleration_max_ratio']:.1f} %"
+    )
+    return table
+
+
+def _slowdowns(outcome: Any) -> Any:
+    """Where the spot runs slower than requested along the path, and which limit binds."""
+    from rich.table import Table
+
+    names = [f"{r.name}.{j}" for r in outcome.system.robots for j in r.kinematics.joint_names]
+    table = Table(title="slowdowns: a joint limit binds")
+    for col in ("arc length (mm)", "limit", "joint", "spot speed (mm/s)"):
+        table.add_column(col)
+    for s in outcome.timed.trajectory.slowdowns:
+        table.add_row(f"{1e3 * s.s0:.1f} - {1e3 * s.s1:.1f}", s.limit, names[s.joint],
+                      f"{1e3 * s.speed:.2f}")  # fmt: skip
+    return table
+
+
+def _load_plan(path: Path) -> dict[str, Any]:
+    from schemas.plan import Plan
+    from schemas.yamlio import read_json, validate
+
+    data = read_json(path)
+    validate(Plan, data, source=str(path))
+    if not isinstance(data, dict):
+        raise InputError("expected a JSON object", str(path))
+    return data
+
+
+def check(
+    plan_file: Annotated[Path, typer.Argument(help="plan.json to re-verify.")],
+    json_out: Annotated[bool, typer.Option("--json", help="Figures as one JSON line.")] = False,
+) -> None:
+    """Re-verify a plan with plain numpy (own FK and reflection): solved targets, and the
+    trajectory sampled at its rate (limits, spot on the path); exit 1 on any violation."""
+    import json
+
+    from rich.console import Console
+    from rich.table import Table
+
+    from planner.verify.check import check_plan
+
+    plan_doc = _load_plan(plan_file)
+    results = check_plan(plan_doc, plan_file.parent)
+    console = Console()
+    table = Table(title=f"check: {plan_file}")
+    for col in ("check", "checked", "violations", "figures"):
+        table.add_column(col)
+    for r in results:
+        figs = ", ".join(f"{k} {v:.3g}" for k, v in r.figures.items())
+        bad = f"[red]{len(r.findings)}[/]" if r.findings else "0"
+        table.add_row(r.name, str(r.checked), bad, figs)
+    console.print(table)
+    for r in results:
+        for w in r.warnings:
+            console.print(f"[yellow]{r.name}: {w}")
+    n_failed = sum(1 for s in plan_doc["solutions"] if s.get("status") != "ok")
+    if n_failed:
+        console.print(f"{n_failed} target(s) unsolved in the plan (reported, not checked)")
+    findings = [f for r in results for f in r.findings]
+    for f in findings[:20]:
+        where = f"{f.check}" if f.target is None else f"target {f.target}: {f.check}"
+        console.print(f"[red]{where}: {f.message} ({f.value:.3g} vs {f.bound:.3g})")
+    if len(findings) > 20:
+        console.print(f"[red]... and {len(findings) - 20} more violations")
+    if not findings:
+        console.print("[green]plan OK[/]")
+    if json_out:
+        figures: dict[str, Any] = {"violations": len(findings), "unsolved": n_failed}
+        for r in results:
+            figures.update({f"{r.name}.{k}": v for k, v in r.figures.items()})
+        print(json.dumps(figures))
+    if findings:
+        raise SystemExit(1)  # planner.cli.main drops typer.Exit codes (non-standalone click)

@@ -1,0 +1,197 @@
+"""The resolved system: laser, robots with mirrors, camera. Frozen dataclasses of numpy arrays.
+
+Built from a validated scenario by :func:`planner.io.scenario.system_from_scenario`; everything
+inside the planner works on these, never on pydantic models. Units SI, poses ``a_T_b``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from planner.model.transforms import Array
+
+if TYPE_CHECKING:
+    from planner.model.kinematics import RobotKinematics
+
+JOINT_NAMES_UR = (
+    "shoulder_pan",
+    "shoulder_lift",
+    "elbow",
+    "wrist_1",
+    "wrist_2",
+    "wrist_3",
+)
+DEFAULT_HOME = (0.0, -np.pi / 2, np.pi / 2, -np.pi / 2, -np.pi / 2, 0.0)
+DEFAULT_ROI_MARGIN = 0.005
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Joint limits per joint: position (rad), velocity (rad/s), acceleration, jerk."""
+
+    lower: Array
+    upper: Array
+    velocity: Array
+    acceleration: Array
+    jerk: Array
+
+    @staticmethod
+    def ur_default(n: int = 6) -> Limits:
+        """SPEC defaults: +-2pi (elbow +-pi), pi rad/s, 5 rad/s^2, 50 rad/s^3."""
+        upper = np.full(n, 2 * np.pi)
+        if n == 6:
+            upper[2] = np.pi
+        return Limits(-upper, upper, np.full(n, np.pi), np.full(n, 5.0), np.full(n, 50.0))
+
+
+@dataclass(frozen=True)
+class Mirror:
+    """A flat mirror on a flange: +z of ``flange_T_mirror`` is the reflective face's normal."""
+
+    flange_T_mirror: Array
+    size: tuple[float, float] = (0.075, 0.075)
+    roi_margin: float = DEFAULT_ROI_MARGIN
+
+    @property
+    def roi_half(self) -> Array:
+        """Half extents (u, v) of the region the beam must stay in, metres."""
+        return np.array([self.size[0] / 2 - self.roi_margin, self.size[1] / 2 - self.roi_margin])
+
+
+@dataclass(frozen=True)
+class Robot:
+    name: str
+    kinematics: RobotKinematics
+    world_T_base: Array
+    mirror: Mirror
+    home: Array
+    limits: Limits
+
+    @property
+    def nq(self) -> int:
+        return self.kinematics.nq
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.kinematics.joint_names
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+
+@dataclass(frozen=True)
+class Camera:
+    world_T_camera: Array
+    intrinsics: Intrinsics
+
+
+@dataclass(frozen=True)
+class System:
+    """Laser + N robot-mirror pairs (beam hits them in order) + optional camera."""
+
+    world_T_laser: Array
+    robots: tuple[Robot, ...]
+    camera: Camera | None = None
+
+    @property
+    def n_robots(self) -> int:
+        return len(self.robots)
+
+    @property
+    def nq(self) -> int:
+        return sum(r.nq for r in self.robots)
+
+    @property
+    def robot_names(self) -> tuple[str, ...]:
+        return tuple(r.name for r in self.robots)
+
+    def robot(self, name: str) -> Robot:
+        for r in self.robots:
+            if r.name == name:
+                return r
+        raise KeyError(f"unknown robot {name!r}; known: {', '.join(self.robot_names)}")
+
+    def split_q(self, q: Array) -> dict[str, Array]:
+        """Stacked joint vector -> ``{robot name: q}``."""
+        out, i = {}, 0
+        for r in self.robots:
+            out[r.name] = np.asarray(q[i : i + r.nq], dtype=float)
+            i += r.nq
+        return out
+
+    def stack_q(self, q: dict[str, Array] | list[Array]) -> Array:
+        """``{robot name: q}`` (or a list in robot order) -> stacked joint vector."""
+        if isinstance(q, dict):
+            return np.concatenate([np.asarray(q[r.name], dtype=float) for r in self.robots])
+        return np.concatenate([np.asarray(x, dtype=float) for x in q])
+
+    @property
+    def home(self) -> Array:
+        return self.stack_q([r.home for r in self.robots])
+
+    @property
+    def lower(self) -> Array:
+        return self.stack_q([r.limits.lower for r in self.robots])
+
+    @property
+    def upper(self) -> Array:
+        return self.stack_q([r.limits.upper for r in self.robots])
+
+    @property
+    def limits(self) -> Limits:
+        """Every robot's joint limits stacked in robot order, like the joint vector."""
+        return Limits(
+            *(
+                self.stack_q([getattr(r.limits, f.name) for r in self.robots])
+                for f in fields(Limits)
+            )
+        )
+
+    def with_params(
+        self,
+        world_T_laser: Array | None = None,
+        flange_T_mirror: dict[str, Array] | None = None,
+        world_T_base: dict[str, Array] | None = None,
+    ) -> System:
+        """A copy with some geometry replaced (calibration, sensitivity studies)."""
+        robots = []
+        for r in self.robots:
+            if flange_T_mirror and r.name in flange_T_mirror:
+                r = replace(r, mirror=replace(r.mirror, flange_T_mirror=flange_T_mirror[r.name]))
+            if world_T_base and r.name in world_T_base:
+                r = replace(r, world_T_base=world_T_base[r.name])
+            robots.append(r)
+        return replace(
+            self,
+            world_T_laser=self.world_T_laser if world_T_laser is None else world_T_laser,
+            robots=tuple(robots),
+        )
+
+
+@dataclass(frozen=True)
+class Targets:
+    """Targets in the world frame. ``normals`` rows are unit or NaN (no normal)."""
+
+    points: Array  # (K, 3)
+    normals: Array | None = None  # (K, 3) or None
+    kind: str = "points"  # points | grid | path
+    closed: bool = False
+    meta: dict[str, object] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def normal(self, k: int) -> Array | None:
+        if self.normals is None or not np.all(np.isfinite(self.normals[k])):
+            return None
+        return self.normals[k]

@@ -1,0 +1,365 @@
+"""Time-parameterisation: dense, jerk-limited joint trajectories at the servo rate (issue 5).
+
+Data in, data out. Discrete targets: visit order (nearest neighbour + 2-opt on the
+rest-to-rest move time in joint space, or the given order), then time-optimal rest-to-rest
+Ruckig moves with an optional dwell on each target. Paths: the joint samples ``q_k`` are
+splined against the spot's arc length s (metres) and the path parameter s(t) is generated
+by a 1-DOF online Ruckig whose velocity limit is the spot speed, lowered ahead of time where
+a joint velocity, acceleration or jerk limit would bind (reported as :class:`Slowdown`).
+
+Every trajectory lives on the grid t = i / rate (s); q in rad, qd rad/s, qdd rad/s^2,
+joints of all robots stacked in robot order. Check the result by sampling
+(:mod:`planner.verify.trajectory`); it is not assumed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from planner.errors import PlanError
+from planner.model.system import Limits, System
+from planner.model.transforms import Array
+
+SEGMENT_KINDS = ("approach", "move", "path", "dwell")
+
+
+class Segment(NamedTuple):
+    kind: str  # approach | move | path | dwell
+    t0: float  # s
+    t1: float  # s
+
+
+class Slowdown(NamedTuple):
+    """Where the spot runs slower than requested: arc length s0..s1 (m), the binding limit
+    (velocity | acceleration | jerk), the joint index (stacked) and the speed reached (m/s)."""
+
+    s0: float
+    s1: float
+    limit: str
+    joint: int
+    speed: float
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Dense trajectory: ``t`` (M,), ``q``/``qd``/``qdd`` (M x nq), labelled segments."""
+
+    t: Array
+    q: Array
+    qd: Array
+    qdd: Array
+    segments: tuple[Segment, ...]
+    slowdowns: tuple[Slowdown, ...] = ()
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1]) if len(self.t) else 0.0
+
+    def span(self, kind: str) -> float:
+        """Total time (s) spent in segments of one kind."""
+        return float(sum(s.t1 - s.t0 for s in self.segments if s.kind == kind))
+
+    def to_plan_dict(self, system: System) -> dict[str, object]:
+        """The SPEC plan.json ``trajectory`` mapping (per robot name)."""
+
+        def per_robot(X: Array) -> dict[str, list[list[float]]]:
+            out, i = {}, 0
+            for r in system.robots:
+                out[r.name] = X[:, i : i + r.nq].tolist()
+                i += r.nq
+            return out
+
+        return {
+            "t": self.t.tolist(),
+            "q": per_robot(self.q),
+            "qd": per_robot(self.qd),
+            "qdd": per_robot(self.qdd),
+            "segments": [{"kind": s.kind, "t0": s.t0, "t1": s.t1} for s in self.segments],
+        }
+
+
+class _Piece(NamedTuple):
+    q: Array
+    qd: Array
+    qdd: Array
+    kind: str
+
+
+# ------------------------------------------------------------------------------------------
+# rest-to-rest moves
+# ------------------------------------------------------------------------------------------
+def rest_to_rest_time(
+    d: Array | float, v: Array | float, a: Array | float, j: Array | float
+) -> Array:
+    """Time-optimal jerk-limited 1-DOF rest-to-rest duration (s) for distances ``|d|``.
+
+    Closed form: cruise at v if reachable; else a peak velocity below v, with or without a
+    constant-acceleration phase. Broadcasts over all arguments.
+    """
+    dist = np.abs(np.asarray(d, dtype=float))
+    v, a, j = (np.broadcast_to(np.asarray(x, dtype=float), dist.shape) for x in (v, a, j))
+    d = dist
+    t_acc = np.where(v * j >= a * a, v / a + a / j, 2 * np.sqrt(v / j))  # 0 -> v
+    cruise = d >= v * t_acc
+    vp_a = a * (-a / j + np.sqrt((a / j) ** 2 + 4 * d / a)) / 2  # peak with an a-limited phase
+    vp_j = (d * np.sqrt(j) / 2) ** (2 / 3)  # peak with jerk phases only
+    no_cruise = np.where(vp_a * j >= a * a, 2 * (vp_a / a + a / j), 4 * np.sqrt(vp_j / j))
+    return np.where(cruise, d / np.maximum(v, 1e-300) + t_acc, no_cruise)
+
+
+def move_time(q0: Array, q1: Array, lim: Limits) -> Array:
+    """Estimated synchronised move time: the slowest joint's rest-to-rest time (broadcasts
+    over leading axes of ``q1 - q0``)."""
+    return rest_to_rest_time(q1 - q0, lim.velocity, lim.acceleration, lim.jerk).max(axis=-1)
+
+
+def ruckig_move(q0: Array, q1: Array, lim: Limits, rate: float) -> tuple[Array, Array, Array]:
+    """Time-optimal jerk-limited rest-to-rest move sampled at ``rate`` (includes both ends;
+    the last interval is padded at rest so the move lasts a whole number of periods)."""
+    from ruckig import InputParameter, Result, Ruckig
+    from ruckig import Trajectory as RuckigTrajectory
+
+    n = len(q0)
+    inp = InputParameter(n)
+    inp.current_position, inp.target_position = list(q0), list(q1)
+    inp.current_velocity = inp.current_acceleration = [0.0] * n
+    inp.target_velocity = inp.target_acceleration = [0.0] * n
+    inp.max_velocity, inp.max_acceleration = list(lim.velocity), list(lim.acceleration)
+    inp.max_jerk = list(lim.jerk)
+    traj = RuckigTrajectory(n)
+    result = Ruckig(n).calculate(inp, traj)
+    if result not in (Result.Working, Result.Finished):
+        raise PlanError(f"Ruckig failed ({result}) for a move from {list(q0)} to {list(q1)}")
+    m = int(np.ceil(traj.duration * rate - 1e-9))
+    ts = np.minimum(np.arange(m + 1) / rate, traj.duration)
+    Q, QD, QDD = (np.empty((m + 1, n)) for _ in range(3))
+    for i, t in enumerate(ts):
+        Q[i], QD[i], QDD[i] = traj.at_time(float(t))
+    Q[-1], QD[-1], QDD[-1] = q1, 0.0, 0.0
+    return Q, QD, QDD
+
+
+# ------------------------------------------------------------------------------------------
+# visit order
+# ------------------------------------------------------------------------------------------
+def tour_cost(C: Array, tour: Array) -> float:
+    return float(C[tour[:-1], tour[1:]].sum())
+
+
+def visit_order(Q: Array, q_start: Array, lim: Limits, max_passes: int = 50) -> np.ndarray:
+    """Order of the rows of ``Q`` (n x nq) that shortens the total move time from
+    ``q_start``: nearest neighbour, then 2-opt (open tour, fixed start). Returns indices."""
+    n = len(Q)
+    if n <= 1:
+        return np.arange(n)
+    P = np.vstack([q_start, Q])
+    C = move_time(P[:, None, :], P[None, :, :], lim)
+    tour = [0]
+    free = np.ones(n + 1, dtype=bool)
+    free[0] = False
+    for _ in range(n):
+        c = np.where(free, C[tour[-1]], np.inf)
+        nxt = int(np.argmin(c))
+        tour.append(nxt)
+        free[nxt] = False
+    t = np.array(tour)
+    for _ in range(max_passes):
+        improved = False
+        for i in range(1, n):
+            js = np.arange(i + 1, n + 1)
+            after = np.where(js < n, t[np.minimum(js + 1, n)], -1)
+            gain = C[t[i - 1], t[i]] - C[t[i - 1], t[js]]
+            gain += np.where(
+                after >= 0, C[t[js], np.maximum(after, 0)] - C[t[i], np.maximum(after, 0)], 0
+            )
+            k = int(np.argmax(gain))
+            if gain[k] > 1e-12:
+                j = int(js[k])
+                t[i : j + 1] = t[i : j + 1][::-1]
+                improved = True
+        if not improved:
+            break
+    return t[1:] - 1
+
+
+class VisitReport(NamedTuple):
+    order: np.ndarray  # indices into the solved targets
+    duration: float  # s, the optimised (or given) trajectory
+    duration_given: float  # s, estimate visiting in the given order (same dwell)
+    duration_optimised: float  # s, estimate in the chosen order
+
+
+def _assemble(
+    pieces: list[_Piece], rate: float, slowdowns: tuple[Slowdown, ...] = ()
+) -> Trajectory:
+    """Concatenate pieces that share end/start samples into one trajectory on t = i/rate."""
+    qs, qds, qdds, segs, i0 = [], [], [], [], 0
+    for k, p in enumerate(pieces):
+        skip = 1 if k else 0  # a piece starts where the previous one ended
+        qs.append(p.q[skip:])
+        qds.append(p.qd[skip:])
+        qdds.append(p.qdd[skip:])
+        i1 = i0 + len(p.q) - 1
+        if i1 > i0:
+            segs.append(Segment(p.kind, i0 / rate, i1 / rate))
+        i0 = i1
+    q = np.vstack(qs)
+    return Trajectory(
+        np.arange(len(q)) / rate, q, np.vstack(qds), np.vstack(qdds), tuple(segs), slowdowns
+    )
+
+
+def _hold(q: Array, seconds: float, rate: float, kind: str) -> _Piece:
+    m = round(seconds * rate)
+    Q = np.tile(q, (m + 1, 1))
+    return _Piece(Q, np.zeros_like(Q), np.zeros_like(Q), kind)
+
+
+def points_trajectory(
+    system: System, Q: Array, q_start: Array | None = None, dwell: float = 0.0,
+    rate: float = 500.0, order: str = "optimal", progress: Callable[[int], None] | None = None,
+) -> tuple[Trajectory, VisitReport]:  # fmt: skip
+    """Rest-to-rest moves visiting every row of ``Q`` (solved targets, n x nq; NaN rows are
+    skipped), ``dwell`` s on each; ``order`` is ``optimal`` or ``given``. ``progress(n)`` is
+    called after the n-th move."""
+    lim = system.limits
+    q0 = system.home if q_start is None else np.asarray(q_start, dtype=float)
+    idx = np.flatnonzero(np.all(np.isfinite(Q), axis=1))
+    given = np.arange(len(idx))
+    seq = visit_order(Q[idx], q0, lim) if order == "optimal" else given
+
+    def estimate(o: np.ndarray) -> float:
+        P = np.vstack([q0, Q[idx][o]])
+        return float(move_time(P[:-1], P[1:], lim).sum() + dwell * len(o))
+
+    pieces: list[_Piece] = []
+    prev = q0
+    for n, k in enumerate(idx[seq]):
+        Qm, QDm, QDDm = ruckig_move(prev, Q[k], lim, rate)
+        pieces.append(_Piece(Qm, QDm, QDDm, "approach" if n == 0 else "move"))
+        if dwell > 0:
+            pieces.append(_hold(Q[k], dwell, rate, "dwell"))
+        prev = Q[k]
+        if progress is not None:
+            progress(n)
+    if not pieces:
+        pieces.append(_hold(q0, 0.0, rate, "dwell"))
+    traj = _assemble(pieces, rate)
+    return traj, VisitReport(idx[seq], traj.duration, estimate(given), estimate(seq))
+
+
+# ------------------------------------------------------------------------------------------
+# paths
+# ------------------------------------------------------------------------------------------
+_SHARE_V, _SHARE_A, _SHARE_J = 0.9, 0.5, 0.3  # share of each limit given to each term
+
+
+def path_speed_limit(
+    spline: object, arc: Array, lim: Limits, spot_speed: float, a_s: float
+) -> tuple[Array, Array, Array]:
+    """Largest spot speed (m/s) at each sample keeping q' sd, q'' sd^2 and the jerk terms
+    within their shares of the limits; returns (speed, limit code 0..3, joint index)."""
+    d1, d2, d3 = (np.abs(spline(arc, nu)) + 1e-12 for nu in (1, 2, 3))  # type: ignore[operator]
+    caps = np.stack(
+        [
+            np.full(len(arc), spot_speed),
+            (_SHARE_V * lim.velocity / d1).min(axis=1),
+            np.sqrt(_SHARE_A * lim.acceleration / d2).min(axis=1),
+            np.minimum(np.cbrt(_SHARE_J * lim.jerk / d3), _SHARE_J * lim.jerk / (3 * d2 * a_s))
+            .min(axis=1),
+        ]
+    )  # fmt: skip
+    code = caps.argmin(axis=0)
+    joints = np.stack(
+        [np.zeros(len(arc), dtype=int), (lim.velocity / d1).argmin(axis=1),
+         (lim.acceleration / d2).argmin(axis=1), (lim.jerk / d3).argmin(axis=1)]
+    )  # fmt: skip
+    return caps.min(axis=0), code, joints[code, np.arange(len(arc))]
+
+
+def _slowdowns(arc: Array, speed: Array, code: Array, joint: Array) -> tuple[Slowdown, ...]:
+    names = ("spot", "velocity", "acceleration", "jerk")
+    out, k, K = [], 0, len(arc)
+    while k < K:
+        if code[k] == 0:
+            k += 1
+            continue
+        k1 = k
+        while k1 + 1 < K and code[k1 + 1] != 0:
+            k1 += 1
+        i = k + int(np.argmin(speed[k : k1 + 1]))
+        out.append(
+            Slowdown(float(arc[k]), float(arc[k1]), names[code[i]], int(joint[i]), float(speed[i]))
+        )
+        k = k1 + 1
+    return tuple(out)
+
+
+def time_path(
+    q_path: Array, arc: Array, lim: Limits, spot_speed: float, rate: float
+) -> tuple[_Piece, tuple[Slowdown, ...]]:
+    """Sample s(t) from rest to rest along the path at ``rate`` and map it to joints."""
+    from ruckig import InputParameter, OutputParameter, Result, Ruckig
+    from scipy.interpolate import make_interp_spline
+
+    spline = make_interp_spline(arc, q_path, k=5 if len(arc) > 5 else min(3, len(arc) - 1))
+    d1max = np.abs(spline(arc, 1)).max(axis=0) + 1e-12
+    a_s = float(min(spot_speed * 20.0, (_SHARE_A * lim.acceleration / d1max).min()))
+    j_s = float(min(a_s * 20.0, (_SHARE_J * lim.jerk / d1max).min()))
+    speed, code, joint = path_speed_limit(spline, arc, lim, spot_speed, a_s)
+    L = float(arc[-1])
+    otg, inp, out = Ruckig(1, 1.0 / rate), InputParameter(1), OutputParameter(1)
+    inp.current_position, inp.current_velocity, inp.current_acceleration = [0.0], [0.0], [0.0]
+    inp.target_position, inp.target_velocity, inp.target_acceleration = [L], [0.0], [0.0]
+    inp.max_acceleration, inp.max_jerk = [a_s], [j_s]
+    S = [(0.0, 0.0, 0.0)]
+    for _ in range(int(50 * (L / max(speed.min(), 1e-9) + 1) * rate)):
+        s, v = inp.current_position[0], inp.current_velocity[0]
+        brake = v * v / (2 * a_s) + v * a_s / j_s + 2 * v / rate  # stopping distance, m
+        i0, i1 = np.searchsorted(arc, [s, s + brake])
+        inp.max_velocity = [float(max(speed[max(i0 - 1, 0) : i1 + 1].min(), 1e-6))]
+        result = otg.update(inp, out)
+        if result not in (Result.Working, Result.Finished):
+            raise PlanError(f"Ruckig failed ({result}) timing the path at s = {s:.4f} m")
+        S.append((out.new_position[0], out.new_velocity[0], out.new_acceleration[0]))
+        out.pass_to_input(inp)
+        if result == Result.Finished:
+            break
+    else:
+        raise PlanError(f"path timing did not finish (length {L:.4f} m)")
+    s, sd, sdd = np.clip(np.array(S), [0.0, 0.0, -np.inf], [L, np.inf, np.inf]).T
+    q = spline(s)
+    d1, d2 = spline(s, 1), spline(s, 2)
+    q[-1] = q_path[-1]
+    piece = _Piece(q, d1 * sd[:, None], d2 * sd[:, None] ** 2 + d1 * sdd[:, None], "path")
+    return piece, _slowdowns(arc, speed, code, joint)
+
+
+def path_trajectory(
+    system: System, runs: list[tuple[Array, Array]], q_start: Array | None = None,
+    spot_speed: float = 0.02, rate: float = 500.0,
+) -> Trajectory:  # fmt: skip
+    """Approach from ``q_start`` (default home), then each feasible run ``(q_k K x nq,
+    arc_k K)`` swept at ``spot_speed`` (m/s); rest-to-rest ``move`` (laser gated) between
+    runs. Slowdowns carry the arc length along the whole path."""
+    lim = system.limits
+    prev = system.home if q_start is None else np.asarray(q_start, dtype=float)
+    pieces: list[_Piece] = []
+    slow: list[Slowdown] = []
+    for n, (Qp, arc) in enumerate(runs):
+        Qm, QDm, QDDm = ruckig_move(prev, Qp[0], lim, rate)
+        pieces.append(_Piece(Qm, QDm, QDDm, "approach" if n == 0 else "move"))
+        if len(Qp) < 2:
+            prev = Qp[0]
+            continue
+        piece, sl = time_path(Qp, arc - arc[0], lim, spot_speed, rate)
+        pieces.append(piece)
+        slow += [s._replace(s0=s.s0 + arc[0], s1=s.s1 + arc[0]) for s in sl]
+        prev = Qp[-1]
+    if not pieces:
+        raise PlanError("no feasible path run to time")
+    return _assemble(pieces, rate, tuple(slow))

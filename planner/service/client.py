@@ -1,0 +1,231 @@
+"""Client side of the planner node: send a TargetRequest, watch the motion, measure the spot.
+
+:class:`PlanClient` wraps one Zenoh session (connecting to the bus endpoint). ``request``
+sends a TargetRequest to ``<prefix>/plan`` and returns the plan.json dict (or raises
+:class:`RequestError` with the node's :class:`~schemas.messages.ErrorReply`). While a
+request executes, the client records every robot's ``joint_states`` and the camera's
+``camera/spot``; a spot sample counts for target k when every robot is at rest (|qd| below
+``REST_QD`` rad/s, for ``SETTLE`` s) within ``AT_TARGET_Q`` rad of the plan's solution ``q_k``.
+The measured spot of target k is the mean of its samples, mapped to the world with the plan's
+camera pose.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+import uuid
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from planner.errors import BeamrelayError, InputError
+from planner.model.transforms import Array, transform_points
+from planner.service.bus import JSON, Keys, decode, encode, open_session
+
+#: a robot within AT_TARGET_Q of q_k (rad, every joint), slower than REST_QD (rad/s) for at
+#: least SETTLE s (so the camera's frame was taken at rest too) is "at k"
+AT_TARGET_Q = 1e-4
+REST_QD = 1e-3
+SETTLE = 0.07
+
+
+class RequestError(BeamrelayError):
+    """The node answered with an error reply (``reply``: the ErrorReply dict) or not at all."""
+
+    def __init__(self, reason: str, reply: dict[str, Any] | None = None) -> None:
+        self.reason = reason
+        self.reply = reply or {}
+        super().__init__(reason)
+
+
+def make_request(
+    points: ArrayLike,
+    *,
+    frame: str = "world",
+    normals: ArrayLike | None = None,
+    path: bool = False,
+    execute: bool = False,
+    request_id: str | None = None,
+) -> dict[str, Any]:
+    """A TargetRequest dict (SPEC section 6); points/normals (K, 3) in ``frame``, metres."""
+    req: dict[str, Any] = {
+        "schema": "beamrelay.request/1",
+        "id": request_id or uuid.uuid4().hex[:12],
+        "frame": frame,
+        "points": np.asarray(points, dtype=float).reshape(-1, 3).tolist(),
+        "mode": "path" if path else "points",
+        "execute": execute,
+    }
+    if normals is not None:
+        req["normals"] = np.asarray(normals, dtype=float).reshape(-1, 3).tolist()
+    return req
+
+
+def world_T_camera_of(plan: dict[str, Any]) -> Array | None:
+    """The camera pose the plan was made with (resolved scenario), or None."""
+    cam = plan.get("scenario", {}).get("system", {}).get("camera")
+    if not cam:
+        return None
+    return np.asarray(cam["world_T_camera"]["matrix"], dtype=float)
+
+
+@dataclass
+class Recorder:
+    """Joint states and spots seen on the bus (receiver monotonic clock), thread safe."""
+
+    joints: dict[str, tuple[float, Array, Array]] = field(default_factory=dict)
+    rest_since: dict[str, float] = field(default_factory=dict)
+    spots: list[tuple[float, Array, dict[str, Array], bool]] = field(default_factory=list)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def on_joints(self, robot: str, q: Array, qd: Array) -> None:
+        now = time.monotonic()
+        with self.lock:
+            if float(np.max(np.abs(qd))) >= REST_QD:
+                self.rest_since[robot] = np.inf
+            elif self.rest_since.get(robot, np.inf) == np.inf:
+                self.rest_since[robot] = now
+            self.joints[robot] = (now, q, qd)
+
+    def on_spot(self, p_camera: Array) -> None:
+        """Record a spot with the joints at that moment (``at_rest``: all robots still)."""
+        now = time.monotonic()
+        with self.lock:
+            q = {r: v[1] for r, v in self.joints.items()}
+            rest = all(now - self.rest_since.get(r, np.inf) >= SETTLE for r in self.joints)
+            self.spots.append((now, p_camera, q, rest))
+
+    def moving(self) -> bool:
+        with self.lock:
+            return any(float(np.max(np.abs(v[2]))) >= REST_QD for v in self.joints.values())
+
+    def n_spots(self) -> int:
+        with self.lock:
+            return len(self.spots)
+
+
+def measured_spots(plan: dict[str, Any], rec: Recorder, since: float) -> list[Array | None]:
+    """Median measured spot (world, m) per solution of ``plan``; None where never seen."""
+    world_T_camera = world_T_camera_of(plan)
+    if world_T_camera is None:
+        raise InputError("the plan's scenario has no camera: spots cannot be measured")
+    with rec.lock:
+        samples = [s for s in rec.spots if s[0] >= since and s[3]]
+    out: list[Array | None] = []
+    for sol in plan["solutions"]:
+        if sol["status"] != "ok":
+            out.append(None)
+            continue
+        qk = {r: np.asarray(v) for r, v in sol["q"].items()}
+        hits = [
+            p
+            for _, p, q, _ in samples
+            if all(r in q and float(np.max(np.abs(q[r] - qk[r]))) < AT_TARGET_Q for r in qk)
+        ]
+        if not hits:
+            out.append(None)
+            continue
+        p_camera = np.mean(np.asarray(hits), axis=0)
+        out.append(transform_points(world_T_camera, p_camera[None])[0])
+    return out
+
+
+class PlanClient:
+    """A connected client session. Use as a context manager."""
+
+    def __init__(self, *, endpoint: str | None = None, prefix: str = "beamrelay") -> None:
+        self.keys = Keys(prefix)
+        self.session = open_session(listen=False, endpoint=endpoint)
+        self.recorder = Recorder()
+        self._subs: list[Any] = []
+        self._watching = False
+
+    def __enter__(self) -> PlanClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.undeclare()
+        self._subs.clear()
+        self.session.close()
+
+    def watch(self) -> None:
+        """Record every robot's joint states and the camera spot from now on (idempotent)."""
+        from schemas.messages import JointState, SpotMessage
+
+        if self._watching:
+            return
+        self._watching = True
+
+        def joint_cb(sample: Any) -> None:
+            robot = str(sample.key_expr).split("/")[-2]
+            try:
+                m = decode(sample.payload.to_bytes(), JointState)
+            except InputError:
+                return
+            self.recorder.on_joints(robot, np.asarray(m.q), np.asarray(m.qd))
+
+        def spot_cb(sample: Any) -> None:
+            try:
+                m = decode(sample.payload.to_bytes(), SpotMessage)
+            except InputError:
+                return
+            if m.p_camera is not None:
+                self.recorder.on_spot(np.asarray(m.p_camera))
+
+        self._subs.append(self.session.declare_subscriber(self.keys.joint_states("*"), joint_cb))
+        self._subs.append(self.session.declare_subscriber(self.keys.camera_spot, spot_cb))
+
+    def wait_for_node(self, node: str, timeout: float = 10.0) -> bool:
+        """Block until ``<prefix>/alive/<node>`` exists (True) or ``timeout`` s pass."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            replies = list(self.session.liveliness().get(self.keys.alive(node), timeout=0.5))
+            if any(r.ok is not None for r in replies):
+                return True
+            time.sleep(0.05)
+        return False
+
+    def request_raw(self, payload: bytes, timeout: float = 10.0) -> tuple[bool, bytes]:
+        """Send a raw body to ``<prefix>/plan``: (ok, reply body). RequestError on no reply."""
+        replies = self.session.get(self.keys.plan, payload=payload, encoding=JSON, timeout=timeout)
+        for reply in replies:
+            if reply.ok is not None:
+                return True, reply.ok.payload.to_bytes()
+            return False, reply.err.payload.to_bytes()
+        raise RequestError(f"no reply from the planner on {self.keys.plan} within {timeout:g} s")
+
+    def request(self, req: dict[str, Any], timeout: float = 10.0) -> dict[str, Any]:
+        """Send a TargetRequest dict; the plan.json dict, or RequestError with the error."""
+        ok, body = self.request_raw(encode(req), timeout)
+        data = json.loads(body)
+        if not ok:
+            where = f"{data.get('field')}: " if data.get("field") else ""
+            raise RequestError(f"planner error: {where}{data.get('error')}", data)
+        return dict(data)
+
+    def execute(
+        self, req: dict[str, Any], timeout: float = 10.0, settle: float = 0.4
+    ) -> tuple[dict[str, Any], list[Array | None]]:
+        """Request with ``execute: true``, wait for the motion, return (plan, measured spots).
+
+        Waits the trajectory's duration, then until every robot is at rest, then ``settle``
+        seconds more so the camera sees the final target.
+        """
+        self.watch()
+        since = time.monotonic()
+        plan = self.request({**req, "execute": True}, timeout)
+        duration = float(plan["trajectory"]["t"][-1]) if plan.get("trajectory") else 0.0
+        deadline = time.monotonic() + duration + timeout
+        time.sleep(duration)
+        while self.recorder.moving() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        time.sleep(settle)
+        return plan, measured_spots(plan, self.recorder, since)

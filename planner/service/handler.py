@@ -1,0 +1,151 @@
+"""The pure side of the planner node: TargetRequest -> world targets -> plan.json (no Zenoh).
+
+:class:`RequestHandler` turns a validated :class:`~schemas.messages.TargetRequest` into
+world-frame :class:`~planner.model.system.Targets` (camera-frame points through the calibrated
+``world_T_camera``; path requests resampled every ``PATH_SPACING`` m) and a plan.json dict
+through a *plan function* ``plan_fn(targets, start, trajectory) -> dict``: ``start`` is
+``{robot: q}`` (rad, the robots' current joints) or None for the scenario's home;
+``trajectory`` says whether to time a trajectory from ``start``. :func:`make_plan_fn` builds
+it over :mod:`planner.planning` and :mod:`planner.path.timing`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from planner.errors import InputError
+from planner.model.system import System, Targets
+from planner.model.transforms import Array, transform_points
+from planner.service.bus import decode
+
+if TYPE_CHECKING:
+    from planner.model.scene import SceneModel
+
+PlanFn = Callable[[Targets, dict[str, Array] | None, bool], dict[str, Any]]
+#: path requests are resampled every PATH_SPACING m, at most MAX_PATH_SAMPLES samples
+PATH_SPACING = 0.001
+MAX_PATH_SAMPLES = 2000
+
+
+def make_plan_fn(
+    system: System,
+    scenario: dict[str, Any],
+    options: Any = None,
+    settings: dict[str, Any] | None = None,
+    scene: SceneModel | None = None,
+) -> PlanFn:
+    """The node's plan function over :mod:`planner.planning` for one (calibrated) system.
+
+    ``scenario`` is the resolved scenario dict echoed in every plan; ``options`` an
+    :class:`~planner.ik.IKOptions`; ``settings`` the scenario's ``trajectory`` section. Points
+    are solved in order, each seeded by the previous solution (the first by ``start``); the
+    trajectory starts at ``start`` (the robots' current joints) instead of home. ``scene``
+    (a :class:`~planner.model.scene.SceneModel`) makes beams that cross it fail as ``occluded``.
+    """
+    from planner.planning import plan_document, plan_path_targets, plan_points
+
+    settings = dict(settings or {})
+
+    def plan_fn(
+        targets: Targets, start: dict[str, Array] | None, trajectory: bool
+    ) -> dict[str, Any]:
+        q0 = None if start is None else system.stack_q(start)
+        if targets.kind == "path":
+            from planner.ik import IKOptions
+
+            sols = plan_path_targets(system, targets, options or IKOptions(), q0, scene)
+        else:
+            sols = plan_points(system, targets, options, q0, scene=scene)
+        traj = None
+        if trajectory:
+            q_from = system.home if q0 is None else q0
+            traj = timed_trajectory(system, targets, sols, q_from, settings)
+        return plan_document(system, targets, sols, scenario, traj)
+
+    return plan_fn
+
+
+def timed_trajectory(
+    system: System,
+    targets: Targets,
+    sols: list[Any],
+    q_start: Array,
+    settings: dict[str, Any],
+) -> dict[str, Any] | None:
+    """plan.json ``trajectory`` from ``q_start`` (stacked, rad, the robots' current joints)
+    through the solved targets, in the requested order (``planning.time_solutions``)."""
+    from planner.planning import time_solutions
+
+    timed = time_solutions(system, targets, sols, settings, q_start=q_start, order="given")
+    return None if timed is None else timed.trajectory.to_plan_dict(system)
+
+
+def handler_from_scenario(path: Any) -> RequestHandler:
+    """A :class:`RequestHandler` for a scenario file (calibration applied via ``include:``)."""
+    from planner.io.scenario import load_scenario, resolved_scenario_dict, system_from_scenario
+    from planner.model.scene import SceneModel
+    from planner.planning import ik_options
+
+    scn = load_scenario(path)
+    system = system_from_scenario(scn)
+    model = scn.model
+    settings = model.trajectory.model_dump() if model.trajectory is not None else {}
+    plan_fn = make_plan_fn(system, resolved_scenario_dict(scn), ik_options(model.solver), settings,
+                           SceneModel.from_scenario(scn))  # fmt: skip
+    return RequestHandler(system, plan_fn)
+
+
+@dataclass
+class RequestHandler:
+    """TargetRequest -> plan.json dict; pure (no Zenoh), used by the node and the tests."""
+
+    system: System
+    plan_fn: PlanFn
+    path_spacing: float = PATH_SPACING
+
+    def targets(self, req: Any) -> Targets:
+        """World-frame targets of a validated TargetRequest (points in metres)."""
+        points = np.asarray(req.points, dtype=float).reshape(-1, 3)
+        normals = None if req.normals is None else np.asarray(req.normals, dtype=float)
+        if req.frame == "camera":
+            if self.system.camera is None:
+                raise InputError("frame is camera but the scenario has no camera", "frame")
+            world_T_camera = self.system.camera.world_T_camera
+            points = transform_points(world_T_camera, points)
+            if normals is not None:
+                normals = normals @ world_T_camera[:3, :3].T
+        if req.mode != "path":
+            return Targets(points, normals, kind="points")
+        from planner.io.scenario import resample_path
+
+        length = float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)))
+        if length / self.path_spacing > MAX_PATH_SAMPLES:
+            raise InputError(
+                f"path of {length:.3f} m needs more than {MAX_PATH_SAMPLES} samples "
+                f"at {1e3 * self.path_spacing:g} mm spacing",
+                "points",
+            )
+        try:
+            points, normals = resample_path(points, spacing=self.path_spacing, normals=normals)
+        except ValueError as exc:
+            raise InputError(str(exc), "normals" if "normal" in str(exc) else "points") from exc
+        return Targets(points, normals, kind="path")
+
+    def parse(self, payload: bytes) -> Any:
+        """Validate a request body (raises InputError naming the field)."""
+        from schemas.messages import TargetRequest
+
+        try:
+            return decode(payload, TargetRequest)
+        except RecursionError as exc:  # json.loads on absurdly deep nesting
+            raise InputError("JSON nested too deeply", "body") from exc
+
+    def plan(
+        self, req: Any, start: dict[str, Array] | None = None, trajectory: bool = False
+    ) -> dict[str, Any]:
+        """plan.json dict for a validated request, starting at ``start`` (rad) or home."""
+        return self.plan_fn(self.targets(req), start, trajectory)

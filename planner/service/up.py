@@ -1,0 +1,176 @@
+"""``beamrelay up``: planner + camera driver + one robot driver per robot, supervised.
+
+The ``up`` process is the bus hub: it listens on the endpoint, the children connect to it.
+It watches every node's liveliness token and message rates (``joint_states`` per robot,
+``camera/spot``) and shows them in a rich live table; crashed children are restarted
+(:class:`planner.service.supervisor.Supervisor`); Ctrl-C, SIGTERM or ``duration`` stop everything.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import sys
+import tempfile
+import threading
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+from planner.service.bus import Keys, default_endpoint, open_session
+from planner.service.supervisor import Supervisor
+
+RATE_WINDOW = 2.0  # s over which message rates are averaged
+
+
+def child_commands(
+    scenario: Path,
+    robots: list[str],
+    *,
+    backend: str = "sim",
+    endpoint: str,
+    prefix: str = "beamrelay",
+    camera: bool = True,
+) -> dict[str, list[str]]:
+    """argv of every child: ``planner``, ``camera`` (if any), then one per robot."""
+    cli = [sys.executable, "-m", "planner.cli"]
+    bus = ["--endpoint", endpoint, *(["--prefix", prefix] if prefix != "beamrelay" else [])]
+    out = {"planner": [*cli, "serve", str(scenario), "--connect", *bus]}
+    if camera:
+        cam_backend = "sim" if backend == "sim" else "realsense"
+        out["camera"] = [
+            *cli, "driver", "camera", "--backend", cam_backend, "--scenario", str(scenario), *bus
+        ]  # fmt: skip
+    for r in robots:
+        out[r] = [
+            *cli, "driver", "robot", "--name", r, "--backend", backend, "--scenario",
+            str(scenario), *bus,
+        ]  # fmt: skip
+    return out
+
+
+class Health:
+    """Liveliness and message rates seen on the bus (thread safe enough for a display)."""
+
+    def __init__(self, session: Any, keys: Keys) -> None:
+        self.alive: set[str] = set()
+        self.stamps: dict[str, deque[float]] = {}
+        self._lock = threading.Lock()
+        self._subs = [
+            session.liveliness().declare_subscriber(keys.alive_all, self._on_alive, history=True),
+            session.declare_subscriber(keys.joint_states("*"), self._on_joints),
+            session.declare_subscriber(keys.camera_spot, self._on_spot),
+        ]
+
+    def _on_alive(self, sample: Any) -> None:
+        import zenoh
+
+        node = str(sample.key_expr).rsplit("/", 1)[-1]
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self.alive.add(node)
+            else:
+                self.alive.discard(node)
+
+    def _tick(self, name: str) -> None:
+        now = time.monotonic()
+        with self._lock:
+            q = self.stamps.setdefault(name, deque())
+            q.append(now)
+            while q and now - q[0] > RATE_WINDOW:
+                q.popleft()
+
+    def _on_joints(self, sample: Any) -> None:
+        self._tick(str(sample.key_expr).split("/")[-2])
+
+    def _on_spot(self, sample: Any) -> None:
+        self._tick("camera")
+
+    def rate(self, name: str) -> float:
+        """Messages per second over the last ``RATE_WINDOW`` s (joint_states or spot)."""
+        now = time.monotonic()
+        with self._lock:
+            q = self.stamps.get(name)
+            return 0.0 if not q else sum(1 for t in q if now - t <= RATE_WINDOW) / RATE_WINDOW
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.undeclare()
+
+
+def health_table(sup: Supervisor, health: Health, title: str) -> Any:
+    """The rich table of children: process state, liveliness, rate, restarts."""
+    from rich.table import Table
+
+    table = Table(title=title)
+    for col in ("node", "pid", "process", "alive", "rate \\[Hz]", "restarts", "uptime \\[s]"):
+        table.add_column(col)
+    for name, c in sup.children.items():
+        if c.running:
+            state = "[green]running[/]"
+        elif c.proc is None:
+            state = "not started"
+        else:
+            state = f"[red]exited {c.proc.returncode}[/], restarting"
+        alive = "[green]yes[/]" if name in health.alive else "[red]no[/]"
+        rate = "" if name == "planner" else f"{health.rate(name):.0f}"
+        table.add_row(
+            name, str(c.pid or "-"), state, alive, rate, str(c.restarts), f"{c.uptime():.0f}"
+        )
+    return table
+
+
+def run_up(
+    scenario: Path,
+    *,
+    backend: str = "sim",
+    duration: float | None = None,
+    endpoint: str | None = None,
+    prefix: str = "beamrelay",
+    log_dir: Path | None = None,
+    live: bool = True,
+) -> dict[str, int | None]:
+    """Run the system until Ctrl-C / SIGTERM / ``duration`` s; the children's exit codes."""
+    from rich.console import Console
+    from rich.live import Live
+
+    from planner.io.scenario import load_scenario
+
+    scn = load_scenario(scenario)
+    robots = [r.name for r in scn.model.system.robots]
+    endpoint = endpoint or default_endpoint()
+    has_camera = scn.model.system.camera is not None
+    argv = child_commands(
+        Path(scenario).resolve(), robots, backend=backend, endpoint=endpoint, prefix=prefix,
+        camera=has_camera,
+    )  # fmt: skip
+    log_dir = Path(log_dir or tempfile.mkdtemp(prefix="beamrelay-up-"))
+    stop = threading.Event()
+    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    console = Console(stderr=not live)
+    session = open_session(listen=True, endpoint=endpoint)
+    health = Health(session, Keys(prefix))
+    sup = Supervisor(argv, log_dir)
+    title = f"beamrelay up {scn.model.name} on {endpoint} (logs {log_dir})"
+    t_end = None if duration is None else time.monotonic() + duration
+    try:
+        sup.start()
+        view = Live(health_table(sup, health, title), console=console) if live else None
+        with view or contextlib.nullcontext():
+            while not stop.wait(0.25):
+                for name in sup.poll():
+                    console.log(f"restarted {name}")
+                if view is not None:
+                    view.update(health_table(sup, health, title))
+                if t_end is not None and time.monotonic() >= t_end:
+                    break
+    finally:
+        codes = sup.stop(order=["planner"])
+        health.close()
+        session.close()
+        for s, h in previous.items():
+            signal.signal(s, h)
+    console.print()
+    console.print(f"stopped: {', '.join(f'{n}={c}' for n, c in codes.items())}")
+    return codes

@@ -1,0 +1,67 @@
+"""The command line: every area registered, ``--help`` light, exit statuses."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+from typer.testing import CliRunner
+
+from tests.paths import REPO
+
+ROOT = REPO
+HEAVY = ("casadi", "pinocchio", "open3d", "pyrealsense2", "rtde_control", "matplotlib", "zenoh")
+
+
+def test_help_imports_no_heavy_module() -> None:
+    code = "import sys, planner.cli; print(__import__('json').dumps(sorted(sys.modules)))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    loaded = {m.split(".")[0] for m in json.loads(out.stdout)}
+    assert not loaded & set(HEAVY), f"imported at --help: {sorted(loaded & set(HEAVY))}"
+
+
+def test_every_command_is_registered() -> None:
+    from planner.cli import app
+
+    result = CliRunner().invoke(app, ["--help"])
+    assert result.exit_code == 0
+    for name in ("validate", "trace", "plan", "check", "calibrate", "study", "bench", "serve"):
+        assert name in result.output
+    for name in ("driver", "up", "request"):
+        assert name in result.output
+    studies = CliRunner().invoke(app, ["study", "--help"]).output
+    for name in ("ik-grid", "calibration", "sensitivity", "mirror-sweep", "coverage", "tracking"):
+        assert name in studies
+    benches = CliRunner().invoke(app, ["bench", "--help"]).output
+    for name in ("ik", "path", "service"):
+        assert name in benches
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        (["trace", "nope.yaml"], "nope.yaml"),
+        (["plan", "nope.yaml", "-o", "x.json"], "nope.yaml"),
+        (["check", "nope.json"], "nope.json"),
+    ],
+)
+def test_missing_files_exit_2_with_one_line(args: list[str], words: str) -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "planner.cli", *args], capture_output=True, text=True
+    )
+    assert proc.returncode == 2
+    assert words in proc.stderr and "Traceback" not in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_invalid_trace_is_exit_1() -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "planner.cli", "trace", str(ROOT / "scenarios/paper_n1.yaml"), "--q",
+         "arm0=0,-1.5,1.5,-1.5,1.5,0"],
+        capture_output=True,
+        text=True,
+    )  # fmt: skip
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert "NOT valid" in proc.stdout

@@ -1,0 +1,117 @@
+"""``beamrelay plan`` / ``check`` end to end through the CLI entry point (exit statuses)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planner.cli import main
+from tests.planner.verify.test_check import ramp_trajectory
+from tests.planner.test_planning import CURVE, SCENARIO, write_scenario
+
+
+def run(args: list[str]) -> int:
+    with pytest.raises(SystemExit) as exc:
+        main(args)
+        raise SystemExit(0)
+    return int(exc.value.code or 0)
+
+
+def test_plan_then_check(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out, png = tmp_path / "plan.json", tmp_path / "plan.png"
+    assert run(["plan", str(write_scenario(tmp_path)), "-o", str(out), "--plot", str(png)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["metrics"]["n_ok"] == 18
+    assert png.stat().st_size > 10_000
+    text = capsys.readouterr().out
+    assert "solved" in text and "18" in text
+    assert run(["check", str(out), "--json"]) == 0
+    figures = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert figures["violations"] == 0 and figures["spot.error_max_m"] <= 1e-12
+    doc["solutions"][0]["q"]["arm0"][4] += 1e-3
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc))
+    assert run(["check", str(bad)]) == 1
+
+
+def test_unsolved_target_exits_1_and_still_writes(tmp_path: Path) -> None:
+    text = SCENARIO.replace(
+        "grid: {center: [0.3, 0.3, 0.3], size: [0.1, 0.1, 0.1], n: [3, 3, 2]}",
+        "points: [[0.3, 0.3, 0.3], [-3.0, -0.4, 0.3]]",
+    )
+    out = tmp_path / "plan.json"
+    assert run(["plan", str(write_scenario(tmp_path, text)), "-o", str(out)]) == 1
+    doc = json.loads(out.read_text())
+    assert [s["reason"] for s in doc["solutions"]] == [None, "back_face"]
+
+
+def test_bad_inputs_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert run(["plan", str(tmp_path / "missing.yaml"), "-o", str(tmp_path / "p.json")]) == 2
+    junk = tmp_path / "junk.json"
+    junk.write_text("{not json")
+    assert run(["check", str(junk)]) == 2
+    junk.write_text(json.dumps({"schema": "beamrelay.plan/1"}))
+    assert run(["check", str(junk)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 3
+
+
+def test_path_plan_check_and_profiles(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out, png = tmp_path / "c.json", tmp_path / "c.png"
+    assert run(["plan", str(CURVE), "-o", str(out), "--plot", str(png)]) == 0
+    text = capsys.readouterr().out
+    for words in ("on the path (s)", "max spot deviation (mm)", "max joint speed", "slowdowns"):
+        assert words in text
+    assert png.stat().st_size > 10_000
+    assert (tmp_path / "c_profiles.png").stat().st_size > 30_000
+    doc = json.loads(out.read_text())
+    assert run(["check", str(out), "--json"]) == 0
+    figures = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert figures["violations"] == 0
+    assert figures["trajectory spot.path_deviation_max_m"] <= 5e-5
+    dev = doc["metrics"]["extra"]["path_deviation_max"]
+    assert f"{1e3 * dev:.4f}" in text  # the printed figure is the plan's
+    # the sweep at 20 mm/s over the path length, within 10 %
+    length = doc["metrics"]["extra"]["path_length"]
+    assert figures["trajectory spot.path_duration_s"] == pytest.approx(length / 0.02, rel=0.1)
+
+
+def test_check_exits_1_on_a_too_fast_trajectory(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "plan.json"
+    assert run(["plan", str(write_scenario(tmp_path)), "-o", str(out)]) == 0
+    fast = tmp_path / "fast.json"
+    fast.write_text(json.dumps(ramp_trajectory(json.loads(out.read_text()), 1.2 * np.pi)))
+    capsys.readouterr()
+    assert run(["check", str(fast), "--json"]) == 1
+    text = capsys.readouterr().out
+    assert "velocity" in text and "120.0% of limit" in text
+    figures = json.loads(text.strip().splitlines()[-1])
+    assert figures["violations"] == 1
+    assert figures["trajectory limits.velocity_max_ratio"] == pytest.approx(1.2, rel=1e-9)
+
+
+def test_failure_table_shows_reason_and_evidence() -> None:
+    import numpy as np
+    from rich.console import Console
+
+    from planner.cli.plan import _failures
+    from planner.ik import Solution
+
+    ok = Solution("ok", None, np.zeros(6), np.zeros(3), 0.0, None, None, 0.0, 0, "closed_form", 0.0)
+    bad = Solution(
+        "failed", "occluded", None, None, float("inf"), None, None, 0.0, 0, "closed_form", 0.0,
+        {"segment": "arm0->target", "distance_m": 0.123456, "point": np.array([1.0, 2.0, 3.0]),
+         "q": [0.0] * 6},
+    )  # fmt: skip
+    console = Console(width=200, record=True)
+    console.print(_failures([ok, bad, bad]))
+    text = console.export_text()
+    assert "first 2 of 2" in text
+    assert "occluded" in text and "segment=arm0->target" in text
+    assert "distance_m=0.1235" in text and "point=[1 2 3]" in text
+    assert "q=" not in text

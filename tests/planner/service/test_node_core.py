@@ -1,0 +1,68 @@
+"""The node's pure side: request -> world targets (camera frame, path resampling) -> timing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from planner.errors import InputError
+from planner.model.system import System, Targets
+from planner.model.transforms import inv_T, transform_points
+from planner.planning import plan_points
+from planner.service.bus import encode
+from planner.service.client import make_request
+from planner.service.handler import RequestHandler, make_plan_fn, timed_trajectory
+from tests.planner.service.test_node import reachable_targets, system_with_camera
+
+
+@pytest.fixture(scope="module")
+def system() -> System:
+    return system_with_camera()
+
+
+def test_camera_frame_targets_use_world_T_camera(system: System) -> None:
+    handler = RequestHandler(system, make_plan_fn(system, {}))
+    p_world = reachable_targets(system, 3)
+    camera_T_world = inv_T(system.camera.world_T_camera)  # type: ignore[union-attr]
+    p_cam = transform_points(camera_T_world, p_world)
+    n_world = np.array([[0, 0, 1.0], [0, 1.0, 0], [1.0, 0, 0]])
+    n_cam = n_world @ camera_T_world[:3, :3].T
+    req = handler.parse(encode(make_request(p_cam, frame="camera", normals=n_cam)))
+    t = handler.targets(req)
+    np.testing.assert_allclose(t.points, p_world, atol=1e-12)
+    np.testing.assert_allclose(t.normals, n_world, atol=1e-12)
+
+
+def test_path_requests_are_resampled_at_one_millimetre(system: System) -> None:
+    handler = RequestHandler(system, make_plan_fn(system, {}))
+    corners = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.01, 0.0035, 0.0]])
+    t = handler.targets(handler.parse(encode(make_request(corners, path=True))))
+    assert t.kind == "path"
+    steps = np.linalg.norm(np.diff(t.points, axis=0), axis=1)
+    np.testing.assert_allclose(steps[:-1], 1e-3, atol=1e-12)  # chords of exactly 1 mm
+    assert steps[-1] <= 1e-3 + 1e-12
+    np.testing.assert_allclose(t.points[[0, -1]], corners[[0, -1]], atol=1e-12)
+    assert len(t) == 15  # x = 0..10 mm (11), y = 1, 2, 3 mm, then the end at y = 3.5 mm
+    far = np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0]])  # 3000 samples > 2000
+    with pytest.raises(InputError) as exc:
+        handler.targets(handler.parse(encode(make_request(far, path=True))))
+    assert exc.value.where == "points" and "2000" in exc.value.reason
+
+
+def test_timed_trajectory_starts_at_the_current_joints(system: System) -> None:
+    points = reachable_targets(system, 3, seed=7)
+    targets = Targets(points)
+    sols = plan_points(system, targets)
+    q_now = system.home + 0.03
+    traj = timed_trajectory(system, targets, sols, q_now, {"dwell": 0.2, "rate": 500.0})
+    assert traj is not None
+    q = np.asarray(traj["q"]["arm0"])
+    t = np.asarray(traj["t"])
+    np.testing.assert_allclose(q[0], q_now, atol=1e-12)
+    np.testing.assert_allclose(np.diff(t), 1 / 500, atol=1e-12)
+    kinds = [s["kind"] for s in traj["segments"]]
+    assert kinds == ["approach", "dwell", "move", "dwell", "move", "dwell"]
+    for seg, sol in zip(traj["segments"][1::2], sols, strict=True):  # dwells, in given order
+        assert seg["t1"] - seg["t0"] == pytest.approx(0.2)
+        i = round(seg["t0"] * 500)
+        np.testing.assert_allclose(q[i], sol.q, atol=1e-9)
