@@ -26,14 +26,14 @@ demo: $(STAMP)
 	$(BIN)/python -m planner.demo $(DEMO)
 
 test: $(STAMP)
-	$(BIN)/ruff check planner schemas drivers tests
-	$(BIN)/ruff format --check planner schemas drivers tests
+	$(BIN)/ruff check planner schemas drivers tests examples
+	$(BIN)/ruff format --check planner schemas drivers tests examples
 	$(BIN)/mypy planner schemas drivers
 	$(BIN)/pytest
 
 lint: $(STAMP)
-	$(BIN)/ruff check --fix planner schemas drivers tests
-	$(BIN)/ruff format planner schemas drivers tests
+	$(BIN)/ruff check --fix planner schemas drivers tests examples
+	$(BIN)/ruff format planner schemas drivers tests examples
 
 report: $(STAMP)
 	$(BIN)/beamrelay study all -o reports

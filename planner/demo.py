@@ -14,14 +14,15 @@ from pathlib import Path
 from rich.console import Console
 from rich.rule import Rule
 
-ROOT = Path(__file__).resolve().parent.parent
-SCENARIOS = ROOT / "scenarios"
+from planner.data import scenarios_dir
+
+SCENARIOS = scenarios_dir()
 
 
 def _run(console: Console, title: str, args: list[str], ok: tuple[int, ...] = (0,)) -> None:
     console.print(Rule(f"[bold]{title}"))
     console.print(f"$ beamrelay {' '.join(args)}", style="dim")
-    status = subprocess.call([sys.executable, "-m", "planner.cli", *args], cwd=ROOT)
+    status = subprocess.call([sys.executable, "-m", "planner.cli", *args])
     if status not in ok:
         console.print(f"[red]step failed with exit status {status}[/]")
         sys.exit(status)
@@ -68,7 +69,7 @@ def main(out: Path) -> None:
 
     run_live_demo(n1, seconds=5)
     console.print(Rule("[bold green]demo done"))
-    console.print(f"outputs in {out}/: plan_*.json (plan.json, SPEC section 5) and plan_*.png")
+    console.print(f"outputs in {out}/: plan_*.json (plan.json) and plan_*.png")
 
 
 if __name__ == "__main__":

@@ -21,9 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from planner.data import shipped_scenario
 from planner.model.transforms import Array
-
-ROOT = Path(__file__).resolve().parent.parent
 
 
 def free_endpoint() -> str:
@@ -82,7 +81,7 @@ def run_live_demo(scenario_path: Path | str, seconds: float = 5.0, n_targets: in
     argv = [sys.executable, "-m", "planner.cli", "up", str(scenario_path), "--endpoint", endpoint,
             "--no-live", "--log-dir", str(log_dir)]  # fmt: skip
     console.print(f"$ beamrelay up {scenario_path.name} --endpoint {endpoint}", style="dim")
-    up = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    up = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         targets = surface_targets(scenario_path, n_targets)
         with PlanClient(endpoint=endpoint) as client:
@@ -128,4 +127,4 @@ def _fmt(p: Array) -> str:
 
 
 if __name__ == "__main__":
-    run_live_demo(Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT / "scenarios" / "paper_n1.yaml")
+    run_live_demo(Path(sys.argv[1]) if len(sys.argv) > 1 else shipped_scenario("paper_n1.yaml"))

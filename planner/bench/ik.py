@@ -11,8 +11,9 @@ from typing import Annotated, Any
 
 import typer
 
+from planner.data import shipped_scenario
+
 PAPER = {"time_ms": "20 ± 22", "error_max_mm": 5e-4}
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def _run(scenario: Path, optimal: bool) -> dict[str, Any]:
@@ -73,7 +74,7 @@ def command(
 
     from planner.errors import InputError
 
-    paths = scenario or [ROOT / "scenarios" / "paper_n1.yaml", ROOT / "scenarios" / "n2_relay.yaml"]
+    paths = scenario or [shipped_scenario("paper_n1.yaml"), shipped_scenario("n2_relay.yaml")]
     for p in paths:
         if not p.is_file():
             raise InputError(f"scenario not found: {p}")

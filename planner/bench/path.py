@@ -13,7 +13,9 @@ from typing import Annotated
 
 import typer
 
-DEFAULT_SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "curve_path.yaml"
+from planner.data import shipped_scenario
+
+DEFAULT_SCENARIO = shipped_scenario("curve_path.yaml")
 
 
 def command(

@@ -20,8 +20,9 @@ from typing import Annotated, Any
 
 import typer
 
-ROOT = Path(__file__).resolve().parents[2]
-DEFAULT_SCENARIO = ROOT / "scenarios" / "paper_n1.yaml"
+from planner.data import shipped_scenario
+
+DEFAULT_SCENARIO = shipped_scenario("paper_n1.yaml")
 GOAL_SINGLE_MS = 3.0
 
 

@@ -13,11 +13,12 @@ from typing import Annotated, Any
 
 import typer
 
+from planner.data import shipped_scenario
 from planner.errors import InputError
 from planner.studies import common
 
 TRIALS = 10  # paper scale
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "paper_n1.yaml"
+SCENARIO = shipped_scenario("paper_n1.yaml")
 PAPER = "typically < 1e-5 mm, max < 5e-4 mm (paper Fig. 3a)"
 
 

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.data import shipped_scenario
 from planner.model.system import System
 from planner.model.transforms import Array, axis_angle_to_matrix, inv_T, make_T
 from planner.studies import common
@@ -38,7 +39,7 @@ PAPER_MM = {"chessboard": (1.61, 0.77), "curve": (3.61, 1.58), "face": (3.29, 1.
 PAPER_MM["finger"] = (2.65, 1.13)
 EXPERIMENTS = tuple(PAPER_MM)
 CENTER = np.array([-0.492, -0.519, 0.0])
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "paper_n1.yaml"
+SCENARIO = shipped_scenario("paper_n1.yaml")
 
 
 @dataclass(frozen=True)

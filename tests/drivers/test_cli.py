@@ -16,8 +16,8 @@ from planner.io.scenario import load_scenario, system_from_scenario
 from planner.model.transforms import inv_T
 from planner.service.bus import Keys, decode
 from schemas.messages import JointState, SpotMessage
-from tests.drivers.conftest import wait_for
 from tests.drivers.camera.test_camera_sim import analytic_spot
+from tests.drivers.conftest import wait_for
 from tests.paths import REPO
 
 SCENARIO = REPO / "scenarios" / "paper_n1.yaml"

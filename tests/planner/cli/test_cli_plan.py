@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from planner.cli import main
-from tests.planner.verify.test_check import ramp_trajectory
 from tests.planner.test_planning import CURVE, SCENARIO, write_scenario
+from tests.planner.verify.test_check import ramp_trajectory
 
 
 def run(args: list[str]) -> int:
