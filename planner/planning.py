@@ -41,7 +41,7 @@ def plan_points(
     """Solve every target in order; each solve starts from the last solved configuration
     (``q_start``, default home, at first). ``progress(k)`` is called after target k. With a
     ``scene``, beams that cross it are re-solved or fail as ``occluded``
-    (:func:`planner.beam.occlusion.check_points`)."""
+    (:func:`planner.safety.occlusion.check_points`)."""
     ik = BeamIK(system, options)
     q_prev = system.home if q_start is None else np.asarray(q_start, dtype=float)
     out = []
@@ -53,7 +53,7 @@ def plan_points(
         if progress is not None:
             progress(k)
     if scene is not None and not scene.empty:
-        from planner.beam.occlusion import check_points
+        from planner.safety.occlusion import check_points
 
         out = check_points(ik, scene, targets, out)
     return out
@@ -69,7 +69,7 @@ def solve_path(
     """A continuous sweep through :func:`planner.path.solve.plan_path`: per-sample solutions (a
     sample in a gap is ``failed`` with the gap's reason and evidence) and the path result.
     With a ``scene``, samples whose beam crosses it become ``occluded`` gaps
-    (:func:`planner.beam.occlusion.check_path`)."""
+    (:func:`planner.safety.occlusion.check_path`)."""
     from planner.path.solve import PathOptions, plan_path
 
     inc = 90.0 if options.max_incidence is None else float(np.degrees(options.max_incidence))
@@ -92,7 +92,7 @@ def solve_path(
             out.append(Solution("failed", reason, None, None, float("inf"), None, None,
                                 per_sample, 0, "path", 0.0, evidence))  # fmt: skip
     if scene is not None and not scene.empty:
-        from planner.beam.occlusion import check_path
+        from planner.safety.occlusion import check_path
 
         return check_path(system, scene, out, res)
     return out, res

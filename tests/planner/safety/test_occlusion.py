@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planner.beam.occlusion import check_points, occlusions, segment_labels
 from planner.ik import BeamIK, IKOptions
 from planner.io.scenario import (
     SceneItem,
@@ -23,6 +22,7 @@ from planner.model.scene import SceneModel
 from planner.model.system import System, Targets
 from planner.model.transforms import Array, make_T
 from planner.planning import ik_options, plan_points, solve_path, time_solutions
+from planner.safety.occlusion import check_points, occlusions, segment_labels
 from tests.paths import REPO
 from tests.planner.ik import ik_systems as sy
 from tests.planner.model.test_scene import box_entry
