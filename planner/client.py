@@ -68,7 +68,7 @@ def make_request(
 def world_T_camera_of(plan: dict[str, Any]) -> Array | None:
     """The camera pose the plan was made with (resolved scenario), or None."""
     cam = plan.get("scenario", {}).get("system", {}).get("camera")
-    if not cam:
+    if not cam or "world_T_camera" not in cam:  # none, or on a flange (pose depends on q)
         return None
     return np.asarray(cam["world_T_camera"]["matrix"], dtype=float)
 

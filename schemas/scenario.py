@@ -8,11 +8,14 @@ optional (robots still need their ``name``, by which they are matched).
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Literal, Self
 
 from pydantic import Field, StrictBool, field_validator, model_validator
 
 from schemas.common import (
+    MAX_FLANGE_M,
+    MAX_WORLD_M,
     FieldError,
     JointVector,
     NonNegNum,
@@ -22,6 +25,7 @@ from schemas.common import (
     PosNum,
     StrictModel,
     Vec3,
+    check_translation,
     exact_length,
     unit_rows,
 )
@@ -33,12 +37,28 @@ NonNegVec3 = Annotated[list[NonNegNum], exact_length(3)]
 Points = Annotated[list[Vec3], Field(min_length=1)]
 Name = Annotated[str, Field(min_length=1)]
 
+MAX_POSITION_RAD = 2 * math.pi + 0.01
+"""Joint positions (limits, home) beyond +-2 pi rad are degrees given as radians."""
+MAX_LIMIT = {"velocity": 4 * math.pi, "acceleration": 100.0, "jerk": 10000.0}
+"""Joint limits above these (rad/s, rad/s^2, rad/s^3) are no arm's: degrees given as radians.
+A UR5e's datasheet maximum is pi rad/s."""
+LIMIT_UNITS = {"velocity": "rad/s", "acceleration": "rad/s^2", "jerk": "rad/s^3"}
+MAX_SPOT_SPEED = 10.0
+"""A spot speed (m/s) above this is mm/s given as m/s."""
+MAX_TOLERANCE = 0.01
+"""A solver tolerance (m) above this is a length in mm given as metres."""
+
 
 # --- system -------------------------------------------------------------------------------
 class Laser(StrictModel):
     """The fixed laser: the beam exits at the origin of ``world_T_laser`` along its +z."""
 
     world_T_laser: Pose
+
+    @model_validator(mode="after")
+    def _plausible(self) -> Self:
+        check_translation(self.world_T_laser, "world_T_laser", MAX_WORLD_M)
+        return self
 
 
 class Limits(StrictModel):
@@ -53,14 +73,51 @@ class Limits(StrictModel):
     @model_validator(mode="after")
     def _consistent(self) -> Self:
         for name in ("velocity", "acceleration", "jerk"):
+            unit, top = LIMIT_UNITS[name], MAX_LIMIT[name]
             for i, v in enumerate(getattr(self, name) or []):
                 if v <= 0:
                     raise FieldError((name, i), f"must be > 0, got {v:g}")
+                if v > top:
+                    raise FieldError(
+                        (name, i),
+                        f"{v:g} {unit} is above {top:.4g} {unit}, beyond any arm: did you give"
+                        f" {unit.replace('rad', 'deg')}? (limits are in radians)",
+                    )
+        for name in ("lower", "upper"):
+            for i, v in enumerate(getattr(self, name) or []):
+                check_joint_angle(v, (name, i))
         if self.lower is not None and self.upper is not None:
             for i, (lo, hi) in enumerate(zip(self.lower, self.upper, strict=False)):
                 if lo >= hi:
                     raise FieldError(("upper", i), f"must be above lower ({lo:g}), got {hi:g}")
         return self
+
+
+def check_joint_angle(value: float, loc: tuple[str | int, ...]) -> None:
+    """A :class:`FieldError` when a joint position (rad) lies beyond +-2 pi: degrees?"""
+    if abs(value) > MAX_POSITION_RAD:
+        raise FieldError(
+            loc, f"{value:g} rad is beyond +-2 pi: did you give degrees? (joints are in radians)"
+        )
+
+
+def check_mirror(
+    size: list[float] | None, roi_margin: float | None, flange_T_mirror: Pose | None
+) -> None:
+    """Mirror sides and offset must be plausible lengths in metres (<= 1 m)."""
+    if flange_T_mirror is not None:
+        check_translation(flange_T_mirror, "flange_T_mirror", MAX_FLANGE_M)
+    for i, side in enumerate(size or []):
+        if side > MAX_FLANGE_M:
+            raise FieldError(
+                ("size", i),
+                f"{side:g} m is a mirror side above {MAX_FLANGE_M:g} m: did you give"
+                " millimetres? (lengths are in metres)",
+            )
+    if roi_margin is not None and roi_margin > MAX_FLANGE_M:
+        raise FieldError(
+            ("roi_margin",), f"{roi_margin:g} m: did you give millimetres? (lengths are in metres)"
+        )
 
 
 class Mirror(StrictModel):
@@ -76,11 +133,25 @@ class Mirror(StrictModel):
 
     @model_validator(mode="after")
     def _margin_fits(self) -> Self:
+        check_mirror(self.size, self.roi_margin, self.flange_T_mirror)
         if 2 * self.roi_margin >= min(self.size):
+            half = min(self.size) / 2
             if "roi_margin" in self.model_fields_set:
-                raise FieldError(("roi_margin",), f"{self.roi_margin:g} m leaves no usable area")
+                raise FieldError(
+                    ("roi_margin",),
+                    f"{self.roi_margin:g} m is not below half the mirror ({half:g} m):"
+                    " it leaves no usable area",
+                )
             raise FieldError(("size",), f"leaves no area inside roi_margin {self.roi_margin:g}")
         return self
+
+
+def check_robot(home: list[float] | None, world_T_base: Pose | None) -> None:
+    """Home angles in radians (within +-2 pi), base within the plausible world."""
+    for i, v in enumerate(home or []):
+        check_joint_angle(v, ("home", i))
+    if world_T_base is not None:
+        check_translation(world_T_base, "world_T_base", MAX_WORLD_M)
 
 
 def check_joint_lengths(home: list[float] | None, limits: Limits | None, nq: int) -> None:
@@ -115,6 +186,7 @@ class Robot(StrictModel):
             raise FieldError(("urdf",), "give either model or urdf, not both")
         if self.urdf is None:
             check_joint_lengths(self.home, self.limits, UR_NQ)
+        check_robot(self.home, self.world_T_base)
         return self
 
 
@@ -129,11 +201,56 @@ class Intrinsics(StrictModel):
     cy: Num
 
 
-class Camera(StrictModel):
-    """The RGB-D camera: ``world_T_camera`` is its OpenCV optical frame (z forward)."""
+def check_camera_mount(
+    world_T_camera: Pose | None,
+    robot: str | None,
+    flange_T_camera: Pose | None,
+    *,
+    partial: bool,
+) -> None:
+    """A camera is either fixed (``world_T_camera``) or on a flange (``robot`` +
+    ``flange_T_camera``); translations must be plausible lengths in metres."""
+    on_flange = robot is not None or flange_T_camera is not None
+    if world_T_camera is not None and on_flange:
+        key = "robot" if robot is not None else "flange_T_camera"
+        raise FieldError(
+            (key,),
+            "give either world_T_camera (a fixed camera) or robot + flange_T_camera"
+            " (a camera on that robot's flange), not both",
+        )
+    if not partial:
+        if on_flange and robot is None:
+            raise FieldError(("robot",), "missing: flange_T_camera needs the robot carrying it")
+        if on_flange and flange_T_camera is None:
+            raise FieldError(
+                ("flange_T_camera",), f"missing: the camera pose on robot {robot!r}'s flange"
+            )
+        if world_T_camera is None and not on_flange:
+            raise ValueError(
+                "needs world_T_camera (a fixed camera) or robot + flange_T_camera (on a flange)"
+            )
+    if world_T_camera is not None:
+        check_translation(world_T_camera, "world_T_camera", MAX_WORLD_M)
+    if flange_T_camera is not None:
+        check_translation(flange_T_camera, "flange_T_camera", MAX_FLANGE_M)
 
-    world_T_camera: Pose
+
+class Camera(StrictModel):
+    """The RGB-D camera, OpenCV optical frame (x right, y down, z forward).
+
+    Either fixed, ``world_T_camera``, or carried by a robot (eye-in-hand): ``robot`` names
+    it and ``flange_T_camera`` is the camera's pose on its flange.
+    """
+
+    world_T_camera: Pose | None = None
+    robot: Name | None = None
+    flange_T_camera: Pose | None = None
     intrinsics: Intrinsics
+
+    @model_validator(mode="after")
+    def _one_mount(self) -> Self:
+        check_camera_mount(self.world_T_camera, self.robot, self.flange_T_camera, partial=False)
+        return self
 
 
 def check_unique_names(names: list[str], what: str) -> None:
@@ -159,16 +276,37 @@ class System(StrictModel):
         check_unique_names([r.name for r in robots], "robot")
         return robots
 
+    @model_validator(mode="after")
+    def _camera_robot(self) -> Self:
+        names = [r.name for r in self.robots]
+        cam = self.camera
+        if cam is not None and cam.robot is not None and cam.robot not in names:
+            raise FieldError(
+                ("camera", "robot"), f"no robot named {cam.robot!r} (robots: {', '.join(names)})"
+            )
+        return self
+
 
 # --- partial system (include files, truth) --------------------------------------------------
 class PartialLaser(StrictModel):
     world_T_laser: Pose | None = None
+
+    @model_validator(mode="after")
+    def _plausible(self) -> Self:
+        if self.world_T_laser is not None:
+            check_translation(self.world_T_laser, "world_T_laser", MAX_WORLD_M)
+        return self
 
 
 class PartialMirror(StrictModel):
     flange_T_mirror: Pose | None = None
     size: PosVec2 | None = None
     roi_margin: NonNegNum | None = None
+
+    @model_validator(mode="after")
+    def _plausible(self) -> Self:
+        check_mirror(self.size, self.roi_margin, self.flange_T_mirror)
+        return self
 
 
 class PartialRobot(StrictModel):
@@ -182,6 +320,11 @@ class PartialRobot(StrictModel):
     limits: Limits | None = None
     mirror: PartialMirror | None = None
 
+    @model_validator(mode="after")
+    def _plausible(self) -> Self:
+        check_robot(self.home, self.world_T_base)
+        return self
+
 
 class PartialIntrinsics(StrictModel):
     width: PosInt | None = None
@@ -193,8 +336,17 @@ class PartialIntrinsics(StrictModel):
 
 
 class PartialCamera(StrictModel):
+    """Camera overrides; a mount given here (fixed or on a flange) replaces the other one."""
+
     world_T_camera: Pose | None = None
+    robot: Name | None = None
+    flange_T_camera: Pose | None = None
     intrinsics: PartialIntrinsics | None = None
+
+    @model_validator(mode="after")
+    def _one_mount(self) -> Self:
+        check_camera_mount(self.world_T_camera, self.robot, self.flange_T_camera, partial=True)
+        return self
 
 
 class PartialSystem(StrictModel):
@@ -246,6 +398,13 @@ class SceneObject(StrictModel):
             raise FieldError((given[1],), f"give only one shape of {', '.join(given)}")
         if self.scale is not None and self.mesh is None:
             raise FieldError(("scale",), "only allowed with mesh")
+        check_translation(self.world_T_object, "world_T_object", MAX_WORLD_M)
+        sizes = {"box": self.box, "sphere": [self.sphere], "cylinder": self.cylinder}
+        for key, values in sizes.items():
+            for i, v in enumerate(values or []):
+                if v is not None and v > MAX_WORLD_M:
+                    loc = (key,) if key == "sphere" else (key, i)
+                    raise FieldError(loc, f"{v:g} m: did you give millimetres? (metres)")
         return self
 
     @property
@@ -254,6 +413,44 @@ class SceneObject(StrictModel):
 
 
 # --- targets ------------------------------------------------------------------------------
+def check_coordinates(rows: list[list[float]], loc: tuple[str | int, ...], frame: str) -> None:
+    """Target points (m) must be plausible: within ``MAX_WORLD_M`` of the frame's origin
+    and, in the camera frame, in front of the camera (z > 0)."""
+    for i, row in enumerate(rows):
+        check_length_scale(row, (*loc, i))
+        if frame == "camera" and row[2] <= 0:
+            raise FieldError((*loc, i), behind_camera(row[2]))
+
+
+def check_in_front(spec: TargetSpec) -> None:
+    """Camera-frame targets must lie in front of the camera (z > 0, OpenCV frame)."""
+    if spec.points is not None:
+        check_coordinates(spec.points, ("points",), "camera")
+    if spec.path is not None:
+        check_coordinates(spec.path.points, ("path", "points"), "camera")
+    if spec.grid is not None:
+        g = spec.grid
+        if g.center[2] - g.size[2] / 2 <= 0:
+            raise FieldError(("grid",), behind_camera(g.center[2] - g.size[2] / 2))
+
+
+def check_length_scale(values: list[float], loc: tuple[str | int, ...]) -> None:
+    """Lengths (m) beyond ``MAX_WORLD_M`` are millimetres given as metres."""
+    if max(abs(x) for x in values) > MAX_WORLD_M:
+        raise FieldError(
+            loc,
+            f"{values} is beyond {MAX_WORLD_M:g} m: did you give millimetres?"
+            " (coordinates are in metres)",
+        )
+
+
+def behind_camera(z: float) -> str:
+    return (
+        f"z = {z:g} m is not in front of the camera (camera frame: OpenCV, z forward):"
+        " world coordinates? then say frame: world"
+    )
+
+
 def check_normals(points: list[list[float]], normals: list[list[float]] | None) -> None:
     if normals is not None and len(normals) != len(points):
         raise FieldError(
@@ -323,7 +520,17 @@ class TargetSpec(StrictModel):
                 raise FieldError(("normals",), "only allowed with points")
             check_normals(self.points, self.normals)
             self.normals = unit_normals(self.normals)
+        self._plausible()
         return self
+
+    def _plausible(self) -> None:
+        if self.points is not None:
+            check_coordinates(self.points, ("points",), "world")
+        if self.path is not None:
+            check_coordinates(self.path.points, ("path", "points"), "world")
+        if self.grid is not None:
+            check_length_scale(self.grid.center, ("grid", "center"))
+            check_length_scale(self.grid.size, ("grid", "size"))
 
     @property
     def kind(self) -> str:
@@ -338,6 +545,16 @@ class Solver(StrictModel):
     max_iter: PosInt = 200
     max_incidence_deg: Annotated[PosNum, Field(le=90)] = 80.0
 
+    @model_validator(mode="after")
+    def _plausible(self) -> Self:
+        if self.tolerance > MAX_TOLERANCE:
+            raise FieldError(
+                ("tolerance",),
+                f"{self.tolerance:g} m is a spot error above {MAX_TOLERANCE:g} m: did you"
+                " give millimetres? (metres)",
+            )
+        return self
+
 
 class TrajectorySettings(StrictModel):
     """Path timing: spot speed (m/s), dwell per target (s), sample rate (Hz)."""
@@ -345,6 +562,16 @@ class TrajectorySettings(StrictModel):
     spot_speed: PosNum = 0.02
     dwell: NonNegNum = 0.0
     rate: PosNum = 500.0
+
+    @model_validator(mode="after")
+    def _plausible(self) -> Self:
+        if self.spot_speed > MAX_SPOT_SPEED:
+            raise FieldError(
+                ("spot_speed",),
+                f"{self.spot_speed:g} m/s is above {MAX_SPOT_SPEED:g} m/s: did you give mm/s?"
+                " (m/s)",
+            )
+        return self
 
 
 class Scenario(StrictModel):
@@ -369,6 +596,11 @@ class Scenario(StrictModel):
     def _camera_frame(self) -> Self:
         if self.targets.frame == "camera" and self.system.camera is None:
             raise FieldError(("targets", "frame"), "is camera but system.camera is not given")
+        if self.targets.frame == "camera":
+            try:
+                check_in_front(self.targets)
+            except FieldError as exc:
+                raise FieldError(("targets", *exc.loc), exc.reason) from None
         if self.truth is not None:
             names = {r.name for r in self.system.robots}
             for i, r in enumerate(self.truth.system.robots or []):

@@ -84,10 +84,10 @@ def test_invalid_poses(data: dict[str, object], reason: str) -> None:
 def test_rigid_tolerance() -> None:
     R = Rotation.from_euler("xyz", [0.1, 0.2, 0.3]).as_matrix()
     T = np.eye(4)
-    T[:3, :3] = R + 1e-8
-    Pose.model_validate({"matrix": T.tolist()})  # within 1e-6
     T[:3, :3] = R + 1e-5
-    with pytest.raises(ValidationError):
+    Pose.model_validate({"matrix": T.tolist()})  # within 1e-4: made a rotation
+    T[:3, :3] = R + 1e-3
+    with pytest.raises(ValidationError, match=r"max \|R\^T R - I\| = 0.00"):
         Pose.model_validate({"matrix": T.tolist()})
 
 
