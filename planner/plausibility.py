@@ -29,7 +29,9 @@ Loc = tuple[str | int, ...]
 
 def scenario_warnings(model: Scenario) -> list[tuple[Loc, str]]:
     """(key path, reason) of every suspicious value of a validated scenario."""
-    found = [(loc, reason) for loc, pose in poses(model) if (reason := pose_warning(pose))]
+    found = [
+        ((*loc, found[0]), found[1]) for loc, pose in poses(model) if (found := pose_warning(pose))
+    ]
     for i, robot in enumerate(model.system.robots):
         if robot.urdf is None and robot.limits is not None and robot.limits.velocity:
             for j, v in enumerate(robot.limits.velocity):
@@ -52,22 +54,23 @@ def scenario_warnings(model: Scenario) -> list[tuple[Loc, str]]:
     return found
 
 
-def pose_warning(pose: Pose) -> str | None:
-    """Why a pose looks mistaken (a far from unit quaternion, radians under ``rpy_deg``)."""
+def pose_warning(pose: Pose) -> tuple[str, str] | None:
+    """(key, reason) when a pose looks mistaken: a quaternion far from unit length, or
+    radians written under ``rpy_deg``."""
     n = pose.quat_length
     lo, hi = QUAT_NORM_RANGE
     if n is not None and not lo <= n <= hi:
-        return (
-            f"quat has length {n:.4g}, far from a unit quaternion [x, y, z, w] (normalised"
-            " here); angles? write rpy or rpy_deg"
+        return "quat", (
+            f"has length {n:.4g}, far from a unit quaternion [x, y, z, w] (normalised here);"
+            " angles? write rpy or rpy_deg"
         )
     angles = pose.rpy_deg or []
     if not angles or max(abs(a) for a in angles) > 2 * math.pi + 1e-6:
         return None
     if any(abs(abs(a) - r) < 1e-3 for a in angles for r in RADIAN_LOOKING):
-        return (
-            f"rpy_deg {angles} looks like radians (multiples of pi/4); rpy_deg is in degrees,"
-            " for radians write rpy"
+        return "rpy_deg", (
+            f"{angles} looks like radians (multiples of pi/4); rpy_deg is in degrees, for"
+            " radians write rpy"
         )
     return None
 

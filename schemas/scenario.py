@@ -444,11 +444,9 @@ def check_length_scale(values: list[float], loc: tuple[str | int, ...]) -> None:
         )
 
 
-def behind_camera(z: float) -> str:
-    return (
-        f"z = {z:g} m is not in front of the camera (camera frame: OpenCV, z forward):"
-        " world coordinates? then say frame: world"
-    )
+def behind_camera(z: float, hint: str = "world coordinates? then say frame: world") -> str:
+    """Why a camera-frame point with depth ``z`` (m) <= 0 is wrong, and what to do."""
+    return f"z = {z:g} m is not in front of the camera (camera frame: OpenCV, z forward): {hint}"
 
 
 def check_normals(points: list[list[float]], normals: list[list[float]] | None) -> None:
