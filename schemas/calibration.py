@@ -11,13 +11,9 @@ from typing import Annotated, Any, Literal, Self
 
 from pydantic import Field, model_validator
 
+from schemas.bounds import behind_camera, check_joint_angle, check_length_scale
 from schemas.common import MAX_FLANGE_M, FieldError, JointVector, NonNegInt, StrictModel, Vec3
-from schemas.scenario import (
-    PartialSystem,
-    behind_camera,
-    check_joint_angle,
-    check_length_scale,
-)
+from schemas.scenario import PartialSystem
 
 HANDEYE_SCHEMA = "beamrelay.handeye/1"
 BEAM_SCHEMA = "beamrelay.beam/1"

@@ -8,13 +8,21 @@ optional (robots still need their ``name``, by which they are matched).
 
 from __future__ import annotations
 
-import math
 from typing import Annotated, Literal, Self
 
-from pydantic import Field, StrictBool, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
+from schemas.bounds import (
+    MAX_SPOT_SPEED,
+    MAX_TOLERANCE,
+    check_camera_mount,
+    check_in_front,
+    check_joint_angle,
+    check_limit_values,
+    check_mirror,
+    check_robot,
+)
 from schemas.common import (
-    MAX_FLANGE_M,
     MAX_WORLD_M,
     FieldError,
     JointVector,
@@ -24,29 +32,19 @@ from schemas.common import (
     PosInt,
     PosNum,
     StrictModel,
-    Vec3,
     check_translation,
     exact_length,
-    unit_rows,
 )
+from schemas.targets import GridSpec as GridSpec
+from schemas.targets import PathSpec as PathSpec
+from schemas.targets import TargetSpec
+from schemas.targets import check_normals as check_normals
+from schemas.targets import unit_normals as unit_normals
 
 UR_NQ = 6
 PosVec2 = Annotated[list[PosNum], exact_length(2)]
 PosVec3 = Annotated[list[PosNum], exact_length(3)]
-NonNegVec3 = Annotated[list[NonNegNum], exact_length(3)]
-Points = Annotated[list[Vec3], Field(min_length=1)]
 Name = Annotated[str, Field(min_length=1)]
-
-MAX_POSITION_RAD = 2 * math.pi + 0.01
-"""Joint positions (limits, home) beyond +-2 pi rad are degrees given as radians."""
-MAX_LIMIT = {"velocity": 4 * math.pi, "acceleration": 100.0, "jerk": 10000.0}
-"""Joint limits above these (rad/s, rad/s^2, rad/s^3) are no arm's: degrees given as radians.
-A UR5e's datasheet maximum is pi rad/s."""
-LIMIT_UNITS = {"velocity": "rad/s", "acceleration": "rad/s^2", "jerk": "rad/s^3"}
-MAX_SPOT_SPEED = 10.0
-"""A spot speed (m/s) above this is mm/s given as m/s."""
-MAX_TOLERANCE = 0.01
-"""A solver tolerance (m) above this is a length in mm given as metres."""
 
 
 # --- system -------------------------------------------------------------------------------
@@ -73,16 +71,7 @@ class Limits(StrictModel):
     @model_validator(mode="after")
     def _consistent(self) -> Self:
         for name in ("velocity", "acceleration", "jerk"):
-            unit, top = LIMIT_UNITS[name], MAX_LIMIT[name]
-            for i, v in enumerate(getattr(self, name) or []):
-                if v <= 0:
-                    raise FieldError((name, i), f"must be > 0, got {v:g}")
-                if v > top:
-                    raise FieldError(
-                        (name, i),
-                        f"{v:g} {unit} is above {top:.4g} {unit}, beyond any arm: did you give"
-                        f" {unit.replace('rad', 'deg')}? (limits are in radians)",
-                    )
+            check_limit_values(name, getattr(self, name))
         for name in ("lower", "upper"):
             for i, v in enumerate(getattr(self, name) or []):
                 check_joint_angle(v, (name, i))
@@ -91,33 +80,6 @@ class Limits(StrictModel):
                 if lo >= hi:
                     raise FieldError(("upper", i), f"must be above lower ({lo:g}), got {hi:g}")
         return self
-
-
-def check_joint_angle(value: float, loc: tuple[str | int, ...]) -> None:
-    """A :class:`FieldError` when a joint position (rad) lies beyond +-2 pi: degrees?"""
-    if abs(value) > MAX_POSITION_RAD:
-        raise FieldError(
-            loc, f"{value:g} rad is beyond +-2 pi: did you give degrees? (joints are in radians)"
-        )
-
-
-def check_mirror(
-    size: list[float] | None, roi_margin: float | None, flange_T_mirror: Pose | None
-) -> None:
-    """Mirror sides and offset must be plausible lengths in metres (<= 1 m)."""
-    if flange_T_mirror is not None:
-        check_translation(flange_T_mirror, "flange_T_mirror", MAX_FLANGE_M)
-    for i, side in enumerate(size or []):
-        if side > MAX_FLANGE_M:
-            raise FieldError(
-                ("size", i),
-                f"{side:g} m is a mirror side above {MAX_FLANGE_M:g} m: did you give"
-                " millimetres? (lengths are in metres)",
-            )
-    if roi_margin is not None and roi_margin > MAX_FLANGE_M:
-        raise FieldError(
-            ("roi_margin",), f"{roi_margin:g} m: did you give millimetres? (lengths are in metres)"
-        )
 
 
 class Mirror(StrictModel):
@@ -144,14 +106,6 @@ class Mirror(StrictModel):
                 )
             raise FieldError(("size",), f"leaves no area inside roi_margin {self.roi_margin:g}")
         return self
-
-
-def check_robot(home: list[float] | None, world_T_base: Pose | None) -> None:
-    """Home angles in radians (within +-2 pi), base within the plausible world."""
-    for i, v in enumerate(home or []):
-        check_joint_angle(v, ("home", i))
-    if world_T_base is not None:
-        check_translation(world_T_base, "world_T_base", MAX_WORLD_M)
 
 
 def check_joint_lengths(home: list[float] | None, limits: Limits | None, nq: int) -> None:
@@ -199,40 +153,6 @@ class Intrinsics(StrictModel):
     fy: PosNum
     cx: Num
     cy: Num
-
-
-def check_camera_mount(
-    world_T_camera: Pose | None,
-    robot: str | None,
-    flange_T_camera: Pose | None,
-    *,
-    partial: bool,
-) -> None:
-    """A camera is either fixed (``world_T_camera``) or on a flange (``robot`` +
-    ``flange_T_camera``); translations must be plausible lengths in metres."""
-    on_flange = robot is not None or flange_T_camera is not None
-    if world_T_camera is not None and on_flange:
-        key = "robot" if robot is not None else "flange_T_camera"
-        raise FieldError(
-            (key,),
-            "give either world_T_camera (a fixed camera) or robot + flange_T_camera"
-            " (a camera on that robot's flange), not both",
-        )
-    if not partial:
-        if on_flange and robot is None:
-            raise FieldError(("robot",), "missing: flange_T_camera needs the robot carrying it")
-        if on_flange and flange_T_camera is None:
-            raise FieldError(
-                ("flange_T_camera",), f"missing: the camera pose on robot {robot!r}'s flange"
-            )
-        if world_T_camera is None and not on_flange:
-            raise ValueError(
-                "needs world_T_camera (a fixed camera) or robot + flange_T_camera (on a flange)"
-            )
-    if world_T_camera is not None:
-        check_translation(world_T_camera, "world_T_camera", MAX_WORLD_M)
-    if flange_T_camera is not None:
-        check_translation(flange_T_camera, "flange_T_camera", MAX_FLANGE_M)
 
 
 class Camera(StrictModel):
@@ -410,129 +330,6 @@ class SceneObject(StrictModel):
     @property
     def shape(self) -> str:
         return next(k for k in SHAPE_KEYS if getattr(self, k) is not None)
-
-
-# --- targets ------------------------------------------------------------------------------
-def check_coordinates(rows: list[list[float]], loc: tuple[str | int, ...], frame: str) -> None:
-    """Target points (m) must be plausible: within ``MAX_WORLD_M`` of the frame's origin
-    and, in the camera frame, in front of the camera (z > 0)."""
-    for i, row in enumerate(rows):
-        check_length_scale(row, (*loc, i))
-        if frame == "camera" and row[2] <= 0:
-            raise FieldError((*loc, i), behind_camera(row[2]))
-
-
-def check_in_front(spec: TargetSpec) -> None:
-    """Camera-frame targets must lie in front of the camera (z > 0, OpenCV frame)."""
-    if spec.points is not None:
-        check_coordinates(spec.points, ("points",), "camera")
-    if spec.path is not None:
-        check_coordinates(spec.path.points, ("path", "points"), "camera")
-    if spec.grid is not None:
-        g = spec.grid
-        if g.center[2] - g.size[2] / 2 <= 0:
-            raise FieldError(("grid",), behind_camera(g.center[2] - g.size[2] / 2))
-
-
-def check_length_scale(values: list[float], loc: tuple[str | int, ...]) -> None:
-    """Lengths (m) beyond ``MAX_WORLD_M`` are millimetres given as metres."""
-    if max(abs(x) for x in values) > MAX_WORLD_M:
-        raise FieldError(
-            loc,
-            f"{values} is beyond {MAX_WORLD_M:g} m: did you give millimetres?"
-            " (coordinates are in metres)",
-        )
-
-
-def behind_camera(z: float, hint: str = "world coordinates? then say frame: world") -> str:
-    """Why a camera-frame point with depth ``z`` (m) <= 0 is wrong, and what to do."""
-    return f"z = {z:g} m is not in front of the camera (camera frame: OpenCV, z forward): {hint}"
-
-
-def check_normals(points: list[list[float]], normals: list[list[float]] | None) -> None:
-    if normals is not None and len(normals) != len(points):
-        raise FieldError(
-            ("normals",), f"expected {len(points)} normals (one per point), got {len(normals)}"
-        )
-
-
-def unit_normals(normals: list[list[float]] | None) -> list[list[float]] | None:
-    """Normalise normals; a zero one is an error at ``normals[i]``."""
-    if normals is None:
-        return None
-    try:
-        return unit_rows(normals)
-    except FieldError as exc:
-        raise FieldError(("normals", *exc.loc), exc.reason) from None
-
-
-class GridSpec(StrictModel):
-    """``n[i]`` points per axis from ``center - size/2`` to ``center + size/2`` (m)."""
-
-    center: Vec3
-    size: NonNegVec3
-    n: Annotated[list[PosInt], exact_length(3, "integers")]
-
-
-class PathSpec(StrictModel):
-    """A polyline swept continuously, resampled every ``spacing`` m (closed: back to start).
-
-    ``normals`` are per vertex and interpolated between vertices.
-    """
-
-    points: Annotated[list[Vec3], Field(min_length=2)]
-    normals: list[Vec3] | None = None
-    closed: StrictBool = False
-    spacing: PosNum = 0.001
-
-    @model_validator(mode="after")
-    def _normals(self) -> Self:
-        check_normals(self.points, self.normals)
-        self.normals = unit_normals(self.normals)
-        return self
-
-
-class TargetSpec(StrictModel):
-    """Where the spot should go: exactly one of ``points`` (+``normals``), ``grid``, ``path``.
-
-    Coordinates are in ``frame`` (``world``, or ``camera`` = the camera's optical frame).
-    ``order: optimized`` lets the planner reorder points/grid targets.
-    """
-
-    frame: Literal["world", "camera"] = "world"
-    points: Points | None = None
-    normals: list[Vec3] | None = None
-    grid: GridSpec | None = None
-    path: PathSpec | None = None
-    order: Literal["optimized", "given"] = "optimized"
-
-    @model_validator(mode="after")
-    def _one_kind(self) -> Self:
-        given = [k for k in ("points", "grid", "path") if getattr(self, k) is not None]
-        if not given:
-            raise ValueError("needs one of points, grid, path")
-        if len(given) > 1:
-            raise FieldError((given[1],), f"give only one of {', '.join(given)}")
-        if self.normals is not None:
-            if self.points is None:
-                raise FieldError(("normals",), "only allowed with points")
-            check_normals(self.points, self.normals)
-            self.normals = unit_normals(self.normals)
-        self._plausible()
-        return self
-
-    def _plausible(self) -> None:
-        if self.points is not None:
-            check_coordinates(self.points, ("points",), "world")
-        if self.path is not None:
-            check_coordinates(self.path.points, ("path", "points"), "world")
-        if self.grid is not None:
-            check_length_scale(self.grid.center, ("grid", "center"))
-            check_length_scale(self.grid.size, ("grid", "size"))
-
-    @property
-    def kind(self) -> str:
-        return "points" if self.points is not None else "grid" if self.grid is not None else "path"
 
 
 # --- settings -----------------------------------------------------------------------------
