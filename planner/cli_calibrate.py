@@ -164,6 +164,24 @@ def beam(
     )
 
 
+def _check_simulate_options(
+    kind: str, mode: str, spots: str, noise: str, poses: int, boards: int, outliers: float
+) -> None:
+    """Reject bad ``calibrate simulate`` options (InputError: one line, exit 2)."""
+    if kind not in ("handeye", "beam"):
+        raise InputError(f"--kind {kind!r}: expected handeye or beam")
+    if mode not in ("eye_to_hand", "eye_in_hand"):
+        raise InputError(f"--mode {mode!r}: expected eye_to_hand or eye_in_hand")
+    if spots not in ("world", "camera"):
+        raise InputError(f"--spots {spots!r}: expected world or camera")
+    if noise not in ("d435", "none"):
+        raise InputError(f"--noise {noise!r}: expected d435 or none")
+    if poses < 1 or boards < 1:
+        raise InputError("--poses and --boards must be >= 1")
+    if not 0.0 <= outliers < 1.0:
+        raise InputError(f"--outliers {outliers}: expected a fraction in [0, 1)")
+
+
 @app.command("simulate")
 def simulate(
     scenario: Annotated[
@@ -194,18 +212,7 @@ def simulate(
     from planner.scenario import load_scenario, system_from_scenario, targets_from_scenario
     from planner.transforms import matrix_to_quat
 
-    if kind not in ("handeye", "beam"):
-        raise InputError(f"--kind {kind!r}: expected handeye or beam")
-    if mode not in ("eye_to_hand", "eye_in_hand"):
-        raise InputError(f"--mode {mode!r}: expected eye_to_hand or eye_in_hand")
-    if spots not in ("world", "camera"):
-        raise InputError(f"--spots {spots!r}: expected world or camera")
-    if noise not in ("d435", "none"):
-        raise InputError(f"--noise {noise!r}: expected d435 or none")
-    if poses < 1 or boards < 1:
-        raise InputError("--poses and --boards must be >= 1")
-    if not 0.0 <= outliers < 1.0:
-        raise InputError(f"--outliers {outliers}: expected a fraction in [0, 1)")
+    _check_simulate_options(kind, mode, spots, noise, poses, boards, outliers)
     scn = load_scenario(scenario)
     nominal = system_from_scenario(scn)
     truth = system_from_scenario(scn, truth=True)

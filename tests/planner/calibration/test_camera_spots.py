@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from ruamel.yaml import YAML
 
+from planner.beam import BeamModel
 from planner.cli import main
 from planner.scenario import load_scenario, system_from_scenario
 from planner.transforms import rotation_angle
@@ -78,8 +79,6 @@ def test_simulated_spots_are_in_the_true_camera_frame(fixed: Path) -> None:
     p_world = np.array([cam[:3, :3] @ s["spot_camera"] + cam[:3, 3] for s in doc["samples"]])
     q = np.array([s["q"]["arm0"] for s in doc["samples"]])
     for p, qk in zip(p_world, q, strict=True):  # each spot lies on the true reflected beam
-        from planner.beam import BeamModel
-
         tr = BeamModel(truth).trace(qk)
         v = tr.dirs[-1]
         offset = p - tr.hits[-1]
