@@ -75,7 +75,8 @@ def distance(
     )
 
 
-def _segment(p0: Array, p1: Array) -> tuple[coal.Capsule, coal.Transform3s]:
+def segment_shape(p0: Array, p1: Array) -> tuple[coal.Capsule, coal.Transform3s]:
+    """The segment p0 -> p1 (world, m) as a coal capsule of radius 0 and its pose."""
     T, length = capsule_placement(p0, p1)
     return coal.Capsule(0.0, length), _transform(T)
 
@@ -97,7 +98,7 @@ def beam_arm(
     out = []
     for k in range(len(P) - 1):
         ends = {r for r in (k - 1, k) if 0 <= r < n}  # robots whose mirror the segment touches
-        seg, T_seg = _segment(P[k], P[k + 1])
+        seg, T_seg = segment_shape(P[k], P[k + 1])
         for part in world.parts:
             if not part.on_robot:
                 continue
@@ -132,7 +133,7 @@ def beam_keep_out(world: SafetyWorld, points: Array, margin: float = 0.0) -> lis
     for part in world.parts_of(PartKind.KEEP_OUT):
         geom, T = world.geometry(part.index), world.placement(part.index)
         for k in range(len(P) - 1):
-            seg, T_seg = _segment(P[k], P[k + 1])
+            seg, T_seg = segment_shape(P[k], P[k + 1])
             d, pa, pb, nrm = distance(seg, T_seg, geom, T)
             out.append(
                 Clearance(

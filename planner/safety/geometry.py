@@ -140,6 +140,7 @@ class SafetyWorld:
         for req in self.geom_data.distanceRequests:
             req.gjk_tolerance = 1e-12
         self._q: Array | None = None
+        self.update(pin.neutral(self.model))  # places the fixed parts once
 
     # construction -------------------------------------------------------------------------
     def _add_geometry(self, part: Part, joint: int, placement: Array, geometry: object) -> None:
