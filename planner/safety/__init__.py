@@ -26,12 +26,22 @@ from planner.safety.checks import (
 from planner.safety.geometry import PairKind, Part, PartKind, SafetyWorld
 from planner.safety.shapes import Volume, box, sphere, volumes_from_scene_items
 from planner.safety.sweep import SweepViolation, check_sweep
-from planner.safety.ur5e import UR5E_CAPSULES, CapsuleSpec, MirrorBlocks
+from planner.safety.ur5e import (
+    UR5E_BOXES,
+    UR5E_CAPSULES,
+    UR5E_SELF_EXCLUDED,
+    BoxSpec,
+    CapsuleSpec,
+    MirrorBlocks,
+)
 
 __all__ = [
     "DEFAULT_CLEARANCE",
+    "UR5E_BOXES",
     "UR5E_CAPSULES",
+    "UR5E_SELF_EXCLUDED",
     "ApertureHit",
+    "BoxSpec",
     "CapsuleSpec",
     "Check",
     "Clearance",

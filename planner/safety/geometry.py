@@ -27,7 +27,15 @@ import pinocchio as pin
 
 from planner.errors import InputError
 from planner.safety.shapes import Volume, coal_shape
-from planner.safety.ur5e import DEFAULT_MIRROR_BLOCKS, UR5E_CAPSULES, CapsuleSpec, MirrorBlocks
+from planner.safety.ur5e import (
+    DEFAULT_MIRROR_BLOCKS,
+    UR5E_BOXES,
+    UR5E_CAPSULES,
+    UR5E_SELF_EXCLUDED,
+    BoxSpec,
+    CapsuleSpec,
+    MirrorBlocks,
+)
 from planner.system import Robot, System
 from planner.transforms import Array, inv_T, make_T
 
@@ -105,7 +113,8 @@ class SafetyWorld:
     """The collision world of ``system`` (see the module docstring).
 
     ``scene``: obstacles the arms must keep clear of; ``keep_out``: volumes the beam must not
-    enter; ``capsules``: per robot name, a capsule table for robots that are not the UR5e.
+    enter; ``capsules``: per robot name, ``(capsules, boxes)`` link tables for robots that
+    are not the UR5e.
     """
 
     def __init__(
@@ -115,7 +124,7 @@ class SafetyWorld:
         keep_out: Sequence[Volume] = (),
         *,
         blocks: MirrorBlocks = DEFAULT_MIRROR_BLOCKS,
-        capsules: Mapping[str, Sequence[CapsuleSpec]] | None = None,
+        capsules: Mapping[str, tuple[Sequence[CapsuleSpec], Sequence[BoxSpec]]] | None = None,
     ) -> None:
         self.system = system
         self.blocks = blocks
@@ -131,8 +140,8 @@ class SafetyWorld:
                         f"no collision capsules for robot model {robot.kinematics.name!r}",
                         robot.name,
                     )
-                table = UR5E_CAPSULES
-            self._add_robot(k, robot, table)
+                table = (UR5E_CAPSULES, UR5E_BOXES)
+            self._add_robot(k, robot, *table)
         for v in scene:
             self._add_fixed(f"scene/{v.name}", PartKind.SCENE, v, solid=False)
         for v in keep_out:
@@ -154,7 +163,9 @@ class SafetyWorld:
         self.geom_model.addGeometryObject(obj)
         self.parts.append(part)
 
-    def _add_robot(self, k: int, robot: Robot, table: Sequence[CapsuleSpec]) -> None:
+    def _add_robot(
+        self, k: int, robot: Robot, table: Sequence[CapsuleSpec], boxes: Sequence[BoxSpec]
+    ) -> None:
         km = robot.kinematics.model
         kd = km.createData()
         pin.framesForwardKinematics(km, kd, pin.neutral(km))
@@ -178,6 +189,11 @@ class SafetyWorld:
             self._add_geometry(
                 part, joints[spec.link], frame @ T, coal.Capsule(spec.radius, length)
             )
+        for bspec in boxes:
+            frame = robot.world_T_base if bspec.link == 0 else np.eye(4)
+            part = Part(len(self.parts), f"{robot.name}/{bspec.name}", PartKind.LINK, k, bspec.link)
+            T = frame @ make_T(p=bspec.centre)
+            self._add_geometry(part, joints[bspec.link], T, coal.Box(*bspec.extents))
         flange = km.frames[robot.kinematics.flange_id]
         joint6_T_flange = flange.placement.homogeneous
         self.flange_joint.append(joints[flange.parentJoint])
@@ -200,6 +216,9 @@ class SafetyWorld:
                 return None  # mirror vs its own mount
             if a.kind != PartKind.LINK or b.kind != PartKind.LINK:
                 return PairKind.ARM_SELF if min(a.link, b.link) < FLANGE_LINK else None
+            names = (a.name.split("/", 1)[1], b.name.split("/", 1)[1])
+            if names in UR5E_SELF_EXCLUDED or names[::-1] in UR5E_SELF_EXCLUDED:
+                return None
             return PairKind.ARM_SELF if abs(a.link - b.link) >= 2 else None
         moving = a if a.on_robot else b
         other = b if a.on_robot else a

@@ -16,7 +16,11 @@ measured lateral offsets (``shoulder_offset`` 0.138 m, ``elbow_offset`` 0.007 m 
 ``config/ur5e/physical_parameters.yaml``); the upper-arm tube radius is that file's
 ``upper_arm_radius`` (0.054 m, manually measured by UR), the forearm tube radius 0.049 m is
 the smallest that encloses the forearm mesh's taper towards the elbow (the file gives 0.040 m
-at the slim end). The union of each link's capsules encloses every vertex of its mesh.
+at the slim end). The wrist_3 link (a short disc under the flange) is a box instead: a
+capsule long enough to hold its rim would bulge 29 mm past the flange face, into the space
+between flange and mirror the beam uses; the box is the mesh's bounding box (rounded out to
+0.5 mm) and ends at the flange face. The union of each link's shapes encloses every vertex
+of its mesh.
 """
 
 from __future__ import annotations
@@ -58,8 +62,28 @@ UR5E_CAPSULES: tuple[CapsuleSpec, ...] = (
     CapsuleSpec("forearm_wrist", 3, (-0.3922, 0.0, -0.027), (-0.3922, 0.0, 0.048), 0.040),
     CapsuleSpec("wrist_1", 4, (0.0, 0.0, 0.111), (0.0, 0.0, 0.133), 0.066),
     CapsuleSpec("wrist_2", 5, (0.0, -0.009, 0.096), (0.0, 0.013, 0.096), 0.058),
-    CapsuleSpec("wrist_3", 6, (0.0, 0.0, 0.06), (0.0, 0.0, 0.085), 0.044),
 )
+
+
+@dataclass(frozen=True)
+class BoxSpec:
+    """A box ``name`` on link ``link``: centre (m, link frame), full ``extents`` (m) along the
+    link frame's axes."""
+
+    name: str
+    link: int
+    centre: tuple[float, float, float]
+    extents: tuple[float, float, float]
+
+
+UR5E_BOXES: tuple[BoxSpec, ...] = (
+    BoxSpec("wrist_3", 6, (0.0, -0.003, 0.0766), (0.076, 0.082, 0.0462)),
+)
+
+#: link shapes never checked against each other: their envelopes sit a few mm apart (or
+#: overlap) at every configuration although the real links cannot meet (wrist_1 and wrist_3
+#: only turn about each other through wrist_2)
+UR5E_SELF_EXCLUDED = frozenset({("wrist_1", "wrist_3")})
 
 
 @dataclass(frozen=True)

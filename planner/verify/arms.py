@@ -34,8 +34,11 @@ CAPSULES: tuple[
     ("forearm_wrist", 3, (-0.3922, 0.0, -0.027), (-0.3922, 0.0, 0.048), 0.040),
     ("wrist_1", 4, (0.0, 0.0, 0.111), (0.0, 0.0, 0.133), 0.066),
     ("wrist_2", 5, (0.0, -0.009, 0.096), (0.0, 0.013, 0.096), 0.058),
-    ("wrist_3", 6, (0.0, 0.0, 0.060), (0.0, 0.0, 0.085), 0.044),
 )
+#: (name, link, centre, full extents), m, link frame axes
+BOXES = (("wrist_3", 6, (0.0, -0.003, 0.0766), (0.076, 0.082, 0.0462)),)
+#: link pairs the checker skips: their envelopes touch at every configuration
+SELF_EXCLUDED = {("wrist_1", "wrist_3"), ("wrist_3", "wrist_1")}
 #: m: mirror plate thickness, mount block width, gap between mount and plate
 MIRROR_THICKNESS, MOUNT_WIDTH, MOUNT_GAP = 0.006, 0.05, 0.0005
 
@@ -62,33 +65,38 @@ def link_frames(q: Array) -> Array:
 @dataclass(frozen=True)
 class ArmShapes:
     """One robot's geometry at one configuration, world frame: capsules ``(name, a, b, r,
-    link)`` and boxes ``(name, world_T_box, extents)`` (mirror plate, mount)."""
+    link)`` and boxes ``(name, world_T_box, extents, link)`` (wrist_3, mirror plate, mount;
+    the plate and mount are on link 7 here, the flange)."""
 
     capsules: list[tuple[str, Array, Array, float, int]]
-    boxes: list[tuple[str, Array, Array]]
+    boxes: list[tuple[str, Array, Array, int]]
 
 
 def arm_shapes(
     world_T_base: Array, q: Array, flange_T_mirror: Array, size: tuple[float, float]
 ) -> ArmShapes:
-    """Capsules and mirror/mount boxes of a UR5e at joints ``q`` (rad)."""
+    """Capsules and boxes (wrist_3, mirror plate, mount) of a UR5e at joints ``q`` (rad)."""
     F = world_T_base @ link_frames(q)
     caps = []
     for name, link, a, b, r in CAPSULES:
         T = F[link]
         caps.append((name, T[:3, :3] @ a + T[:3, 3], T[:3, :3] @ b + T[:3, 3], r, link))
+    boxes: list[tuple[str, Array, Array, int]] = []
+    for name, link, centre, ext in BOXES:
+        C = np.eye(4)
+        C[:3, 3] = centre
+        boxes.append((name, F[link] @ C, np.array(ext), link))
     w_T_f = F[7]
     plate = np.eye(4)
     plate[2, 3] = -MIRROR_THICKNESS / 2
-    boxes = [
-        ("mirror", w_T_f @ flange_T_mirror @ plate, np.array([size[0], size[1], MIRROR_THICKNESS]))
-    ]
+    thin = np.array([size[0], size[1], MIRROR_THICKNESS])
+    boxes.append(("mirror", w_T_f @ flange_T_mirror @ plate, thin, 7))
     back = flange_T_mirror @ np.array([0.0, 0.0, -MIRROR_THICKNESS, 1.0])
     height = back[2] - MOUNT_GAP
     if height > 1e-3:
         M = np.eye(4)
         M[:3, 3] = [back[0], back[1], height / 2]
-        boxes.append(("mount", w_T_f @ M, np.array([MOUNT_WIDTH, MOUNT_WIDTH, height])))
+        boxes.append(("mount", w_T_f @ M, np.array([MOUNT_WIDTH, MOUNT_WIDTH, height]), 7))
     return ArmShapes(caps, boxes)
 
 
@@ -114,16 +122,17 @@ def arm_arm_distances(a: ArmShapes, b: ArmShapes) -> dict[tuple[str, str], float
 
 
 def arm_self_distances(arm: ArmShapes) -> dict[tuple[str, str], float]:
-    """Distances (m) of the non-adjacent link capsules (links two or more apart), and of
-    the mirror and mount to every capsule not on wrist_3."""
+    """Distances (m) between link shapes two or more links apart (but the pairs in
+    :data:`SELF_EXCLUDED`), and of the mirror plate and mount (link 7) to every link shape
+    but wrist_3's (link 6), which carries them."""
+    items = _items(arm)
+    links = [g[4] if k == "capsule" else g[3] for k, _, g in items]
     out = {}
-    caps = arm.capsules
-    for i, x in enumerate(caps):
-        for y in caps[i + 1 :]:
-            if abs(x[4] - y[4]) >= 2:
-                out[(x[0], y[0])] = capsule_capsule(x[1], x[2], x[3], y[1], y[2], y[3])[0]
-    for name, T, ext in arm.boxes:
-        for c in caps:
-            if c[4] < 6:
-                out[(c[0], name)] = capsule_box(c[1], c[2], c[3], T, ext)
+    for i, x in enumerate(items):
+        for j in range(i + 1, len(items)):
+            y, la, lb = items[j], links[i], links[j]
+            if (x[1], y[1]) in SELF_EXCLUDED or (la == 7 and lb == 7):
+                continue
+            if (7 in (la, lb) and min(la, lb) < 6) or (7 not in (la, lb) and abs(la - lb) >= 2):
+                out[(x[1], y[1])] = _dist(x, y)
     return out
