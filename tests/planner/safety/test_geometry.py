@@ -94,7 +94,7 @@ def _parallel_slack(a, b, key) -> float:
 joints = st.lists(st.floats(-np.pi, np.pi, allow_nan=False), min_size=12, max_size=12).map(np.array)
 
 
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=12, deadline=None)
 @given(joints)
 def test_coal_and_numpy_distances_agree(q):
     a, b = _numpy_arms(RELAY, q)
