@@ -28,7 +28,7 @@ from planner.safety import (
 from planner.safety.shapes import Volume
 from planner.transforms import make_T
 from planner.verify import arms
-from tests.planner.safety.worlds import REACH, UPRIGHT, relay, single
+from tests.planner.safety.worlds import REACH, UPRIGHT, parallel_slack, relay, single
 
 RELAY = relay()
 WORLD = SafetyWorld(RELAY)
@@ -77,18 +77,13 @@ def test_pairs_skip_adjacent_links_and_the_flange_carrier():
 
 
 def _parallel_slack(a, b, key) -> float:
-    """coal's capsule-capsule distance treats axes within ~1e-5 rad of parallel as parallel
-    and can then be off by up to length x sin(angle) (seen: 1.5e-7 m at 7.5e-6 rad, where the
-    numpy value matches a 20001-point brute force to 2e-13 m); 0 for other pairs."""
     caps = {}
     for k, arm in enumerate((a, b)):
         caps |= {f"arm{k}/{c[0]}": c for c in arm.capsules}
     if key[0] not in caps or key[1] not in caps:
-        return 0.0
+        return 1e-9
     (_, p0, p1, _, _), (_, q0, q1, _, _) = caps[key[0]], caps[key[1]]
-    u, v = p1 - p0, q1 - q0
-    sin = np.linalg.norm(np.cross(u, v)) / (np.linalg.norm(u) * np.linalg.norm(v))
-    return float(sin * max(np.linalg.norm(u), np.linalg.norm(v))) if sin < 1e-4 else 0.0
+    return parallel_slack(p0, p1, q0, q1)
 
 
 joints = st.lists(st.floats(-np.pi, np.pi, allow_nan=False), min_size=12, max_size=12).map(np.array)
@@ -106,7 +101,7 @@ def test_coal_and_numpy_distances_agree(q):
     assert set(got) == set(expect)
     for key, c in got.items():
         d = expect[key]
-        tol = max(1e-9, _parallel_slack(a, b, key))
+        tol = _parallel_slack(a, b, key)
         if d > 1e-6:
             assert c.distance == pytest.approx(d, abs=tol), key
             assert np.linalg.norm(c.p_b - c.p_a) == pytest.approx(c.distance, abs=1e-9)
