@@ -17,8 +17,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from planner.bus import decode
-from planner.errors import InputError
+from planner.bodies import safe_text
+from planner.bus import MAX_PAYLOAD_BYTES, decode, encode
+from planner.errors import BeamrelayError, InputError
+from planner.node_exec import ExecuteError
 from planner.system import System, Targets
 from planner.transforms import Array, transform_points
 
@@ -29,6 +31,55 @@ PlanFn = Callable[[Targets, dict[str, Array] | None, bool], dict[str, Any]]
 #: path requests are resampled every PATH_SPACING m, at most MAX_PATH_SAMPLES samples
 PATH_SPACING = 0.001
 MAX_PATH_SAMPLES = 2000
+
+
+#: longest error text in a reply (characters)
+MAX_ERROR_TEXT = 2000
+#: the reply when even an error reply cannot be built
+FALLBACK_ERROR = (
+    b'{"schema": "beamrelay.error/1", "id": null, '
+    b'"error": "internal error while building the error reply", "field": null}'
+)
+
+
+def error_body(exc: BaseException, request_id: str | None = None) -> bytes:
+    """An :class:`~schemas.messages.ErrorReply` JSON body for any error, always valid UTF-8
+    JSON: texts are made safe (lone surrogates escaped) and cut to :data:`MAX_ERROR_TEXT`.
+    ``field`` is the offending key path of an InputError, ``execute`` for a refused
+    execution, else null."""
+    from schemas.messages import ErrorReply
+
+    try:
+        field = None
+        if isinstance(exc, InputError):
+            text = exc.reason
+            field = safe_text(exc.where, 300) if exc.where else None
+        elif isinstance(exc, ExecuteError):
+            text, field = exc.reason, "execute"
+        elif isinstance(exc, BeamrelayError):
+            text = str(exc)
+        else:
+            text = f"{type(exc).__name__}: {exc}"
+        rid = None if request_id is None else safe_text(request_id, 256)
+        msg = ErrorReply(id=rid, error=safe_text(text, MAX_ERROR_TEXT), field=field)
+        return encode(msg)
+    except Exception:  # the error of an error: never let it escape the worker
+        return FALLBACK_ERROR
+
+
+def request_id_of(payload: bytes) -> str | None:
+    """Best effort: the ``id`` of a (possibly invalid) request body, for error replies;
+    None when the body is oversized, not JSON, or its ``id`` is not a string."""
+    import json
+
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        return None
+    try:
+        data = json.loads(payload, parse_int=lambda _: 0)  # numbers do not matter here
+    except (ValueError, RecursionError):  # JSONDecodeError and UnicodeDecodeError included
+        return None
+    rid = data.get("id") if isinstance(data, dict) else None
+    return safe_text(rid, 256) if isinstance(rid, str) else None
 
 
 def make_plan_fn(
