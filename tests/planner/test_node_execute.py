@@ -137,7 +137,7 @@ def test_accepted_reply_carries_ids_and_replans_from_the_running_trajectory(
 def test_rejected_reply_names_the_robot_and_the_driver_reason(
     system: System, rig: tuple[PlannerNode, Any, FakeDriver]
 ) -> None:
-    node, client, fake = rig
+    _, client, fake = rig
     fake.behaviour = "reject"
     plan = execute(client, reachable_targets(system, 1, seed=21), "r1")
     assert plan["id"] == "r1" and plan["execution"] == "rejected"
@@ -152,7 +152,7 @@ def test_rejected_reply_names_the_robot_and_the_driver_reason(
 def test_silent_driver_is_a_rejection_after_the_timeout(
     system: System, rig: tuple[PlannerNode, Any, FakeDriver]
 ) -> None:
-    node, client, fake = rig
+    _, client, fake = rig
     fake.behaviour = "silent"
     t0 = time.monotonic()
     plan = execute(client, reachable_targets(system, 1, seed=31), "s1")

@@ -219,14 +219,14 @@ def test_decode_of_random_json_is_a_request_or_a_located_error(value: Any, key: 
 
 
 def test_error_body_survives_anything() -> None:
-    class Weird(Exception):
+    class UnprintableError(Exception):
         def __str__(self) -> str:
             raise RuntimeError("no text")
 
     for exc, rid in [
         (InputError("bad \ud800 value", "x\udfff"), "a\ud800"),
         (RuntimeError("x" * 1_000_000), "i" * 10_000),
-        (Weird(), None),
+        (UnprintableError(), None),
     ]:
         err = json.loads(error_body(exc, rid).decode("utf-8"))
         ErrorReply.model_validate(err)
