@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.bodies import encode_json
 from planner.bus import JSON, MAX_PAYLOAD_BYTES, Keys, decode, encode
 from planner.errors import BeamrelayError, InputError
 from planner.node_core import (
@@ -305,7 +306,7 @@ class PlannerNode:
         if req.execute:
             self.execute(plan, req.id)
         self.served += 1
-        return encode(plan)
+        return encode_json(plan)
 
     # --- execution -------------------------------------------------------------------------
     def check_drivers(self) -> None:

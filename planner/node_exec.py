@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.bus import encode
+from planner.bodies import encode_json
 from planner.errors import BeamrelayError
 from planner.transforms import Array
 
@@ -184,7 +184,7 @@ def trajectory_messages(
 ) -> dict[str, bytes]:
     """One JointTrajectory body per robot from a plan's ``trajectory`` (times from 0),
     carrying the request id and the planner session."""
-    from schemas.messages import JointTrajectory
+    from schemas.messages import TRAJECTORY_SCHEMA, JointTrajectory
 
     traj = plan.get("trajectory")
     if not traj:
@@ -194,15 +194,15 @@ def trajectory_messages(
     out = {}
     for robot in plan["robots"]:
         rows = {k: np.asarray(traj[k][robot], dtype=float)[keep] for k in ("q", "qd", "qdd")}
-        msg = JointTrajectory(
-            robot=robot,
-            id=request_id,
-            session=session,
-            t=(t[keep] - t[0]).tolist(),
-            names=list(plan["joint_names"][robot]),
-            q=rows["q"].tolist(),
-            qd=rows["qd"].tolist(),
-            qdd=rows["qdd"].tolist(),
-        )
-        out[robot] = encode(msg)
+        body = {
+            "schema": TRAJECTORY_SCHEMA,
+            "robot": robot,
+            "id": request_id,
+            "session": session,
+            "t": (t[keep] - t[0]).tolist(),
+            "names": list(plan["joint_names"][robot]),
+            **{k: v.tolist() for k, v in rows.items()},
+        }
+        JointTrajectory.model_validate(body)  # the driver's contract, checked before sending
+        out[robot] = encode_json(body)  # in pieces: the heartbeat keeps running
     return out

@@ -217,3 +217,47 @@ def test_job_queue_counts_and_bytes() -> None:
     assert got is not None and got.payload == b"12345" and q.nbytes == 1
     q.close()
     assert [q.get(), q.get(), q.get()] == [Job("topic", None, b""), Job("topic", None, b"1"), None]
+
+
+def max_tick_gap(work: Any) -> tuple[float, float]:
+    """(duration of ``work()``, longest gap between ticks of a 5 ms ticker thread) in s."""
+    gaps: list[float] = []
+    done = threading.Event()
+
+    def tick() -> None:
+        last = time.monotonic()
+        while not done.wait(0.005):
+            now = time.monotonic()
+            gaps.append(now - last)
+            last = now
+
+    ticker = threading.Thread(target=tick)
+    ticker.start()
+    time.sleep(0.05)
+    t0 = time.monotonic()
+    work()
+    took = time.monotonic() - t0
+    done.set()
+    ticker.join()
+    return took, max(gaps)
+
+
+def big_plan(n: int = 20_000) -> dict[str, Any]:
+    rng = np.random.default_rng(0)
+    rows = {k: {"arm0": rng.normal(size=(n, 6)).tolist()} for k in ("q", "qd", "qdd")}
+    return {"schema": "beamrelay.plan/1", "targets": [{"id": i, "p": [0.1, 0.2, 0.3]}
+            for i in range(n)], "trajectory": {"t": np.linspace(0, 40, n).tolist(), **rows}}  # fmt: skip
+
+
+def test_big_replies_are_encoded_without_starving_the_heartbeat() -> None:
+    """The C JSON encoder holds the GIL for a whole call; encode_json splits the work so
+    another thread runs in between (same text as json.dumps)."""
+    from planner.bodies import encode_json
+
+    plan = big_plan()
+    whole, gap_whole = max_tick_gap(lambda: json.dumps(plan))
+    took, gap = max_tick_gap(lambda: encode_json(plan))
+    print(f"json.dumps {1e3 * whole:.0f} ms (ticker gap {1e3 * gap_whole:.0f} ms), "
+          f"encode_json {1e3 * took:.0f} ms (ticker gap {1e3 * gap:.0f} ms)")  # fmt: skip
+    assert encode_json(plan) == json.dumps(plan).encode()
+    assert gap < 0.5 * took and gap < 0.5 * gap_whole

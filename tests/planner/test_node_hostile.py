@@ -62,7 +62,7 @@ CORPUS: list[tuple[str, bytes, str, str]] = [
     ("zero normal", req(b"[[0.5,0,0.3]]", b',"normals":[[0,0,0]]'), "normals[0]", "zero"),
     ("deep array", b"[" * 100_000 + b"]" * 100_000, "body", "nested too deeply"),
     ("deep in points", req(b"[" * 100_000 + b"]" * 100_000), "body", "nested too deeply"),
-    ("deep object", b'{"a":' * 100_000 + b"1" + b"}" * 100_000, "body", "nested too deeply"),
+    ("deep object", b'{"a":' * 100_000 + b"1" + b"}" * 100_000, "body", "100000 objects"),
     ("900 deep", req(b"[" + b"[" * 900 + b"]" * 900 + b"]"), "points[0]", "expected 3"),
     ("id number", HEAD.replace(b'"h1"', b"5") + b'"points":[[0.5,0,0.3]]}', "id", "string"),
     ("points string", req(b'"abc"'), "points", "list"),
@@ -92,6 +92,10 @@ CORPUS: list[tuple[str, bytes, str, str]] = [
     ("path of one", req(b"[[0.5,0,0.3]]", b',"mode":"path"'), "points", "at least 2"),
     ("zero-length path", req(b"[[0.5,0,0.3],[0.5,0,0.3]]", b',"mode":"path"'), "points", ""),
     ("path too long", req(b"[[0,0,0],[99,0,0]]", b',"mode":"path"'), "points", "samples"),
+    ("4 MB of lists", req(b"[" + b"[]," * 1_300_000 + b"[]]"), "body", "1300002 lists"),
+    ("4 MB of objects", req(b"[" + b"{}," * 1_300_000 + b"{}]"), "body", "objects"),
+    ("4 MB of strings", req(b"[" + b'"",' * 1_300_000 + b'""]'), "body", "quotes"),
+    ("4 MB of nulls", req(b"[" + b"null," * 800_000 + b"null]"), "body", "null literals"),
 ]  # fmt: skip
 
 
