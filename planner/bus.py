@@ -129,14 +129,19 @@ def encode(model: BaseModel | dict[str, Any]) -> bytes:
 
 
 def decode(payload: bytes, cls: type[M]) -> M:
-    """Parse and validate a JSON body. Errors are :class:`InputError` whose ``where`` is the
-    offending key path (``points[3]``), ready for an error reply's ``field``."""
-    from schemas.yamlio import parse_message
+    """Parse and validate a JSON body, whatever it holds. Errors are :class:`InputError`
+    whose ``where`` is the offending key path (``points[3]``, ``body`` for the whole body),
+    ready for an error reply's ``field`` (see :mod:`planner.bodies`)."""
+    from planner.bodies import load_json
+    from schemas.located import validate
 
     if len(payload) > MAX_PAYLOAD_BYTES:
-        raise InputError(f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD_BYTES}", "body")
+        raise InputError(
+            f"body of {len(payload)} bytes exceeds the limit of {MAX_PAYLOAD_BYTES} bytes", "body"
+        )
+    data = load_json(payload)
     try:
-        return parse_message(payload, cls)
+        return validate(cls, data)
     except RecursionError:
         raise InputError("JSON nested too deeply", "body") from None
     except InputError as exc:

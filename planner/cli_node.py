@@ -21,6 +21,9 @@ EndpointOpt = Annotated[
         help="Bus endpoint (default tcp/127.0.0.1:7447 or $BEAMRELAY_ZENOH_ENDPOINT).",
     ),
 ]
+#: seconds a failed planner node gets to shut down in order before the process is ended
+FATAL_EXIT_GRACE = 10.0
+
 PrefixOpt = Annotated[str, typer.Option("--prefix", help="Key-expression namespace prefix.")]
 
 
@@ -38,7 +41,13 @@ def serve(
         typer.Option("--connect", help="Connect to the endpoint instead of listening on it."),
     ] = False,
 ) -> None:
-    """Run the planner node until Ctrl-C / SIGTERM (SPEC section 6)."""
+    """Run the planner node until Ctrl-C / SIGTERM.
+
+    Exits 1 if the node fails (its worker thread died or stayed busy on one request beyond
+    its allowance): the heartbeat has stopped and the liveliness token is gone by then, so
+    robots brake and a supervisor (``beamrelay up``) restarts the planner.
+    """
+    import os
     import signal
     import threading
 
@@ -53,14 +62,23 @@ def serve(
     def on_signal(signum: int, _frame: object) -> None:
         stop.set()
 
+    def on_fatal(reason: str) -> None:
+        typer.echo(f"error: planner node failed: {reason}; exiting", err=True)
+        stop.set()
+        # last resort: if the orderly shutdown below hangs, leave anyway
+        last_resort = threading.Timer(FATAL_EXIT_GRACE, os._exit, args=(1,))
+        last_resort.daemon = True
+        last_resort.start()
+
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
     node.on_alive_change = lambda name, up: typer.echo(
         f"{'up' if up else 'DOWN'}: {name}", err=not up
     )
+    node.on_fatal = on_fatal
     node.start()
     names = ", ".join(handler.system.robot_names)
-    typer.echo(f"planner ready: {prefix}/plan, robots {names}", err=False)
+    typer.echo(f"planner ready: {prefix}/plan, robots {names}, session {node.session_id}")
     try:
         while not stop.wait(0.2):
             pass
@@ -68,6 +86,8 @@ def serve(
         node.close()
         session.close()
         typer.echo(f"planner stopped after {node.served} requests")
+    if node.failed is not None:
+        raise typer.Exit(1)
 
 
 def up(
