@@ -137,6 +137,19 @@ def health_table(sup: Supervisor, health: Health, title: str) -> Any:
     return table
 
 
+def _child_config(path: Path | None) -> Path | None:
+    """A Zenoh config file fit to be shared by several processes (absolute path), or None."""
+    if path is None:
+        return None
+    if file_sets_endpoints(load_config_file(path)):
+        raise InputError(
+            "beamrelay up starts several processes on one bus: leave listen/connect "
+            "endpoints out of the file and give the bus with --endpoint",
+            str(path),
+        )
+    return path.resolve()
+
+
 def run_up(
     scenario: Path,
     *,
@@ -162,14 +175,7 @@ def run_up(
     scn = load_scenario(scenario)
     robots = [r.name for r in scn.model.system.robots]
     endpoint = endpoint or default_endpoint()
-    configs = [c.resolve() if c else None for c in (zenoh_config, planner_zenoh_config)]
-    for conf in configs:
-        if conf is not None and file_sets_endpoints(load_config_file(conf)):
-            raise InputError(
-                "beamrelay up starts several processes on one bus: leave listen/connect "
-                "endpoints out of the file and give the bus with --endpoint",
-                str(conf),
-            )
+    configs = [_child_config(c) for c in (zenoh_config, planner_zenoh_config)]
     has_camera = scn.model.system.camera is not None
     argv = child_commands(
         Path(scenario).resolve(), robots, backend=backend, endpoint=endpoint, prefix=prefix,
