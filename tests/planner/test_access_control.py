@@ -161,6 +161,7 @@ def test_wrong_password_cannot_join(tmp_path: Path) -> None:
     try:
         conf = example("auth.json5", connect=endpoint)
         conf.insert_json5("transport/auth/usrpwd/password", '"guessed"')
+        conf.insert_json5("connect/timeout_ms", "2000")  # the host is up: no need to wait
         with pytest.raises(zenoh.ZError, match="Unable to connect"):
             zenoh.open(conf)
     finally:
