@@ -25,6 +25,14 @@ EndpointOpt = Annotated[
 FATAL_EXIT_GRACE = 10.0
 
 PrefixOpt = Annotated[str, typer.Option("--prefix", help="Key-expression namespace prefix.")]
+ZENOH_CONFIG_HELP = (
+    "Zenoh config file (JSON5): user/password authentication, access control, TLS, routers; "
+    "it replaces the default peer/loopback settings, the bus endpoint still comes from "
+    "--endpoint unless the file names its own. Examples: scenarios/zenoh/."
+)
+ZenohConfigOpt = Annotated[
+    Path | None, typer.Option("--zenoh-config", help=ZENOH_CONFIG_HELP, dir_okay=False)
+]
 
 
 def serve(
@@ -102,8 +110,20 @@ def up(
         Path | None, typer.Option("--log-dir", help="Children's logs (default: a temp dir).")
     ] = None,
     live: Annotated[bool, typer.Option(help="Show the live health table.")] = True,
+    zenoh_config: ZenohConfigOpt = None,
+    planner_zenoh_config: Annotated[
+        Path | None,
+        typer.Option(
+            "--planner-zenoh-config",
+            help="Zenoh config of the planner child only (its own identity on a bus with "
+            "access control; default: --zenoh-config).",
+            dir_okay=False,
+        ),
+    ] = None,
 ) -> None:
-    """Start planner + camera + one robot driver per robot, supervised, until Ctrl-C."""
+    """Start planner + camera + one robot driver per robot, supervised, until Ctrl-C.
+
+    --zenoh-config is used by up itself and passed on to every child."""
     from planner.up import run_up
 
     if backend not in ("sim", "ur"):
@@ -120,6 +140,8 @@ def up(
         prefix=prefix,
         log_dir=log_dir,
         live=live,
+        zenoh_config=zenoh_config,
+        planner_zenoh_config=planner_zenoh_config,
     )
 
 
@@ -136,6 +158,7 @@ def request(
     timeout: Annotated[float, typer.Option(help="Seconds to wait for the reply.")] = 10.0,
     endpoint: EndpointOpt = None,
     prefix: PrefixOpt = "beamrelay",
+    zenoh_config: ZenohConfigOpt = None,
 ) -> None:
     """Send one TargetRequest, print the plan summary (and the measured spots if executing)."""
     from rich.console import Console
@@ -144,13 +167,18 @@ def request(
 
     if frame not in ("world", "camera"):
         raise InputError(f"--frame {frame!r}: expected world or camera")
+    if not timeout > 0:
+        raise InputError(f"--timeout {timeout}: expected a positive number of seconds")
     pts = [parse_xyz(p, "--points") for p in points]
     nrm = [parse_xyz(n, "--normals") for n in normals] if normals else None
     if nrm is not None and len(nrm) != len(pts):
         raise InputError(f"--normals: {len(nrm)} given for {len(pts)} points")
     req = make_request(pts, frame=frame, normals=nrm, path=path, execute=execute)
     console = Console()
-    with PlanClient(endpoint=endpoint, prefix=prefix) as client:
+    client = PlanClient(
+        endpoint=endpoint, prefix=prefix, zenoh_config=zenoh_config, connect_timeout=timeout
+    )
+    with client:
         try:
             if execute:
                 client.watch()
