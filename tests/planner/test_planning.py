@@ -126,7 +126,8 @@ def test_given_order_is_kept(grid_outcome: PlanOutcome) -> None:
         timed.figures["duration_given_order"], rel=0.05
     )
     assert timed.trajectory.span("dwell") == pytest.approx(18 * 0.05, abs=1e-9)
-    doc = {**o.doc, "trajectory": timed.trajectory.to_plan_dict(o.system)}
+    doc = plan_document(o.system, o.targets, o.solutions, o.doc["scenario"],
+                        timed.trajectory.to_plan_dict(o.system), timed.figures)  # fmt: skip
     results = {r.name: r for r in check_plan(doc)}
     assert not [f for r in results.values() for f in r.findings]
     # 25 samples held on each of the 18 targets, all on target
