@@ -183,34 +183,37 @@ def _limit_finding(code: str, X: Array, bound: Array, slack: float, t: Array, un
     return Finding("error" if bad else "info", code, msg, worst, lim)
 
 
-def _central(X: Array, rate: float) -> Array:
-    """Derivative estimate of rows X sampled at ``rate``: central differences, one-sided at
-    the ends."""
-    return np.gradient(X, 1.0 / rate, axis=0) if len(X) > 1 else np.zeros_like(X)
+def _differences(q: Array, rate: float) -> tuple[Array, Array]:
+    """Velocity and acceleration estimates at the interior rows of joint rows ``q`` sampled
+    at ``rate``: central first and second differences ((M - 2) x n)."""
+    v = (q[2:] - q[:-2]) * (rate / 2)
+    a = (q[2:] - 2 * q[1:-1] + q[:-2]) * rate**2
+    return v, a
 
 
 def _declared(r: _Robot, traj: dict[str, Any], q: Array, t: Array, rate: float) -> list[Finding]:
-    """Declared qd (qdd) against the central differences of q (qd). The bound per joint is
+    """Declared qd and qdd against the central differences of q. The bound per joint is
     :data:`DERIVATIVE_SLACK` of the limit plus the differences' own error for a
     jerk-limited motion (j h^2 for qd, j h for qdd at a jerk switch; h = 1/rate)."""
-    out = []
-    prev, h, jerk = q, 1.0 / rate, r.limits.jerk
-    for key, code, lim, disc, unit in (
-        ("qd", "velocity_declared", r.limits.velocity, jerk * h * h, "rad/s"),
-        ("qdd", "acceleration_declared", r.limits.acceleration, jerk * h, "rad/s^2"),
-    ):
-        X = np.asarray(traj[key][r.name], dtype=float).reshape(q.shape)
+    out: list[Finding] = []
+    if len(q) < 3:
+        return out
+    h, jerk = 1.0 / rate, r.limits.jerk
+    for key, code, lim, disc, est, unit in zip(
+        ("qd", "qdd"), ("velocity_declared", "acceleration_declared"),
+        (r.limits.velocity, r.limits.acceleration), (jerk * h * h, jerk * h),
+        _differences(q, rate), ("rad/s", "rad/s^2"), strict=True,
+    ):  # fmt: skip
+        X = np.asarray(traj[key][r.name], dtype=float).reshape(q.shape)[1:-1]
         bound = DERIVATIVE_SLACK * lim + disc
-        gap = np.abs(X - _central(prev, rate)) / bound[None, :]
+        gap = np.abs(X - est) / bound[None, :]
         gap = np.where(np.isfinite(gap), gap, np.inf)
         i, j = (int(x) for x in np.unravel_index(int(np.argmax(gap)), gap.shape))
-        what = "positions" if key == "qd" else "velocities"
-        msg = (f"{r.name}: declared {key} on joint {j} at t = {t[i]:.3f} s is {X[i, j]:.4g} "
-               f"{unit}, {gap[i, j] * bound[j]:.4g} {unit} off the differences of the {what} "
-               f"(allowed {bound[j]:.3g} {unit})")  # fmt: skip
+        msg = (f"{r.name}: declared {key} on joint {j} at t = {t[i + 1]:.3f} s is {X[i, j]:.4g} "
+               f"{unit}, {gap[i, j] * bound[j]:.4g} {unit} off the differences of the "
+               f"positions (allowed {bound[j]:.3g} {unit})")  # fmt: skip
         out.append(Finding("info" if gap[i, j] <= 1.0 else "error", code, msg,
                            float(gap[i, j] * bound[j]), float(bound[j])))  # fmt: skip
-        prev = X
     return out
 
 

@@ -40,7 +40,7 @@ def plan(
     ] = None,
 ) -> None:
     """Plan every target of a scenario, time the trajectory, write plan.json, then run the
-    checks of ``beamrelay check`` on what was written; exit 1 if any target failed or any
+    checks of 'beamrelay check' on what was written; exit 1 if any target failed or any
     check is violated."""
     import json
 
