@@ -1,4 +1,4 @@
-"""Warm start of the path NLP: a per-sample seed and continuation chain (issue 5).
+"""Warm start of the path NLP: a per-sample seed and continuation chain.
 
 A single sample is seeded by the closed-form family search of :mod:`planner.ik.closed_form`
 (else a multi-start one-sample NLP); the chain then walks along the path with

@@ -1,4 +1,4 @@
-"""Batch planning: a scenario's targets -> the plan.json document of SPEC section 5.
+"""Batch planning: a scenario's targets -> the plan.json document.
 
 Point and grid targets are solved one by one with :class:`planner.ik.BeamIK`, each seeded by
 the previous solution (smooth sequences); paths go to :func:`planner.path.plan_path`. The
