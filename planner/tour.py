@@ -41,7 +41,7 @@ class _Costs:
 
         self.P, self.lim, self._move_time = P, lim, move_time
 
-    def pairs(self, i: Array, j: Array) -> Array:
+    def pairs(self, i: npt.ArrayLike, j: npt.ArrayLike) -> Array:
         """Move times (s) between rows ``i`` and ``j`` (same shape; -1 = nowhere: cost 0)."""
         i, j = np.asarray(i), np.asarray(j)
         out = np.zeros(i.shape)
@@ -61,7 +61,7 @@ def _scaled(P: Array, lim: Limits) -> Array:
     return np.asarray(P / lim.velocity, dtype=float)
 
 
-def candidate_lists(P: Array, lim: Limits, k: int = K_NEIGHBOURS) -> tuple[Array, Array]:
+def candidate_lists(P: Array, lim: Limits, k: int = K_NEIGHBOURS) -> tuple[Order, Array]:
     """For each row of ``P``: its ``k`` nearest other rows in the scaled Chebyshev metric,
     sorted by true move time, and those times (N x k each; rows padded with -1 / inf)."""
     from scipy.spatial import cKDTree
@@ -148,7 +148,7 @@ class _Tour:
         return float(self.edge[:-1].sum())
 
 
-def two_opt(tour: _Tour, cand: Array, cand_cost: Array, max_moves: int | None = None) -> int:
+def two_opt(tour: _Tour, cand: Order, cand_cost: Array, max_moves: int | None = None) -> int:
     """Neighbour-list 2-opt with don't-look bits; returns the number of moves made."""
     n, moves = tour.n, 0
     queue = deque(int(x) for x in tour.t)
@@ -173,7 +173,7 @@ def two_opt(tour: _Tour, cand: Array, cand_cost: Array, max_moves: int | None = 
     return moves
 
 
-def _best_move(tour: _Tour, a: int, i: int, succ: bool, cand: Array, cand_cost: Array
+def _best_move(tour: _Tour, a: int, i: int, succ: bool, cand: Order, cand_cost: Array
                ) -> tuple[int, int, tuple[int, ...]] | None:  # fmt: skip
     """The best improving 2-opt move that makes a-c an edge (c a candidate of a), breaking
     a's successor edge (``succ``) or predecessor edge; (reverse from, to, touched nodes)."""
