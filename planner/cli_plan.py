@@ -47,7 +47,7 @@ def plan(
     from rich.console import Console
 
     from planner.check import check_plan
-    from planner.planning import plan_json, run_scenario
+    from planner.planning import run_scenario, write_plan
 
     if out.parent and not out.parent.exists():
         raise InputError(f"output directory does not exist: {out.parent}", "-o")
@@ -55,19 +55,15 @@ def plan(
         _plot_format(plot)
     outcome = run_scenario(scenario, optimal=optimal)
     doc = outcome.doc
-    text = plan_json(doc)
-    out.write_text(text)
+    with out.open("w") as fh:
+        write_plan(doc, fh)
     console = Console()
     console.print(_summary(doc, scenario.name))
     if any(not sol.ok for sol in outcome.solutions):
         console.print(_failures(outcome.solutions))
     if outcome.timed is not None and outcome.timed.trajectory.slowdowns:
         console.print(_slowdowns(outcome))
-    console.print(f"wrote {out} ({len(text) / 1e6:.1f} MB)")
-    written = json.loads(text)
-    del text
-    violations = _print_findings(console, check_plan(written, out.parent), "check of the plan")
-    del written
+    console.print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB)")
     if plot is not None:
         from planner.plot import plot_plan, plot_profiles, profiles_path
 
@@ -77,7 +73,12 @@ def plan(
             plot_profiles(outcome.system, outcome.targets, doc, profiles_path(plot))
             console.print(f"wrote {profiles_path(plot)}")
     m = doc["metrics"]
-    if m["n_ok"] < m["n_targets"] or violations:
+    failed = m["n_ok"] < m["n_targets"]
+    del outcome, doc  # the check reads the file back: one copy of a large plan in memory
+    with out.open() as fh:
+        written = json.load(fh)
+    violations = _print_findings(console, check_plan(written, out.parent), "check of the plan")
+    if failed or violations:
         raise SystemExit(1)  # planner.cli.main drops typer.Exit codes (non-standalone click)
 
 

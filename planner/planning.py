@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, TextIO
 
 import numpy as np
 
@@ -390,25 +390,42 @@ def plan_scenario(
     return out.doc, out.system, out.targets
 
 
-def plan_json(doc: dict[str, Any], digits: int = 10) -> str:
-    """plan.json text: indented, but the dense ``trajectory`` rows written compactly with
-    times, joints and their derivatives rounded to ``digits`` decimals (1e-10 rad by
-    default; solutions keep full precision)."""
+def write_plan(doc: dict[str, Any], out: TextIO, digits: int = 10, chunk: int = 50_000) -> None:
+    """Write plan.json text to ``out``: indented, but the dense ``trajectory`` rows written
+    compactly with times, joints and their derivatives rounded to ``digits`` decimals
+    (1e-10 rad by default; solutions keep full precision). Rows are formatted ``chunk`` at
+    a time, so the extra memory does not grow with the trajectory."""
     import json
 
     traj = doc.get("trajectory")
     if not traj:
-        return json.dumps(doc, indent=1)
+        out.write(json.dumps(doc, indent=1))
+        return
 
-    def rows(x: Any) -> str:
-        return json.dumps(np.round(np.asarray(x, dtype=float), digits).tolist(),
-                          separators=(",", ":"))  # fmt: skip
+    def rows(x: Any) -> None:
+        out.write("[")
+        for i in range(0, len(x), chunk):
+            part = np.round(np.asarray(x[i : i + chunk], dtype=float), digits).tolist()
+            out.write(("," if i else "") + json.dumps(part, separators=(",", ":"))[1:-1])
+        out.write("]")
 
-    def table(d: dict[str, Any]) -> str:
-        return "{" + ",".join(f"{json.dumps(k)}:{rows(v)}" for k, v in d.items()) + "}"
-
-    body = [f'"t":{rows(traj["t"])}'] + [f'"{k}":{table(traj[k])}' for k in ("q", "qd", "qdd")]
-    body.append(f'"segments":{json.dumps(traj.get("segments", []))}')
     marker = "__TRAJECTORY__"
-    text = json.dumps({**doc, "trajectory": marker}, indent=1)
-    return text.replace(json.dumps(marker), "{" + ",\n".join(body) + "}", 1)
+    head, tail = json.dumps({**doc, "trajectory": marker}, indent=1).split(json.dumps(marker), 1)
+    out.write(head + '{"t":')
+    rows(traj["t"])
+    for key in ("q", "qd", "qdd"):
+        out.write(f',\n"{key}":{{')
+        for n, (robot, table) in enumerate(traj[key].items()):
+            out.write(("," if n else "") + json.dumps(robot) + ":")
+            rows(table)
+        out.write("}")
+    out.write(f',\n"segments":{json.dumps(traj.get("segments", []))}}}' + tail)
+
+
+def plan_json(doc: dict[str, Any], digits: int = 10) -> str:
+    """plan.json text (:func:`write_plan`) as a string."""
+    import io
+
+    buf = io.StringIO()
+    write_plan(doc, buf, digits)
+    return buf.getvalue()

@@ -196,3 +196,22 @@ def test_path_gap_becomes_a_move(curve_outcome: PlanOutcome) -> None:
     # two runs of 29 mm each, at 20 mm/s plus ramps
     runs = [res.arc[29] - res.arc[0], res.arc[60] - res.arc[31]]
     assert t_path == pytest.approx(sum(runs) / 0.02, rel=0.1)
+
+
+def test_write_plan_in_small_chunks(grid_outcome: PlanOutcome) -> None:
+    import io
+
+    from planner.planning import write_plan
+
+    doc = grid_outcome.doc
+    buf = io.StringIO()
+    write_plan(doc, buf, chunk=7)  # many chunk boundaries in every table
+    back = json.loads(buf.getvalue())
+    traj = doc["trajectory"]
+    assert back["trajectory"]["t"] == np.round(traj["t"], 10).tolist()
+    for key in ("q", "qd", "qdd"):
+        assert back["trajectory"][key]["arm0"] == np.round(traj[key]["arm0"], 10).tolist()
+    assert back["trajectory"]["segments"] == traj["segments"]
+    assert {k: v for k, v in back.items() if k != "trajectory"} == {
+        k: v for k, v in doc.items() if k != "trajectory"
+    }
