@@ -46,8 +46,8 @@ def test_profiles_written_next_to_the_plot(tmp_path: Path) -> None:
 
 def test_arrival_spots_are_the_targets(tmp_path: Path) -> None:
     from planner.check_spot import arrival_mask
-    from planner.plot import _arrival_spots
     from planner.planning import spot_rays
+    from planner.plot import _arrival_spots
 
     out = run_scenario(write_scenario(tmp_path), progress=False)
     traj = out.doc["trajectory"]
