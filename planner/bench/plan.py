@@ -3,7 +3,8 @@
 The grid of ``scenarios/paper_n1.yaml`` (a 100 mm cube seen by one UR5e) is refined to each
 size; each size runs in a fresh child process so that its peak memory (``ru_maxrss``) is its
 own. Stages, timed separately, with the process's peak resident memory after each: beam IK
-of every target (scene occlusion off), visit order (``order: optimal``), timing (Ruckig
+of every target (scene occlusion off), the checker's verdict on every solution (what
+``beamrelay plan`` does before timing), visit order (``order: optimal``), timing (Ruckig
 moves sampled at ``rate``), the plan document and its JSON text, and ``beamrelay check`` of
 that text. Figures are printed, not asserted.
 """
@@ -42,7 +43,13 @@ def run_size(scenario: str, n: int, stages: tuple[str, ...]) -> dict[str, Any]:
     """Plan one grid of about ``n`` targets; figures per stage (s, MB)."""
     import numpy as np
 
-    from planner.planning import ik_options, plan_document, plan_points, write_plan
+    from planner.planning import (
+        ik_options,
+        plan_document,
+        plan_points,
+        verify_solutions,
+        write_plan,
+    )
     from planner.scenario import (
         load_scenario,
         resolved_scenario_dict,
@@ -70,6 +77,10 @@ def run_size(scenario: str, n: int, stages: tuple[str, ...]) -> dict[str, Any]:
     t0 = time.perf_counter()
     sols = plan_points(system, targets, ik_options(model.solver))
     stage("ik", t0)
+    t0 = time.perf_counter()
+    resolved = resolved_scenario_dict(loaded)
+    sols = verify_solutions(system, resolved, targets, sols)
+    stage("verify", t0)
     Q = np.array([s.q for s in sols if s.ok])
     row["solved"] = len(Q)
     if "order" not in stages or not len(Q):
@@ -95,7 +106,7 @@ def run_size(scenario: str, n: int, stages: tuple[str, ...]) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "plan.json"
         t0 = time.perf_counter()
-        doc = plan_document(system, targets, sols, resolved_scenario_dict(loaded),
+        doc = plan_document(system, targets, sols, resolved,
                             traj.to_plan_dict(system), trajectory_requested=True, verify=False)  # fmt: skip
         del traj
         with path.open("w") as fh:
@@ -176,7 +187,8 @@ def command(
         err.print(f"planning a grid of {n} targets ...")
         rows.append(_in_child(scenario, n, chosen))
     table = Table(title=f"batch planning ({scenario.name})")
-    cols = [("targets", "N", "{}"), ("ik_s", "IK s", "{:.1f}"), ("order_s", "order s", "{:.1f}"),
+    cols = [("targets", "N", "{}"), ("ik_s", "IK s", "{:.1f}"), ("verify_s", "verify s", "{:.1f}"),
+            ("order_s", "order s", "{:.1f}"),
             ("timing_s", "timing s", "{:.1f}"), ("document_s", "json s", "{:.1f}"),
             ("check_s", "check s", "{:.1f}"), ("duration_s", "tour s", "{:.0f}"),
             ("duration_given_order_s", "given s", "{:.0f}"), ("plan_json_mb", "json MB",

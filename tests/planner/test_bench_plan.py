@@ -34,7 +34,7 @@ def test_small_grids_every_stage() -> None:
     for r in rows:
         assert "error" not in r
         assert r["solved"] == r["targets"] and r["check_violations"] == 0
-        for stage in ("ik", "order", "timing", "document", "check"):
+        for stage in ("ik", "verify", "order", "timing", "document", "check"):
             assert r[f"{stage}_s"] > 0 and r[f"{stage}_peak_rss_mb"] >= r["start_rss_mb"] > 0
         assert r["duration_s"] <= r["duration_given_order_s"] * 1.02
         assert r["samples"] == pytest.approx(r["duration_s"] * 500 + 1, abs=1)
