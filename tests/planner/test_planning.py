@@ -215,3 +215,31 @@ def test_write_plan_in_small_chunks(grid_outcome: PlanOutcome) -> None:
     assert {k: v for k, v in back.items() if k != "trajectory"} == {
         k: v for k, v in doc.items() if k != "trajectory"
     }
+
+
+def test_a_rejected_path_sample_splits_the_sweep(curve_outcome: PlanOutcome) -> None:
+    from dataclasses import replace
+
+    from planner.planning import verify_solutions
+
+    o = curve_outcome
+    k = len(o.solutions) // 2
+    sols = list(o.solutions)
+    q = sols[k].q
+    assert q is not None
+    # wrist 2 tilted by 1 mrad: the spot leaves the target by ~1 mm, far above 1e-9 m
+    sols[k] = replace(sols[k], q=q + np.array([0, 0, 0, 0, 1e-3, 0]))
+    verdict = verify_solutions(o.system, o.doc["scenario"], o.targets, sols)
+    assert [j for j, s in enumerate(verdict) if not s.ok] == [k]
+    assert verdict[k].reason == "solver_failed" and "spot error" in str(verdict[k].evidence)
+    timed = time_solutions(o.system, o.targets, verdict, o.doc["scenario"]["trajectory"],
+                           path=o.path)  # fmt: skip
+    assert timed is not None
+    kinds = [s.kind for s in timed.trajectory.segments]
+    assert kinds == ["approach", "path", "move", "path"]  # around the rejected sample
+    doc = plan_document(o.system, o.targets, verdict, o.doc["scenario"],
+                        timed.trajectory.to_plan_dict(o.system), timed.figures)  # fmt: skip
+    assert doc["metrics"]["n_ok"] == len(sols) - 1
+    assert doc["metrics"]["extra"]["failed_solver_failed"] == 1
+    found = [f for r in check_plan(doc) for f in r.findings]
+    assert not found, found
