@@ -65,7 +65,7 @@ class Parsed(NamedTuple):
     reference: Reference
 
 
-def _first(bad: Array) -> tuple[int, int] | None:
+def _first(bad: np.ndarray) -> tuple[int, int] | None:
     """(sample, joint) of the first True in a K x n mask, or None."""
     if not np.any(bad):
         return None
