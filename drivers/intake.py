@@ -81,6 +81,13 @@ def parse_in_worker(
     return ("ok", p.id, p.session, r.t, r.q, r.qd, r.qdd)
 
 
+def _ignore_interrupts() -> None:
+    """Ctrl-C reaches the whole process group: the driver stops the worker, not the signal."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def _warm() -> bool:
     """Imports the worker needs, done once at start so the first trajectory is not slow."""
     import schemas.messages  # noqa: F401
@@ -118,7 +125,9 @@ class TrajectoryIntake:
 
     @staticmethod
     def _new_pool() -> ProcessPoolExecutor:
-        return ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn"))
+        return ProcessPoolExecutor(
+            max_workers=1, mp_context=get_context("spawn"), initializer=_ignore_interrupts
+        )
 
     # -- producer side (Zenoh callback thread) ----------------------------------------------
     def submit(self, payload: Any) -> None:

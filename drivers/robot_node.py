@@ -191,11 +191,10 @@ class RobotNode(LoopNode):
         except Exception:  # a bad heartbeat is no heartbeat
             self.n_bad_heartbeats += 1
             return
-        beats = self.heartbeats
-        beats.pop(beat.session, None)  # re-insert: dict order = least recently heard first
+        beats = self.heartbeats  # the control loop reads it: never remove a live entry
+        if beat.session not in beats and len(beats) >= MAX_SESSIONS:
+            del beats[min(beats, key=beats.__getitem__)]  # forget the longest silent
         beats[beat.session] = now
-        while len(beats) > MAX_SESSIONS:
-            beats.pop(next(iter(beats)))
 
     def _on_stop(self, sample: Any) -> None:
         self.stop_requested_at = time.monotonic()

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from drivers.follower import STOP_ACCELERATION, STOP_JERK
-from drivers.robot_node import HEARTBEAT_TIMEOUT
+from drivers.robot_node import HEARTBEAT_TIMEOUT, MAX_SESSIONS
 from planner.bus import Keys
 from tests.drivers.conftest import Heartbeats, wait_for
 from tests.drivers.test_robot_node import HOME, Cell, smooth_move, start_planner
@@ -85,6 +85,11 @@ def test_trajectories_need_a_fresh_heartbeat_of_their_session(
                      b'"t":1,"session":"ghost","seq":-1}', b"\xff" * 5000):  # fmt: skip
             garbage.put(body)
         wait_for(lambda: cell.node.n_bad_heartbeats >= 4, what="bad heartbeats counted")
+        for n in range(200):  # a flood of made-up sessions: remembered ones stay bounded
+            garbage.put(json.dumps({"schema": "beamrelay.heartbeat/1", "t": 1.0,
+                                    "session": f"fake{n}", "seq": 0}))  # fmt: skip
+        wait_for(lambda: "fake199" in cell.node.heartbeats, what="fake sessions")
+        assert len(cell.node.heartbeats) == MAX_SESSIONS
         cell.send(smooth_move(HOME, np.full(6, 0.01), 0.3, id="ghost2", session="ghost"))
         assert "last: never" in cell.ack("ghost2")["reason"]
         assert cell.beats is not None
