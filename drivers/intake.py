@@ -23,11 +23,13 @@ Bounds (only the newest trajectory matters):
   it out (one lock, held for a pointer swap). Rejections carry no arrays, and a parsed
   result exists only for a body that was in flight, so the list stays small.
 
-A worker that dies (killed, out of memory) rejects its body and is replaced.
+A worker that dies (killed, out of memory) rejects its body and is replaced; a worker whose
+driver died (even by SIGKILL) exits within :data:`ORPHAN_POLL` s.
 """
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -42,6 +44,7 @@ from planner.bus import MAX_PAYLOAD_BYTES
 from planner.system import Limits
 
 MAX_REASON = 400  # characters of an unexpected error's text kept in a rejection
+ORPHAN_POLL = 0.5  # s: how often the worker checks that the driver still runs
 
 
 class Verdict(NamedTuple):
@@ -81,11 +84,21 @@ def parse_in_worker(
     return ("ok", p.id, p.session, r.t, r.q, r.qd, r.qdd)
 
 
-def _ignore_interrupts() -> None:
-    """Ctrl-C reaches the whole process group: the driver stops the worker, not the signal."""
+def _init_worker(parent: int) -> None:
+    """Worker start: ignore Ctrl-C (it reaches the whole process group; the driver stops
+    the worker) and exit when the driver is gone (a SIGKILLed driver closes no pipe the
+    worker would notice: it holds both ends of its call queue)."""
+    import os
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(ORPHAN_POLL)
+        os._exit(0)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
 def _warm() -> bool:
@@ -126,7 +139,10 @@ class TrajectoryIntake:
     @staticmethod
     def _new_pool() -> ProcessPoolExecutor:
         return ProcessPoolExecutor(
-            max_workers=1, mp_context=get_context("spawn"), initializer=_ignore_interrupts
+            max_workers=1,
+            mp_context=get_context("spawn"),
+            initializer=_init_worker,
+            initargs=(os.getpid(),),
         )
 
     # -- producer side (Zenoh callback thread) ----------------------------------------------

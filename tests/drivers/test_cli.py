@@ -133,3 +133,30 @@ def test_bench_refuses_bad_values_with_one_line() -> None:
         out = subprocess.run([*CLI, "bench", *args], capture_output=True, env=env, timeout=60)
         lines = out.stderr.decode().strip().splitlines()
         assert out.returncode == 2 and len(lines) == 1 and needle in lines[0], lines
+
+
+def child_pids(pid: int) -> set[int]:
+    """Live children of ``pid`` (Linux /proc)."""
+    out = set()
+    for d in Path("/proc").iterdir():
+        try:
+            fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
+            if d.name.isdigit() and int(fields[1]) == pid and fields[0] != "Z":
+                out.add(int(d.name))
+        except (OSError, ValueError, IndexError):
+            continue
+    return out
+
+
+def test_sigkilled_robot_driver_leaves_no_parse_worker_behind(
+    hub: Any, endpoint: str, keys: Keys
+) -> None:
+    robot = run(["robot", "--name", "arm0"], endpoint, keys.prefix)
+    try:
+        wait_for(lambda: bool(list(hub.liveliness().get(keys.alive("arm0")))), 30, "driver up")
+        kids = child_pids(robot.pid)
+        assert kids, "the driver runs its parse worker in a child process"
+    finally:
+        robot.kill()
+        robot.wait(10)
+    wait_for(lambda: not any(Path(f"/proc/{k}").exists() for k in kids), 10, "workers gone")
