@@ -3,7 +3,7 @@
 :func:`flood_jitter` runs a :class:`drivers.robot_node.RobotNode` with the 500 Hz
 :class:`drivers.robot_sim.SimRobot` on a private loopback bus, records the start time of
 every control period (monotonic clock) for ``quiet`` seconds, then for ``seconds`` while a
-plain Zenoh publisher sends ``samples``-sample trajectories (``rate`` per second, ~3.5 MB
+plain Zenoh publisher in another process sends ``samples``-sample trajectories (``rate`` per second, ~3.5 MB
 each at 8900 samples) that the driver parses and checks in full and then rejects (they
 start 0.05 rad away from the arm), and reports :class:`LoopStats` for both windows.
 """
@@ -82,51 +82,81 @@ def flood_jitter(
 ) -> dict[str, Any]:
     """Loop figures without and with the flood (see the module docstring), and the counts of
     trajectories sent, checked (a verdict) and superseded before they were checked."""
-    import zenoh
-
     from drivers.robot_node import RobotNode
     from drivers.robot_sim import SimRobot
-    from planner.bus import Keys, open_session, zenoh_config
+    from planner.bus import Keys, open_session
     from planner.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
 
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     keys, limits, home = Keys("bench"), Limits.ur_default(), np.array(DEFAULT_HOME)
-    hub = zenoh.open(zenoh_config(listen=True, endpoint=endpoint))
-    session = open_session(listen=False, endpoint=endpoint)
+    session = open_session(listen=True, endpoint=endpoint)  # the driver hosts the bus
     backend = SimRobot(JOINT_NAMES_UR, home, limits)
     node = RobotNode(session, keys, "arm0", backend, limits, require_planner=False).start()
-    body = flood_body(samples, home + 0.05, list(JOINT_NAMES_UR))
-    sent = 0
+    sent, size = 0, 0
     try:
         time.sleep(1.0)  # connect, settle
         n0 = node.n_periods
         time.sleep(quiet)
         n1 = node.n_periods
-        pub = hub.declare_publisher(keys.trajectory("arm0"))
-        start = time.monotonic()
-        while time.monotonic() - start < seconds:
-            pub.put(body)
-            sent += 1
-            time.sleep(max(0.0, start + sent / rate - time.monotonic()))
+        sent, size = _flood(endpoint, keys.trajectory("arm0"), samples, rate, seconds)
         n2 = node.n_periods
         end = time.monotonic() + 30.0
         while not node.intake.idle and time.monotonic() < end:
             time.sleep(0.05)
         time.sleep(0.1)
-        pub.undeclare()
     finally:
         node.stop()
         session.close()
-        hub.close()
     dt = 1.0 / backend.rate
     return {
         "quiet": loop_stats(node_window(node, n0, n1), dt),
         "flood": loop_stats(node_window(node, n1, n2), dt),
         "sent": sent,
-        "bytes": len(body),
+        "bytes": size,
         "checked": node.n_accepted + node.n_rejected - node.intake.n_superseded,
         "superseded": node.intake.n_superseded,
     }
+
+
+FLOOD = """
+import os, sys, time, zenoh, json
+from drivers.bench import flood_body
+os.nice(10)  # the load generator, not the system under test
+from planner.system import DEFAULT_HOME, JOINT_NAMES_UR
+endpoint, key, samples, rate, seconds = sys.argv[1], sys.argv[2], int(sys.argv[3]), float(sys.argv[4]), float(sys.argv[5])
+conf = zenoh.Config()
+conf.insert_json5("mode", '"peer"')
+conf.insert_json5("scouting/multicast/enabled", "false")
+conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+s = zenoh.open(conf)
+time.sleep(0.5)
+body = flood_body(samples, [q + 0.05 for q in DEFAULT_HOME], list(JOINT_NAMES_UR))
+pub = s.declare_publisher(key)
+sent, start = 0, time.monotonic()
+while time.monotonic() - start < seconds:
+    pub.put(body)
+    sent += 1
+    time.sleep(max(0.0, start + sent / rate - time.monotonic()))
+time.sleep(0.2)
+print(sent, len(body), flush=True)
+"""
+
+
+def _flood(endpoint: str, key: str, samples: int, rate: float, seconds: float) -> tuple[int, int]:
+    """Run the flood from a separate process (plain Zenoh publisher), so the figures are the
+    driver's alone; (bodies sent, bytes per body)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = str(Path(__file__).resolve().parents[1])
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([root, os.environ.get("PYTHONPATH", "")]))
+    args = [endpoint, key, str(samples), str(rate), str(seconds)]
+    out = subprocess.run([sys.executable, "-c", FLOOD, *args], capture_output=True, env=env,
+                         timeout=seconds + 60, check=True)  # fmt: skip
+    sent, size = out.stdout.split()
+    return int(sent), int(size)
 
 
 def _free_port() -> int:

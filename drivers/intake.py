@@ -2,16 +2,21 @@
 robot's control loop never waits on message parsing.
 
 Why a process. Decoding and validating a JointTrajectory is Python work that holds the GIL
-for as long as it runs: about 0.5 s for an 8900-sample (3.5 MB) body with pydantic, which
-stalled the 500 Hz loop for 60-118 ms at a time when it ran in the Zenoh callback. A
-thread would not help (same GIL). Running the control loop itself in another process would
-mean moving the backend (RTDE connections, the follower) and its state across a process
-boundary; instead the loop stays where it is and only the costly, state-free part moves:
-one worker process (``ProcessPoolExecutor(max_workers=1)``, ``spawn`` context, so it never
-inherits the Zenoh threads) receives the raw bytes and returns either the ready numpy
-arrays (:class:`drivers.trajectory_check.Parsed`; pickling them is a memcpy, ~1 ms for
-3.5 MB) or the rejection reason. What stays in the driver process is short: copying the
-payload out of Zenoh, handing it to the pool, unpickling the result.
+for as long as it runs: about 0.5 s for an 8900-sample (3.6 MB) body with pydantic. Done
+in the Zenoh callback it stalled the 500 Hz loop for 60-145 ms at a time; a thread would
+not help (same GIL). Running the control loop itself in another process would mean moving
+the backend (RTDE connections, the follower) and its state across a process boundary;
+instead the loop stays where it is and only the costly, state-free part moves out.
+
+How. One worker process (``python -c 'from drivers.intake import worker_main; ...'``, its
+own session so Ctrl-C goes to the driver only, ``nice`` +10 so the control loop wins a
+busy CPU) reads length-prefixed bodies on its stdin and answers each with a pickled tuple
+on its stdout: the ready numpy arrays of a :class:`drivers.trajectory_check.Parsed`
+(unpickling them is a memcpy, ~1 ms for 3.6 MB) or the rejection reason. A feeder thread
+of the driver writes the body and waits for the answer; both block in system calls, which
+release the GIL. The Zenoh callback only copies the payload and hands it over. The worker
+exits when its stdin closes, i.e. when the driver exits or dies (even by SIGKILL); a
+worker that dies rejects its body and is restarted.
 
 Bounds (only the newest trajectory matters):
 
@@ -20,21 +25,22 @@ Bounds (only the newest trajectory matters):
 - at most one body is being parsed and at most one waits; a newer arrival replaces the
   waiting one, which is rejected as superseded (its id is unknown: it was never parsed);
 - the results wait in :meth:`TrajectoryIntake.take`'s list until the control loop swaps
-  it out (one lock, held for a pointer swap). Rejections carry no arrays, and a parsed
-  result exists only for a body that was in flight, so the list stays small.
-
-A worker that dies (killed, out of memory) rejects its body and is replaced; a worker whose
-driver died (even by SIGKILL) exits within :data:`ORPHAN_POLL` s.
+  it out (one lock, held for a pointer swap). A parsed result exists only for a body that
+  was in flight, so the list stays small.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
+import pickle
+import struct
+import subprocess
+import sys
 import threading
 import time
-from concurrent.futures import Future, ProcessPoolExecutor
-from multiprocessing import get_context
-from typing import Any, NamedTuple
+from pathlib import Path
+from typing import IO, Any, NamedTuple
 
 import numpy as np
 
@@ -44,7 +50,9 @@ from planner.bus import MAX_PAYLOAD_BYTES
 from planner.system import Limits
 
 MAX_REASON = 400  # characters of an unexpected error's text kept in a rejection
-ORPHAN_POLL = 0.5  # s: how often the worker checks that the driver still runs
+WORKER_NICE = 10  # the parse worker's niceness increment (lower CPU priority)
+START_TIMEOUT = 60.0  # s: longest wait for the worker's first "ready"
+_HEADER = struct.Struct("<Q")  # frame length, bytes
 
 
 class Verdict(NamedTuple):
@@ -65,8 +73,8 @@ def parse_in_worker(
 ) -> tuple[Any, ...]:
     """Worker side: ``("ok", id, session, t, q, qd, qdd)`` or ``("rejected", id, reason)``.
 
-    Never raises: any error of any payload becomes a rejection (plain tuples, so nothing
-    but numpy arrays and strings crosses the process boundary)."""
+    Never raises: any error of any payload becomes a rejection (plain tuples of numpy
+    arrays and strings cross the process boundary)."""
     from planner.bus import decode
     from planner.errors import InputError
     from schemas.messages import JointTrajectory
@@ -84,28 +92,73 @@ def parse_in_worker(
     return ("ok", p.id, p.session, r.t, r.q, r.qd, r.qdd)
 
 
-def _init_worker(parent: int) -> None:
-    """Worker start: ignore Ctrl-C (it reaches the whole process group; the driver stops
-    the worker) and exit when the driver is gone (a SIGKILLed driver closes no pipe the
-    worker would notice: it holds both ends of its call queue)."""
-    import os
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(ORPHAN_POLL)
-        os._exit(0)
-
-    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+def _read_frame(stream: IO[bytes]) -> bytes | None:
+    head = stream.read(_HEADER.size)
+    if len(head) < _HEADER.size:
+        return None
+    (n,) = _HEADER.unpack(head)
+    data = stream.read(n)
+    return data if len(data) == n else None
 
 
-def _warm() -> bool:
-    """Imports the worker needs, done once at start so the first trajectory is not slow."""
-    import schemas.messages  # noqa: F401
+def _write_frame(stream: IO[bytes], data: bytes) -> None:
+    stream.write(_HEADER.pack(len(data)))
+    stream.write(data)
+    stream.flush()
 
-    return True
+
+def worker_main() -> None:
+    """The worker process: first frame = pickled ``(robot, names, limits, period)``, then
+    one answer per body frame, until stdin closes."""
+    os.nice(WORKER_NICE)
+    inp, out = sys.stdin.buffer, sys.stdout.buffer
+    setup = _read_frame(inp)
+    if setup is None:
+        return
+    args = pickle.loads(setup)
+    import schemas.messages  # noqa: F401  (imports done before "ready")
+
+    _write_frame(out, b"ready")
+    while (body := _read_frame(inp)) is not None:
+        _write_frame(out, pickle.dumps(parse_in_worker(body, *args), protocol=5))
+
+
+class _Worker:
+    """One worker process and its pipes (used by the feeder thread only)."""
+
+    def __init__(self, args: tuple[Any, ...]) -> None:
+        root = str(Path(__file__).resolve().parents[1])
+        path = os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH", "")) if p)
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", "from drivers.intake import worker_main; worker_main()"],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True,
+            env=dict(os.environ, PYTHONPATH=path),
+        )  # fmt: skip
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self.stdin, self.stdout = self.proc.stdin, self.proc.stdout
+        _write_frame(self.stdin, pickle.dumps(args))
+        if _read_frame(self.stdout) != b"ready":
+            self.close()
+            raise RuntimeError("the trajectory parse worker did not start")
+
+    def parse(self, body: bytes) -> tuple[Any, ...]:
+        """The worker's answer; OSError/EOFError when it died."""
+        _write_frame(self.stdin, body)
+        data = _read_frame(self.stdout)
+        if data is None:
+            raise EOFError("parse worker exited")
+        res: tuple[Any, ...] = pickle.loads(data)
+        return res
+
+    def close(self) -> None:
+        for s in (self.stdin, self.stdout):
+            with contextlib.suppress(OSError):
+                s.close()
+        try:
+            self.proc.wait(timeout=2.0)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
 
 
 class TrajectoryIntake:
@@ -116,34 +169,30 @@ class TrajectoryIntake:
     ) -> None:
         self._args = (robot, tuple(names), limits, float(period))
         self._lock = threading.Lock()
+        self._wake = threading.Condition(self._lock)
         self._done: list[Verdict] = []
-        self._busy = False
         self._waiting: tuple[bytes, float] | None = None
-        self._pool: ProcessPoolExecutor | None = None
-        self._broken = False
+        self._busy = False
+        self._closed = False
+        self._worker: _Worker | None = None
+        self._thread = threading.Thread(target=self._feed, name="trajectory-intake", daemon=True)
         self.n_superseded = 0
         self.n_oversized = 0
+        self.n_restarts = 0
 
     def start(self) -> TrajectoryIntake:
-        self._pool = self._new_pool()
-        self._pool.submit(_warm).result(timeout=60)
+        self._worker = _Worker(self._args)
+        self._thread.start()
         return self
 
     def close(self) -> None:
         with self._lock:
-            pool, self._pool = self._pool, None
+            self._closed = True
             self._waiting = None
-        if pool is not None:
-            pool.shutdown(wait=False, cancel_futures=True)
-
-    @staticmethod
-    def _new_pool() -> ProcessPoolExecutor:
-        return ProcessPoolExecutor(
-            max_workers=1,
-            mp_context=get_context("spawn"),
-            initializer=_init_worker,
-            initargs=(os.getpid(),),
-        )
+            self._wake.notify_all()
+        self._thread.join(timeout=5.0)
+        if self._worker is not None:
+            self._worker.close()
 
     # -- producer side (Zenoh callback thread) ----------------------------------------------
     def submit(self, payload: Any) -> None:
@@ -153,61 +202,50 @@ class TrajectoryIntake:
         if size > MAX_PAYLOAD_BYTES:
             self.n_oversized += 1
             reason = f"body: payload of {size} bytes exceeds {MAX_PAYLOAD_BYTES} bytes"
-            self._push(Verdict(received, None, None, None, reason))
+            with self._lock:
+                self._done.append(Verdict(received, None, None, None, reason))
             return
         body = payload if isinstance(payload, bytes) else payload.to_bytes()
         with self._lock:
-            if self._pool is None:
-                return
-            if self._busy:
-                if self._waiting is not None:
-                    self.n_superseded += 1
-                    reason = "body: superseded by a newer trajectory before it was checked"
-                    self._done.append(Verdict(self._waiting[1], None, None, None, reason))
-                self._waiting = (body, received)
-                return
-            self._busy = True
-        self._launch(body, received)
+            if self._waiting is not None:
+                self.n_superseded += 1
+                reason = "body: superseded by a newer trajectory before it was checked"
+                self._done.append(Verdict(self._waiting[1], None, None, None, reason))
+            self._waiting = (body, received)
+            self._wake.notify()
 
-    def _launch(self, body: bytes, received: float) -> None:
-        with self._lock:
-            if self._broken and self._pool is not None:  # replace a dead worker
-                self._pool.shutdown(wait=False, cancel_futures=True)
-                self._pool, self._broken = self._new_pool(), False
-            pool = self._pool
-        if pool is None:
-            return
-        try:
-            fut = pool.submit(parse_in_worker, body, *self._args)
-        except RuntimeError:  # pool broken or shut down
-            self._finished(Verdict(received, None, None, None, "body: parse worker unavailable"))
-            return
-        fut.add_done_callback(lambda f: self._on_result(f, received))
+    # -- feeder thread ------------------------------------------------------------------------
+    def _feed(self) -> None:
+        while True:
+            with self._lock:
+                while self._waiting is None and not self._closed:
+                    self._wake.wait()
+                if self._closed:
+                    return
+                assert self._waiting is not None
+                (body, received), self._waiting = self._waiting, None
+                self._busy = True
+            verdict = self._parse(body, received)
+            with self._lock:
+                self._done.append(verdict)
+                self._busy = False
 
-    def _on_result(self, fut: Future[tuple[Any, ...]], received: float) -> None:
+    def _parse(self, body: bytes, received: float) -> Verdict:
         try:
-            res = fut.result()
-        except Exception as exc:  # the worker died (BrokenProcessPool) or was cancelled
-            res = ("rejected", None, f"body: parse worker failed: {type(exc).__name__}")
-            self._broken = True
+            if self._worker is None:  # it died on an earlier body: start a new one
+                self._worker = _Worker(self._args)
+                self.n_restarts += 1
+            res = self._worker.parse(body)
+        except (OSError, EOFError, RuntimeError, pickle.UnpicklingError) as exc:
+            res = ("rejected", None, f"body: parse worker failed ({exc}); restarting it")
+            if self._worker is not None:
+                self._worker.close()
+            self._worker = None
         if res[0] == "ok":
             _, msg_id, session, t, q, qd, qdd = res
             ref = Reference(*(np.asarray(a, dtype=float) for a in (t, q, qd, qdd)))
-            self._finished(Verdict(received, msg_id, session, ref, None))
-        else:
-            self._finished(Verdict(received, res[1], None, None, res[2]))
-
-    def _finished(self, verdict: Verdict) -> None:
-        with self._lock:
-            self._done.append(verdict)
-            nxt, self._waiting = self._waiting, None
-            self._busy = nxt is not None
-        if nxt is not None:
-            self._launch(*nxt)
-
-    def _push(self, verdict: Verdict) -> None:
-        with self._lock:
-            self._done.append(verdict)
+            return Verdict(received, msg_id, session, ref, None)
+        return Verdict(received, res[1], None, None, res[2])
 
     # -- consumer side (control loop) -------------------------------------------------------
     def take(self) -> list[Verdict]:

@@ -323,3 +323,16 @@ def test_planner_killed_arm_stops_within_100_ms(hub: Any, endpoint: str, keys: K
         planner.wait()
         cell.token = cell.client.liveliness().declare_token(keys.alive("other"))
         cell.close()
+
+
+def test_a_dead_parse_worker_is_replaced(cell: Cell) -> None:
+    worker = cell.node.intake._worker
+    assert worker is not None
+    worker.proc.kill()
+    worker.proc.wait(5)
+    cell.send(smooth_move(HOME, np.full(6, 0.02), 0.3, id="lost", session=cell.name))
+    wait_for(lambda: cell.node.n_rejected == 1, what="rejection")
+    assert cell.acks()[-1]["reason"].startswith("body: parse worker failed")
+    cell.send(smooth_move(HOME, np.full(6, 0.02), 0.3, id="next", session=cell.name))
+    assert cell.ack("next")["accepted"]
+    assert cell.node.intake.n_restarts == 1
