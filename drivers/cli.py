@@ -45,7 +45,9 @@ class CameraBackendName(StrEnum):
 
 ROBOT_BACKEND = typer.Option(RobotBackendName.sim, "--backend", help="sim or ur.")
 CAMERA_BACKEND = typer.Option(CameraBackendName.sim, "--backend", help="sim or realsense.")
-BAG = typer.Option(None, "--file", help="realsense: play a .bag recording instead of a device.")
+RECORDING = typer.Option(
+    None, "--file", help="realsense: play a .db3 recording (librealsense 2.59) instead of a device."
+)
 
 
 @app.command("robot")
@@ -75,10 +77,10 @@ def robot(
     require_planner: bool = typer.Option(
         True,
         "--require-planner/--no-require-planner",
-        help="Refuse to move while no planner is alive.",
+        help="Refuse to move without a live planner and its heartbeat (off: bench work only).",
     ),
 ) -> None:
-    """Run a robot driver: joint_states, status, trajectories, planner watchdog."""
+    """Run a robot driver: joint_states, status, trajectories, planner heartbeat watchdog."""
     from drivers.robot.node import RobotNode
     from planner.errors import InputError
     from planner.io.scenario import load_scenario, system_from_scenario
@@ -141,7 +143,7 @@ def camera(
     ),
     seed: int | None = typer.Option(None, "--seed", help="sim: noise seed."),
     serial: str | None = typer.Option(None, "--serial", help="realsense: device serial number."),
-    file: Path | None = BAG,
+    file: Path | None = RECORDING,
 ) -> None:
     """Run a camera driver: point cloud and laser spot."""
     from drivers.camera.node import CameraNode
@@ -168,6 +170,31 @@ def camera(
     session = open_session(listen=listen, endpoint=endpoint, config_file=zenoh_config)
     node = CameraNode(session, Keys(prefix), source, spot_rate=spot_rate, points_rate=points_rate)
     _run(node, session, f"camera: {backend.value} driver up (prefix {prefix})")
+
+
+@app.command("bench")
+def bench(
+    seconds: float = typer.Option(5.0, "--seconds", help="Flood duration, s."),
+    samples: int = typer.Option(8900, "--samples", help="Samples per flood trajectory."),
+    rate: float = typer.Option(10.0, "--rate", help="Flood trajectories per second."),
+    quiet: float = typer.Option(3.0, "--quiet", help="Quiet measurement before the flood, s."),
+) -> None:
+    """Control-loop jitter of the simulated robot driver, quiet and under a trajectory flood."""
+    from drivers.bench import flood_jitter
+    from planner.errors import InputError
+
+    if not 0 < seconds <= 600 or not 0 < quiet <= 600:
+        raise InputError("must be in (0, 600] s", "--seconds/--quiet")
+    if not 2 <= samples <= 10_000:
+        raise InputError(f"must be in [2, 10000] (bodies under 4 MiB), got {samples}", "--samples")
+    if not 0 < rate <= 100:
+        raise InputError(f"must be in (0, 100] per s, got {rate:g}", "--rate")
+    r = flood_jitter(seconds=seconds, samples=samples, rate=rate, quiet=quiet)
+    typer.echo(f"quiet: {r['quiet'].line()}")
+    typer.echo(
+        f"flood ({r['sent']} x {r['bytes'] / 1e6:.1f} MB at {rate:g}/s, {r['checked']} checked, "
+        f"{r['superseded']} superseded): {r['flood'].line()}"
+    )
 
 
 def _run(node: Any, session: Any, banner: str) -> None:

@@ -1,4 +1,4 @@
-"""Batch planning: a scenario's targets -> the plan.json document of SPEC section 5.
+"""Batch planning: a scenario's targets -> the plan.json document.
 
 Point and grid targets are solved one by one with :class:`planner.ik.BeamIK`, each seeded by
 the previous solution (smooth sequences); paths go to :func:`planner.path.solve.plan_path`. The
@@ -18,6 +18,8 @@ import numpy as np
 
 from planner.ik import REASONS, BeamIK, IKOptions, Solution
 from planner.ik.evaluate import evaluate
+from planner.io.plan_file import plan_json as plan_json  # re-exported
+from planner.io.plan_file import write_plan as write_plan
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
 
@@ -25,6 +27,7 @@ if TYPE_CHECKING:
     from planner.model.scene import SceneModel
     from planner.path.solve import PathResult
     from planner.path.timing import Trajectory, VisitReport
+    from planner.verify.spot import Mask
 
 PLAN_SCHEMA = "beamrelay.plan/1"
 Progress = Callable[[int], None]
@@ -127,25 +130,40 @@ def solution_json(system: System, k: int, sol: Solution) -> dict[str, Any]:
 
 
 def plan_metrics(solutions: list[Solution], duration: float | None) -> dict[str, Any]:
-    """``metrics`` of plan.json: medians over solved targets (None when none solved)."""
+    """``metrics`` of plan.json: medians over solved targets (None when none solved); the
+    same computation ``beamrelay check`` repeats on the written plan."""
+    from planner.verify.metrics import summary_metrics
+
     ok = [s for s in solutions if s.ok]
-    err = np.array([s.error for s in ok])
-    dt = np.array([s.solve_time for s in ok])
-    failures: dict[str, float] = {}
-    for s in solutions:
-        if not s.ok:
-            key = f"failed_{s.reason}"
-            failures[key] = failures.get(key, 0) + 1
-    return {
-        "n_targets": len(solutions),
-        "n_ok": len(ok),
-        "error_max": float(err.max()) if ok else None,
-        "error_median": float(np.median(err)) if ok else None,
-        "solve_time_median": float(np.median(dt)) if ok else None,
-        "solve_time_p95": float(np.percentile(dt, 95)) if ok else None,
-        "duration": duration,
-        "extra": failures,
-    }
+    return summary_metrics([float(s.error) for s in ok], [float(s.solve_time) for s in ok],
+                           [s.reason for s in solutions if not s.ok], len(solutions), duration)  # fmt: skip
+
+
+def verify_solutions(
+    system: System, scenario: dict[str, Any], targets: Targets, solutions: list[Solution]
+) -> list[Solution]:
+    """Re-verify every solved target with the checks ``beamrelay check`` runs (spot error,
+    incidence, mirrors, joint limits, same bounds: :mod:`planner.verify.tolerances`) on the
+    resolved ``scenario``; a solution they reject becomes ``failed`` with the check's
+    reason and message as evidence. Nothing is re-solved."""
+    from dataclasses import replace
+
+    from planner.verify.check import target_findings
+
+    ok = [k for k, s in enumerate(solutions) if s.ok]
+    if not ok:
+        return solutions
+    doc = {"scenario": scenario, "targets": [_target_json(targets, k) for k in ok],
+           "solutions": [solution_json(system, k, solutions[k]) for k in ok]}  # fmt: skip
+    out = list(solutions)
+    for f in reversed(target_findings(doc)):  # the first finding of a target wins
+        if f.target is None:
+            continue
+        evidence = {"check": f.message, "value": f.value, "bound": f.bound}
+        out[f.target] = replace(out[f.target], status="failed", reason=f.reason or "solver_failed",
+                                q=None, spot=None, hits=None, uv=None, error=float("inf"),
+                                evidence=evidence)  # fmt: skip
+    return out
 
 
 def _target_json(targets: Targets, k: int) -> dict[str, Any]:
@@ -160,13 +178,24 @@ def plan_document(
     scenario: dict[str, Any],
     trajectory: dict[str, Any] | None = None,
     extra: dict[str, float] | None = None,
+    *,
+    trajectory_requested: bool | None = None,
+    verify: bool = True,
 ) -> dict[str, Any]:
-    """The whole plan.json dict (SPEC section 5); ``extra`` figures go in ``metrics.extra``."""
+    """The whole plan.json dict; ``extra`` figures go in ``metrics.extra``.
+
+    ``trajectory_requested`` (default: a trajectory is given) is written to the plan: with
+    it true, ``beamrelay check`` requires a trajectory whenever a target is solved. With
+    ``verify`` the solutions are first re-verified by :func:`verify_solutions` (needs a
+    resolved ``scenario`` with ``system``)."""
+    if verify and "system" in scenario:
+        solutions = verify_solutions(system, scenario, targets, solutions)
     duration = None
     if trajectory is not None and trajectory.get("t"):
         duration = float(trajectory["t"][-1])
     metrics = plan_metrics(solutions, duration)
     metrics["extra"] |= extra or {}
+    requested = trajectory is not None if trajectory_requested is None else trajectory_requested
     return {
         "schema": PLAN_SCHEMA,
         "scenario": scenario,
@@ -175,6 +204,7 @@ def plan_document(
         "targets": [_target_json(targets, k) for k in range(len(targets))],
         "solutions": [solution_json(system, k, s) for k, s in enumerate(solutions)],
         "trajectory": trajectory,
+        "trajectory_requested": bool(requested),
         "metrics": metrics,
     }
 
@@ -221,7 +251,7 @@ def time_solutions(
     arc = path.arc if path is not None else arc_length(targets.points)
     ok = np.isfinite(Q).all(axis=1)
     spans = [(s.k0, s.k1) for s in path.segments] if path is not None else _runs(ok)
-    runs = [(Q[k0:k1], arc[k0:k1]) for k0, k1 in spans if ok[k0:k1].all()]
+    runs = [(Q[a:b], arc[a:b]) for k0, k1 in spans for a, b in _runs(ok[k0:k1], k0)]
     traj = path_trajectory(system, runs, q0, float(settings.get("spot_speed", 0.02)), rate)
     figures = {"path_time": traj.span("path"), "path_length": float(arc[-1]),
                "path_deviation_max": path_deviation(system, targets, traj),
@@ -229,8 +259,9 @@ def time_solutions(
     return Timed(traj, None, figures | limit_ratios(system, traj))
 
 
-def _runs(ok: Array) -> list[tuple[int, int]]:
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]])))
+def _runs(ok: Array, offset: int = 0) -> list[tuple[int, int]]:
+    """Half-open index ranges (plus ``offset``) of consecutive True values."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]]))) + offset
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
@@ -249,13 +280,11 @@ def limit_ratios(system: System, traj: Trajectory) -> dict[str, float]:
     return out
 
 
-def _mask(traj: Trajectory, kind: str) -> Array:
+def _mask(traj: Trajectory, kind: str) -> Mask:
     """Samples of the trajectory inside segments of one kind."""
-    mask = np.zeros(len(traj.t), dtype=bool)
-    for s in traj.segments:
-        if s.kind == kind:
-            mask |= (traj.t >= s.t0 - 1e-9) & (traj.t <= s.t1 + 1e-9)
-    return mask
+    from planner.verify.spot import segment_mask
+
+    return segment_mask(traj.t, [s._asdict() for s in traj.segments], kind)
 
 
 def spot_rays(system: System, Q: Array) -> tuple[Array, Array]:
@@ -324,6 +353,7 @@ def run_scenario(
 
     loaded = load_scenario(scenario_path)
     scn = loaded.model
+    resolved = resolved_scenario_dict(loaded)
     system = system_from_scenario(loaded)
     targets = targets_from_scenario(loaded, system)
     model = SceneModel.from_scenario(loaded) if scene else None
@@ -342,13 +372,15 @@ def run_scenario(
             task = bar.add_task("solving targets", total=len(targets))
             solutions = plan_points(system, targets, options, scene=model,
                                     progress=lambda k: bar.update(task, completed=k + 1))  # fmt: skip
+        solutions = verify_solutions(system, resolved, targets, solutions)
         n_ok = sum(s.ok for s in solutions)
         timing = bar.add_task("timing", total=n_ok if targets.kind != "path" else None)
         timed = time_solutions(system, targets, solutions, settings, order=order, path=path,
                                progress=lambda k: bar.update(timing, completed=k + 1))  # fmt: skip
     traj = None if timed is None else timed.trajectory.to_plan_dict(system)
     extra = None if timed is None else timed.figures
-    doc = plan_document(system, targets, solutions, resolved_scenario_dict(loaded), traj, extra)
+    doc = plan_document(system, targets, solutions, resolved, traj, extra,
+                        trajectory_requested=True, verify=False)  # fmt: skip
     return PlanOutcome(doc, system, targets, timed, path, solutions)
 
 
@@ -358,27 +390,3 @@ def plan_scenario(
     """Load, plan and assemble plan.json for a scenario file (with a rich progress bar)."""
     out = run_scenario(scenario_path, optimal=optimal, progress=progress)
     return out.doc, out.system, out.targets
-
-
-def plan_json(doc: dict[str, Any], digits: int = 10) -> str:
-    """plan.json text: indented, but the dense ``trajectory`` rows written compactly with
-    times, joints and their derivatives rounded to ``digits`` decimals (1e-10 rad by
-    default; solutions keep full precision)."""
-    import json
-
-    traj = doc.get("trajectory")
-    if not traj:
-        return json.dumps(doc, indent=1)
-
-    def rows(x: Any) -> str:
-        return json.dumps(np.round(np.asarray(x, dtype=float), digits).tolist(),
-                          separators=(",", ":"))  # fmt: skip
-
-    def table(d: dict[str, Any]) -> str:
-        return "{" + ",".join(f"{json.dumps(k)}:{rows(v)}" for k, v in d.items()) + "}"
-
-    body = [f'"t":{rows(traj["t"])}'] + [f'"{k}":{table(traj[k])}' for k in ("q", "qd", "qdd")]
-    body.append(f'"segments":{json.dumps(traj.get("segments", []))}')
-    marker = "__TRAJECTORY__"
-    text = json.dumps({**doc, "trajectory": marker}, indent=1)
-    return text.replace(json.dumps(marker), "{" + ",\n".join(body) + "}", 1)

@@ -148,9 +148,30 @@ def _plane_axes(points: Array) -> tuple[Array, Array, Array]:
     return c, vt[0], vt[1]
 
 
-def _shade(ax: Any, segments: list[dict[str, Any]]) -> None:
-    for s in segments:
-        ax.axvspan(s["t0"], s["t1"], color=_SEGMENT_COLOURS.get(s["kind"], "white"), lw=0)
+def _shade(ax: Any, t: Array, segments: list[dict[str, Any]]) -> None:
+    """Shade the segments' time spans by kind: one filled area per kind (any count)."""
+    from planner.verify.spot import segment_mask
+
+    for kind in sorted({s["kind"] for s in segments}):
+        mask = segment_mask(t, segments, kind)
+        ax.fill_between(t, 0, 1, where=mask, transform=ax.get_xaxis_transform(), lw=0,
+                        color=_SEGMENT_COLOURS.get(kind, "white"))  # fmt: skip
+
+
+def _arrival_spots(system: System, plan: dict[str, Any], targets: Targets, Q: Array, p: Array,
+                   v: Array) -> Array:  # fmt: skip
+    """The spot of each arrival (joints ``Q``, last rays ``p``, ``v``) on the plane of the
+    solved target whose configuration is nearest (a k-d tree: linear in the targets)."""
+    from scipy.spatial import cKDTree
+
+    from planner.verify.trajectory import _plane_spots
+
+    solved = [s for s in plan["solutions"] if s["status"] == "ok"]
+    ids = np.array([int(s["target"]) for s in solved])
+    _, j = cKDTree(np.array([system.stack_q(s["q"]) for s in solved])).query(Q)
+    k = ids[np.asarray(j, dtype=int)]
+    nrm = None if targets.normals is None else targets.normals[k]
+    return _plane_spots(p, v, targets.points[k], nrm)
 
 
 def plot_profiles(system: System, targets: Targets, plan: dict[str, Any], path: str | Path) -> None:
@@ -163,6 +184,7 @@ def plot_profiles(system: System, targets: Targets, plan: dict[str, Any], path: 
     import matplotlib.pyplot as plt
 
     from planner.planning import spot_rays
+    from planner.verify.spot import arrival_mask, segment_mask
     from planner.verify.trajectory import nearest_spots, spot_deviation
 
     traj = plan["trajectory"]
@@ -185,7 +207,7 @@ def plot_profiles(system: System, targets: Targets, plan: dict[str, Any], path: 
                 name = f"{r.name}.{r.kinematics.joint_names[j].replace('_joint', '')}"
                 ax.plot(t, X[:, j], style, lw=0.9, color=f"C{j}", label=name)
     for ax, label in zip(axes, labels, strict=True):
-        _shade(ax, segments)
+        _shade(ax, t, segments)
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     for ax in axes[1:]:
@@ -208,14 +230,13 @@ def plot_profiles(system: System, targets: Targets, plan: dict[str, Any], path: 
         ax_xy.plot(1e3 * (P - c) @ e1, 1e3 * (P - c) @ e2, "k.", ms=3, alpha=0.4,
                    label="targets")  # fmt: skip
     ax_low = fig.add_subplot(grid[2, 1])
-    on_path = np.zeros(len(t), dtype=bool)
-    for s in segments:
-        if s["kind"] == "path":
-            on_path |= (t >= s["t0"] - 1e-9) & (t <= s["t1"] + 1e-9)
+    on_path = segment_mask(t, segments, "path")
     Q = np.hstack([np.asarray(traj["q"][r.name], dtype=float) for r in system.robots])
     if targets.kind == "path" and on_path.any():
         p, v = spot_rays(system, Q[on_path])
-        _, spots = nearest_spots(p, v, P, targets.normals)
+        step = max(1, 2_000_000 // len(P))
+        spots = np.vstack([nearest_spots(p[i : i + step], v[i : i + step], P, targets.normals)[1]
+                           for i in range(0, len(p), step)])  # fmt: skip
         ax_xy.plot(1e3 * (spots - c) @ e1, 1e3 * (spots - c) @ e2, "r-", lw=0.8, label="spot")
         dev = spot_deviation(p, v, P, targets.normals, bool(targets.closed))
         ax_low.plot(t[on_path], 1e6 * dev, "r.", ms=1)
@@ -224,10 +245,10 @@ def plot_profiles(system: System, targets: Targets, plan: dict[str, Any], path: 
         ax_low.set_title(f"max {1e3 * dev.max():.4f} mm", fontsize=9)
     else:
         ends = [s for s in segments if s["kind"] in ("approach", "move")]
-        idx = [int(np.argmin(np.abs(t - s["t1"]))) for s in ends]
-        if idx:
+        idx = np.flatnonzero(arrival_mask(t, segments))
+        if len(idx):
             p, v = spot_rays(system, Q[idx])
-            _, spots = nearest_spots(p, v, P, targets.normals)
+            spots = _arrival_spots(system, plan, targets, Q[idx], p, v)
             ax_xy.plot(1e3 * (spots - c) @ e1, 1e3 * (spots - c) @ e2, "r-", lw=0.5,
                        alpha=0.6, label="spot, visit order")  # fmt: skip
         ax_low.bar(np.arange(len(ends)), [s["t1"] - s["t0"] for s in ends], width=1.0)

@@ -11,7 +11,8 @@ from typing import Annotated, Any, Literal, Self
 
 from pydantic import Field, model_validator
 
-from schemas.common import FieldError, JointVector, NonNegInt, StrictModel, Vec3
+from schemas.bounds import behind_camera, check_joint_angle, check_length_scale
+from schemas.common import MAX_FLANGE_M, FieldError, JointVector, NonNegInt, StrictModel, Vec3
 from schemas.scenario import PartialSystem
 
 HANDEYE_SCHEMA = "beamrelay.handeye/1"
@@ -23,12 +24,43 @@ class Board(StrictModel):
 
     points: Annotated[list[Vec3], Field(min_length=3)]
 
+    @model_validator(mode="after")
+    def _metres(self) -> Self:
+        for i, p in enumerate(self.points):
+            if max(abs(x) for x in p) > MAX_FLANGE_M:
+                raise FieldError(
+                    ("points", i),
+                    f"{p} is more than {MAX_FLANGE_M:g} m from the board's origin: did you"
+                    " give millimetres? (metres)",
+                )
+        return self
+
+
+def check_camera_point(p: list[float], loc: tuple[str | int, ...], hint: str) -> None:
+    """A point seen by the camera (m, optical frame): in front of it, plausibly far."""
+    check_length_scale(p, loc)
+    if p[2] <= 0:
+        raise FieldError(loc, behind_camera(p[2], hint))
+
+
+def check_joints(q: list[float], loc: tuple[str | int, ...]) -> None:
+    for j, v in enumerate(q):
+        check_joint_angle(v, (*loc, j))
+
 
 class HandEyeSample(StrictModel):
     """Robot joints and the board markers as the camera saw them (null = not seen)."""
 
     q: JointVector
     points_camera: list[Vec3 | None]
+
+    @model_validator(mode="after")
+    def _plausible(self) -> Self:
+        check_joints(self.q, ("q",))
+        for i, p in enumerate(self.points_camera):
+            if p is not None:
+                check_camera_point(p, ("points_camera", i), "points in another frame?")
+        return self
 
 
 class HandEyeDataset(StrictModel):
@@ -64,6 +96,14 @@ class BeamSample(StrictModel):
     def _one_spot(self) -> Self:
         if (self.spot_world is None) == (self.spot_camera is None):
             raise ValueError("give exactly one of spot_world, spot_camera")
+        for name, q in self.q.items():
+            check_joints(q, ("q", name))
+        if self.spot_world is not None:
+            check_length_scale(self.spot_world, ("spot_world",))
+        if self.spot_camera is not None:
+            check_camera_point(
+                self.spot_camera, ("spot_camera",), "world coordinates? then write spot_world"
+            )
         return self
 
 

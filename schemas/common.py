@@ -11,13 +11,32 @@ import math
 from typing import Annotated, Any, Self
 
 import numpy as np
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    ModelWrapValidatorHandler,
+    PrivateAttr,
+    field_validator,
+    model_validator,
+)
 from pydantic_core import PydanticCustomError
 
 from planner.model import transforms as tf
 
-RIGID_TOL = 1e-6
+RIGID_TOL = 1e-4
+"""A 4x4 ``matrix`` pose is accepted when its rotation is orthonormal to this (max entry of
+``R^T R - I``; six printed decimals give ~1e-6) and is then replaced by the nearest rotation."""
+EXACT_TOL = 1e-12
 QUAT_MIN_NORM = 1e-6
+QUAT_NORM_RANGE = (0.5, 2.0)
+"""A ``quat`` whose length is outside this range is probably not a quaternion (a warning)."""
+RPY_MAX_RAD = 2 * math.pi + 1e-6
+MAX_WORLD_M = 20.0
+"""Largest plausible world-frame coordinate (m): beyond it a length was given in mm."""
+MAX_FLANGE_M = 1.0
+"""Largest plausible offset from a flange and mirror side (m)."""
 
 
 class FieldError(ValueError):
@@ -111,18 +130,44 @@ def unit_rows(rows: list[list[float]], what: str = "normal") -> list[list[float]
     return out
 
 
-def check_rigid(rows: list[list[float]], tol: float = RIGID_TOL) -> None:
-    """Raise ``ValueError`` unless a 4x4 matrix is a rigid transform (to ``tol``)."""
+def nearest_rotation(R: tf.Array) -> tf.Array:
+    """The rotation matrix nearest ``R`` in the Frobenius norm (SVD projection, det +1)."""
+    U, _, Vt = np.linalg.svd(R)
+    D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(U @ Vt)))])
+    return np.asarray(U @ D @ Vt, dtype=float)
+
+
+def rigid_rows(rows: list[list[float]], tol: float = RIGID_TOL) -> list[list[float]]:
+    """A 4x4 matrix checked to be rigid to ``tol`` and made exactly rigid.
+
+    The rotation is replaced by the nearest rotation and the last row by ``[0, 0, 0, 1]``
+    unless both are already exact (to 1e-12). Raises ``ValueError`` saying how far off the
+    matrix is (orthonormality error, determinant, last row) when it is beyond ``tol``.
+    """
     T = np.asarray(rows, dtype=float)
     R = T[:3, :3]
     ortho = float(np.max(np.abs(R.T @ R - np.eye(3))))
     if ortho > tol:
-        raise ValueError(f"rotation part is not orthonormal (error {ortho:.2g} > {tol:g})")
+        raise ValueError(
+            f"rotation part is not orthonormal: max |R^T R - I| = {ortho:.3g} > {tol:g}"
+            " (is this a rotation matrix?)"
+        )
     det = float(np.linalg.det(R))
-    if abs(det - 1.0) > tol:
-        raise ValueError(f"rotation part has determinant {det:.3g}, expected +1")
-    if float(np.max(np.abs(T[3] - [0.0, 0.0, 0.0, 1.0]))) > tol:
-        raise ValueError("last row must be [0, 0, 0, 1]")
+    if det < 0:
+        raise ValueError(f"rotation part has determinant {det:.3g} (a reflection), expected +1")
+    last = float(np.max(np.abs(T[3] - [0.0, 0.0, 0.0, 1.0])))
+    if last > tol:
+        raise ValueError(f"last row must be [0, 0, 0, 1], got {np.round(T[3], 6).tolist()}")
+    if ortho <= EXACT_TOL and last == 0.0:
+        return rows
+    T[:3, :3] = nearest_rotation(R)
+    T[3] = [0.0, 0.0, 0.0, 1.0]
+    return T.tolist()
+
+
+def check_rigid(rows: list[list[float]], tol: float = RIGID_TOL) -> None:
+    """Raise ``ValueError`` unless a 4x4 matrix is a rigid transform (to ``tol``)."""
+    rigid_rows(rows, tol)
 
 
 _ROTATION_KEYS = ("rpy", "rpy_deg", "quat", "matrix")
@@ -132,8 +177,10 @@ class Pose(StrictModel):
     """A rigid transform ``parent_T_child``: translation ``xyz`` (m) and one rotation form.
 
     Forms: ``{xyz, rpy}`` (fixed-axis X-Y-Z, rad), ``{xyz, rpy_deg}`` (same, degrees),
-    ``{xyz, quat}`` (``[x, y, z, w]``, normalised on load) or ``{matrix}`` (4x4 rows, rigid
-    to 1e-6). ``xyz`` defaults to zeros and the rotation to the identity.
+    ``{xyz, quat}`` (``[x, y, z, w]``, normalised on load; ``quat_length`` keeps the
+    written length) or ``{matrix}`` (4x4 rows, rigid to 1e-4, then made exactly rigid). ``xyz``
+    defaults to zeros and the rotation to the identity. An ``rpy`` angle beyond 2 pi is an
+    error (degrees given as radians).
     """
 
     xyz: Vec3 | None = None
@@ -141,6 +188,7 @@ class Pose(StrictModel):
     rpy_deg: Vec3 | None = None
     quat: Vec4 | None = None
     matrix_rows: Mat4 | None = Field(default=None, alias="matrix")
+    _quat_length: float | None = PrivateAttr(default=None)
 
     @field_validator("quat")
     @classmethod
@@ -154,12 +202,24 @@ class Pose(StrictModel):
             )
         return [x / n for x in q]
 
+    @model_validator(mode="wrap")
+    @classmethod
+    def _keep_quat_length(cls, data: Any, handler: ModelWrapValidatorHandler[Self]) -> Self:
+        pose = handler(data)
+        raw = data.get("quat") if isinstance(data, dict) else None
+        if raw is not None and pose.quat is not None:
+            pose._quat_length = math.sqrt(sum(float(x) ** 2 for x in raw))
+        return pose
+
+    @property
+    def quat_length(self) -> float | None:
+        """Length of the ``quat`` as written (before normalisation), None without one."""
+        return self._quat_length
+
     @field_validator("matrix_rows")
     @classmethod
     def _rigid(cls, rows: list[list[float]] | None) -> list[list[float]] | None:
-        if rows is not None:
-            check_rigid(rows)
-        return rows
+        return None if rows is None else rigid_rows(rows)
 
     @model_validator(mode="after")
     def _one_rotation(self) -> Self:
@@ -168,6 +228,12 @@ class Pose(StrictModel):
             raise FieldError((given[1],), f"give only one of {', '.join(given)}")
         if self.matrix_rows is not None and self.xyz is not None:
             raise FieldError(("xyz",), "not allowed with matrix (put the translation in it)")
+        for i, a in enumerate(self.rpy or []):
+            if abs(a) > RPY_MAX_RAD:
+                raise FieldError(
+                    ("rpy", i),
+                    f"{a:g} rad is beyond 2 pi: rpy is in radians; for degrees write rpy_deg",
+                )
         return self
 
     def _field(self, key: str) -> Any:
@@ -196,3 +262,16 @@ class Pose(StrictModel):
     def to_dict(self) -> dict[str, Any]:
         """The pose as written in files (only the keys that were given)."""
         return self.model_dump(exclude_none=True)
+
+
+def check_translation(pose: Pose, key: str, limit_m: float) -> None:
+    """A :class:`FieldError` at ``key.xyz`` when a pose's translation exceeds ``limit_m``."""
+    p = pose.matrix()[:3, 3]
+    dist = float(np.linalg.norm(p))
+    if dist > limit_m:
+        sub = "matrix" if pose.matrix_rows is not None else "xyz"
+        raise FieldError(
+            (key, sub),
+            f"translation {np.round(p, 4).tolist()} is {dist:g} m from the origin, beyond"
+            f" {limit_m:g} m: did you give millimetres? (lengths are in metres)",
+        )

@@ -29,6 +29,11 @@ M = TypeVar("M", bound=BaseModel)
 
 POSE_KEY = re.compile(r"^\w+_T_\w+$")
 """Keys holding a pose; a pose is replaced whole when merged, never key by key."""
+EXCLUSIVE_KEYS: dict[str, tuple[frozenset[str], ...]] = {
+    "camera": (frozenset({"world_T_camera"}), frozenset({"robot", "flange_T_camera"})),
+}
+"""Mappings holding alternative key groups (a camera is fixed or on a flange): an override
+giving keys of one group removes the other group's keys from the mapping it merges into."""
 
 
 # --- error reporting ----------------------------------------------------------------------
@@ -249,6 +254,7 @@ def merge_partial(
                     error_cls=error_cls,
                 )
         elif isinstance(current, dict) and isinstance(value, dict) and not POSE_KEY.match(str(key)):
+            _drop_alternatives(current, value, EXCLUSIVE_KEYS.get(str(key), ()), origins, b_loc)
             merge_partial(
                 current,
                 value,
@@ -261,6 +267,21 @@ def merge_partial(
         else:
             base[key] = copy.deepcopy(value)
             _replace_origins(origins, over_origins, b_loc, o_loc)
+
+
+def _drop_alternatives(
+    base: dict[str, Any],
+    over: dict[str, Any],
+    groups: tuple[frozenset[str], ...],
+    origins: Origins,
+    b_loc: Loc,
+) -> None:
+    for group in groups:
+        if group & over.keys():
+            for other in groups:
+                for key in other - group:
+                    if base.pop(key, None) is not None:
+                        _replace_origins(origins, {}, (*b_loc, key), ())
 
 
 def _replace_origins(origins: Origins, over_origins: Origins, b_loc: Loc, o_loc: Loc) -> None:

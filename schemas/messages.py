@@ -8,9 +8,18 @@ from __future__ import annotations
 
 from typing import Annotated, Final, Literal, Self
 
-from pydantic import Field, StrictBool, model_validator
+from pydantic import AfterValidator, Field, StrictBool, model_validator
+from pydantic_core import PydanticCustomError
 
-from schemas.common import FieldError, JointVector, NonNegInt, Num, StrictModel, Vec3
+from schemas.common import (
+    FieldError,
+    JointVector,
+    NonNegInt,
+    Num,
+    StrictModel,
+    Vec3,
+    exact_length,
+)
 from schemas.scenario import check_normals, unit_normals
 
 REQUEST_SCHEMA: Final = "beamrelay.request/1"
@@ -25,20 +34,44 @@ MAX_REQUEST_POINTS = 10_000
 MAX_ID_LENGTH = 256
 #: a request/session id: 1..256 characters, no lone surrogates (they cannot be encoded)
 Ident = Annotated[str, Field(min_length=1, max_length=MAX_ID_LENGTH)]
+#: largest |coordinate| of a requested point (m): beyond it, it is a unit mistake or garbage
+MAX_COORDINATE = 100.0
+#: largest |component| of a requested normal (only its direction counts)
+MAX_NORMAL_COMPONENT = 1e6
+
+
+def _within(limit: float, unit: str) -> AfterValidator:
+    """A check that a number's magnitude is at most ``limit`` (``unit`` for the message)."""
+
+    def check(v: float) -> float:
+        if abs(v) > limit:
+            raise PydanticCustomError(
+                "out_of_range",
+                "expected |value| <= {limit}{unit}, got {value}{unit}",
+                {"limit": f"{limit:g}", "unit": unit, "value": f"{v:g}"},
+            )
+        return v
+
+    return AfterValidator(check)
+
+
+Coordinate = Annotated[Num, _within(MAX_COORDINATE, " m")]
+Point = Annotated[list[Coordinate], exact_length(3)]
+Direction = Annotated[list[Annotated[Num, _within(MAX_NORMAL_COMPONENT, "")]], exact_length(3)]
 
 
 class TargetRequest(StrictModel):
     """Targets to plan for: ``points`` (+ optional unit ``normals``) in ``frame``.
 
     ``mode: path`` sweeps the points as one polyline; ``execute`` sends the trajectory to the
-    robots after planning.
+    robots after planning. Coordinates are bounded by :data:`MAX_COORDINATE` (m).
     """
 
     schema_: Literal["beamrelay.request/1"] = Field(alias="schema")
     id: Ident
     frame: Literal["world", "camera"] = "world"
-    points: Annotated[list[Vec3], Field(min_length=1, max_length=MAX_REQUEST_POINTS)]
-    normals: list[Vec3] | None = None
+    points: Annotated[list[Point], Field(min_length=1, max_length=MAX_REQUEST_POINTS)]
+    normals: list[Direction] | None = None
     mode: Literal["points", "path"] = "points"
     execute: StrictBool = False
 

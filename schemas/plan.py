@@ -144,6 +144,9 @@ class Plan(StrictModel):
     targets: list[PlanTarget]
     solutions: list[Solution]
     trajectory: Trajectory | None = None
+    trajectory_requested: bool | None = None
+    """whether a trajectory was asked for (batch planning: always; a request: when it
+    executes); unless false, ``beamrelay check`` requires one whenever a target is solved"""
     metrics: Metrics
     id: str | None = None
     """the request id (plans made for a TargetRequest)"""

@@ -10,9 +10,20 @@ from __future__ import annotations
 
 from typing import Annotated, Literal, Self
 
-from pydantic import Field, StrictBool, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
+from schemas.bounds import (
+    MAX_SPOT_SPEED,
+    MAX_TOLERANCE,
+    check_camera_mount,
+    check_in_front,
+    check_joint_angle,
+    check_limit_values,
+    check_mirror,
+    check_robot,
+)
 from schemas.common import (
+    MAX_WORLD_M,
     FieldError,
     JointVector,
     NonNegNum,
@@ -21,16 +32,18 @@ from schemas.common import (
     PosInt,
     PosNum,
     StrictModel,
-    Vec3,
+    check_translation,
     exact_length,
-    unit_rows,
 )
+from schemas.targets import GridSpec as GridSpec
+from schemas.targets import PathSpec as PathSpec
+from schemas.targets import TargetSpec
+from schemas.targets import check_normals as check_normals
+from schemas.targets import unit_normals as unit_normals
 
 UR_NQ = 6
 PosVec2 = Annotated[list[PosNum], exact_length(2)]
 PosVec3 = Annotated[list[PosNum], exact_length(3)]
-NonNegVec3 = Annotated[list[NonNegNum], exact_length(3)]
-Points = Annotated[list[Vec3], Field(min_length=1)]
 Name = Annotated[str, Field(min_length=1)]
 
 
@@ -39,6 +52,11 @@ class Laser(StrictModel):
     """The fixed laser: the beam exits at the origin of ``world_T_laser`` along its +z."""
 
     world_T_laser: Pose
+
+    @model_validator(mode="after")
+    def _plausible(self) -> Self:
+        check_translation(self.world_T_laser, "world_T_laser", MAX_WORLD_M)
+        return self
 
 
 class Limits(StrictModel):
@@ -53,9 +71,10 @@ class Limits(StrictModel):
     @model_validator(mode="after")
     def _consistent(self) -> Self:
         for name in ("velocity", "acceleration", "jerk"):
+            check_limit_values(name, getattr(self, name))
+        for name in ("lower", "upper"):
             for i, v in enumerate(getattr(self, name) or []):
-                if v <= 0:
-                    raise FieldError((name, i), f"must be > 0, got {v:g}")
+                check_joint_angle(v, (name, i))
         if self.lower is not None and self.upper is not None:
             for i, (lo, hi) in enumerate(zip(self.lower, self.upper, strict=False)):
                 if lo >= hi:
@@ -76,9 +95,15 @@ class Mirror(StrictModel):
 
     @model_validator(mode="after")
     def _margin_fits(self) -> Self:
+        check_mirror(self.size, self.roi_margin, self.flange_T_mirror)
         if 2 * self.roi_margin >= min(self.size):
+            half = min(self.size) / 2
             if "roi_margin" in self.model_fields_set:
-                raise FieldError(("roi_margin",), f"{self.roi_margin:g} m leaves no usable area")
+                raise FieldError(
+                    ("roi_margin",),
+                    f"{self.roi_margin:g} m is not below half the mirror ({half:g} m):"
+                    " it leaves no usable area",
+                )
             raise FieldError(("size",), f"leaves no area inside roi_margin {self.roi_margin:g}")
         return self
 
@@ -115,6 +140,7 @@ class Robot(StrictModel):
             raise FieldError(("urdf",), "give either model or urdf, not both")
         if self.urdf is None:
             check_joint_lengths(self.home, self.limits, UR_NQ)
+        check_robot(self.home, self.world_T_base)
         return self
 
 
@@ -130,10 +156,21 @@ class Intrinsics(StrictModel):
 
 
 class Camera(StrictModel):
-    """The RGB-D camera: ``world_T_camera`` is its OpenCV optical frame (z forward)."""
+    """The RGB-D camera, OpenCV optical frame (x right, y down, z forward).
 
-    world_T_camera: Pose
+    Either fixed, ``world_T_camera``, or carried by a robot (eye-in-hand): ``robot`` names
+    it and ``flange_T_camera`` is the camera's pose on its flange.
+    """
+
+    world_T_camera: Pose | None = None
+    robot: Name | None = None
+    flange_T_camera: Pose | None = None
     intrinsics: Intrinsics
+
+    @model_validator(mode="after")
+    def _one_mount(self) -> Self:
+        check_camera_mount(self.world_T_camera, self.robot, self.flange_T_camera, partial=False)
+        return self
 
 
 def check_unique_names(names: list[str], what: str) -> None:
@@ -159,16 +196,37 @@ class System(StrictModel):
         check_unique_names([r.name for r in robots], "robot")
         return robots
 
+    @model_validator(mode="after")
+    def _camera_robot(self) -> Self:
+        names = [r.name for r in self.robots]
+        cam = self.camera
+        if cam is not None and cam.robot is not None and cam.robot not in names:
+            raise FieldError(
+                ("camera", "robot"), f"no robot named {cam.robot!r} (robots: {', '.join(names)})"
+            )
+        return self
+
 
 # --- partial system (include files, truth) --------------------------------------------------
 class PartialLaser(StrictModel):
     world_T_laser: Pose | None = None
+
+    @model_validator(mode="after")
+    def _plausible(self) -> Self:
+        if self.world_T_laser is not None:
+            check_translation(self.world_T_laser, "world_T_laser", MAX_WORLD_M)
+        return self
 
 
 class PartialMirror(StrictModel):
     flange_T_mirror: Pose | None = None
     size: PosVec2 | None = None
     roi_margin: NonNegNum | None = None
+
+    @model_validator(mode="after")
+    def _plausible(self) -> Self:
+        check_mirror(self.size, self.roi_margin, self.flange_T_mirror)
+        return self
 
 
 class PartialRobot(StrictModel):
@@ -182,6 +240,11 @@ class PartialRobot(StrictModel):
     limits: Limits | None = None
     mirror: PartialMirror | None = None
 
+    @model_validator(mode="after")
+    def _plausible(self) -> Self:
+        check_robot(self.home, self.world_T_base)
+        return self
+
 
 class PartialIntrinsics(StrictModel):
     width: PosInt | None = None
@@ -193,8 +256,17 @@ class PartialIntrinsics(StrictModel):
 
 
 class PartialCamera(StrictModel):
+    """Camera overrides; a mount given here (fixed or on a flange) replaces the other one."""
+
     world_T_camera: Pose | None = None
+    robot: Name | None = None
+    flange_T_camera: Pose | None = None
     intrinsics: PartialIntrinsics | None = None
+
+    @model_validator(mode="after")
+    def _one_mount(self) -> Self:
+        check_camera_mount(self.world_T_camera, self.robot, self.flange_T_camera, partial=True)
+        return self
 
 
 class PartialSystem(StrictModel):
@@ -246,88 +318,18 @@ class SceneObject(StrictModel):
             raise FieldError((given[1],), f"give only one shape of {', '.join(given)}")
         if self.scale is not None and self.mesh is None:
             raise FieldError(("scale",), "only allowed with mesh")
+        check_translation(self.world_T_object, "world_T_object", MAX_WORLD_M)
+        sizes = {"box": self.box, "sphere": [self.sphere], "cylinder": self.cylinder}
+        for key, values in sizes.items():
+            for i, v in enumerate(values or []):
+                if v is not None and v > MAX_WORLD_M:
+                    loc = (key,) if key == "sphere" else (key, i)
+                    raise FieldError(loc, f"{v:g} m: did you give millimetres? (metres)")
         return self
 
     @property
     def shape(self) -> str:
         return next(k for k in SHAPE_KEYS if getattr(self, k) is not None)
-
-
-# --- targets ------------------------------------------------------------------------------
-def check_normals(points: list[list[float]], normals: list[list[float]] | None) -> None:
-    if normals is not None and len(normals) != len(points):
-        raise FieldError(
-            ("normals",), f"expected {len(points)} normals (one per point), got {len(normals)}"
-        )
-
-
-def unit_normals(normals: list[list[float]] | None) -> list[list[float]] | None:
-    """Normalise normals; a zero one is an error at ``normals[i]``."""
-    if normals is None:
-        return None
-    try:
-        return unit_rows(normals)
-    except FieldError as exc:
-        raise FieldError(("normals", *exc.loc), exc.reason) from None
-
-
-class GridSpec(StrictModel):
-    """``n[i]`` points per axis from ``center - size/2`` to ``center + size/2`` (m)."""
-
-    center: Vec3
-    size: NonNegVec3
-    n: Annotated[list[PosInt], exact_length(3, "integers")]
-
-
-class PathSpec(StrictModel):
-    """A polyline swept continuously, resampled every ``spacing`` m (closed: back to start).
-
-    ``normals`` are per vertex and interpolated between vertices.
-    """
-
-    points: Annotated[list[Vec3], Field(min_length=2)]
-    normals: list[Vec3] | None = None
-    closed: StrictBool = False
-    spacing: PosNum = 0.001
-
-    @model_validator(mode="after")
-    def _normals(self) -> Self:
-        check_normals(self.points, self.normals)
-        self.normals = unit_normals(self.normals)
-        return self
-
-
-class TargetSpec(StrictModel):
-    """Where the spot should go: exactly one of ``points`` (+``normals``), ``grid``, ``path``.
-
-    Coordinates are in ``frame`` (``world``, or ``camera`` = the camera's optical frame).
-    ``order: optimized`` lets the planner reorder points/grid targets.
-    """
-
-    frame: Literal["world", "camera"] = "world"
-    points: Points | None = None
-    normals: list[Vec3] | None = None
-    grid: GridSpec | None = None
-    path: PathSpec | None = None
-    order: Literal["optimized", "given"] = "optimized"
-
-    @model_validator(mode="after")
-    def _one_kind(self) -> Self:
-        given = [k for k in ("points", "grid", "path") if getattr(self, k) is not None]
-        if not given:
-            raise ValueError("needs one of points, grid, path")
-        if len(given) > 1:
-            raise FieldError((given[1],), f"give only one of {', '.join(given)}")
-        if self.normals is not None:
-            if self.points is None:
-                raise FieldError(("normals",), "only allowed with points")
-            check_normals(self.points, self.normals)
-            self.normals = unit_normals(self.normals)
-        return self
-
-    @property
-    def kind(self) -> str:
-        return "points" if self.points is not None else "grid" if self.grid is not None else "path"
 
 
 # --- settings -----------------------------------------------------------------------------
@@ -338,6 +340,16 @@ class Solver(StrictModel):
     max_iter: PosInt = 200
     max_incidence_deg: Annotated[PosNum, Field(le=90)] = 80.0
 
+    @model_validator(mode="after")
+    def _plausible(self) -> Self:
+        if self.tolerance > MAX_TOLERANCE:
+            raise FieldError(
+                ("tolerance",),
+                f"{self.tolerance:g} m is a spot error above {MAX_TOLERANCE:g} m: did you"
+                " give millimetres? (metres)",
+            )
+        return self
+
 
 class TrajectorySettings(StrictModel):
     """Path timing: spot speed (m/s), dwell per target (s), sample rate (Hz)."""
@@ -345,6 +357,16 @@ class TrajectorySettings(StrictModel):
     spot_speed: PosNum = 0.02
     dwell: NonNegNum = 0.0
     rate: PosNum = 500.0
+
+    @model_validator(mode="after")
+    def _plausible(self) -> Self:
+        if self.spot_speed > MAX_SPOT_SPEED:
+            raise FieldError(
+                ("spot_speed",),
+                f"{self.spot_speed:g} m/s is above {MAX_SPOT_SPEED:g} m/s: did you give mm/s?"
+                " (m/s)",
+            )
+        return self
 
 
 class Scenario(StrictModel):
@@ -369,6 +391,11 @@ class Scenario(StrictModel):
     def _camera_frame(self) -> Self:
         if self.targets.frame == "camera" and self.system.camera is None:
             raise FieldError(("targets", "frame"), "is camera but system.camera is not given")
+        if self.targets.frame == "camera":
+            try:
+                check_in_front(self.targets)
+            except FieldError as exc:
+                raise FieldError(("targets", *exc.loc), exc.reason) from None
         if self.truth is not None:
             names = {r.name for r in self.system.robots}
             for i, r in enumerate(self.truth.system.robots or []):

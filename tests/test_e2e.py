@@ -10,11 +10,13 @@ reads ``truth:``, so miscalibration is studied by restarting just the camera on 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -27,7 +29,7 @@ from hypothesis import strategies as st
 
 from planner.beam.graph import BeamModel
 from planner.service.bus import Keys, open_session
-from planner.service.client import PlanClient, make_request
+from planner.service.client import PlanClient, RequestError, make_request
 from planner.service.up import child_commands
 from tests.drivers.conftest import free_port, wait_for
 
@@ -295,6 +297,43 @@ def test_random_requests_never_crash_or_hang(bus: Bus) -> None:
     assert bus.procs["planner"].poll() is None
 
 
+def test_planner_heartbeat_session_and_sigstop(bus: Bus) -> None:
+    """The planner process beats at >= 50 Hz with one session; an executed trajectory
+    carries that session and the request id; a SIGSTOPped planner falls silent at once."""
+    beats: list[tuple[float, dict[str, Any]]] = []
+    trajs: list[dict[str, Any]] = []
+    subs = [
+        bus.hub.declare_subscriber(
+            bus.keys.heartbeat,
+            lambda s: beats.append((time.monotonic(), json.loads(s.payload.to_bytes()))),
+        ),
+        bus.hub.declare_subscriber(
+            bus.keys.trajectory("arm0"), lambda s: trajs.append(json.loads(s.payload.to_bytes()))
+        ),
+    ]
+    try:
+        bus.client.execute(make_request(board_targets(1, seed=9), request_id="hb-1"), 20.0)
+        pid = bus.procs["planner"].pid
+        os.kill(pid, signal.SIGSTOP)
+        t_stop = time.monotonic()
+        time.sleep(0.5)
+        stopped = [t for t, _ in beats if t > t_stop + 0.05]
+        os.kill(pid, signal.SIGCONT)
+        wait_for(lambda: beats[-1][0] > t_stop + 0.5, 5.0, "heartbeat after SIGCONT")
+    finally:
+        for sub in subs:
+            sub.undeclare()
+    before = [(t, b) for t, b in beats if t <= t_stop]
+    rate = (len(before) - 1) / (before[-1][0] - before[0][0])
+    sessions = {b["session"] for _, b in beats}
+    seqs = [b["seq"] for _, b in beats]
+    print(f"planner heartbeat {rate:.0f} Hz over {before[-1][0] - before[0][0]:.1f} s")
+    assert rate >= 50.0 and len(sessions) == 1
+    assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))  # resumed where it stopped
+    assert stopped == []
+    assert trajs[-1]["id"] == "hb-1" and trajs[-1]["session"] in sessions
+
+
 def brake_time_bound(qd: np.ndarray, qdd: np.ndarray, a_max: float, j_max: float) -> float:
     """Upper bound (s) of a jerk-limited stop from (qd, qdd) per joint: ramp the acceleration
     to -a_max, decelerate, ramp back to 0 (|a| <= a_max, |jerk| <= j_max)."""
@@ -320,13 +359,27 @@ def test_planner_killed_sim_robot_stops_within_100ms(bus: Bus, system: Any) -> N
         if m["mode"] == "braking":
             braking.append(m["t"])
 
+    trajs: list[tuple[float, dict[str, Any]]] = []
     subs = [
         bus.hub.declare_subscriber(bus.keys.joint_states("arm0"), on_state),
         bus.hub.declare_subscriber(bus.keys.status("arm0"), on_status),
+        bus.hub.declare_subscriber(
+            bus.keys.trajectory("arm0"),
+            lambda s: trajs.append((time.time(), json.loads(s.payload.to_bytes()))),
+        ),
     ]
-    plan = bus.client.request(make_request([far], execute=True))
-    seg = plan["trajectory"]["segments"][0]
-    time.sleep(0.5 * (seg["t0"] + seg["t1"]))
+
+    # the reply may come only after the drivers' verdict: time the kill from the trajectory
+    def send() -> None:
+        with contextlib.suppress(RequestError):  # the planner may die before it replies
+            bus.client.request(make_request([far], execute=True))
+
+    request = threading.Thread(target=send, daemon=True)
+    request.start()
+    wait_for(lambda: bool(trajs), 20.0, "trajectory on the bus")
+    t_sent, traj = trajs[0]
+    fastest = int(np.argmax(np.max(np.abs(np.asarray(traj["qd"])), axis=1)))
+    time.sleep(max(0.0, t_sent + traj["t"][fastest] - time.time()))
     t_kill = time.time()
     os.kill(bus.procs["planner"].pid, signal.SIGKILL)
     bus.procs["planner"].wait(10)
@@ -334,6 +387,7 @@ def test_planner_killed_sim_robot_stops_within_100ms(bus: Bus, system: Any) -> N
     time.sleep(0.5)
     for sub in subs:
         sub.undeclare()
+    request.join(15)
     t_brake = min(braking)
     before = [qd for t, qd in states if t <= t_brake]
     qd0 = before[-1]

@@ -40,7 +40,7 @@ class SpotReading:
 
 
 class CameraSource(Protocol):
-    """What :class:`CameraNode` needs from a backend (``camera_sim`` / ``camera_realsense``)."""
+    """What :class:`CameraNode` needs from a backend (``drivers.camera.sim`` / ``drivers.camera.realsense``)."""
 
     kind: str
     robot_names: tuple[str, ...]

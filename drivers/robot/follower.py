@@ -15,10 +15,12 @@ Modes (one of :data:`MODES`):
    linear interpolation between its samples). It was checked against the position,
    velocity and acceleration limits on receipt (:mod:`drivers.robot.node`).
 3. ``settle`` - after the last sample Ruckig brings the arm to rest on the final position.
+   A trajectory *queued* with :meth:`TrajectoryFollower.enqueue` while another runs
+   starts instead when the running one reaches its last sample (approach from there).
 4. ``braking`` - watchdog or fault: Ruckig's velocity interface takes the velocity to zero
    at once with the *stop* deceleration ``stop_acceleration`` (default 40 rad/s^2) and jerk
    ``stop_jerk`` (default 4000 rad/s^3: full deceleration within 10 ms), like a UR
-   protective stop (category 2) rather than a planned motion, whose limits (SPEC default
+   protective stop (category 2) rather than a planned motion, whose limits (UR5e default
    5 rad/s^2) are for work near people, not for stopping. Time to rest from joint speed v:
    ``2 sqrt(v / j)`` for ``v <= a^2 / j``, else ``v / a + a / j``: at most 89 ms from the
    3.14 rad/s velocity limit, so the arm is still within 100 ms of a fault from any speed.
@@ -105,6 +107,7 @@ class TrajectoryFollower:
         self.qdd = np.zeros(self.n)
         self.mode = "idle"
         self.reference: Reference | None = None
+        self.queued: Reference | None = None
         self._tau = 0.0
 
     @property
@@ -114,14 +117,24 @@ class TrajectoryFollower:
     def follow(self, reference: Reference) -> None:
         """Start a new trajectory (replaces any current one): approach its start, then play."""
         self.reference = reference
+        self.queued = None
         self._tau = 0.0
         self.mode = "approach"
+
+    def enqueue(self, reference: Reference) -> None:
+        """Start ``reference`` when the running trajectory reaches its last sample (replaces
+        a previously queued one); at once when nothing runs."""
+        if self.mode in ("approach", "following", "settle"):
+            self.queued = reference
+        else:
+            self.follow(reference)
 
     def brake(self) -> None:
         """Decelerate to rest now (no-op when already at rest or braking)."""
         if self.mode in ("braking", "stopped"):
             return
         self.reference = None
+        self.queued = None
         self.mode = "braking" if np.any(np.abs(self.qd) > REST_VELOCITY) else "stopped"
         if self.mode == "stopped":
             self.qd[:] = 0.0
@@ -141,8 +154,13 @@ class TrajectoryFollower:
             self.q, self.qd, self.qdd = (np.array(a) for a in self.reference.sample(self._tau))
             if self._tau >= self.reference.duration:
                 self.mode = "settle"
+                if self.queued is not None:
+                    self.follow(self.queued)
         elif self.mode == "settle":
             assert self.reference is not None
+            if self.queued is not None:
+                self.follow(self.queued)
+                return self.step()
             if self._ruckig(self.reference.q[-1], np.zeros(self.n), np.zeros(self.n)):
                 self.mode = "idle"
                 self.reference = None

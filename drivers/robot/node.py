@@ -1,39 +1,74 @@
-"""The Zenoh side of a robot driver, common to the ``sim`` and ``ur`` backends (SPEC section 6).
+"""The Zenoh side of a robot driver, common to the ``sim`` and ``ur`` backends.
 
 :class:`RobotNode` runs the backend's control loop in a thread (one
-:meth:`RobotBackend.step` per period, 500 Hz by default) and
+:meth:`RobotBackend.step` per period, 500 Hz by default). Every command to the arm is
+given from that thread; the Zenoh callbacks only record what they received.
+
+Bus (``<prefix>`` = the namespace, ``beamrelay`` by default):
 
 - publishes ``<prefix>/<robot>/joint_states`` (:class:`schemas.messages.JointState`, rad,
-  rad/s, ``t`` = UNIX time) every ``rate / state_rate`` periods (250 Hz by default),
-- publishes ``<prefix>/<robot>/status`` (:class:`schemas.messages.RobotStatus`) on every mode
-  change and at 10 Hz,
-- subscribes ``<prefix>/<robot>/trajectory`` (:class:`schemas.messages.JointTrajectory`) and
-  hands accepted trajectories to the backend; a rejected one leaves the arm as it was and
-  gets a status with ``fault = "trajectory rejected: <field>: <reason>"``,
-- declares the liveliness token ``<prefix>/alive/<robot>`` and watches
-  ``<prefix>/alive/planner``: when the planner's token disappears (its process died or was
-  killed: Zenoh drops the token as soon as the transport closes) the backend brakes at the
-  next period; trajectories are refused while no planner is alive.
+  rad/s, ``t`` = UNIX time) every ``rate / state_rate`` periods (250 Hz by default) and
+  ``<prefix>/<robot>/status`` (:class:`schemas.messages.RobotStatus`) on every mode change,
+  at 10 Hz and at once for every trajectory received: ``trajectory`` is the verdict
+  (:class:`schemas.messages.TrajectoryAck`: request ``id``, accepted, reason), repeated in
+  every later status until the next trajectory;
+- subscribes ``<prefix>/<robot>/trajectory``: bodies are parsed and checked in a worker
+  process (:mod:`drivers.robot.intake`, checks in :mod:`drivers.robot.trajectory_check`); the loop picks
+  up ready verdicts without waiting;
+- subscribes ``<prefix>/heartbeat`` (:class:`schemas.messages.Heartbeat`) and
+  ``<prefix>/stop``, declares ``<prefix>/alive/<robot>`` and watches ``<prefix>/alive/planner``.
+
+Acceptance, decided in the control loop when the worker's verdict arrives:
+
+1. the state-free checks passed (names, limits, no position jumps, declared derivatives
+   consistent with the positions);
+2. with ``require_planner`` (the default): a planner token is alive and a heartbeat from the
+   trajectory's ``session`` arrived within :data:`HEARTBEAT_TIMEOUT` (a trajectory without
+   a session is refused);
+3. it was received after the last stop request, and the arm is not braking;
+4. start: while a trajectory executes (approach, following, settle), the new one must start
+   within ``start_tolerance`` of the running one's *last* sample: it is queued and starts
+   when the running one reaches that sample (the planner plans from the state the arm will
+   be in then). At most one is queued; a newer one replaces it (the replaced one never
+   runs and gets no second verdict). With the arm at rest it must start within
+   ``start_tolerance`` of the measured joints and starts at once.
+
+Safety stops (:meth:`RobotNode._safe_stop`, the one place every stop goes through: brake
+with the stop deceleration of :mod:`drivers.robot.follower`, drop the queued trajectory):
+
+- heartbeat: while the arm executes a trajectory with ``require_planner``, the sessions of
+  the running and the queued trajectory must each have sent a heartbeat within
+  :data:`HEARTBEAT_TIMEOUT` (0.1 s), checked every period against the monotonic time the
+  callback stored; heartbeats of other sessions do not count;
+- the planner's liveliness token disappearing (an extra trigger: it comes 2-9 ms after the
+  planner process dies, but a hung planner keeps it for the ~9 s Zenoh lease);
+- any sample on ``<prefix>/stop``, whatever its body: brake, and refuse every trajectory
+  received before the stop (also those still being parsed); the first trajectory received
+  after it, once the arm is at rest, is judged by the rules above.
 """
 
 from __future__ import annotations
 
-import threading
 import time
 from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
 from drivers.loop_node import LoopNode
-from drivers.robot.follower import Reference
+from drivers.robot.follower import Reference, TrajectoryFollower
+from drivers.robot.intake import TrajectoryIntake, Verdict
+from drivers.robot.trajectory_check import START_TOLERANCE, check_start
+from drivers.robot.trajectory_check import check_trajectory as check_trajectory
 from planner.errors import InputError
 from planner.model.system import Limits
 from planner.model.transforms import Array
 from planner.service.bus import JSON, Keys, decode, encode
-from schemas.messages import JointState, JointTrajectory, RobotStatus
+from schemas.messages import Heartbeat, JointState, RobotStatus, TrajectoryAck
 
-START_TOLERANCE = 0.01  # rad: largest |q_traj[0] - q_now| accepted (any joint)
-LIMIT_SLACK = 1e-6  # relative slack on velocity/acceleration limits (numerical noise)
+HEARTBEAT_TIMEOUT = 0.100  # s: longest planner silence before the arm brakes
+MAX_SESSIONS = 64  # heartbeat sessions remembered (oldest forgotten first)
+EXECUTING = ("approach", "following", "settle")
+PERIOD_LOG = 1 << 16  # control periods whose start times are kept (2 min at 500 Hz)
 
 
 class Measured(NamedTuple):
@@ -47,71 +82,29 @@ class Measured(NamedTuple):
 
 
 class RobotBackend(Protocol):
-    """What :class:`RobotNode` needs from a backend (see ``robot_sim`` / ``robot_ur``)."""
+    """What :class:`RobotNode` needs from a backend (see ``drivers.robot.sim`` / ``drivers.robot.ur``)."""
 
     kind: str
     names: tuple[str, ...]
     rate: float
+    follower: TrajectoryFollower
 
     def begin_period(self) -> None: ...
     def step(self) -> Measured: ...
     def end_period(self) -> None: ...
     def measured(self) -> Measured: ...
     def command(self, reference: Reference) -> None: ...
+    def queue(self, reference: Reference) -> None: ...
     def brake(self, reason: str) -> None: ...
     def close(self) -> None: ...
 
 
-def check_trajectory(
-    msg: JointTrajectory,
-    robot: str,
-    names: tuple[str, ...],
-    limits: Limits,
-    q_now: Array,
-    start_tolerance: float = START_TOLERANCE,
-) -> Reference:
-    """Validate a received trajectory against this arm; InputError(reason, field) if not.
+class Accepted(NamedTuple):
+    """A trajectory handed to the backend, with the planner session it answers to."""
 
-    Checks: robot name, joint names (same order), the first sample within
-    ``start_tolerance`` rad of ``q_now`` on every joint, and every sample inside the
-    position limits and the velocity/acceleration limits (jerk is left to Ruckig's approach
-    and the planner's timing).
-    """
-    if msg.robot != robot:
-        raise InputError(
-            f"trajectory is for robot {msg.robot!r}, this driver is {robot!r}", "robot"
-        )
-    if tuple(msg.names) != tuple(names):
-        raise InputError(f"joint names {msg.names} differ from {list(names)}", "names")
-    t = np.asarray(msg.t, dtype=float)
-    q, qd, qdd = (np.asarray(a, dtype=float) for a in (msg.q, msg.qd, msg.qdd))
-    gap = np.abs(q[0] - np.asarray(q_now, dtype=float))
-    if np.max(gap) > start_tolerance:
-        j = int(np.argmax(gap))
-        raise InputError(
-            f"starts {gap[j]:.4f} rad from the current state on joint {names[j]} "
-            f"(tolerance {start_tolerance:g} rad)",
-            "q[0]",
-        )
-    bounds = [
-        ("q", q < limits.lower, limits.lower, "below lower limit"),
-        ("q", q > limits.upper, limits.upper, "above upper limit"),
-        ("qd", np.abs(qd) > limits.velocity * (1 + LIMIT_SLACK), limits.velocity, "exceeds"),
-        (
-            "qdd",
-            np.abs(qdd) > limits.acceleration * (1 + LIMIT_SLACK),
-            limits.acceleration,
-            "exceeds",
-        ),
-    ]
-    for key, bad, bound, what in bounds:
-        if np.any(bad):
-            k, j = (int(i) for i in np.argwhere(bad)[0])
-            value = {"q": q, "qd": qd, "qdd": qdd}[key][k, j]
-            raise InputError(
-                f"{value:.4f} on joint {names[j]} {what} {bound[j]:.4f}", f"{key}[{k}]"
-            )
-    return Reference(t, q, qd, qdd)
+    id: str | None
+    session: str | None
+    reference: Reference
 
 
 class RobotNode(LoopNode):
@@ -140,20 +133,34 @@ class RobotNode(LoopNode):
         self.require_planner = require_planner
         self._state_every = max(1, round(backend.rate / state_rate))
         self._status_every = max(1, round(backend.rate / status_rate))
-        self._lock = threading.Lock()
+        self.intake = TrajectoryIntake(robot, backend.names, limits, 1.0 / backend.rate)
+        self.heartbeats: dict[str, float] = {}  # session -> monotonic time of its last beat
         self.planner_alive = False
         self.planner_lost_at: float | None = None  # UNIX time the planner's token went away
+        self.stop_requested_at: float | None = None  # monotonic time of the last stop sample
+        self.stopped_by: str | None = None  # why the last safety stop happened
         self.rejection: str | None = None
+        self.ack: TrajectoryAck | None = None
         self.n_accepted = 0
         self.n_rejected = 0
+        self.n_bad_heartbeats = 0
+        self.period_starts = np.zeros(PERIOD_LOG)  # monotonic s, ring buffer
+        self.n_periods = 0
+        self._running: Accepted | None = None
+        self._queued: Accepted | None = None
+        self._triggers: list[str] = []  # stop reasons from callbacks, for the loop
+        self._handled_stop: float | None = None
 
     # -- lifecycle ---------------------------------------------------------------------
     def start(self) -> RobotNode:
         s, k = self.session, self.keys
+        self.intake.start()
         self._pub_state = s.declare_publisher(k.joint_states(self.robot), encoding=JSON)
         self._pub_status = s.declare_publisher(k.status(self.robot), encoding=JSON)
         self._handles = [
             s.declare_subscriber(k.trajectory(self.robot), self._on_trajectory),
+            s.declare_subscriber(k.heartbeat, self._on_heartbeat),
+            s.declare_subscriber(k.stop, self._on_stop),
             s.liveliness().declare_subscriber(k.alive("planner"), self._on_planner, history=True),
             s.liveliness().declare_token(k.alive(self.robot)),
         ]
@@ -161,11 +168,11 @@ class RobotNode(LoopNode):
         return self
 
     def _close(self) -> None:
-        """Stop the arm (backend ``close``)."""
-        with self._lock:
-            self.backend.close()
+        """Stop the arm (backend ``close``) and the parse worker."""
+        self.backend.close()
+        self.intake.close()
 
-    # -- callbacks (Zenoh threads) -------------------------------------------------------
+    # -- callbacks (Zenoh threads): record, never command ------------------------------------
     def _on_planner(self, sample: Any) -> None:
         import zenoh
 
@@ -173,64 +180,144 @@ class RobotNode(LoopNode):
         self.planner_alive = alive
         if not alive:
             self.planner_lost_at = time.time()
-            with self._lock:
-                self.backend.brake("planner liveliness lost")
+            self._triggers.append("planner liveliness lost")
+
+    def _on_heartbeat(self, sample: Any) -> None:
+        now = time.monotonic()
+        try:
+            if len(sample.payload) > 4096:
+                raise InputError("heartbeat body over 4096 bytes", "body")
+            beat = decode(sample.payload.to_bytes(), Heartbeat)
+        except Exception:  # a bad heartbeat is no heartbeat
+            self.n_bad_heartbeats += 1
+            return
+        beats = self.heartbeats  # the control loop reads it: never remove a live entry
+        if beat.session not in beats and len(beats) >= MAX_SESSIONS:
+            del beats[min(beats, key=beats.__getitem__)]  # forget the longest silent
+        beats[beat.session] = now
+
+    def _on_stop(self, sample: Any) -> None:
+        self.stop_requested_at = time.monotonic()
 
     def _on_trajectory(self, sample: Any) -> None:
-        try:
-            if self.require_planner and not self.planner_alive:
-                raise InputError("no planner alive (watchdog): not moving", "body")
-            msg = decode(sample.payload.to_bytes(), JointTrajectory)
-            with self._lock:
-                ref = check_trajectory(
-                    msg,
-                    self.robot,
-                    self.backend.names,
-                    self.limits,
-                    self.backend.measured().q,
-                    self.start_tolerance,
-                )
-                self.backend.command(ref)
-            self.rejection = None
-            self.n_accepted += 1
-        except InputError as exc:
-            self.n_rejected += 1
-            self.rejection = f"trajectory rejected: {exc}"
-            self._publish_status(self.backend.measured())
+        self.intake.submit(sample.payload)
 
     # -- control loop --------------------------------------------------------------------
     def _loop(self) -> None:
         tick, last_mode = 0, ""
         while not self._stop.is_set():
             self.backend.begin_period()
-            with self._lock:
-                m = self.backend.step()
+            self.period_starts[self.n_periods % PERIOD_LOG] = time.monotonic()
+            self.n_periods += 1
+            self._watch()
+            for verdict in self.intake.take():
+                self._decide(verdict)
+                self._publish_status(self.backend.measured())
+            m = self.backend.step()
+            self._track()
             if tick % self._state_every == 0:
-                self._pub_state.put(
-                    encode(
-                        JointState(
-                            t=time.time(),
-                            names=list(self.backend.names),
-                            q=m.q.tolist(),
-                            qd=m.qd.tolist(),
-                        )
-                    )
-                )
+                state = JointState(
+                    t=time.time(), names=list(self.backend.names), q=m.q.tolist(),
+                    qd=m.qd.tolist(),
+                )  # fmt: skip
+                self._pub_state.put(encode(state))
             if m.mode != last_mode or tick % self._status_every == 0:
                 self._publish_status(m)
                 last_mode = m.mode
             tick += 1
             self.backend.end_period()
 
+    def _watch(self) -> None:
+        """Stop triggers, once per period: stop requests, token loss, silent heartbeats."""
+        stop_at = self.stop_requested_at
+        if stop_at is not None and stop_at != self._handled_stop:
+            self._handled_stop = stop_at
+            self._safe_stop(f"stop requested on {self.keys.stop}")
+        while self._triggers:
+            self._safe_stop(self._triggers.pop(0))
+        if not self.require_planner or self.backend.follower.mode not in EXECUTING:
+            return
+        now = time.monotonic()
+        for acc in (self._running, self._queued):
+            if acc is None or acc.session is None:
+                continue
+            silent = now - self.heartbeats.get(acc.session, -np.inf)
+            if silent > HEARTBEAT_TIMEOUT:
+                quiet = "none heard" if np.isinf(silent) else f"silent for {1e3 * silent:.0f} ms"
+                self._safe_stop(f"planner heartbeat lost: session {acc.session} {quiet}")
+                return
+
+    def _safe_stop(self, reason: str) -> None:
+        """Every safety stop goes through here: brake with the stop deceleration, drop the
+        queued trajectory, and say why in the status. The laser gate, once drivers drive
+        one, is forced off here too."""
+        self.backend.brake(reason)
+        self._running = self._queued = None
+        self.stopped_by = reason
+
+    def _track(self) -> None:
+        """Follow the backend: the queued trajectory started, or everything ended."""
+        f = self.backend.follower
+        if self._queued is not None and f.reference is self._queued.reference:
+            self._running, self._queued = self._queued, None
+        elif f.reference is None:
+            self._running = self._queued = None
+
+    def _decide(self, v: Verdict) -> None:
+        """Accept (start or queue) or reject one checked trajectory; record the verdict."""
+        try:
+            if v.reference is None:
+                raise InputError(v.reason or "rejected", "")
+            self._admissible(v)
+            acc = Accepted(v.id, v.session, v.reference)
+            if self.backend.follower.mode in EXECUTING and self._running is not None:
+                last = self._running.reference.q[-1]
+                check_start(acc.reference.q[0], last, self.backend.names, self.start_tolerance,
+                            "the running trajectory's last sample")  # fmt: skip
+                self.backend.queue(acc.reference)
+                self._queued = acc
+            else:
+                check_start(acc.reference.q[0], self.backend.measured().q, self.backend.names,
+                            self.start_tolerance, "the current state")  # fmt: skip
+                self.backend.command(acc.reference)
+                self._running, self._queued = acc, None
+        except InputError as exc:
+            self.n_rejected += 1
+            self.rejection = f"trajectory rejected: {exc}"
+            self.ack = TrajectoryAck(id=v.id, accepted=False, reason=str(exc), t=time.time())
+            return
+        self.n_accepted += 1
+        self.rejection = self.stopped_by = None
+        self.ack = TrajectoryAck(id=v.id, accepted=True, t=time.time())
+
+    def _admissible(self, v: Verdict) -> None:
+        """Rules 2 and 3 of the module docstring (InputError if not)."""
+        stop_at = self.stop_requested_at
+        if stop_at is not None and v.received <= stop_at:
+            raise InputError(f"received before the stop requested on {self.keys.stop}", "body")
+        if self.backend.follower.mode == "braking":
+            raise InputError("the arm is braking: send it once the arm is at rest", "body")
+        if not self.require_planner:
+            return
+        if not self.planner_alive:
+            raise InputError("no planner alive (watchdog): not moving", "body")
+        if v.session is None:
+            raise InputError("no planner session given (a planner must send it)", "session")
+        silent = time.monotonic() - self.heartbeats.get(v.session, -np.inf)
+        if silent > HEARTBEAT_TIMEOUT:
+            heard = "never" if np.isinf(silent) else f"{1e3 * silent:.0f} ms ago"
+            raise InputError(
+                f"no heartbeat from planner session {v.session} within "
+                f"{1e3 * HEARTBEAT_TIMEOUT:.0f} ms (last: {heard})",
+                "session",
+            )
+
     def _publish_status(self, m: Measured) -> None:
-        fault = m.fault or self.rejection
+        fault = m.fault or self.rejection or self.stopped_by
         if fault is None and not self.planner_alive and self.require_planner:
             fault = "no planner alive (watchdog)"
         msg = RobotStatus(
-            robot=self.robot,
-            t=time.time(),
-            mode=m.mode,
-            protective_stop=m.protective_stop,
-            fault=fault,
-        )
+            robot=self.robot, t=time.time(), mode=m.mode, protective_stop=m.protective_stop,
+            fault=fault, trajectory=self.ack,
+        )  # fmt: skip
         self._pub_status.put(encode(msg))

@@ -77,6 +77,9 @@ class SimRobot:
     def command(self, reference: Reference) -> None:
         self.follower.follow(reference)
 
+    def queue(self, reference: Reference) -> None:
+        self.follower.enqueue(reference)
+
     def brake(self, reason: str) -> None:
         self.follower.brake()
 

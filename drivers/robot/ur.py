@@ -13,8 +13,10 @@ Per control period (``rate``, 500 Hz on e-Series):
 4. ``kickWatchdog()``: the RTDE watchdog (``setWatchdog(watchdog_hz)``) makes the
    controller stop the arm by itself if this loop stalls; ``waitPeriod()``.
 
-The planner watchdog (:mod:`drivers.robot.node`) calls :meth:`URRobot.brake`: a jerk-limited
-stop through ``servoJ``, then ``servoStop``. :meth:`URRobot.close` (Ctrl-C, node exit) calls
+Every check and watchdog of :mod:`drivers.robot.node` applies here unchanged (position-jump
+and limit checks, planner heartbeat and liveliness, ``<prefix>/stop``, parsing in a worker
+process): a safety stop calls :meth:`URRobot.brake`, a jerk-limited stop through ``servoJ``,
+then ``servoStop``. :meth:`URRobot.close` (Ctrl-C, node exit) calls
 ``servoStop()`` and disconnects. How to run it on a real arm: ``drivers/README.md``.
 """
 
@@ -136,7 +138,7 @@ class URRobot:
         self.control.servoStop()
         self.servoing = False
 
-    # -- commands (called under the node's lock) --------------------------------------------
+    # -- commands (called by the node's control loop, between periods) -----------------------
     def measured(self) -> Measured:
         return self._last
 
@@ -146,6 +148,12 @@ class URRobot:
         if not self.servoing:  # start from where the arm really is
             self.follower.reset(self._last.q)
         self.follower.follow(reference)
+
+    def queue(self, reference: Reference) -> None:
+        """Start ``reference`` when the running trajectory reaches its last sample."""
+        if self.fault is not None:
+            raise InputError(f"arm in fault: {self.fault}", "robot")
+        self.follower.enqueue(reference)
 
     def brake(self, reason: str) -> None:
         self.follower.brake()

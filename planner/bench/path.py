@@ -38,6 +38,8 @@ def command(
         Ks = [int(k) for k in sizes.split(",")]
     except ValueError as exc:
         raise InputError(f"--sizes must be integers: {sizes!r}") from exc
+    if not Ks or min(Ks) < 2:
+        raise InputError(f"--sizes {sizes!r}: every sample count K must be >= 2")
     loaded = load_scenario(scenario)
     system = system_from_scenario(loaded)
     base = targets_from_scenario(loaded, system)

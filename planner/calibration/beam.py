@@ -57,13 +57,15 @@ REL_TOL = 1e-9
 
 @dataclass(frozen=True)
 class BeamData:
-    """A beam dataset (SPEC section 7): ``q`` (K, nq of the chain), ``spots_world`` (K, 3),
-    ``boards`` (K,) placement labels."""
+    """A beam dataset: ``q`` (K, nq of the chain, rad), ``spots_world`` (K, 3, m),
+    ``boards`` (K,) placement labels; ``camera_spots`` counts the spots that were given in
+    the camera frame and mapped to the world with the scenario's camera pose."""
 
     robot: str
     q: Array
     spots_world: Array
     boards: Array
+    camera_spots: int = 0
 
 
 @dataclass(frozen=True)

@@ -14,9 +14,9 @@ import numpy as np
 
 from planner.calibration.beam import BeamData
 from planner.calibration.handeye import HandEyeData
-from planner.errors import DatasetError
+from planner.errors import DatasetError, InputError
 from planner.model.system import System
-from planner.model.transforms import transform_points
+from planner.model.transforms import Array, inv_T, transform_points
 
 
 def load_handeye(path: str | Path) -> HandEyeData:
@@ -42,7 +42,8 @@ def load_handeye(path: str | Path) -> HandEyeData:
 
 def load_beam(path: str | Path, system: System) -> BeamData:
     """Read and validate a ``beamrelay.beam/1`` file; ``spot_camera`` goes to the world with
-    ``system.camera`` (the scenario after its includes)."""
+    the scenario's camera pose (after its includes). A camera on a flange is posed at the
+    sample's joints of its robot, which the sample's ``q`` must then hold."""
     from schemas.calibration import BeamDataset
     from schemas.yamlio import read_json, validate
 
@@ -54,7 +55,7 @@ def load_beam(path: str | Path, system: System) -> BeamData:
             f"unknown robot {ds.robot!r}; scenario robots: {', '.join(names)}", f"{path} robot"
         )
     chain = system.robots[: names.index(ds.robot) + 1]
-    qs, spots = [], []
+    qs, spots, n_camera = [], [], 0
     for i, s in enumerate(ds.samples):
         row = []
         for r in chain:
@@ -73,17 +74,36 @@ def load_beam(path: str | Path, system: System) -> BeamData:
         if s.spot_world is not None:
             spots.append(np.array(s.spot_world, dtype=float))
         else:
-            if system.camera is None:
-                raise DatasetError(
-                    "spot_camera needs a camera in the scenario", f"{path} samples[{i}]"
-                )
-            spots.append(transform_points(system.camera.world_T_camera, np.array(s.spot_camera)))
+            world_T_camera = _camera_pose(system, s.q, f"{path} samples[{i}]")
+            spots.append(transform_points(world_T_camera, np.array(s.spot_camera)))
+            n_camera += 1
     return BeamData(
         robot=ds.robot,
         q=np.array(qs, dtype=float),
         spots_world=np.array(spots),
         boards=np.array([s.board for s in ds.samples], dtype=int),
+        camera_spots=n_camera,
     )
+
+
+def _camera_pose(system: System, q: dict[str, list[float]], place: str) -> Array:
+    """``world_T_camera`` at a sample's joints (a flange camera needs its robot's q)."""
+    cam = system.camera
+    if cam is None:
+        raise DatasetError("spot_camera needs a camera in the scenario (system.camera)", place)
+    if cam.robot is not None:
+        r = system.robot(cam.robot)
+        if cam.robot not in q:
+            raise DatasetError(
+                f"spot_camera with the camera on {cam.robot}'s flange needs {cam.robot}'s"
+                " joints in q",
+                f"{place}.q",
+            )
+        if len(q[cam.robot]) != r.nq:
+            raise DatasetError(
+                f"expected {r.nq} joints, got {len(q[cam.robot])}", f"{place}.q.{cam.robot}"
+            )
+    return system.world_T_camera({k: np.asarray(v, dtype=float) for k, v in q.items()})
 
 
 def handeye_json(data: HandEyeData) -> dict[str, Any]:
@@ -103,17 +123,37 @@ def handeye_json(data: HandEyeData) -> dict[str, Any]:
     }
 
 
-def beam_json(data: BeamData, system: System) -> dict[str, Any]:
-    """The ``beamrelay.beam/1`` mapping of a dataset (spots in the world)."""
+def beam_json(data: BeamData, system: System, *, spots: str = "world") -> dict[str, Any]:
+    """The ``beamrelay.beam/1`` mapping of a dataset.
+
+    ``spots="world"`` writes ``spot_world``; ``"camera"`` writes ``spot_camera``, the spots
+    in ``system.camera``'s optical frame at each sample's joints (a camera on a flange
+    outside the chain is taken at its robot's home joints, written into ``q``).
+    """
+    if spots not in ("world", "camera"):
+        raise ValueError(f"spots must be world or camera, got {spots!r}")
     names = system.robot_names
     chain = system.robots[: names.index(data.robot) + 1]
+    cam = system.camera
+    if spots == "camera" and cam is None:
+        raise InputError("camera-frame spots need a camera in the scenario (system.camera)")
     samples = []
     for q, spot, b in zip(data.q, data.spots_world, data.boards, strict=True):
         split, i = {}, 0
         for r in chain:
             split[r.name] = q[i : i + r.nq].tolist()
             i += r.nq
-        samples.append({"q": split, "spot_world": spot.tolist(), "board": int(b)})
+        sample: dict[str, Any] = {"q": split, "board": int(b)}
+        if spots == "world":
+            sample["spot_world"] = spot.tolist()
+        else:
+            assert cam is not None
+            if cam.robot is not None and cam.robot not in split:
+                split[cam.robot] = system.robot(cam.robot).home.tolist()
+            q_map = {k: np.asarray(v) for k, v in split.items()}
+            camera_T_world = inv_T(system.world_T_camera(q_map))
+            sample["spot_camera"] = transform_points(camera_T_world, spot).tolist()
+        samples.append(sample)
     return {"schema": "beamrelay.beam/1", "robot": data.robot, "samples": samples}
 
 

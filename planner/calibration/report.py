@@ -48,12 +48,12 @@ def _vec(x: Array) -> list[float]:
 def handeye_document(result: HandEyeResult, robot: str, dataset: str = "") -> dict[str, Any]:
     """The calibration file mapping of a hand-eye result.
 
-    eye_to_hand writes ``system.camera.world_T_camera``; eye_in_hand has no scenario key
-    for a flange-mounted camera, so ``flange_T_camera`` is in the report only.
+    eye_to_hand writes ``system.camera.world_T_camera``; eye_in_hand writes
+    ``system.camera: {robot, flange_T_camera}`` (the camera on that robot's flange).
     """
-    system: dict[str, Any] = {}
-    if result.mode == "eye_to_hand":
-        system["camera"] = {"world_T_camera": pose_dict(result.camera_pose)}
+    system: dict[str, Any] = {"camera": {"world_T_camera": pose_dict(result.camera_pose)}}
+    if result.mode == "eye_in_hand":
+        system["camera"] = {"robot": robot, "flange_T_camera": pose_dict(result.camera_pose)}
     sd = result.std
     report: dict[str, Any] = {
         "kind": "handeye",

@@ -246,8 +246,9 @@ def default_handeye_truth(system: System, robot: str, mode: str) -> tuple[Array,
     """Plausible true poses for a simulated hand-eye dataset.
 
     eye_to_hand: the system's ``world_T_camera`` and a board 10 mm off the flange, facing
-    out along flange z. eye_in_hand: a camera 60 mm off the flange axis looking along flange
-    z, and a board 0.4 m in front of it at the robot's home pose, facing it.
+    out along flange z. eye_in_hand: the system's ``flange_T_camera`` when its camera is on
+    ``robot``'s flange, else a camera 60 mm off the flange axis looking along flange z; and
+    a board 0.4 m in front of it at the robot's home pose, facing it.
     """
     if mode == "eye_to_hand":
         if system.camera is None:
@@ -255,6 +256,9 @@ def default_handeye_truth(system: System, robot: str, mode: str) -> tuple[Array,
         return system.camera.world_T_camera, make_T(p=[0.0, 0.0, 0.01])
     r = system.robot(robot)
     flange_T_camera = make_T(axis_angle_to_matrix([0.0, 0.0, np.pi / 2]), [0.0, 0.06, 0.02])
+    cam = system.camera
+    if cam is not None and cam.robot == robot and cam.flange_T_camera is not None:
+        flange_T_camera = cam.flange_T_camera
     world_T_camera = r.world_T_base @ r.kinematics.fk(r.home) @ flange_T_camera
     camera_T_board = make_T(axis_angle_to_matrix([np.pi, 0.0, 0.0]), [0.0, 0.0, 0.4])
     return flange_T_camera, world_T_camera @ camera_T_board

@@ -6,6 +6,7 @@ or degenerate data end with one line on stderr and exit status 2.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Annotated
 
@@ -51,6 +52,21 @@ def _write(document: dict[str, object], out: Path) -> None:
     typer.echo(f"wrote {out}")
 
 
+def _include_name(out: Path, scenario: Path) -> str:
+    """``out`` as the scenario's ``include:`` entry (relative to the scenario's folder)."""
+    return os.path.relpath(out.resolve(), scenario.resolve().parent)
+
+
+def nominal_camera_warning(n_spots: int, scenario: Path, key: str) -> str:
+    """The one-line warning for camera-frame spots mapped with an uncalibrated camera."""
+    return (
+        f"warning: {n_spots} spot_camera spots were mapped to the world with the nominal"
+        f" camera pose of {scenario} (no include: gives system.camera.{key}): run `beamrelay"
+        f" calibrate handeye` first and add its output to {scenario}'s include: list, or the"
+        " mirror and laser come out wrong"
+    )
+
+
 @app.command("handeye")
 def handeye(
     data: Annotated[Path, typer.Argument(help="beamrelay.handeye/1 JSON dataset.")],
@@ -81,6 +97,10 @@ def handeye(
         return
     document = handeye_document(result, ds.robot, str(data))
     _write(document, out)
+    typer.echo(
+        f"next: add `include: [{_include_name(out, scenario)}]` to {scenario}, then collect"
+        f" beam data and run `beamrelay calibrate beam DATA -s {scenario} -o beam.yaml`"
+    )
 
 
 @app.command("beam")
@@ -107,8 +127,14 @@ def beam(
 
     _check_loss(loss, loss_scale)
     centre = None if mirror_centre is None else parse_xyz(mirror_centre, "--mirror-centre")
-    system = system_from_scenario(load_scenario(scenario))
+    scn = load_scenario(scenario)
+    system = system_from_scenario(scn)
     ds = load_beam(data, system)
+    if ds.camera_spots and scn.camera_is_nominal:
+        key = (
+            "world_T_camera" if system.camera and system.camera.robot is None else "flange_T_camera"
+        )
+        typer.echo(nominal_camera_warning(ds.camera_spots, scenario, key), err=True)
     try:
         result = calibrate_beam(
             ds,
@@ -122,7 +148,38 @@ def beam(
         _fail_on_calibration_error(exc)
         return
     document = beam_document(result, str(data))
+    if ds.camera_spots:
+        document["report"]["camera_pose"] = {
+            "from": scn.camera_pose_file(),
+            "nominal": scn.camera_is_nominal,
+        }
     _write(document, out)
+    names = system.robot_names
+    later = names[names.index(ds.robot) + 1 :]
+    more = f"; then calibrate {later[0]}'s mirror the same way" if later else ""
+    typer.echo(
+        f"next: add `include: [{_include_name(out, scenario)}]` to {scenario} (after the"
+        f" hand-eye file), then verify with `beamrelay plan {scenario} -o plan.json` and"
+        f" `beamrelay check plan.json`{more}"
+    )
+
+
+def _check_simulate_options(
+    kind: str, mode: str, spots: str, noise: str, poses: int, boards: int, outliers: float
+) -> None:
+    """Reject bad ``calibrate simulate`` options (InputError: one line, exit 2)."""
+    if kind not in ("handeye", "beam"):
+        raise InputError(f"--kind {kind!r}: expected handeye or beam")
+    if mode not in ("eye_to_hand", "eye_in_hand"):
+        raise InputError(f"--mode {mode!r}: expected eye_to_hand or eye_in_hand")
+    if spots not in ("world", "camera"):
+        raise InputError(f"--spots {spots!r}: expected world or camera")
+    if noise not in ("d435", "none"):
+        raise InputError(f"--noise {noise!r}: expected d435 or none")
+    if poses < 1 or boards < 1:
+        raise InputError("--poses and --boards must be >= 1")
+    if not 0.0 <= outliers < 1.0:
+        raise InputError(f"--outliers {outliers}: expected a fraction in [0, 1)")
 
 
 @app.command("simulate")
@@ -139,6 +196,9 @@ def simulate(
     noise: Annotated[str, typer.Option(help="d435 or none.")] = "d435",
     outliers: Annotated[float, typer.Option(help="Fraction of points displaced by 1-5 cm.")] = 0.0,
     robot: Annotated[str | None, typer.Option(help="Robot (default: the first).")] = None,
+    spots: Annotated[
+        str, typer.Option(help="Beam spots as spot_world or spot_camera: world or camera.")
+    ] = "world",
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
     out: Annotated[Path, typer.Option("--out", "-o", help="Dataset JSON to write.")] = Path(
         "data.json"
@@ -152,16 +212,7 @@ def simulate(
     from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
     from planner.model.transforms import matrix_to_quat
 
-    if kind not in ("handeye", "beam"):
-        raise InputError(f"--kind {kind!r}: expected handeye or beam")
-    if mode not in ("eye_to_hand", "eye_in_hand"):
-        raise InputError(f"--mode {mode!r}: expected eye_to_hand or eye_in_hand")
-    if noise not in ("d435", "none"):
-        raise InputError(f"--noise {noise!r}: expected d435 or none")
-    if poses < 1 or boards < 1:
-        raise InputError("--poses and --boards must be >= 1")
-    if not 0.0 <= outliers < 1.0:
-        raise InputError(f"--outliers {outliers}: expected a fraction in [0, 1)")
+    _check_simulate_options(kind, mode, spots, noise, poses, boards, outliers)
     scn = load_scenario(scenario)
     nominal = system_from_scenario(scn)
     truth = system_from_scenario(scn, truth=True)
@@ -173,8 +224,9 @@ def simulate(
     if kind == "beam":
         aim = targets_from_scenario(scn, nominal).points.mean(axis=0)
         data = sim.simulate_beam(truth, name, poses, boards, aim_world=aim, noise=model, rng=rng)
-        write_json(out, beam_json(data, truth))
-        typer.echo(f"{len(data.q)} spots on {boards} boards -> {out}")
+        write_json(out, beam_json(data, truth, spots=spots))
+        typer.echo(f"{len(data.q)} spots ({spots} frame) on {boards} boards -> {out}")
+        typer.echo(f"next: beamrelay calibrate beam {out} -s {scenario} -o beam.yaml")
         return
     cam_pose, board_pose = sim.default_handeye_truth(truth, name, mode)
     hd = sim.simulate_handeye(
@@ -191,3 +243,4 @@ def simulate(
             f"true {key}: xyz {np.round(T[:3, 3], 6).tolist()} quat {np.round(matrix_to_quat(T[:3, :3]), 6).tolist()}"
         )
     typer.echo(f"{len(hd.q)} {mode} samples -> {out}")
+    typer.echo(f"next: beamrelay calibrate handeye {out} -s {scenario} -o handeye.yaml")

@@ -14,7 +14,7 @@ from planner.errors import InputError
 def validate(
     files: Annotated[list[Path], typer.Argument(help="Scenarios, datasets, plans, requests.")],
 ) -> None:
-    """Check files against the schemas (SPEC sections 4-7). Exit 2 on any error."""
+    """Check scenarios, datasets, plans and requests against their schemas. Exit 2 on any error."""
     from schemas.yamlio import validate_file
 
     bad = 0

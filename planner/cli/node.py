@@ -21,7 +21,18 @@ EndpointOpt = Annotated[
         help="Bus endpoint (default tcp/127.0.0.1:7447 or $BEAMRELAY_ZENOH_ENDPOINT).",
     ),
 ]
+#: seconds a failed planner node gets to shut down in order before the process is ended
+FATAL_EXIT_GRACE = 10.0
+
 PrefixOpt = Annotated[str, typer.Option("--prefix", help="Key-expression namespace prefix.")]
+ZENOH_CONFIG_HELP = (
+    "Zenoh config file (JSON5): user/password authentication, access control, TLS, routers; "
+    "it replaces the default peer/loopback settings, the bus endpoint still comes from "
+    "--endpoint unless the file names its own. Examples: scenarios/zenoh/."
+)
+ZenohConfigOpt = Annotated[
+    Path | None, typer.Option("--zenoh-config", help=ZENOH_CONFIG_HELP, dir_okay=False)
+]
 
 
 def serve(
@@ -38,7 +49,13 @@ def serve(
         typer.Option("--connect", help="Connect to the endpoint instead of listening on it."),
     ] = False,
 ) -> None:
-    """Run the planner node until Ctrl-C / SIGTERM (SPEC section 6)."""
+    """Run the planner node until Ctrl-C / SIGTERM.
+
+    Exits 1 if the node fails (its worker thread died or stayed busy on one request beyond
+    its allowance): the heartbeat has stopped and the liveliness token is gone by then, so
+    robots brake and a supervisor (``beamrelay up``) restarts the planner.
+    """
+    import os
     import signal
     import threading
 
@@ -53,14 +70,23 @@ def serve(
     def on_signal(signum: int, _frame: object) -> None:
         stop.set()
 
+    def on_fatal(reason: str) -> None:
+        typer.echo(f"error: planner node failed: {reason}; exiting", err=True)
+        stop.set()
+        # last resort: if the orderly shutdown below hangs, leave anyway
+        last_resort = threading.Timer(FATAL_EXIT_GRACE, os._exit, args=(1,))
+        last_resort.daemon = True
+        last_resort.start()
+
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
     node.on_alive_change = lambda name, up: typer.echo(
         f"{'up' if up else 'DOWN'}: {name}", err=not up
     )
+    node.on_fatal = on_fatal
     node.start()
     names = ", ".join(handler.system.robot_names)
-    typer.echo(f"planner ready: {prefix}/plan, robots {names}", err=False)
+    typer.echo(f"planner ready: {prefix}/plan, robots {names}, session {node.session_id}")
     try:
         while not stop.wait(0.2):
             pass
@@ -68,6 +94,8 @@ def serve(
         node.close()
         session.close()
         typer.echo(f"planner stopped after {node.served} requests")
+    if node.failed is not None:
+        raise typer.Exit(1)
 
 
 def up(
@@ -82,8 +110,20 @@ def up(
         Path | None, typer.Option("--log-dir", help="Children's logs (default: a temp dir).")
     ] = None,
     live: Annotated[bool, typer.Option(help="Show the live health table.")] = True,
+    zenoh_config: ZenohConfigOpt = None,
+    planner_zenoh_config: Annotated[
+        Path | None,
+        typer.Option(
+            "--planner-zenoh-config",
+            help="Zenoh config of the planner child only (its own identity on a bus with "
+            "access control; default: --zenoh-config).",
+            dir_okay=False,
+        ),
+    ] = None,
 ) -> None:
-    """Start planner + camera + one robot driver per robot, supervised, until Ctrl-C."""
+    """Start planner + camera + one robot driver per robot, supervised, until Ctrl-C.
+
+    --zenoh-config is used by up itself and passed on to every child."""
     from planner.service.up import run_up
 
     if backend not in ("sim", "ur"):
@@ -100,6 +140,8 @@ def up(
         prefix=prefix,
         log_dir=log_dir,
         live=live,
+        zenoh_config=zenoh_config,
+        planner_zenoh_config=planner_zenoh_config,
     )
 
 
@@ -116,6 +158,7 @@ def request(
     timeout: Annotated[float, typer.Option(help="Seconds to wait for the reply.")] = 10.0,
     endpoint: EndpointOpt = None,
     prefix: PrefixOpt = "beamrelay",
+    zenoh_config: ZenohConfigOpt = None,
 ) -> None:
     """Send one TargetRequest, print the plan summary (and the measured spots if executing)."""
     from rich.console import Console
@@ -124,13 +167,18 @@ def request(
 
     if frame not in ("world", "camera"):
         raise InputError(f"--frame {frame!r}: expected world or camera")
+    if not timeout > 0:
+        raise InputError(f"--timeout {timeout}: expected a positive number of seconds")
     pts = [parse_xyz(p, "--points") for p in points]
     nrm = [parse_xyz(n, "--normals") for n in normals] if normals else None
     if nrm is not None and len(nrm) != len(pts):
         raise InputError(f"--normals: {len(nrm)} given for {len(pts)} points")
     req = make_request(pts, frame=frame, normals=nrm, path=path, execute=execute)
     console = Console()
-    with PlanClient(endpoint=endpoint, prefix=prefix) as client:
+    client = PlanClient(
+        endpoint=endpoint, prefix=prefix, zenoh_config=zenoh_config, connect_timeout=timeout
+    )
+    with client:
         try:
             if execute:
                 client.watch()

@@ -14,8 +14,23 @@ def _fmt(x: float | None, scale: float, digits: str) -> str:
     return "-" if x is None else format(scale * x, digits)
 
 
+def _plot_format(plot: Path) -> None:
+    """Refuse a ``--plot`` file whose extension matplotlib cannot write (before planning)."""
+    from matplotlib.figure import Figure
+
+    formats = Figure().canvas.get_supported_filetypes()
+    ext = plot.suffix.lower().lstrip(".")
+    if ext not in formats:
+        raise InputError(
+            f"cannot draw {plot.name!r}: use one of {', '.join('.' + f for f in sorted(formats))}",
+            "--plot",
+        )
+    if plot.parent and not plot.parent.exists():
+        raise InputError(f"directory does not exist: {plot.parent}", "--plot")
+
+
 def plan(
-    scenario: Annotated[Path, typer.Argument(help="Scenario YAML (SPEC section 4).")],
+    scenario: Annotated[Path, typer.Argument(help="Scenario YAML.")],
     out: Annotated[Path, typer.Option("-o", "--out", help="plan.json to write.")],
     optimal: Annotated[
         bool, typer.Option("--optimal", help="IPOPT optimality step after the closed form.")
@@ -24,17 +39,24 @@ def plan(
         Path | None, typer.Option("--plot", help="Also draw a 3D picture (PNG/PDF/SVG).")
     ] = None,
 ) -> None:
-    """Plan every target of a scenario, time the trajectory, write plan.json; exit 1 if any
-    target failed."""
+    """Plan every target of a scenario, time the trajectory, write plan.json, then run the
+    checks of 'beamrelay check' on what was written; exit 1 if any target failed or any
+    check is violated."""
+    import json
+
     from rich.console import Console
 
-    from planner.planning import plan_json, run_scenario
+    from planner.planning import run_scenario, write_plan
+    from planner.verify.check import check_plan
 
     if out.parent and not out.parent.exists():
         raise InputError(f"output directory does not exist: {out.parent}", "-o")
+    if plot is not None:
+        _plot_format(plot)
     outcome = run_scenario(scenario, optimal=optimal)
     doc = outcome.doc
-    out.write_text(plan_json(doc))
+    with out.open("w") as fh:
+        write_plan(doc, fh)
     console = Console()
     console.print(_summary(doc, scenario.name))
     if any(not sol.ok for sol in outcome.solutions):
@@ -51,8 +73,32 @@ def plan(
             plot_profiles(outcome.system, outcome.targets, doc, profiles_path(plot))
             console.print(f"wrote {profiles_path(plot)}")
     m = doc["metrics"]
-    if m["n_ok"] < m["n_targets"]:
+    failed = m["n_ok"] < m["n_targets"]
+    del outcome, doc  # the check reads the file back: one copy of a large plan in memory
+    with out.open() as fh:
+        written = json.load(fh)
+    violations = _print_findings(console, check_plan(written, out.parent), "check of the plan")
+    if failed or violations:
         raise SystemExit(1)  # planner.cli.main drops typer.Exit codes (non-standalone click)
+
+
+def _print_findings(console: Any, results: list[Any], title: str, most: int = 20) -> int:
+    """Print the violations (the first ``most``) and warnings of check results; returns the
+    number of violations."""
+    for r in results:
+        for w in r.warnings:
+            console.print(f"[yellow]{r.name}: {w}")
+    findings = [f for r in results for f in r.findings]
+    for f in findings[:most]:
+        where = f"{f.check}" if f.target is None else f"target {f.target}: {f.check}"
+        console.print(f"[red]{where}: {f.message}", highlight=False)
+    if len(findings) > most:
+        console.print(f"[red]... and {len(findings) - most} more violations")
+    if findings:
+        console.print(f"[red]{title}: {len(findings)} violation(s)")
+    else:
+        console.print(f"[green]{title}: OK[/]")
+    return len(findings)
 
 
 def _evidence_text(evidence: dict[str, Any]) -> str:
@@ -111,9 +157,10 @@ def _summary(doc: dict[str, Any], fallback_name: str) -> Any:
         table.add_row("  on the path (s)", f"{x['path_time']:.2f} (length/speed {ideal:.2f})")
         table.add_row("  path length (mm)", f"{1e3 * x['path_length']:.1f}")
         table.add_row("  max spot deviation (mm)", f"{1e3 * x['path_deviation_max']:.4f}")
-        table.add_row(
-            "  max joint speed on the path", f"{100 * x['path_joint_speed_max_ratio']:.1f} %"
-        )
+        if "path_joint_speed_max_ratio" in x:
+            table.add_row(
+                "  max joint speed on the path", f"{100 * x['path_joint_speed_max_ratio']:.1f} %"
+            )
         table.add_row("  slowdowns (a limit binds)", str(int(x["slowdowns"])))
     if "duration_given_order" in x:
         table.add_row("  given order, estimate (s)", f"{x['duration_given_order']:.2f}")
@@ -150,12 +197,27 @@ def _load_plan(path: Path) -> dict[str, Any]:
     return data
 
 
+def _figure_text(key: str, value: float) -> str:
+    """A check figure with its unit, lengths in mm (the names of the JSON figures are SI)."""
+    if key.endswith("_m"):
+        return f"{key[:-2].replace('_', ' ')} {1e3 * value:.3g} mm"
+    for suffix, unit in (("_rad", "rad"), ("_deg", "deg"), ("_s", "s")):
+        if key.endswith(suffix):
+            return f"{key[: -len(suffix)].replace('_', ' ')} {value:.4g} {unit}"
+    if key.endswith("_ratio"):
+        return f"{key[:-6].replace('_', ' ')} {100 * value:.1f} %"
+    return f"{key.replace('_', ' ')} {value:.3g}"
+
+
 def check(
     plan_file: Annotated[Path, typer.Argument(help="plan.json to re-verify.")],
-    json_out: Annotated[bool, typer.Option("--json", help="Figures as one JSON line.")] = False,
+    json_out: Annotated[
+        bool, typer.Option("--json", help="Figures (SI units) as one JSON object, last line.")
+    ] = False,
 ) -> None:
-    """Re-verify a plan with plain numpy (own FK and reflection): solved targets, and the
-    trajectory sampled at its rate (limits, spot on the path); exit 1 on any violation."""
+    """Re-verify a plan with plain numpy (own FK and reflection): solved targets, the
+    trajectory sampled at its rate (limits, declared velocities, spot on the path and on
+    every target) and the metrics; exit 1 on any violation."""
     import json
 
     from rich.console import Console
@@ -170,28 +232,18 @@ def check(
     for col in ("check", "checked", "violations", "figures"):
         table.add_column(col)
     for r in results:
-        figs = ", ".join(f"{k} {v:.3g}" for k, v in r.figures.items())
+        figs = ", ".join(_figure_text(k, v) for k, v in r.figures.items())
         bad = f"[red]{len(r.findings)}[/]" if r.findings else "0"
         table.add_row(r.name, str(r.checked), bad, figs)
     console.print(table)
-    for r in results:
-        for w in r.warnings:
-            console.print(f"[yellow]{r.name}: {w}")
     n_failed = sum(1 for s in plan_doc["solutions"] if s.get("status") != "ok")
     if n_failed:
         console.print(f"{n_failed} target(s) unsolved in the plan (reported, not checked)")
-    findings = [f for r in results for f in r.findings]
-    for f in findings[:20]:
-        where = f"{f.check}" if f.target is None else f"target {f.target}: {f.check}"
-        console.print(f"[red]{where}: {f.message} ({f.value:.3g} vs {f.bound:.3g})")
-    if len(findings) > 20:
-        console.print(f"[red]... and {len(findings) - 20} more violations")
-    if not findings:
-        console.print("[green]plan OK[/]")
+    violations = _print_findings(console, results, "plan")
     if json_out:
-        figures: dict[str, Any] = {"violations": len(findings), "unsolved": n_failed}
+        figures: dict[str, Any] = {"violations": violations, "unsolved": n_failed}
         for r in results:
             figures.update({f"{r.name}.{k}": v for k, v in r.figures.items()})
         print(json.dumps(figures))
-    if findings:
+    if violations:
         raise SystemExit(1)  # planner.cli.main drops typer.Exit codes (non-standalone click)

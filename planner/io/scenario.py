@@ -9,6 +9,7 @@ dataclasses of numpy arrays. All outputs are in the world frame, in metres and r
 from __future__ import annotations
 
 import copy
+import dataclasses
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from planner.errors import InputError, ScenarioError
+from planner.io.plausibility import emit, scenario_warnings
 from planner.model.kinematics import RobotKinematics
 from planner.model.system import (
     DEFAULT_HOME,
@@ -32,6 +34,7 @@ from planner.model.transforms import Array, transform_points
 from schemas.calibration import CalibrationFile
 from schemas.common import FieldError
 from schemas.located import Loc, Origins, merge_partial, rebase_origins, validate, where
+from schemas.scenario import Camera as CameraModel
 from schemas.scenario import Robot as RobotModel
 from schemas.scenario import Scenario, check_joint_lengths
 from schemas.scenario import System as SystemModel
@@ -47,6 +50,7 @@ class LoadedScenario:
     ``source`` is the file name as shown in messages; ``base_dir`` is the directory that
     relative ``urdf``/``mesh`` paths resolve against; ``origins`` maps key paths to
     (file, line). ``truth_system`` is ``system`` with ``truth.system`` merged over it.
+    ``warnings`` are ``file:line key.path: reason`` lines for valid but suspicious values.
     """
 
     model: Scenario
@@ -55,6 +59,7 @@ class LoadedScenario:
     origins: Origins = field(default_factory=dict)
     truth_system: SystemModel | None = None
     includes: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
 
     @property
     def name(self) -> str:
@@ -63,6 +68,22 @@ class LoadedScenario:
     def where(self, loc: Loc) -> str:
         """``file:line key.path`` of a key path of the (merged) scenario."""
         return where(self.origins, loc, self.source)
+
+    def camera_pose_file(self) -> str | None:
+        """The file that gave the camera's pose (``world_T_camera`` or ``flange_T_camera``):
+        an ``include:`` file once a hand-eye result is included, else the scenario itself;
+        None without a camera."""
+        for key in ("world_T_camera", "flange_T_camera"):
+            origin = self.origins.get(("system", "camera", key))
+            if origin is not None:
+                return origin[0]
+        return None
+
+    @property
+    def camera_is_nominal(self) -> bool:
+        """True when the camera pose comes from the scenario, not from an included file."""
+        shown = self.camera_pose_file()
+        return shown is not None and shown == self.source
 
     def resolve_path(self, relative: str) -> Path:
         """A path from the scenario (``urdf``, ``mesh``) made absolute."""
@@ -136,6 +157,9 @@ def _build(
     scn = LoadedScenario(model, shown, base_dir, origins, truth, tuple(includes))
     if check_files:
         _check_files(scn)
+        lines = [f"{scn.where(loc)}: {reason}" for loc, reason in scenario_warnings(model)]
+        scn = dataclasses.replace(scn, warnings=tuple(lines))
+        emit(lines)
     return scn
 
 
@@ -193,12 +217,21 @@ def system_from_scenario(scn: LoadedScenario, *, truth: bool = False) -> System:
     model = scn.truth_system if use_truth and scn.truth_system else scn.model.system
     root: Loc = ("truth", "system") if use_truth else ("system",)
     robots = tuple(_robot(r, scn, (*root, "robots", i)) for i, r in enumerate(model.robots))
-    camera = None
-    if model.camera is not None:
-        k = model.camera.intrinsics
-        intrinsics = Intrinsics(k.width, k.height, k.fx, k.fy, k.cx, k.cy)
-        camera = Camera(model.camera.world_T_camera.matrix(), intrinsics)
+    camera = None if model.camera is None else _camera(model.camera, robots)
     return System(model.laser.world_T_laser.matrix(), robots, camera)
+
+
+def _camera(cam: CameraModel, robots: tuple[Robot, ...]) -> Camera:
+    """A fixed camera, or one on a robot's flange posed at that robot's home joints."""
+    k = cam.intrinsics
+    intrinsics = Intrinsics(k.width, k.height, k.fx, k.fy, k.cx, k.cy)
+    if cam.world_T_camera is not None:
+        return Camera(cam.world_T_camera.matrix(), intrinsics)
+    assert cam.robot is not None and cam.flange_T_camera is not None  # schema: one mount
+    r = next(r for r in robots if r.name == cam.robot)
+    flange_T_camera = cam.flange_T_camera.matrix()
+    world_T_camera = r.world_T_base @ r.kinematics.fk(r.home) @ flange_T_camera
+    return Camera(world_T_camera, intrinsics, r.name, flange_T_camera)
 
 
 def _robot(r: RobotModel, scn: LoadedScenario, loc: Loc) -> Robot:
@@ -208,7 +241,7 @@ def _robot(r: RobotModel, scn: LoadedScenario, loc: Loc) -> Robot:
         check_joint_lengths(r.home, r.limits, nq)
     except FieldError as exc:
         raise ScenarioError(exc.reason, scn.where((*loc, *exc.loc))) from None
-    default = Limits.ur_default(nq)
+    default = kin.default_limits()
     given = r.limits.model_dump() if r.limits is not None else {}
     values = {k: np.asarray(given.get(k) or getattr(default, k), dtype=float) for k in LIMIT_KEYS}
     limits = Limits(**values)
@@ -239,7 +272,8 @@ def _default_home(nq: int) -> Array:
 def targets_from_scenario(scn: LoadedScenario, system: System) -> Targets:
     """The scenario's targets in the world frame (grid expanded, path resampled).
 
-    ``frame: camera`` coordinates are mapped with ``system.camera.world_T_camera``.
+    ``frame: camera`` coordinates are mapped with the camera pose (for a camera on a
+    flange: at its robot's home joints).
     ``normals`` is None when the scenario gives none. ``meta`` holds ``order`` and ``frame``
     (plus ``n`` for a grid, ``spacing`` and ``vertices`` for a path).
     """
@@ -250,7 +284,7 @@ def targets_from_scenario(scn: LoadedScenario, system: System) -> Targets:
             raise ScenarioError(
                 "is camera but the system has no camera", scn.where(("targets", "frame"))
             )
-        world_T_frame = system.camera.world_T_camera
+        world_T_frame = system.world_T_camera()
     meta: dict[str, object] = {"order": spec.order, "frame": spec.frame}
     closed = False
     normals: Array | None = None
@@ -388,10 +422,11 @@ def _system_dict(system: System, model: SystemModel, scn: LoadedScenario) -> dic
         k = system.camera.intrinsics
         intrinsics = {"width": k.width, "height": k.height, "fx": k.fx, "fy": k.fy}
         intrinsics |= {"cx": k.cx, "cy": k.cy}
-        out["camera"] = {
-            "world_T_camera": _pose(system.camera.world_T_camera),
-            "intrinsics": intrinsics,
-        }
+        cam = system.camera
+        mount: dict[str, Any] = {"world_T_camera": _pose(cam.world_T_camera)}
+        if cam.robot is not None and cam.flange_T_camera is not None:
+            mount = {"robot": cam.robot, "flange_T_camera": _pose(cam.flange_T_camera)}
+        out["camera"] = mount | {"intrinsics": intrinsics}
     return out
 
 

@@ -16,6 +16,7 @@ import numpy as np
 import pinocchio as pin
 
 from planner.errors import InputError
+from planner.model.system import Limits
 from planner.model.transforms import Array, inv_T
 
 UR5E_DH = {
@@ -141,6 +142,26 @@ class RobotKinematics:
     @property
     def upper(self) -> Array:
         return np.asarray(self.model.upperPositionLimit, dtype=float)
+
+    @property
+    def velocity(self) -> Array:
+        """Joint velocity limits of the model (rad/s; URDF ``<limit velocity>``)."""
+        return np.asarray(self.model.velocityLimit, dtype=float)
+
+    def default_limits(self) -> Limits:
+        """The model's own joint limits: position and velocity from the URDF ``<limit>``
+        tags, acceleration and jerk (which URDF lacks) the conservative defaults.
+
+        A joint without usable URDF values (missing, non-finite, empty range) gets the
+        default of :meth:`Limits.ur_default` for that entry.
+        """
+        default = Limits.ur_default(self.nq)
+        lower, upper, velocity = self.lower.copy(), self.upper.copy(), self.velocity.copy()
+        bad = ~(np.isfinite(lower) & np.isfinite(upper) & (lower < upper))
+        lower[bad], upper[bad] = default.lower[bad], default.upper[bad]
+        bad_v = ~(np.isfinite(velocity) & (velocity > 0))
+        velocity[bad_v] = default.velocity[bad_v]
+        return Limits(lower, upper, velocity, default.acceleration, default.jerk)
 
     @property
     def has_analytic_ik(self) -> bool:

@@ -91,8 +91,17 @@ class Intrinsics:
 
 @dataclass(frozen=True)
 class Camera:
+    """An RGB-D camera, OpenCV optical frame (x right, y down, z forward).
+
+    Fixed cameras have ``robot = None``. A camera on a robot's flange (eye-in-hand) has
+    ``robot`` and ``flange_T_camera``; its ``world_T_camera`` is then the pose at that
+    robot's home joints (use :meth:`System.world_T_camera` for other joints).
+    """
+
     world_T_camera: Array
     intrinsics: Intrinsics
+    robot: str | None = None
+    flange_T_camera: Array | None = None
 
 
 @dataclass(frozen=True)
@@ -156,6 +165,24 @@ class System:
                 for f in fields(Limits)
             )
         )
+
+    def world_T_camera(self, q: Array | dict[str, Array] | None = None) -> Array:
+        """The camera pose in the world at joints ``q`` (stacked vector, ``{robot: q}`` or
+        None = home); a fixed camera ignores ``q``. Robots missing from a mapping are taken
+        at home. Raises ``ValueError`` when the system has no camera."""
+        cam = self.camera
+        if cam is None:
+            raise ValueError("the system has no camera")
+        if cam.robot is None or cam.flange_T_camera is None:
+            return cam.world_T_camera
+        r = self.robot(cam.robot)
+        if q is None:
+            q_r = r.home
+        elif isinstance(q, dict):
+            q_r = np.asarray(q.get(r.name, r.home), dtype=float)
+        else:
+            q_r = self.split_q(np.asarray(q, dtype=float))[r.name]
+        return r.world_T_base @ r.kinematics.fk(q_r) @ cam.flange_T_camera
 
     def with_params(
         self,

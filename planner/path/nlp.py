@@ -1,4 +1,4 @@
-"""The path-tracking NLP: one IPOPT problem over all K samples of a spot path (issue 5).
+"""The path-tracking NLP: one IPOPT problem over all K samples of a spot path.
 
 Unknowns are the stacked joints ``q_k`` (all robots) at every path sample k. Constraints per
 sample: the spot on the sample (2 equalities: the spot's offset from the target projected on

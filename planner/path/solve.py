@@ -1,4 +1,4 @@
-"""Path tracking (SPEC section 4 ``targets.path``, issue 5): the public entry point.
+"""Path tracking (scenario ``targets.path``): the public entry point.
 
 :func:`plan_path` sweeps the spot along a resampled polyline: a warm start per sample
 (:mod:`planner.path.warm`: the continuation chain, or for paths sampled finer than

@@ -1,8 +1,9 @@
-"""Time-parameterisation: dense, jerk-limited joint trajectories at the servo rate (issue 5).
+"""Time-parameterisation: dense, jerk-limited joint trajectories at the servo rate.
 
-Data in, data out. Discrete targets: visit order (nearest neighbour + 2-opt on the
-rest-to-rest move time in joint space, or the given order), then time-optimal rest-to-rest
-Ruckig moves with an optional dwell on each target. Paths: the joint samples ``q_k`` are
+Data in, data out. Discrete targets: visit order (``optimal``: nearest neighbour + 2-opt
+on the rest-to-rest move time in joint space, candidates from a k-d tree, memory linear in
+the target count, :mod:`planner.path.solve.tour`; ``given``: the targets' own order), then
+time-optimal rest-to-rest Ruckig moves with an optional dwell on each target. Paths: the joint samples ``q_k`` are
 splined against the spot's arc length s (metres) and the path parameter s(t) is generated
 by a 1-DOF online Ruckig whose velocity limit is the spot speed, lowered ahead of time where
 a joint velocity, acceleration or jerk limit would bind (reported as :class:`Slowdown`).
@@ -23,6 +24,7 @@ import numpy as np
 from planner.errors import PlanError
 from planner.model.system import Limits, System
 from planner.model.transforms import Array
+from planner.path.solve.tour import visit_order
 
 SEGMENT_KINDS = ("approach", "move", "path", "dwell")
 
@@ -147,43 +149,8 @@ def ruckig_move(q0: Array, q1: Array, lim: Limits, rate: float) -> tuple[Array, 
 # visit order
 # ------------------------------------------------------------------------------------------
 def tour_cost(C: Array, tour: Array) -> float:
+    """Total cost of consecutive ``tour`` entries in a cost matrix ``C`` (small cases)."""
     return float(C[tour[:-1], tour[1:]].sum())
-
-
-def visit_order(Q: Array, q_start: Array, lim: Limits, max_passes: int = 50) -> np.ndarray:
-    """Order of the rows of ``Q`` (n x nq) that shortens the total move time from
-    ``q_start``: nearest neighbour, then 2-opt (open tour, fixed start). Returns indices."""
-    n = len(Q)
-    if n <= 1:
-        return np.arange(n)
-    P = np.vstack([q_start, Q])
-    C = move_time(P[:, None, :], P[None, :, :], lim)
-    tour = [0]
-    free = np.ones(n + 1, dtype=bool)
-    free[0] = False
-    for _ in range(n):
-        c = np.where(free, C[tour[-1]], np.inf)
-        nxt = int(np.argmin(c))
-        tour.append(nxt)
-        free[nxt] = False
-    t = np.array(tour)
-    for _ in range(max_passes):
-        improved = False
-        for i in range(1, n):
-            js = np.arange(i + 1, n + 1)
-            after = np.where(js < n, t[np.minimum(js + 1, n)], -1)
-            gain = C[t[i - 1], t[i]] - C[t[i - 1], t[js]]
-            gain += np.where(
-                after >= 0, C[t[js], np.maximum(after, 0)] - C[t[i], np.maximum(after, 0)], 0
-            )
-            k = int(np.argmax(gain))
-            if gain[k] > 1e-12:
-                j = int(js[k])
-                t[i : j + 1] = t[i : j + 1][::-1]
-                improved = True
-        if not improved:
-            break
-    return t[1:] - 1
 
 
 class VisitReport(NamedTuple):
@@ -224,8 +191,10 @@ def points_trajectory(
     rate: float = 500.0, order: str = "optimal", progress: Callable[[int], None] | None = None,
 ) -> tuple[Trajectory, VisitReport]:  # fmt: skip
     """Rest-to-rest moves visiting every row of ``Q`` (solved targets, n x nq; NaN rows are
-    skipped), ``dwell`` s on each; ``order`` is ``optimal`` or ``given``. ``progress(n)`` is
-    called after the n-th move."""
+    skipped), ``dwell`` s on each. ``order``: ``given`` visits the rows as they come (the
+    scenario's target order), ``optimal`` shortens the total move time
+    (:func:`planner.path.solve.tour.visit_order`, memory linear in n). ``progress(n)`` is called after
+    the n-th move."""
     lim = system.limits
     q0 = system.home if q_start is None else np.asarray(q_start, dtype=float)
     idx = np.flatnonzero(np.all(np.isfinite(Q), axis=1))

@@ -1,4 +1,4 @@
-"""Warm start of the path NLP: a per-sample seed and continuation chain (issue 5).
+"""Warm start of the path NLP: a per-sample seed and continuation chain.
 
 A single sample is seeded by the closed-form family search of :mod:`planner.ik.closed_form`
 (else a multi-start one-sample NLP); the chain then walks along the path with
@@ -37,6 +37,7 @@ from planner.path.nlp import (
     tangents,
     tangents_batch,
 )
+from planner.verify.tolerances import JOINT_SLACK, Tolerances
 
 Indices = Sequence[int] | npt.NDArray[np.integer[Any]]  # sample indices
 
@@ -69,6 +70,7 @@ class PathContext:
         self.nbar = np.where(self.has[:, None], nrm, np.nan)
         self.lower, self.upper = system.lower, system.upper
         self.lbh = constraint_lower_bounds(system.n_robots, K, self.has, opts)
+        self.valid_lbh = validity_bounds(self.lbh, opts)
         self.N = system.n_robots
         self.max_inc = float(np.radians(opts.max_incidence_deg))
         self.closed_form = _closed_form(system)
@@ -89,8 +91,8 @@ class PathContext:
 
     def why(self, k: int, q: Array, g: Array, h: Array) -> str | None:
         """None if q is a valid solution of sample k, else a SPEC reason with evidence."""
-        N, lb, tol = self.N, self.lbh[k], 1e-7
-        bad = np.flatnonzero(h.ravel() < lb - tol)
+        N, lb, tol = self.N, self.valid_lbh[k], JOINT_SLACK
+        bad = np.flatnonzero(~(h.ravel() >= lb))
         if not np.all(np.isfinite(q)) or np.linalg.norm(g) > max(1e3 * self.opts.tolerance, 1e-7):
             return f"unreachable: spot error {np.linalg.norm(g):.2e} m"
         if np.any(q < self.lower - tol) or np.any(q > self.upper + tol):
@@ -261,6 +263,17 @@ def project(
     return Q, NB, err
 
 
+def validity_bounds(lbh: Array, opts: PathOptions, slack: float = 1e-7) -> Array:
+    """Lower bounds of h (K x (4N+2)) a valid sample must meet: the NLP's bounds less
+    ``slack`` (m; ROI margin, front, mirror and target ahead keep most of the NLP's design
+    margins), and for the incidence the limit plus the checker's
+    :data:`~planner.verify.tolerances.INCIDENCE_SLACK`, exactly as ``beamrelay check`` accepts it."""
+    out = lbh - slack
+    inc = Tolerances(max_incidence=float(np.radians(opts.max_incidence_deg)))
+    out[:, -1] = np.where(np.isfinite(lbh[:, -1]), inc.min_cos_incidence, -np.inf)
+    return out
+
+
 def valid_samples(ctx: PathContext, ks: Indices, Q: Array, NB: Array) -> Array:
     """Which rows of ``Q`` are valid solutions of samples ``ks`` (vectorised
     :meth:`PathContext.why`: spot on target, joint limits, every reflection constraint)."""
@@ -271,10 +284,10 @@ def valid_samples(ctx: PathContext, ks: Indices, Q: Array, NB: Array) -> Array:
         Q.T, *ctx.geo, ctx.P[ks].T, NB.T, has, E
     )
     G, H = np.asarray(G, dtype=float).T, np.asarray(H, dtype=float).T
-    tol = 1e-7
-    ok = np.linalg.norm(G, axis=1) <= max(1e3 * ctx.opts.tolerance, tol)
+    tol = JOINT_SLACK
+    ok = np.linalg.norm(G, axis=1) <= max(1e3 * ctx.opts.tolerance, 1e-7)
     ok &= np.all(ctx.lower - tol <= Q, axis=1) & np.all(ctx.upper + tol >= Q, axis=1)
-    ok &= np.all(ctx.lbh[ks] - tol <= H, axis=1)
+    ok &= np.all(ctx.valid_lbh[ks] <= H, axis=1)
     return np.asarray(ok & np.all(np.isfinite(Q), axis=1), dtype=bool)
 
 

@@ -1,4 +1,4 @@
-"""The ``occluded`` post-check of planning (SPEC section 5): a solved beam must not cross the
+"""The ``occluded`` post-check of planning: a solved beam must not cross the
 scene.
 
 The IK solves the beam as pure geometry; afterwards every segment of each solved beam - laser

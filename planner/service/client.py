@@ -17,6 +17,7 @@ import threading
 import time
 import uuid
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -51,7 +52,7 @@ def make_request(
     execute: bool = False,
     request_id: str | None = None,
 ) -> dict[str, Any]:
-    """A TargetRequest dict (SPEC section 6); points/normals (K, 3) in ``frame``, metres."""
+    """A TargetRequest dict; points/normals (K, 3) in ``frame``, metres."""
     req: dict[str, Any] = {
         "schema": "beamrelay.request/1",
         "id": request_id or uuid.uuid4().hex[:12],
@@ -68,7 +69,7 @@ def make_request(
 def world_T_camera_of(plan: dict[str, Any]) -> Array | None:
     """The camera pose the plan was made with (resolved scenario), or None."""
     cam = plan.get("scenario", {}).get("system", {}).get("camera")
-    if not cam:
+    if not cam or "world_T_camera" not in cam:  # none, or on a flange (pose depends on q)
         return None
     return np.asarray(cam["world_T_camera"]["matrix"], dtype=float)
 
@@ -135,11 +136,24 @@ def measured_spots(plan: dict[str, Any], rec: Recorder, since: float) -> list[Ar
 
 
 class PlanClient:
-    """A connected client session. Use as a context manager."""
+    """A connected client session. Use as a context manager. With a Zenoh config file it
+    waits up to ``connect_timeout`` s for the bus host (see :func:`planner.service.bus.zenoh_config`)."""
 
-    def __init__(self, *, endpoint: str | None = None, prefix: str = "beamrelay") -> None:
+    def __init__(
+        self,
+        *,
+        endpoint: str | None = None,
+        prefix: str = "beamrelay",
+        zenoh_config: Path | None = None,
+        connect_timeout: float | None = 10.0,
+    ) -> None:
         self.keys = Keys(prefix)
-        self.session = open_session(listen=False, endpoint=endpoint)
+        self.session = open_session(
+            listen=False,
+            endpoint=endpoint,
+            config_file=zenoh_config,
+            connect_timeout=connect_timeout,
+        )
         self.recorder = Recorder()
         self._subs: list[Any] = []
         self._watching = False

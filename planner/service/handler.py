@@ -17,10 +17,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from planner.errors import InputError
+from planner.errors import BeamrelayError, InputError
 from planner.model.system import System, Targets
 from planner.model.transforms import Array, transform_points
-from planner.service.bus import decode
+from planner.service.bodies import safe_text
+from planner.service.bus import decode, encode
+from planner.service.execution import ExecuteError
 
 if TYPE_CHECKING:
     from planner.model.scene import SceneModel
@@ -29,6 +31,94 @@ PlanFn = Callable[[Targets, dict[str, Array] | None, bool], dict[str, Any]]
 #: path requests are resampled every PATH_SPACING m, at most MAX_PATH_SAMPLES samples
 PATH_SPACING = 0.001
 MAX_PATH_SAMPLES = 2000
+
+
+#: longest error text in a reply (characters)
+MAX_ERROR_TEXT = 2000
+#: the reply when even an error reply cannot be built
+FALLBACK_ERROR = (
+    b'{"schema": "beamrelay.error/1", "id": null, '
+    b'"error": "internal error while building the error reply", "field": null}'
+)
+
+
+def error_body(exc: BaseException, request_id: str | None = None) -> bytes:
+    """An :class:`~schemas.messages.ErrorReply` JSON body for any error, always valid UTF-8
+    JSON: texts are made safe (lone surrogates escaped) and cut to :data:`MAX_ERROR_TEXT`.
+    ``field`` is the offending key path of an InputError, ``execute`` for a refused
+    execution, else null."""
+    from schemas.messages import ErrorReply
+
+    try:
+        field = None
+        if isinstance(exc, InputError):
+            text = exc.reason
+            field = safe_text(exc.where, 300) if exc.where else None
+        elif isinstance(exc, ExecuteError):
+            text, field = exc.reason, "execute"
+        elif isinstance(exc, BeamrelayError):
+            text = str(exc)
+        else:
+            text = f"{type(exc).__name__}: {exc}"
+        rid = None if request_id is None else safe_text(request_id, 256)
+        msg = ErrorReply(id=rid, error=safe_text(text, MAX_ERROR_TEXT), field=field)
+        return encode(msg)
+    except Exception:  # the error of an error: never let it escape the worker
+        return FALLBACK_ERROR
+
+
+def request_id_of(payload: bytes) -> str | None:
+    """Best effort: the ``id`` of a (possibly invalid) request body, for error replies;
+    None when it cannot be found or is not a string. A large body is not parsed again (that
+    would hold the GIL): its ``id`` is looked for among its first 64 KiB."""
+    import json
+    import re
+
+    try:
+        if len(payload) > PRESCAN_BYTES:
+            found = re.search(rb'"id"\s*:\s*("(?:[^"\\]|\\.){0,1024}")', payload[:65536])
+            rid = json.loads(found.group(1)) if found else None
+        else:
+            data = json.loads(payload, parse_int=lambda _: 0)  # numbers do not matter here
+            rid = data.get("id") if isinstance(data, dict) else None
+    except (ValueError, RecursionError):  # JSONDecodeError and UnicodeDecodeError included
+        return None
+    return safe_text(rid, 256) if isinstance(rid, str) else None
+
+
+#: bodies larger than this (bytes) are checked by :func:`prescan_request` before parsing
+PRESCAN_BYTES = 256 * 1024
+
+
+def prescan_request(payload: bytes) -> None:
+    """Refuse a large body whose structure no TargetRequest has, before parsing it.
+
+    The C JSON parser holds the GIL while it builds lists, objects, strings and literals
+    (0.6 s for 4 MB of ``[]``), which would silence the heartbeat thread; numbers go through
+    Python hooks and are harmless. Counts are upper bounds (a ``[`` inside a string counts).
+    """
+    from schemas.messages import MAX_ID_LENGTH, MAX_REQUEST_POINTS
+
+    limits = {
+        b"[": (2 * MAX_REQUEST_POINTS + 8, "lists"),
+        b"{": (16, "objects"),
+        b'"': (4 * MAX_ID_LENGTH + 64, "quotes"),
+        b"true": (16, "true literals"),
+        b"false": (16, "false literals"),
+        b"null": (16, "null literals"),
+    }
+    if not payload.isascii():
+        try:
+            payload.decode("utf-8")
+        except UnicodeDecodeError:
+            return  # not text: decode() says so
+    for token, (limit, what) in limits.items():
+        n = payload.count(token)
+        if n > limit:
+            raise InputError(
+                f"{n} {what} in a {len(payload)}-byte body: a request has at most {limit}",
+                "body",
+            )
 
 
 def make_plan_fn(
@@ -139,6 +229,8 @@ class RequestHandler:
         """Validate a request body (raises InputError naming the field)."""
         from schemas.messages import TargetRequest
 
+        if len(payload) > PRESCAN_BYTES:
+            prescan_request(payload)
         try:
             return decode(payload, TargetRequest)
         except RecursionError as exc:  # json.loads on absurdly deep nesting

@@ -1,188 +1,179 @@
-"""The planner node (SPEC section 6): a thin Zenoh adapter over the pure planning code.
+"""The planner node: a thin Zenoh adapter over the pure planning code.
 
-The pure side (request -> targets -> plan.json) is :mod:`planner.service.handler`.
-:class:`PlannerNode` is the Zenoh side: queryable ``<prefix>/plan`` replies with plan.json
-  (``application/json``) or an :class:`~schemas.messages.ErrorReply` via ``reply_err``;
-  subscriber ``<prefix>/targets`` publishes its result on ``<prefix>/plans``. With
-  ``execute: true`` it sends one :class:`~schemas.messages.JointTrajectory` per robot to
-  ``<prefix>/<robot>/trajectory``, planned from the robots' latest ``joint_states``; it
-  refuses while a robot driver's liveliness token ``<prefix>/alive/<robot>`` is missing.
-  It declares ``<prefix>/alive/planner``. One worker thread plans, requests queue up behind
-  it (bounded: a full queue gets a "busy" error), so any number of clients may call at once.
+The pure side (request -> targets -> plan.json) is :mod:`planner.service.handler`; what the node
+knows of the robots is :mod:`planner.service.execution`; its guards (bounded queue, progress
+watchdog, heartbeat) are :mod:`planner.service.guard`. :class:`PlannerNode`:
+
+- queryable ``<prefix>/plan`` replies with plan.json (``application/json``, ``id`` = the
+  request's) or an :class:`~schemas.messages.ErrorReply` via ``reply_err``; subscriber
+  ``<prefix>/targets`` publishes its result on ``<prefix>/plans``. Bodies over
+  ``MAX_PAYLOAD_BYTES`` are refused in the Zenoh callback, before they are copied or queued;
+  every other body, whatever it holds, gets a plan or an error naming the field.
+- With ``execute: true`` it sends one :class:`~schemas.messages.JointTrajectory` per robot
+  (carrying the request id and the node's session id) to ``<prefix>/<robot>/trajectory``,
+  planned from where each robot will be when it starts (the end of the trajectory it still
+  plays, else its latest ``joint_states``), then waits up to ``ACK_TIMEOUT`` s for every
+  driver's verdict in ``<prefix>/<robot>/status`` and replies ``execution: accepted |
+  rejected`` with ``execution_reason``. It refuses while a robot driver's liveliness token
+  ``<prefix>/alive/<robot>`` is missing. If some robots accepted and others did not, it
+  publishes ``<prefix>/stop`` (a partial multi-robot motion would misdirect the beam).
+- publishes the heartbeat ``<prefix>/heartbeat`` (``session`` = :attr:`session_id`, random
+  per node) at 100 Hz and declares ``<prefix>/alive/planner``.
+
+One worker thread plans; requests queue up behind it (bounded in count and bytes: a full
+queue gets a "busy" error). If the worker dies or stays busy on one request beyond its
+allowance, the node is *failed*: the heartbeat stops, the liveliness token goes away and
+``on_fatal(reason)`` is called (``beamrelay serve`` then exits non-zero, so its supervisor
+restarts it).
 """
 
 from __future__ import annotations
 
-import json
 import logging
-import queue
 import threading
 import time
+import uuid
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from planner.errors import BeamrelayError, InputError
 from planner.model.transforms import Array
-from planner.service.bus import JSON, Keys, decode, encode
-from planner.service.handler import RequestHandler, handler_from_scenario, make_plan_fn
+from planner.service.bodies import encode_json
+from planner.service.bus import JSON, MAX_PAYLOAD_BYTES, Keys, decode, encode
+from planner.service.execution import (
+    ACK_TIMEOUT,
+    HALTED_MODES,
+    STATE_MAX_AGE,
+    AckBoard,
+    ExecuteError,
+    JointCache,
+    MotionTracks,
+    execution_verdict,
+    trajectory_messages,
+)
+from planner.service.guard import QUEUE_SIZE, Heartbeat, Job, JobQueue, Progress
+from planner.service.handler import (
+    RequestHandler,
+    error_body,
+    handler_from_scenario,
+    make_plan_fn,
+    request_id_of,
+)
 
 __all__ = [
+    "QUEUE_SIZE",
+    "STATE_MAX_AGE",
     "ExecuteError",
     "PlannerNode",
     "RequestHandler",
+    "error_body",
     "handler_from_scenario",
     "make_plan_fn",
+    "request_id_of",
     "trajectory_messages",
 ]
 
 log = logging.getLogger("beamrelay.node")
 
-#: a joint state older than this (s, receiver clock) does not count as "current"
-STATE_MAX_AGE = 0.5
-#: requests waiting for the worker beyond this many get a "busy" error reply
-QUEUE_SIZE = 64
-
-
-class ExecuteError(BeamrelayError):
-    """``execute`` refused: a driver is down or its joint state is missing/stale.
-
-    ``robots`` names the robots concerned.
-    """
-
-    def __init__(self, reason: str, robots: list[str]) -> None:
-        self.reason = reason
-        self.robots = robots
-        super().__init__(reason)
-
-
-def error_body(exc: Exception, request_id: str | None = None) -> bytes:
-    """An :class:`~schemas.messages.ErrorReply` JSON body for any error of ours."""
-    from schemas.messages import ErrorReply
-
-    if isinstance(exc, InputError):
-        msg = ErrorReply(id=request_id, error=exc.reason, field=exc.where or None)
-    elif isinstance(exc, ExecuteError):
-        msg = ErrorReply(id=request_id, error=exc.reason, field="execute")
-    else:
-        msg = ErrorReply(id=request_id, error=f"{type(exc).__name__}: {exc}")
-    return encode(msg)
-
-
-def request_id_of(payload: bytes) -> str | None:
-    """Best effort: the ``id`` of a (possibly invalid) request body, for error replies."""
-    try:
-        data = json.loads(payload)
-    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError):
-        return None
-    rid = data.get("id") if isinstance(data, dict) else None
-    return rid if isinstance(rid, str) else None
-
-
-@dataclass
-class JointCache:
-    """Latest joint state per robot (receiver clock), thread safe."""
-
-    names: tuple[str, ...]
-    _q: dict[str, tuple[float, Array, Array]] = field(default_factory=dict)
-    _lock: threading.Lock = field(default_factory=threading.Lock)
-
-    def update(self, robot: str, q: Array, qd: Array) -> None:
-        with self._lock:
-            self._q[robot] = (time.monotonic(), q, qd)
-
-    def get(self, robot: str) -> tuple[float, Array, Array] | None:
-        with self._lock:
-            return self._q.get(robot)
-
-    def current(self, max_age: float = STATE_MAX_AGE) -> dict[str, Array]:
-        """``{robot: q}`` for every robot, or ExecuteError naming the missing/stale ones."""
-        now = time.monotonic()
-        out, missing = {}, []
-        for name in self.names:
-            entry = self.get(name)
-            if entry is None or now - entry[0] > max_age:
-                missing.append(name)
-            else:
-                out[name] = entry[1]
-        if missing:
-            raise ExecuteError(
-                f"no current joint state from {', '.join(missing)} "
-                f"(none received in the last {max_age:g} s)",
-                missing,
-            )
-        return out
-
-
-def trajectory_messages(plan: dict[str, Any]) -> dict[str, bytes]:
-    """One JointTrajectory body per robot from a plan's ``trajectory`` (times from 0)."""
-    from schemas.messages import JointTrajectory
-
-    traj = plan.get("trajectory")
-    if not traj:
-        raise ExecuteError("the plan has no trajectory to execute", list(plan["robots"]))
-    t = np.asarray(traj["t"], dtype=float)
-    keep = np.concatenate([[True], np.diff(t) > 0])  # drivers require increasing times
-    out = {}
-    for robot in plan["robots"]:
-        rows = {k: np.asarray(traj[k][robot], dtype=float)[keep] for k in ("q", "qd", "qdd")}
-        msg = JointTrajectory(
-            robot=robot,
-            t=(t[keep] - t[0]).tolist(),
-            names=list(plan["joint_names"][robot]),
-            q=rows["q"].tolist(),
-            qd=rows["qd"].tolist(),
-            qdd=rows["qdd"].tolist(),
-        )
-        out[robot] = encode(msg)
-    return out
-
 
 class PlannerNode:
     """The Zenoh adapter around a :class:`RequestHandler`. ``start()``, then ``close()``."""
 
-    def __init__(self, handler: RequestHandler, session: Any, keys: Keys | None = None) -> None:
+    def __init__(
+        self,
+        handler: RequestHandler,
+        session: Any,
+        keys: Keys | None = None,
+        *,
+        progress: Progress | None = None,
+        heartbeat_rate: float | None = None,
+        ack_timeout: float = ACK_TIMEOUT,
+    ) -> None:
         self.handler = handler
         self.session = session
         self.keys = keys or Keys()
         self.robots = handler.system.robot_names
         self.joints = JointCache(self.robots)
+        self.tracks = MotionTracks()
+        self.acks = AckBoard()
+        self.ack_timeout = ack_timeout
         self.alive: set[str] = set()
+        self.session_id = uuid.uuid4().hex
+        self.progress = progress or Progress()
+        self._heartbeat_rate = heartbeat_rate
         self._alive_lock = threading.Lock()
-        self._jobs: queue.Queue[tuple[str, Any, bytes] | None] = queue.Queue(QUEUE_SIZE)
+        self._jobs = JobQueue()
         self._handles: list[Any] = []
+        self._token: Any = None
+        self._closing = threading.Event()
         self._worker = threading.Thread(target=self._work, name="planner-worker", daemon=True)
         self.on_alive_change: Callable[[str, bool], None] | None = None
+        self.on_fatal: Callable[[str], None] | None = None
+        self.failed: str | None = None
         self.served = 0
 
     # --- lifecycle -------------------------------------------------------------------------
     def start(self) -> PlannerNode:
         s, k = self.session, self.keys
-        self._handles.append(s.liveliness().declare_token(k.alive("planner")))
+        self._token = s.liveliness().declare_token(k.alive("planner"))
         self._handles.append(
             s.liveliness().declare_subscriber(k.alive_all, self._on_alive, history=True)
         )
         for robot in self.robots:
             self._handles.append(s.declare_subscriber(k.joint_states(robot), self._joint_cb(robot)))
+            self._handles.append(s.declare_subscriber(k.status(robot), self._status_cb(robot)))
+        self._handles.append(s.declare_subscriber(k.stop, self._on_stop))
         self._publishers = {r: s.declare_publisher(k.trajectory(r)) for r in self.robots}
         self._plans = s.declare_publisher(k.plans)
+        self._stop_pub = s.declare_publisher(k.stop)
+        self._beat_pub = s.declare_publisher(k.heartbeat)
         self._handles.append(s.declare_subscriber(k.targets, self._on_target))
         self._handles.append(s.declare_queryable(k.plan, self._on_query))
+        rate = {} if self._heartbeat_rate is None else {"rate": self._heartbeat_rate}
+        self.heartbeat = Heartbeat(
+            lambda body: self._beat_pub.put(body, encoding=JSON),
+            self.session_id,
+            self.progress,
+            lambda reason: self._fatal(f"planner wedged: {reason}"),
+            **rate,
+        ).start()
         self._worker.start()
         return self
 
     def close(self) -> None:
-        """Undeclare everything and stop the worker (the session stays open)."""
+        """Stop beating, undeclare everything, stop the worker (the session stays open)."""
+        self._closing.set()
+        self.heartbeat.stop()
+        self._undeclare_token()
         for h in reversed(self._handles):
             h.undeclare()
         self._handles.clear()
-        for p in [*self._publishers.values(), self._plans]:
+        self._jobs.close()
+        self._worker.join(timeout=1 if self.failed else 5)
+        for p in [*self._publishers.values(), self._plans, self._stop_pub, self._beat_pub]:
             p.undeclare()
         self._publishers.clear()
-        self._jobs.put(None)
-        self._worker.join(timeout=5)
+
+    def _undeclare_token(self) -> None:
+        token, self._token = self._token, None
+        if token is not None:
+            token.undeclare()
+
+    def _fatal(self, reason: str) -> None:
+        """The node can no longer serve: go silent and tell ``on_fatal`` (once)."""
+        if self.failed is not None:
+            return
+        self.failed = reason
+        log.critical("planner node failed: %s", reason)
+        self.heartbeat.stop()
+        try:
+            self._undeclare_token()
+        except Exception:  # the session may be closing; the process exit drops it anyway
+            log.exception("could not undeclare the liveliness token")
+        if self.on_fatal is not None:
+            self.on_fatal(reason)
 
     # --- callbacks (Zenoh threads: never plan here) ------------------------------------------
     def _on_alive(self, sample: Any) -> None:
@@ -213,67 +204,160 @@ class PlannerNode:
 
         return cb
 
+    def _status_cb(self, robot: str) -> Callable[[Any], None]:
+        from schemas.messages import RobotStatus
+
+        def cb(sample: Any) -> None:
+            try:
+                msg = decode(sample.payload.to_bytes(), RobotStatus)
+            except InputError as exc:
+                log.warning("bad status from %s: %s", robot, exc)
+                return
+            ack = msg.trajectory
+            if ack is not None:
+                self.acks.offer(robot, ack)
+            if msg.mode in HALTED_MODES or msg.protective_stop:
+                self.tracks.halted(robot, None if ack is None else ack.id)
+
+        return cb
+
+    def _on_stop(self, _sample: Any) -> None:
+        self.tracks.clear()
+
     def _on_query(self, query: Any) -> None:
-        payload = query.payload.to_bytes() if query.payload is not None else b""
-        self._enqueue(("query", query, payload))
+        payload = query.payload
+        size = 0 if payload is None else len(payload)
+        if size > MAX_PAYLOAD_BYTES:  # refuse before copying the body out of Zenoh
+            self._refuse(Job("query", query, b""), _oversize(size))
+            return
+        self._enqueue(Job("query", query, b"" if payload is None else payload.to_bytes()))
 
     def _on_target(self, sample: Any) -> None:
-        self._enqueue(("topic", None, sample.payload.to_bytes()))
+        size = len(sample.payload)
+        if size > MAX_PAYLOAD_BYTES:
+            self._refuse(Job("topic", None, b""), _oversize(size))
+            return
+        self._enqueue(Job("topic", None, sample.payload.to_bytes()))
 
-    def _enqueue(self, job: tuple[str, Any, bytes]) -> None:
+    def _enqueue(self, job: Job) -> None:
+        full = self._jobs.put(job)
+        if full is not None:
+            self._refuse(job, InputError(f"planner busy ({full}), retry later", "body"))
+
+    def _refuse(self, job: Job, exc: Exception) -> None:
         try:
-            self._jobs.put_nowait(job)
-        except queue.Full:
-            busy = InputError(f"planner busy ({QUEUE_SIZE} requests waiting), retry later")
-            self._respond(job, None, busy)
+            self._respond(job, None, exc)
+        except Exception:  # a vanished querier must not break the Zenoh callback
+            log.exception("could not send an error reply")
 
     # --- the worker ------------------------------------------------------------------------
     def _work(self) -> None:
-        while (job := self._jobs.get()) is not None:
+        try:
+            while (job := self._jobs.get()) is not None:
+                self._run(job)
+        finally:
+            if not self._closing.is_set():
+                self._fatal("the planner worker thread stopped")
+
+    def _run(self, job: Job) -> None:
+        """Serve one job and reply; any Exception becomes an error reply."""
+        self.progress.begin()
+        try:
+            body: bytes | None = None
+            err: Exception | None = None
             try:
-                self._respond(job, self.serve(job[2]), None)
+                body = self.serve(job.payload)
             except BeamrelayError as exc:
-                self._respond(job, None, exc)
+                err = exc
             except Exception as exc:  # a bug must not kill the node: report it, keep serving
                 log.exception("request failed")
-                self._respond(job, None, exc)
+                err = exc
+            try:
+                self._respond(job, body, err)
+            except Exception:  # the querier left, the session closes: nothing to reply to
+                log.exception("could not send the reply")
+        finally:
+            self.progress.end()
 
-    def _respond(
-        self, job: tuple[str, Any, bytes], body: bytes | None, exc: Exception | None
-    ) -> None:
-        kind, query, payload = job
+    def _respond(self, job: Job, body: bytes | None, exc: Exception | None) -> None:
         if exc is not None:
-            body = error_body(exc, request_id_of(payload))
+            body = error_body(exc, request_id_of(job.payload))
         assert body is not None
-        if kind == "query":
+        if job.kind == "query":
             if exc is None:
-                query.reply(self.keys.plan, body, encoding=JSON)
+                job.query.reply(self.keys.plan, body, encoding=JSON)
             else:
-                query.reply_err(body, encoding=JSON)
-            query.drop()
+                job.query.reply_err(body, encoding=JSON)
+            job.query.drop()
         else:
             self._plans.put(body, encoding=JSON)
 
     def serve(self, payload: bytes) -> bytes:
         """Handle one request body: validate, plan, maybe execute; the plan.json reply."""
         req = self.handler.parse(payload)
+        targets = self.handler.targets(req)
+        self.progress.targets(len(targets.points))
         start = None
         if req.execute:
             self.check_drivers()
-            start = self.joints.current()
-        plan = self.handler.plan(req, start, trajectory=req.execute)
+            start = self.start_state()
+        plan = self.handler.plan_fn(targets, start, req.execute)
+        plan["id"] = req.id
         if req.execute:
-            failed = [s["target"] for s in plan["solutions"] if s["status"] != "ok"]
-            if len(failed) == len(plan["solutions"]):
-                raise ExecuteError("no target could be solved, nothing to execute", [])
-            for robot, body in trajectory_messages(plan).items():
-                self._publishers[robot].put(body, encoding=JSON)
+            self.execute(plan, req.id)
         self.served += 1
-        return encode(plan)
+        return encode_json(plan)
 
+    # --- execution -------------------------------------------------------------------------
     def check_drivers(self) -> None:
         """ExecuteError naming every robot whose driver's liveliness token is missing."""
         with self._alive_lock:
             down = [r for r in self.robots if r not in self.alive]
         if down:
             raise ExecuteError(f"robot driver down: {', '.join(down)}", down)
+
+    def start_state(self) -> dict[str, Array]:
+        """Where each robot will be when a trajectory sent now starts (rad): the end of the
+        trajectory it still plays, else its latest joint state (ExecuteError if stale)."""
+        start = {}
+        for robot in self.robots:
+            q_end = self.tracks.running_end(robot)
+            if q_end is not None:
+                start[robot] = q_end
+        rest = tuple(r for r in self.robots if r not in start)
+        return start | (self.joints.current(robots=rest) if rest else {})
+
+    def execute(self, plan: dict[str, Any], request_id: str) -> None:
+        """Send the plan's trajectories, wait for the drivers' verdicts, and write them into
+        ``plan`` (``execution``, ``execution_reason``)."""
+        if all(s["status"] != "ok" for s in plan["solutions"]):
+            raise ExecuteError("no target could be solved, nothing to execute", [])
+        bodies = trajectory_messages(plan, request_id, self.session_id)
+        traj = plan["trajectory"]
+        duration = float(traj["t"][-1] - traj["t"][0])
+        self.acks.expect(list(bodies), request_id)
+        for robot, body in bodies.items():
+            self._publishers[robot].put(body, encoding=JSON)
+        acks = self.acks.wait(self.ack_timeout)
+        for robot, ack in acks.items():
+            if ack is not None and ack.accepted:
+                self.tracks.accepted(robot, request_id, traj["q"][robot][-1], duration)
+        verdict, reason = execution_verdict(acks, self.ack_timeout)
+        moving = [r for r, a in acks.items() if a is not None and a.accepted]
+        if verdict == "rejected" and moving:
+            reason = f"{reason}; stopped {', '.join(moving)}: the robots move only together"
+            self.send_stop(f"request {request_id}: {reason}")
+        plan["execution"], plan["execution_reason"] = verdict, reason
+
+    def send_stop(self, reason: str) -> None:
+        """Publish ``<prefix>/stop`` (every driver brakes, laser off)."""
+        from schemas.messages import StopMessage
+
+        msg = StopMessage(t=time.time(), source="planner", reason=reason[:1000])
+        self._stop_pub.put(encode(msg), encoding=JSON)
+
+
+def _oversize(size: int) -> InputError:
+    return InputError(
+        f"body of {size} bytes exceeds the limit of {MAX_PAYLOAD_BYTES} bytes (not read)", "body"
+    )

@@ -18,7 +18,14 @@ from collections import deque
 from pathlib import Path
 from typing import Any
 
-from planner.service.bus import Keys, default_endpoint, open_session
+from planner.errors import InputError
+from planner.service.bus import (
+    Keys,
+    default_endpoint,
+    file_sets_endpoints,
+    load_config_file,
+    open_session,
+)
 from planner.service.supervisor import Supervisor
 
 RATE_WINDOW = 2.0  # s over which message rates are averaged
@@ -32,11 +39,20 @@ def child_commands(
     endpoint: str,
     prefix: str = "beamrelay",
     camera: bool = True,
+    zenoh_config: Path | None = None,
+    planner_zenoh_config: Path | None = None,
 ) -> dict[str, list[str]]:
-    """argv of every child: ``planner``, ``camera`` (if any), then one per robot."""
+    """argv of every child: ``planner``, ``camera`` (if any), then one per robot. Every child
+    gets ``zenoh_config`` except the planner, which gets ``planner_zenoh_config`` if given
+    (its own identity on a bus with access control)."""
     cli = [sys.executable, "-m", "planner.cli"]
     bus = ["--endpoint", endpoint, *(["--prefix", prefix] if prefix != "beamrelay" else [])]
-    out = {"planner": [*cli, "serve", str(scenario), "--connect", *bus]}
+    planner_bus = list(bus)
+    if zenoh_config is not None:
+        bus += ["--zenoh-config", str(zenoh_config)]
+    if (planner_conf := planner_zenoh_config or zenoh_config) is not None:
+        planner_bus += ["--zenoh-config", str(planner_conf)]
+    out = {"planner": [*cli, "serve", str(scenario), "--connect", *planner_bus]}
     if camera:
         cam_backend = "sim" if backend == "sim" else "realsense"
         out["camera"] = [
@@ -121,6 +137,19 @@ def health_table(sup: Supervisor, health: Health, title: str) -> Any:
     return table
 
 
+def _child_config(path: Path | None) -> Path | None:
+    """A Zenoh config file fit to be shared by several processes (absolute path), or None."""
+    if path is None:
+        return None
+    if file_sets_endpoints(load_config_file(path)):
+        raise InputError(
+            "beamrelay up starts several processes on one bus: leave listen/connect "
+            "endpoints out of the file and give the bus with --endpoint",
+            str(path),
+        )
+    return path.resolve()
+
+
 def run_up(
     scenario: Path,
     *,
@@ -130,8 +159,14 @@ def run_up(
     prefix: str = "beamrelay",
     log_dir: Path | None = None,
     live: bool = True,
+    zenoh_config: Path | None = None,
+    planner_zenoh_config: Path | None = None,
 ) -> dict[str, int | None]:
-    """Run the system until Ctrl-C / SIGTERM / ``duration`` s; the children's exit codes."""
+    """Run the system until Ctrl-C / SIGTERM / ``duration`` s; the children's exit codes.
+
+    ``zenoh_config`` is used by ``up`` itself and passed on to every child,
+    ``planner_zenoh_config`` (default ``zenoh_config``) to the planner child only.
+    """
     from rich.console import Console
     from rich.live import Live
 
@@ -140,16 +175,17 @@ def run_up(
     scn = load_scenario(scenario)
     robots = [r.name for r in scn.model.system.robots]
     endpoint = endpoint or default_endpoint()
+    configs = [_child_config(c) for c in (zenoh_config, planner_zenoh_config)]
     has_camera = scn.model.system.camera is not None
     argv = child_commands(
         Path(scenario).resolve(), robots, backend=backend, endpoint=endpoint, prefix=prefix,
-        camera=has_camera,
+        camera=has_camera, zenoh_config=configs[0], planner_zenoh_config=configs[1],
     )  # fmt: skip
     log_dir = Path(log_dir or tempfile.mkdtemp(prefix="beamrelay-up-"))
+    session = open_session(listen=True, endpoint=endpoint, config_file=configs[0])
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     console = Console(stderr=not live)
-    session = open_session(listen=True, endpoint=endpoint)
     health = Health(session, Keys(prefix))
     sup = Supervisor(argv, log_dir)
     title = f"beamrelay up {scn.model.name} on {endpoint} (logs {log_dir})"

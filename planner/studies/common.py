@@ -26,7 +26,7 @@ Rows = Sequence[Mapping[str, Any]]
 
 # the common options of every study command (typer ``Annotated`` aliases)
 Trials = Annotated[int, typer.Option("--trials", min=1, help="Random trials.")]
-Seed = Annotated[int, typer.Option("--seed", help="Seed of every random draw.")]
+Seed = Annotated[int, typer.Option("--seed", min=0, help="Seed of every random draw.")]
 Out = Annotated[Path, typer.Option("-o", "--out", help="Output folder.")]
 Workers = Annotated[
     int | None, typer.Option("--workers", min=1, help="Local processes (default: all cores).")

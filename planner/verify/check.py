@@ -1,15 +1,18 @@
 """Independent re-verification of a plan.json with plain numpy (no CasADi).
 
 The geometry comes from the plan's own resolved ``scenario`` echo; the UR5e forward
-kinematics (standard DH, SPEC section 2) and the reflection chain (written again from SPEC
-section 3) are :mod:`planner.verify.numpy_beam`'s, shared with the trajectory check; URDF arms use
-Pinocchio's numeric FK.
+kinematics (standard DH) and the reflection chain are :mod:`planner.verify.numpy_beam`'s, written
+from the conventions rather than taken from the planner, and shared with the trajectory
+check; URDF arms use Pinocchio's numeric FK. Every bound is the one the planner accepted the
+plan with (:mod:`planner.verify.tolerances`), so planning and checking cannot disagree.
 
 Checks are plain functions ``check(ctx) -> CheckResult`` in :data:`CHECKS`: the solved
-targets (spot, mirrors, joint limits) and the dense trajectory sampled at the scenario
-``rate`` (:mod:`planner.verify.trajectory`: time grid, position/velocity/acceleration/jerk
-limits, spot deviation on path/dwell segments and at every arrival). Other stages may append
-their own with :func:`register_check`.
+targets (spot, incidence, mirrors, joint limits), the dense trajectory sampled at the
+scenario ``rate`` (:mod:`planner.verify.trajectory`: presence, time grid, position, velocity,
+acceleration and jerk limits, declared velocities and accelerations against finite
+differences, the spot on the path, on its target while dwelling and at every arrival, every
+solved target visited) and the ``metrics``, recomputed from the solutions and the trajectory.
+Other stages may append their own with :func:`register_check`.
 """
 
 from __future__ import annotations
@@ -24,14 +27,19 @@ import numpy as np
 
 from planner.errors import InputError
 from planner.model.transforms import Array
-from planner.verify.numpy_beam import limits_from_dict, trace_rays, ur5e_dh_fk
+from planner.verify.numpy_beam import BeamRays, limits_from_dict, trace_rays, ur5e_dh_fk
 from planner.verify.numpy_beam import pose_matrix as pose
+from planner.verify.tolerances import (
+    INCIDENCE_SLACK,
+    REPORT_SLACK,
+    ROI_SLACK,
+    Tolerances,
+    joints_ok,
+    roi_ok,
+)
 
 if TYPE_CHECKING:
     from planner.verify.trajectory import Finding as TrajectoryFinding
-
-LIMIT_SLACK = 1e-12  # rad
-ROI_SLACK = 1e-12  # m
 
 
 @dataclass(frozen=True)
@@ -45,6 +53,15 @@ class ArmGeometry:
     roi_half: Array
     lower: Array
     upper: Array
+
+    def world_T_mirror(self, Q: Array) -> Array:
+        """Mirror poses (M x 4 x 4) of joint rows ``Q`` (M x nq, rad)."""
+        Q = np.atleast_2d(np.asarray(Q, dtype=float))
+        if self.fk is ur5e_dh_fk:
+            F = ur5e_dh_fk(Q).reshape(len(Q), 4, 4)
+        else:
+            F = np.array([self.fk(q) for q in Q]).reshape(len(Q), 4, 4)
+        return self.world_T_base @ F @ self.flange_T_mirror
 
 
 def _arm(r: dict[str, Any], i: int, base_dir: Path) -> ArmGeometry:
@@ -77,14 +94,10 @@ def _arm(r: dict[str, Any], i: int, base_dir: Path) -> ArmGeometry:
 
 
 class Trace:
-    """Numpy beam trace of one configuration (SPEC section 3)."""
+    """Numpy beam trace of one configuration."""
 
     def __init__(self, world_T_laser: Array, arms: list[ArmGeometry], q: dict[str, Array]):
-        world_T_mirrors = [
-            arm.world_T_base @ arm.fk(np.asarray(q[arm.name], dtype=float)) @ arm.flange_T_mirror
-            for arm in arms
-        ]
-        rays = trace_rays(world_T_laser, [M[None] for M in world_T_mirrors])
+        rays = trace_rays(world_T_laser, [arm.world_T_mirror(q[arm.name]) for arm in arms])
         self.hits = [h[0] for h in rays.hits]
         self.uv = [uv[0] for uv in rays.uv]
         self.front = [float(f[0]) for f in rays.front]
@@ -93,21 +106,38 @@ class Trace:
 
     def spot(self, target: Array, normal: Array | None) -> tuple[Array, float, float]:
         """(spot, ray parameter s, incidence rad) for a target (optionally with a normal)."""
-        if normal is None:
-            s = float(np.dot(self.v, target - self.p))
-            return self.p + s * self.v, s, 0.0
-        s = float(np.dot(normal, target - self.p) / np.dot(normal, self.v))
-        inc = float(np.arccos(min(abs(float(np.dot(self.v, normal))), 1.0)))
-        return self.p + s * self.v, s, inc
+        nrm = np.full(3, np.nan) if normal is None else np.asarray(normal, dtype=float)
+        spot, s, inc = spots(self.p[None], self.v[None], target[None], nrm[None])
+        return spot[0], float(s[0]), float(inc[0])
+
+
+def spots(p: Array, v: Array, targets: Array, normals: Array) -> tuple[Array, Array, Array]:
+    """Spots of M rays (origins ``p``, unit directions ``v``, M x 3) on their targets (M x 3)
+    with normals (M x 3, NaN rows = none): the ray meets the plane through the target normal
+    to its normal (without one: the ray's closest point). Returns (spot M x 3, ray parameter
+    s M (m, > 0 when the target is ahead), incidence M (rad, 0 without a normal))."""
+    has = np.all(np.isfinite(normals), axis=1)
+    nb = np.where(has[:, None], normals, 0.0)
+    w = targets - p
+    nv = np.einsum("ij,ij->i", nb, v)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s_plane = np.einsum("ij,ij->i", nb, w) / nv
+    s = np.where(has, s_plane, np.einsum("ij,ij->i", v, w))
+    inc = np.where(has, np.arccos(np.minimum(np.abs(nv), 1.0)), 0.0)
+    return p + s[:, None] * v, s, inc
 
 
 @dataclass(frozen=True)
 class Finding:
+    """A violation: which check, target (None: the whole plan), what, the value and the
+    bound it broke (SI units), and the status reason a planner gives such a target."""
+
     check: str
     target: int | None
     message: str
     value: float
     bound: float
+    reason: str | None = None
 
 
 @dataclass
@@ -120,7 +150,8 @@ class CheckResult:
 
 
 class PlanContext:
-    """A parsed plan: geometry, targets and solved configurations, traced once lazily."""
+    """A parsed plan: geometry, tolerances, targets and solved configurations, traced once
+    (batched) lazily."""
 
     def __init__(self, plan: dict[str, Any], base_dir: Path = Path(".")) -> None:
         try:
@@ -128,29 +159,43 @@ class PlanContext:
             system = scn["system"]
             self.world_T_laser = pose(system["laser"]["world_T_laser"], "scenario.system.laser")
             self.arms = [_arm(r, i, base_dir) for i, r in enumerate(system["robots"])]
-            solver = scn.get("solver") or {}
-            self.tolerance = float(solver.get("tolerance", 1e-9))
-            inc = solver.get("max_incidence_deg")
-            self.max_incidence = None if inc is None else float(np.radians(inc))
+            self.tol = Tolerances.from_scenario(scn)
             self.targets = {int(t["id"]): t for t in plan["targets"]}
             self.solutions = list(plan["solutions"])
+            self.solved = [s for s in self.solutions if s.get("status") == "ok"]
+            self.ids = np.array([int(s["target"]) for s in self.solved], dtype=int)
+            self.P = np.array([self.targets[k]["p"] for k in self.ids], dtype=float).reshape(-1, 3)
+            self.N = np.array([self.targets[k].get("n") or [np.nan] * 3 for k in self.ids],
+                              dtype=float).reshape(-1, 3)  # fmt: skip
+            self.Q = {a.name: np.array([s["q"][a.name] for s in self.solved], dtype=float)
+                      for a in self.arms}  # fmt: skip
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"not a plan document: missing or bad {exc!r}") from exc
         self.plan = plan
 
     @property
-    def solved(self) -> list[dict[str, Any]]:
-        return [s for s in self.solutions if s.get("status") == "ok"]
+    def tolerance(self) -> float:
+        """The spot tolerance (m)."""
+        return self.tol.spot
+
+    @cached_property
+    def rays(self) -> BeamRays:
+        """Every solved configuration traced side by side (rows in :attr:`solved` order)."""
+        if not self.solved:
+            empty = np.zeros((0, 3))
+            return BeamRays(empty, empty, [], [], [], [])
+        return trace_rays(self.world_T_laser, [a.world_T_mirror(self.Q[a.name]) for a in self.arms])
 
     @cached_property
     def traces(self) -> dict[int, Trace]:
+        """Per-target traces (kept for callers that want one target's numbers)."""
         return {int(s["target"]): Trace(self.world_T_laser, self.arms, s["q"]) for s in self.solved}
 
     @cached_property
     def trajectory_findings(self) -> list[TrajectoryFinding]:
         from planner.verify.trajectory import check_trajectory
 
-        return check_trajectory(self.plan)
+        return check_trajectory(self.plan, self.tol)
 
     def target(self, k: int) -> tuple[Array, Array | None]:
         t = self.targets[k]
@@ -159,76 +204,107 @@ class PlanContext:
 
 
 def check_spots(ctx: PlanContext) -> CheckResult:
-    """Spot error <= solver tolerance, target ahead, incidence limit, reported spot matches."""
+    """Spot error within the solver tolerance, target ahead, incidence within the limit, and
+    the reported spot, error and incidence match the recomputed ones."""
+    tol = ctx.tol
     res = CheckResult("spot", len(ctx.solved))
-    errors = []
-    for sol in ctx.solved:
-        k = int(sol["target"])
-        p, n = ctx.target(k)
-        spot, s, inc = ctx.traces[k].spot(p, n)
-        err = float(np.linalg.norm(spot - p))
-        errors.append(err)
-        if not err <= ctx.tolerance:
-            res.findings.append(
-                Finding("spot", k, "spot error above tolerance", err, ctx.tolerance)
-            )
-        if not s > 0:
-            res.findings.append(Finding("spot", k, "target behind the last mirror", s, 0.0))
-        if n is not None and ctx.max_incidence is not None and inc > ctx.max_incidence:
-            res.findings.append(Finding("spot", k, "incidence above limit", inc, ctx.max_incidence))
-        if sol.get("spot") is not None:
-            gap = float(np.linalg.norm(np.asarray(sol["spot"]) - spot))
-            if gap > max(1e-9, ctx.tolerance):
-                res.findings.append(Finding("spot", k, "reported spot differs", gap, 1e-9))
-    if errors:
-        res.figures = {"error_max_m": max(errors), "error_median_m": float(np.median(errors))}
+    if not ctx.solved:
+        return res
+    spot, s, inc = spots(ctx.rays.p, ctx.rays.v, ctx.P, ctx.N)
+    err = np.linalg.norm(spot - ctx.P, axis=1)
+    add = res.findings.append
+    for i in np.flatnonzero(~(err <= tol.spot)):
+        add(Finding("spot", int(ctx.ids[i]), f"spot error {1e3 * err[i]:.3g} mm above the "
+                    f"tolerance {1e3 * tol.spot:.3g} mm", float(err[i]), tol.spot, "solver_failed"))  # fmt: skip
+    for i in np.flatnonzero(~(s > 0)):
+        add(Finding("spot", int(ctx.ids[i]), "target behind the last mirror", float(s[i]), 0.0,
+                    "back_face"))  # fmt: skip
+    if tol.max_incidence is not None:
+        for i in np.flatnonzero([not tol.incidence_ok(x) for x in inc]):
+            add(Finding("spot", int(ctx.ids[i]), f"incidence {np.degrees(inc[i]):.7f} deg above "
+                        f"the limit {np.degrees(tol.max_incidence):.7f} deg", float(inc[i]),
+                        tol.max_incidence, "unreachable"))  # fmt: skip
+    _reported(ctx, res, spot, err, inc)
+    res.figures = {"error_max_m": float(np.max(err)), "error_median_m": float(np.median(err))}
+    if np.isfinite(ctx.N).all(axis=1).any():
+        res.figures["incidence_max_deg"] = float(np.degrees(inc[np.isfinite(ctx.N[:, 0])].max()))
     return res
+
+
+def _reported(ctx: PlanContext, res: CheckResult, spot: Array, err: Array, inc: Array) -> None:
+    """The solutions' own ``spot``, ``error`` and ``incidence`` against the recomputed ones."""
+    bound = max(REPORT_SLACK, ctx.tol.spot)
+    for i, sol in enumerate(ctx.solved):
+        k = int(sol["target"])
+        if sol.get("spot") is not None:
+            gap = float(np.linalg.norm(np.asarray(sol["spot"], dtype=float) - spot[i]))
+            if not gap <= bound:
+                res.findings.append(Finding("spot", k, f"reported spot is {1e3 * gap:.3g} mm "
+                                            "from the recomputed one", gap, bound))  # fmt: skip
+        reported = sol.get("error")
+        if reported is not None and not abs(float(reported) - err[i]) <= bound:
+            res.findings.append(Finding("spot", k, f"reported error {1e3 * float(reported):.3g} mm"
+                                        f", recomputed {1e3 * err[i]:.3g} mm",
+                                        float(reported), float(err[i])))  # fmt: skip
+        rinc = sol.get("incidence")
+        if rinc is not None and not abs(float(rinc) - inc[i]) <= INCIDENCE_SLACK:
+            res.findings.append(Finding("spot", k, f"reported incidence {np.degrees(rinc):.4f} deg"
+                                        f", recomputed {np.degrees(inc[i]):.4f} deg",
+                                        float(rinc), float(inc[i])))  # fmt: skip
 
 
 def check_mirrors(ctx: PlanContext) -> CheckResult:
     """Every bounce: mirror ahead (t > 0), front face (-n.v > 0), hit inside the ROI."""
     res = CheckResult("mirrors", len(ctx.solved))
-    worst_roi = np.inf
-    for sol in ctx.solved:
-        k = int(sol["target"])
-        tr = ctx.traces[k]
-        for i, arm in enumerate(ctx.arms):
-            if not tr.ahead[i] > 0:
-                res.findings.append(Finding("mirrors", k, f"{arm.name}: mirror behind the beam",
-                                            tr.ahead[i], 0.0))  # fmt: skip
-            if not tr.front[i] > 0:
-                res.findings.append(Finding("mirrors", k, f"{arm.name}: back face hit",
-                                            tr.front[i], 0.0))  # fmt: skip
-            margin = float(np.min(arm.roi_half - np.abs(tr.uv[i])))
-            worst_roi = min(worst_roi, margin)
-            if margin < -ROI_SLACK:
-                res.findings.append(Finding("mirrors", k, f"{arm.name}: hit outside the ROI",
-                                            margin, 0.0))  # fmt: skip
-    if ctx.solved:
-        res.figures = {"roi_margin_min_m": worst_roi}
+    if not ctx.solved:
+        return res
+    rays, worst_roi = ctx.rays, np.inf
+    for a, arm in enumerate(ctx.arms):
+        margin = np.min(arm.roi_half[None, :] - np.abs(rays.uv[a]), axis=1)
+        worst_roi = min(worst_roi, float(margin.min()))
+        for i in np.flatnonzero(~(rays.ahead[a] > 0)):
+            res.findings.append(Finding("mirrors", int(ctx.ids[i]), f"{arm.name}: mirror behind "
+                                        "the beam", float(rays.ahead[a][i]), 0.0, "unreachable"))  # fmt: skip
+        for i in np.flatnonzero(~(rays.front[a] > 0)):
+            res.findings.append(Finding("mirrors", int(ctx.ids[i]), f"{arm.name}: back face hit",
+                                        float(rays.front[a][i]), 0.0, "back_face"))  # fmt: skip
+        for i in np.flatnonzero([not roi_ok(m) for m in margin]):
+            res.findings.append(Finding("mirrors", int(ctx.ids[i]), f"{arm.name}: hit "
+                                        f"{1e3 * -margin[i]:.3g} mm outside the ROI",
+                                        float(margin[i]), -ROI_SLACK, "outside_roi"))  # fmt: skip
+    res.figures = {"roi_margin_min_m": worst_roi}
     return res
 
 
 def check_limits(ctx: PlanContext) -> CheckResult:
     """Every solved configuration within the joint position limits."""
     res = CheckResult("joint limits", len(ctx.solved))
+    if not ctx.solved:
+        return res
     worst = -np.inf
-    for sol in ctx.solved:
-        k = int(sol["target"])
-        for arm in ctx.arms:
-            q = np.asarray(sol["q"][arm.name], dtype=float)
-            viol = float(max(np.max(q - arm.upper), np.max(arm.lower - q)))
-            worst = max(worst, viol)
-            if viol > LIMIT_SLACK:
-                res.findings.append(Finding("joint limits", k, f"{arm.name}: outside limits",
-                                            viol, 0.0))  # fmt: skip
-    if ctx.solved:
-        res.figures = {"limit_slack_min_rad": -worst}
+    for arm in ctx.arms:
+        Q = ctx.Q[arm.name]
+        viol = np.max(np.maximum(Q - arm.upper, arm.lower - Q), axis=1)
+        worst = max(worst, float(viol.max()))
+        for i in np.flatnonzero([not joints_ok(v) for v in viol]):
+            res.findings.append(Finding("joint limits", int(ctx.ids[i]), f"{arm.name}: "
+                                        f"{viol[i]:.3g} rad outside the limits", float(viol[i]),
+                                        0.0, "joint_limits"))  # fmt: skip
+    res.figures = {"limit_slack_min_rad": -worst}
     return res
 
 
-_LIMIT_CODES = ("time_grid", "joint_limits", "velocity", "acceleration", "jerk")
-_SPOT_CODES = ("path_deviation", "dwell_deviation", "arrival_deviation", "path_duration")
+def target_findings(plan: dict[str, Any], base_dir: Path = Path(".")) -> list[Finding]:
+    """The per-target violations (spot, mirrors, joint limits) of a plan's solved targets:
+    what planning uses to decide that a solution is ok."""
+    ctx = PlanContext(plan, base_dir)
+    return [f for check in (check_spots, check_mirrors, check_limits) for f in check(ctx).findings]
+
+
+_LIMIT_CODES = ("trajectory_missing", "time_grid", "joint_limits", "velocity", "acceleration",
+                "jerk", "velocity_declared", "acceleration_declared")  # fmt: skip
+_SPOT_CODES = ("path_deviation", "dwell_deviation", "arrival_deviation", "path_duration",
+               "not_visited")  # fmt: skip
 
 
 def _trajectory_result(ctx: PlanContext, name: str, codes: tuple[str, ...]) -> CheckResult:
@@ -245,6 +321,8 @@ def _trajectory_result(ctx: PlanContext, name: str, codes: tuple[str, ...]) -> C
             res.warnings.append(f.message)
         if f.code in ("velocity", "acceleration", "jerk"):
             key, value = f"{f.code}_max_ratio", f.value / f.limit
+        elif f.code.endswith("_declared"):
+            key, value = f"{f.code}_gap_max_ratio", f.value / f.limit
         elif f.code == "path_duration":
             res.figures["path_duration_ideal_s"] = f.limit
             key, value = "path_duration_s", f.value
@@ -253,21 +331,32 @@ def _trajectory_result(ctx: PlanContext, name: str, codes: tuple[str, ...]) -> C
         else:
             continue
         res.figures[key] = max(value, res.figures.get(key, -np.inf))
-    if not traj:
+    if not traj and name == "trajectory limits":
         res.warnings.append("plan has no trajectory")
     return res
 
 
 def check_trajectory_limits(ctx: PlanContext) -> CheckResult:
-    """The dense trajectory on the 1/rate grid, within position, velocity, acceleration and
-    jerk limits (finite differences, small slack)."""
+    """The dense trajectory (present when one is expected) on the 1/rate grid, within
+    position, velocity, acceleration and jerk limits (finite differences, small slack), its
+    declared velocities and accelerations matching the differences of q and qd."""
     return _trajectory_result(ctx, "trajectory limits", _LIMIT_CODES)
 
 
 def check_trajectory_spot(ctx: PlanContext) -> CheckResult:
     """The spot on the path during ``path`` segments, on a target during ``dwell`` and at the
-    end of every move; path duration vs length / spot speed."""
+    end of every move, every solved target visited; path duration vs length / spot speed."""
     return _trajectory_result(ctx, "trajectory spot", _SPOT_CODES)
+
+
+def check_metrics(ctx: PlanContext) -> CheckResult:
+    """``metrics`` recomputed from the solutions and the trajectory (:mod:`planner.verify.metrics`)."""
+    from planner.verify.metrics import metric_findings
+
+    res = CheckResult("metrics", len(ctx.plan.get("metrics") or {}))
+    for message, value, bound in metric_findings(ctx.plan):
+        res.findings.append(Finding("metrics", None, message, value, bound))
+    return res
 
 
 CHECKS: list[Callable[[PlanContext], CheckResult]] = [
@@ -276,6 +365,7 @@ CHECKS: list[Callable[[PlanContext], CheckResult]] = [
     check_limits,
     check_trajectory_limits,
     check_trajectory_spot,
+    check_metrics,
 ]
 
 

@@ -1,9 +1,9 @@
 """Plain-numpy beam geometry for the independent checkers (no CasADi, no Pinocchio).
 
 Shared by :mod:`planner.verify.check` (solved targets) and :mod:`planner.verify.trajectory` (dense
-trajectories): the UR5e forward kinematics by standard DH (SPEC section 2), SPEC pose
+trajectories): the UR5e forward kinematics by standard DH, the pose
 mappings, the robots' joint limits as written in a resolved scenario, and the reflection
-chain of SPEC section 3, written again from the SPEC rather than taken from the planner's
+chain, written again from the conventions rather than taken from the planner's
 CasADi graph. Units SI, poses ``a_T_b``, all rays in the world frame.
 """
 
@@ -41,7 +41,7 @@ def ur5e_dh_fk(q: Array) -> Array:
 
 
 def pose_matrix(d: Any, where: str = "pose") -> Array:
-    """A SPEC section 2 pose mapping (``{matrix}`` | ``{xyz, rpy | rpy_deg | quat}``) as a
+    """A pose mapping (``{matrix}`` | ``{xyz, rpy | rpy_deg | quat}``) as a
     4x4; ``xyz`` defaults to zeros, the rotation to identity. InputError names ``where``."""
     if not isinstance(d, dict):
         raise InputError("expected a pose mapping", where)
@@ -88,7 +88,7 @@ class BeamRays(NamedTuple):
 
 
 def trace_rays(world_T_laser: Array, world_T_mirrors: Sequence[Array]) -> BeamRays:
-    """Reflect the laser beam off each mirror in turn (SPEC section 3: t = n.(c - p)/(n.v),
+    """Reflect the laser beam off each mirror in turn (t = n.(c - p)/(n.v),
     h = p + t v, v' = v - 2 (v.n) n); ``world_T_mirrors`` holds one (M, 4, 4) stack per
     mirror, the M configurations traced side by side."""
     M = len(world_T_mirrors[0]) if len(world_T_mirrors) else 1

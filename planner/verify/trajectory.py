@@ -1,12 +1,17 @@
 """Independent re-verification of a plan's trajectory with plain numpy (no CasADi, no
-Pinocchio): SPEC section 5 ``beamrelay check``.
+Pinocchio), for ``beamrelay check`` and the check ``beamrelay plan`` runs on what it wrote.
 
-Samples the trajectory at the scenario ``rate``; checks the time grid, joint position
-limits, velocity/acceleration/jerk by finite differences (with a small slack), and the spot
-deviation from the target path at every sample of a ``path`` segment, from the nearest
-target during ``dwell`` and at the last sample of every ``approach``/``move`` (arrival),
-through the numpy UR DH forward kinematics and mirror reflection model of
-:mod:`planner.verify.numpy_beam` (shared with :mod:`planner.verify.check`).
+Samples the trajectory at the scenario ``rate``; checks that a trajectory is there when the
+plan has solved targets (unless it says none was requested: ``trajectory_requested: false``,
+a plan answering a request that did not ask to execute), the time grid, joint position
+limits, velocity/acceleration/jerk by finite differences, the declared ``qd``/``qdd`` against
+the differences of ``q``/``qd``, and the spot: its distance from the target path at every
+sample of a ``path`` segment, from its target during ``dwell`` and at the last sample of
+every ``approach``/``move`` (arrival), and that every solved point target is arrived at.
+Bounds and slack are :mod:`planner.verify.tolerances`'. The forward kinematics and mirror
+reflection are :mod:`planner.verify.numpy_beam`'s (shared with :mod:`planner.verify.check`). Memory is
+linear in the number of samples and targets (targets matched through a k-d tree of the
+solved configurations).
 """
 
 from __future__ import annotations
@@ -18,8 +23,16 @@ import numpy as np
 from planner.model.system import Limits
 from planner.model.transforms import Array
 from planner.verify.numpy_beam import limits_from_dict, pose_matrix, trace_rays, ur5e_dh_fk
+from planner.verify.tolerances import (
+    DERIVATIVE_SLACK,
+    JOINT_SLACK,
+    RATE_SLACK,
+    TIME_GRID_SLACK,
+    Tolerances,
+)
 
 NUMPY_FK = {"ur5e": ur5e_dh_fk}  # model -> batched base_T_flange (M x 6 -> M x 4 x 4)
+CHUNK_ELEMENTS = 1 << 21  # rays x targets per block of the brute-force nearest search
 
 
 class Finding(NamedTuple):
@@ -53,13 +66,17 @@ def _robots(scenario: dict[str, Any]) -> list[_Robot]:
 
 
 def trace_last_ray(scenario: dict[str, Any], q: dict[str, Array]) -> tuple[Array, Array]:
-    """Last ray (origin, unit direction), each (M x 3), after every mirror (SPEC section 3)."""
+    """Last ray (origin, unit direction), each (M x 3), after every mirror."""
     world_T_mirrors = [
         r.world_T_base @ NUMPY_FK[r.model](np.atleast_2d(q[r.name])) @ r.flange_T_mirror
         for r in _robots(scenario)
     ]
     rays = trace_rays(pose_matrix(scenario["system"]["laser"]["world_T_laser"]), world_T_mirrors)
     return rays.p, rays.v
+
+
+def _chunk(n_targets: int) -> int:
+    return max(1, min(256, CHUNK_ELEMENTS // max(n_targets, 1)))
 
 
 def nearest_spots(p: Array, v: Array, targets: Array, normals: Array | None) -> tuple[Array, Array]:
@@ -69,17 +86,25 @@ def nearest_spots(p: Array, v: Array, targets: Array, normals: Array | None) -> 
     along = np.einsum("mkj,mj->mk", w, v)
     perp = np.linalg.norm(w - along[..., None] * v[:, None, :], axis=2)
     k = np.argmin(np.where(along > 0, perp, np.inf), axis=1)
-    nb = -v if normals is None else np.where(np.isfinite(normals[k]), normals[k], -v)
-    s = np.einsum("ij,ij->i", nb, targets[k] - p) / np.einsum("ij,ij->i", nb, v)
-    return k, p + s[:, None] * v
+    return k, _plane_spots(p, v, targets[k], None if normals is None else normals[k])
+
+
+def _plane_spots(p: Array, v: Array, targets: Array, normals: Array | None) -> Array:
+    """Where each ray meets its target's plane (normal, NaN or None: perpendicular to the ray)."""
+    nb = -v if normals is None else np.where(np.isfinite(normals), normals, -v)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.einsum("ij,ij->i", nb, targets - p) / np.einsum("ij,ij->i", nb, v)
+    return p + s[:, None] * v
 
 
 def point_deviation(p: Array, v: Array, targets: Array, normals: Array | None) -> Array:
-    """Distance (m) from each ray's spot to the nearest target point (dwell, arrivals)."""
+    """Distance (m) from each ray's spot to the nearest target point (brute force over the
+    targets, in blocks of bounded memory)."""
     out = np.empty(len(p))
-    for i0 in range(0, len(p), 256):
-        k, spot = nearest_spots(p[i0 : i0 + 256], v[i0 : i0 + 256], targets, normals)
-        out[i0 : i0 + 256] = np.linalg.norm(spot - targets[k], axis=1)
+    step = _chunk(len(targets))
+    for i0 in range(0, len(p), step):
+        k, spot = nearest_spots(p[i0 : i0 + step], v[i0 : i0 + step], targets, normals)
+        out[i0 : i0 + step] = np.linalg.norm(spot - targets[k], axis=1)
     return out
 
 
@@ -95,41 +120,127 @@ def spot_deviation(
     segs_b = np.roll(targets, -1, axis=0) if closed else targets[1:]
     ab = segs_b - segs_a
     ab2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
-    for i0 in range(0, len(p), 256):
-        _, spot = nearest_spots(p[i0 : i0 + 256], v[i0 : i0 + 256], targets, normals)
+    step = _chunk(len(targets))
+    for i0 in range(0, len(p), step):
+        _, spot = nearest_spots(p[i0 : i0 + step], v[i0 : i0 + step], targets, normals)
         u = np.clip(np.einsum("mkj,kj->mk", spot[:, None, :] - segs_a[None], ab) / ab2, 0, 1)
         near = segs_a[None] + u[..., None] * ab[None]
-        out[i0 : i0 + 256] = np.linalg.norm(spot[:, None, :] - near, axis=2).min(axis=1)
+        out[i0 : i0 + step] = np.linalg.norm(spot[:, None, :] - near, axis=2).min(axis=1)
     return out
+
+
+class Solved(NamedTuple):
+    """The solved targets of a plan: stacked joints (M x nq, robot order), target points and
+    normals (M x 3, NaN rows without a normal), target ids."""
+
+    Q: Array
+    P: Array
+    N: Array
+    ids: Array
+
+
+def solved_targets(plan: dict[str, Any], robots: list[_Robot]) -> Solved | None:
+    """The plan's solved targets (None when it lists no solved solution)."""
+    sols = [s for s in plan.get("solutions") or [] if s.get("status") == "ok"]
+    if not sols:
+        return None
+    tg = {int(t["id"]): t for t in plan["targets"]}
+    ids = np.array([int(s["target"]) for s in sols])
+    Q = np.hstack([np.array([s["q"][r.name] for s in sols], dtype=float) for r in robots])
+    P = np.array([tg[k]["p"] for k in ids], dtype=float)
+    N = np.array([tg[k].get("n") or [np.nan] * 3 for k in ids], dtype=float)
+    return Solved(Q, P, N, ids)
+
+
+def matched_deviation(p: Array, v: Array, q: Array, solved: Solved, k: int = 8
+                      ) -> tuple[Array, Array]:  # fmt: skip
+    """Per sample (rays ``p``, ``v`` M x 3 of stacked joints ``q`` M x nq): the distance (m)
+    from its spot to the nearest of the ``k`` solved targets whose configurations are
+    nearest in joint space, and that target's row in ``solved``. O(M log n) time, O(M k)
+    memory."""
+    from scipy.spatial import cKDTree
+
+    kk = min(k, len(solved.Q))
+    _, cand = cKDTree(solved.Q).query(q, k=kk)
+    cand = np.asarray(cand).reshape(len(q), kk)
+    dev = np.full((len(q), kk), np.inf)
+    for j in range(kk):
+        c = cand[:, j]
+        spot = _plane_spots(p, v, solved.P[c], solved.N[c])
+        dev[:, j] = np.linalg.norm(spot - solved.P[c], axis=1)
+    dev = np.where(np.isfinite(dev), dev, np.inf)
+    best = np.argmin(dev, axis=1)
+    return dev[np.arange(len(q)), best], cand[np.arange(len(q)), best]
 
 
 def _limit_finding(code: str, X: Array, bound: Array, slack: float, t: Array, unit: str) -> Finding:
     ratio = np.abs(X) / bound[None, :]
     i, j = (int(x) for x in np.unravel_index(int(np.argmax(ratio)), ratio.shape))
     worst, lim = float(abs(X[i, j])), float(bound[j])
-    bad = ratio[i, j] > 1 + slack
+    bad = not ratio[i, j] <= 1 + slack
     msg = f"{code}: max |{X[i, j]:.4g}| {unit} on joint {j} at t = {t[min(i, len(t) - 1)]:.3f} s"
     msg += f" ({100 * ratio[i, j]:.1f}% of limit {lim:.4g})"
     return Finding("error" if bad else "info", code, msg, worst, lim)
 
 
-def check_trajectory(
-    plan: dict[str, Any],
-    deviation_tol: float = 5e-5,
-    slack: float = 0.02,
-    rel_duration: float = 0.1,
-) -> list[Finding]:
-    """Re-verify ``plan["trajectory"]`` (plan.json mapping). Errors are violations; info
-    findings carry the measured figures (max deviation, duration, % of joint limits)."""
+def _differences(q: Array, rate: float) -> tuple[Array, Array]:
+    """Velocity and acceleration estimates at the interior rows of joint rows ``q`` sampled
+    at ``rate``: central first and second differences ((M - 2) x n)."""
+    v = (q[2:] - q[:-2]) * (rate / 2)
+    a = (q[2:] - 2 * q[1:-1] + q[:-2]) * rate**2
+    return v, a
+
+
+def _declared(r: _Robot, traj: dict[str, Any], q: Array, t: Array, rate: float) -> list[Finding]:
+    """Declared qd and qdd against the central differences of q. The bound per joint is
+    :data:`DERIVATIVE_SLACK` of the limit plus the differences' own error for a
+    jerk-limited motion (j h^2 for qd, j h for qdd at a jerk switch; h = 1/rate)."""
+    out: list[Finding] = []
+    if len(q) < 3:
+        return out
+    h, jerk = 1.0 / rate, r.limits.jerk
+    for key, code, lim, disc, est, unit in zip(
+        ("qd", "qdd"), ("velocity_declared", "acceleration_declared"),
+        (r.limits.velocity, r.limits.acceleration), (jerk * h * h, jerk * h),
+        _differences(q, rate), ("rad/s", "rad/s^2"), strict=True,
+    ):  # fmt: skip
+        X = np.asarray(traj[key][r.name], dtype=float).reshape(q.shape)[1:-1]
+        bound = DERIVATIVE_SLACK * lim + disc
+        gap = np.abs(X - est) / bound[None, :]
+        gap = np.where(np.isfinite(gap), gap, np.inf)
+        i, j = (int(x) for x in np.unravel_index(int(np.argmax(gap)), gap.shape))
+        msg = (f"{r.name}: declared {key} on joint {j} at t = {t[i + 1]:.3f} s is {X[i, j]:.4g} "
+               f"{unit}, {gap[i, j] * bound[j]:.4g} {unit} off the differences of the "
+               f"positions (allowed {bound[j]:.3g} {unit})")  # fmt: skip
+        out.append(Finding("info" if gap[i, j] <= 1.0 else "error", code, msg,
+                           float(gap[i, j] * bound[j]), float(bound[j])))  # fmt: skip
+    return out
+
+
+def trajectory_expected(plan: dict[str, Any]) -> bool:
+    """Whether the plan must carry a trajectory: it has a solved target and does not say
+    ``trajectory_requested: false``."""
+    solved = any(s.get("status") == "ok" for s in plan.get("solutions") or [])
+    return solved and plan.get("trajectory_requested") is not False
+
+
+def check_trajectory(plan: dict[str, Any], tol: Tolerances | None = None) -> list[Finding]:
+    """Re-verify ``plan["trajectory"]`` (plan.json mapping) with the scenario's bounds
+    (``tol``, default from the plan's scenario). Errors are violations; info findings carry
+    the measured figures (max deviation, duration, % of joint limits)."""
+    scn = plan["scenario"]
+    tol = tol or Tolerances.from_scenario(scn)
     traj = plan.get("trajectory")
     if not traj:
+        if trajectory_expected(plan):
+            return [Finding("error", "trajectory_missing", "the plan has solved targets but no "
+                            "trajectory (and does not say trajectory_requested: false)", 0.0, 1.0)]  # fmt: skip
         return [Finding("info", "trajectory_absent", "plan has no trajectory")]
-    scn = plan["scenario"]
-    rate = float((scn.get("trajectory") or {}).get("rate", 500.0))
+    rate = tol.rate
     t = np.asarray(traj["t"], dtype=float)
     out: list[Finding] = []
     dt = np.diff(t)
-    if len(dt) and np.abs(dt - 1 / rate).max() > 1e-6 / rate:
+    if len(dt) and not np.abs(dt - 1 / rate).max() <= TIME_GRID_SLACK / rate:
         out.append(Finding("error", "time_grid", f"samples not on the 1/{rate:g} s grid "
                            f"(dt in [{dt.min():.6g}, {dt.max():.6g}])", float(dt.max()), 1 / rate))  # fmt: skip
     robots = _robots(scn)
@@ -139,9 +250,8 @@ def check_trajectory(
             out.append(
                 Finding("warning", "model_unchecked", f"{r.name}: no numpy model for {r.model}")
             )
-        lo, hi = r.limits.lower, r.limits.upper
-        viol = np.maximum(lo - q, q - hi).max()
-        if viol > 1e-9:
+        viol = np.maximum(r.limits.lower - q, q - r.limits.upper).max()
+        if not viol <= JOINT_SLACK:
             out.append(Finding("error", "joint_limits", f"{r.name}: position limit exceeded by "
                                f"{viol:.3g} rad", float(viol), 0.0))  # fmt: skip
         for order, (code, unit) in enumerate(
@@ -149,56 +259,10 @@ def check_trajectory(
         ):
             X = np.diff(q, n=order, axis=0) * rate**order
             if len(X):
-                f = _limit_finding(f"{code}", X, getattr(r.limits, code), slack, t, unit)
+                f = _limit_finding(f"{code}", X, getattr(r.limits, code), RATE_SLACK, t, unit)
                 out.append(f._replace(message=f"{r.name}: {f.message}"))
-    out += _check_spot(plan, robots, t, deviation_tol, rel_duration)
-    return out
+        out += _declared(r, traj, q, t, rate)
+    from planner.verify.spot import check_spot
 
-
-def _check_spot(
-    plan: dict[str, Any], robots: list[_Robot], t: Array, tol: float, rel_duration: float
-) -> list[Finding]:
-    traj, scn = plan["trajectory"], plan["scenario"]
-    if any(r.model not in NUMPY_FK for r in robots) or not plan.get("targets"):
-        return []
-    P = np.array([tg["p"] for tg in plan["targets"]], dtype=float)
-    N = [tg.get("n") for tg in plan["targets"]]
-    normals = None if all(n is None for n in N) else np.array(
-        [n if n is not None else [np.nan] * 3 for n in N], dtype=float)  # fmt: skip
-    path_spec = (scn.get("targets") or {}).get("path")
-    closed = bool(path_spec.get("closed", False)) if isinstance(path_spec, dict) else False
-    out: list[Finding] = []
-    segments = traj.get("segments", [])
-    arrivals = np.zeros(len(t), dtype=bool)
-    for s in segments:
-        if s["kind"] in ("approach", "move"):
-            arrivals[int(np.argmin(np.abs(t - s["t1"])))] = True
-    for kind in ("path", "dwell", "arrival"):
-        mask = arrivals.copy() if kind == "arrival" else np.zeros(len(t), dtype=bool)
-        for s in segments:
-            if s["kind"] == kind:
-                mask |= (t >= s["t0"] - 1e-9) & (t <= s["t1"] + 1e-9)
-        if not mask.any():
-            continue
-        q = {r.name: np.asarray(traj["q"][r.name], dtype=float)[mask] for r in robots}
-        p, v = trace_last_ray(scn, q)
-        if kind == "path":
-            dev = spot_deviation(p, v, P, normals, closed)
-        else:
-            dev = point_deviation(p, v, P, normals)
-        i = int(np.argmax(dev))
-        msg = (f"{kind}: max spot deviation {1e3 * dev[i]:.4f} mm at t = {t[mask][i]:.3f} s "
-               f"(tolerance {1e3 * tol:.4f} mm, {mask.sum()} samples)")  # fmt: skip
-        out.append(Finding("error" if dev[i] > tol else "info", f"{kind}_deviation", msg,
-                           float(dev[i]), tol))  # fmt: skip
-    if path_spec is not None:
-        speed = float((scn.get("trajectory") or {}).get("spot_speed", 0.02))
-        length = float(np.linalg.norm(np.diff(P, axis=0), axis=1).sum())
-        length += float(np.linalg.norm(P[0] - P[-1])) if closed else 0.0
-        spent = sum(s["t1"] - s["t0"] for s in traj.get("segments", []) if s["kind"] == "path")
-        ideal = length / speed
-        sev = "warning" if abs(spent - ideal) > rel_duration * ideal else "info"
-        out.append(Finding(sev, "path_duration", f"path segments last {spent:.3f} s; length "
-                           f"{1e3 * length:.1f} mm / {1e3 * speed:.1f} mm/s = {ideal:.3f} s",
-                           spent, ideal))  # fmt: skip
+    out += check_spot(plan, robots, t, tol)
     return out

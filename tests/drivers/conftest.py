@@ -44,3 +44,49 @@ def wait_for(pred: Callable[[], bool], timeout: float = 10.0, what: str = "condi
             return
         time.sleep(0.01)
     raise AssertionError(f"timed out waiting for {what}")
+
+
+def raw_session(endpoint: str) -> Any:
+    """A plain Zenoh client (no project helpers): peer, connects to ``endpoint`` only."""
+    import json
+
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    return zenoh.open(conf)
+
+
+class Heartbeats:
+    """Publishes ``{schema, t, session, seq}`` on ``<prefix>/heartbeat`` at ``rate`` Hz from a
+    thread, with a plain Zenoh session, until :meth:`stop`. ``sent`` holds the UNIX times."""
+
+    def __init__(self, session: Any, prefix: str, name: str, rate: float = 100.0) -> None:
+        import threading
+
+        self.session, self.key, self.name, self.rate = session, f"{prefix}/heartbeat", name, rate
+        self.sent: list[float] = []
+        self._halt = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        import json
+
+        pub = self.session.declare_publisher(self.key)
+        seq = 0
+        while not self._halt.wait(1.0 / self.rate):
+            t = time.time()
+            body = {"schema": "beamrelay.heartbeat/1", "t": t, "session": self.name, "seq": seq}
+            pub.put(json.dumps(body).encode())
+            self.sent.append(t)
+            seq += 1
+        pub.undeclare()
+
+    def stop(self) -> float:
+        """Stop beating; the UNIX time of the last heartbeat sent."""
+        self._halt.set()
+        self._thread.join(5.0)
+        return self.sent[-1]

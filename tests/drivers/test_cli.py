@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -112,3 +113,51 @@ def test_user_mistakes_exit_2_with_one_line(endpoint: str) -> None:
         lines = err.decode().strip().splitlines()
         assert proc.returncode == 2, err
         assert len(lines) == 1 and needle in lines[0], lines
+
+
+def test_help_texts_name_the_real_recording_format_and_no_spec_sections() -> None:
+    env = dict(os.environ, PYTHONPATH=os.getcwd(), COLUMNS="200")
+    helps = {}
+    for cmd in ([], ["robot"], ["camera"], ["bench"]):
+        out = subprocess.run([*CLI, *cmd, "--help"], capture_output=True, env=env, timeout=60)
+        assert out.returncode == 0, out.stderr
+        helps[" ".join(cmd)] = out.stdout.decode()
+    assert ".db3" in helps["camera"] and ".bag" not in helps["camera"]
+    assert all("SPEC" not in text for text in helps.values())
+    assert "heartbeat" in helps["robot"]
+
+
+def test_bench_refuses_bad_values_with_one_line() -> None:
+    env = dict(os.environ, PYTHONPATH=os.getcwd())
+    for args, needle in [(["--samples", "1"], "--samples"), (["--samples", "20000"], "--samples"),
+                         (["--rate", "0"], "--rate"), (["--seconds", "-1"], "--seconds")]:  # fmt: skip
+        out = subprocess.run([*CLI, "bench", *args], capture_output=True, env=env, timeout=60)
+        lines = out.stderr.decode().strip().splitlines()
+        assert out.returncode == 2 and len(lines) == 1 and needle in lines[0], lines
+
+
+def child_pids(pid: int) -> set[int]:
+    """Live children of ``pid`` (Linux /proc)."""
+    out = set()
+    for d in Path("/proc").iterdir():
+        try:
+            fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
+            if d.name.isdigit() and int(fields[1]) == pid and fields[0] != "Z":
+                out.add(int(d.name))
+        except (OSError, ValueError, IndexError):
+            continue
+    return out
+
+
+def test_sigkilled_robot_driver_leaves_no_parse_worker_behind(
+    hub: Any, endpoint: str, keys: Keys
+) -> None:
+    robot = run(["robot", "--name", "arm0"], endpoint, keys.prefix)
+    try:
+        wait_for(lambda: bool(list(hub.liveliness().get(keys.alive("arm0")))), 30, "driver up")
+        kids = child_pids(robot.pid)
+        assert kids, "the driver runs its parse worker in a child process"
+    finally:
+        robot.kill()
+        robot.wait(10)
+    wait_for(lambda: not any(Path(f"/proc/{k}").exists() for k in kids), 10, "workers gone")

@@ -127,7 +127,8 @@ def test_given_order_is_kept(grid_outcome: PlanOutcome) -> None:
         timed.figures["duration_given_order"], rel=0.05
     )
     assert timed.trajectory.span("dwell") == pytest.approx(18 * 0.05, abs=1e-9)
-    doc = {**o.doc, "trajectory": timed.trajectory.to_plan_dict(o.system)}
+    doc = plan_document(o.system, o.targets, o.solutions, o.doc["scenario"],
+                        timed.trajectory.to_plan_dict(o.system), timed.figures)  # fmt: skip
     results = {r.name: r for r in check_plan(doc)}
     assert not [f for r in results.values() for f in r.findings]
     # 25 samples held on each of the 18 targets, all on target
@@ -196,3 +197,50 @@ def test_path_gap_becomes_a_move(curve_outcome: PlanOutcome) -> None:
     # two runs of 29 mm each, at 20 mm/s plus ramps
     runs = [res.arc[29] - res.arc[0], res.arc[60] - res.arc[31]]
     assert t_path == pytest.approx(sum(runs) / 0.02, rel=0.1)
+
+
+def test_write_plan_in_small_chunks(grid_outcome: PlanOutcome) -> None:
+    import io
+
+    from planner.planning import write_plan
+
+    doc = grid_outcome.doc
+    buf = io.StringIO()
+    write_plan(doc, buf, chunk=7)  # many chunk boundaries in every table
+    back = json.loads(buf.getvalue())
+    traj = doc["trajectory"]
+    assert back["trajectory"]["t"] == np.round(traj["t"], 10).tolist()
+    for key in ("q", "qd", "qdd"):
+        assert back["trajectory"][key]["arm0"] == np.round(traj[key]["arm0"], 10).tolist()
+    assert back["trajectory"]["segments"] == traj["segments"]
+    assert {k: v for k, v in back.items() if k != "trajectory"} == {
+        k: v for k, v in doc.items() if k != "trajectory"
+    }
+
+
+def test_a_rejected_path_sample_splits_the_sweep(curve_outcome: PlanOutcome) -> None:
+    from dataclasses import replace
+
+    from planner.planning import verify_solutions
+
+    o = curve_outcome
+    k = len(o.solutions) // 2
+    sols = list(o.solutions)
+    q = sols[k].q
+    assert q is not None
+    # wrist 2 tilted by 1 mrad: the spot leaves the target by ~1 mm, far above 1e-9 m
+    sols[k] = replace(sols[k], q=q + np.array([0, 0, 0, 0, 1e-3, 0]))
+    verdict = verify_solutions(o.system, o.doc["scenario"], o.targets, sols)
+    assert [j for j, s in enumerate(verdict) if not s.ok] == [k]
+    assert verdict[k].reason == "solver_failed" and "spot error" in str(verdict[k].evidence)
+    timed = time_solutions(o.system, o.targets, verdict, o.doc["scenario"]["trajectory"],
+                           path=o.path)  # fmt: skip
+    assert timed is not None
+    kinds = [s.kind for s in timed.trajectory.segments]
+    assert kinds == ["approach", "path", "move", "path"]  # around the rejected sample
+    doc = plan_document(o.system, o.targets, verdict, o.doc["scenario"],
+                        timed.trajectory.to_plan_dict(o.system), timed.figures)  # fmt: skip
+    assert doc["metrics"]["n_ok"] == len(sols) - 1
+    assert doc["metrics"]["extra"]["failed_solver_failed"] == 1
+    found = [f for r in check_plan(doc) for f in r.findings]
+    assert not found, found

@@ -42,3 +42,22 @@ def test_profiles_written_next_to_the_plot(tmp_path: Path) -> None:
     png = tmp_path / "p.png"
     plot_profiles(out.system, out.targets, out.doc, png)
     assert png.stat().st_size > 30_000
+
+
+def test_arrival_spots_are_the_targets(tmp_path: Path) -> None:
+    from planner.planning import spot_rays
+    from planner.plot import _arrival_spots
+    from planner.verify.spot import arrival_mask
+
+    out = run_scenario(write_scenario(tmp_path), progress=False)
+    traj = out.doc["trajectory"]
+    t = np.asarray(traj["t"])
+    idx = np.flatnonzero(arrival_mask(t, traj["segments"]))
+    assert len(idx) == 18
+    Q = np.asarray(traj["q"]["arm0"])[idx]
+    p, v = spot_rays(out.system, Q)
+    spots = _arrival_spots(out.system, out.doc, out.targets, Q, p, v)
+    # each arrival's spot is on one target, and every target is reached once
+    d = np.linalg.norm(spots[:, None, :] - out.targets.points[None], axis=2)
+    assert d.min(axis=1).max() < 1e-9
+    assert sorted(d.argmin(axis=1).tolist()) == list(range(18))

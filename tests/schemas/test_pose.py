@@ -84,13 +84,55 @@ def test_invalid_poses(data: dict[str, object], reason: str) -> None:
 def test_rigid_tolerance() -> None:
     R = Rotation.from_euler("xyz", [0.1, 0.2, 0.3]).as_matrix()
     T = np.eye(4)
-    T[:3, :3] = R + 1e-8
-    Pose.model_validate({"matrix": T.tolist()})  # within 1e-6
     T[:3, :3] = R + 1e-5
-    with pytest.raises(ValidationError):
+    Pose.model_validate({"matrix": T.tolist()})  # within 1e-4: made a rotation
+    T[:3, :3] = R + 1e-3
+    with pytest.raises(ValidationError, match=r"max \|R\^T R - I\| = 0.00"):
         Pose.model_validate({"matrix": T.tolist()})
 
 
 def test_numpy_arrays_accepted() -> None:
     pose = Pose.model_validate({"xyz": np.array([1.0, 2.0, 3.0]), "matrix": None})
     assert pose.xyz == [1.0, 2.0, 3.0]
+
+
+# --- matrices printed with six decimals, radians/degrees mix-ups ---------------------------
+@given(st.lists(st.floats(-1, 1), min_size=4, max_size=4).filter(lambda q: np.linalg.norm(q) > 0.1))
+def test_matrix_printed_with_six_decimals_loads_as_the_nearest_rotation(q: list[float]) -> None:
+    R = Rotation.from_quat(q).as_matrix()
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, [0.4, -0.2, 0.7]
+    printed = [[float(f"{x:.6f}") for x in row] for row in T]
+    M = Pose.model_validate({"matrix": printed}).matrix()
+    R_loaded = M[:3, :3]
+    assert np.max(np.abs(R_loaded.T @ R_loaded - np.eye(3))) < 1e-12
+    assert np.linalg.det(R_loaded) > 0
+    assert np.max(np.abs(R_loaded - R)) < 1e-5
+    assert np.array_equal(M[3], [0, 0, 0, 1]) and np.allclose(M[:3, 3], T[:3, 3], atol=1e-6)
+
+
+def test_matrix_beyond_tolerance_says_how_far_off() -> None:
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xyz", [0.1, 0.2, 0.3]).as_matrix()
+    T[0, :3] *= 1.002  # a row 0.2 % too long: |R^T R - I| about 4e-3
+    with pytest.raises(ValidationError) as info:
+        Pose.model_validate({"matrix": T.tolist()})
+    err = float(np.max(np.abs(T[:3, :3].T @ T[:3, :3] - np.eye(3))))
+    assert f"= {err:.3g} > 0.0001" in str(info.value)
+
+
+@pytest.mark.parametrize(
+    "rpy, index", [([40, 0, 0], 0), ([0, -90, 0], 1), ([0, 0, 6.3], 2), ([0, 0, -7], 2)]
+)
+def test_rpy_beyond_two_pi_suggests_rpy_deg(rpy: list[float], index: int) -> None:
+    with pytest.raises(ValidationError, match=rf"rpy\.{index}: .* beyond 2 pi.*rpy_deg"):
+        Pose.model_validate({"rpy": rpy})
+    Pose.model_validate({"rpy": [0, 0, 2 * np.pi]})  # a full turn is still radians
+
+
+def test_quaternion_length_written_is_kept_for_warnings() -> None:
+    assert Pose.model_validate({"quat": [0, 0, 90, 1]}).quat_length == pytest.approx(
+        np.hypot(90, 1)
+    )
+    assert Pose.model_validate({"quat": [0, 0, 1, 1]}).quat_length == pytest.approx(np.sqrt(2))
+    assert Pose.model_validate({"rpy": [0, 0, 1]}).quat_length is None

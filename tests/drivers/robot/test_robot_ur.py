@@ -13,8 +13,8 @@ from drivers.robot.node import RobotNode
 from drivers.robot.ur import URRobot
 from planner.errors import InputError
 from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
-from planner.service.bus import Keys, encode, open_session
-from tests.drivers.conftest import wait_for
+from planner.service.bus import Keys, open_session
+from tests.drivers.conftest import Heartbeats, raw_session, wait_for
 from tests.drivers.robot.test_robot_node import smooth_move
 
 HOME = np.array(DEFAULT_HOME)
@@ -183,28 +183,53 @@ def test_bad_servo_options_are_input_errors() -> None:
 
 
 def test_stale_planner_brakes_then_servo_stop(hub: Any, endpoint: str, keys: Keys) -> None:
-    """Through the node: the planner's token goes away mid-move -> decelerate, servoStop."""
+    """Through the node: the planner's heartbeat stops mid-move (its token stays) ->
+    decelerate, servoStop; a position jump is refused before any servoJ sees it."""
     robot, fake = make_robot()
     robot.control.waitPeriod = _sleeping_wait  # type: ignore[method-assign]
+    client = raw_session(endpoint)
+    token = client.liveliness().declare_token(keys.alive("planner"))
+    beats = Heartbeats(client, keys.prefix, "P")
     session = open_session(listen=False, endpoint=endpoint)
-    token = hub.liveliness().declare_token(keys.alive("planner"))
+    statuses: list[Any] = []
+    sub = client.declare_subscriber(keys.status("arm0"), statuses.append)
     node = RobotNode(session, keys, "arm0", robot, LIMITS).start()
     try:
-        wait_for(lambda: node.planner_alive, what="planner token")
+        wait_for(lambda: node.planner_alive and "P" in node.heartbeats, what="planner")
+        jump = smooth_move(HOME, np.zeros(6), 0.1, id="jump", session="P")
+        q = np.asarray(jump.q)
+        q[20:, 0] += 0.3  # shoulder_pan: 0.3 rad in 2 ms
+        client.put(
+            keys.trajectory("arm0"), jump.model_copy(update={"q": q.tolist()}).model_dump_json()
+        )
+        wait_for(lambda: node.n_rejected == 1, what="rejection")
+        assert node.ack is not None and node.ack.id == "jump"
+        assert (
+            node.ack.reason
+            == "q[20]: shoulder_pan moves 0.3000 rad in 0.0020 s = 150.0 rad/s > 3.1416 rad/s"
+        )
+        assert "servoJ" not in fake.names()
         dq = np.array([0.3, 0, 0, 0, 0, 0])
-        hub.put(keys.trajectory("arm0"), encode(smooth_move(HOME, dq, 2.0)))
+        move = smooth_move(HOME, dq, 2.0, id="move", session="P")
+        client.put(keys.trajectory("arm0"), move.model_dump_json())
         wait_for(lambda: np.abs(fake.qd[0]) > 0.1, what="motion")
-        token.undeclare()
+        beats.stop()
         wait_for(lambda: "servoStop" in fake.names(), what="servoStop")
         servo = np.array([c[1][0] for c in fake.calls if c[0] == "servoJ"])
         v = np.abs(np.diff(servo[:, 0])) / 0.002
         k = int(np.argmax(v))  # peak speed when the brake began (mid-move)
         assert np.all(np.diff(v[k:]) <= 1e-9)  # monotone deceleration to the servoStop
-        assert v[-1] <= STOP_JERK * 0.002**2  # last step: stop jerk x dt^2 at most
+        # the last servoJ step ends 1-2 periods before rest, on the final jerk ramp
+        # (v = j tau^2 / 2): its mean speed is at most j / 6 (3 r^2 - 3 r dt + dt^2) at r = 2 dt
+        assert v[-1] <= 7 / 6 * STOP_JERK * 0.002**2
         assert fake.q[0] < HOME[0] + 0.3 - 1e-3  # stopped short of the target
+        assert node.stopped_by is not None and "heartbeat lost: session P" in node.stopped_by
     finally:
         node.stop()
         session.close()
+        sub.undeclare()
+        token.undeclare()
+        client.close()
 
 
 def _sleeping_wait(t0: Any) -> None:

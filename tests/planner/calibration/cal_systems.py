@@ -53,8 +53,18 @@ def eye_to_hand_data(
     return data, cam, board
 
 
-def write_scenario(path, truth: bool = True) -> None:
-    """The :func:`nominal_system` as a scenario YAML (with a ``truth:`` section) at ``path``."""
+TRUE_CAMERA_ERROR = make_T(rpy_to_matrix(np.deg2rad([1.5, -1.0, 2.0])), [0.03, -0.02, 0.025])
+"""The real fixed camera = nominal @ this (an uncalibrated camera is this far off)."""
+TRUE_FLANGE_T_CAMERA = make_T(rpy_to_matrix([0.02, -0.03, np.pi / 2]), [0.004, 0.062, 0.021])
+"""The real eye-in-hand camera pose on arm0's flange."""
+
+
+def write_scenario(path, truth: bool = True, camera: str = "") -> None:
+    """The :func:`nominal_system` as a scenario YAML (with a ``truth:`` section) at ``path``.
+
+    ``camera``: ``"fixed"`` puts the real camera at nominal @ :data:`TRUE_CAMERA_ERROR`,
+    ``"flange"`` on arm0's flange at :data:`TRUE_FLANGE_T_CAMERA` (truth only; the nominal
+    camera stays the fixed one)."""
     from planner.model.transforms import matrix_to_quat
 
     cam = nominal_system().camera
@@ -80,4 +90,9 @@ targets:
       - name: arm0
         mirror: {flange_T_mirror: {xyz: [0.002, -0.003, 0.034], rpy_deg: [1.0, -0.7, 2.0]}}
 """
+    if truth and camera == "fixed":
+        text += f"    camera: {{world_T_camera: {{matrix: {(T @ TRUE_CAMERA_ERROR).tolist()}}}}}\n"
+    elif truth and camera == "flange":
+        pose = f"{{matrix: {TRUE_FLANGE_T_CAMERA.tolist()}}}"
+        text += f"    camera: {{robot: arm0, flange_T_camera: {pose}}}\n"
     path.write_text(text)

@@ -51,7 +51,8 @@ def test_simulate_then_calibrate_handeye(tmp_path, mode):
     assert _run(["calibrate", "handeye", data, "-s", scn, "-o", out, "--loss", "huber"]) == 0
     doc = YAML(typ="safe").load(out.read_text())
     assert doc["report"]["mode"] == mode
-    assert ("camera" in doc["system"]) == (mode == "eye_to_hand")
+    mount = {"world_T_camera"} if mode == "eye_to_hand" else {"robot", "flange_T_camera"}
+    assert set(doc["system"]["camera"]) == mount
     assert 0 < doc["report"]["residuals"]["mean"] < 0.01  # D435 noise, metres
 
 

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
+from pathlib import Path
 
 import pytest
 
-from tests.drivers.conftest import free_port
+from tests.drivers.conftest import free_port, wait_for
 
 
 def run(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
@@ -45,3 +47,109 @@ def test_request_without_planner_fails_in_time() -> None:
     out = run("request", "--points", "0,0,1", "--endpoint", endpoint, "--timeout", "1")
     assert out.returncode == 1
     assert "no reply from the planner on beamrelay/plan within 1 s" in out.stderr
+
+
+# --- `serve` as a real process, watched by an outside client (plain zenoh) -------------------
+POISONED_SERVE = """\
+import sys
+from planner.service.node import PlannerNode
+serve = PlannerNode.serve
+def poisoned(self, payload):
+    if payload == b"die":  # a stand-in for a bug that kills the worker thread
+        raise SystemExit("simulated fatal bug")
+    return serve(self, payload)
+PlannerNode.serve = poisoned
+from planner.cli import main
+main(sys.argv[1:])
+"""
+
+
+class Served:
+    """``beamrelay serve`` on a private port (optionally through a patched entry point)."""
+
+    def __init__(self, tmp: Path, prefix: str, code: str | None = None) -> None:
+        from tests.planner.raw_zenoh import raw_session, token_exists
+        from tests.test_e2e import SCENARIO
+
+        scenario = tmp / "scenario.yaml"
+        scenario.write_text(SCENARIO)
+        self.prefix = prefix
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        entry = ["-c", code] if code is not None else ["-m", "planner.cli"]
+        argv = [sys.executable, *entry, "serve", str(scenario), "--endpoint", self.endpoint,
+                "--prefix", prefix]  # fmt: skip
+        self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        self.client = raw_session(self.endpoint)
+        self.token = f"{prefix}/alive/planner"
+        wait_for(lambda: token_exists(self.client, self.token), 120.0, "planner token")
+
+    def rss_mb(self) -> tuple[float, float]:
+        """(resident, peak resident) memory of the process in MB (Linux /proc)."""
+        status = Path(f"/proc/{self.proc.pid}/status").read_text().splitlines()
+        kb = {k: float(v.split()[0]) for k, v in (line.split(":", 1) for line in status)
+              if k in ("VmRSS", "VmHWM")}  # fmt: skip
+        return kb["VmRSS"] / 1024, kb["VmHWM"] / 1024
+
+    def good(self) -> dict:
+        import json
+
+        from tests.planner.raw_zenoh import ask
+
+        body = {"schema": "beamrelay.request/1", "id": "g", "points": [[-0.54, -0.57, -0.06]]}
+        ok, reply = ask(self.client, f"{self.prefix}/plan", json.dumps(body).encode(), 60.0)
+        plan = json.loads(reply)
+        assert ok, plan
+        return dict(plan)
+
+    def close(self) -> tuple[str, str]:
+        self.client.close()
+        if self.proc.poll() is None:
+            self.proc.terminate()
+        out, err = self.proc.communicate(timeout=30)
+        return out.decode(errors="replace"), err.decode(errors="replace")
+
+
+def test_serve_refuses_a_flood_of_20_mb_queries_without_growing(tmp_path: Path) -> None:
+    import json
+
+    served = Served(tmp_path, "flood")
+    try:
+        assert served.good()["solutions"][0]["status"] == "ok"
+        before, _ = served.rss_mb()
+        body = b'{"schema":"beamrelay.request/1","id":"big","points":[[0,0,0]]' + b" " * 20_000_000
+        body += b"}"
+        pending = [served.client.get("flood/plan", payload=body, timeout=120)
+                   for _ in range(60)]  # fmt: skip
+        errors = []
+        for replies in pending:
+            reply = next(iter(replies))
+            assert reply.ok is None
+            errors.append(json.loads(reply.err.payload.to_bytes()))
+        time.sleep(1.0)
+        after, peak = served.rss_mb()
+        assert served.good()["solutions"][0]["status"] == "ok"
+        print(f"planner memory: {before:.0f} MB before sixty 20 MB queries, {after:.0f} MB after "
+              f"(peak {peak:.0f} MB)")  # fmt: skip
+    finally:
+        served.close()
+    assert all(e["field"] == "body" and f"body of {len(body)} bytes exceeds" in e["error"]
+               for e in errors), errors[0]  # fmt: skip
+    assert after - before < 300.0  # 1.2 GB were sent; unguarded, the planner grew by 1.2 GB
+
+
+def test_serve_exits_nonzero_when_its_worker_dies(tmp_path: Path) -> None:
+    from tests.planner.raw_zenoh import token_exists
+
+    served = Served(tmp_path, "dies", POISONED_SERVE)
+    served.good()
+    served.client.put("dies/targets", b"die")
+    try:
+        served.proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        served.close()
+        raise AssertionError("serve kept running with a dead worker") from None
+    assert not token_exists(served.client, served.token)
+    out, err = served.close()
+    assert served.proc.returncode == 1, (out, err)
+    assert "error: planner node failed: the planner worker thread stopped; exiting" in err
+    assert "planner stopped after 1 requests" in out

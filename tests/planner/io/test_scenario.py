@@ -349,9 +349,10 @@ def test_camera_frame_targets(tmp_path: Path) -> None:
     text = text.replace(
         "targets:\n", "targets:\n  frame: camera\n  normals: [[1, 0, 0], [0, 0, 1]]\n"
     )
+    text = text.replace("[[0.5, 0.1, 0.0], [0.5, 0.2, 0.0]]", "[[0.5, 0.1, 0.4], [0.5, 0.2, 0.4]]")
     scn = load_scenario(write(tmp_path / "s.yaml", text))
     targets = targets_from_scenario(scn, system_from_scenario(scn))
-    assert np.allclose(targets.points[0], [1 - 0.1, 1 + 0.5, 1])
+    assert np.allclose(targets.points[0], [1 - 0.1, 1 + 0.5, 1 + 0.4])
     assert targets.normals is not None and np.allclose(targets.normals[0], [0, 1, 0])
 
 

@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 from planner.service.up import child_commands
+from tests.paths import REPO
 
 
 def test_child_commands_cover_every_node_with_the_bus_options() -> None:
@@ -31,3 +32,81 @@ def test_child_commands_cover_every_node_with_the_bus_options() -> None:
     ur = child_commands(s, ["arm0"], backend="ur", endpoint="e", camera=False)
     assert list(ur) == ["planner", "arm0"] and "--prefix" not in ur["arm0"]
     assert ur["arm0"][ur["arm0"].index("--backend") + 1] == "ur"
+
+
+def test_child_commands_pass_the_zenoh_configs_on() -> None:
+    s, node, planner = Path("/x/s.yaml"), Path("/z/node.json5"), Path("/z/planner.json5")
+    argv = child_commands(
+        s, ["arm0"], endpoint="tcp/127.0.0.1:9", zenoh_config=node, planner_zenoh_config=planner
+    )
+    conf = {name: a[a.index("--zenoh-config") + 1] for name, a in argv.items()}
+    assert conf == {"planner": str(planner), "camera": str(node), "arm0": str(node)}
+    same = child_commands(s, ["arm0"], endpoint="e", zenoh_config=node)
+    assert all(a[a.index("--zenoh-config") + 1] == str(node) for a in same.values())
+    assert all(
+        "--zenoh-config" not in a for a in child_commands(s, ["arm0"], endpoint="e").values()
+    )
+
+
+def test_up_on_a_locked_bus(tmp_path: Path) -> None:
+    """``up`` with the shipped access-control examples: every child joins with its own
+    identity (the planner's liveliness token is only accepted from the planner identity),
+    and ``request --zenoh-config`` gets a plan; a client without credentials gets nothing."""
+    import json
+    import signal
+    import socket
+    import subprocess
+    import time
+
+    import zenoh
+
+    root = REPO
+    examples = root / "scenarios" / "zenoh"
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        endpoint = f"tcp/127.0.0.1:{sock.getsockname()[1]}"
+    cli = [sys.executable, "-m", "planner.cli"]
+    up = subprocess.Popen(
+        [*cli, "up", str(root / "scenarios" / "paper_n1.yaml"), "--endpoint", endpoint,
+         "--no-live", "--duration", "120", "--log-dir", str(tmp_path),
+         "--zenoh-config", str(examples / "acl-node.json5"),
+         "--planner-zenoh-config", str(examples / "acl-planner.json5")],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    try:
+        conf = zenoh.Config.from_file(str(examples / "acl-node.json5"))
+        conf.insert_json5(
+            "transport/auth/usrpwd/dictionary_file", json.dumps(str(examples / "credentials.txt"))
+        )
+        conf.insert_json5("mode", '"client"')
+        conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+        conf.insert_json5("connect/timeout_ms", "30000")
+        alive: set[str] = set()
+        with zenoh.open(conf) as watcher:
+            watcher.liveliness().declare_subscriber(
+                "beamrelay/alive/**",
+                lambda s: alive.add(str(s.key_expr).rsplit("/", 1)[-1]),
+                history=True,
+            )
+            end = time.monotonic() + 90
+            while not {"planner", "arm0"} <= alive and time.monotonic() < end:
+                time.sleep(0.1)
+            assert {"planner", "arm0"} <= alive, (alive, list(tmp_path.glob("*")))
+        req = subprocess.run(
+            [*cli, "request", "--points", "-0.54,-0.57,-0.06", "--endpoint", endpoint,
+             "--zenoh-config", str(examples / "acl-node.json5"), "--timeout", "60"],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert req.returncode in (0, 1), req.stderr
+        assert "solved" in req.stdout
+        outsider = subprocess.run(
+            [*cli, "request", "--points", "-0.54,-0.57,-0.06", "--endpoint", endpoint,
+             "--timeout", "3"],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert outsider.returncode != 0 and "solved" not in outsider.stdout
+        assert "Traceback" not in outsider.stderr
+    finally:
+        up.send_signal(signal.SIGTERM)
+        out, _ = up.communicate(timeout=60)
+    assert up.returncode == 0, out

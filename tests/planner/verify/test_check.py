@@ -96,14 +96,101 @@ def test_wrong_arrival_is_a_violation(plan_doc: dict) -> None:  # type: ignore[t
     i = round(seg["t1"] * doc["scenario"]["trajectory"]["rate"])
     doc["trajectory"]["q"]["arm0"][i][4] += 1e-3  # wrist 2 tilts the mirror at an arrival
     spot = {r.name: r for r in check_plan(doc)}["trajectory spot"]
-    assert [f.check for f in spot.findings] == ["trajectory spot"]
+    arrival, missed = spot.findings  # the arrival is off, so that target is never reached
+    assert arrival.message.startswith("arrival") and "never reached" in missed.message
     # a 1 mrad mirror tilt turns the beam 2 mrad: ~0.6 m away the spot moves ~1 mm
-    assert 2e-4 < spot.findings[0].value < 5e-3
+    assert 2e-4 < arrival.value < 5e-3
 
 
-def test_plan_without_trajectory_warns(plan_doc: dict) -> None:  # type: ignore[type-arg]
+def test_deleted_trajectory_is_a_violation(plan_doc: dict) -> None:  # type: ignore[type-arg]
     doc = {**plan_doc, "trajectory": None}
     results = {r.name: r for r in check_plan(doc)}
     assert results["trajectory limits"].checked == 0
+    (missing,) = results["trajectory limits"].findings
+    assert "no trajectory" in missing.message
+    (duration,) = results["metrics"].findings  # the metrics still announce its duration
+    assert duration.message.startswith("metrics.duration")
+    doc.pop("trajectory")
+    assert {r.name: len(r.findings) for r in check_plan(doc)}["trajectory limits"] == 1
+
+
+def test_plan_that_requested_no_trajectory_passes(plan_doc: dict) -> None:  # type: ignore[type-arg]
+    # a plan answering a request that did not execute: no trajectory, and it says so
+    doc = {**plan_doc, "trajectory": None, "trajectory_requested": False}
+    doc["metrics"] = {**plan_doc["metrics"], "duration": None, "extra": {}}
+    results = {r.name: r for r in check_plan(doc)}
     assert results["trajectory limits"].warnings == ["plan has no trajectory"]
     assert not [f for r in results.values() for f in r.findings]
+
+
+def _messages(doc: dict, name: str) -> list[str]:  # type: ignore[type-arg]
+    return [f.message for r in check_plan(doc) if r.name == name for f in r.findings]
+
+
+@pytest.mark.parametrize("key", ["qd", "qdd"])
+def test_zeroed_derivatives_are_violations(plan_doc: dict, key: str) -> None:  # type: ignore[type-arg]
+    doc = copy.deepcopy(plan_doc)
+    rows = np.asarray(doc["trajectory"][key]["arm0"])
+    doc["trajectory"][key]["arm0"] = np.zeros_like(rows).tolist()
+    (msg,) = _messages(doc, "trajectory limits")
+    assert f"declared {key}" in msg and " is 0 " in msg
+    # the figure: the largest |difference| of the positions (velocities) the zeros hide
+    q = np.asarray(plan_doc["trajectory"]["q" if key == "qd" else "qd"]["arm0"])
+    biggest = np.abs(np.gradient(q, 1 / 500.0, axis=0)).max()
+    found = next(f for r in check_plan(doc) for f in r.findings)
+    assert found.value == pytest.approx(biggest, rel=0.25)
+    assert not _messages(doc, "trajectory spot")  # positions untouched: the spot is fine
+
+
+def test_scaled_velocities_are_violations(plan_doc: dict) -> None:  # type: ignore[type-arg]
+    doc = copy.deepcopy(plan_doc)
+    doc["trajectory"]["qd"]["arm0"] = (0.9 * np.asarray(doc["trajectory"]["qd"]["arm0"])).tolist()
+    assert len(_messages(doc, "trajectory limits")) == 1
+    ok = next(r for r in check_plan(plan_doc) if r.name == "trajectory limits")
+    assert ok.figures["velocity_declared_gap_max_ratio"] < 0.1  # the real plan: far inside
+
+
+@pytest.mark.parametrize(
+    ("key", "edit"),
+    [("n_ok", lambda m: m["n_ok"] - 1), ("n_targets", lambda m: m["n_targets"] + 1),
+     ("error_max", lambda m: 0.0), ("error_median", lambda m: m["error_median"] * 2),
+     ("solve_time_median", lambda m: 1e-6), ("duration", lambda m: m["duration"] / 2)],
+)  # fmt: skip
+def test_edited_metrics_are_violations(plan_doc: dict, key: str, edit: object) -> None:  # type: ignore[type-arg]
+    doc = copy.deepcopy(plan_doc)
+    doc["metrics"][key] = edit(doc["metrics"])  # type: ignore[operator]
+    (msg,) = _messages(doc, "metrics")
+    assert msg.startswith(f"metrics.{key} is ")
+    # the recomputed figure is the independent one: from the solutions / trajectory
+    errors = [s["error"] for s in plan_doc["solutions"]]
+    expected = {"n_ok": 18, "n_targets": 18, "error_max": max(errors),
+                "error_median": float(np.median(errors)),
+                "solve_time_median": float(np.median([s["solve_time"] for s in plan_doc["solutions"]])),
+                "duration": plan_doc["trajectory"]["t"][-1]}[key]  # fmt: skip
+    assert msg.endswith(f"the plan gives {expected}")
+
+
+def test_edited_extra_figures_are_violations(plan_doc: dict) -> None:  # type: ignore[type-arg]
+    doc = copy.deepcopy(plan_doc)
+    doc["metrics"]["extra"]["failed_unreachable"] = 2
+    doc["metrics"]["extra"]["joint_speed_max_ratio"] = 0.5
+    msgs = _messages(doc, "metrics")
+    assert len(msgs) == 2
+    assert any("failed_unreachable is 2, the plan gives None" in m for m in msgs)
+    qd = np.abs(np.asarray(plan_doc["trajectory"]["qd"]["arm0"])).max(axis=0) / np.pi
+    assert any(m.endswith(f"the plan gives {qd.max()}") for m in msgs)
+    assert not _messages(plan_doc, "metrics")
+
+
+def test_truncated_trajectory_misses_targets(plan_doc: dict) -> None:  # type: ignore[type-arg]
+    doc = copy.deepcopy(plan_doc)
+    traj = doc["trajectory"]
+    seg = [s for s in traj["segments"] if s["kind"] in ("approach", "move")][9]
+    n = round(seg["t1"] * 500) + 1  # keep the first ten moves only
+    for key in ("q", "qd", "qdd"):
+        traj[key]["arm0"] = traj[key]["arm0"][:n]
+    traj["t"] = traj["t"][:n]
+    traj["segments"] = [s for s in traj["segments"] if s["t1"] <= seg["t1"] + 1e-9]
+    doc["metrics"]["duration"] = traj["t"][-1]
+    (msg,) = _messages(doc, "trajectory spot")
+    assert msg.startswith("8 solved target(s) never reached")

@@ -1,0 +1,271 @@
+"""One collision world for a system: every robot's links, mirror and mount, the scene and
+the keep-out volumes, as a Pinocchio ``GeometryModel`` over one combined ``Model``.
+
+The combined model stacks the robots' joints in system order, so its configuration is the
+system's stacked joint vector (rad). Link capsules (:mod:`planner.safety.ur5e`), the mirror
+plate and its mount block move with their joints; the robot bases, scene objects and
+keep-out volumes hang on the universe joint at their world poses. All placements
+(``geom_data.oMg``), witness points and normals are in the world frame, metres.
+
+Collision pairs (``geom_model.collisionPairs``) are the ones that can be checked for a given
+configuration alone: arm-arm (every part of one robot against every part of another),
+arm-self (parts two or more links apart; the mirror and mount against every own link but
+wrist_3, which carries them) and arm-scene (moving parts against scene objects; the fixed
+base stands on the scene by design). The beam and keep-out checks need the beam and use the
+placements only (:mod:`planner.safety.beam`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from enum import Enum
+
+import coal
+import numpy as np
+import pinocchio as pin
+
+from planner.errors import InputError
+from planner.model.system import Robot, System
+from planner.model.transforms import Array, inv_T, make_T
+from planner.safety.shapes import Volume, coal_shape
+from planner.safety.ur5e import (
+    DEFAULT_MIRROR_BLOCKS,
+    UR5E_BOXES,
+    UR5E_CAPSULES,
+    UR5E_SELF_EXCLUDED,
+    BoxSpec,
+    CapsuleSpec,
+    MirrorBlocks,
+)
+
+#: link index of parts fixed to the flange (the wrist_3 link)
+FLANGE_LINK = 6
+
+
+class PartKind(Enum):
+    LINK = "link"
+    MIRROR = "mirror"
+    MOUNT = "mount"
+    SCENE = "scene"
+    KEEP_OUT = "keep_out"
+
+
+class PairKind(Enum):
+    ARM_ARM = "arm_arm"
+    ARM_SELF = "arm_self"
+    ARM_SCENE = "arm_scene"
+
+
+@dataclass(frozen=True)
+class Part:
+    """Geometry ``index`` of the world: ``name`` (``arm0/upper_arm``, ``scene/board``),
+    ``robot`` index (-1 for scene and keep-out), ``link`` index (0 = base .. 6 = wrist_3,
+    -1 off the robots)."""
+
+    index: int
+    name: str
+    kind: PartKind
+    robot: int = -1
+    link: int = -1
+
+    @property
+    def on_robot(self) -> bool:
+        return self.robot >= 0
+
+
+def _se3(T: Array) -> pin.SE3:
+    return pin.SE3(np.asarray(T[:3, :3], dtype=float), np.asarray(T[:3, 3], dtype=float))
+
+
+def capsule_placement(a: Array, b: Array) -> tuple[Array, float]:
+    """Pose (4x4, z along ``b - a``, origin at the midpoint) and length (m) of the coal
+    capsule whose segment is ``a -> b``."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    d = b - a
+    length = float(np.linalg.norm(d))
+    z = d / length if length > 0 else np.array([0.0, 0.0, 1.0])
+    # x = e_x cross z (or e_y cross z near the x axis), y = z cross x; written out: np.cross
+    # costs ~10 µs a call and this runs per beam segment
+    x = np.array([0.0, -z[2], z[1]]) if abs(z[0]) < 0.9 else np.array([z[2], 0.0, -z[0]])
+    x /= np.sqrt(x @ x)
+    y = np.array([z[1] * x[2] - z[2] * x[1], z[2] * x[0] - z[0] * x[2], z[0] * x[1] - z[1] * x[0]])
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, y, z, (a + b) / 2
+    return T, length
+
+
+def mirror_boxes(robot: Robot, blocks: MirrorBlocks) -> list[tuple[str, Array, Array]]:
+    """``(name, flange_T_box centre, full extents)`` of the mirror plate and its mount."""
+    fTm = robot.mirror.flange_T_mirror
+    w, h = robot.mirror.size
+    plate = fTm @ make_T(p=[0.0, 0.0, -blocks.thickness / 2])
+    out = [("mirror", plate, np.array([w, h, blocks.thickness]))]
+    back = fTm @ np.array([0.0, 0.0, -blocks.thickness, 1.0])
+    height = float(back[2]) - blocks.mount_gap
+    if height > 1e-3:
+        centre = make_T(p=[back[0], back[1], height / 2])
+        out.append(("mount", centre, np.array([blocks.mount_width, blocks.mount_width, height])))
+    return out
+
+
+class SafetyWorld:
+    """The collision world of ``system`` (see the module docstring).
+
+    ``scene``: obstacles the arms must keep clear of; ``keep_out``: volumes the beam must not
+    enter; ``capsules``: per robot name, ``(capsules, boxes)`` link tables for robots that
+    are not the UR5e.
+    """
+
+    def __init__(
+        self,
+        system: System,
+        scene: Sequence[Volume] = (),
+        keep_out: Sequence[Volume] = (),
+        *,
+        blocks: MirrorBlocks = DEFAULT_MIRROR_BLOCKS,
+        capsules: Mapping[str, tuple[Sequence[CapsuleSpec], Sequence[BoxSpec]]] | None = None,
+    ) -> None:
+        self.system = system
+        self.blocks = blocks
+        self.model = pin.Model()
+        self.geom_model = pin.GeometryModel()
+        self.parts: list[Part] = []
+        self.flange_joint: list[int] = []
+        for k, robot in enumerate(system.robots):
+            table = (capsules or {}).get(robot.name)
+            if table is None:
+                if robot.kinematics.name != "ur5e" or robot.nq != 6:
+                    raise InputError(
+                        f"no collision capsules for robot model {robot.kinematics.name!r}",
+                        robot.name,
+                    )
+                table = (UR5E_CAPSULES, UR5E_BOXES)
+            self._add_robot(k, robot, *table)
+        for v in scene:
+            self._add_fixed(f"scene/{v.name}", PartKind.SCENE, v, solid=False)
+        for v in keep_out:
+            self._add_fixed(f"keep_out/{v.name}", PartKind.KEEP_OUT, v, solid=True)
+        self.pair_kinds: list[PairKind] = []
+        self._add_pairs()
+        self.data = self.model.createData()
+        self.geom_data = pin.GeometryData(self.geom_model)
+        for req in self.geom_data.distanceRequests:
+            req.gjk_tolerance = 1e-12
+        self._geometries = [g.geometry for g in self.geom_model.geometryObjects]
+        self._placements: list[coal.Transform3s] | None = None
+        self._q: Array | None = None
+        self.update(pin.neutral(self.model))  # places the fixed parts once
+
+    # construction -------------------------------------------------------------------------
+    def _add_geometry(self, part: Part, joint: int, placement: Array, geometry: object) -> None:
+        obj = pin.GeometryObject(part.name, joint, _se3(placement), geometry)
+        self.geom_model.addGeometryObject(obj)
+        self.parts.append(part)
+
+    def _add_robot(
+        self, k: int, robot: Robot, table: Sequence[CapsuleSpec], boxes: Sequence[BoxSpec]
+    ) -> None:
+        km = robot.kinematics.model
+        kd = km.createData()
+        pin.framesForwardKinematics(km, kd, pin.neutral(km))
+        base_T_universe = inv_T(kd.oMf[robot.kinematics.base_id].homogeneous)
+        world_T_universe = robot.world_T_base @ base_T_universe
+        joints = [0]
+        for j in range(1, km.njoints):
+            parent = joints[km.parents[j]]
+            placement = km.jointPlacements[j].homogeneous
+            if km.parents[j] == 0:
+                placement = world_T_universe @ placement
+            jid = self.model.addJoint(
+                parent, km.joints[j].extract(), _se3(placement), f"{robot.name}/{km.names[j]}"
+            )
+            joints.append(jid)
+        # link i frame = joint i frame; link 0 = base frame (on the universe joint)
+        for spec in table:
+            frame = robot.world_T_base if spec.link == 0 else np.eye(4)
+            T, length = capsule_placement(np.array(spec.a), np.array(spec.b))
+            part = Part(len(self.parts), f"{robot.name}/{spec.name}", PartKind.LINK, k, spec.link)
+            self._add_geometry(
+                part, joints[spec.link], frame @ T, coal.Capsule(spec.radius, length)
+            )
+        for bspec in boxes:
+            frame = robot.world_T_base if bspec.link == 0 else np.eye(4)
+            part = Part(len(self.parts), f"{robot.name}/{bspec.name}", PartKind.LINK, k, bspec.link)
+            T = frame @ make_T(p=bspec.centre)
+            self._add_geometry(part, joints[bspec.link], T, coal.Box(*bspec.extents))
+        flange = km.frames[robot.kinematics.flange_id]
+        joint6_T_flange = flange.placement.homogeneous
+        self.flange_joint.append(joints[flange.parentJoint])
+        for name, fTb, extents in mirror_boxes(robot, self.blocks):
+            kind = PartKind.MIRROR if name == "mirror" else PartKind.MOUNT
+            part = Part(len(self.parts), f"{robot.name}/{name}", kind, k, FLANGE_LINK)
+            self._add_geometry(
+                part, joints[flange.parentJoint], joint6_T_flange @ fTb, coal.Box(*extents)
+            )
+
+    def _add_fixed(self, name: str, kind: PartKind, v: Volume, *, solid: bool) -> None:
+        part = Part(len(self.parts), name, kind)
+        self._add_geometry(part, 0, v.world_T_object, coal_shape(v, solid=solid))
+
+    def _pair_kind(self, a: Part, b: Part) -> PairKind | None:
+        if a.on_robot and b.on_robot:
+            if a.robot != b.robot:
+                return PairKind.ARM_ARM
+            if PartKind.LINK not in (a.kind, b.kind):
+                return None  # mirror vs its own mount
+            if a.kind != PartKind.LINK or b.kind != PartKind.LINK:
+                return PairKind.ARM_SELF if min(a.link, b.link) < FLANGE_LINK else None
+            names = (a.name.split("/", 1)[1], b.name.split("/", 1)[1])
+            if names in UR5E_SELF_EXCLUDED or names[::-1] in UR5E_SELF_EXCLUDED:
+                return None
+            return PairKind.ARM_SELF if abs(a.link - b.link) >= 2 else None
+        moving = a if a.on_robot else b
+        other = b if a.on_robot else a
+        if moving.on_robot and other.kind == PartKind.SCENE and moving.link > 0:
+            return PairKind.ARM_SCENE
+        return None
+
+    def _add_pairs(self) -> None:
+        for i, a in enumerate(self.parts):
+            for b in self.parts[i + 1 :]:
+                kind = self._pair_kind(a, b)
+                if kind is not None:
+                    self.geom_model.addCollisionPair(pin.CollisionPair(a.index, b.index))
+                    self.pair_kinds.append(kind)
+
+    # queries ------------------------------------------------------------------------------
+    @property
+    def nq(self) -> int:
+        return int(self.model.nq)
+
+    def update(self, q: Array) -> None:
+        """Place every part at the stacked joint vector ``q`` (rad)."""
+        q = np.asarray(q, dtype=float).reshape(-1)
+        if q.shape != (self.nq,) or not np.all(np.isfinite(q)):
+            raise InputError(f"expected {self.nq} finite joint values (rad), got {q.shape}")
+        if self._q is not None and np.array_equal(q, self._q):
+            return
+        pin.forwardKinematics(self.model, self.data, q)
+        pin.updateGeometryPlacements(self.model, self.data, self.geom_model, self.geom_data)
+        self._q = q.copy()
+        self._placements = None
+
+    def placement(self, index: int) -> coal.Transform3s:
+        """World pose of part ``index`` at the last :meth:`update`."""
+        if self._placements is None:
+            self._placements = [
+                coal.Transform3s(M.rotation, M.translation) for M in self.geom_data.oMg
+            ]
+        return self._placements[index]
+
+    def geometry(self, index: int) -> coal.CollisionGeometry:
+        """The coal shape of part ``index`` in its own frame."""
+        return self._geometries[index]
+
+    def parts_of(self, *kinds: PartKind) -> list[Part]:
+        return [p for p in self.parts if p.kind in kinds]
+
+    def pairs(self, kind: PairKind) -> list[int]:
+        """Indices into ``geom_model.collisionPairs`` of one kind."""
+        return [i for i, k in enumerate(self.pair_kinds) if k == kind]

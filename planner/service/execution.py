@@ -1,0 +1,208 @@
+"""What the planner node knows about the robots it moves (no Zenoh here).
+
+- :class:`JointCache`: the latest ``joint_states`` per robot (receiver clock).
+- :class:`MotionTracks`: per robot, the last trajectory its driver accepted: final joints
+  (rad) and when it ends (monotonic clock, s). A driver queues a trajectory that arrives
+  while another one runs if it starts where the running one ends, so the node plans from
+  that final state while the trajectory still runs, and from ``joint_states`` afterwards.
+- :class:`AckBoard`: the drivers' verdicts (:class:`~schemas.messages.TrajectoryAck`, carried
+  by their ``status``) on the trajectories of one request id.
+- :func:`trajectory_messages`: plan.json ``trajectory`` -> one JointTrajectory per robot.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from planner.errors import BeamrelayError
+from planner.model.transforms import Array
+from planner.service.bodies import encode_json
+
+#: a joint state older than this (s, receiver clock) does not count as "current"
+STATE_MAX_AGE = 0.5
+#: how long (s) the node waits for every driver's verdict on an executed trajectory
+ACK_TIMEOUT = 1.0
+#: time (s) added to a trajectory's duration for the driver's approach and settle phases
+TRACK_MARGIN = 1.0
+#: status modes after which a robot is no longer where its last trajectory ends
+HALTED_MODES = frozenset({"braking", "stopped", "fault"})
+
+
+class ExecuteError(BeamrelayError):
+    """``execute`` refused: a driver is down or its joint state is missing/stale.
+
+    ``robots`` names the robots concerned.
+    """
+
+    def __init__(self, reason: str, robots: list[str]) -> None:
+        self.reason = reason
+        self.robots = robots
+        super().__init__(reason)
+
+
+@dataclass
+class JointCache:
+    """Latest joint state per robot (receiver clock), thread safe."""
+
+    names: tuple[str, ...]
+    _q: dict[str, tuple[float, Array, Array]] = field(default_factory=dict)
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def update(self, robot: str, q: Array, qd: Array) -> None:
+        with self._lock:
+            self._q[robot] = (time.monotonic(), q, qd)
+
+    def get(self, robot: str) -> tuple[float, Array, Array] | None:
+        with self._lock:
+            return self._q.get(robot)
+
+    def current(
+        self, max_age: float = STATE_MAX_AGE, robots: tuple[str, ...] | None = None
+    ) -> dict[str, Array]:
+        """``{robot: q}`` (rad) for ``robots`` (default all), or ExecuteError naming the
+        missing/stale ones."""
+        now = time.monotonic()
+        out, missing = {}, []
+        for name in self.names if robots is None else robots:
+            entry = self.get(name)
+            if entry is None or now - entry[0] > max_age:
+                missing.append(name)
+            else:
+                out[name] = entry[1]
+        if missing:
+            raise ExecuteError(
+                f"no current joint state from {', '.join(missing)} "
+                f"(none received in the last {max_age:g} s)",
+                missing,
+            )
+        return out
+
+
+@dataclass(frozen=True)
+class Track:
+    """A trajectory a driver accepted: request ``id``, final joints ``q_end`` (rad), and
+    ``end`` (monotonic s) when it finishes playing, not counting the driver's margin."""
+
+    id: str
+    q_end: Array
+    end: float
+
+
+@dataclass
+class MotionTracks:
+    """The last accepted trajectory per robot; thread safe. ``margin`` (s) covers the
+    driver's approach and settle around the nominal duration."""
+
+    margin: float = TRACK_MARGIN
+    _tracks: dict[str, Track] = field(default_factory=dict)
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def accepted(self, robot: str, request_id: str, q_end: Array, duration: float) -> None:
+        """Record an accepted trajectory of ``duration`` s: it starts now, or when the one
+        still running ends (the driver queues it)."""
+        now = time.monotonic()
+        with self._lock:
+            prev = self._tracks.get(robot)
+            begin = now if prev is None or prev.end + self.margin <= now else max(now, prev.end)
+            self._tracks[robot] = Track(request_id, np.asarray(q_end, float), begin + duration)
+
+    def running_end(self, robot: str) -> Array | None:
+        """Final joints (rad) of the robot's trajectory while it may still run, else None."""
+        with self._lock:
+            track = self._tracks.get(robot)
+        if track is None or track.end + self.margin <= time.monotonic():
+            return None
+        return track.q_end
+
+    def halted(self, robot: str, trajectory_id: str | None) -> None:
+        """The robot stopped (braking, protective stop, fault) while its status names the
+        trajectory ``trajectory_id`` (None: no trajectory): forget where it was going."""
+        with self._lock:
+            track = self._tracks.get(robot)
+            if track is not None and trajectory_id in (None, track.id):
+                del self._tracks[robot]
+
+    def clear(self) -> None:
+        """Forget every trajectory (a stop was sent on the bus)."""
+        with self._lock:
+            self._tracks.clear()
+
+
+@dataclass
+class AckBoard:
+    """Drivers' verdicts on the trajectories of the request being executed; thread safe."""
+
+    _want: dict[str, str] = field(default_factory=dict)
+    _got: dict[str, Any] = field(default_factory=dict)
+    _cond: threading.Condition = field(default_factory=threading.Condition)
+
+    def expect(self, robots: list[str], request_id: str) -> None:
+        """Start collecting verdicts on ``request_id`` (call before publishing)."""
+        with self._cond:
+            self._want = dict.fromkeys(robots, request_id)
+            self._got = {}
+
+    def offer(self, robot: str, ack: Any) -> None:
+        """A :class:`~schemas.messages.TrajectoryAck` seen in ``robot``'s status."""
+        with self._cond:
+            if self._want.get(robot) == ack.id and robot not in self._got:
+                self._got[robot] = ack
+                self._cond.notify_all()
+
+    def wait(self, timeout: float) -> dict[str, Any]:
+        """``{robot: TrajectoryAck | None}`` (None: no verdict within ``timeout`` s)."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while len(self._got) < len(self._want):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                self._cond.wait(left)
+            out = {robot: self._got.get(robot) for robot in self._want}
+            self._want, self._got = {}, {}
+        return out
+
+
+def execution_verdict(acks: dict[str, Any], timeout: float) -> tuple[str, str | None]:
+    """(``accepted`` | ``rejected``, reason naming each robot that did not accept)."""
+    reasons = []
+    for robot, ack in acks.items():
+        if ack is None:
+            reasons.append(f"no answer from {robot} within {timeout:g} s")
+        elif not ack.accepted:
+            reasons.append(f"{robot}: {ack.reason or 'rejected without a reason'}")
+    return ("rejected", "; ".join(reasons)) if reasons else ("accepted", None)
+
+
+def trajectory_messages(
+    plan: dict[str, Any], request_id: str | None = None, session: str | None = None
+) -> dict[str, bytes]:
+    """One JointTrajectory body per robot from a plan's ``trajectory`` (times from 0),
+    carrying the request id and the planner session."""
+    from schemas.messages import TRAJECTORY_SCHEMA, JointTrajectory
+
+    traj = plan.get("trajectory")
+    if not traj:
+        raise ExecuteError("the plan has no trajectory to execute", list(plan["robots"]))
+    t = np.asarray(traj["t"], dtype=float)
+    keep = np.concatenate([[True], np.diff(t) > 0])  # drivers require increasing times
+    out = {}
+    for robot in plan["robots"]:
+        rows = {k: np.asarray(traj[k][robot], dtype=float)[keep] for k in ("q", "qd", "qdd")}
+        body = {
+            "schema": TRAJECTORY_SCHEMA,
+            "robot": robot,
+            "id": request_id,
+            "session": session,
+            "t": (t[keep] - t[0]).tolist(),
+            "names": list(plan["joint_names"][robot]),
+            **{k: v.tolist() for k, v in rows.items()},
+        }
+        JointTrajectory.model_validate(body)  # the driver's contract, checked before sending
+        out[robot] = encode_json(body)  # in pieces: the heartbeat keeps running
+    return out

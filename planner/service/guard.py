@@ -1,0 +1,186 @@
+"""The planner node's guards: a job queue bounded in count and bytes, the worker's progress
+watchdog, and the heartbeat thread (no Zenoh imports: the publisher is passed in).
+
+The heartbeat (:class:`~schemas.messages.Heartbeat` ``{t, session, seq}``, default 100 Hz)
+is what robot drivers follow while they move: when it stops for 100 ms they brake. It stops
+when the process stops (killed, SIGSTOPped) and also when the worker has been busy on one
+request beyond its allowance (:class:`Progress`): a wedged planner must not keep arms moving.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+log = logging.getLogger("beamrelay.node")
+
+#: requests waiting for the worker beyond this many get a "busy" error reply
+QUEUE_SIZE = 64
+#: ... or beyond this many bytes of request bodies in total
+QUEUE_BYTES = 32 * 1024 * 1024
+#: heartbeat rate (Hz); drivers brake after 100 ms of silence
+HEARTBEAT_RATE = 100.0
+#: a request may keep the worker busy this long (s) ...
+WORKER_TIMEOUT = 30.0
+#: ... plus this long per target (s), before the planner counts as wedged
+WORKER_TIMEOUT_PER_TARGET = 0.02
+
+
+@dataclass(frozen=True)
+class Job:
+    """One request body to serve: ``kind`` is ``query`` (reply to ``query``) or ``topic``."""
+
+    kind: str
+    query: Any
+    payload: bytes
+
+
+class JobQueue:
+    """FIFO of :class:`Job` bounded by count and by total payload bytes; thread safe."""
+
+    def __init__(self, max_jobs: int = QUEUE_SIZE, max_bytes: int = QUEUE_BYTES) -> None:
+        self.max_jobs = max_jobs
+        self.max_bytes = max_bytes
+        self._jobs: deque[Job | None] = deque()
+        self._bytes = 0
+        self._cond = threading.Condition()
+
+    def put(self, job: Job) -> str | None:
+        """Queue ``job``; None, or why it was refused (the queue is full)."""
+        with self._cond:
+            if len(self._jobs) >= self.max_jobs:
+                return f"{len(self._jobs)} requests waiting"
+            if self._bytes + len(job.payload) > self.max_bytes:
+                return (
+                    f"{self._bytes} bytes of requests waiting, {len(job.payload)} more "
+                    f"would exceed {self.max_bytes}"
+                )
+            self._jobs.append(job)
+            self._bytes += len(job.payload)
+            self._cond.notify()
+        return None
+
+    def close(self) -> None:
+        """Wake the consumer with the end marker (after the jobs already queued)."""
+        with self._cond:
+            self._jobs.append(None)
+            self._cond.notify()
+
+    def get(self) -> Job | None:
+        """The next job (blocks); None once closed."""
+        with self._cond:
+            while not self._jobs:
+                self._cond.wait()
+            job = self._jobs.popleft()
+            if job is not None:
+                self._bytes -= len(job.payload)
+            return job
+
+    @property
+    def nbytes(self) -> int:
+        with self._cond:
+            return self._bytes
+
+
+class Progress:
+    """The worker's progress watchdog: when the current job started and its allowance (s,
+    monotonic clock)."""
+
+    def __init__(
+        self, timeout: float = WORKER_TIMEOUT, per_target: float = WORKER_TIMEOUT_PER_TARGET
+    ) -> None:
+        self.timeout = timeout
+        self.per_target = per_target
+        self._since: float | None = None
+        self._allowance = 0.0
+        self._lock = threading.Lock()
+
+    def begin(self) -> None:
+        with self._lock:
+            self._since, self._allowance = time.monotonic(), self.timeout
+
+    def targets(self, n: int) -> None:
+        """The current job plans ``n`` targets: extend its allowance accordingly."""
+        with self._lock:
+            self._allowance = self.timeout + self.per_target * n
+
+    def end(self) -> None:
+        with self._lock:
+            self._since = None
+
+    def overdue(self) -> str | None:
+        """Why the worker counts as wedged, or None."""
+        with self._lock:
+            since, allowance = self._since, self._allowance
+        if since is None:
+            return None
+        busy = time.monotonic() - since
+        if busy <= allowance:
+            return None
+        return f"worker busy on one request for {busy:.1f} s (allowed {allowance:.1f} s)"
+
+
+class Heartbeat:
+    """Publishes ``{t, session, seq}`` at ``rate`` Hz from its own thread until stopped, or
+    until ``progress`` reports a wedged worker: then it stops beating and calls
+    ``on_wedged(reason)`` once."""
+
+    def __init__(
+        self,
+        put: Callable[[bytes], None],
+        session_id: str,
+        progress: Progress,
+        on_wedged: Callable[[str], None],
+        rate: float = HEARTBEAT_RATE,
+    ) -> None:
+        self.put = put
+        self.session_id = session_id
+        self.progress = progress
+        self.on_wedged = on_wedged
+        self.period = 1.0 / rate
+        self.seq = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="planner-heartbeat", daemon=True)
+
+    def start(self) -> Heartbeat:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop beating (idempotent, callable from any thread)."""
+        self._stop.set()
+        if threading.current_thread() is not self._thread and self._thread.is_alive():
+            self._thread.join(timeout=2)
+
+    @property
+    def beating(self) -> bool:
+        return self._thread.is_alive() and not self._stop.is_set()
+
+    def _run(self) -> None:
+        from planner.service.bus import encode
+        from schemas.messages import Heartbeat as HeartbeatMessage
+
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            reason = self.progress.overdue()
+            if reason is not None:
+                self._stop.set()
+                self.on_wedged(reason)
+                return
+            msg = HeartbeatMessage(t=time.time(), session=self.session_id, seq=self.seq)
+            try:
+                self.put(encode(msg))
+            except Exception:  # a closed publisher while shutting down: stop quietly
+                log.exception("heartbeat publish failed")
+                return
+            self.seq += 1
+            next_t += self.period
+            now = time.monotonic()
+            if next_t < now - self.period:
+                next_t = now  # fell behind (a loaded machine): do not burst to catch up
+            self._stop.wait(max(0.0, next_t - now))

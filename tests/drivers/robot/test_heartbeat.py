@@ -1,0 +1,130 @@
+"""The planner heartbeat, driver side: a hung planner whose token lingers (and a fake second
+token, and another session's heartbeats) cannot keep the arm moving; trajectories need a
+fresh heartbeat of their own session."""
+
+from __future__ import annotations
+
+import json
+import signal
+import time
+from typing import Any
+
+import numpy as np
+
+from drivers.robot.follower import STOP_ACCELERATION, STOP_JERK
+from drivers.robot.node import HEARTBEAT_TIMEOUT, MAX_SESSIONS
+from planner.service.bus import Keys
+from tests.drivers.conftest import Heartbeats, wait_for
+from tests.drivers.robot.test_robot_node import HOME, Cell, smooth_move, start_planner
+
+
+def test_sigstopped_planner_stops_the_arm_despite_fake_token_and_foreign_heartbeats(
+    hub: Any, endpoint: str, keys: Keys
+) -> None:
+    """The planner process is SIGSTOPped mid-move: its liveliness token stays for the Zenoh
+    lease (~9 s), the test's client holds a second ``alive/planner`` token and beats as
+    session "intruder"; the arm must be at rest within 300 ms of the planner's last
+    heartbeat."""
+    planner = start_planner(endpoint, keys, "P1")
+    cell = Cell(endpoint, keys, "intruder")  # fake token + 100 Hz heartbeats of another session
+    beats: list[dict[str, Any]] = []
+    sub = cell.client.declare_subscriber(
+        keys.heartbeat, lambda s: beats.append(json.loads(s.payload.to_bytes()))
+    )
+    try:
+        wait_for(lambda: "P1" in cell.node.heartbeats, what="planner heartbeats")
+        dq = np.array([0, 0, 0, 0.8, 0.8, 0.8])  # min-jerk: peak 1.25 rad/s at 0.75 s
+        cell.send(smooth_move(HOME, dq, 1.5, id="A", session="P1"))
+        assert cell.ack("A")["accepted"]
+        wait_for(lambda: np.max(np.abs(cell.states.items[-1]["qd"])) > 0.8, what="fast motion")
+        planner.send_signal(signal.SIGSTOP)
+        wait_for(cell.at_rest, 3.0, "arm at rest")
+        last = max(b["t"] for b in beats if b["session"] == "P1")
+        rest = next(s["t"] for s in cell.states.items if s["t"] > last and s["qd"] == [0.0] * 6)
+        after = [s for s in cell.states.items if s["t"] > last]
+        v0 = np.max(np.abs(after[0]["qd"]))
+        brake = v0 / STOP_ACCELERATION + STOP_ACCELERATION / STOP_JERK
+        print(f"heartbeat loss to rest: {1e3 * (rest - last):.0f} ms (timeout "
+              f"{1e3 * HEARTBEAT_TIMEOUT:.0f} ms + brake {1e3 * brake:.0f} ms from {v0:.2f} rad/s)")  # fmt: skip
+        assert rest - last < 0.300
+        assert rest - last > HEARTBEAT_TIMEOUT  # it was the heartbeat, not something sooner
+        assert cell.node.planner_alive  # both tokens still there
+        assert np.abs(cell.q() - (HOME + dq)).max() > 0.1  # stopped mid-move
+        assert cell.node.stopped_by is not None
+        assert cell.node.stopped_by.startswith("planner heartbeat lost: session P1 silent for")
+        # trajectories of the hung session are refused; the intruder's beats do not help
+        cell.send(smooth_move(cell.q(), np.full(6, 0.01), 0.3, id="B", session="P1"))
+        assert cell.ack("B")["reason"].startswith(
+            "session: no heartbeat from planner session P1 within 100 ms (last: "
+        )
+    finally:
+        planner.send_signal(signal.SIGCONT)
+        planner.kill()
+        planner.wait()
+        sub.undeclare()
+        cell.close()
+
+
+def test_trajectories_need_a_fresh_heartbeat_of_their_session(
+    hub: Any, endpoint: str, keys: Keys
+) -> None:
+    cell = Cell(endpoint, keys, "P2")
+    garbage = cell.client.declare_publisher(keys.heartbeat)
+    try:
+        wait_for(lambda: "P2" in cell.node.heartbeats, what="heartbeats")
+        cell.send(smooth_move(HOME, np.full(6, 0.01), 0.3, id="none"))
+        assert cell.ack("none")["reason"] == (
+            "session: no planner session given (a planner must send it)"
+        )
+        cell.send(smooth_move(HOME, np.full(6, 0.01), 0.3, id="ghost", session="ghost"))
+        assert cell.ack("ghost")["reason"] == (
+            "session: no heartbeat from planner session ghost within 100 ms (last: never)"
+        )
+        # heartbeats that do not parse, or name the session in the wrong field, do not count
+        for body in (b"ghost", b'{"session":"ghost"}', b'{"schema":"beamrelay.heartbeat/1",'
+                     b'"t":1,"session":"ghost","seq":-1}', b"\xff" * 5000):  # fmt: skip
+            garbage.put(body)
+        wait_for(lambda: cell.node.n_bad_heartbeats >= 4, what="bad heartbeats counted")
+        for n in range(200):  # a flood of made-up sessions: remembered ones stay bounded
+            garbage.put(json.dumps({"schema": "beamrelay.heartbeat/1", "t": 1.0,
+                                    "session": f"fake{n}", "seq": 0}))  # fmt: skip
+        wait_for(lambda: "fake199" in cell.node.heartbeats, what="fake sessions")
+        assert len(cell.node.heartbeats) == MAX_SESSIONS
+        cell.send(smooth_move(HOME, np.full(6, 0.01), 0.3, id="ghost2", session="ghost"))
+        assert "last: never" in cell.ack("ghost2")["reason"]
+        assert cell.beats is not None
+        cell.beats.stop()
+        time.sleep(0.2)
+        cell.send(smooth_move(HOME, np.full(6, 0.01), 0.3, id="stale", session="P2"))
+        reason = cell.ack("stale")["reason"]
+        assert reason.startswith("session: no heartbeat from planner session P2 within 100 ms")
+        assert int(reason.rsplit("last: ", 1)[1].split()[0]) >= 200
+        np.testing.assert_allclose(cell.q(), HOME, atol=0)  # nothing moved
+        beats = cell.beats = Heartbeats(cell.client, keys.prefix, "P2")
+        wait_for(lambda: len(beats.sent) > 3, what="heartbeats again")
+        cell.send(smooth_move(HOME, np.full(6, 0.01), 0.3, id="fresh", session="P2"))
+        assert cell.ack("fresh")["accepted"]
+    finally:
+        garbage.undeclare()
+        cell.close()
+
+
+def test_without_require_planner_no_session_or_heartbeat_is_needed(
+    hub: Any, endpoint: str, keys: Keys
+) -> None:
+    """Bench work (``--no-require-planner``): no token, no heartbeat, no session."""
+    cell = Cell(endpoint, keys, beat=False, require_planner=False)
+    cell.token.undeclare()
+    cell.token = cell.client.liveliness().declare_token(keys.alive("bench"))
+    try:
+        dq = np.full(6, 0.05)
+        cell.send(smooth_move(HOME, dq, 0.4, id="bench"))
+        assert cell.ack("bench")["accepted"]
+        wait_for(
+            lambda: (
+                cell.at_rest() and cell.node.n_accepted == 1 and cell.sim.measured().mode == "idle"
+            )
+        )
+        np.testing.assert_allclose(cell.q(), HOME + dq, atol=1e-9)
+    finally:
+        cell.close()

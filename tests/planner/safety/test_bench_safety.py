@@ -1,0 +1,40 @@
+"""The safety benchmark runs as a module and reports consistent figures."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+
+from planner.bench.safety import GAP, bench_system
+
+
+def test_bench_systems_have_neighbours_at_the_gap():
+    for n in (2, 3):
+        s = bench_system(n)
+        P = np.array([r.world_T_base[:3, 3] for r in s.robots])
+        d = np.linalg.norm(P - np.roll(P, 1, axis=0), axis=1)
+        np.testing.assert_allclose(d, GAP, atol=1e-12)
+
+
+def test_module_prints_json_figures():
+    out = subprocess.run(
+        [sys.executable, "-m", "planner.bench.safety", "--robots", "1,2", "--seconds", "0.01", "--json"],
+        capture_output=True, text=True, check=True, timeout=300,
+    )  # fmt: skip
+    rows = json.loads(out.stdout.strip().splitlines()[-1])["rows"]
+    assert [r["n_robots"] for r in rows] == [1, 2]
+    # 13 parts per UR5e (11 capsules, mirror, mount): arm-arm pairs alone are 13^2 for N = 2
+    assert rows[1]["pairs"] - 2 * rows[0]["pairs"] == 13**2
+    assert all(r["distance_queries_per_s"] > 0 for r in rows)
+
+
+def test_module_rejects_bad_robot_counts():
+    out = subprocess.run(
+        [sys.executable, "-m", "planner.bench.safety", "--robots", "two"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert out.returncode == 2
+    assert "Traceback" not in out.stderr and len(out.stderr.strip().splitlines()) == 1
