@@ -197,8 +197,8 @@ def test_hostile_and_oversized_bodies_are_refused_and_the_driver_keeps_serving(
     for n, (body, reason) in enumerate(bodies, start=1):
         cell.send(body)
         wait_for(lambda n=n: cell.node.n_rejected == n, what=f"rejection {n}")
-        wait_for(lambda reason=reason: cell.acks()[-1]["reason"].startswith(reason),
-                 what=reason)  # fmt: skip
+        wait_for(lambda reason=reason: bool(acks := cell.acks())
+                 and acks[-1]["reason"].startswith(reason), what=reason)  # fmt: skip
     assert cell.node.intake.n_oversized == 1
     cell.send(smooth_move(HOME, np.full(6, 0.02), 0.3, id="after", session=cell.name))
     assert cell.ack("after")["accepted"]
