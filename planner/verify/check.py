@@ -37,6 +37,7 @@ from planner.verify.tolerances import (
     joints_ok,
     roi_ok,
 )
+from planner.verify.urdf import UrdfChain
 
 if TYPE_CHECKING:
     from planner.verify.trajectory import Finding as TrajectoryFinding
@@ -71,10 +72,8 @@ def _arm(r: dict[str, Any], i: int, base_dir: Path) -> ArmGeometry:
         size = np.asarray(mirror["size"], dtype=float)
         margin = float(mirror.get("roi_margin", 0.005))
         if r.get("urdf"):
-            from planner.model.kinematics import RobotKinematics
-
             urdf = Path(r["urdf"])
-            kin = RobotKinematics.from_urdf(urdf if urdf.is_absolute() else base_dir / urdf)
+            kin = UrdfChain(urdf if urdf.is_absolute() else base_dir / urdf)
             fk: Callable[[Array], Array] = kin.fk
             n = kin.nq
         else:
