@@ -343,20 +343,20 @@ def run_scenario(
     ``scene=False`` skips the occlusion check against the scenario's ``scene:``."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 
+    from planner.io.resolved import resolved_scenario_dict
     from planner.io.scenario import (
         load_scenario,
-        resolved_scenario_dict,
+        scene_model,
         system_from_scenario,
         targets_from_scenario,
     )
-    from planner.model.scene import SceneModel
 
     loaded = load_scenario(scenario_path)
     scn = loaded.model
     resolved = resolved_scenario_dict(loaded)
     system = system_from_scenario(loaded)
     targets = targets_from_scenario(loaded, system)
-    model = SceneModel.from_scenario(loaded) if scene else None
+    model = scene_model(loaded) if scene else None
     options = ik_options(scn.solver, optimal)
     settings = scn.trajectory.model_dump() if scn.trajectory is not None else {}
     order = "given" if scn.targets.order == "given" else "optimal"

@@ -20,6 +20,7 @@ import numpy as np
 from planner.errors import InputError, ScenarioError
 from planner.io.plausibility import emit, scenario_warnings
 from planner.model.kinematics import RobotKinematics
+from planner.model.scene import SceneItem, SceneModel
 from planner.model.system import (
     DEFAULT_HOME,
     Camera,
@@ -88,24 +89,6 @@ class LoadedScenario:
     def resolve_path(self, relative: str) -> Path:
         """A path from the scenario (``urdf``, ``mesh``) made absolute."""
         return (self.base_dir / Path(relative).expanduser()).resolve()
-
-
-@dataclass(frozen=True)
-class SceneItem:
-    """A scene object in the world. ``shape`` is box | mesh | sphere | cylinder.
-
-    ``extents``: box full size (m); ``radius``/``height``: sphere or cylinder (along the
-    object's z, centred); ``mesh_path`` (absolute) scaled by ``scale`` into metres.
-    """
-
-    name: str
-    shape: str
-    world_T_object: Array
-    extents: Array | None = None
-    radius: float | None = None
-    height: float | None = None
-    mesh_path: Path | None = None
-    scale: float = 1.0
 
 
 # --- loading ------------------------------------------------------------------------------
@@ -396,70 +379,6 @@ def scene_objects(scn: LoadedScenario) -> list[SceneItem]:
     return items
 
 
-def _pose(T: Array) -> dict[str, Any]:
-    return {"matrix": np.asarray(T, dtype=float).tolist()}
-
-
-def _system_dict(system: System, model: SystemModel, scn: LoadedScenario) -> dict[str, Any]:
-    robots = []
-    for r, rm in zip(system.robots, model.robots, strict=True):
-        kind = {"model": "ur5e"} if rm.urdf is None else {"urdf": str(scn.resolve_path(rm.urdf))}
-        limits = {k: getattr(r.limits, k).tolist() for k in LIMIT_KEYS}
-        mirror = {
-            "flange_T_mirror": _pose(r.mirror.flange_T_mirror),
-            "size": list(r.mirror.size),
-            "roi_margin": r.mirror.roi_margin,
-        }
-        robots.append(
-            {"name": r.name, **kind, "world_T_base": _pose(r.world_T_base)}
-            | {"home": r.home.tolist(), "limits": limits, "mirror": mirror}
-        )
-    out: dict[str, Any] = {
-        "laser": {"world_T_laser": _pose(system.world_T_laser)},
-        "robots": robots,
-    }
-    if system.camera is not None:
-        k = system.camera.intrinsics
-        intrinsics = {"width": k.width, "height": k.height, "fx": k.fx, "fy": k.fy}
-        intrinsics |= {"cx": k.cx, "cy": k.cy}
-        cam = system.camera
-        mount: dict[str, Any] = {"world_T_camera": _pose(cam.world_T_camera)}
-        if cam.robot is not None and cam.flange_T_camera is not None:
-            mount = {"robot": cam.robot, "flange_T_camera": _pose(cam.flange_T_camera)}
-        out["camera"] = mount | {"intrinsics": intrinsics}
-    return out
-
-
-def resolved_scenario_dict(scn: LoadedScenario) -> dict[str, Any]:
-    """The validated scenario with defaults filled in and every pose as ``{matrix: 4x4}``.
-
-    Includes are already applied (``include: []``); ``urdf`` and ``mesh`` paths are
-    absolute; ``truth.system`` (if any) is the full merged truth system. Validates again as
-    a :class:`~schemas.scenario.Scenario` (plan.json ``scenario``).
-    """
-    m = scn.model
-    scene = []
-    for item in scene_objects(scn):
-        shape: dict[str, Any]
-        if item.shape == "box":
-            shape = {"box": np.asarray(item.extents).tolist()}
-        elif item.shape == "sphere":
-            shape = {"sphere": item.radius}
-        elif item.shape == "cylinder":
-            shape = {"cylinder": [item.radius, item.height]}
-        else:
-            shape = {"mesh": str(item.mesh_path), "scale": item.scale}
-        scene.append({"name": item.name, **shape, "world_T_object": _pose(item.world_T_object)})
-    out: dict[str, Any] = {
-        "name": scn.name,
-        "system": _system_dict(system_from_scenario(scn), m.system, scn),
-        "scene": scene,
-        "targets": m.targets.model_dump(exclude_none=True),
-        "solver": m.solver.model_dump(),
-        "trajectory": m.trajectory.model_dump(),
-        "include": [],
-    }
-    if scn.truth_system is not None:
-        truth = system_from_scenario(scn, truth=True)
-        out["truth"] = {"system": _system_dict(truth, scn.truth_system, scn)}
-    return out
+def scene_model(scn: LoadedScenario) -> SceneModel:
+    """The raycasting model of a loaded scenario's ``scene:`` objects (world frame, m)."""
+    return SceneModel(scene_objects(scn))

@@ -176,8 +176,8 @@ def timed_trajectory(
 
 def handler_from_scenario(path: Any) -> RequestHandler:
     """A :class:`RequestHandler` for a scenario file (calibration applied via ``include:``)."""
-    from planner.io.scenario import load_scenario, resolved_scenario_dict, system_from_scenario
-    from planner.model.scene import SceneModel
+    from planner.io.resolved import resolved_scenario_dict
+    from planner.io.scenario import load_scenario, scene_model, system_from_scenario
     from planner.planning import ik_options
 
     scn = load_scenario(path)
@@ -185,7 +185,7 @@ def handler_from_scenario(path: Any) -> RequestHandler:
     model = scn.model
     settings = model.trajectory.model_dump() if model.trajectory is not None else {}
     plan_fn = make_plan_fn(system, resolved_scenario_dict(scn), ik_options(model.solver), settings,
-                           SceneModel.from_scenario(scn))  # fmt: skip
+                           scene_model(scn))  # fmt: skip
     return RequestHandler(system, plan_fn)
 
 

@@ -7,8 +7,9 @@ from pathlib import Path
 import pytest
 
 from planner.errors import InputError, ScenarioError
+from planner.io.validate import validate_file
 from schemas.scenario import Scenario
-from schemas.yamlio import format_loc, read_yaml, validate_file
+from schemas.yamlio import format_loc, read_yaml
 
 VALID = """\
 name: t
