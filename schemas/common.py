@@ -158,11 +158,6 @@ def rigid_rows(rows: list[list[float]], tol: float = RIGID_TOL) -> list[list[flo
     return T.tolist()
 
 
-def check_rigid(rows: list[list[float]], tol: float = RIGID_TOL) -> None:
-    """Raise ``ValueError`` unless a 4x4 matrix is a rigid transform (to ``tol``)."""
-    rigid_rows(rows, tol)
-
-
 _ROTATION_KEYS = ("rpy", "rpy_deg", "quat", "matrix")
 
 

@@ -41,7 +41,6 @@ class SimRobot:
         self.dt = 1.0 / self.rate
         self.follower = TrajectoryFollower(q0, limits, self.dt, stop_acceleration)
         self.realtime = realtime
-        self.sim_time = 0.0
         self._next = time.monotonic()
 
     def begin_period(self) -> None:
@@ -56,7 +55,6 @@ class SimRobot:
         state: FollowerState = self.follower.state
         for _ in range(n):
             state = self.follower.step()
-            self.sim_time += self.dt
         return Measured(state.q, state.qd, state.mode)
 
     def end_period(self) -> None:

@@ -26,8 +26,6 @@ from planner.model.system import Limits, System
 from planner.model.transforms import Array
 from planner.path.tour import visit_order
 
-SEGMENT_KINDS = ("approach", "move", "path", "dwell")
-
 
 class Segment(NamedTuple):
     kind: str  # approach | move | path | dwell
@@ -148,11 +146,6 @@ def ruckig_move(q0: Array, q1: Array, lim: Limits, rate: float) -> tuple[Array, 
 # ------------------------------------------------------------------------------------------
 # visit order
 # ------------------------------------------------------------------------------------------
-def tour_cost(C: Array, tour: Array) -> float:
-    """Total cost of consecutive ``tour`` entries in a cost matrix ``C`` (small cases)."""
-    return float(C[tour[:-1], tour[1:]].sum())
-
-
 class VisitReport(NamedTuple):
     order: np.ndarray  # indices into the solved targets
     duration: float  # s, the optimised (or given) trajectory

@@ -3,7 +3,7 @@
 The geometry comes from the plan's own resolved ``scenario`` echo; the UR5e forward
 kinematics (standard DH) and the reflection chain are :mod:`planner.verify.numpy_beam`'s, written
 from the conventions rather than taken from the planner, and shared with the trajectory
-check; URDF arms use Pinocchio's numeric FK. Every bound is the one the planner accepted the
+check; URDF arms use the checker's own numpy URDF kinematics (:mod:`planner.verify.urdf`). Every bound is the one the planner accepted the
 plan with (:mod:`planner.verify.tolerances`), so planning and checking cannot disagree.
 
 Checks are plain functions ``check(ctx) -> CheckResult`` in :data:`CHECKS`: the solved
@@ -12,7 +12,6 @@ scenario ``rate`` (:mod:`planner.verify.trajectory`: presence, time grid, positi
 acceleration and jerk limits, declared velocities and accelerations against finite
 differences, the spot on the path, on its target while dwelling and at every arrival, every
 solved target visited) and the ``metrics``, recomputed from the solutions and the trajectory.
-Other stages may append their own with :func:`register_check`.
 """
 
 from __future__ import annotations
@@ -368,13 +367,7 @@ CHECKS: list[Callable[[PlanContext], CheckResult]] = [
 ]
 
 
-def register_check(fn: Callable[[PlanContext], CheckResult]) -> None:
-    """Add a check (e.g. the trajectory checks of the timing stage) to :data:`CHECKS`."""
-    if fn not in CHECKS:
-        CHECKS.append(fn)
-
-
 def check_plan(plan: dict[str, Any], base_dir: Path = Path(".")) -> list[CheckResult]:
-    """Run every registered check on a plan document."""
+    """Run every check of :data:`CHECKS` on a plan document."""
     ctx = PlanContext(plan, base_dir)
     return [check(ctx) for check in CHECKS]
