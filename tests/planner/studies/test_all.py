@@ -35,7 +35,7 @@ def test_all_runs_each_study_at_its_scale_and_links_them(
     assert [(c[0], c[1], c[2]) for c in calls] == [
         (name, trials[name], tmp_path / name) for name in study_all.ORDER
     ]
-    assert study_all.ORDER == tuple(trials)  # every study, in this order
+    assert tuple(trials) == study_all.ORDER  # every study, in this order
     err = calls[-1][3]
     assert err.camera_pos == pytest.approx(0.3e-3)
     assert err.camera_rot == pytest.approx(np.deg2rad(0.02))
