@@ -12,6 +12,7 @@ from typing import Annotated, Literal, Self
 
 from pydantic import Field, field_validator, model_validator
 
+from schemas import defaults
 from schemas.bounds import (
     MAX_SPOT_SPEED,
     MAX_TOLERANCE,
@@ -91,7 +92,7 @@ class Mirror(StrictModel):
 
     flange_T_mirror: Pose
     size: PosVec2
-    roi_margin: NonNegNum = 0.005
+    roi_margin: NonNegNum = defaults.ROI_MARGIN_M
 
     @model_validator(mode="after")
     def _margin_fits(self) -> Self:
@@ -336,9 +337,9 @@ class SceneObject(StrictModel):
 class Solver(StrictModel):
     """IK settings: ``tolerance`` is a spot error (m); ``max_incidence_deg`` in degrees."""
 
-    tolerance: PosNum = 1e-9
-    max_iter: PosInt = 200
-    max_incidence_deg: Annotated[PosNum, Field(le=90)] = 80.0
+    tolerance: PosNum = defaults.SPOT_TOLERANCE_M
+    max_iter: PosInt = defaults.SOLVER_MAX_ITER
+    max_incidence_deg: Annotated[PosNum, Field(le=90)] = defaults.MAX_INCIDENCE_DEG
 
     @model_validator(mode="after")
     def _plausible(self) -> Self:
@@ -354,9 +355,9 @@ class Solver(StrictModel):
 class TrajectorySettings(StrictModel):
     """Path timing: spot speed (m/s), dwell per target (s), sample rate (Hz)."""
 
-    spot_speed: PosNum = 0.02
-    dwell: NonNegNum = 0.0
-    rate: PosNum = 500.0
+    spot_speed: PosNum = defaults.SPOT_SPEED_MPS
+    dwell: NonNegNum = defaults.DWELL_S
+    rate: PosNum = defaults.SERVO_RATE_HZ
 
     @model_validator(mode="after")
     def _plausible(self) -> Self:

@@ -21,6 +21,7 @@ from planner.errors import InputError, ScenarioError
 from planner.io.plausibility import emit, scenario_warnings
 from planner.model.kinematics import RobotKinematics
 from planner.model.scene import SceneItem, SceneModel
+from planner.model.settings import TrajectorySettings
 from planner.model.system import (
     DEFAULT_HOME,
     Camera,
@@ -377,6 +378,11 @@ def scene_objects(scn: LoadedScenario) -> list[SceneItem]:
             path, scale = scn.resolve_path(obj.mesh), obj.scale or 1.0
             items.append(SceneItem(obj.name, "mesh", T, mesh_path=path, scale=scale))
     return items
+
+
+def trajectory_settings(scn: LoadedScenario) -> TrajectorySettings:
+    """The scenario's ``trajectory`` section as typed settings (defaults filled in)."""
+    return TrajectorySettings.from_mapping(scn.model.trajectory.model_dump())
 
 
 def scene_model(scn: LoadedScenario) -> SceneModel:

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from planner.model.transforms import Array
+from schemas import defaults
 
 if TYPE_CHECKING:
     from planner.model.kinematics import RobotKinematics
@@ -40,11 +41,18 @@ class Limits:
 
     @staticmethod
     def ur_default(n: int = 6) -> Limits:
-        """SPEC defaults: +-2pi (elbow +-pi), pi rad/s, 5 rad/s^2, 50 rad/s^3."""
-        upper = np.full(n, 2 * np.pi)
+        """The conservative defaults of :mod:`schemas.defaults` for ``n`` joints: +-2 pi rad
+        (a 6-joint UR's elbow +-pi), pi rad/s, 5 rad/s^2, 50 rad/s^3."""
+        upper = np.full(n, defaults.JOINT_RANGE_RAD)
         if n == 6:
-            upper[2] = np.pi
-        return Limits(-upper, upper, np.full(n, np.pi), np.full(n, 5.0), np.full(n, 50.0))
+            upper[2] = defaults.ELBOW_RANGE_RAD
+        return Limits(
+            -upper,
+            upper,
+            np.full(n, defaults.JOINT_VELOCITY_RADPS),
+            np.full(n, defaults.JOINT_ACCELERATION_RADPS2),
+            np.full(n, defaults.JOINT_JERK_RADPS3),
+        )
 
 
 @dataclass(frozen=True)
