@@ -11,8 +11,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from planner.model.limits import Limits as Limits  # re-exported
 from planner.model.transforms import Array
-from schemas import defaults
 
 if TYPE_CHECKING:
     from planner.model.kinematics import RobotKinematics
@@ -27,32 +27,6 @@ JOINT_NAMES_UR = (
 )
 DEFAULT_HOME = (0.0, -np.pi / 2, np.pi / 2, -np.pi / 2, -np.pi / 2, 0.0)
 DEFAULT_ROI_MARGIN = 0.005
-
-
-@dataclass(frozen=True)
-class Limits:
-    """Joint limits per joint: position (rad), velocity (rad/s), acceleration, jerk."""
-
-    lower: Array
-    upper: Array
-    velocity: Array
-    acceleration: Array
-    jerk: Array
-
-    @staticmethod
-    def ur_default(n: int = 6) -> Limits:
-        """The conservative defaults of :mod:`schemas.defaults` for ``n`` joints: +-2 pi rad
-        (a 6-joint UR's elbow +-pi), pi rad/s, 5 rad/s^2, 50 rad/s^3."""
-        upper = np.full(n, defaults.JOINT_RANGE_RAD)
-        if n == 6:
-            upper[2] = defaults.ELBOW_RANGE_RAD
-        return Limits(
-            -upper,
-            upper,
-            np.full(n, defaults.JOINT_VELOCITY_RADPS),
-            np.full(n, defaults.JOINT_ACCELERATION_RADPS2),
-            np.full(n, defaults.JOINT_JERK_RADPS3),
-        )
 
 
 @dataclass(frozen=True)
