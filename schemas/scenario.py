@@ -123,12 +123,13 @@ def check_joint_lengths(home: list[float] | None, limits: Limits | None, nq: int
 class Robot(StrictModel):
     """One arm holding a mirror, its base at ``world_T_base`` (default: the world frame).
 
-    ``model`` (default ``ur5e``) or ``urdf`` (a path relative to the scenario file) gives the
-    kinematics; ``home`` is the start configuration in rad.
+    ``model`` (a registered robot model, default ``ur5e``; checked when the scenario is
+    loaded) or ``urdf`` (a path relative to the scenario file) gives the kinematics; ``home``
+    is the start configuration in rad.
     """
 
     name: Name
-    model: Literal["ur5e"] | None = None
+    model: Name | None = None
     urdf: Name | None = None
     world_T_base: Pose = Field(default_factory=Pose)
     home: JointVector | None = None
@@ -139,7 +140,7 @@ class Robot(StrictModel):
     def _model_xor_urdf(self) -> Self:
         if self.model is not None and self.urdf is not None:
             raise FieldError(("urdf",), "give either model or urdf, not both")
-        if self.urdf is None:
+        if self.urdf is None and self.model in (None, "ur5e"):
             check_joint_lengths(self.home, self.limits, UR_NQ)
         check_robot(self.home, self.world_T_base)
         return self

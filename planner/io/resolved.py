@@ -6,11 +6,13 @@ applied and file paths absolute, so a plan file is self-contained.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from planner.io.scenario import LIMIT_KEYS, LoadedScenario, scene_objects, system_from_scenario
+from planner.model.robots import DEFAULT_MODEL
 from planner.model.system import System
 from planner.model.transforms import Array
 from schemas.scenario import System as SystemModel
@@ -20,10 +22,24 @@ def _pose(T: Array) -> dict[str, Any]:
     return {"matrix": np.asarray(T, dtype=float).tolist()}
 
 
+def _model_key(
+    model: str | None, urdf: str | None, source: str, scn: LoadedScenario
+) -> dict[str, str]:
+    """``{model: ur5e}``, or ``{urdf: absolute path}`` for a URDF robot and for a registered
+    model built from a URDF file (so the checker can re-verify it with its own kinematics),
+    else ``{model: name}``."""
+    if urdf is not None:
+        return {"urdf": str(scn.resolve_path(urdf))}
+    name = model or DEFAULT_MODEL
+    if name != DEFAULT_MODEL and source.endswith(".urdf") and Path(source).is_file():
+        return {"urdf": str(Path(source).resolve())}
+    return {"model": name}
+
+
 def _system_dict(system: System, model: SystemModel, scn: LoadedScenario) -> dict[str, Any]:
     robots = []
     for r, rm in zip(system.robots, model.robots, strict=True):
-        kind = {"model": "ur5e"} if rm.urdf is None else {"urdf": str(scn.resolve_path(rm.urdf))}
+        kind = _model_key(rm.model, rm.urdf, r.kinematics.source, scn)
         limits = {k: getattr(r.limits, k).tolist() for k in LIMIT_KEYS}
         mirror = {
             "flange_T_mirror": _pose(r.mirror.flange_T_mirror),

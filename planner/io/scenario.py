@@ -19,7 +19,7 @@ import numpy as np
 
 from planner.errors import InputError, ScenarioError
 from planner.io.plausibility import emit, scenario_warnings
-from planner.model.kinematics import RobotKinematics
+from planner.model import robots
 from planner.model.scene import SceneItem, SceneModel
 from planner.model.settings import TrajectorySettings
 from planner.model.system import (
@@ -176,19 +176,16 @@ def _check_files(scn: LoadedScenario) -> None:
 
 
 # --- system -------------------------------------------------------------------------------
-_KINEMATICS: dict[str, RobotKinematics] = {}
-
-
-def robot_kinematics(model: RobotModel, scn: LoadedScenario, loc: Loc) -> RobotKinematics:
-    """The (cached, shared) kinematics of a robot entry: nominal UR5e or its URDF."""
-    key = "ur5e" if model.urdf is None else str(scn.resolve_path(model.urdf))
-    if key not in _KINEMATICS:
-        try:
-            kin = RobotKinematics.ur5e() if model.urdf is None else RobotKinematics.from_urdf(key)
-        except InputError as exc:
-            raise ScenarioError(exc.reason, scn.where((*loc, "urdf"))) from None
-        _KINEMATICS[key] = kin
-    return _KINEMATICS[key]
+def robot_model(model: RobotModel, scn: LoadedScenario, loc: Loc) -> robots.RobotModel:
+    """The (cached, shared) robot model of a robot entry: its ``model`` by name (default
+    ``ur5e``) from :mod:`planner.model.robots`, or its ``urdf``."""
+    key = "model" if model.urdf is None else "urdf"
+    try:
+        if model.urdf is not None:
+            return robots.robot_model(scn.resolve_path(model.urdf))
+        return robots.robot_model(model.model or robots.DEFAULT_MODEL)
+    except InputError as exc:
+        raise ScenarioError(exc.reason, scn.where((*loc, key))) from None
 
 
 def system_from_scenario(scn: LoadedScenario, *, truth: bool = False) -> System:
@@ -219,13 +216,13 @@ def _camera(cam: CameraModel, robots: tuple[Robot, ...]) -> Camera:
 
 
 def _robot(r: RobotModel, scn: LoadedScenario, loc: Loc) -> Robot:
-    kin = robot_kinematics(r, scn, loc)
-    nq = kin.nq
+    arm = robot_model(r, scn, loc)
+    kin, nq = arm.kinematics, arm.nq
     try:
         check_joint_lengths(r.home, r.limits, nq)
     except FieldError as exc:
         raise ScenarioError(exc.reason, scn.where((*loc, *exc.loc))) from None
-    default = kin.default_limits()
+    default = arm.limits
     given = r.limits.model_dump() if r.limits is not None else {}
     values = {k: np.asarray(given.get(k) or getattr(default, k), dtype=float) for k in LIMIT_KEYS}
     limits = Limits(**values)

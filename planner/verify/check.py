@@ -75,8 +75,10 @@ def _arm(r: dict[str, Any], i: int, base_dir: Path) -> ArmGeometry:
             kin = UrdfChain(urdf if urdf.is_absolute() else base_dir / urdf)
             fk: Callable[[Array], Array] = kin.fk
             n = kin.nq
-        else:
+        elif (r.get("model") or "ur5e") == "ur5e":
             fk, n = ur5e_dh_fk, 6
+        else:  # never check another arm with the UR5e's kinematics
+            raise InputError(f"no independent kinematics for robot model {r['model']!r}", where)
         limits = limits_from_dict(r.get("limits"), n)
         return ArmGeometry(
             name=str(r["name"]),

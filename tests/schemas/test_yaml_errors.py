@@ -109,7 +109,7 @@ def test_valid_baseline(tmp_path: Path) -> None:
         (
             "    - name: arm0\n",
             "    - name: arm0\n      model: ur10\n",
-            "x.yaml:7 system.robots[0].model: expected 'ur5e', got 'ur10'",
+            "x.yaml:7 system.robots[0].model: unknown robot model 'ur10' (known: ur5e)",
         ),
     ],
 )
