@@ -1,7 +1,7 @@
 """Shared building blocks of every schema: strict numbers, vectors and poses.
 
 Units are SI (metres, radians) except where a key says otherwise (``rpy_deg``). A pose maps
-coordinates of its child frame into its parent frame (``a_T_b``, SPEC section 2). Every model
+coordinates of its child frame into its parent frame (``a_T_b``; docs/conventions.md). Every model
 rejects unknown keys.
 """
 

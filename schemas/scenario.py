@@ -1,4 +1,4 @@
-"""The scenario file (SPEC section 4): system, scene, targets, solver and trajectory settings.
+"""The scenario file (docs/conventions.md): system, scene, targets, solver and trajectory settings.
 
 All lengths in metres, angles in radians unless the key ends in ``_deg``; every pose is
 ``parent_T_child`` with the world frame as parent unless its name says otherwise. The

@@ -96,8 +96,14 @@ class LoadedScenario:
 def load_scenario(path: str | Path) -> LoadedScenario:
     """Read, merge ``include:`` files into, and validate a scenario file.
 
-    Raises :class:`ScenarioError` with ``file:line key.path`` for any problem, including a
-    missing URDF or mesh file.
+    Args:
+        path: the scenario YAML; relative ``include``, ``urdf`` and ``mesh`` paths resolve
+            against its folder.
+
+    Returns:
+        The :class:`LoadedScenario` (validated model, origins of every key, warnings).
+        Raises :class:`ScenarioError` with ``file:line key.path`` for any problem, including
+        a missing URDF or mesh file.
     """
     shown = str(path)
     data, origins = read_yaml(path, ScenarioError)
@@ -189,10 +195,16 @@ def robot_model(model: RobotModel, scn: LoadedScenario, loc: Loc) -> robots.Robo
 
 
 def system_from_scenario(scn: LoadedScenario, *, truth: bool = False) -> System:
-    """The resolved :class:`System` (defaults filled in, poses as 4x4 arrays).
+    """The resolved :class:`System` (defaults filled in, poses as 4x4 arrays, world frame, m).
 
-    ``truth=True`` uses ``truth.system`` merged over ``system`` (the geometry simulated
-    drivers use); without a ``truth`` section it is the nominal system.
+    Args:
+        scn: a scenario from :func:`load_scenario`.
+        truth: use ``truth.system`` merged over ``system`` (the geometry simulated drivers
+            use); without a ``truth`` section it is the nominal system.
+
+    Returns:
+        The :class:`System`: laser pose, robots (kinematics from
+        :func:`planner.model.robots.robot_model`, limits, home, mirror), camera.
     """
     use_truth = truth and scn.truth_system is not None
     model = scn.truth_system if use_truth and scn.truth_system else scn.model.system
@@ -253,10 +265,15 @@ def _default_home(nq: int) -> Array:
 def targets_from_scenario(scn: LoadedScenario, system: System) -> Targets:
     """The scenario's targets in the world frame (grid expanded, path resampled).
 
-    ``frame: camera`` coordinates are mapped with the camera pose (for a camera on a
-    flange: at its robot's home joints).
-    ``normals`` is None when the scenario gives none. ``meta`` holds ``order`` and ``frame``
-    (plus ``n`` for a grid, ``spacing`` and ``vertices`` for a path).
+    Args:
+        scn: a scenario from :func:`load_scenario`.
+        system: its :func:`system_from_scenario` (for ``frame: camera`` targets, mapped with
+            the camera pose; a camera on a flange at its robot's home joints).
+
+    Returns:
+        :class:`Targets`: ``points`` (K, 3) m, world frame; ``normals`` (K, 3) or None when
+        the scenario gives none; ``meta`` with ``order`` and ``frame`` (plus ``n`` for a
+        grid, ``spacing`` and ``vertices`` for a path).
     """
     spec = scn.model.targets
     world_T_frame = np.eye(4)

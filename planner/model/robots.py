@@ -49,8 +49,13 @@ _BUILT: dict[str, RobotModel] = {}
 
 
 def register_model(name: str, factory: ModelFactory, *, replace: bool = False) -> None:
-    """Make ``model: <name>`` available; ``factory()`` builds the model once, on first use.
-    Registering a taken name is a ``ValueError`` unless ``replace``."""
+    """Make ``model: <name>`` available to scenarios.
+
+    Args:
+        name: the scenario's ``model`` value (not ending in ``.urdf``).
+        factory: builds the :class:`RobotModel` once, on first use (e.g. :func:`urdf_model`).
+        replace: allow replacing a registered name (else ``ValueError``).
+    """
     if not name or name.endswith(".urdf"):
         raise ValueError(f"not a model name: {name!r}")
     if name in _FACTORIES and not replace:
@@ -80,9 +85,16 @@ def urdf_model(
 
 
 def robot_model(name_or_urdf: str | Path) -> RobotModel:
-    """The model of a registered name, or of a URDF file (a ``Path`` or a name ending in
-    ``.urdf``; cached by absolute path). Unknown names are an :class:`InputError` listing the
-    known ones."""
+    """A robot model by name or URDF file.
+
+    Args:
+        name_or_urdf: a registered name (``"ur5e"``), or a URDF file (a ``Path`` or a string
+            ending in ``.urdf``; cached by absolute path).
+
+    Returns:
+        The :class:`RobotModel` (built once). Raises :class:`InputError` for an unknown name
+        (listing the known ones) or an unreadable URDF.
+    """
     if isinstance(name_or_urdf, Path) or name_or_urdf.endswith(".urdf"):
         key = str(Path(name_or_urdf).expanduser().resolve())
         if key not in _BUILT:

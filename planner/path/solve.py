@@ -48,7 +48,7 @@ __all__ = [
 
 class PathGap(NamedTuple):
     """Samples ``k0 <= k < k1`` (arc length s0..s1 m, starting at world point ``p``) have no
-    valid configuration; ``reason`` is a SPEC status reason, ``detail`` the evidence."""
+    valid configuration; ``reason`` is a status reason, ``detail`` the evidence."""
 
     k0: int
     k1: int
@@ -120,7 +120,7 @@ def _runs(mask: Array) -> list[tuple[int, int]]:
 
 
 def sample_errors(system: System, Q: Array, points: Array, normals: Array | None) -> Array:
-    """SPEC spot error (m) of every sample through the beam function (NaN rows -> NaN)."""
+    """Spot error (m) of every sample through the beam function (NaN rows -> NaN)."""
     from planner.beam.graph import beam_function
 
     f = beam_function(tuple(r.kinematics for r in system.robots))

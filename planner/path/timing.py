@@ -65,7 +65,7 @@ class Trajectory:
         return float(sum(s.t1 - s.t0 for s in self.segments if s.kind == kind))
 
     def to_plan_dict(self, system: System) -> dict[str, object]:
-        """The SPEC plan.json ``trajectory`` mapping (per robot name)."""
+        """The plan.json ``trajectory`` mapping (per robot name)."""
 
         def per_robot(X: Array) -> dict[str, list[list[float]]]:
             out, i = {}, 0

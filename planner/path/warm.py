@@ -3,7 +3,7 @@
 A single sample is seeded by the closed-form family search of :mod:`planner.ik.closed_form`
 (else a multi-start one-sample NLP); the chain then walks along the path with
 equality-constrained Newton steps (spot on the sample, a centring pull), extrapolating the
-previous two samples. Where no valid configuration is found the sample gets a SPEC reason
+previous two samples. Where no valid configuration is found the sample gets a failure reason
 with evidence, and the chain re-seeds further on and extends backward into the gap.
 
 Batched helpers (one mapped CasADi call for all samples): :func:`project` (minimum-norm
@@ -90,7 +90,7 @@ class PathContext:
         return -out[5].ravel()
 
     def why(self, k: int, q: Array, g: Array, h: Array) -> str | None:
-        """None if q is a valid solution of sample k, else a SPEC reason with evidence."""
+        """None if q is a valid solution of sample k, else a failure reason with evidence."""
         N, lb, tol = self.N, self.valid_lbh[k], JOINT_SLACK
         bad = np.flatnonzero(~(h.ravel() >= lb))
         if not np.all(np.isfinite(q)) or np.linalg.norm(g) > max(1e3 * self.opts.tolerance, 1e-7):

@@ -11,7 +11,7 @@ centre, each target from home); the joints are then traced with a PERTURBED syst
 - ``mirror_pos`` translation of the mirror centre in the flange frame
 
 at levels Δθ ∈ {0.25, 0.5, 1.0}° and Δp ∈ {2.5, 5, 10} mm. The spot error is the distance
-from the target to the perturbed last ray (SPEC section 3, no normal).
+from the target to the perturbed last ray (docs/conventions.md: Beam model, no normal).
 
 Next to the sampled errors the study gives the analytic first-order prediction
 ``|J δ|`` with ``J = ∂residual/∂δ`` taken from the CasADi beam graph (parameters are graph
@@ -250,7 +250,7 @@ def summarize(nominal: Nominal, rows: list[dict[str, Any]]) -> list[dict[str, An
 
 
 def default_system() -> System:
-    """The paper's N = 1 setup (SPEC section 4 example): laser along −x at 0.3 m height."""
+    """The paper's N = 1 setup: laser along −x at 0.3 m height."""
     from planner.model.kinematics import RobotKinematics
     from planner.model.system import DEFAULT_HOME, Limits, Mirror, Robot
     from planner.model.transforms import make_T, rpy_to_matrix

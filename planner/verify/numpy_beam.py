@@ -61,7 +61,7 @@ def pose_matrix(d: Any, where: str = "pose") -> Array:
 
 
 def limits_from_dict(lim: dict[str, Any] | None, n: int) -> Limits:
-    """A robot's ``limits`` mapping (any key may be missing or null) over the SPEC defaults
+    """A robot's ``limits`` mapping (any key may be missing or null) over the documented defaults
     for ``n`` joints (:meth:`Limits.ur_default`)."""
     lim = lim or {}
     default = Limits.ur_default(n)
