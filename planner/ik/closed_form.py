@@ -135,7 +135,7 @@ class SearchStats:
 
 class ClosedFormResult(NamedTuple):
     q: Array | None  # stacked joints of the chosen member, or None
-    reason: str | None  # failure reason (plan.json ``reason``) when q is None
+    reason: str | None  # failure reason (SPEC section 5) when q is None
     evidence: dict[str, object]
     members: int  # family members tried
 

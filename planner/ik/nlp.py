@@ -5,7 +5,7 @@ call). Parameters (never baked in): target (3), target normal (3, zeros = none),
 basis (3x3: plane normal m, in-plane axes e1, e2), previous q, cos of the maximum incidence
 (-2 = off), centre weight, and the system geometry of :func:`planner.beam.graph.system_params`.
 
-Constraints (docs/conventions.md: Beam model):
+Constraints (SPEC section 3):
     e1.(spot - target) = e2.(spot - target) = 0   spot on target (spot = ray ∩ plane ⊥ m)
     -n_i.v_i >= MIN_FRONT                          front face of every mirror
     t_i >= MIN_AHEAD                               every mirror ahead

@@ -96,7 +96,7 @@ class BeamIK:
         )
 
     def classify(self, ev: Evaluation, q: Array, status: str) -> tuple[str, dict[str, object]]:
-        """Reason (plan.json ``reason``) of a rejected configuration, with its evidence."""
+        """Reason (SPEC section 5) of a rejected configuration, with its evidence."""
         evidence: dict[str, object] = {
             "error_m": ev.error,
             "ipopt_status": status,

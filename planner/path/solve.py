@@ -48,7 +48,7 @@ __all__ = [
 
 class PathGap(NamedTuple):
     """Samples ``k0 <= k < k1`` (arc length s0..s1 m, starting at world point ``p``) have no
-    valid configuration; ``reason`` is a status reason, ``detail`` the evidence."""
+    valid configuration; ``reason`` is a SPEC status reason, ``detail`` the evidence."""
 
     k0: int
     k1: int

@@ -90,7 +90,7 @@ class PathContext:
         return -out[5].ravel()
 
     def why(self, k: int, q: Array, g: Array, h: Array) -> str | None:
-        """None if q is a valid solution of sample k, else a failure reason with evidence."""
+        """None if q is a valid solution of sample k, else a SPEC reason with evidence."""
         N, lb, tol = self.N, self.valid_lbh[k], JOINT_SLACK
         bad = np.flatnonzero(~(h.ravel() >= lb))
         if not np.all(np.isfinite(q)) or np.linalg.norm(g) > max(1e3 * self.opts.tolerance, 1e-7):

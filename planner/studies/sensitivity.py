@@ -250,7 +250,7 @@ def summarize(nominal: Nominal, rows: list[dict[str, Any]]) -> list[dict[str, An
 
 
 def default_system() -> System:
-    """The paper's N = 1 setup: laser along −x at 0.3 m height."""
+    """The paper's N = 1 setup (SPEC section 4 example): laser along −x at 0.3 m height."""
     from planner.model.kinematics import RobotKinematics
     from planner.model.system import DEFAULT_HOME, Limits, Mirror, Robot
     from planner.model.transforms import make_T, rpy_to_matrix
