@@ -1,6 +1,6 @@
 """Fast numeric beam trace for the IK hot path (numpy + Pinocchio FK, no CasADi call).
 
-Same model as :mod:`planner.beam.graph` (docs/conventions.md): the ray leaves the laser along +z of
+Same model as :mod:`planner.beam.graph` (SPEC section 3): the ray leaves the laser along +z of
 ``world_T_laser``, hits each mirror plane in robot order and reflects ``v' = v - 2 (v.n) n``.
 Everything is in the world frame, metres and radians.
 """
@@ -59,7 +59,7 @@ def evaluate(system: System, q: Array, target: Array, normal: Array | None = Non
     """Trace the beam at stacked joints ``q`` and measure the spot against ``target``.
 
     With a target ``normal`` the spot is the ray's intersection with the target's tangent
-    plane, otherwise the point of the last ray closest to the target.
+    plane, otherwise the point of the last ray closest to the target (SPEC section 3).
     """
     mirrors = mirror_poses(system, np.asarray(q, dtype=float))
     p = system.world_T_laser[:3, 3].copy()
