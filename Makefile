@@ -29,6 +29,7 @@ test: $(STAMP)
 	$(BIN)/ruff check planner schemas drivers tests examples
 	$(BIN)/ruff format --check planner schemas drivers tests examples
 	$(BIN)/mypy planner schemas drivers
+	$(BIN)/lint-imports --no-logo
 	$(BIN)/pytest
 
 lint: $(STAMP)
@@ -39,4 +40,4 @@ report: $(STAMP)
 	$(BIN)/beamrelay study all -o reports
 
 clean:
-	rm -rf $(VENV) $(DEMO) .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) $(DEMO) .pytest_cache .mypy_cache .ruff_cache .import_linter_cache .grimp_cache

@@ -16,6 +16,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from planner.model.transforms import Array
+from schemas import defaults
 
 
 class LoopStats(NamedTuple):
@@ -61,7 +62,9 @@ def node_window(node: Any, n0: int, n1: int) -> Array:
     return np.asarray(node.period_starts[idx])
 
 
-def flood_body(samples: int, q0: Array, names: list[str], rate: float = 500.0) -> bytes:
+def flood_body(
+    samples: int, q0: Array, names: list[str], rate: float = defaults.SERVO_RATE_HZ
+) -> bytes:
     """A valid-looking ``samples``-sample trajectory body (a slow minimum-jerk move)."""
     import json
 

@@ -14,6 +14,8 @@ from typing import Any
 
 import typer
 
+from schemas import defaults
+
 app = typer.Typer(help="Robot and camera drivers (simulated or real) for the running system.")
 
 SCENARIO = typer.Option(
@@ -62,7 +64,7 @@ def robot(
     zenoh_config: Path | None = ZCONFIG,
     prefix: str = PREFIX,
     listen: bool = LISTEN,
-    rate: float = typer.Option(500.0, "--rate", help="Control rate, Hz."),
+    rate: float = typer.Option(defaults.SERVO_RATE_HZ, "--rate", help="Control rate, Hz."),
     state_rate: float = typer.Option(250.0, "--state-rate", help="joint_states rate, Hz (>= 100)."),
     lookahead: float = typer.Option(
         0.1, "--lookahead", help="servoJ lookahead time, s [0.03, 0.2]."

@@ -6,7 +6,9 @@ The curated API (imported lazily, so ``import planner`` and ``beamrelay --help``
   :class:`BeamIK` for per-target IK; :func:`plan` a scenario -> plan.json dict;
   :func:`check_plan` re-verifies one; :func:`calibrate_handeye`, :func:`calibrate_beam`.
 - Model types: :class:`System`, :class:`Robot`, :class:`Mirror`, :class:`Limits`,
-  :class:`Targets`, :class:`BeamModel` (forward trace), :class:`IKOptions`.
+  :class:`Targets`, :class:`BeamModel` (forward trace), :class:`IKOptions`,
+  :class:`TrajectorySettings`; robot models by name: :func:`robot_model`,
+  :func:`register_model`.
 - Errors: :class:`InputError` (a user mistake, with where and why), :class:`BeamrelayError`.
 
 Units are SI (metres, radians, seconds); points are in the world frame unless named otherwise.
@@ -37,6 +39,9 @@ _EXPORTS = {
     "Mirror": "planner.model.system",
     "Limits": "planner.model.system",
     "Targets": "planner.model.system",
+    "robot_model": "planner.model.robots",
+    "register_model": "planner.model.robots",
+    "TrajectorySettings": "planner.model.settings",
     "InputError": "planner.errors",
     "BeamrelayError": "planner.errors",
 }

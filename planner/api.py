@@ -35,9 +35,9 @@ class Setup:
     @property
     def scene(self) -> SceneModel | None:
         """The scenario's scene objects for occlusion checks (None without a scene)."""
-        from planner.model.scene import SceneModel
+        from planner.io.scenario import scene_model
 
-        return SceneModel.from_scenario(self.scenario)
+        return scene_model(self.scenario)
 
 
 def load(path: str | Path) -> Setup:

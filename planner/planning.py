@@ -25,6 +25,7 @@ from planner.model.transforms import Array
 
 if TYPE_CHECKING:
     from planner.model.scene import SceneModel
+    from planner.model.settings import TrajectorySettings
     from planner.path.solve import PathResult
     from planner.path.timing import Trajectory, VisitReport
     from planner.verify.spot import Mask
@@ -222,7 +223,7 @@ def time_solutions(
     system: System,
     targets: Targets,
     solutions: list[Solution],
-    settings: dict[str, Any],
+    settings: TrajectorySettings,
     *,
     q_start: Array | None = None,
     order: str = "optimal",
@@ -235,14 +236,15 @@ def time_solutions(
     consecutive solved samples) swept at ``spot_speed`` (m/s). None if nothing was solved."""
     from planner.path.timing import path_trajectory, points_trajectory
 
-    rate = float(settings.get("rate", 500.0))
+    rate = settings.rate
     q0 = system.home if q_start is None else np.asarray(q_start, dtype=float)
     Q = np.array([np.full(system.nq, np.nan) if s.q is None else s.q for s in solutions])
     if not len(Q) or not np.isfinite(Q).all(axis=1).any():
         return None
     if targets.kind != "path":
-        dwell = float(settings.get("dwell", 0.0))
-        traj, visit = points_trajectory(system, Q, q0, dwell, rate, order, progress=progress)
+        traj, visit = points_trajectory(
+            system, Q, q0, settings.dwell, rate, order, progress=progress
+        )
         figures = {"duration_given_order": visit.duration_given,
                    "duration_chosen_order": visit.duration_optimised}  # fmt: skip
         return Timed(traj, visit, figures | limit_ratios(system, traj))
@@ -252,7 +254,7 @@ def time_solutions(
     ok = np.isfinite(Q).all(axis=1)
     spans = [(s.k0, s.k1) for s in path.segments] if path is not None else _runs(ok)
     runs = [(Q[a:b], arc[a:b]) for k0, k1 in spans for a, b in _runs(ok[k0:k1], k0)]
-    traj = path_trajectory(system, runs, q0, float(settings.get("spot_speed", 0.02)), rate)
+    traj = path_trajectory(system, runs, q0, settings.spot_speed, rate)
     figures = {"path_time": traj.span("path"), "path_length": float(arc[-1]),
                "path_deviation_max": path_deviation(system, targets, traj),
                "slowdowns": float(len(traj.slowdowns))}  # fmt: skip
@@ -343,22 +345,23 @@ def run_scenario(
     ``scene=False`` skips the occlusion check against the scenario's ``scene:``."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 
+    from planner.io.resolved import resolved_scenario_dict
     from planner.io.scenario import (
         load_scenario,
-        resolved_scenario_dict,
+        scene_model,
         system_from_scenario,
         targets_from_scenario,
+        trajectory_settings,
     )
-    from planner.model.scene import SceneModel
 
     loaded = load_scenario(scenario_path)
     scn = loaded.model
     resolved = resolved_scenario_dict(loaded)
     system = system_from_scenario(loaded)
     targets = targets_from_scenario(loaded, system)
-    model = SceneModel.from_scenario(loaded) if scene else None
+    model = scene_model(loaded) if scene else None
     options = ik_options(scn.solver, optimal)
-    settings = scn.trajectory.model_dump() if scn.trajectory is not None else {}
+    settings = trajectory_settings(loaded)
     order = "given" if scn.targets.order == "given" else "optimal"
     columns = ("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
                TimeRemainingColumn())  # fmt: skip

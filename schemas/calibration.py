@@ -1,4 +1,4 @@
-"""Calibration datasets and output (SPEC section 7).
+"""Calibration datasets and output (docs/conventions.md: Calibration data).
 
 Points in metres, joints in rad. ``points_camera`` / ``spot_camera`` are in the camera's
 optical frame, ``spot_world`` and ``board.points`` as named (board points in the board's own

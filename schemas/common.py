@@ -1,7 +1,7 @@
 """Shared building blocks of every schema: strict numbers, vectors and poses.
 
 Units are SI (metres, radians) except where a key says otherwise (``rpy_deg``). A pose maps
-coordinates of its child frame into its parent frame (``a_T_b``, SPEC section 2). Every model
+coordinates of its child frame into its parent frame (``a_T_b``; docs/conventions.md). Every model
 rejects unknown keys.
 """
 
@@ -23,7 +23,7 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
-from planner.model import transforms as tf
+from schemas import rotations as tf
 
 RIGID_TOL = 1e-4
 """A 4x4 ``matrix`` pose is accepted when its rotation is orthonormal to this (max entry of
@@ -130,13 +130,6 @@ def unit_rows(rows: list[list[float]], what: str = "normal") -> list[list[float]
     return out
 
 
-def nearest_rotation(R: tf.Array) -> tf.Array:
-    """The rotation matrix nearest ``R`` in the Frobenius norm (SVD projection, det +1)."""
-    U, _, Vt = np.linalg.svd(R)
-    D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(U @ Vt)))])
-    return np.asarray(U @ D @ Vt, dtype=float)
-
-
 def rigid_rows(rows: list[list[float]], tol: float = RIGID_TOL) -> list[list[float]]:
     """A 4x4 matrix checked to be rigid to ``tol`` and made exactly rigid.
 
@@ -160,14 +153,9 @@ def rigid_rows(rows: list[list[float]], tol: float = RIGID_TOL) -> list[list[flo
         raise ValueError(f"last row must be [0, 0, 0, 1], got {np.round(T[3], 6).tolist()}")
     if ortho <= EXACT_TOL and last == 0.0:
         return rows
-    T[:3, :3] = nearest_rotation(R)
+    T[:3, :3] = tf.nearest_rotation(R)
     T[3] = [0.0, 0.0, 0.0, 1.0]
     return T.tolist()
-
-
-def check_rigid(rows: list[list[float]], tol: float = RIGID_TOL) -> None:
-    """Raise ``ValueError`` unless a 4x4 matrix is a rigid transform (to ``tol``)."""
-    rigid_rows(rows, tol)
 
 
 _ROTATION_KEYS = ("rpy", "rpy_deg", "quat", "matrix")

@@ -220,7 +220,7 @@ def merge_partial(
     over_loc: Loc = (),
     error_cls: type[InputError] = InputError,
 ) -> None:
-    """Merge ``over`` into ``base`` in place (SPEC section 4, ``include:``).
+    """Merge ``over`` into ``base`` in place (docs/conventions.md: Scenario YAML, ``include:``).
 
     Mappings merge key by key; poses (``*_T_*`` keys), lists and scalars replace whole;
     ``robots`` lists are matched by ``name`` (an unknown name is an error located in

@@ -1,4 +1,4 @@
-"""Zenoh message bodies (SPEC section 6). JSON, encoding ``application/json``.
+"""Zenoh message bodies (docs/conventions.md: Zenoh interface). JSON, encoding ``application/json``.
 
 Points in metres (in the frame a message names), joints in rad, rad/s, rad/s^2, times in
 seconds (``t`` is the sender's clock, UNIX time unless stated otherwise).

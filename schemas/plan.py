@@ -1,4 +1,4 @@
-"""plan.json (SPEC section 5): the output of planning and the body of a plan reply.
+"""plan.json (docs/conventions.md: plan.json): the output of planning and the body of a plan reply.
 
 Every point (``p``, ``spot``, hit ``p``) is in the world frame, in metres; joint values in
 rad (rad/s, rad/s^2); times in seconds from the trajectory start.

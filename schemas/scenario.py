@@ -1,4 +1,4 @@
-"""The scenario file (SPEC section 4): system, scene, targets, solver and trajectory settings.
+"""The scenario file (docs/conventions.md): system, scene, targets, solver and trajectory settings.
 
 All lengths in metres, angles in radians unless the key ends in ``_deg``; every pose is
 ``parent_T_child`` with the world frame as parent unless its name says otherwise. The
@@ -12,6 +12,7 @@ from typing import Annotated, Literal, Self
 
 from pydantic import Field, field_validator, model_validator
 
+from schemas import defaults
 from schemas.bounds import (
     MAX_SPOT_SPEED,
     MAX_TOLERANCE,
@@ -91,7 +92,7 @@ class Mirror(StrictModel):
 
     flange_T_mirror: Pose
     size: PosVec2
-    roi_margin: NonNegNum = 0.005
+    roi_margin: NonNegNum = defaults.ROI_MARGIN_M
 
     @model_validator(mode="after")
     def _margin_fits(self) -> Self:
@@ -122,12 +123,13 @@ def check_joint_lengths(home: list[float] | None, limits: Limits | None, nq: int
 class Robot(StrictModel):
     """One arm holding a mirror, its base at ``world_T_base`` (default: the world frame).
 
-    ``model`` (default ``ur5e``) or ``urdf`` (a path relative to the scenario file) gives the
-    kinematics; ``home`` is the start configuration in rad.
+    ``model`` (a registered robot model, default ``ur5e``; checked when the scenario is
+    loaded) or ``urdf`` (a path relative to the scenario file) gives the kinematics; ``home``
+    is the start configuration in rad.
     """
 
     name: Name
-    model: Literal["ur5e"] | None = None
+    model: Name | None = None
     urdf: Name | None = None
     world_T_base: Pose = Field(default_factory=Pose)
     home: JointVector | None = None
@@ -138,7 +140,7 @@ class Robot(StrictModel):
     def _model_xor_urdf(self) -> Self:
         if self.model is not None and self.urdf is not None:
             raise FieldError(("urdf",), "give either model or urdf, not both")
-        if self.urdf is None:
+        if self.urdf is None and self.model in (None, "ur5e"):
             check_joint_lengths(self.home, self.limits, UR_NQ)
         check_robot(self.home, self.world_T_base)
         return self
@@ -336,9 +338,9 @@ class SceneObject(StrictModel):
 class Solver(StrictModel):
     """IK settings: ``tolerance`` is a spot error (m); ``max_incidence_deg`` in degrees."""
 
-    tolerance: PosNum = 1e-9
-    max_iter: PosInt = 200
-    max_incidence_deg: Annotated[PosNum, Field(le=90)] = 80.0
+    tolerance: PosNum = defaults.SPOT_TOLERANCE_M
+    max_iter: PosInt = defaults.SOLVER_MAX_ITER
+    max_incidence_deg: Annotated[PosNum, Field(le=90)] = defaults.MAX_INCIDENCE_DEG
 
     @model_validator(mode="after")
     def _plausible(self) -> Self:
@@ -354,9 +356,9 @@ class Solver(StrictModel):
 class TrajectorySettings(StrictModel):
     """Path timing: spot speed (m/s), dwell per target (s), sample rate (Hz)."""
 
-    spot_speed: PosNum = 0.02
-    dwell: NonNegNum = 0.0
-    rate: PosNum = 500.0
+    spot_speed: PosNum = defaults.SPOT_SPEED_MPS
+    dwell: NonNegNum = defaults.DWELL_S
+    rate: PosNum = defaults.SERVO_RATE_HZ
 
     @model_validator(mode="after")
     def _plausible(self) -> Self:

@@ -10,6 +10,7 @@ from typing import Annotated, Literal, Self
 
 from pydantic import Field, StrictBool, model_validator
 
+from schemas import defaults
 from schemas.bounds import check_coordinates, check_length_scale
 from schemas.common import (
     FieldError,
@@ -60,7 +61,7 @@ class PathSpec(StrictModel):
     points: Annotated[list[Vec3], Field(min_length=2)]
     normals: list[Vec3] | None = None
     closed: StrictBool = False
-    spacing: PosNum = 0.001
+    spacing: PosNum = defaults.PATH_SPACING_M
 
     @model_validator(mode="after")
     def _normals(self) -> Self:

@@ -3,7 +3,8 @@
 YAML is read as YAML 1.2 with ruamel's round-trip loader so every key and list item keeps
 its line; the tree becomes plain Python (dict, list, float, int, bool, str, None) plus an
 :data:`~schemas.located.Origins` map. JSON is read with the standard library (errors name
-the key path, no line). :func:`validate_file` tells what a file is and validates it fully.
+the key path, no line). :func:`read_tagged` tells what a file is and validates it (a scenario is only detected: the
+planner resolves it).
 """
 
 from __future__ import annotations
@@ -62,10 +63,10 @@ __all__ = [
     "parse_message",
     "read_document",
     "read_json",
+    "read_tagged",
     "read_yaml",
     "rebase_origins",
     "validate",
-    "validate_file",
     "validation_error",
     "where",
 ]
@@ -186,7 +187,7 @@ def load_model(path: str | Path, model: type[M], error_cls: type[InputError] = I
 
 def load_dataset(path: str | Path) -> HandEyeDataset | BeamDataset:
     """A calibration dataset (hand-eye or beam) chosen by its ``schema`` field."""
-    kind, model = validate_file(path)
+    kind, model = read_tagged(path)
     if not isinstance(model, HandEyeDataset | BeamDataset):
         raise DatasetError(f"is a {kind} file, not a calibration dataset", str(path))
     return model
@@ -201,13 +202,18 @@ def parse_message(body: bytes | str, model: type[M]) -> M:
     return validate(model, data)
 
 
-def validate_file(path: str | Path) -> tuple[str, BaseModel]:
-    """Detect and fully validate a file; returns ``(kind, model)``.
+SCENARIO_KIND = "scenario"
+"""The kind :func:`read_tagged` gives a scenario file (resolved by the planner, not here)."""
 
-    Kinds: ``scenario`` (includes applied; robots, limits and targets resolved too),
-    ``calibration``, and the ``schema``-tagged ``plan`` (its ``scenario`` validated as well),
-    ``handeye``, ``beam``, ``request``, ``trajectory``, ``joint_state``, ``status``,
-    ``spot``, ``error``. Raises :class:`InputError` (or its Scenario/Dataset subclasses).
+
+def read_tagged(path: str | Path) -> tuple[str, BaseModel | None]:
+    """Detect what a file is and validate it, except a scenario; returns ``(kind, model)``.
+
+    Kinds: ``calibration``, the ``schema``-tagged ``plan`` (its ``scenario`` validated as
+    well), ``handeye``, ``beam``, ``request``, ``trajectory``, ``joint_state``, ``status``,
+    ``spot``, ``error``; and ``scenario`` with model None (its includes, robots, limits and
+    targets are resolved by :func:`planner.io.validate.validate_file`). Raises
+    :class:`InputError` (or its Scenario/Dataset subclasses).
     """
     shown = str(path)
     data, origins = read_document(path)
@@ -231,13 +237,6 @@ def validate_file(path: str | Path) -> tuple[str, BaseModel]:
             CalibrationFile, data, origins=origins, source=shown, error_cls=ScenarioError
         )
     if "system" in data or "targets" in data:
-        from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
-
-        scn = load_scenario(path)
-        system = system_from_scenario(scn)
-        targets_from_scenario(scn, system)
-        if scn.truth_system is not None:
-            system_from_scenario(scn, truth=True)
-        return "scenario", scn.model
+        return SCENARIO_KIND, None
     place = where(origins or {}, (), shown)
     raise InputError("cannot tell what this file is: no schema key and no scenario keys", place)

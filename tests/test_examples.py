@@ -38,5 +38,8 @@ def test_example_runs(path: object) -> None:
         assert errors_mm and max(errors_mm) < 1e-6  # exact in the model
     if "03_" in str(path):
         assert "violations" not in text and re.search(r"(\d+)/\1 targets solved", text)
+    if "06_" in str(path):  # the registered model: its own 0.427 m upper arm, solved exactly
+        assert "model ur5e_lab" in text and "[-0.8192 " in text  # -(0.427 + 0.3922) m
+        assert errors_mm and max(errors_mm) < 1e-6
     if "04_" in str(path):
         assert errors_mm and max(errors_mm) < 5.0  # D435 noise, 20 poses: a few mm at most

@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 
 from drivers.camera.node import SpotReading
 from planner.beam.graph import BeamModel
-from planner.io.scenario import SceneItem
+from planner.model.scene import SceneItem
 from planner.model.system import Camera, System
 from planner.model.transforms import Array, inv_T
 

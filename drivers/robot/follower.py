@@ -37,6 +37,7 @@ from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ru
 
 from planner.model.system import Limits
 from planner.model.transforms import Array
+from schemas import defaults
 
 MODES = ("idle", "approach", "following", "settle", "braking", "stopped")
 REST_VELOCITY = 1e-9  # rad/s: below this (every joint) the arm counts as at rest
@@ -86,7 +87,7 @@ class TrajectoryFollower:
         self,
         q0: Array,
         limits: Limits,
-        dt: float = 0.002,
+        dt: float = 1.0 / defaults.SERVO_RATE_HZ,
         stop_acceleration: float = STOP_ACCELERATION,
         stop_jerk: float = STOP_JERK,
     ) -> None:

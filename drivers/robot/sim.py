@@ -18,6 +18,7 @@ from drivers.robot.follower import STOP_ACCELERATION, FollowerState, Reference, 
 from drivers.robot.node import Measured
 from planner.model.system import Limits
 from planner.model.transforms import Array
+from schemas import defaults
 
 MAX_CATCH_UP = 10  # periods simulated at most per step when the loop fell behind
 
@@ -32,7 +33,7 @@ class SimRobot:
         names: tuple[str, ...],
         q0: Array,
         limits: Limits,
-        rate: float = 500.0,
+        rate: float = defaults.SERVO_RATE_HZ,
         stop_acceleration: float = STOP_ACCELERATION,
         realtime: bool = True,
     ) -> None:
@@ -41,7 +42,6 @@ class SimRobot:
         self.dt = 1.0 / self.rate
         self.follower = TrajectoryFollower(q0, limits, self.dt, stop_acceleration)
         self.realtime = realtime
-        self.sim_time = 0.0
         self._next = time.monotonic()
 
     def begin_period(self) -> None:
@@ -56,7 +56,6 @@ class SimRobot:
         state: FollowerState = self.follower.state
         for _ in range(n):
             state = self.follower.step()
-            self.sim_time += self.dt
         return Measured(state.q, state.qd, state.mode)
 
     def end_period(self) -> None:

@@ -49,12 +49,13 @@ from drivers.robot.follower import Reference
 from planner.errors import InputError
 from planner.model.system import Limits
 from planner.model.transforms import Array
+from schemas import defaults
 from schemas.messages import JointTrajectory
 
 START_TOLERANCE = 0.01  # rad: largest |q_traj[0] - q_now| accepted (any joint)
 LIMIT_SLACK = 1e-6  # relative slack on velocity/acceleration limits (numerical noise)
 POSITION_NOISE = 1e-9  # rad: position rounding the finite-difference checks tolerate
-DEFAULT_PERIOD = 0.002  # s: control period of the 500 Hz backends
+DEFAULT_PERIOD = 1.0 / defaults.SERVO_RATE_HZ  # s: control period of the 500 Hz backends
 
 
 class Parsed(NamedTuple):

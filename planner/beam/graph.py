@@ -1,4 +1,4 @@
-"""The beam chain as one named CasADi function (SPEC section 3, paper Eqs. 1-2).
+"""The beam chain as one named CasADi function (paper Eqs. 1-2).
 
 ``beam_function(kinematics)`` builds, once per tuple of robot models, the function
 

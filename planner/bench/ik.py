@@ -20,9 +20,9 @@ def _run(scenario: Path, optimal: bool) -> dict[str, Any]:
     import numpy as np
 
     from planner.ik import BeamIK
+    from planner.io.resolved import resolved_scenario_dict
     from planner.io.scenario import (
         load_scenario,
-        resolved_scenario_dict,
         system_from_scenario,
         targets_from_scenario,
     )

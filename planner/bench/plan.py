@@ -43,9 +43,9 @@ def run_size(scenario: str, n: int, stages: tuple[str, ...]) -> dict[str, Any]:
     """Plan one grid of about ``n`` targets; figures per stage (s, MB)."""
     import numpy as np
 
+    from planner.io.resolved import resolved_scenario_dict
     from planner.io.scenario import (
         load_scenario,
-        resolved_scenario_dict,
         system_from_scenario,
         targets_from_scenario,
     )

@@ -19,6 +19,7 @@ import numpy as np
 import typer
 
 from planner.model.system import System
+from schemas import defaults
 
 GAP = 1.05  # m between neighbouring bases
 
@@ -90,7 +91,7 @@ def measure(n: int, seconds: float = 0.5, seed: int = 0) -> dict[str, Any]:
                 arms.arm_arm_distances(a, b)
 
     pairs_s = _rate(lambda i: all_pair_distances(world, Q[i % 256]), 50, seconds)
-    t = np.arange(0.0, 1.0 + 1e-12, 1 / 500)
+    t = np.arange(0.0, 1.0 + 1e-12, 1 / defaults.SERVO_RATE_HZ)
     move = system.home + np.outer(t, rng.uniform(-0.3, 0.3, system.nq))
     sweep_s = _rate(lambda i: check_sweep(world, t, move), 1, seconds)
     return {

@@ -1,4 +1,4 @@
-"""Calibration datasets (SPEC section 7): JSON files <-> the arrays the solvers use.
+"""Calibration datasets (docs/conventions.md): JSON files <-> the arrays the solvers use.
 
 Validation happens here, at the boundary, with the pydantic models of
 ``schemas.calibration``; inside, datasets are :class:`HandEyeData` / :class:`BeamData`.

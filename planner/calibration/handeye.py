@@ -46,7 +46,7 @@ PARAM_NAMES = [f"camera.{a}" for a in ("rx", "ry", "rz", "tx", "ty", "tz")] + [
 
 @dataclass(frozen=True)
 class HandEyeData:
-    """A hand-eye dataset (SPEC section 7) as arrays.
+    """A hand-eye dataset (docs/conventions.md: Calibration data) as arrays.
 
     ``board_points`` (P, 3) in the board frame; ``q`` (K, nq); ``points_camera``
     (K, P, 3) in the camera frame, NaN where a marker was not seen.

@@ -1,6 +1,6 @@
 """Calibration output: residual statistics, uncertainties, gauge, and the includable YAML.
 
-The file (SPEC section 7) is a partial ``system:`` mapping with the scenario's own keys,
+The file (docs/conventions.md) is a partial ``system:`` mapping with the scenario's own keys,
 which a scenario pulls in with ``include:``, plus a ``report:`` mapping. Every number in
 it is SI (metres, radians); only printed summaries use mm / deg, labelled.
 """

@@ -1,8 +1,10 @@
 """The ``beamrelay`` command line.
 
-Each area keeps its commands in its own module (``planner/cli_*.py``) with only light
-imports at module level, so ``beamrelay --help`` stays instant; heavy libraries (CasADi,
-Pinocchio, open3d, Zenoh, matplotlib) are imported inside the commands.
+Each area keeps its commands in its own module (``planner/cli/<area>.py``), registered here
+by name, so a misspelt module or command fails at import instead of silently dropping the
+command. The modules import only light libraries at module level, so ``beamrelay --help``
+stays fast; heavy libraries (CasADi, Pinocchio, open3d, Zenoh, matplotlib) are imported
+inside the commands.
 
 Exit status: 0 success, 1 the work ran but something failed, 2 bad input
 (one line on stderr, no traceback).
@@ -10,14 +12,14 @@ Exit status: 0 success, 1 the work ran but something failed, 2 bad input
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
 import os
 import sys
 from typing import Annotated
 
 import typer
 
+from drivers import cli as driver_cli
+from planner.cli import bench, calibrate, core, node, plan, study
 from planner.errors import InputError
 
 app = typer.Typer(
@@ -28,41 +30,17 @@ app = typer.Typer(
     add_completion=False,
 )
 
-# (module, attribute, command name) of every top-level command, and sub-apps.
-_COMMANDS = [
-    ("planner.cli.core", "validate", "validate"),
-    ("planner.cli.core", "trace", "trace"),
-    ("planner.cli.plan", "plan", "plan"),
-    ("planner.cli.plan", "check", "check"),
-    ("planner.cli.node", "serve", "serve"),
-    ("planner.cli.node", "up", "up"),
-    ("planner.cli.node", "request", "request"),
-]
-_GROUPS = [
-    ("planner.cli.calibrate", "app", "calibrate"),
-    ("planner.cli.study", "app", "study"),
-    ("planner.cli.bench", "app", "bench"),
-    ("drivers.cli", "app", "driver"),
-]
-
-
-def _exists(module: str) -> bool:
-    try:
-        return importlib.util.find_spec(module) is not None
-    except ModuleNotFoundError:
-        return False
-
-
-def _register() -> None:
-    for module, attr, name in _COMMANDS:
-        if _exists(module) and hasattr(mod := importlib.import_module(module), attr):
-            app.command(name)(getattr(mod, attr))
-    for module, attr, name in _GROUPS:
-        if _exists(module):
-            app.add_typer(getattr(importlib.import_module(module), attr), name=name)
-
-
-_register()
+app.command("validate")(core.validate)
+app.command("trace")(core.trace)
+app.command("plan")(plan.plan)
+app.command("check")(plan.check)
+app.command("serve")(node.serve)
+app.command("up")(node.up)
+app.command("request")(node.request)
+app.add_typer(calibrate.app, name="calibrate")
+app.add_typer(study.app, name="study")
+app.add_typer(bench.app, name="bench")
+app.add_typer(driver_cli.app, name="driver")
 
 
 def _version(value: bool) -> None:

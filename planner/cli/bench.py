@@ -4,15 +4,14 @@ figures as one JSON object on the last line of standard output."""
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
-
 import typer
+
+from planner.bench import ik, path, plan, safety, service
 
 app = typer.Typer(help="Benchmarks (figures printed, not asserted).", no_args_is_help=True)
 
-for _name in ("ik", "path", "service", "plan"):
-    if importlib.util.find_spec(_module := f"planner.bench.{_name}") is None:
-        continue
-    _mod = importlib.import_module(_module)
-    app.command(_name)(_mod.command)
+BENCHMARKS = {"ik": ik, "path": path, "service": service, "plan": plan, "safety": safety}
+"""Command name -> benchmark module (its ``command`` is the sub-command)."""
+
+for _name, _module in BENCHMARKS.items():
+    app.command(_name)(_module.command)

@@ -1,4 +1,4 @@
-"""``beamrelay calibrate handeye|beam|simulate`` (SPEC section 7).
+"""``beamrelay calibrate handeye|beam|simulate`` (docs/conventions.md: Calibration data).
 
 Heavy imports (CasADi, Pinocchio) happen inside the commands. Bad files and insufficient
 or degenerate data end with one line on stderr and exit status 2.

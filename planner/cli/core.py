@@ -15,7 +15,7 @@ def validate(
     files: Annotated[list[Path], typer.Argument(help="Scenarios, datasets, plans, requests.")],
 ) -> None:
     """Check scenarios, datasets, plans and requests against their schemas. Exit 2 on any error."""
-    from schemas.yamlio import validate_file
+    from planner.io.validate import validate_file
 
     bad = 0
     for path in files:

@@ -4,17 +4,14 @@ taking at least ``--trials``, ``--seed``, ``-o/--out``, ``--workers`` and ``--js
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
-
 import typer
+
+from planner.studies import all as all_studies
 
 app = typer.Typer(help="Studies: paper reproductions and reports.", no_args_is_help=True)
 
-STUDIES = ("ik-grid", "calibration", "sensitivity", "mirror-sweep", "coverage", "tracking", "all")
+STUDIES = {**all_studies.STUDIES, "all": all_studies}
+"""Command name -> study module (its ``command`` is the sub-command)."""
 
-for _name in STUDIES:
-    if importlib.util.find_spec(_module := f"planner.studies.{_name.replace('-', '_')}") is None:
-        continue
-    _mod = importlib.import_module(_module)
-    app.command(_name)(_mod.command)
+for _name, _module in STUDIES.items():
+    app.command(_name)(_module.command)

@@ -1,7 +1,7 @@
 """Per-target beam IK driver: closed form first, Newton to close calibration gaps, IPOPT for
 the optimal step and as the multi-start fallback. Data in, :class:`Solution` out.
 
-A failed target is a status with a machine-readable reason (SPEC section 5) and the numbers
+A failed target is a status with a machine-readable reason (plan.json ``reason``) and the numbers
 that show it (``evidence``); it never raises.
 """
 
@@ -160,7 +160,18 @@ class BeamIK:
     def solve(
         self, target: Array, normal: Array | None = None, q_prev: Array | None = None
     ) -> Solution:
-        """Solve one target (world frame); ``q_prev`` (stacked) defaults to home."""
+        """Solve one target.
+
+        Args:
+            target: the spot's goal (3,), world frame, m.
+            normal: the target surface's outward normal (3,), world frame, or None (then the
+                spot is the point of the last ray closest to ``target``).
+            q_prev: stacked joints (rad) to start from and stay near; default home.
+
+        Returns:
+            A :class:`Solution`: ``status`` ok or a failure ``reason`` with its evidence,
+            ``q`` (stacked, rad), the spot error (m) and the traced beam.
+        """
         t0 = time.perf_counter()
         target = np.asarray(target, dtype=float)
         q_prev = self.system.home if q_prev is None else np.asarray(q_prev, dtype=float)

@@ -19,7 +19,9 @@ import numpy as np
 
 from planner.errors import InputError, ScenarioError
 from planner.io.plausibility import emit, scenario_warnings
-from planner.model.kinematics import RobotKinematics
+from planner.model import robots
+from planner.model.scene import SceneItem, SceneModel
+from planner.model.settings import TrajectorySettings
 from planner.model.system import (
     DEFAULT_HOME,
     Camera,
@@ -90,30 +92,18 @@ class LoadedScenario:
         return (self.base_dir / Path(relative).expanduser()).resolve()
 
 
-@dataclass(frozen=True)
-class SceneItem:
-    """A scene object in the world. ``shape`` is box | mesh | sphere | cylinder.
-
-    ``extents``: box full size (m); ``radius``/``height``: sphere or cylinder (along the
-    object's z, centred); ``mesh_path`` (absolute) scaled by ``scale`` into metres.
-    """
-
-    name: str
-    shape: str
-    world_T_object: Array
-    extents: Array | None = None
-    radius: float | None = None
-    height: float | None = None
-    mesh_path: Path | None = None
-    scale: float = 1.0
-
-
 # --- loading ------------------------------------------------------------------------------
 def load_scenario(path: str | Path) -> LoadedScenario:
     """Read, merge ``include:`` files into, and validate a scenario file.
 
-    Raises :class:`ScenarioError` with ``file:line key.path`` for any problem, including a
-    missing URDF or mesh file.
+    Args:
+        path: the scenario YAML; relative ``include``, ``urdf`` and ``mesh`` paths resolve
+            against its folder.
+
+    Returns:
+        The :class:`LoadedScenario` (validated model, origins of every key, warnings).
+        Raises :class:`ScenarioError` with ``file:line key.path`` for any problem, including
+        a missing URDF or mesh file.
     """
     shown = str(path)
     data, origins = read_yaml(path, ScenarioError)
@@ -192,26 +182,29 @@ def _check_files(scn: LoadedScenario) -> None:
 
 
 # --- system -------------------------------------------------------------------------------
-_KINEMATICS: dict[str, RobotKinematics] = {}
-
-
-def robot_kinematics(model: RobotModel, scn: LoadedScenario, loc: Loc) -> RobotKinematics:
-    """The (cached, shared) kinematics of a robot entry: nominal UR5e or its URDF."""
-    key = "ur5e" if model.urdf is None else str(scn.resolve_path(model.urdf))
-    if key not in _KINEMATICS:
-        try:
-            kin = RobotKinematics.ur5e() if model.urdf is None else RobotKinematics.from_urdf(key)
-        except InputError as exc:
-            raise ScenarioError(exc.reason, scn.where((*loc, "urdf"))) from None
-        _KINEMATICS[key] = kin
-    return _KINEMATICS[key]
+def robot_model(model: RobotModel, scn: LoadedScenario, loc: Loc) -> robots.RobotModel:
+    """The (cached, shared) robot model of a robot entry: its ``model`` by name (default
+    ``ur5e``) from :mod:`planner.model.robots`, or its ``urdf``."""
+    key = "model" if model.urdf is None else "urdf"
+    try:
+        if model.urdf is not None:
+            return robots.robot_model(scn.resolve_path(model.urdf))
+        return robots.robot_model(model.model or robots.DEFAULT_MODEL)
+    except InputError as exc:
+        raise ScenarioError(exc.reason, scn.where((*loc, key))) from None
 
 
 def system_from_scenario(scn: LoadedScenario, *, truth: bool = False) -> System:
-    """The resolved :class:`System` (defaults filled in, poses as 4x4 arrays).
+    """The resolved :class:`System` (defaults filled in, poses as 4x4 arrays, world frame, m).
 
-    ``truth=True`` uses ``truth.system`` merged over ``system`` (the geometry simulated
-    drivers use); without a ``truth`` section it is the nominal system.
+    Args:
+        scn: a scenario from :func:`load_scenario`.
+        truth: use ``truth.system`` merged over ``system`` (the geometry simulated drivers
+            use); without a ``truth`` section it is the nominal system.
+
+    Returns:
+        The :class:`System`: laser pose, robots (kinematics from
+        :func:`planner.model.robots.robot_model`, limits, home, mirror), camera.
     """
     use_truth = truth and scn.truth_system is not None
     model = scn.truth_system if use_truth and scn.truth_system else scn.model.system
@@ -235,13 +228,13 @@ def _camera(cam: CameraModel, robots: tuple[Robot, ...]) -> Camera:
 
 
 def _robot(r: RobotModel, scn: LoadedScenario, loc: Loc) -> Robot:
-    kin = robot_kinematics(r, scn, loc)
-    nq = kin.nq
+    arm = robot_model(r, scn, loc)
+    kin, nq = arm.kinematics, arm.nq
     try:
         check_joint_lengths(r.home, r.limits, nq)
     except FieldError as exc:
         raise ScenarioError(exc.reason, scn.where((*loc, *exc.loc))) from None
-    default = kin.default_limits()
+    default = arm.limits
     given = r.limits.model_dump() if r.limits is not None else {}
     values = {k: np.asarray(given.get(k) or getattr(default, k), dtype=float) for k in LIMIT_KEYS}
     limits = Limits(**values)
@@ -272,10 +265,15 @@ def _default_home(nq: int) -> Array:
 def targets_from_scenario(scn: LoadedScenario, system: System) -> Targets:
     """The scenario's targets in the world frame (grid expanded, path resampled).
 
-    ``frame: camera`` coordinates are mapped with the camera pose (for a camera on a
-    flange: at its robot's home joints).
-    ``normals`` is None when the scenario gives none. ``meta`` holds ``order`` and ``frame``
-    (plus ``n`` for a grid, ``spacing`` and ``vertices`` for a path).
+    Args:
+        scn: a scenario from :func:`load_scenario`.
+        system: its :func:`system_from_scenario` (for ``frame: camera`` targets, mapped with
+            the camera pose; a camera on a flange at its robot's home joints).
+
+    Returns:
+        :class:`Targets`: ``points`` (K, 3) m, world frame; ``normals`` (K, 3) or None when
+        the scenario gives none; ``meta`` with ``order`` and ``frame`` (plus ``n`` for a
+        grid, ``spacing`` and ``vertices`` for a path).
     """
     spec = scn.model.targets
     world_T_frame = np.eye(4)
@@ -396,70 +394,11 @@ def scene_objects(scn: LoadedScenario) -> list[SceneItem]:
     return items
 
 
-def _pose(T: Array) -> dict[str, Any]:
-    return {"matrix": np.asarray(T, dtype=float).tolist()}
+def trajectory_settings(scn: LoadedScenario) -> TrajectorySettings:
+    """The scenario's ``trajectory`` section as typed settings (defaults filled in)."""
+    return TrajectorySettings.from_mapping(scn.model.trajectory.model_dump())
 
 
-def _system_dict(system: System, model: SystemModel, scn: LoadedScenario) -> dict[str, Any]:
-    robots = []
-    for r, rm in zip(system.robots, model.robots, strict=True):
-        kind = {"model": "ur5e"} if rm.urdf is None else {"urdf": str(scn.resolve_path(rm.urdf))}
-        limits = {k: getattr(r.limits, k).tolist() for k in LIMIT_KEYS}
-        mirror = {
-            "flange_T_mirror": _pose(r.mirror.flange_T_mirror),
-            "size": list(r.mirror.size),
-            "roi_margin": r.mirror.roi_margin,
-        }
-        robots.append(
-            {"name": r.name, **kind, "world_T_base": _pose(r.world_T_base)}
-            | {"home": r.home.tolist(), "limits": limits, "mirror": mirror}
-        )
-    out: dict[str, Any] = {
-        "laser": {"world_T_laser": _pose(system.world_T_laser)},
-        "robots": robots,
-    }
-    if system.camera is not None:
-        k = system.camera.intrinsics
-        intrinsics = {"width": k.width, "height": k.height, "fx": k.fx, "fy": k.fy}
-        intrinsics |= {"cx": k.cx, "cy": k.cy}
-        cam = system.camera
-        mount: dict[str, Any] = {"world_T_camera": _pose(cam.world_T_camera)}
-        if cam.robot is not None and cam.flange_T_camera is not None:
-            mount = {"robot": cam.robot, "flange_T_camera": _pose(cam.flange_T_camera)}
-        out["camera"] = mount | {"intrinsics": intrinsics}
-    return out
-
-
-def resolved_scenario_dict(scn: LoadedScenario) -> dict[str, Any]:
-    """The validated scenario with defaults filled in and every pose as ``{matrix: 4x4}``.
-
-    Includes are already applied (``include: []``); ``urdf`` and ``mesh`` paths are
-    absolute; ``truth.system`` (if any) is the full merged truth system. Validates again as
-    a :class:`~schemas.scenario.Scenario` (plan.json ``scenario``).
-    """
-    m = scn.model
-    scene = []
-    for item in scene_objects(scn):
-        shape: dict[str, Any]
-        if item.shape == "box":
-            shape = {"box": np.asarray(item.extents).tolist()}
-        elif item.shape == "sphere":
-            shape = {"sphere": item.radius}
-        elif item.shape == "cylinder":
-            shape = {"cylinder": [item.radius, item.height]}
-        else:
-            shape = {"mesh": str(item.mesh_path), "scale": item.scale}
-        scene.append({"name": item.name, **shape, "world_T_object": _pose(item.world_T_object)})
-    out: dict[str, Any] = {
-        "name": scn.name,
-        "system": _system_dict(system_from_scenario(scn), m.system, scn),
-        "scene": scene,
-        "targets": m.targets.model_dump(exclude_none=True),
-        "solver": m.solver.model_dump(),
-        "trajectory": m.trajectory.model_dump(),
-        "include": [],
-    }
-    if scn.truth_system is not None:
-        truth = system_from_scenario(scn, truth=True)
-        out["truth"] = {"system": _system_dict(truth, scn.truth_system, scn)}
-    return out
+def scene_model(scn: LoadedScenario) -> SceneModel:
+    """The raycasting model of a loaded scenario's ``scene:`` objects (world frame, m)."""
+    return SceneModel(scene_objects(scn))

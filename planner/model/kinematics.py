@@ -16,7 +16,7 @@ import numpy as np
 import pinocchio as pin
 
 from planner.errors import InputError
-from planner.model.system import Limits
+from planner.model.limits import Limits
 from planner.model.transforms import Array, inv_T
 
 UR5E_DH = {
@@ -65,7 +65,8 @@ class RobotKinematics:
     """Forward kinematics ``base_T_flange(q)`` of a serial arm, numeric and symbolic.
 
     Build with :meth:`ur5e` (the shipped nominal model, with analytic IK) or
-    :meth:`from_urdf` (any serial URDF; e.g. a UR with factory calibration offsets).
+    :meth:`from_urdf` (any serial URDF; e.g. a UR with factory calibration offsets); by name
+    or URDF path through the registry :func:`planner.model.robots.robot_model`.
     """
 
     def __init__(
@@ -100,7 +101,8 @@ class RobotKinematics:
     # construction -------------------------------------------------------------------------
     @classmethod
     def ur5e(cls) -> RobotKinematics:
-        """The nominal UR5e (SPEC DH values), with the closed-form IK of ``ur-analytic-ik``."""
+        """The nominal UR5e (published standard DH values), with the closed-form IK of
+        ``ur-analytic-ik``."""
         path = ur5e_urdf_path()
         return cls(
             pin.buildModelFromUrdf(str(path)), name="ur5e", source=str(path), analytic="ur5e"
@@ -108,9 +110,15 @@ class RobotKinematics:
 
     @classmethod
     def from_urdf(
-        cls, path: str | Path, *, flange_frame: str = "tool0", base_frame: str = "base"
+        cls,
+        path: str | Path,
+        *,
+        flange_frame: str = "tool0",
+        base_frame: str = "base",
+        name: str | None = None,
     ) -> RobotKinematics:
-        """Any serial arm from a URDF file; no analytic IK (IPOPT/Newton only)."""
+        """Any serial arm from a URDF file; no analytic IK (IPOPT/Newton only). ``name``
+        defaults to the file's stem."""
         path = Path(path)
         if not path.is_file():
             raise InputError(f"URDF file not found: {path}")
@@ -120,7 +128,7 @@ class RobotKinematics:
             raise InputError(f"cannot load URDF: {exc}", str(path)) from exc
         return cls(
             model,
-            name=path.stem,
+            name=path.stem if name is None else name,
             source=str(path),
             flange_frame=flange_frame,
             base_frame=base_frame,

@@ -1,8 +1,9 @@
 """One model of the scenario's scene objects for everything that raycasts them.
 
-:class:`SceneModel` holds the scene objects (:func:`planner.io.scenario.scene_objects`: box,
-mesh, sphere, cylinder, world frame, metres) and answers "where does this ray / segment first
-meet an object". The planner uses it to reject blocked beams (``occluded``, SPEC section 5),
+:class:`SceneModel` holds the scene objects (:class:`SceneItem`: box, mesh, sphere, cylinder,
+world frame, metres; :func:`planner.io.scenario.scene_model` builds one from a scenario) and
+answers "where does this ray / segment first meet an object". The planner uses it to reject
+blocked beams (status ``occluded``),
 the simulated camera to render depth and to stop the beam at the first surface, the studies
 to test lines of sight. open3d is imported only when the first ray is cast, and an empty
 scene never imports it: every query on it is a miss.
@@ -15,16 +16,15 @@ can be up to r (1 - cos(pi / resolution)) inside the true surface (0.2 mm for r 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING, Any, NamedTuple
+from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from planner.errors import InputError
 from planner.model.transforms import Array
-
-if TYPE_CHECKING:
-    from planner.io.scenario import LoadedScenario, SceneItem
 
 SPHERE_RESOLUTION = 48
 CYLINDER_RESOLUTION = 96
@@ -33,6 +33,24 @@ START_MARGIN = 1e-6
 #: m, default allowance at a segment's end: a target lying ON a surface is not blocked by it
 END_MARGIN = 1e-3
 _INVALID = 4294967295  # open3d RaycastingScene.INVALID_ID
+
+
+@dataclass(frozen=True)
+class SceneItem:
+    """A scene object in the world. ``shape`` is box | mesh | sphere | cylinder.
+
+    ``extents``: box full size (m); ``radius``/``height``: sphere or cylinder (along the
+    object's z, centred); ``mesh_path`` (absolute) scaled by ``scale`` into metres.
+    """
+
+    name: str
+    shape: str
+    world_T_object: Array
+    extents: Array | None = None
+    radius: float | None = None
+    height: float | None = None
+    mesh_path: Path | None = None
+    scale: float = 1.0
 
 
 class RayHits(NamedTuple):
@@ -95,13 +113,6 @@ class SceneModel:
     ) -> None:
         self.items = tuple(items)
         self.meshes = tuple(meshes)
-
-    @classmethod
-    def from_scenario(cls, scn: LoadedScenario) -> SceneModel:
-        """The ``scene:`` objects of a loaded scenario."""
-        from planner.io.scenario import scene_objects
-
-        return cls(scene_objects(scn))
 
     @property
     def names(self) -> tuple[str, ...]:

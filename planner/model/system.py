@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from planner.model.limits import Limits as Limits  # re-exported
 from planner.model.transforms import Array
 
 if TYPE_CHECKING:
@@ -26,25 +27,6 @@ JOINT_NAMES_UR = (
 )
 DEFAULT_HOME = (0.0, -np.pi / 2, np.pi / 2, -np.pi / 2, -np.pi / 2, 0.0)
 DEFAULT_ROI_MARGIN = 0.005
-
-
-@dataclass(frozen=True)
-class Limits:
-    """Joint limits per joint: position (rad), velocity (rad/s), acceleration, jerk."""
-
-    lower: Array
-    upper: Array
-    velocity: Array
-    acceleration: Array
-    jerk: Array
-
-    @staticmethod
-    def ur_default(n: int = 6) -> Limits:
-        """SPEC defaults: +-2pi (elbow +-pi), pi rad/s, 5 rad/s^2, 50 rad/s^3."""
-        upper = np.full(n, 2 * np.pi)
-        if n == 6:
-            upper[2] = np.pi
-        return Limits(-upper, upper, np.full(n, np.pi), np.full(n, 5.0), np.full(n, 50.0))
 
 
 @dataclass(frozen=True)

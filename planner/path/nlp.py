@@ -46,7 +46,6 @@ class PathOptions:
     weight_acceleration: float = 1e-6  # integral |d2q/ds2|^2 ds (m^2: ~1 mm correlation)
     weight_centring: float = 0.05  # integral |uv / roi_half|^2 ds
     weight_reference: float = 1e-4  # integral |q - q_warm|^2 ds (regularises redundancy)
-    verbose: bool = False
     acceleration_spacing: float = 1e-3  # m: finer spacing scales weight_acceleration by (ds/this)^2
     coarse_spacing: float = 1e-3  # m: finer paths are warm-started from every m-th sample
     polish: bool = True  # final per-sample min-norm Gauss-Newton to machine precision

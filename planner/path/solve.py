@@ -120,7 +120,7 @@ def _runs(mask: Array) -> list[tuple[int, int]]:
 
 
 def sample_errors(system: System, Q: Array, points: Array, normals: Array | None) -> Array:
-    """SPEC spot error (m) of every sample through the beam function (NaN rows -> NaN)."""
+    """Spot error (m) of every sample through the beam function (NaN rows -> NaN)."""
     from planner.beam.graph import beam_function
 
     f = beam_function(tuple(r.kinematics for r in system.robots))

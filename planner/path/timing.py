@@ -25,8 +25,7 @@ from planner.errors import PlanError
 from planner.model.system import Limits, System
 from planner.model.transforms import Array
 from planner.path.tour import visit_order
-
-SEGMENT_KINDS = ("approach", "move", "path", "dwell")
+from schemas import defaults
 
 
 class Segment(NamedTuple):
@@ -66,7 +65,7 @@ class Trajectory:
         return float(sum(s.t1 - s.t0 for s in self.segments if s.kind == kind))
 
     def to_plan_dict(self, system: System) -> dict[str, object]:
-        """The SPEC plan.json ``trajectory`` mapping (per robot name)."""
+        """The plan.json ``trajectory`` mapping (per robot name)."""
 
         def per_robot(X: Array) -> dict[str, list[list[float]]]:
             out, i = {}, 0
@@ -148,11 +147,6 @@ def ruckig_move(q0: Array, q1: Array, lim: Limits, rate: float) -> tuple[Array, 
 # ------------------------------------------------------------------------------------------
 # visit order
 # ------------------------------------------------------------------------------------------
-def tour_cost(C: Array, tour: Array) -> float:
-    """Total cost of consecutive ``tour`` entries in a cost matrix ``C`` (small cases)."""
-    return float(C[tour[:-1], tour[1:]].sum())
-
-
 class VisitReport(NamedTuple):
     order: np.ndarray  # indices into the solved targets
     duration: float  # s, the optimised (or given) trajectory
@@ -188,7 +182,7 @@ def _hold(q: Array, seconds: float, rate: float, kind: str) -> _Piece:
 
 def points_trajectory(
     system: System, Q: Array, q_start: Array | None = None, dwell: float = 0.0,
-    rate: float = 500.0, order: str = "optimal", progress: Callable[[int], None] | None = None,
+    rate: float = defaults.SERVO_RATE_HZ, order: str = "optimal", progress: Callable[[int], None] | None = None,
 ) -> tuple[Trajectory, VisitReport]:  # fmt: skip
     """Rest-to-rest moves visiting every row of ``Q`` (solved targets, n x nq; NaN rows are
     skipped), ``dwell`` s on each. ``order``: ``given`` visits the rows as they come (the
@@ -310,7 +304,7 @@ def time_path(
 
 def path_trajectory(
     system: System, runs: list[tuple[Array, Array]], q_start: Array | None = None,
-    spot_speed: float = 0.02, rate: float = 500.0,
+    spot_speed: float = defaults.SPOT_SPEED_MPS, rate: float = defaults.SERVO_RATE_HZ,
 ) -> Trajectory:  # fmt: skip
     """Approach from ``q_start`` (default home), then each feasible run ``(q_k K x nq,
     arc_k K)`` swept at ``spot_speed`` (m/s); rest-to-rest ``move`` (laser gated) between

@@ -3,7 +3,7 @@
 A single sample is seeded by the closed-form family search of :mod:`planner.ik.closed_form`
 (else a multi-start one-sample NLP); the chain then walks along the path with
 equality-constrained Newton steps (spot on the sample, a centring pull), extrapolating the
-previous two samples. Where no valid configuration is found the sample gets a SPEC reason
+previous two samples. Where no valid configuration is found the sample gets a failure reason
 with evidence, and the chain re-seeds further on and extends backward into the gap.
 
 Batched helpers (one mapped CasADi call for all samples): :func:`project` (minimum-norm

@@ -26,13 +26,12 @@ import numpy as np
 import pinocchio as pin
 
 from planner.errors import InputError
+from planner.model.robots import collision_shapes
 from planner.model.system import Robot, System
 from planner.model.transforms import Array, inv_T, make_T
 from planner.safety.shapes import Volume, coal_shape
 from planner.safety.ur5e import (
     DEFAULT_MIRROR_BLOCKS,
-    UR5E_BOXES,
-    UR5E_CAPSULES,
     UR5E_SELF_EXCLUDED,
     BoxSpec,
     CapsuleSpec,
@@ -135,12 +134,13 @@ class SafetyWorld:
         for k, robot in enumerate(system.robots):
             table = (capsules or {}).get(robot.name)
             if table is None:
-                if robot.kinematics.name != "ur5e" or robot.nq != 6:
+                shapes = collision_shapes(robot.kinematics.name)
+                if shapes is None or robot.nq != shapes.nq:
                     raise InputError(
                         f"no collision capsules for robot model {robot.kinematics.name!r}",
                         robot.name,
                     )
-                table = (UR5E_CAPSULES, UR5E_BOXES)
+                table = (shapes.capsules, shapes.boxes)
             self._add_robot(k, robot, *table)
         for v in scene:
             self._add_fixed(f"scene/{v.name}", PartKind.SCENE, v, solid=False)

@@ -104,10 +104,6 @@ class Recorder:
         with self.lock:
             return any(float(np.max(np.abs(v[2]))) >= REST_QD for v in self.joints.values())
 
-    def n_spots(self) -> int:
-        with self.lock:
-            return len(self.spots)
-
 
 def measured_spots(plan: dict[str, Any], rec: Recorder, since: float) -> list[Array | None]:
     """Median measured spot (world, m) per solution of ``plan``; None where never seen."""

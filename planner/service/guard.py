@@ -157,10 +157,6 @@ class Heartbeat:
         if threading.current_thread() is not self._thread and self._thread.is_alive():
             self._thread.join(timeout=2)
 
-    @property
-    def beating(self) -> bool:
-        return self._thread.is_alive() and not self._stop.is_set()
-
     def _run(self) -> None:
         from planner.service.bus import encode
         from schemas.messages import Heartbeat as HeartbeatMessage

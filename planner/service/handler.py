@@ -18,18 +18,20 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from planner.errors import BeamrelayError, InputError
+from planner.model.settings import TrajectorySettings
 from planner.model.system import System, Targets
 from planner.model.transforms import Array, transform_points
 from planner.service.bodies import safe_text
 from planner.service.bus import decode, encode
 from planner.service.execution import ExecuteError
+from schemas import defaults
 
 if TYPE_CHECKING:
     from planner.model.scene import SceneModel
 
 PlanFn = Callable[[Targets, dict[str, Array] | None, bool], dict[str, Any]]
 #: path requests are resampled every PATH_SPACING m, at most MAX_PATH_SAMPLES samples
-PATH_SPACING = 0.001
+PATH_SPACING = defaults.PATH_SPACING_M
 MAX_PATH_SAMPLES = 2000
 
 
@@ -125,7 +127,7 @@ def make_plan_fn(
     system: System,
     scenario: dict[str, Any],
     options: Any = None,
-    settings: dict[str, Any] | None = None,
+    settings: TrajectorySettings | None = None,
     scene: SceneModel | None = None,
 ) -> PlanFn:
     """The node's plan function over :mod:`planner.planning` for one (calibrated) system.
@@ -138,7 +140,7 @@ def make_plan_fn(
     """
     from planner.planning import plan_document, plan_path_targets, plan_points
 
-    settings = dict(settings or {})
+    timing = settings or TrajectorySettings()
 
     def plan_fn(
         targets: Targets, start: dict[str, Array] | None, trajectory: bool
@@ -153,7 +155,7 @@ def make_plan_fn(
         traj = None
         if trajectory:
             q_from = system.home if q0 is None else q0
-            traj = timed_trajectory(system, targets, sols, q_from, settings)
+            traj = timed_trajectory(system, targets, sols, q_from, timing)
         return plan_document(system, targets, sols, scenario, traj)
 
     return plan_fn
@@ -164,7 +166,7 @@ def timed_trajectory(
     targets: Targets,
     sols: list[Any],
     q_start: Array,
-    settings: dict[str, Any],
+    settings: TrajectorySettings,
 ) -> dict[str, Any] | None:
     """plan.json ``trajectory`` from ``q_start`` (stacked, rad, the robots' current joints)
     through the solved targets, in the requested order (``planning.time_solutions``)."""
@@ -176,16 +178,21 @@ def timed_trajectory(
 
 def handler_from_scenario(path: Any) -> RequestHandler:
     """A :class:`RequestHandler` for a scenario file (calibration applied via ``include:``)."""
-    from planner.io.scenario import load_scenario, resolved_scenario_dict, system_from_scenario
-    from planner.model.scene import SceneModel
+    from planner.io.resolved import resolved_scenario_dict
+    from planner.io.scenario import (
+        load_scenario,
+        scene_model,
+        system_from_scenario,
+        trajectory_settings,
+    )
     from planner.planning import ik_options
 
     scn = load_scenario(path)
     system = system_from_scenario(scn)
     model = scn.model
-    settings = model.trajectory.model_dump() if model.trajectory is not None else {}
+    settings = trajectory_settings(scn)
     plan_fn = make_plan_fn(system, resolved_scenario_dict(scn), ik_options(model.solver), settings,
-                           SceneModel.from_scenario(scn))  # fmt: skip
+                           scene_model(scn))  # fmt: skip
     return RequestHandler(system, plan_fn)
 
 

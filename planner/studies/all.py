@@ -3,38 +3,45 @@
 Order: ik-grid, calibration, sensitivity, mirror-sweep, coverage, tracking. Each study runs
 its ``main`` at its paper-scale ``TRIALS`` and writes into ``OUT/<name>/``. The tracking
 study takes its calibration errors from the calibration study's D435 figures (else the
-documented 1 mm / 0.1° levels). Studies whose module is not installed are listed as
-skipped. The index links the reports and records the wall time of each.
+documented 1 mm / 0.1° levels). The index links the reports and records the wall time of
+each.
 """
 
 from __future__ import annotations
 
-import importlib
 import time
 from pathlib import Path
 from typing import Any
 
 import typer
 
-from planner.studies import common
+from planner.studies import (
+    calibration,
+    common,
+    coverage,
+    ik_grid,
+    mirror_sweep,
+    sensitivity,
+    tracking,
+)
 
-ORDER = ("ik-grid", "calibration", "sensitivity", "mirror-sweep", "coverage", "tracking")
-
-
-def _module(name: str) -> Any | None:
-    try:
-        return importlib.import_module(f"planner.studies.{name.replace('-', '_')}")
-    except ModuleNotFoundError:
-        return None
+STUDIES: dict[str, Any] = {
+    "ik-grid": ik_grid,
+    "calibration": calibration,
+    "sensitivity": sensitivity,
+    "mirror-sweep": mirror_sweep,
+    "coverage": coverage,
+    "tracking": tracking,
+}
+"""The studies in the order they run (name -> module with ``main`` and ``TRIALS``)."""
+ORDER = tuple(STUDIES)
 
 
 def run_one(
     name: str, out: Path, seed: int, workers: int | None, scheduler: str | None, calib: Any
-) -> dict[str, Any] | None:
-    """Run one study at its paper scale; returns its figures (None: not installed)."""
-    mod = _module(name)
-    if mod is None:
-        return None
+) -> dict[str, Any]:
+    """Run one study at its paper scale; returns its figures."""
+    mod = STUDIES[name]
     extra: dict[str, Any] = {}
     if name == "tracking" and calib:
         extra["err"] = mod.CalibrationErrors.from_calibration_figures(calib)
@@ -46,13 +53,13 @@ def main(
 ) -> dict[str, Any]:
     """Every study at its paper scale (--trials ignored), then OUT/index.md."""
     common.out_dir(out)
-    timings: dict[str, float | None] = {}
+    timings: dict[str, float] = {}
     calib: dict[str, Any] | None = None
     for name in ORDER:
         typer.echo(f"== study {name}")
         t0 = time.perf_counter()
         figures = run_one(name, out, seed, workers, sched, calib)
-        timings[name] = None if figures is None else time.perf_counter() - t0
+        timings[name] = time.perf_counter() - t0
         if name == "calibration" and figures:
             calib = figures
     lines = [
@@ -66,9 +73,8 @@ def main(
         "|---|---|---|",
     ]
     for name in ORDER:
-        t = timings[name]
-        link = f"[{name}/report.md]({name}/report.md)" if t is not None else "not installed"
-        lines.append(f"| {name} | {link} | {'-' if t is None else f'{t:.0f}'} |")
+        link = f"[{name}/report.md]({name}/report.md)"
+        lines.append(f"| {name} | {link} | {timings[name]:.0f} |")
     lines.append("")
     (out / "index.md").write_text("\n".join(lines))
     return {"study": "all", "seconds": timings}

@@ -11,7 +11,7 @@ azimuths, which a scenario does not carry as such.
 With N robots, the beam may be relayed by any ordered sub-chain of them (the robots left out
 park their mirrors outside the beam; parking and robot/beam collisions are not modelled). A
 surface point counts as reached when some sub-chain and relay geometry put the spot on it
-with every SPEC condition: joint limits (closed-form IK per robot), front-face hits inside
+with every condition of a valid solution: joint limits (closed-form IK per robot), front-face hits inside
 the ROI (by construction the beam hits the mirror centre), incidence ≤ 60°, and no
 occlusion by the object of the beam segments (laser → mirror → ... → mirror → target;
 open3d raycasting on the object's mesh; the last segment must meet the surface first at

@@ -1,4 +1,4 @@
-"""Beam IK at a PRESCRIBED relay geometry, for the coverage study (SPEC section 3).
+"""Beam IK at a PRESCRIBED relay geometry, for the coverage study (docs/conventions.md: Beam model).
 
 Why this is not :mod:`planner.ik`: :meth:`planner.ik.closed_form.ClosedForm.search` chooses
 the hit points itself (the first along the laser ray near the previous mirror centre, the

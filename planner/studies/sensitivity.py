@@ -11,7 +11,7 @@ centre, each target from home); the joints are then traced with a PERTURBED syst
 - ``mirror_pos`` translation of the mirror centre in the flange frame
 
 at levels Δθ ∈ {0.25, 0.5, 1.0}° and Δp ∈ {2.5, 5, 10} mm. The spot error is the distance
-from the target to the perturbed last ray (SPEC section 3, no normal).
+from the target to the perturbed last ray (docs/conventions.md: Beam model, no normal).
 
 Next to the sampled errors the study gives the analytic first-order prediction
 ``|J δ|`` with ``J = ∂residual/∂δ`` taken from the CasADi beam graph (parameters are graph

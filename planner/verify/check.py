@@ -3,7 +3,7 @@
 The geometry comes from the plan's own resolved ``scenario`` echo; the UR5e forward
 kinematics (standard DH) and the reflection chain are :mod:`planner.verify.numpy_beam`'s, written
 from the conventions rather than taken from the planner, and shared with the trajectory
-check; URDF arms use Pinocchio's numeric FK. Every bound is the one the planner accepted the
+check; URDF arms use the checker's own numpy URDF kinematics (:mod:`planner.verify.urdf`). Every bound is the one the planner accepted the
 plan with (:mod:`planner.verify.tolerances`), so planning and checking cannot disagree.
 
 Checks are plain functions ``check(ctx) -> CheckResult`` in :data:`CHECKS`: the solved
@@ -12,7 +12,6 @@ scenario ``rate`` (:mod:`planner.verify.trajectory`: presence, time grid, positi
 acceleration and jerk limits, declared velocities and accelerations against finite
 differences, the spot on the path, on its target while dwelling and at every arrival, every
 solved target visited) and the ``metrics``, recomputed from the solutions and the trajectory.
-Other stages may append their own with :func:`register_check`.
 """
 
 from __future__ import annotations
@@ -37,6 +36,7 @@ from planner.verify.tolerances import (
     joints_ok,
     roi_ok,
 )
+from planner.verify.urdf import UrdfChain
 
 if TYPE_CHECKING:
     from planner.verify.trajectory import Finding as TrajectoryFinding
@@ -71,14 +71,14 @@ def _arm(r: dict[str, Any], i: int, base_dir: Path) -> ArmGeometry:
         size = np.asarray(mirror["size"], dtype=float)
         margin = float(mirror.get("roi_margin", 0.005))
         if r.get("urdf"):
-            from planner.model.kinematics import RobotKinematics
-
             urdf = Path(r["urdf"])
-            kin = RobotKinematics.from_urdf(urdf if urdf.is_absolute() else base_dir / urdf)
+            kin = UrdfChain(urdf if urdf.is_absolute() else base_dir / urdf)
             fk: Callable[[Array], Array] = kin.fk
             n = kin.nq
-        else:
+        elif (r.get("model") or "ur5e") == "ur5e":
             fk, n = ur5e_dh_fk, 6
+        else:  # never check another arm with the UR5e's kinematics
+            raise InputError(f"no independent kinematics for robot model {r['model']!r}", where)
         limits = limits_from_dict(r.get("limits"), n)
         return ArmGeometry(
             name=str(r["name"]),
@@ -369,13 +369,7 @@ CHECKS: list[Callable[[PlanContext], CheckResult]] = [
 ]
 
 
-def register_check(fn: Callable[[PlanContext], CheckResult]) -> None:
-    """Add a check (e.g. the trajectory checks of the timing stage) to :data:`CHECKS`."""
-    if fn not in CHECKS:
-        CHECKS.append(fn)
-
-
 def check_plan(plan: dict[str, Any], base_dir: Path = Path(".")) -> list[CheckResult]:
-    """Run every registered check on a plan document."""
+    """Run every check of :data:`CHECKS` on a plan document."""
     ctx = PlanContext(plan, base_dir)
     return [check(ctx) for check in CHECKS]

@@ -15,7 +15,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from planner.errors import InputError
-from planner.model.system import Limits
+from planner.model.limits import Limits
 from planner.model.transforms import Array, make_T, quat_to_matrix, rpy_to_matrix
 
 UR5E_D = (0.1625, 0.0, 0.0, 0.1333, 0.0997, 0.0996)  # m
@@ -61,7 +61,7 @@ def pose_matrix(d: Any, where: str = "pose") -> Array:
 
 
 def limits_from_dict(lim: dict[str, Any] | None, n: int) -> Limits:
-    """A robot's ``limits`` mapping (any key may be missing or null) over the SPEC defaults
+    """A robot's ``limits`` mapping (any key may be missing or null) over the documented defaults
     for ``n`` joints (:meth:`Limits.ur_default`)."""
     lim = lim or {}
     default = Limits.ur_default(n)

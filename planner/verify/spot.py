@@ -18,6 +18,7 @@ import numpy.typing as npt
 
 from planner.model.transforms import Array
 from planner.verify.tolerances import Tolerances
+from schemas import defaults
 
 if TYPE_CHECKING:
     from planner.verify.trajectory import Finding, Solved, _Robot
@@ -131,7 +132,7 @@ def _unvisited(p: Array, v: Array, Qa: Array, ta: Array, solved: Solved, tol: To
 def _path_duration(scn: dict[str, Any], P: Array, closed: bool, segments: list[Any]) -> Finding:
     from planner.verify.trajectory import Finding
 
-    speed = float((scn.get("trajectory") or {}).get("spot_speed", 0.02))
+    speed = float((scn.get("trajectory") or {}).get("spot_speed", defaults.SPOT_SPEED_MPS))
     length = float(np.linalg.norm(np.diff(P, axis=0), axis=1).sum())
     length += float(np.linalg.norm(P[0] - P[-1])) if closed else 0.0
     spent = sum(s["t1"] - s["t0"] for s in segments if s["kind"] == "path")

@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from schemas import defaults
+
 JOINT_SLACK = 1e-7  # rad: a joint position may lie this far beyond its limit
 INCIDENCE_SLACK = 1e-7  # rad: the incidence angle may exceed max_incidence_deg by this much
 ROI_SLACK = 1e-9  # m: a mirror hit may lie this far outside the region of interest
@@ -25,10 +27,10 @@ TIME_GRID_SLACK = 1e-6  # fraction of the period 1/rate: sample spacing off the 
 REPORT_SLACK = 1e-9  # m: a reported spot or error vs the recomputed one (or the tolerance)
 METRIC_SLACK = 1e-9  # relative: a reported metric vs the one recomputed from the plan
 
-DEFAULT_SPOT_TOLERANCE = 1e-9  # m, ``solver.tolerance``
-DEFAULT_MAX_INCIDENCE_DEG = 80.0  # deg, ``solver.max_incidence_deg``
-DEFAULT_PATH_TOLERANCE = 5e-5  # m, ``trajectory.path_tolerance``
-DEFAULT_RATE = 500.0  # Hz, ``trajectory.rate``
+DEFAULT_SPOT_TOLERANCE = defaults.SPOT_TOLERANCE_M  # m, ``solver.tolerance``
+DEFAULT_MAX_INCIDENCE_DEG = defaults.MAX_INCIDENCE_DEG  # deg, ``solver.max_incidence_deg``
+DEFAULT_PATH_TOLERANCE = defaults.PATH_TOLERANCE_M  # m, ``trajectory.path_tolerance``
+DEFAULT_RATE = defaults.SERVO_RATE_HZ  # Hz, ``trajectory.rate``
 
 
 @dataclass(frozen=True)

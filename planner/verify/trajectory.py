@@ -20,7 +20,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from planner.model.system import Limits
+from planner.model.limits import Limits
 from planner.model.transforms import Array
 from planner.verify.numpy_beam import limits_from_dict, pose_matrix, trace_rays, ur5e_dh_fk
 from planner.verify.tolerances import (

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from planner.ik import IKOptions, Solution
+from planner.model.settings import TrajectorySettings
 from planner.model.system import Targets
 from planner.planning import (
     PlanOutcome,
@@ -119,7 +120,7 @@ def test_given_order_is_kept(grid_outcome: PlanOutcome) -> None:
     o = grid_outcome
     sols = [Solution(s["status"], None, o.system.stack_q(s["q"]), None, 0.0, None, None, 0.0, 0,
                      "t") for s in o.doc["solutions"]]  # fmt: skip
-    settings = {"rate": 500.0, "dwell": 0.05}
+    settings = TrajectorySettings(rate=500.0, dwell=0.05)
     timed = time_solutions(o.system, o.targets, sols, settings, order="given")
     assert timed is not None and timed.visit is not None
     assert timed.visit.order.tolist() == list(range(18))
@@ -189,7 +190,9 @@ def test_path_gap_becomes_a_move(curve_outcome: PlanOutcome) -> None:
     gapped = Targets(pts, nrm, kind="path")
     sols, res = solve_path(system, gapped, IKOptions())
     assert [s.status for s in sols].count("failed") == 1 and sols[30].reason is not None
-    timed = time_solutions(system, gapped, sols, {"rate": 500.0, "spot_speed": 0.02}, path=res)
+    timed = time_solutions(
+        system, gapped, sols, TrajectorySettings(rate=500.0, spot_speed=0.02), path=res
+    )
     assert timed is not None
     kinds = [s.kind for s in timed.trajectory.segments]
     assert kinds == ["approach", "path", "move", "path"]
@@ -233,8 +236,8 @@ def test_a_rejected_path_sample_splits_the_sweep(curve_outcome: PlanOutcome) -> 
     verdict = verify_solutions(o.system, o.doc["scenario"], o.targets, sols)
     assert [j for j, s in enumerate(verdict) if not s.ok] == [k]
     assert verdict[k].reason == "solver_failed" and "spot error" in str(verdict[k].evidence)
-    timed = time_solutions(o.system, o.targets, verdict, o.doc["scenario"]["trajectory"],
-                           path=o.path)  # fmt: skip
+    settings = TrajectorySettings.from_mapping(o.doc["scenario"]["trajectory"])
+    timed = time_solutions(o.system, o.targets, verdict, settings, path=o.path)
     assert timed is not None
     kinds = [s.kind for s in timed.trajectory.segments]
     assert kinds == ["approach", "path", "move", "path"]  # around the rejected sample

@@ -10,10 +10,11 @@ import pytest
 from pydantic import ValidationError
 
 from planner.errors import DatasetError, InputError
+from planner.io.validate import validate_file
 from schemas.calibration import BeamDataset, CalibrationFile, HandEyeDataset
 from schemas.messages import ErrorReply, JointState, JointTrajectory, TargetRequest
 from schemas.plan import Plan
-from schemas.yamlio import load_dataset, parse_message, validate_file
+from schemas.yamlio import load_dataset, parse_message
 
 Q = [0.0, -1.57, 1.57, -1.57, -1.57, 0.0]
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from planner.errors import InputError
-from schemas.yamlio import validate_file
+from planner.io.validate import validate_file
 from tests.paths import REPO
 
 ROOT = REPO

@@ -7,8 +7,9 @@ from pathlib import Path
 import pytest
 
 from planner.errors import InputError, ScenarioError
+from planner.io.validate import validate_file
 from schemas.scenario import Scenario
-from schemas.yamlio import format_loc, read_yaml, validate_file
+from schemas.yamlio import format_loc, read_yaml
 
 VALID = """\
 name: t
@@ -108,7 +109,7 @@ def test_valid_baseline(tmp_path: Path) -> None:
         (
             "    - name: arm0\n",
             "    - name: arm0\n      model: ur10\n",
-            "x.yaml:7 system.robots[0].model: expected 'ur5e', got 'ur10'",
+            "x.yaml:7 system.robots[0].model: unknown robot model 'ur10' (known: ur5e)",
         ),
     ],
 )

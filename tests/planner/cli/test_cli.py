@@ -65,3 +65,35 @@ def test_invalid_trace_is_exit_1() -> None:
     )  # fmt: skip
     assert proc.returncode == 1, proc.stdout + proc.stderr
     assert "NOT valid" in proc.stdout
+
+
+def test_the_command_tree_is_exactly_the_registered_one() -> None:
+    import typer.main
+
+    from planner.cli import app
+
+    root = typer.main.get_command(app)
+    assert sorted(root.commands) == sorted(  # type: ignore[attr-defined]
+        ["validate", "trace", "plan", "check", "serve", "up", "request", "calibrate", "study",
+         "bench", "driver"]
+    )  # fmt: skip
+    groups = root.commands  # type: ignore[attr-defined]
+    assert sorted(groups["study"].commands) == sorted(
+        ["ik-grid", "calibration", "sensitivity", "mirror-sweep", "coverage", "tracking", "all"]
+    )
+    assert sorted(groups["bench"].commands) == ["ik", "path", "plan", "safety", "service"]
+
+
+@pytest.mark.parametrize("module", ["planner.studies.coverage", "planner.bench.safety",
+                                    "planner.cli.node", "drivers.cli"])  # fmt: skip
+def test_a_missing_command_module_fails_loudly(module: str) -> None:
+    """A module that cannot be imported (misspelt, deleted, broken) stops the CLI with the
+    module's name instead of quietly dropping its commands from ``--help``."""
+    code = (
+        f"import sys; sys.modules[{module!r}] = None\n"
+        "from planner.cli import main\n"
+        "main(['--help'])\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode != 0, proc.stdout
+    assert "ModuleNotFoundError" in proc.stderr and module in proc.stderr

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from planner.errors import ScenarioError
+from planner.io.resolved import resolved_scenario_dict
 from planner.io.scenario import (
     grid_points,
     load_scenario,
     resample_path,
-    resolved_scenario_dict,
     scenario_from_dict,
     scene_objects,
     system_from_scenario,

@@ -11,9 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from planner.errors import ScenarioError
+from planner.io.resolved import resolved_scenario_dict
 from planner.io.scenario import (
     load_scenario,
-    resolved_scenario_dict,
     scenario_from_dict,
     system_from_scenario,
     targets_from_scenario,

@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 
 from planner.errors import InputError
-from planner.io.scenario import SceneItem
-from planner.model.scene import SPHERE_RESOLUTION, SceneModel
+from planner.model.scene import SPHERE_RESOLUTION, SceneItem, SceneModel
 from planner.model.transforms import Array, inv_T, make_T, rpy_to_matrix
 
 BOX_T = make_T(rpy_to_matrix([0.3, -0.2, 0.7]), [0.4, -0.1, 0.25])

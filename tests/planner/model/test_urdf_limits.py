@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from planner.errors import ScenarioError
-from planner.io.scenario import load_scenario, resolved_scenario_dict, system_from_scenario
+from planner.io.resolved import resolved_scenario_dict
+from planner.io.scenario import load_scenario, system_from_scenario
 from planner.model.kinematics import ur5e_urdf_path
 from planner.model.system import Limits
 

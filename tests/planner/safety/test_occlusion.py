@@ -19,6 +19,7 @@ from planner.io.scenario import (
     targets_from_scenario,
 )
 from planner.model.scene import SceneModel
+from planner.model.settings import TrajectorySettings
 from planner.model.system import System, Targets
 from planner.model.transforms import Array, make_T
 from planner.planning import ik_options, plan_points, solve_path, time_solutions
@@ -176,7 +177,7 @@ def test_curve_path_on_its_board_and_with_a_post() -> None:
     assert "post" in gap.detail
     assert [(s.k0, s.k1) for s in path2.segments] == [(0, bad[0]), (bad[-1] + 1, len(targets))]
     assert np.isnan(path2.q[bad]).all() and not path2.ok[bad].any()
-    timed = time_solutions(system, targets, sols2, {"rate": 100.0}, path=path2)
+    timed = time_solutions(system, targets, sols2, TrajectorySettings(rate=100.0), path=path2)
     assert timed is not None
     assert [s.kind for s in timed.trajectory.segments].count("path") == 2
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from planner.errors import InputError
+from planner.model.settings import TrajectorySettings
 from planner.model.system import System, Targets
 from planner.model.transforms import inv_T, transform_points
 from planner.planning import plan_points
@@ -54,7 +55,7 @@ def test_timed_trajectory_starts_at_the_current_joints(system: System) -> None:
     targets = Targets(points)
     sols = plan_points(system, targets)
     q_now = system.home + 0.03
-    traj = timed_trajectory(system, targets, sols, q_now, {"dwell": 0.2, "rate": 500.0})
+    traj = timed_trajectory(system, targets, sols, q_now, TrajectorySettings(dwell=0.2, rate=500.0))
     assert traj is not None
     q = np.asarray(traj["q"]["arm0"])
     t = np.asarray(traj["t"])

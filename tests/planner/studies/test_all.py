@@ -28,19 +28,19 @@ def test_all_runs_each_study_at_its_scale_and_links_them(
 
         return SimpleNamespace(TRIALS=trials, main=main, CalibrationErrors=CalibrationErrors)
 
-    mods = {"calibration": fake("calibration", 100), "tracking": fake("tracking", 10)}
-    monkeypatch.setattr(study_all, "_module", lambda name: mods.get(name))
+    trials = {"ik-grid": 7, "calibration": 100, "sensitivity": 5, "mirror-sweep": 3}
+    trials |= {"coverage": 2, "tracking": 10}
+    monkeypatch.setattr(study_all, "STUDIES", {k: fake(k, n) for k, n in trials.items()})
     figures = study_all.main(1, 0, tmp_path, 1, None)
     assert [(c[0], c[1], c[2]) for c in calls] == [
-        ("calibration", 100, tmp_path / "calibration"),
-        ("tracking", 10, tmp_path / "tracking"),
+        (name, trials[name], tmp_path / name) for name in study_all.ORDER
     ]
-    err = calls[1][3]
+    assert tuple(trials) == study_all.ORDER  # every study, in this order
+    err = calls[-1][3]
     assert err.camera_pos == pytest.approx(0.3e-3)
     assert err.camera_rot == pytest.approx(np.deg2rad(0.02))
     assert err.laser_pos == CalibrationErrors().laser_pos  # documented level kept
     index = (tmp_path / "index.md").read_text()
     assert "[tracking/report.md](tracking/report.md)" in index
-    assert "| sensitivity | not installed | - |" in index
-    assert figures["seconds"]["sensitivity"] is None
+    assert all(f"[{name}/report.md]({name}/report.md)" in index for name in trials)
     assert figures["seconds"]["tracking"] >= 0.0
