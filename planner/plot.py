@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.ik.evaluate import evaluate, mirror_poses
+from planner.beam.trace import mirror_poses, trace_beam
 from planner.model.system import System, Targets
 from planner.model.transforms import Array, inv_T
 
@@ -44,7 +44,7 @@ def _draw_config(
 ) -> Array:
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    ev = evaluate(system, q, target)
+    ev = trace_beam(system, q, target)
     path = np.vstack([system.world_T_laser[:3, 3], ev.hits, ev.spot])
     ax.plot(*path.T, color="red", lw=0.8, alpha=alpha)
     drawn = [path]

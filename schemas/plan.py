@@ -28,11 +28,21 @@ FAILURE_REASONS = (
     "joint_limits",
     "back_face",
     "occluded",
+    "keep_out",
+    "collision",
     "solver_failed",
 )
 Reason = Literal[
-    "unreachable", "outside_roi", "joint_limits", "back_face", "occluded", "solver_failed"
+    "unreachable",
+    "outside_roi",
+    "joint_limits",
+    "back_face",
+    "occluded",
+    "keep_out",
+    "collision",
+    "solver_failed",
 ]
+Status = Literal["ok", "failed"]
 JointRows = list[JointVector]
 
 
@@ -57,7 +67,7 @@ class Solution(StrictModel):
     between the arriving beam and the target normal (rad, only with a normal)."""
 
     target: NonNegInt
-    status: Literal["ok", "failed"]
+    status: Status
     reason: Reason | None = None
     q: dict[str, JointVector] = Field(default_factory=dict)
     spot: Vec3 | None = None

@@ -20,6 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from planner.beam.graph import system_params
+from planner.model.status import Failure, Reason
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
 from planner.path.nlp import PathOptions, path_nlp, tangents
@@ -48,14 +49,14 @@ __all__ = [
 
 class PathGap(NamedTuple):
     """Samples ``k0 <= k < k1`` (arc length s0..s1 m, starting at world point ``p``) have no
-    valid configuration; ``reason`` is a SPEC status reason, ``detail`` the evidence."""
+    valid configuration; ``reason`` says why, ``detail`` gives the evidence."""
 
     k0: int
     k1: int
     s0: float
     s1: float
     p: Array
-    reason: str
+    reason: Reason
     detail: str
 
 
@@ -227,7 +228,7 @@ def plan_path(
     segments: list[PathSegment] = []
     if warm is not None:
         Q, NB = warm
-        why: list[str | None] = [None] * K
+        why: list[Failure | None] = [None] * K
     else:
         Q, NB, why = continuation_chain(ctx, q_start)
     warm_time = time.perf_counter() - t0
@@ -253,9 +254,9 @@ def plan_path(
     nlp_time = time.perf_counter() - t1
     gaps = []
     for k0, k1 in _runs(~ok):
-        reason = str(why[k0] or "unreachable")
+        failure = why[k0] or Failure(Reason.UNREACHABLE)
         s1 = float(arc[k1]) if k1 < K else float(arc[-1])
-        gaps.append(PathGap(k0, k1, float(arc[k0]), s1, P[k0].copy(), reason.split(":")[0]
-                            .split(" ")[0], reason))  # fmt: skip
+        gaps.append(PathGap(k0, k1, float(arc[k0]), s1, P[k0].copy(), failure.reason,
+                            failure.detail))  # fmt: skip
     err = sample_errors(system, Q, P, targets.normals)
     return PathResult(Q, ok, err, arc, tuple(segments), tuple(gaps), warm_time, nlp_time)
