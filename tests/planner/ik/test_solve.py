@@ -13,7 +13,7 @@ from planner.ik import BeamIK, IKOptions
 from planner.model.kinematics import RobotKinematics
 from planner.model.system import DEFAULT_HOME, Limits, System
 from planner.model.transforms import look_at
-from planner.verify.check import ArmGeometry, Trace, ur5e_dh_fk
+from planner.verify.check import ArmGeometry, spots, trace_arms, ur5e_dh_fk
 from tests.planner.ik import ik_systems as sy
 
 
@@ -22,9 +22,10 @@ def independent_error(system: System, q: np.ndarray, target: np.ndarray) -> floa
     arms = [ArmGeometry(r.name, ur5e_dh_fk, r.world_T_base, r.mirror.flange_T_mirror,
                         r.mirror.roi_half, r.limits.lower, r.limits.upper)
             for r in system.robots]  # fmt: skip
-    spot, s, _ = Trace(system.world_T_laser, arms, system.split_q(q)).spot(target, None)
-    assert s > 0
-    return float(np.linalg.norm(spot - target))
+    rays = trace_arms(system.world_T_laser, arms, system.split_q(q))
+    spot, s, _ = spots(rays.p, rays.v, target[None], np.full((1, 3), np.nan))
+    assert s[0] > 0
+    return float(np.linalg.norm(spot[0] - target))
 
 
 def test_grid_n1_exact_and_verified_independently() -> None:
