@@ -59,7 +59,7 @@ class Solution:
 
     @property
     def ok(self) -> bool:
-        return self.status is Status.OK
+        return self.status == Status.OK
 
     @classmethod
     def solved(

@@ -132,8 +132,8 @@ def sample_errors(system: System, Q: Array, points: Array, normals: Array | None
     err = np.full(K, np.nan)
     if good.any():
         n = int(good.sum())
-        out = f.map(n)(Q[good].T, *geo.values(), points[good].T, nrm[good].T)
-        err[good] = np.asarray(out[9], dtype=float).ravel()
+        out = f.map(n)(q=Q[good].T, **geo, target=points[good].T, normal=nrm[good].T)
+        err[good] = np.asarray(out["error"], dtype=float).ravel()
     return err
 
 

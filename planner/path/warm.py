@@ -25,7 +25,6 @@ from planner.model.status import Failure, Reason
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
 from planner.path.nlp import (
-    SAMPLE_INPUTS,
     Chain,
     PathNlp,
     PathOptions,
@@ -76,8 +75,7 @@ class PathContext:
         self.system, self.opts = system, opts
         self.kin: Chain = tuple(r.kinematics for r in system.robots)
         self.step = compiled(step_function(self.kin))
-        geo = system_params(system)
-        self.geo = [ca.DM(geo[n]) for n in SAMPLE_INPUTS[1:5]]
+        self.geo = {name: ca.DM(x) for name, x in system_params(system).items()}
         self.P = np.asarray(targets.points, dtype=float)
         K = len(self.P)
         nrm = targets.normals if targets.normals is not None else np.full((K, 3), np.nan)
@@ -91,9 +89,11 @@ class PathContext:
         self.closed_form = _closed_form(system)
 
     def eval(self, k: int, q: Array, nbar: Array) -> list[Array]:
-        E = tangents(nbar)
-        out = self.step.call([ca.DM(q), *self.geo, self.P[k], nbar, float(self.has[k]), E])
-        return [np.asarray(o, dtype=float) for o in out]
+        """The step function's outputs (``path_step``: g, Jg, r, Jr, h, dir, spot) at sample
+        k from joints ``q`` with target-plane normal ``nbar``."""
+        out = self.step(q=ca.DM(q), **self.geo, target=self.P[k], nbar=nbar,
+                        has_normal=float(self.has[k]), tangents=tangents(nbar))  # fmt: skip
+        return [np.asarray(out[name], dtype=float) for name in self.step.name_out()]
 
     def plane(self, k: int, q_near: Array) -> Array:
         """The target plane normal of sample k: its normal, or the reversed arriving beam."""
@@ -101,8 +101,8 @@ class PathContext:
             return np.asarray(self.nbar[k], dtype=float)
         if np.all(np.isfinite(self.nbar[k])):
             return np.asarray(self.nbar[k], dtype=float)
-        out = self.eval(k, q_near, np.array([0.0, 0.0, 1.0]))
-        return -out[5].ravel()
+        _, _, _, _, _, direction, _ = self.eval(k, q_near, np.array([0.0, 0.0, 1.0]))
+        return -direction.ravel()
 
     def why(self, k: int, q: Array, g: Array, h: Array) -> Failure | None:
         """None if q is a valid solution of sample k, else the reason with its evidence."""
@@ -244,10 +244,9 @@ def project(
     P, has = ctx.P[ks].T, ctx.has[ks][None, :].astype(float)
 
     def run(Q: Array, nb: Array) -> tuple[Array, Array, Array]:
-        E = tangents_batch(nb)
-        g, Jg, _, _, _, d, _ = F(Q.T, *ctx.geo, P, nb.T, has, E)
-        Jg = np.asarray(Jg, dtype=float).reshape(2, n, nq).transpose(1, 0, 2)
-        return np.asarray(g, dtype=float).T, Jg, np.asarray(d, dtype=float).T
+        out = F(q=Q.T, **ctx.geo, target=P, nbar=nb.T, has_normal=has, tangents=tangents_batch(nb))
+        Jg = np.asarray(out["Jg"], dtype=float).reshape(2, n, nq).transpose(1, 0, 2)
+        return np.asarray(out["g"], dtype=float).T, Jg, np.asarray(out["dir"], dtype=float).T
 
     Q = np.array(Q0, dtype=float)
     if NB is None:
@@ -287,12 +286,12 @@ def valid_samples(ctx: PathContext, ks: Indices, Q: Array, NB: Array) -> Array:
     """Which rows of ``Q`` are valid solutions of samples ``ks`` (vectorised
     :meth:`PathContext.why`: spot on target, joint limits, every reflection constraint)."""
     ks = np.asarray(ks, dtype=int)
-    E = tangents_batch(NB)
     has = ctx.has[ks][None, :].astype(float)
-    G, H, _ = compiled(sample_function(ctx.kin)).map(len(ks))(
-        Q.T, *ctx.geo, ctx.P[ks].T, NB.T, has, E
-    )
-    G, H = np.asarray(G, dtype=float).T, np.asarray(H, dtype=float).T
+    out = compiled(sample_function(ctx.kin)).map(len(ks))(
+        q=Q.T, **ctx.geo, target=ctx.P[ks].T, nbar=NB.T, has_normal=has,
+        tangents=tangents_batch(NB),
+    )  # fmt: skip
+    G, H = np.asarray(out["g"], dtype=float).T, np.asarray(out["h"], dtype=float).T
     tol = JOINT_SLACK
     ok = np.linalg.norm(G, axis=1) <= max(1e3 * ctx.opts.tolerance, 1e-7)
     ok &= np.all(ctx.lower - tol <= Q, axis=1) & np.all(ctx.upper + tol >= Q, axis=1)
