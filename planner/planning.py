@@ -20,6 +20,7 @@ from planner.beam.trace import trace_beam
 from planner.ik import BeamIK, IKOptions, Solution
 from planner.io.plan_file import plan_json as plan_json  # re-exported
 from planner.io.plan_file import write_plan as write_plan
+from planner.model.polyline import runs
 from planner.model.status import Reason, Status
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
@@ -247,23 +248,17 @@ def time_solutions(
         figures = {"duration_given_order": visit.duration_given,
                    "duration_chosen_order": visit.duration_optimised}  # fmt: skip
         return Timed(traj, visit, figures | limit_ratios(system, traj))
-    from planner.path.solve import arc_length
+    from planner.model.polyline import arc_length
 
     arc = path.arc if path is not None else arc_length(targets.points)
     ok = np.isfinite(Q).all(axis=1)
-    spans = [(s.k0, s.k1) for s in path.segments] if path is not None else _runs(ok)
-    runs = [(Q[a:b], arc[a:b]) for k0, k1 in spans for a, b in _runs(ok[k0:k1], k0)]
-    traj = path_trajectory(system, runs, q0, float(settings.get("spot_speed", 0.02)), rate)
+    spans = [(s.k0, s.k1) for s in path.segments] if path is not None else runs(ok)
+    pieces = [(Q[a:b], arc[a:b]) for k0, k1 in spans for a, b in runs(ok[k0:k1], k0)]
+    traj = path_trajectory(system, pieces, q0, float(settings.get("spot_speed", 0.02)), rate)
     figures = {"path_time": traj.span("path"), "path_length": float(arc[-1]),
                "path_deviation_max": path_deviation(system, targets, traj),
                "slowdowns": float(len(traj.slowdowns))}  # fmt: skip
     return Timed(traj, None, figures | limit_ratios(system, traj))
-
-
-def _runs(ok: Array, offset: int = 0) -> list[tuple[int, int]]:
-    """Half-open index ranges (plus ``offset``) of consecutive True values."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]]))) + offset
-    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
 def limit_ratios(system: System, traj: Trajectory) -> dict[str, float]:

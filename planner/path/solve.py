@@ -20,6 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from planner.beam.graph import system_params
+from planner.model.polyline import arc_length, resample_polyline, runs
 from planner.model.status import Failure, Reason
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
@@ -87,37 +88,6 @@ class PathResult:
     @property
     def complete(self) -> bool:
         return not self.gaps
-
-
-def arc_length(points: Array, closed: bool = False) -> Array:
-    """Cumulative arc length (m) of a polyline's vertices, starting at 0."""
-    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    return np.concatenate([[0.0], np.cumsum(seg)])
-
-
-def resample_polyline(points: Array, spacing: float, closed: bool = False,
-                      normals: Array | None = None) -> tuple[Array, Array | None]:  # fmt: skip
-    """Points every ~``spacing`` m along a polyline (vertices interpolated linearly; equal
-    spacing that divides the length exactly; a closed path does not repeat its start)."""
-    P = np.asarray(points, dtype=float)
-    Nn = None if normals is None else np.asarray(normals, dtype=float)
-    if closed:
-        P = np.vstack([P, P[:1]])
-        Nn = None if Nn is None else np.vstack([Nn, Nn[:1]])
-    s = arc_length(P)
-    n = max(1, int(np.ceil(s[-1] / spacing - 1e-9)))
-    s_new = np.linspace(0.0, s[-1], n + 1)[: n if closed else n + 1]
-    out = np.column_stack([np.interp(s_new, s, P[:, i]) for i in range(3)])
-    if Nn is None:
-        return out, None
-    nn = np.column_stack([np.interp(s_new, s, Nn[:, i]) for i in range(3)])
-    return out, nn / np.linalg.norm(nn, axis=1, keepdims=True)
-
-
-def _runs(mask: Array) -> list[tuple[int, int]]:
-    """Half-open index ranges of consecutive True values."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(int), [0]])))
-    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
 def sample_errors(system: System, Q: Array, points: Array, normals: Array | None) -> Array:
@@ -235,9 +205,9 @@ def plan_path(
     ok = np.all(np.isfinite(Q), axis=1)
     ds = float(arc[-1] / max(K - 1, 1)) or 1e-3
     t1 = time.perf_counter()
-    runs = _runs(ok)
-    closed = closed_path and runs == [(0, K)]
-    for k0, k1 in runs:
+    feasible = runs(ok)
+    closed = closed_path and feasible == [(0, K)]
+    for k0, k1 in feasible:
         if k1 - k0 < 2:
             segments.append(PathSegment(k0, k1, "warm_start", 0, 0.0, 0.0))
             continue
@@ -253,7 +223,7 @@ def plan_path(
         Q[ks[keep]] = Qp[keep]
     nlp_time = time.perf_counter() - t1
     gaps = []
-    for k0, k1 in _runs(~ok):
+    for k0, k1 in runs(~ok):
         failure = why[k0] or Failure(Reason.UNREACHABLE)
         s1 = float(arc[k1]) if k1 < K else float(arc[-1])
         gaps.append(PathGap(k0, k1, float(arc[k0]), s1, P[k0].copy(), failure.reason,

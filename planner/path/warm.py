@@ -24,6 +24,7 @@ from planner.beam.graph import system_params
 from planner.model.status import Failure, Reason
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
+from planner.model.validity import MIN_AHEAD, MIN_FRONT, MIN_ROI_MARGIN
 from planner.path.nlp import (
     Chain,
     PathNlp,
@@ -274,9 +275,14 @@ def project(
 def validity_bounds(lbh: Array, opts: PathOptions, slack: float = 1e-7) -> Array:
     """Lower bounds of h (K x (4N+2)) a valid sample must meet: the NLP's bounds less
     ``slack`` (m; ROI margin, front, mirror and target ahead keep most of the NLP's design
-    margins), and for the incidence the limit plus the checker's
+    margins and never drop below the beam-chain rule of :mod:`planner.model.validity`), and
+    for the incidence the limit plus the checker's
     :data:`~planner.verify.tolerances.INCIDENCE_SLACK`, exactly as ``beamrelay check`` accepts it."""
+    N = (lbh.shape[1] - 2) // 4
+    floor = np.concatenate([np.full(2 * N, MIN_ROI_MARGIN), np.full(N, MIN_FRONT),
+                            np.full(N, MIN_AHEAD), [MIN_AHEAD]])  # fmt: skip
     out = lbh - slack
+    out[:, :-1] = np.maximum(out[:, :-1], floor)  # never below the beam-chain rule
     inc = Tolerances(max_incidence=float(np.radians(opts.max_incidence_deg)))
     out[:, -1] = np.where(np.isfinite(lbh[:, -1]), inc.min_cos_incidence, -np.inf)
     return out

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from planner.model.polyline import runs
 from planner.model.scene import END_MARGIN, START_MARGIN, SceneModel
 from planner.model.status import Reason
 from planner.model.system import System, Targets
@@ -180,7 +181,7 @@ def check_path(
     q, ok = path.q.copy(), path.ok & ~mask
     q[mask] = np.nan
     gaps = list(path.gaps)
-    for k0, k1 in _runs(mask):
+    for k0, k1 in runs(mask):
         ev = blocked[k0]
         detail = (f"beam {ev['segment']} blocked by {ev['object']} at "
                   f"{np.round(np.asarray(ev['point']), 4).tolist()} m")  # fmt: skip
@@ -189,14 +190,8 @@ def check_path(
                             Reason.OCCLUDED, detail))  # fmt: skip
     segments = []
     for seg in path.segments:
-        for a, b in _runs(ok[seg.k0 : seg.k1]):
+        for a, b in runs(ok[seg.k0 : seg.k1]):
             segments.append(seg._replace(k0=seg.k0 + a, k1=seg.k0 + b))
     new = dataclasses.replace(path, q=q, ok=ok, segments=tuple(segments),
                               gaps=tuple(sorted(gaps, key=lambda g: g.k0)))  # fmt: skip
     return out, new
-
-
-def _runs(mask: Array) -> list[tuple[int, int]]:
-    """Half-open index ranges of consecutive True values."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(int), [0]])))
-    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
