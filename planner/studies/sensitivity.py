@@ -242,22 +242,12 @@ def summarize(nominal: Nominal, rows: list[dict[str, Any]]) -> list[dict[str, An
 
 
 def default_system() -> System:
-    """The paper's N = 1 setup (SPEC section 4 example): laser along −x at 0.3 m height."""
-    from planner.model.kinematics import RobotKinematics
-    from planner.model.system import DEFAULT_HOME, Limits, Mirror, Robot
+    """The paper's N = 1 setup: laser along −x at 0.3 m height."""
+    from planner.model.build import build_system
     from planner.model.transforms import make_T, rpy_to_matrix
 
     laser = make_T(rpy_to_matrix(np.deg2rad([0.0, -90.0, 0.0])), [0.60, -0.40, 0.30])
-    mirror = Mirror(make_T(p=[0.0, 0.0, 0.03]), (0.075, 0.075), 0.01)
-    robot = Robot(
-        "arm0",
-        RobotKinematics.ur5e(),
-        np.eye(4),
-        mirror,
-        np.array(DEFAULT_HOME),
-        Limits.ur_default(),
-    )
-    return System(laser, (robot,))
+    return build_system(laser, roi_margin=0.01)
 
 
 def run(
