@@ -6,7 +6,7 @@ rad (rad/s, rad/s^2); times in seconds from the trajectory start.
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Final, Literal, Self
+from typing import Annotated, Any, Final, Literal, Self, get_args
 
 from pydantic import Field, model_validator
 
@@ -22,16 +22,6 @@ from schemas.common import (
 )
 
 PLAN_SCHEMA: Final = "beamrelay.plan/1"
-FAILURE_REASONS = (
-    "unreachable",
-    "outside_roi",
-    "joint_limits",
-    "back_face",
-    "occluded",
-    "keep_out",
-    "collision",
-    "solver_failed",
-)
 Reason = Literal[
     "unreachable",
     "outside_roi",
@@ -43,6 +33,7 @@ Reason = Literal[
     "solver_failed",
 ]
 Status = Literal["ok", "failed"]
+FAILURE_REASONS: Final[tuple[str, ...]] = get_args(Reason)
 JointRows = list[JointVector]
 
 
