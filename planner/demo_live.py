@@ -38,7 +38,7 @@ def surface_targets(scenario_path: Path, n: int) -> Array:
     import open3d as o3d
 
     from drivers.camera.sim import build_scene
-    from planner.ik.evaluate import evaluate
+    from planner.beam.trace import trace_beam
     from planner.io.scenario import (
         load_scenario,
         scene_objects,
@@ -57,7 +57,7 @@ def surface_targets(scenario_path: Path, n: int) -> Array:
     for sol, p in zip(plan_points(system, Targets(pick)), pick, strict=True):
         if sol.q is None:
             continue
-        ev = evaluate(system, sol.q, p)
+        ev = trace_beam(system, sol.q, p)
         ray = np.hstack([ev.hits[-1], ev.dirs[-1]]).astype(np.float32)[None]
         t = float(scene.cast_rays(o3d.core.Tensor.from_numpy(ray))["t_hit"].numpy()[0])
         if np.isfinite(t):

@@ -16,10 +16,12 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from planner.ik import REASONS, BeamIK, IKOptions, Solution
-from planner.ik.evaluate import evaluate
+from planner.beam.trace import trace_beam
+from planner.ik import BeamIK, IKOptions, Solution
 from planner.io.plan_file import plan_json as plan_json  # re-exported
 from planner.io.plan_file import write_plan as write_plan
+from planner.model.polyline import runs
+from planner.model.status import Reason, Status
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
 
@@ -86,15 +88,13 @@ def solve_path(
     out = []
     for k in range(len(targets)):
         if res.ok[k]:
-            ev = evaluate(system, res.q[k], targets.points[k], targets.normal(k))
-            out.append(Solution("ok", None, res.q[k], ev.spot, ev.error, ev.hits, ev.uv,
-                                per_sample, 0, "path", ev.incidence))  # fmt: skip
+            ev = trace_beam(system, res.q[k], targets.points[k], targets.normal(k))
+            out.append(Solution.solved(res.q[k], ev, per_sample, 0, "path"))
         else:
             gap = gap_of.get(k)
-            reason = gap.reason if gap is not None and gap.reason in REASONS else "unreachable"
+            reason = Reason.UNREACHABLE if gap is None else gap.reason
             evidence: dict[str, object] = {"detail": gap.detail if gap is not None else ""}
-            out.append(Solution("failed", reason, None, None, float("inf"), None, None,
-                                per_sample, 0, "path", 0.0, evidence))  # fmt: skip
+            out.append(Solution.failed(reason, per_sample, 0, "path", evidence))
     if scene is not None and not scene.empty:
         from planner.safety.occlusion import check_path
 
@@ -115,7 +115,8 @@ def plan_path_targets(
 
 def solution_json(system: System, k: int, sol: Solution) -> dict[str, Any]:
     """One ``solutions[]`` entry of plan.json (world frame, SI)."""
-    d: dict[str, Any] = {"target": k, "status": sol.status, "reason": sol.reason}
+    reason = None if sol.reason is None else str(sol.reason)
+    d: dict[str, Any] = {"target": k, "status": str(sol.status), "reason": reason}
     if sol.q is not None and sol.hits is not None and sol.uv is not None and sol.spot is not None:
         d["q"] = {n: q.tolist() for n, q in system.split_q(sol.q).items()}
         d["spot"] = sol.spot.tolist()
@@ -161,7 +162,8 @@ def verify_solutions(
         if f.target is None:
             continue
         evidence = {"check": f.message, "value": f.value, "bound": f.bound}
-        out[f.target] = replace(out[f.target], status="failed", reason=f.reason or "solver_failed",
+        out[f.target] = replace(out[f.target], status=Status.FAILED,
+                                reason=Reason(f.reason or Reason.SOLVER_FAILED),
                                 q=None, spot=None, hits=None, uv=None, error=float("inf"),
                                 evidence=evidence)  # fmt: skip
     return out
@@ -248,23 +250,17 @@ def time_solutions(
         figures = {"duration_given_order": visit.duration_given,
                    "duration_chosen_order": visit.duration_optimised}  # fmt: skip
         return Timed(traj, visit, figures | limit_ratios(system, traj))
-    from planner.path.solve import arc_length
+    from planner.model.polyline import arc_length
 
     arc = path.arc if path is not None else arc_length(targets.points)
     ok = np.isfinite(Q).all(axis=1)
-    spans = [(s.k0, s.k1) for s in path.segments] if path is not None else _runs(ok)
-    runs = [(Q[a:b], arc[a:b]) for k0, k1 in spans for a, b in _runs(ok[k0:k1], k0)]
-    traj = path_trajectory(system, runs, q0, settings.spot_speed, rate)
+    spans = [(s.k0, s.k1) for s in path.segments] if path is not None else runs(ok)
+    pieces = [(Q[a:b], arc[a:b]) for k0, k1 in spans for a, b in runs(ok[k0:k1], k0)]
+    traj = path_trajectory(system, pieces, q0, settings.spot_speed, rate)
     figures = {"path_time": traj.span("path"), "path_length": float(arc[-1]),
                "path_deviation_max": path_deviation(system, targets, traj),
                "slowdowns": float(len(traj.slowdowns))}  # fmt: skip
     return Timed(traj, None, figures | limit_ratios(system, traj))
-
-
-def _runs(ok: Array, offset: int = 0) -> list[tuple[int, int]]:
-    """Half-open index ranges (plus ``offset``) of consecutive True values."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]]))) + offset
-    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
 def limit_ratios(system: System, traj: Trajectory) -> dict[str, float]:

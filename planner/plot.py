@@ -15,7 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from planner.ik.evaluate import evaluate, mirror_poses
+from planner.beam.trace import mirror_poses, trace_beam
+from planner.model.status import Status
 from planner.model.system import System, Targets
 from planner.model.transforms import Array, inv_T
 
@@ -44,7 +45,7 @@ def _draw_config(
 ) -> Array:
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    ev = evaluate(system, q, target)
+    ev = trace_beam(system, q, target)
     path = np.vstack([system.world_T_laser[:3, 3], ev.hits, ev.spot])
     ax.plot(*path.T, color="red", lw=0.8, alpha=alpha)
     drawn = [path]
@@ -121,7 +122,7 @@ def plot_plan(system: System, targets: Targets, plan: dict[str, Any], path: str 
     """Draw a plan document: every target, and the beam of a spread of solved targets."""
     qs, pts = [], []
     for sol in plan["solutions"]:
-        if sol["status"] == "ok":
+        if sol["status"] == Status.OK:
             qs.append(system.stack_q(sol["q"]))
             pts.append(targets.points[sol["target"]])
     m = plan["metrics"]
@@ -166,7 +167,7 @@ def _arrival_spots(system: System, plan: dict[str, Any], targets: Targets, Q: Ar
 
     from planner.verify.trajectory import _plane_spots
 
-    solved = [s for s in plan["solutions"] if s["status"] == "ok"]
+    solved = [s for s in plan["solutions"] if s["status"] == Status.OK]
     ids = np.array([int(s["target"]) for s in solved])
     _, j = cKDTree(np.array([system.stack_q(s["q"]) for s in solved])).query(Q)
     k = ids[np.asarray(j, dtype=int)]

@@ -6,7 +6,7 @@ rad (rad/s, rad/s^2); times in seconds from the trajectory start.
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Final, Literal, Self
+from typing import Annotated, Any, Final, Literal, Self, get_args
 
 from pydantic import Field, model_validator
 
@@ -22,17 +22,18 @@ from schemas.common import (
 )
 
 PLAN_SCHEMA: Final = "beamrelay.plan/1"
-FAILURE_REASONS = (
+Reason = Literal[
     "unreachable",
     "outside_roi",
     "joint_limits",
     "back_face",
     "occluded",
+    "keep_out",
+    "collision",
     "solver_failed",
-)
-Reason = Literal[
-    "unreachable", "outside_roi", "joint_limits", "back_face", "occluded", "solver_failed"
 ]
+Status = Literal["ok", "failed"]
+FAILURE_REASONS: Final[tuple[str, ...]] = get_args(Reason)
 JointRows = list[JointVector]
 
 
@@ -57,7 +58,7 @@ class Solution(StrictModel):
     between the arriving beam and the target normal (rad, only with a normal)."""
 
     target: NonNegInt
-    status: Literal["ok", "failed"]
+    status: Status
     reason: Reason | None = None
     q: dict[str, JointVector] = Field(default_factory=dict)
     spot: Vec3 | None = None

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from planner.model.build import ur5e_robot
 from planner.model.kinematics import RobotKinematics
-from planner.model.system import DEFAULT_HOME, Limits, Mirror, Robot, System
+from planner.model.system import DEFAULT_HOME, System
 from planner.model.transforms import look_at, make_T, rpy_to_matrix
 
 
@@ -21,7 +22,7 @@ def make_system(n: int, seed: int = 0) -> System:
         mount = make_T(rpy_to_matrix(rng.uniform(-0.1, 0.1, 3)), rng.uniform(-0.01, 0.01, 3))
         mount[2, 3] += 0.03
         home = np.array(DEFAULT_HOME) + rng.uniform(-0.2, 0.2, 6)
-        robots.append(Robot(f"arm{i}", kin, base, Mirror(mount), home, Limits.ur_default()))
+        robots.append(ur5e_robot(f"arm{i}", base, flange_T_mirror=mount, home=home, kinematics=kin))
     first = robots[0]
     c = (first.world_T_base @ kin.fk(first.home) @ first.mirror.flange_T_mirror)[:3, 3]
     laser = look_at(c + np.array([0.3, 0.2, -0.4]), c)

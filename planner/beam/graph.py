@@ -23,7 +23,9 @@ from typing import NamedTuple
 import casadi as ca
 import numpy as np
 
+from planner.beam.trace import BeamTrace, mirror_poses
 from planner.model.kinematics import RobotKinematics
+from planner.model.mirror import intersect_sx, normal_sx, reflect_sx
 from planner.model.system import System
 from planner.model.transforms import Array
 
@@ -51,11 +53,6 @@ BEAM_OUTPUTS = [
 ]
 
 
-def reflect(v: ca.SX, n: ca.SX) -> ca.SX:
-    """Mirror reflection of direction v about unit normal n (Eq. 2)."""
-    return v - 2 * ca.dot(v, n) * n
-
-
 def beam_chain(
     q: ca.SX,
     world_T_laser: ca.SX,
@@ -63,7 +60,8 @@ def beam_chain(
     flange_T_mirror: list[ca.SX],
     kinematics: tuple[RobotKinematics, ...],
 ) -> tuple[list[ca.SX], list[ca.SX], list[ca.SX], list[ca.SX], list[ca.SX], list[ca.SX]]:
-    """Symbolic trace of the chain: (hits, uv, dirs, front, ahead, world_T_mirror) per mirror."""
+    """Symbolic trace of the chain: (hits, uv, dirs, front, ahead, world_T_mirror) per mirror,
+    through the mirror seam's CasADi twin (:mod:`planner.model.mirror`)."""
     p = world_T_laser[:3, 3]
     v = world_T_laser[:3, 2]
     hits, uvs, dirs, fronts, aheads, mirrors = [], [], [v], [], [], []
@@ -72,18 +70,13 @@ def beam_chain(
         qi = q[i0 : i0 + kin.nq]
         i0 += kin.nq
         world_T_mirror = ca.mtimes([world_T_base[i], kin.casadi_fk_expr(qi), flange_T_mirror[i]])
-        c = world_T_mirror[:3, 3]
-        n = world_T_mirror[:3, 2]
-        nv = ca.dot(n, v)
-        t = ca.dot(n, c - p) / nv
-        h = p + t * v
-        uv = ca.mtimes(world_T_mirror[:3, :2].T, h - c)
-        v = reflect(v, n)
+        t, h, uv = intersect_sx(world_T_mirror, p, v)
+        fronts.append(-ca.dot(normal_sx(world_T_mirror, h), v))
+        v = reflect_sx(world_T_mirror, v, h)
         p = h
         hits.append(h)
         uvs.append(uv)
         dirs.append(v)
-        fronts.append(-nv)
         aheads.append(t)
         mirrors.append(world_T_mirror)
     return hits, uvs, dirs, fronts, aheads, mirrors
@@ -125,12 +118,11 @@ def chain_symbols(kinematics: tuple[RobotKinematics, ...]) -> ChainSymbols:
 def beam_function(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
     """The named beam function for a chain of robot models (cached per chain)."""
     sym = chain_symbols(kinematics)
-    q, world_T_laser, world_T_base, flange_T_mirror, roi_half = sym
     target = ca.SX.sym("target", 3)
     normal = ca.SX.sym("normal", 3)
 
     hits, uvs, dirs, fronts, aheads, _ = beam_chain(
-        q, world_T_laser, sym.bases, sym.mounts, kinematics
+        sym.q, sym.world_T_laser, sym.bases, sym.mounts, kinematics
     )
     p, v = hits[-1], dirs[-1]
 
@@ -143,55 +135,26 @@ def beam_function(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
     residual = spot - target
     incidence = ca.if_else(has_normal, ca.acos(ca.fmin(ca.fabs(ca.dot(v, nn)), 1.0)), 0.0)
     uv = ca.horzcat(*uvs)
-    return ca.Function(
-        "beam",
-        [q, world_T_laser, world_T_base, flange_T_mirror, roi_half, target, normal],
-        [
-            spot,
-            ca.horzcat(*hits),
-            uv,
-            ca.horzcat(*dirs),
-            ca.horzcat(*fronts),
-            ca.horzcat(*aheads),
-            roi_half - ca.fabs(uv),
-            s,
-            residual,
-            ca.norm_2(residual),
-            incidence,
-        ],
-        BEAM_INPUTS,
-        BEAM_OUTPUTS,
-    )
-
-
-class BeamTrace(NamedTuple):
-    """Numeric result of one trace; arrays in the world frame (see module docstring)."""
-
-    spot: Array
-    hits: Array  # (N, 3)
-    uv: Array  # (N, 2)
-    dirs: Array  # (N + 1, 3)
-    front: Array  # (N,)
-    ahead: Array  # (N,)
-    roi: Array  # (N, 2)
-    target_ahead: float
-    residual: Array
-    error: float
-    incidence: float
-
-    @property
-    def valid(self) -> bool:
-        """Every reflection valid (ahead, front face, inside ROI) and the target ahead."""
-        return bool(
-            np.all(self.front > 0)
-            and np.all(self.ahead > 0)
-            and np.all(self.roi >= 0)
-            and self.target_ahead > 0
-        )
+    inputs = {**sym._asdict(), "target": target, "normal": normal}
+    outputs = {
+        "spot": spot,
+        "hits": ca.horzcat(*hits),
+        "uv": uv,
+        "dirs": ca.horzcat(*dirs),
+        "front": ca.horzcat(*fronts),
+        "ahead": ca.horzcat(*aheads),
+        "roi": sym.roi_half - ca.fabs(uv),
+        "target_ahead": s,
+        "residual": residual,
+        "error": ca.norm_2(residual),
+        "incidence": incidence,
+    }
+    return ca.Function("beam", inputs | outputs, BEAM_INPUTS, BEAM_OUTPUTS)
 
 
 def system_params(system: System) -> dict[str, Array]:
-    """The parameter inputs of :func:`beam_function` for a system (everything but q/target)."""
+    """The geometry inputs of :func:`beam_function` for a system, by name (every
+    :class:`ChainSymbols` field but ``q``)."""
     return {
         "world_T_laser": system.world_T_laser,
         "world_T_base": np.hstack([r.world_T_base for r in system.robots]),
@@ -208,36 +171,37 @@ class BeamModel:
         self.function = beam_function(tuple(r.kinematics for r in system.robots))
         self.params = system_params(system)
 
+    def _call(self, q: Array, target: Array, normal: Array) -> dict[str, Array]:
+        out = self.function(q=q, **self.params, target=target, normal=normal)
+        return {k: np.asarray(x, dtype=float) for k, x in out.items()}
+
     def trace(
         self, q: Array, target: Array | None = None, normal: Array | None = None
     ) -> BeamTrace:
-        """Trace the beam at stacked joints ``q``; without ``target`` the spot is the point
-        of the last ray one metre beyond the last mirror."""
+        """Trace the beam at stacked joints ``q`` (rad) for ``target`` (world, m) with its
+        optional unit ``normal``; without ``target`` the spot is the point of the last ray one
+        metre beyond the last mirror."""
         q = np.asarray(q, dtype=float)
         if target is None:
-            out = self.function(q, *self.params.values(), np.zeros(3), np.zeros(3))
-            hits, dirs = np.asarray(out[1]), np.asarray(out[3])
-            target = hits[:, -1] + dirs[:, -1]
+            out = self._call(q, np.zeros(3), np.zeros(3))
+            target = out["hits"][:, -1] + out["dirs"][:, -1]
         normal_in = np.zeros(3) if normal is None else np.asarray(normal, dtype=float)
-        out = self.function(q, *self.params.values(), np.asarray(target, dtype=float), normal_in)
-        arr = [np.asarray(o, dtype=float) for o in out]
+        out = self._call(q, np.asarray(target, dtype=float), normal_in)
         return BeamTrace(
-            spot=arr[0].ravel(),
-            hits=arr[1].T,
-            uv=arr[2].T,
-            dirs=arr[3].T,
-            front=arr[4].ravel(),
-            ahead=arr[5].ravel(),
-            roi=arr[6].T,
-            target_ahead=arr[7].item(),
-            residual=arr[8].ravel(),
-            error=arr[9].item(),
-            incidence=arr[10].item(),
+            spot=out["spot"].ravel(),
+            error=out["error"].item(),
+            hits=out["hits"].T,
+            uv=out["uv"].T,
+            dirs=out["dirs"].T,
+            front=out["front"].ravel(),
+            ahead=out["ahead"].ravel(),
+            roi=out["roi"].T,
+            target_ahead=out["target_ahead"].item(),
+            incidence=out["incidence"].item(),
+            residual=out["residual"].ravel(),
+            world_T_mirrors=tuple(self.world_T_mirrors(q)),
         )
 
     def world_T_mirrors(self, q: Array) -> list[Array]:
         """Pose of each mirror in the world at stacked joints ``q`` (Pinocchio FK)."""
-        out = []
-        for r, qi in zip(self.system.robots, self.system.split_q(q).values(), strict=True):
-            out.append(r.world_T_base @ r.kinematics.fk(qi) @ r.mirror.flange_T_mirror)
-        return out
+        return mirror_poses(self.system, np.asarray(q, dtype=float))

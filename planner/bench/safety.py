@@ -26,19 +26,15 @@ GAP = 1.05  # m between neighbouring bases
 
 def bench_system(n: int) -> System:
     """N UR5e on a circle with neighbouring bases ``GAP`` apart, facing its centre."""
-    from planner.model.kinematics import RobotKinematics
-    from planner.model.system import DEFAULT_HOME, Limits, Mirror, Robot
+    from planner.model.build import build_system
     from planner.model.transforms import look_at, make_T, rot_z
 
-    kin = RobotKinematics.ur5e()
     radius = 0.0 if n == 1 else GAP / (2 * np.sin(np.pi / n))
-    robots = []
-    for i in range(n):
-        ang = 2 * np.pi * i / n
-        T = make_T(rot_z(ang + np.pi), [radius * np.cos(ang), radius * np.sin(ang), 0.0])
-        mirror = Mirror(make_T(p=[0.0, 0.0, 0.03]))
-        robots.append(Robot(f"arm{i}", kin, T, mirror, np.array(DEFAULT_HOME), Limits.ur_default()))
-    return System(look_at([0.3, -0.5, 0.3], [0.0, 0.0, 0.8]), tuple(robots))
+    angles = [2 * np.pi * i / n for i in range(n)]
+    bases = [
+        make_T(rot_z(a + np.pi), [radius * np.cos(a), radius * np.sin(a), 0.0]) for a in angles
+    ]
+    return build_system(look_at([0.3, -0.5, 0.3], [0.0, 0.0, 0.8]), bases)
 
 
 def _rate(fn: Callable[[int], object], count: int, seconds: float) -> float:

@@ -98,30 +98,26 @@ def beam_residual(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
     flange_T_mirror (4x4N), spot (3); outputs: r (3), J (3x12, w.r.t. [d_laser; d_mirror]).
     """
     N = len(kinematics)
-    q, L0, bases, mounts, _ = chain_symbols(kinematics)
+    sym = chain_symbols(kinematics)
     dl, dm = ca.SX.sym("d_laser", 6), ca.SX.sym("d_mirror", 6)
     spot = ca.SX.sym("spot", 3)
+    mounts = sym.flange_T_mirror
     last = mounts[:, 4 * (N - 1) :] @ delta_T(dm)
     mounts_d = ca.horzcat(mounts[:, : 4 * (N - 1)], last) if N > 1 else last
-    roi_half = ca.DM.ones(2, N)
     out = beam_function(kinematics)(
-        q=q,
-        world_T_laser=L0 @ delta_T(dl),
-        world_T_base=bases,
+        q=sym.q,
+        world_T_laser=sym.world_T_laser @ delta_T(dl),
+        world_T_base=sym.world_T_base,
         flange_T_mirror=mounts_d,
-        roi_half=roi_half,
+        roi_half=ca.DM.ones(2, N),
         target=spot,
         normal=ca.DM.zeros(3),
     )
     r = out["residual"]
-    J = ca.jacobian(r, ca.vertcat(dl, dm))
-    return ca.Function(
-        "beam_calibration_residual",
-        [q, dl, dm, L0, bases, mounts, spot],
-        [r, J],
-        ["q", "d_laser", "d_mirror", "world_T_laser", "world_T_base", "flange_T_mirror", "spot"],
-        ["r", "J"],
-    )
+    inputs = {"q": sym.q, "d_laser": dl, "d_mirror": dm, "world_T_laser": sym.world_T_laser,
+              "world_T_base": sym.world_T_base, "flange_T_mirror": mounts, "spot": spot}  # fmt: skip
+    outputs = {"r": r, "J": ca.jacobian(r, ca.vertcat(dl, dm))}
+    return ca.Function("beam_calibration_residual", inputs | outputs, list(inputs), list(outputs))
 
 
 @lru_cache(maxsize=64)
@@ -204,9 +200,10 @@ def calibrate_beam(
     q_h, spot_h = data.q.T, data.spots_world.T
 
     def full_linearize(L: Array, M: Array) -> tuple[Array, Array]:
-        r, J = fn(q_h, np.zeros(6), np.zeros(6), L, bases, np.hstack([others, M]), spot_h)
-        J_a = np.asarray(J).reshape(3, K, 12).transpose(1, 0, 2).reshape(3 * K, 12)
-        return np.asarray(r).T.ravel(), J_a
+        out = fn(q=q_h, d_laser=np.zeros(6), d_mirror=np.zeros(6), world_T_laser=L,
+                 world_T_base=bases, flange_T_mirror=np.hstack([others, M]), spot=spot_h)  # fmt: skip
+        J_a = np.asarray(out["J"]).reshape(3, K, 12).transpose(1, 0, 2).reshape(3 * K, 12)
+        return np.asarray(out["r"]).T.ravel(), J_a
 
     def linearize(state: tuple[Array, Array]) -> tuple[Array, Array]:
         r, J = full_linearize(*state)

@@ -132,14 +132,9 @@ def handeye_residual() -> ca.Function:
     b, p = ca.SX.sym("b", 3), ca.SX.sym("p", 3)
     T = ca.mtimes([delta_T(dz), Z0, A, Y0, delta_T(dy)])
     r = T[:3, :3] @ b + T[:3, 3] - p
-    J = ca.jacobian(r, ca.vertcat(dz, dy))
-    return ca.Function(
-        "handeye_residual",
-        [dz, dy, Z0, A, Y0, b, p],
-        [r, J],
-        ["dz", "dy", "Z0", "A", "Y0", "b", "p"],
-        ["r", "J"],
-    )
+    inputs = {"dz": dz, "dy": dy, "Z0": Z0, "A": A, "Y0": Y0, "b": b, "p": p}
+    outputs = {"r": r, "J": ca.jacobian(r, ca.vertcat(dz, dy))}
+    return ca.Function("handeye_residual", inputs | outputs, list(inputs), list(outputs))
 
 
 @lru_cache(maxsize=64)
@@ -219,9 +214,9 @@ def calibrate_handeye(
 
     def linearize(state: tuple[Array, Array]) -> tuple[Array, Array]:
         Z, Y = state
-        r, J = fn(np.zeros(6), np.zeros(6), Z, A_h, Y, b_h, p_h)
-        r_a = np.asarray(r).T.ravel()
-        J_a = np.asarray(J).reshape(3, M, 12).transpose(1, 0, 2).reshape(3 * M, 12)
+        out = fn(dz=np.zeros(6), dy=np.zeros(6), Z0=Z, A=A_h, Y0=Y, b=b_h, p=p_h)
+        r_a = np.asarray(out["r"]).T.ravel()
+        J_a = np.asarray(out["J"]).reshape(3, M, 12).transpose(1, 0, 2).reshape(3 * M, 12)
         return r_a, J_a
 
     res: LsqResult[tuple[Array, Array]] = levenberg_marquardt(

@@ -60,6 +60,7 @@ def trace(
 
     from planner.beam.graph import BeamModel
     from planner.io.scenario import load_scenario, system_from_scenario
+    from planner.model.validity import ahead_ok, front_ok, roi_ok
 
     scn = load_scenario(scenario)
     system = system_from_scenario(scn)
@@ -84,14 +85,14 @@ def trace(
     for col in ("mirror", "hit x y z (m)", "u v (mm)", "front", "ahead", "in ROI"):
         table.add_column(col)
     for i, r in enumerate(system.robots):
-        ok_front, ok_ahead, ok_roi = tr.front[i] > 0, tr.ahead[i] > 0, bool(np.all(tr.roi[i] >= 0))
+        ok_front, ok_ahead, ok_roi = front_ok(tr.front[i]), ahead_ok(tr.ahead[i]), roi_ok(tr.roi[i])
         table.add_row(
             r.name,
             " ".join(f"{x:+.4f}" for x in tr.hits[i]),
             " ".join(f"{1e3 * x:+.2f}" for x in tr.uv[i]),
             "yes" if ok_front else "[red]back face[/]",
             "yes" if ok_ahead else "[red]behind[/]",
-            "yes" if ok_roi else "[red]outside[/]",
+            "yes" if ok_roi.all() else "[red]outside[/]",
         )
     console.print(table)
     console.print(f"outgoing direction: {' '.join(f'{x:+.4f}' for x in tr.dirs[-1])}")

@@ -13,6 +13,7 @@ import typer
 
 from planner.cli.args import parse_xyz
 from planner.errors import InputError
+from planner.model.status import Status
 
 EndpointOpt = Annotated[
     str | None,
@@ -190,7 +191,7 @@ def request(
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(1) from exc
     print_summary(console, plan, spots)
-    if any(s["status"] != "ok" for s in plan["solutions"]):
+    if any(s["status"] != Status.OK for s in plan["solutions"]):
         raise typer.Exit(1)
 
 
@@ -210,7 +211,7 @@ def print_summary(console: object, plan: dict, spots: list | None) -> None:
         row = [
             str(tgt["id"]),
             " ".join(f"{x:+.4f}" for x in tgt["p"]),
-            sol["status"] if sol["status"] == "ok" else f"[red]{sol['reason']}[/]",
+            sol["status"] if sol["status"] == Status.OK else f"[red]{sol['reason']}[/]",
             f"{1e3 * sol['error']:.2e}" if sol.get("error") is not None else "-",
             f"{1e3 * sol['solve_time']:.2f}" if sol.get("solve_time") is not None else "-",
         ]
@@ -229,7 +230,7 @@ def print_summary(console: object, plan: dict, spots: list | None) -> None:
             for s, t in zip(spots, plan["targets"], strict=True)
             if s is not None
         ]
-        if len(errs) < sum(s["status"] == "ok" for s in plan["solutions"]):
+        if len(errs) < sum(s["status"] == Status.OK for s in plan["solutions"]):
             console.print(
                 "spots are measured while the robots rest on a target: targets passed without "
                 "a pause (scenario trajectory.dwell = 0) or hidden from the camera are not seen"

@@ -8,6 +8,7 @@ from typing import Annotated, Any
 import typer
 
 from planner.errors import InputError
+from planner.model.status import Status
 
 
 def _fmt(x: float | None, scale: float, digits: str) -> str:
@@ -236,7 +237,7 @@ def check(
         bad = f"[red]{len(r.findings)}[/]" if r.findings else "0"
         table.add_row(r.name, str(r.checked), bad, figs)
     console.print(table)
-    n_failed = sum(1 for s in plan_doc["solutions"] if s.get("status") != "ok")
+    n_failed = sum(1 for s in plan_doc["solutions"] if s.get("status") != Status.OK)
     if n_failed:
         console.print(f"{n_failed} target(s) unsolved in the plan (reported, not checked)")
     violations = _print_findings(console, results, "plan")

@@ -1,5 +1,5 @@
 """Per-target beam IK: exact closed-form family, Newton polish, IPOPT NLP (see ``solve``)."""
 
-from planner.ik.solve import EXACT, REASONS, BeamIK, IKOptions, Solution
+from planner.ik.solve import EXACT, BeamIK, IKOptions, Solution
 
-__all__ = ["EXACT", "REASONS", "BeamIK", "IKOptions", "Solution"]
+__all__ = ["EXACT", "BeamIK", "IKOptions", "Solution"]

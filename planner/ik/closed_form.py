@@ -23,8 +23,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from planner.ik.evaluate import mirror_poses
+from planner.beam.trace import mirror_poses
 from planner.model.kinematics import RobotKinematics
+from planner.model.status import Reason
 from planner.model.system import System
 from planner.model.transforms import Array, inv_T
 
@@ -83,25 +84,6 @@ def bisector(d_in: Array, d_out: Array) -> Array | None:
     return None if norm < _DEGENERATE else n / norm
 
 
-def mirror_frame(h: Array, n: Array, x_ref: Array, psi: float, uv: Array) -> Array:
-    """``world_T_mirror`` with normal ``n``, x axis = ``x_ref`` projected on the mirror plane
-    and rolled by ``psi`` about ``n``, placed so that ``h`` sits at mirror coordinates uv."""
-    x = x_ref - (x_ref @ n) * n
-    nx = float(np.linalg.norm(x))
-    if nx < 1e-6:
-        x = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        x = x - (x @ n) * n
-        nx = float(np.linalg.norm(x))
-    x = x / nx
-    y = np.array([n[1] * x[2] - n[2] * x[1], n[2] * x[0] - n[0] * x[2], n[0] * x[1] - n[1] * x[0]])
-    c, s = np.cos(psi), np.sin(psi)
-    x, y = c * x + s * y, c * y - s * x
-    T = np.eye(4)
-    T[:3, 0], T[:3, 1], T[:3, 2] = x, y, n
-    T[:3, 3] = h - uv[0] * x - uv[1] * y
-    return T
-
-
 def pick_branch(
     branches: Array, q_ref: Array, lower: Array, upper: Array
 ) -> tuple[Array | None, float]:
@@ -135,7 +117,7 @@ class SearchStats:
 
 class ClosedFormResult(NamedTuple):
     q: Array | None  # stacked joints of the chosen member, or None
-    reason: str | None  # failure reason (SPEC section 5) when q is None
+    reason: Reason | None  # failure reason when q is None
     evidence: dict[str, object]
     members: int  # family members tried
 
@@ -218,7 +200,7 @@ class ClosedForm:
                     uvs.append(uv)
         for psi in stage.psi:
             for uv in uvs:
-                T = mirror_frame(h, n, x_ref, psi, uv)
+                T = r.mirror.place(h, n, x_ref, psi, uv)
                 base_T_flange = self.base_T_world[i] @ T @ self.mirror_T_flange[i]
                 branches = self.seeds[i].analytic_ik(base_T_flange)
                 if not branches:
@@ -298,7 +280,7 @@ class ClosedForm:
             off = float(np.linalg.norm(d - (d @ self.v0) * self.v0))
             return ClosedFormResult(
                 None,
-                "back_face",
+                Reason.BACK_FACE,
                 {
                     "target_off_beam_m": off,
                     "why": "target lies on the incoming beam past every reachable hit point: "
@@ -313,7 +295,7 @@ class ClosedForm:
         if stats.limits:
             return ClosedFormResult(
                 None,
-                "joint_limits",
+                Reason.JOINT_LIMITS,
                 {
                     "min_limit_violation_rad": stats.min_limit_violation,
                     "members_out_of_limits": stats.limits,
@@ -323,7 +305,7 @@ class ClosedForm:
         if stats.incidence and not stats.no_ik:
             return ClosedFormResult(
                 None,
-                "unreachable",
+                Reason.UNREACHABLE,
                 {
                     "min_incidence_deg": float(np.degrees(stats.min_incidence)),
                     "max_incidence_deg": float(np.degrees(max_incidence or 0.0)),
@@ -337,7 +319,7 @@ class ClosedForm:
             uv = probe.evidence.get("uv_last", [0.0, 0.0])
             return ClosedFormResult(
                 None,
-                "outside_roi",
+                Reason.OUTSIDE_ROI,
                 {
                     "offset_needed_mm": 1e3 * float(np.linalg.norm(np.asarray(uv))),
                     "roi_half_mm": [1e3 * float(x) for x in self.roi_half[-1]],
@@ -347,7 +329,7 @@ class ClosedForm:
             )
         return ClosedFormResult(
             None,
-            "unreachable",
+            Reason.UNREACHABLE,
             {
                 "members_without_ik": stats.no_ik,
                 "beam_distance_to_base_m": [

@@ -24,15 +24,10 @@ from planner.model.transforms import Array
 def residual_function(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
     """Named ``beam_newton``: (q, params, target, normal) -> (residual 3, d residual/dq 3xnq)."""
     beam = beam_function(kinematics)
-    args = [ca.SX.sym(name, beam.sparsity_in(i)) for i, name in enumerate(beam.name_in())]
-    residual = beam.call(dict(zip(beam.name_in(), args, strict=True)))["residual"]
-    return ca.Function(
-        "beam_newton",
-        args,
-        [residual, ca.jacobian(residual, args[0])],
-        beam.name_in(),
-        ["residual", "jacobian"],
-    )
+    args = {name: ca.SX.sym(name, beam.sparsity_in(name)) for name in beam.name_in()}
+    residual = beam.call(args)["residual"]
+    outputs = {"residual": residual, "jacobian": ca.jacobian(residual, args["q"])}
+    return ca.Function("beam_newton", args | outputs, list(args), list(outputs))
 
 
 class NewtonResult(NamedTuple):
@@ -47,11 +42,13 @@ class Newton:
     def __init__(self, system: System) -> None:
         self.system = system
         self.function = residual_function(tuple(r.kinematics for r in system.robots))
-        self.params = list(system_params(system).values())
+        self.params = system_params(system)
 
     def _eval(self, q: Array, target: Array, normal: Array) -> tuple[Array, Array]:
-        r, J = self.function(q, *self.params, target, normal)
-        return np.asarray(r, dtype=float).ravel(), np.asarray(J, dtype=float)
+        out = self.function(q=q, **self.params, target=target, normal=normal)
+        return np.asarray(out["residual"], dtype=float).ravel(), np.asarray(
+            out["jacobian"], dtype=float
+        )
 
     def polish(
         self,

@@ -1,11 +1,13 @@
 """The beam IK as one IPOPT NLP, built once per chain of robot models and reused.
 
 Decision variables: the stacked joints q of all N robots (bounds = joint limits, passed per
-call). Parameters (never baked in): target (3), target normal (3, zeros = none), spot-plane
-basis (3x3: plane normal m, in-plane axes e1, e2), previous q, cos of the maximum incidence
-(-2 = off), centre weight, and the system geometry of :func:`planner.beam.graph.system_params`.
+call). Parameters (never baked in), packed by name in :data:`PROBLEM_PARAMETERS` order then
+the chain geometry (:class:`planner.beam.graph.ChainSymbols` fields but q, valued by
+:func:`planner.beam.graph.system_params`): target (3), target normal (3, zeros = none),
+spot-plane basis (3x3: plane normal m, in-plane axes e1, e2), previous q, cos of the
+maximum incidence (-2 = off), centre weight.
 
-Constraints (SPEC section 3):
+Constraints (thresholds of :mod:`planner.model.validity`):
     e1.(spot - target) = e2.(spot - target) = 0   spot on target (spot = ray ∩ plane ⊥ m)
     -n_i.v_i >= MIN_FRONT                          front face of every mirror
     t_i >= MIN_AHEAD                               every mirror ahead
@@ -23,11 +25,11 @@ from typing import Any, NamedTuple
 import casadi as ca
 import numpy as np
 
-from planner.beam.graph import beam_chain, system_params
-from planner.ik.evaluate import MIN_AHEAD, MIN_FRONT
+from planner.beam.graph import ChainSymbols, beam_chain, chain_symbols, system_params
 from planner.model.kinematics import RobotKinematics
 from planner.model.system import System
-from planner.model.transforms import Array
+from planner.model.transforms import Array, plane_basis
+from planner.model.validity import MIN_AHEAD, MIN_FRONT, MIN_ROI_MARGIN
 
 INACTIVE_COS = -2.0
 
@@ -39,19 +41,19 @@ class NLPResult(NamedTuple):
     iterations: int
 
 
-def _parameter_layout(N: int, nq: int) -> list[tuple[str, tuple[int, int]]]:
-    return [
-        ("target", (3, 1)),
-        ("normal", (3, 1)),
-        ("plane", (3, 3)),
-        ("q_prev", (nq, 1)),
-        ("cos_max", (1, 1)),
-        ("w_centre", (1, 1)),
-        ("world_T_laser", (4, 4)),
-        ("world_T_base", (4, 4 * N)),
-        ("flange_T_mirror", (4, 4 * N)),
-        ("roi_half", (2, N)),
-    ]
+def _problem_parameters(nq: int) -> dict[str, ca.SX]:
+    """The per-call parameter symbols of the NLP, by name (geometry comes on top)."""
+    return {
+        "target": ca.SX.sym("target", 3),
+        "normal": ca.SX.sym("normal", 3),
+        "plane": ca.SX.sym("plane", 3, 3),
+        "q_prev": ca.SX.sym("q_prev", nq),
+        "cos_max": ca.SX.sym("cos_max"),
+        "w_centre": ca.SX.sym("w_centre"),
+    }
+
+
+GEOMETRY = tuple(name for name in ChainSymbols._fields if name != "q")
 
 
 @lru_cache(maxsize=8)
@@ -61,13 +63,11 @@ def build_solver(
     """The ``beam_ik`` nlpsol (IPOPT, expanded, silent) for a chain of robot models, with
     its constraint bounds (lbg, ubg)."""
     N = len(kinematics)
-    nq = sum(k.nq for k in kinematics)
-    q = ca.SX.sym("q", nq)
-    P = {name: ca.SX.sym(name, *shape) for name, shape in _parameter_layout(N, nq)}
-    bases = [P["world_T_base"][:, 4 * i : 4 * i + 4] for i in range(N)]
-    mounts = [P["flange_T_mirror"][:, 4 * i : 4 * i + 4] for i in range(N)]
+    sym = chain_symbols(kinematics)
+    q = sym.q
+    P = _problem_parameters(q.size1()) | {name: getattr(sym, name) for name in GEOMETRY}
     hits, uvs, dirs, fronts, aheads, _ = beam_chain(
-        q, P["world_T_laser"], bases, mounts, kinematics
+        q, sym.world_T_laser, sym.bases, sym.mounts, kinematics
     )
     p, v = hits[-1], dirs[-1]
     m, e1, e2 = P["plane"][:, 0], P["plane"][:, 1], P["plane"][:, 2]
@@ -79,7 +79,7 @@ def build_solver(
     for i in range(N):
         roi = P["roi_half"][:, i]
         g += [fronts[i], aheads[i], roi - uvs[i], roi + uvs[i]]
-        lbg += [MIN_FRONT, MIN_AHEAD, 0.0, 0.0, 0.0, 0.0]
+        lbg += [MIN_FRONT, MIN_AHEAD, *([MIN_ROI_MARGIN] * 4)]
         ubg += [ca.inf] * 6
     along = ca.dot(v, target - p)
     g += [along, -ca.dot(v, P["normal"]) - P["cos_max"]]
@@ -87,7 +87,7 @@ def build_solver(
     ubg += [ca.inf, ca.inf]
     dq = q - P["q_prev"]
     f = ca.dot(dq, dq) + P["w_centre"] * sum(ca.dot(uv, uv) for uv in uvs)
-    p_all = ca.vertcat(*[ca.vec(P[name]) for name, _ in _parameter_layout(N, nq)])
+    p_all = ca.vertcat(*[ca.vec(x) for x in P.values()])
     nlp = {"x": q, "p": p_all, "f": f, "g": ca.vertcat(*g)}
     opts: dict[str, Any] = {
         "expand": True,
@@ -103,15 +103,6 @@ def build_solver(
     return ca.nlpsol("beam_ik", "ipopt", nlp, opts), np.array(lbg), np.array(ubg)
 
 
-def plane_basis(m: Array) -> Array:
-    """3x3 [m, e1, e2]: unit plane normal and two in-plane unit axes."""
-    m = np.asarray(m, dtype=float) / np.linalg.norm(m)
-    a = np.array([1.0, 0.0, 0.0]) if abs(m[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(m, a)
-    e1 /= np.linalg.norm(e1)
-    return np.column_stack([m, e1, np.cross(m, e1)])
-
-
 class BeamNLP:
     """The NLP bound to one system; geometry is a parameter, so ``with_params`` systems of the
     same robot models reuse the same solver."""
@@ -122,7 +113,7 @@ class BeamNLP:
         self.system = system
         kins = tuple(r.kinematics for r in system.robots)
         self.solver, self.lbg, self.ubg = build_solver(kins, max_iter)
-        self.geometry = [np.asarray(x, dtype=float) for x in system_params(system).values()]
+        self.geometry = system_params(system)
         self.centre_weight = centre_weight
 
     def solve(
@@ -140,16 +131,15 @@ class BeamNLP:
         cos_max = INACTIVE_COS
         if normal is not None and max_incidence is not None:
             cos_max = float(np.cos(max_incidence))
-        values = [
-            np.asarray(target, dtype=float),
-            np.zeros(3) if normal is None else np.asarray(normal, dtype=float),
-            plane_basis(m),
-            np.asarray(q_prev, dtype=float),
-            np.array([cos_max]),
-            np.array([self.centre_weight]),
-            *self.geometry,
-        ]
-        p = np.concatenate([np.asarray(x).ravel(order="F") for x in values])
+        values = {
+            "target": np.asarray(target, dtype=float),
+            "normal": np.zeros(3) if normal is None else np.asarray(normal, dtype=float),
+            "plane": plane_basis(m),
+            "q_prev": np.asarray(q_prev, dtype=float),
+            "cos_max": np.array([cos_max]),
+            "w_centre": np.array([self.centre_weight]),
+        } | {name: self.geometry[name] for name in GEOMETRY}
+        p = np.concatenate([np.asarray(x, dtype=float).ravel(order="F") for x in values.values()])
         out = self.solver(
             x0=q0, p=p, lbx=self.system.lower, ubx=self.system.upper, lbg=self.lbg, ubg=self.ubg
         )

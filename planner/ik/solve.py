@@ -13,14 +13,15 @@ from functools import cached_property
 
 import numpy as np
 
+from planner.beam.trace import BeamTrace, trace_beam
 from planner.ik.closed_form import ClosedForm, seed_kinematics
-from planner.ik.evaluate import MIN_AHEAD, MIN_FRONT, Evaluation, evaluate
 from planner.ik.newton import Newton
 from planner.ik.nlp import BeamNLP
+from planner.model.status import Reason, Status
 from planner.model.system import System
 from planner.model.transforms import Array
+from planner.model.validity import ahead_ok, front_ok, roi_ok
 
-REASONS = ("unreachable", "outside_roi", "joint_limits", "back_face", "occluded", "solver_failed")
 EXACT = 1e-12  # metres: what "machine precision" means for a spot error here
 
 
@@ -43,8 +44,8 @@ class IKOptions:
 class Solution:
     """One target's result. ``q`` stacked (robot order), None when failed; world frame."""
 
-    status: str  # "ok" | "failed"
-    reason: str | None
+    status: Status
+    reason: Reason | None
     q: Array | None
     spot: Array | None
     error: float  # metres (inf when nothing was traced)
@@ -58,7 +59,35 @@ class Solution:
 
     @property
     def ok(self) -> bool:
-        return self.status == "ok"
+        return self.status == Status.OK
+
+    @classmethod
+    def solved(
+        cls,
+        q: Array,
+        trace: BeamTrace,
+        solve_time: float,
+        iterations: int,
+        method: str,
+        evidence: dict[str, object] | None = None,
+    ) -> Solution:
+        """An ``ok`` solution at stacked joints ``q`` with the spot, hits and incidence of
+        its ``trace``."""
+        return cls(Status.OK, None, q, trace.spot, trace.error, trace.hits, trace.uv,
+                   solve_time, iterations, method, trace.incidence, dict(evidence or {}))  # fmt: skip
+
+    @classmethod
+    def failed(
+        cls,
+        reason: Reason,
+        solve_time: float,
+        iterations: int,
+        method: str,
+        evidence: dict[str, object] | None = None,
+    ) -> Solution:
+        """A ``failed`` solution with its reason and the numbers that show it."""
+        return cls(Status.FAILED, reason, None, None, float("inf"), None, None, solve_time,
+                   iterations, method, 0.0, dict(evidence or {}))  # fmt: skip
 
 
 def _limit_violation(system: System, q: Array) -> float:
@@ -85,7 +114,7 @@ class BeamIK:
         return BeamNLP(self.system, max_iter=o.max_iter, centre_weight=o.centre_weight)
 
     # --------------------------------------------------------------------------------------
-    def accept(self, ev: Evaluation, q: Array) -> bool:
+    def accept(self, ev: BeamTrace, q: Array) -> bool:
         """Valid chain, error within tolerance, joints within limits, incidence within limit."""
         inc_ok = self.options.max_incidence is None or ev.incidence <= self.options.max_incidence
         return bool(
@@ -95,7 +124,7 @@ class BeamIK:
             and inc_ok
         )
 
-    def classify(self, ev: Evaluation, q: Array, status: str) -> tuple[str, dict[str, object]]:
+    def classify(self, ev: BeamTrace, q: Array, status: str) -> tuple[Reason, dict[str, object]]:
         """Reason (SPEC section 5) of a rejected configuration, with its evidence."""
         evidence: dict[str, object] = {
             "error_m": ev.error,
@@ -106,26 +135,29 @@ class BeamIK:
         viol = _limit_violation(self.system, q)
         converged = status in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
         if not np.all(np.isfinite(q)) or not np.isfinite(ev.error):
-            return "solver_failed", evidence
+            return Reason.SOLVER_FAILED, evidence
         if not converged and status != "Infeasible_Problem_Detected":
-            return "solver_failed", evidence  # the iterate says nothing about the target
+            return Reason.SOLVER_FAILED, evidence  # the iterate says nothing about the target
         if viol > 0.0:
-            return "joint_limits", {**evidence, "limit_violation_rad": viol}
-        if np.any(ev.front <= MIN_FRONT) or ev.target_ahead <= MIN_AHEAD:
-            return "back_face", {**evidence, "target_ahead_m": ev.target_ahead}
-        if np.any(ev.roi < 0.0):
-            return "outside_roi", evidence
-        if np.any(ev.ahead <= MIN_AHEAD) or status == "Infeasible_Problem_Detected":
-            return "unreachable", evidence
+            return Reason.JOINT_LIMITS, {**evidence, "limit_violation_rad": viol}
+        if not front_ok(ev.front).all() or not ahead_ok(ev.target_ahead):
+            return Reason.BACK_FACE, {**evidence, "target_ahead_m": ev.target_ahead}
+        if not roi_ok(ev.roi).all():
+            return Reason.OUTSIDE_ROI, evidence
+        if not ahead_ok(ev.ahead).all() or status == "Infeasible_Problem_Detected":
+            return Reason.UNREACHABLE, evidence
         max_inc = self.options.max_incidence
         if max_inc is not None and ev.incidence > max_inc:
-            return "unreachable", {**evidence, "incidence_deg": float(np.degrees(ev.incidence))}
-        return "solver_failed", evidence
+            return Reason.UNREACHABLE, {
+                **evidence,
+                "incidence_deg": float(np.degrees(ev.incidence)),
+            }
+        return Reason.SOLVER_FAILED, evidence
 
     def _nlp(
         self, q0: Array, target: Array, normal: Array | None, q_prev: Array
-    ) -> tuple[Array, Evaluation, str, int]:
-        ev0 = evaluate(self.system, q0, target, normal)
+    ) -> tuple[Array, BeamTrace, str, int]:
+        ev0 = trace_beam(self.system, q0, target, normal)
         m = target - ev0.hits[-1]
         if np.linalg.norm(m) < 1e-9:
             m = ev0.dirs[-1]
@@ -133,16 +165,16 @@ class BeamIK:
         q = res.q
         if np.all(np.isfinite(q)):
             q = self.newton.polish(q, target, normal).q
-        return q, evaluate(self.system, q, target, normal), res.status, res.iterations
+        return q, trace_beam(self.system, q, target, normal), res.status, res.iterations
 
     def _multistart(
         self, target: Array, normal: Array | None, q_prev: Array, first: list[Array]
-    ) -> tuple[Array | None, Evaluation | None, int, tuple[str, dict[str, object]]]:
+    ) -> tuple[Array | None, BeamTrace | None, int, tuple[Reason | None, dict[str, object]]]:
         rng = np.random.default_rng(self.options.seed)
         lo, hi = np.maximum(self.system.lower, -np.pi), np.minimum(self.system.upper, np.pi)
         seeds = [*first, q_prev, self.system.home]
         seeds += [rng.uniform(lo, hi) for _ in range(self.options.starts)]
-        best: tuple[float, str, dict[str, object]] | None = None
+        best: tuple[float, Reason, dict[str, object]] | None = None
         iters = 0
         for q0 in seeds:
             q, ev, status, it = self._nlp(
@@ -150,7 +182,7 @@ class BeamIK:
             )
             iters += it
             if self.accept(ev, q):
-                return q, ev, iters, ("", {})
+                return q, ev, iters, (None, {})
             reason, evidence = self.classify(ev, q, status)
             if best is None or ev.error < best[0]:
                 best = (ev.error, reason, {**evidence, "starts": len(seeds)})
@@ -176,9 +208,9 @@ class BeamIK:
         target = np.asarray(target, dtype=float)
         q_prev = self.system.home if q_prev is None else np.asarray(q_prev, dtype=float)
         q: Array | None = None
-        ev: Evaluation | None = None
+        ev: BeamTrace | None = None
         method, iters = "closed_form", 0
-        reason: str | None = None
+        reason: Reason | None = None
         evidence: dict[str, object] = {}
         first: list[Array] = []
         if self.closed_form is not None:
@@ -190,10 +222,11 @@ class BeamIK:
                 if not self.closed_form.exact:
                     q = self.newton.polish(q, target, normal).q
                     method = "closed_form+newton"
-                ev = evaluate(self.system, q, target, normal)
+                ev = trace_beam(self.system, q, target, normal)
                 if not self.accept(ev, q):
                     first, q, ev = [q], None, None
-                    reason, evidence = "solver_failed", {"why": "closed-form member rejected"}
+                    reason = Reason.SOLVER_FAILED
+                    evidence = {"why": "closed-form member rejected"}
         if q is not None and ev is not None and self.options.optimal:
             q2, ev2, _, it = self._nlp(q, target, normal, q_prev)
             iters = it
@@ -208,31 +241,5 @@ class BeamIK:
                 evidence = {**evidence, "nlp": e2}
         dt = time.perf_counter() - t0
         if q is None or ev is None:
-            return Solution(
-                "failed",
-                reason or "solver_failed",
-                None,
-                None,
-                float("inf"),
-                None,
-                None,
-                dt,
-                iters,
-                method,
-                0.0,
-                evidence,
-            )
-        return Solution(
-            "ok",
-            None,
-            q,
-            ev.spot,
-            ev.error,
-            ev.hits,
-            ev.uv,
-            dt,
-            iters,
-            method,
-            ev.incidence,
-            evidence,
-        )
+            return Solution.failed(reason or Reason.SOLVER_FAILED, dt, iters, method, evidence)
+        return Solution.solved(q, ev, dt, iters, method, evidence)

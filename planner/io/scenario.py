@@ -22,6 +22,8 @@ from planner.io.plausibility import emit, scenario_warnings
 from planner.model import robots
 from planner.model.scene import SceneItem, SceneModel
 from planner.model.settings import TrajectorySettings
+from planner.model.kinematics import RobotKinematics
+from planner.model.polyline import resample_path
 from planner.model.system import (
     DEFAULT_HOME,
     Camera,
@@ -320,59 +322,6 @@ def grid_points(center: Any, size: Any, n: Any) -> Array:
         for i in range(3)
     ]
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-
-
-def resample_path(
-    points: Any, *, spacing: float, normals: Any = None, closed: bool = False
-) -> tuple[Array, Array | None]:
-    """Samples along a polyline, consecutive ones exactly ``spacing`` (m) apart.
-
-    Walks from the first vertex, each next sample being the first polyline point at
-    straight-line distance ``spacing`` from the previous one; the last vertex (the first
-    one again when ``closed``) ends the path, closer than ``spacing``. Per-vertex
-    ``normals`` are interpolated linearly along each segment and renormalised.
-    Raises ``ValueError`` for a zero-length path or opposite normals on one segment.
-    """
-    V = np.asarray(points, dtype=float)
-    N = None if normals is None else np.asarray(normals, dtype=float)
-    N = None if N is None else N / np.linalg.norm(N, axis=1, keepdims=True)
-    if closed:
-        V = np.vstack([V, V[:1]])
-        N = None if N is None else np.vstack([N, N[:1]])
-    if float(np.sum(np.linalg.norm(np.diff(V, axis=0), axis=1))) < 1e-12:
-        raise ValueError("path has zero length")
-    if N is not None:
-        for v in np.flatnonzero(np.einsum("ij,ij->i", N[:-1], N[1:]) < -1 + 1e-9):
-            raise ValueError(
-                f"normals of vertices {v} and {v + 1} are opposite; cannot interpolate"
-            )
-    samples: list[tuple[int, float]] = [(0, 0.0)]
-    c, k = V[0], 0
-    while True:
-        for j in range(k, len(V) - 1):
-            A, B = V[j], V[j + 1]
-            if np.linalg.norm(B - c) < spacing:
-                continue
-            d, f = B - A, A - c
-            a, b, cc = d @ d, 2 * (f @ d), f @ f - spacing**2
-            u = float((-b + np.sqrt(max(b * b - 4 * a * cc, 0.0))) / (2 * a))
-            samples.append((j, min(max(u, 0.0), 1.0)))
-            c, k = A + u * d, j
-            break
-        else:
-            break
-    end = (len(V) - 2, 1.0)
-    if np.linalg.norm(V[-1] - c) > 1e-9:
-        samples.append(end)
-    elif len(samples) > 1:
-        samples[-1] = end
-    seg = np.array([s[0] for s in samples])
-    u_arr = np.array([s[1] for s in samples])[:, None]
-    P = (1 - u_arr) * V[seg] + u_arr * V[seg + 1]
-    if N is None:
-        return P, None
-    Ns = (1 - u_arr) * N[seg] + u_arr * N[seg + 1]
-    return P, Ns / np.linalg.norm(Ns, axis=1, keepdims=True)
 
 
 # --- scene and resolved dict --------------------------------------------------------------

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from planner.model.limits import Limits as Limits  # re-exported
+from planner.model.mirror import Mirror
 from planner.model.transforms import Array
 
 if TYPE_CHECKING:
@@ -26,21 +27,6 @@ JOINT_NAMES_UR = (
     "wrist_3",
 )
 DEFAULT_HOME = (0.0, -np.pi / 2, np.pi / 2, -np.pi / 2, -np.pi / 2, 0.0)
-DEFAULT_ROI_MARGIN = 0.005
-
-
-@dataclass(frozen=True)
-class Mirror:
-    """A flat mirror on a flange: +z of ``flange_T_mirror`` is the reflective face's normal."""
-
-    flange_T_mirror: Array
-    size: tuple[float, float] = (0.075, 0.075)
-    roi_margin: float = DEFAULT_ROI_MARGIN
-
-    @property
-    def roi_half(self) -> Array:
-        """Half extents (u, v) of the region the beam must stay in, metres."""
-        return np.array([self.size[0] / 2 - self.roi_margin, self.size[1] / 2 - self.roi_margin])
 
 
 @dataclass(frozen=True)

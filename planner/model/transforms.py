@@ -106,3 +106,20 @@ def look_at(eye: ArrayLike, target: ArrayLike, up: ArrayLike = (0.0, 0.0, 1.0)) 
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     return make_T(np.column_stack([x, y, z]), eye)
+
+
+def plane_bases(normals: ArrayLike) -> Array:
+    """Orthonormal bases ``[n, e1, e2]`` (columns) of the planes with normals ``normals``
+    ((K, 3) -> (K, 3, 3); any length, normalised here): ``e1 = n x a`` normalised with
+    ``a`` the x axis (the y axis when n is within ~26 deg of x), ``e2 = n x e1``."""
+    N = np.asarray(normals, dtype=float)
+    N = N / np.linalg.norm(N, axis=1, keepdims=True)
+    A = np.where((np.abs(N[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    e1 = np.cross(N, A)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    return np.stack([N, e1, np.cross(N, e1)], axis=2)
+
+
+def plane_basis(normal: ArrayLike) -> Array:
+    """:func:`plane_bases` of one normal (3,): the 3 x 3 matrix ``[n, e1, e2]``."""
+    return np.asarray(plane_bases(np.asarray(normal, dtype=float)[None, :])[0])

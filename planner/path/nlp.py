@@ -26,10 +26,10 @@ from typing import Any, NamedTuple
 import casadi as ca
 import numpy as np
 
-from planner.beam.graph import beam_chain, chain_symbols, system_params
+from planner.beam.graph import ChainSymbols, beam_chain, chain_symbols, system_params
 from planner.model.kinematics import RobotKinematics
 from planner.model.system import System
-from planner.model.transforms import Array
+from planner.model.transforms import Array, plane_bases, plane_basis
 
 Chain = tuple[RobotKinematics, ...]
 
@@ -51,28 +51,38 @@ class PathOptions:
     polish: bool = True  # final per-sample min-norm Gauss-Newton to machine precision
 
 
-SAMPLE_INPUTS = ["q", "world_T_laser", "world_T_base", "flange_T_mirror", "roi_half"]
-SAMPLE_INPUTS += ["target", "nbar", "has_normal", "tangents"]
+GEOMETRY = tuple(name for name in ChainSymbols._fields if name != "q")
+SAMPLE_DATA = ("target", "nbar", "has_normal", "tangents")
+SAMPLE_INPUTS = (*ChainSymbols._fields, *SAMPLE_DATA)
+#: the path NLP's parameter vector, in packing order (:func:`pack_params`)
+PATH_PARAMETERS = (*GEOMETRY, *SAMPLE_DATA, "q_ref", "weights")
 
 
-def _sample_exprs(kinematics: Chain) -> tuple[list[ca.SX], dict[str, ca.SX]]:
+def _sample_exprs(kinematics: Chain) -> tuple[dict[str, ca.SX], dict[str, ca.SX]]:
+    """Per-sample inputs (by :data:`SAMPLE_INPUTS` name) and the expressions built on them."""
     sym = chain_symbols(kinematics)
-    q, wTl, wTb, fTm, roi_half = sym
     target, nbar = ca.SX.sym("target", 3), ca.SX.sym("nbar", 3)
     has, E = ca.SX.sym("has_normal"), ca.SX.sym("tangents", 3, 2)
-    bases, mounts = sym.bases, sym.mounts
-    hits, uvs, dirs, fronts, aheads, _ = beam_chain(q, wTl, bases, mounts, kinematics)
+    hits, uvs, dirs, fronts, aheads, _ = beam_chain(
+        sym.q, sym.world_T_laser, sym.bases, sym.mounts, kinematics
+    )
     p, v = hits[-1], dirs[-1]
     s = ca.dot(nbar, target - p) / ca.dot(nbar, v)
     spot = p + s * v
     uv = ca.horzcat(*uvs)
-    r = ca.vec(uv / roi_half)
+    r = ca.vec(uv / sym.roi_half)
     h = ca.vertcat(
-        ca.vec(roi_half - ca.fabs(uv)), ca.vertcat(*fronts), ca.vertcat(*aheads), s,
+        ca.vec(sym.roi_half - ca.fabs(uv)), ca.vertcat(*fronts), ca.vertcat(*aheads), s,
         has * (-ca.dot(v, nbar)) + (1 - has),
     )  # fmt: skip
     out = {"g": ca.mtimes(E.T, spot - target), "h": h, "r": r, "dir": v, "spot": spot}
-    return [q, wTl, wTb, fTm, roi_half, target, nbar, has, E], out
+    ins = sym._asdict() | {"target": target, "nbar": nbar, "has_normal": has, "tangents": E}
+    return ins, out
+
+
+def _function(name: str, ins: dict[str, ca.SX], outs: dict[str, ca.SX]) -> ca.Function:
+    """A CasADi function with named inputs and outputs, in the dicts' order."""
+    return ca.Function(name, ins | outs, list(ins), list(outs))
 
 
 @lru_cache(maxsize=16)
@@ -80,20 +90,17 @@ def sample_function(kinematics: Chain) -> ca.Function:
     """Per-sample constraints: g (2, spot offset on the target plane, m), h (4N+2: ROI
     margins (m), front (-n.v), ahead (m), target ahead (m), cos incidence), centring cost."""
     ins, out = _sample_exprs(kinematics)
-    c = ca.sumsqr(out["r"])
-    return ca.Function("path_sample", ins, [out["g"], out["h"], c], SAMPLE_INPUTS, ["g", "h", "c"])
+    return _function("path_sample", ins, {"g": out["g"], "h": out["h"], "c": ca.sumsqr(out["r"])})
 
 
 @lru_cache(maxsize=16)
 def step_function(kinematics: Chain) -> ca.Function:
     """Per-sample values and Jacobians for the continuation chain."""
     ins, out = _sample_exprs(kinematics)
-    q = ins[0]
-    names = ["g", "Jg", "r", "Jr", "h", "dir", "spot"]
-    outs = [out["g"], ca.jacobian(out["g"], q), out["r"], ca.jacobian(out["r"], q)]
-    return ca.Function(
-        "path_step", ins, [*outs, out["h"], out["dir"], out["spot"]], SAMPLE_INPUTS, names
-    )
+    q = ins["q"]
+    outs = {"g": out["g"], "Jg": ca.jacobian(out["g"], q), "r": out["r"],
+            "Jr": ca.jacobian(out["r"], q), "h": out["h"], "dir": out["dir"], "spot": out["spot"]}  # fmt: skip
+    return _function("path_step", ins, outs)
 
 
 def compiled(f: ca.Function) -> ca.Function:
@@ -141,22 +148,18 @@ def sample_jacobian(kinematics: Chain) -> ca.Function:
     SX: mapped over K it gives the block-diagonal constraint Jacobian of the path NLP."""
     ins, out = _sample_exprs(kinematics)
     gh = ca.vertcat(out["g"], out["h"])
-    J = ca.densify(ca.jacobian(gh, ins[0]))
-    return ca.Function("path_jac", ins, [gh, J], SAMPLE_INPUTS, ["gh", "J"])
+    return _function("path_jac", ins, {"gh": gh, "J": ca.densify(ca.jacobian(gh, ins["q"]))})
 
 
 @lru_cache(maxsize=16)
 def sample_hessian(kinematics: Chain) -> ca.Function:
     """Per-sample Hessian (nq x nq) of lam . [g; h] + w_c * centring with respect to q."""
     ins, out = _sample_exprs(kinematics)
-    q = ins[0]
     lam = ca.SX.sym("lam", 2 + out["h"].size1())
     wc = ca.SX.sym("wc")
     L = ca.dot(lam, ca.vertcat(out["g"], out["h"])) + wc * ca.sumsqr(out["r"])
-    H = ca.hessian(L, q)[0]
-    return ca.Function(
-        "path_hess", [*ins, lam, wc], [ca.densify(H)], [*SAMPLE_INPUTS, "lam", "wc"], ["H"]
-    )
+    H = ca.hessian(L, ins["q"])[0]
+    return _function("path_hess", ins | {"lam": lam, "wc": wc}, {"H": ca.densify(H)})
 
 
 def _smoothness_hessians(nq: int, K: int, closed: bool) -> tuple[ca.DM, ca.DM]:
@@ -190,24 +193,23 @@ class PathNlp(NamedTuple):
 def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200) -> PathNlp:
     """The IPOPT solver for K samples; parameters packed by :func:`pack_params`."""
     t0 = time.perf_counter()
-    N = len(kinematics)
     nq = sum(k.nq for k in kinematics)
     F = sample_function(kinematics)
     Q = ca.MX.sym("Q", nq, K)
-    syms = {
-        "world_T_laser": ca.MX.sym("wTl", 4, 4),
-        "world_T_base": ca.MX.sym("wTb", 4, 4 * N),
-        "flange_T_mirror": ca.MX.sym("fTm", 4, 4 * N),
-        "roi_half": ca.MX.sym("roi", 2, N),
-        "target": ca.MX.sym("T", 3, K),
-        "nbar": ca.MX.sym("NB", 3, K),
-        "has_normal": ca.MX.sym("HAS", 1, K),
-        "tangents": ca.MX.sym("E", 3, 2 * K),
-        "q_ref": ca.MX.sym("QREF", nq, K),
-        "weights": ca.MX.sym("w", 5),  # w_vel, w_acc, w_centre, w_ref, ds
+    chain = chain_symbols(kinematics)
+    syms = {name: ca.MX.sym(name, *getattr(chain, name).shape) for name in GEOMETRY}
+    syms |= {
+        "target": ca.MX.sym("target", 3, K),
+        "nbar": ca.MX.sym("nbar", 3, K),
+        "has_normal": ca.MX.sym("has_normal", 1, K),
+        "tangents": ca.MX.sym("tangents", 3, 2 * K),
+        "q_ref": ca.MX.sym("q_ref", nq, K),
+        "weights": ca.MX.sym("weights", 5),  # w_vel, w_acc, w_centre, w_ref, ds
     }
-    geo = [ca.repmat(syms[n], 1, K) for n in SAMPLE_INPUTS[1:5]]
-    G, H, C = F.map(K)(Q, *geo, syms["target"], syms["nbar"], syms["has_normal"], syms["tangents"])
+    per_sample = {name: ca.repmat(syms[name], 1, K) for name in GEOMETRY}
+    per_sample |= {name: syms[name] for name in SAMPLE_DATA}
+    out = F.map(K)(q=Q, **per_sample)
+    G, H, C = out["g"], out["h"], out["c"]
     w = syms["weights"]
     ds = w[4]
     dQ = ca.horzcat(Q[:, 1:] - Q[:, :-1], Q[:, :1] - Q[:, -1:]) if closed else Q[:, 1:] - Q[:, :-1]
@@ -217,7 +219,7 @@ def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200) -> Pa
         d2Q = dQ[:, 1:] - dQ[:, :-1]
     f = w[0] / ds * ca.sumsqr(dQ) + w[1] / ds**3 * ca.sumsqr(d2Q)
     f += ds * (w[2] * ca.sum2(C) + w[3] * ca.sumsqr(Q - syms["q_ref"]))
-    p = ca.vertcat(*[ca.vec(s) for s in syms.values()])
+    p = ca.vertcat(*[ca.vec(syms[name]) for name in PATH_PARAMETERS])
     opts: dict[str, Any] = {
         "ipopt": {
             "print_level": 0,
@@ -239,8 +241,8 @@ def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200) -> Pa
     g = ca.vec(ca.vertcat(G, H))
     x = ca.vec(Q)
     # constraint Jacobian, assembled: mapped dense per-sample blocks on the block diagonal
-    data = [syms[n] for n in SAMPLE_INPUTS[5:]]
-    GH, JB = compiled(sample_jacobian(kinematics)).map(K)(Q, *geo, *data)
+    jac_out = compiled(sample_jacobian(kinematics)).map(K)(q=Q, **per_sample)
+    GH, JB = jac_out["gh"], jac_out["J"]
     m = int(GH.size1())
     jac = ca.MX(ca.diagcat(*[ca.Sparsity.dense(m, nq)] * K), ca.vec(JB))
     opts["jac_g"] = ca.Function("path_jac_g", [x, p], [ca.vec(GH), jac])
@@ -248,7 +250,7 @@ def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200) -> Pa
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.size1())
     LG = ca.reshape(lam_g, g.size1() // K, K)
     wc = ca.repmat(lam_f * w[2] * ds, 1, K)
-    B = compiled(sample_hessian(kinematics)).map(K)(Q, *geo, *data, LG, wc)
+    B = compiled(sample_hessian(kinematics)).map(K)(q=Q, **per_sample, lam=LG, wc=wc)["H"]
     blocks = ca.MX(ca.diagcat(*[ca.Sparsity.dense(nq, nq)] * K), ca.vec(B))
     M1, M2 = _smoothness_hessians(nq, K, closed) if K > 1 else (ca.DM(nq, nq), ca.DM(nq, nq))
     Hl = blocks + lam_f * (w[0] / ds * M1 + w[1] / ds**3 * M2 + 2 * w[3] * ds * ca.DM.eye(nq * K))
@@ -261,13 +263,14 @@ def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200) -> Pa
 
 def pack_params(system: System, T: Array, NB: Array, HAS: Array, E: Array, QREF: Array,
                  weights: Array) -> Array:  # fmt: skip
-    """Column-major packing matching ``path_nlp``'s parameter vector (arrays K-major)."""
-    geo = system_params(system)
-    parts = [geo[n] for n in SAMPLE_INPUTS[1:5]]
+    """Column-major packing of ``path_nlp``'s parameter vector, by name in
+    :data:`PATH_PARAMETERS` order (arrays K-major)."""
     E = np.asarray(E, dtype=float)
     E = E if E.ndim == 2 else np.concatenate(list(E), axis=1)  # K x 3 x 2 or 3 x 2K
-    parts += [T.T, NB.T, HAS[None, :], E, QREF.T, weights]
-    return np.concatenate([np.asarray(a, dtype=float).ravel(order="F") for a in parts])
+    values = system_params(system) | {"target": T.T, "nbar": NB.T, "has_normal": HAS[None, :],
+                                      "tangents": E, "q_ref": QREF.T, "weights": weights}  # fmt: skip
+    parts = [np.asarray(values[name], dtype=float).ravel(order="F") for name in PATH_PARAMETERS]
+    return np.concatenate(parts)
 
 
 def constraint_lower_bounds(n_robots: int, K: int, has: Array, opts: PathOptions) -> Array:
@@ -282,21 +285,15 @@ def constraint_lower_bounds(n_robots: int, K: int, has: Array, opts: PathOptions
 
 
 def tangents(n: Array) -> Array:
-    """Two unit vectors spanning the plane perpendicular to unit ``n`` (3 x 2)."""
-    a = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(n, a)
-    e1 /= np.linalg.norm(e1)
-    return np.column_stack([e1, np.cross(n, e1)])
+    """Two unit vectors spanning the plane perpendicular to ``n`` (3 x 2: the in-plane axes
+    of :func:`planner.model.transforms.plane_basis`)."""
+    return plane_basis(n)[:, 1:]
 
 
 def tangents_batch(N: Array) -> Array:
-    """:func:`tangents` of every row of unit normals ``N`` (K x 3), as one 3 x 2K matrix
+    """:func:`tangents` of every row of normals ``N`` (K x 3), as one 3 x 2K matrix
     [e1_0, e2_0, e1_1, e2_1, ...] (the layout of the NLP's ``tangents`` parameter)."""
-    N = np.asarray(N, dtype=float)
-    A = np.where((np.abs(N[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
-    e1 = np.cross(N, A)
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    E = np.stack([e1, np.cross(N, e1)], axis=2)  # K x 3 x 2
+    E = plane_bases(N)[:, :, 1:]  # K x 3 x 2
     return np.asarray(E.transpose(1, 0, 2).reshape(3, -1))
 
 

@@ -20,6 +20,8 @@ from typing import NamedTuple
 import numpy as np
 
 from planner.beam.graph import system_params
+from planner.model.polyline import arc_length, resample_polyline, runs
+from planner.model.status import Failure, Reason
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
 from planner.path.nlp import PathOptions, path_nlp, tangents
@@ -48,14 +50,14 @@ __all__ = [
 
 class PathGap(NamedTuple):
     """Samples ``k0 <= k < k1`` (arc length s0..s1 m, starting at world point ``p``) have no
-    valid configuration; ``reason`` is a SPEC status reason, ``detail`` the evidence."""
+    valid configuration; ``reason`` says why, ``detail`` gives the evidence."""
 
     k0: int
     k1: int
     s0: float
     s1: float
     p: Array
-    reason: str
+    reason: Reason
     detail: str
 
 
@@ -88,37 +90,6 @@ class PathResult:
         return not self.gaps
 
 
-def arc_length(points: Array, closed: bool = False) -> Array:
-    """Cumulative arc length (m) of a polyline's vertices, starting at 0."""
-    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    return np.concatenate([[0.0], np.cumsum(seg)])
-
-
-def resample_polyline(points: Array, spacing: float, closed: bool = False,
-                      normals: Array | None = None) -> tuple[Array, Array | None]:  # fmt: skip
-    """Points every ~``spacing`` m along a polyline (vertices interpolated linearly; equal
-    spacing that divides the length exactly; a closed path does not repeat its start)."""
-    P = np.asarray(points, dtype=float)
-    Nn = None if normals is None else np.asarray(normals, dtype=float)
-    if closed:
-        P = np.vstack([P, P[:1]])
-        Nn = None if Nn is None else np.vstack([Nn, Nn[:1]])
-    s = arc_length(P)
-    n = max(1, int(np.ceil(s[-1] / spacing - 1e-9)))
-    s_new = np.linspace(0.0, s[-1], n + 1)[: n if closed else n + 1]
-    out = np.column_stack([np.interp(s_new, s, P[:, i]) for i in range(3)])
-    if Nn is None:
-        return out, None
-    nn = np.column_stack([np.interp(s_new, s, Nn[:, i]) for i in range(3)])
-    return out, nn / np.linalg.norm(nn, axis=1, keepdims=True)
-
-
-def _runs(mask: Array) -> list[tuple[int, int]]:
-    """Half-open index ranges of consecutive True values."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(int), [0]])))
-    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
-
-
 def sample_errors(system: System, Q: Array, points: Array, normals: Array | None) -> Array:
     """Spot error (m) of every sample through the beam function (NaN rows -> NaN)."""
     from planner.beam.graph import beam_function
@@ -131,8 +102,8 @@ def sample_errors(system: System, Q: Array, points: Array, normals: Array | None
     err = np.full(K, np.nan)
     if good.any():
         n = int(good.sum())
-        out = f.map(n)(Q[good].T, *geo.values(), points[good].T, nrm[good].T)
-        err[good] = np.asarray(out[9], dtype=float).ravel()
+        out = f.map(n)(q=Q[good].T, **geo, target=points[good].T, normal=nrm[good].T)
+        err[good] = np.asarray(out["error"], dtype=float).ravel()
     return err
 
 
@@ -227,16 +198,16 @@ def plan_path(
     segments: list[PathSegment] = []
     if warm is not None:
         Q, NB = warm
-        why: list[str | None] = [None] * K
+        why: list[Failure | None] = [None] * K
     else:
         Q, NB, why = continuation_chain(ctx, q_start)
     warm_time = time.perf_counter() - t0
     ok = np.all(np.isfinite(Q), axis=1)
     ds = float(arc[-1] / max(K - 1, 1)) or 1e-3
     t1 = time.perf_counter()
-    runs = _runs(ok)
-    closed = closed_path and runs == [(0, K)]
-    for k0, k1 in runs:
+    feasible = runs(ok)
+    closed = closed_path and feasible == [(0, K)]
+    for k0, k1 in feasible:
         if k1 - k0 < 2:
             segments.append(PathSegment(k0, k1, "warm_start", 0, 0.0, 0.0))
             continue
@@ -252,10 +223,10 @@ def plan_path(
         Q[ks[keep]] = Qp[keep]
     nlp_time = time.perf_counter() - t1
     gaps = []
-    for k0, k1 in _runs(~ok):
-        reason = str(why[k0] or "unreachable")
+    for k0, k1 in runs(~ok):
+        failure = why[k0] or Failure(Reason.UNREACHABLE)
         s1 = float(arc[k1]) if k1 < K else float(arc[-1])
-        gaps.append(PathGap(k0, k1, float(arc[k0]), s1, P[k0].copy(), reason.split(":")[0]
-                            .split(" ")[0], reason))  # fmt: skip
+        gaps.append(PathGap(k0, k1, float(arc[k0]), s1, P[k0].copy(), failure.reason,
+                            failure.detail))  # fmt: skip
     err = sample_errors(system, Q, P, targets.normals)
     return PathResult(Q, ok, err, arc, tuple(segments), tuple(gaps), warm_time, nlp_time)

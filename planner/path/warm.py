@@ -21,10 +21,11 @@ import numpy as np
 import numpy.typing as npt
 
 from planner.beam.graph import system_params
+from planner.model.status import Failure, Reason
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
+from planner.model.validity import MIN_AHEAD, MIN_FRONT, MIN_ROI_MARGIN
 from planner.path.nlp import (
-    SAMPLE_INPUTS,
     Chain,
     PathNlp,
     PathOptions,
@@ -40,6 +41,20 @@ from planner.path.nlp import (
 from planner.verify.tolerances import JOINT_SLACK, Tolerances
 
 Indices = Sequence[int] | npt.NDArray[np.integer[Any]]  # sample indices
+
+
+def _constraint_failure(i: int, n_robots: int) -> tuple[Reason, str]:
+    """Reason and wording of violated row ``i`` of h: ROI (2N rows), front face (N), mirror
+    ahead (N), target ahead (1), incidence (1) (:func:`planner.path.nlp.constraint_lower_bounds`)."""
+    if i < 2 * n_robots:
+        return Reason.OUTSIDE_ROI, "ROI"
+    if i < 3 * n_robots:
+        return Reason.BACK_FACE, "front face"
+    if i < 4 * n_robots:
+        return Reason.UNREACHABLE, "mirror behind"
+    if i == 4 * n_robots:
+        return Reason.UNREACHABLE, "target behind"
+    return Reason.UNREACHABLE, "incidence"
 
 
 def _closed_form(system: System) -> Any:
@@ -61,8 +76,7 @@ class PathContext:
         self.system, self.opts = system, opts
         self.kin: Chain = tuple(r.kinematics for r in system.robots)
         self.step = compiled(step_function(self.kin))
-        geo = system_params(system)
-        self.geo = [ca.DM(geo[n]) for n in SAMPLE_INPUTS[1:5]]
+        self.geo = {name: ca.DM(x) for name, x in system_params(system).items()}
         self.P = np.asarray(targets.points, dtype=float)
         K = len(self.P)
         nrm = targets.normals if targets.normals is not None else np.full((K, 3), np.nan)
@@ -76,9 +90,11 @@ class PathContext:
         self.closed_form = _closed_form(system)
 
     def eval(self, k: int, q: Array, nbar: Array) -> list[Array]:
-        E = tangents(nbar)
-        out = self.step.call([ca.DM(q), *self.geo, self.P[k], nbar, float(self.has[k]), E])
-        return [np.asarray(o, dtype=float) for o in out]
+        """The step function's outputs (``path_step``: g, Jg, r, Jr, h, dir, spot) at sample
+        k from joints ``q`` with target-plane normal ``nbar``."""
+        out = self.step(q=ca.DM(q), **self.geo, target=self.P[k], nbar=nbar,
+                        has_normal=float(self.has[k]), tangents=tangents(nbar))  # fmt: skip
+        return [np.asarray(out[name], dtype=float) for name in self.step.name_out()]
 
     def plane(self, k: int, q_near: Array) -> Array:
         """The target plane normal of sample k: its normal, or the reversed arriving beam."""
@@ -86,35 +102,27 @@ class PathContext:
             return np.asarray(self.nbar[k], dtype=float)
         if np.all(np.isfinite(self.nbar[k])):
             return np.asarray(self.nbar[k], dtype=float)
-        out = self.eval(k, q_near, np.array([0.0, 0.0, 1.0]))
-        return -out[5].ravel()
+        _, _, _, _, _, direction, _ = self.eval(k, q_near, np.array([0.0, 0.0, 1.0]))
+        return -direction.ravel()
 
-    def why(self, k: int, q: Array, g: Array, h: Array) -> str | None:
-        """None if q is a valid solution of sample k, else a SPEC reason with evidence."""
+    def why(self, k: int, q: Array, g: Array, h: Array) -> Failure | None:
+        """None if q is a valid solution of sample k, else the reason with its evidence."""
         N, lb, tol = self.N, self.valid_lbh[k], JOINT_SLACK
         bad = np.flatnonzero(~(h.ravel() >= lb))
         if not np.all(np.isfinite(q)) or np.linalg.norm(g) > max(1e3 * self.opts.tolerance, 1e-7):
-            return f"unreachable: spot error {np.linalg.norm(g):.2e} m"
+            return Failure(Reason.UNREACHABLE, f"spot error {np.linalg.norm(g):.2e} m")
         if np.any(q < self.lower - tol) or np.any(q > self.upper + tol):
             j = int(np.argmax(np.maximum(self.lower - q, q - self.upper)))
-            return f"joint_limits: joint {j} at {q[j]:.3f} rad"
+            return Failure(Reason.JOINT_LIMITS, f"joint {j} at {q[j]:.3f} rad")
         if bad.size:
             i = int(bad[0])
-            kind = (
-                "outside_roi"
-                if i < 2 * N
-                else "back_face"
-                if i < 3 * N
-                else "unreachable: mirror behind"
-                if i < 4 * N
-                else "unreachable: target behind"
-                if i == 4 * N
-                else "unreachable: incidence"
-            )
-            return f"{kind} (constraint {i}: {h.ravel()[i]:.3g} < {lb[i]:.3g})"
+            reason, what = _constraint_failure(i, N)
+            return Failure(reason, f"{what} (constraint {i}: {h.ravel()[i]:.3g} < {lb[i]:.3g})")
         return None
 
-    def newton(self, k: int, q0: Array, nbar: Array, iters: int = 8) -> tuple[Array, str | None]:
+    def newton(
+        self, k: int, q0: Array, nbar: Array, iters: int = 8
+    ) -> tuple[Array, Failure | None]:
         """Equality-constrained Newton steps toward sample k with a centring pull (1/m^2)."""
         q, beta, nq = np.array(q0, dtype=float), 1e-3, len(q0)
         for it in range(iters):
@@ -129,23 +137,24 @@ class PathContext:
             try:
                 dq = np.linalg.solve(KKT, rhs)[:nq]
             except np.linalg.LinAlgError:
-                return q, "unreachable: singular beam Jacobian"
+                return q, Failure(Reason.UNREACHABLE, "singular beam Jacobian")
             if np.linalg.norm(dq) > 0.5:
                 dq *= 0.5 / np.linalg.norm(dq)
             q = q + dq
         g, _, _, _, h, _, _ = self.eval(k, q, nbar)
         return q, self.why(k, q, g, h)
 
-    def seed(self, k: int, guesses: list[Array]) -> tuple[Array, Array, str | None]:
+    def seed(self, k: int, guesses: list[Array]) -> tuple[Array, Array, Failure | None]:
         """A valid configuration for sample k from scratch: the closed-form family search of
         :mod:`planner.ik.closed_form` when available, else a multi-start single-sample NLP."""
-        best: tuple[Array, Array, str | None] | None = None
+        best: tuple[Array, Array, Failure | None] | None = None
         normal = self.nbar[k] if self.has[k] else None
         if self.closed_form is not None:
             res = self.closed_form.search(self.P[k], normal, guesses[0], self.max_inc)
-            if res.q is None:
-                best = (guesses[0], self.plane(k, guesses[0]), f"{res.reason}: {res.evidence}")
-            else:
+            if res.q is None and res.reason is not None:
+                failure = Failure(res.reason, str(res.evidence))
+                best = (guesses[0], self.plane(k, guesses[0]), failure)
+            elif res.q is not None:
                 nbar = self.plane(k, res.q)
                 q, why = self.newton(k, res.q, nbar)
                 if why is None:
@@ -171,7 +180,7 @@ class PathContext:
 
 def continuation_chain(
     ctx: PathContext, q_start: Array, ks: Indices | None = None
-) -> tuple[Array, Array, list[str | None]]:
+) -> tuple[Array, Array, list[Failure | None]]:
     """Per-sample warm start: seeds where needed, Newton continuation forward, backward
     extension after a re-seed. ``ks``: the sample indices to walk (default all, in order).
     Returns (q len(ks) x nq with NaN, nbar len(ks) x 3, reason per walked sample)."""
@@ -179,7 +188,7 @@ def continuation_chain(
     K, nq = len(idx), len(q_start)
     Q = np.full((K, nq), np.nan)
     NB = np.array(ctx.nbar[idx], dtype=float)
-    why: list[str | None] = [None] * K
+    why: list[Failure | None] = [None] * K
     ok = np.zeros(K, dtype=bool)
     stride = max(1, K // 50)
     last = np.asarray(q_start, dtype=float)
@@ -215,7 +224,8 @@ def continuation_chain(
     for i in range(K):  # samples skipped inside a gap take the nearest attempted reason
         if not ok[i] and why[i] is None:
             tried = [j for j in range(K) if why[j] is not None]
-            why[i] = why[min(tried, key=lambda j: abs(j - i))] if tried else "unreachable"
+            nearest = why[min(tried, key=lambda j: abs(j - i))] if tried else None
+            why[i] = nearest or Failure(Reason.UNREACHABLE, "no configuration was tried here")
     return Q, NB, why
 
 
@@ -235,10 +245,9 @@ def project(
     P, has = ctx.P[ks].T, ctx.has[ks][None, :].astype(float)
 
     def run(Q: Array, nb: Array) -> tuple[Array, Array, Array]:
-        E = tangents_batch(nb)
-        g, Jg, _, _, _, d, _ = F(Q.T, *ctx.geo, P, nb.T, has, E)
-        Jg = np.asarray(Jg, dtype=float).reshape(2, n, nq).transpose(1, 0, 2)
-        return np.asarray(g, dtype=float).T, Jg, np.asarray(d, dtype=float).T
+        out = F(q=Q.T, **ctx.geo, target=P, nbar=nb.T, has_normal=has, tangents=tangents_batch(nb))
+        Jg = np.asarray(out["Jg"], dtype=float).reshape(2, n, nq).transpose(1, 0, 2)
+        return np.asarray(out["g"], dtype=float).T, Jg, np.asarray(out["dir"], dtype=float).T
 
     Q = np.array(Q0, dtype=float)
     if NB is None:
@@ -266,9 +275,14 @@ def project(
 def validity_bounds(lbh: Array, opts: PathOptions, slack: float = 1e-7) -> Array:
     """Lower bounds of h (K x (4N+2)) a valid sample must meet: the NLP's bounds less
     ``slack`` (m; ROI margin, front, mirror and target ahead keep most of the NLP's design
-    margins), and for the incidence the limit plus the checker's
+    margins and never drop below the beam-chain rule of :mod:`planner.model.validity`), and
+    for the incidence the limit plus the checker's
     :data:`~planner.verify.tolerances.INCIDENCE_SLACK`, exactly as ``beamrelay check`` accepts it."""
+    N = (lbh.shape[1] - 2) // 4
+    floor = np.concatenate([np.full(2 * N, MIN_ROI_MARGIN), np.full(N, MIN_FRONT),
+                            np.full(N, MIN_AHEAD), [MIN_AHEAD]])  # fmt: skip
     out = lbh - slack
+    out[:, :-1] = np.maximum(out[:, :-1], floor)  # never below the beam-chain rule
     inc = Tolerances(max_incidence=float(np.radians(opts.max_incidence_deg)))
     out[:, -1] = np.where(np.isfinite(lbh[:, -1]), inc.min_cos_incidence, -np.inf)
     return out
@@ -278,12 +292,12 @@ def valid_samples(ctx: PathContext, ks: Indices, Q: Array, NB: Array) -> Array:
     """Which rows of ``Q`` are valid solutions of samples ``ks`` (vectorised
     :meth:`PathContext.why`: spot on target, joint limits, every reflection constraint)."""
     ks = np.asarray(ks, dtype=int)
-    E = tangents_batch(NB)
     has = ctx.has[ks][None, :].astype(float)
-    G, H, _ = compiled(sample_function(ctx.kin)).map(len(ks))(
-        Q.T, *ctx.geo, ctx.P[ks].T, NB.T, has, E
-    )
-    G, H = np.asarray(G, dtype=float).T, np.asarray(H, dtype=float).T
+    out = compiled(sample_function(ctx.kin)).map(len(ks))(
+        q=Q.T, **ctx.geo, target=ctx.P[ks].T, nbar=NB.T, has_normal=has,
+        tangents=tangents_batch(NB),
+    )  # fmt: skip
+    G, H = np.asarray(out["g"], dtype=float).T, np.asarray(out["h"], dtype=float).T
     tol = JOINT_SLACK
     ok = np.linalg.norm(G, axis=1) <= max(1e3 * ctx.opts.tolerance, 1e-7)
     ok &= np.all(ctx.lower - tol <= Q, axis=1) & np.all(ctx.upper + tol >= Q, axis=1)

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import coal
 import numpy as np
 
+from planner.model.status import Reason
 from planner.model.transforms import Array
 from planner.safety.checks import DEFAULT_CLEARANCE, Check, Clearance
 from planner.safety.geometry import PartKind, SafetyWorld, capsule_placement
@@ -43,7 +44,7 @@ class ApertureHit:
     point: Array
 
     @property
-    def reason(self) -> str:
+    def reason(self) -> Reason:
         return self.check.reason
 
     def __str__(self) -> str:
@@ -229,7 +230,8 @@ def camera_lens(
 
 def beam_points(world: SafetyWorld, q: Array, end: Array | Sequence[float]) -> Array:
     """The polyline laser -> mirror hits -> ``end`` at stacked joints ``q``, the mirror hits
-    by the beam model's plane intersection (world, m); a miss gives NaN rows."""
+    by the mirror seam (:meth:`planner.model.mirror.Mirror.intersect`, world, m); a miss
+    gives NaN rows."""
     world.update(q)
     sys_ = world.system
     p, v = sys_.world_T_laser[:3, 3], sys_.world_T_laser[:3, 2]
@@ -239,10 +241,9 @@ def beam_points(world: SafetyWorld, q: Array, end: Array | Sequence[float]) -> A
         M = world.data.oMi[world.flange_joint[k]].homogeneous
         frame = robot.kinematics.model.frames[robot.kinematics.flange_id].placement.homogeneous
         wTm = M @ frame @ robot.mirror.flange_T_mirror
-        c, nrm = wTm[:3, 3], wTm[:3, 2]
-        t = float(nrm @ (c - p)) / float(nrm @ v) if abs(nrm @ v) > 1e-15 else np.nan
-        p = p + t * v
-        v = v - 2 * (v @ nrm) * nrm
+        t, hit, _ = robot.mirror.intersect(wTm, p, v)
+        v = robot.mirror.reflect(wTm, v, hit)
+        p = hit if np.isfinite(t) else np.full(3, np.nan)
         pts.append(p)
     pts.append(np.asarray(end, dtype=float))
     return np.array(pts)

@@ -16,6 +16,7 @@ from enum import Enum
 import numpy as np
 import pinocchio as pin
 
+from planner.model.status import Reason
 from planner.model.transforms import Array
 from planner.safety.geometry import PairKind, SafetyWorld
 
@@ -34,13 +35,13 @@ class Check(Enum):
     CAMERA_LENS = "camera_lens"
 
     @property
-    def reason(self) -> str:
+    def reason(self) -> Reason:
         """The plan's failure reason for a violation of this check."""
         if self in (Check.ARM_ARM, Check.ARM_SELF, Check.ARM_SCENE):
-            return "collision"
+            return Reason.COLLISION
         if self is Check.BEAM_ARM:
-            return "occluded"
-        return "keep_out"
+            return Reason.OCCLUDED
+        return Reason.KEEP_OUT
 
 
 CHECK_OF_PAIR = {

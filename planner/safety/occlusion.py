@@ -22,7 +22,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from planner.model.polyline import runs
 from planner.model.scene import END_MARGIN, START_MARGIN, SceneModel
+from planner.model.status import Reason
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
 
@@ -82,10 +84,10 @@ def occlusions(
 
 def failed_occluded(sol: Solution, evidence: dict[str, object]) -> Solution:
     """``sol`` as a failed ``occluded`` target (no configuration, spot or hits)."""
-    return dataclasses.replace(
-        sol, status="failed", reason="occluded", q=None, spot=None, error=float("inf"),
-        hits=None, uv=None, incidence=0.0, evidence={**sol.evidence, "occluded": evidence},
-    )  # fmt: skip
+    from planner.ik import Solution
+
+    evidence = {**sol.evidence, "occluded": evidence}
+    return Solution.failed(Reason.OCCLUDED, sol.solve_time, sol.iterations, sol.method, evidence)
 
 
 def check_points(
@@ -124,7 +126,7 @@ def check_points(
 def _slid(system: System, q: Array, ds: float) -> Array:
     """Joints (stacked, rad) that move robot 0's mirror centre by ``ds`` m along the laser
     beam (one least-squares step through the finite-difference Jacobian of the centre)."""
-    from planner.ik.evaluate import mirror_poses
+    from planner.beam.trace import mirror_poses
 
     nq0 = system.robots[0].nq
     c0 = mirror_poses(system, q)[0][:3, 3]
@@ -146,19 +148,19 @@ def _member(ik: BeamIK, target: Array, normal: Array | None, seed: Array) -> Sol
     if ik.closed_form is None:
         sol = ik.solve(target, normal, seed)
         return sol if sol.ok else None
+    from planner.beam.trace import trace_beam
     from planner.ik import Solution
-    from planner.ik.evaluate import evaluate
 
     t0 = time.perf_counter()
     cf = ik.closed_form.search(target, normal, seed, ik.options.max_incidence)
     if cf.q is None:
         return None
     q = cf.q if ik.closed_form.exact else ik.newton.polish(cf.q, target, normal).q
-    ev = evaluate(ik.system, q, target, normal)
+    ev = trace_beam(ik.system, q, target, normal)
     if not ik.accept(ev, q):
         return None
-    return Solution("ok", None, q, ev.spot, ev.error, ev.hits, ev.uv, time.perf_counter() - t0,
-                    cf.members, "closed_form+retry", ev.incidence, dict(cf.evidence))  # fmt: skip
+    dt = time.perf_counter() - t0
+    return Solution.solved(q, ev, dt, cf.members, "closed_form+retry", dict(cf.evidence))
 
 
 def check_path(
@@ -179,23 +181,17 @@ def check_path(
     q, ok = path.q.copy(), path.ok & ~mask
     q[mask] = np.nan
     gaps = list(path.gaps)
-    for k0, k1 in _runs(mask):
+    for k0, k1 in runs(mask):
         ev = blocked[k0]
         detail = (f"beam {ev['segment']} blocked by {ev['object']} at "
                   f"{np.round(np.asarray(ev['point']), 4).tolist()} m")  # fmt: skip
         p = np.asarray(solutions[k0].spot if solutions[k0].spot is not None else ev["point"])
         gaps.append(PathGap(k0, k1, float(path.arc[k0]), float(path.arc[k1 - 1]), p,
-                            "occluded", detail))  # fmt: skip
+                            Reason.OCCLUDED, detail))  # fmt: skip
     segments = []
     for seg in path.segments:
-        for a, b in _runs(ok[seg.k0 : seg.k1]):
+        for a, b in runs(ok[seg.k0 : seg.k1]):
             segments.append(seg._replace(k0=seg.k0 + a, k1=seg.k0 + b))
     new = dataclasses.replace(path, q=q, ok=ok, segments=tuple(segments),
                               gaps=tuple(sorted(gaps, key=lambda g: g.k0)))  # fmt: skip
     return out, new
-
-
-def _runs(mask: Array) -> list[tuple[int, int]]:
-    """Half-open index ranges of consecutive True values."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(int), [0]])))
-    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import coal
 import numpy as np
 
+from planner.model.status import Reason
 from planner.model.transforms import Array
 from planner.safety.checks import (
     CHECK_OF_PAIR,
@@ -44,7 +45,7 @@ class SweepViolation:
     clearance: Clearance
 
     @property
-    def reason(self) -> str:
+    def reason(self) -> Reason:
         return self.clearance.check.reason
 
     def __str__(self) -> str:

@@ -33,21 +33,13 @@ AIM = np.array([0.45, 0.1, 0.0])
 
 def default_system() -> System:
     """Paper-like N = 1 setup: UR5e at the origin, laser along -x, camera above the work."""
-    from planner.model.kinematics import RobotKinematics
-    from planner.model.system import DEFAULT_HOME, Camera, Intrinsics, Limits, Mirror, Robot
+    from planner.model.build import build_system
+    from planner.model.system import Camera, Intrinsics
     from planner.model.transforms import look_at, make_T, rpy_to_matrix
 
     laser = make_T(rpy_to_matrix(np.deg2rad([0.0, -90.0, 0.0])), [0.9, -0.13, 0.5])
-    robot = Robot(
-        "arm0",
-        RobotKinematics.ur5e(),
-        np.eye(4),
-        Mirror(make_T(p=[0.0, 0.0, 0.03])),
-        np.array(DEFAULT_HOME),
-        Limits.ur_default(),
-    )
     camera = Camera(look_at([0.5, 0.8, 0.9], AIM), Intrinsics(848, 480, 430.0, 430.0, 424.0, 240.0))
-    return System(laser, (robot,), camera)
+    return build_system(laser, camera=camera)
 
 
 def _rand_T(rng: np.random.Generator, deg: float, metres: float) -> Array:

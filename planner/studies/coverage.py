@@ -52,20 +52,14 @@ SPINS = tuple(np.linspace(0.0, 2 * np.pi, 6, endpoint=False))  # mirror rolls tr
 
 def coverage_system(n: int = 3) -> System:
     """The layout of the module docstring with the first ``n`` robots."""
-    from planner.model.kinematics import RobotKinematics
-    from planner.model.system import DEFAULT_HOME, Limits, Mirror, Robot
+    from planner.model.build import build_system
     from planner.model.transforms import make_T, rot_x, rot_z
 
-    kin = RobotKinematics.ur5e()
-    robots = []
-    for i, az in enumerate(np.deg2rad(AZIMUTHS_DEG[:n])):
-        base = make_T(rot_z(az + np.pi), [BASE_RADIUS * np.cos(az), BASE_RADIUS * np.sin(az), 0.0])
-        mirror = Mirror(make_T(p=[0.0, 0.0, 0.03]), (0.075, 0.075), 0.01)
-        robots.append(
-            Robot(f"arm{i}", kin, base, mirror, np.array(DEFAULT_HOME), Limits.ur_default())
-        )
-    laser = make_T(rot_x(np.pi), [0.0, 0.0, 1.3])
-    return System(laser, tuple(robots))
+    bases = [
+        make_T(rot_z(az + np.pi), [BASE_RADIUS * np.cos(az), BASE_RADIUS * np.sin(az), 0.0])
+        for az in np.deg2rad(AZIMUTHS_DEG[:n])
+    ]
+    return build_system(make_T(rot_x(np.pi), [0.0, 0.0, 1.3]), bases, roi_margin=0.01)
 
 
 def sphere_points(n: int, seed: int = 0) -> tuple[Array, Array]:

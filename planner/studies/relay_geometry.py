@@ -7,7 +7,7 @@ coverage study instead enumerates relay geometries independently of any target: 
 points are fixed sites on a shell around the object and the beam may run through any ordered
 subset of the robots. So this module only fixes the geometry and delegates the rest to the
 closed-form helpers of :mod:`planner.ik.closed_form`: mirror normal = :func:`bisector` of the
-arriving and leaving beams, :func:`mirror_frame` centred on the hit point (the beam hits the
+arriving and leaving beams, :meth:`planner.model.mirror.Mirror.place` centred on the hit point (the beam hits the
 middle of the ROI) with a sampled roll, the UR analytic IK and :func:`pick_branch` (nearest
 the robot's home within its joint limits). The spot error of such a solution is at machine
 precision.
@@ -50,7 +50,7 @@ def mirror_ik(
     """Joints of ``robot`` whose mirror, centred at ``hit``, reflects unit ``v_in`` into unit
     ``v_out``: the first roll in ``spins`` with an analytic IK branch inside the joint limits
     (the branch nearest home), or None (also when ``v_out == v_in``: grazing)."""
-    from planner.ik.closed_form import bisector, mirror_frame, pick_branch  # heavy: lazy
+    from planner.ik.closed_form import bisector, pick_branch  # heavy: lazy
 
     n = bisector(v_in, v_out)
     if n is None:
@@ -58,7 +58,7 @@ def mirror_ik(
     base_T_world = inv_T(robot.world_T_base)
     mirror_T_flange = inv_T(robot.mirror.flange_T_mirror)
     for spin in spins:
-        world_T_mirror = mirror_frame(hit, n, X_REF, float(spin), _CENTRE)
+        world_T_mirror = robot.mirror.place(hit, n, X_REF, float(spin), _CENTRE)
         branches = robot.kinematics.analytic_ik(base_T_world @ world_T_mirror @ mirror_T_flange)
         if not branches:
             continue

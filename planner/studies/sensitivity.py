@@ -104,7 +104,6 @@ def sensitivity_function(kinematics: tuple[Any, ...]) -> Any:
 
     N = len(kinematics)
     sym = chain_symbols(kinematics)
-    q, world_T_laser, world_T_base, flange_T_mirror, _ = sym
     target = ca.SX.sym("target", 3)
     delta = ca.SX.sym("delta", 6 + 6 * N)
 
@@ -117,24 +116,20 @@ def sensitivity_function(kinematics: tuple[Any, ...]) -> Any:
         return ca.vertcat(ca.horzcat(R, p), ca.horzcat(0, 0, 0, 1))
 
     zero = ca.SX.zeros(3)
-    laser = ca.mtimes(world_T_laser, small_T(delta[0:3], zero))
+    laser = ca.mtimes(sym.world_T_laser, small_T(delta[0:3], zero))
     laser = laser + ca.vertcat(ca.horzcat(ca.SX.zeros(3, 3), delta[3:6]), ca.SX.zeros(1, 4))
     mounts = []
     for i in range(N):
         d = delta[6 + 6 * i : 12 + 6 * i]
         M_rot = ca.mtimes(sym.mounts[i], small_T(d[0:3], zero))
         mounts.append(M_rot + ca.vertcat(ca.horzcat(ca.SX.zeros(3, 3), d[3:6]), ca.SX.zeros(1, 4)))
-    hits, _, dirs, _, _, _ = beam_chain(q, laser, sym.bases, mounts, kinematics)
+    hits, _, dirs, _, _, _ = beam_chain(sym.q, laser, sym.bases, mounts, kinematics)
     p, v = hits[-1], dirs[-1]
     residual = p + ca.dot(v, target - p) * v - target
     J = ca.substitute(ca.jacobian(residual, delta), delta, ca.SX.zeros(delta.shape))
-    return ca.Function(
-        "spot_sensitivity",
-        [q, world_T_laser, world_T_base, flange_T_mirror, target],
-        [J],
-        ["q", "world_T_laser", "world_T_base", "flange_T_mirror", "target"],
-        ["J"],
-    )
+    names = ("q", "world_T_laser", "world_T_base", "flange_T_mirror")
+    inputs = {name: getattr(sym, name) for name in names} | {"target": target}
+    return ca.Function("spot_sensitivity", inputs | {"J": J}, list(inputs), ["J"])
 
 
 def jacobians(system: System, qs: Array, targets: Array) -> Array:
@@ -142,12 +137,9 @@ def jacobians(system: System, qs: Array, targets: Array) -> Array:
     from planner.beam.graph import system_params
 
     fn = sensitivity_function(tuple(r.kinematics for r in system.robots))
-    par = system_params(system)
+    par = {name: x for name, x in system_params(system).items() if name in fn.name_in()}
     return np.stack(
-        [
-            np.asarray(fn(q, par["world_T_laser"], par["world_T_base"], par["flange_T_mirror"], t))
-            for q, t in zip(qs, targets, strict=True)
-        ]
+        [np.asarray(fn(q=q, **par, target=t)["J"]) for q, t in zip(qs, targets, strict=True)]
     )
 
 
@@ -250,22 +242,12 @@ def summarize(nominal: Nominal, rows: list[dict[str, Any]]) -> list[dict[str, An
 
 
 def default_system() -> System:
-    """The paper's N = 1 setup (SPEC section 4 example): laser along −x at 0.3 m height."""
-    from planner.model.kinematics import RobotKinematics
-    from planner.model.system import DEFAULT_HOME, Limits, Mirror, Robot
+    """The paper's N = 1 setup: laser along −x at 0.3 m height."""
+    from planner.model.build import build_system
     from planner.model.transforms import make_T, rpy_to_matrix
 
     laser = make_T(rpy_to_matrix(np.deg2rad([0.0, -90.0, 0.0])), [0.60, -0.40, 0.30])
-    mirror = Mirror(make_T(p=[0.0, 0.0, 0.03]), (0.075, 0.075), 0.01)
-    robot = Robot(
-        "arm0",
-        RobotKinematics.ur5e(),
-        np.eye(4),
-        mirror,
-        np.array(DEFAULT_HOME),
-        Limits.ur_default(),
-    )
-    return System(laser, (robot,))
+    return build_system(laser, roi_margin=0.01)
 
 
 def run(

@@ -16,30 +16,31 @@ solved target visited) and the ``metrics``, recomputed from the solutions and th
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from planner.errors import InputError
+from planner.model.status import Reason, Status
 from planner.model.transforms import Array
+from planner.model.validity import MIN_AHEAD, MIN_FRONT, ahead_ok, front_ok
+from planner.verify.findings import Finding
 from planner.verify.numpy_beam import BeamRays, limits_from_dict, trace_rays, ur5e_dh_fk
 from planner.verify.numpy_beam import pose_matrix as pose
 from planner.verify.tolerances import (
     INCIDENCE_SLACK,
     REPORT_SLACK,
     ROI_SLACK,
+    TRACE_SLACK,
     Tolerances,
     joints_ok,
     roi_ok,
 )
 from planner.verify.urdf import UrdfChain
-
-if TYPE_CHECKING:
-    from planner.verify.trajectory import Finding as TrajectoryFinding
 
 
 @dataclass(frozen=True)
@@ -93,22 +94,10 @@ def _arm(r: dict[str, Any], i: int, base_dir: Path) -> ArmGeometry:
         raise InputError(f"cannot read robot geometry: {exc!r}", where) from exc
 
 
-class Trace:
-    """Numpy beam trace of one configuration."""
-
-    def __init__(self, world_T_laser: Array, arms: list[ArmGeometry], q: dict[str, Array]):
-        rays = trace_rays(world_T_laser, [arm.world_T_mirror(q[arm.name]) for arm in arms])
-        self.hits = [h[0] for h in rays.hits]
-        self.uv = [uv[0] for uv in rays.uv]
-        self.front = [float(f[0]) for f in rays.front]
-        self.ahead = [float(t[0]) for t in rays.ahead]
-        self.p, self.v = rays.p[0], rays.v[0]
-
-    def spot(self, target: Array, normal: Array | None) -> tuple[Array, float, float]:
-        """(spot, ray parameter s, incidence rad) for a target (optionally with a normal)."""
-        nrm = np.full(3, np.nan) if normal is None else np.asarray(normal, dtype=float)
-        spot, s, inc = spots(self.p[None], self.v[None], target[None], nrm[None])
-        return spot[0], float(s[0]), float(inc[0])
+def trace_arms(world_T_laser: Array, arms: list[ArmGeometry], q: Mapping[str, Any]) -> BeamRays:
+    """The checker's beam trace of the joint rows ``q[arm name]`` ((M, nq) or one (nq,)
+    configuration, rad), every arm's mirror in chain order."""
+    return trace_rays(world_T_laser, [arm.world_T_mirror(q[arm.name]) for arm in arms])
 
 
 def spots(p: Array, v: Array, targets: Array, normals: Array) -> tuple[Array, Array, Array]:
@@ -125,19 +114,6 @@ def spots(p: Array, v: Array, targets: Array, normals: Array) -> tuple[Array, Ar
     s = np.where(has, s_plane, np.einsum("ij,ij->i", v, w))
     inc = np.where(has, np.arccos(np.minimum(np.abs(nv), 1.0)), 0.0)
     return p + s[:, None] * v, s, inc
-
-
-@dataclass(frozen=True)
-class Finding:
-    """A violation: which check, target (None: the whole plan), what, the value and the
-    bound it broke (SI units), and the status reason a planner gives such a target."""
-
-    check: str
-    target: int | None
-    message: str
-    value: float
-    bound: float
-    reason: str | None = None
 
 
 @dataclass
@@ -162,7 +138,7 @@ class PlanContext:
             self.tol = Tolerances.from_scenario(scn)
             self.targets = {int(t["id"]): t for t in plan["targets"]}
             self.solutions = list(plan["solutions"])
-            self.solved = [s for s in self.solutions if s.get("status") == "ok"]
+            self.solved = [s for s in self.solutions if s.get("status") == Status.OK]
             self.ids = np.array([int(s["target"]) for s in self.solved], dtype=int)
             self.P = np.array([self.targets[k]["p"] for k in self.ids], dtype=float).reshape(-1, 3)
             self.N = np.array([self.targets[k].get("n") or [np.nan] * 3 for k in self.ids],
@@ -184,15 +160,10 @@ class PlanContext:
         if not self.solved:
             empty = np.zeros((0, 3))
             return BeamRays(empty, empty, [], [], [], [])
-        return trace_rays(self.world_T_laser, [a.world_T_mirror(self.Q[a.name]) for a in self.arms])
+        return trace_arms(self.world_T_laser, self.arms, self.Q)
 
     @cached_property
-    def traces(self) -> dict[int, Trace]:
-        """Per-target traces (kept for callers that want one target's numbers)."""
-        return {int(s["target"]): Trace(self.world_T_laser, self.arms, s["q"]) for s in self.solved}
-
-    @cached_property
-    def trajectory_findings(self) -> list[TrajectoryFinding]:
+    def trajectory_findings(self) -> list[Finding]:
         from planner.verify.trajectory import check_trajectory
 
         return check_trajectory(self.plan, self.tol)
@@ -215,15 +186,15 @@ def check_spots(ctx: PlanContext) -> CheckResult:
     add = res.findings.append
     for i in np.flatnonzero(~(err <= tol.spot)):
         add(Finding("spot", int(ctx.ids[i]), f"spot error {1e3 * err[i]:.3g} mm above the "
-                    f"tolerance {1e3 * tol.spot:.3g} mm", float(err[i]), tol.spot, "solver_failed"))  # fmt: skip
-    for i in np.flatnonzero(~(s > 0)):
-        add(Finding("spot", int(ctx.ids[i]), "target behind the last mirror", float(s[i]), 0.0,
-                    "back_face"))  # fmt: skip
+                    f"tolerance {1e3 * tol.spot:.3g} mm", float(err[i]), tol.spot, Reason.SOLVER_FAILED))  # fmt: skip
+    for i in np.flatnonzero(~ahead_ok(s, TRACE_SLACK)):
+        add(Finding("spot", int(ctx.ids[i]), "target behind the last mirror", float(s[i]), MIN_AHEAD,
+                    Reason.BACK_FACE))  # fmt: skip
     if tol.max_incidence is not None:
         for i in np.flatnonzero([not tol.incidence_ok(x) for x in inc]):
             add(Finding("spot", int(ctx.ids[i]), f"incidence {np.degrees(inc[i]):.7f} deg above "
                         f"the limit {np.degrees(tol.max_incidence):.7f} deg", float(inc[i]),
-                        tol.max_incidence, "unreachable"))  # fmt: skip
+                        tol.max_incidence, Reason.UNREACHABLE))  # fmt: skip
     _reported(ctx, res, spot, err, inc)
     res.figures = {"error_max_m": float(np.max(err)), "error_median_m": float(np.median(err))}
     if np.isfinite(ctx.N).all(axis=1).any():
@@ -262,16 +233,16 @@ def check_mirrors(ctx: PlanContext) -> CheckResult:
     for a, arm in enumerate(ctx.arms):
         margin = np.min(arm.roi_half[None, :] - np.abs(rays.uv[a]), axis=1)
         worst_roi = min(worst_roi, float(margin.min()))
-        for i in np.flatnonzero(~(rays.ahead[a] > 0)):
+        for i in np.flatnonzero(~ahead_ok(rays.ahead[a], TRACE_SLACK)):
             res.findings.append(Finding("mirrors", int(ctx.ids[i]), f"{arm.name}: mirror behind "
-                                        "the beam", float(rays.ahead[a][i]), 0.0, "unreachable"))  # fmt: skip
-        for i in np.flatnonzero(~(rays.front[a] > 0)):
+                                        "the beam", float(rays.ahead[a][i]), MIN_AHEAD, Reason.UNREACHABLE))  # fmt: skip
+        for i in np.flatnonzero(~front_ok(rays.front[a], TRACE_SLACK)):
             res.findings.append(Finding("mirrors", int(ctx.ids[i]), f"{arm.name}: back face hit",
-                                        float(rays.front[a][i]), 0.0, "back_face"))  # fmt: skip
+                                        float(rays.front[a][i]), MIN_FRONT, Reason.BACK_FACE))  # fmt: skip
         for i in np.flatnonzero([not roi_ok(m) for m in margin]):
             res.findings.append(Finding("mirrors", int(ctx.ids[i]), f"{arm.name}: hit "
                                         f"{1e3 * -margin[i]:.3g} mm outside the ROI",
-                                        float(margin[i]), -ROI_SLACK, "outside_roi"))  # fmt: skip
+                                        float(margin[i]), -ROI_SLACK, Reason.OUTSIDE_ROI))  # fmt: skip
     res.figures = {"roi_margin_min_m": worst_roi}
     return res
 
@@ -289,7 +260,7 @@ def check_limits(ctx: PlanContext) -> CheckResult:
         for i in np.flatnonzero([not joints_ok(v) for v in viol]):
             res.findings.append(Finding("joint limits", int(ctx.ids[i]), f"{arm.name}: "
                                         f"{viol[i]:.3g} rad outside the limits", float(viol[i]),
-                                        0.0, "joint_limits"))  # fmt: skip
+                                        0.0, Reason.JOINT_LIMITS))  # fmt: skip
     res.figures = {"limit_slack_min_rad": -worst}
     return res
 
@@ -316,15 +287,15 @@ def _trajectory_result(ctx: PlanContext, name: str, codes: tuple[str, ...]) -> C
         if f.code not in codes:
             continue
         if f.severity == "error":
-            res.findings.append(Finding(name, None, f.message, f.value, f.limit))
+            res.findings.append(replace(f, check=name))
         elif f.severity == "warning":
             res.warnings.append(f.message)
         if f.code in ("velocity", "acceleration", "jerk"):
-            key, value = f"{f.code}_max_ratio", f.value / f.limit
+            key, value = f"{f.code}_max_ratio", f.value / f.bound
         elif f.code.endswith("_declared"):
-            key, value = f"{f.code}_gap_max_ratio", f.value / f.limit
+            key, value = f"{f.code}_gap_max_ratio", f.value / f.bound
         elif f.code == "path_duration":
-            res.figures["path_duration_ideal_s"] = f.limit
+            res.figures["path_duration_ideal_s"] = f.bound
             key, value = "path_duration_s", f.value
         elif f.code.endswith("deviation"):
             key, value = f"{f.code}_max_m", f.value

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.model.status import Status
 from planner.verify.numpy_beam import limits_from_dict
 from planner.verify.spot import segment_mask
 from planner.verify.tolerances import METRIC_SLACK
@@ -47,12 +48,12 @@ def summary_metrics(
 def _recomputed(plan: dict[str, Any]) -> dict[str, Any]:
     """The metrics a plan document implies (the ``extra`` figures that can be recomputed)."""
     sols = plan["solutions"]
-    ok = [s for s in sols if s.get("status") == "ok"]
+    ok = [s for s in sols if s.get("status") == Status.OK]
     traj = plan.get("trajectory") or {}
     t = traj.get("t") or []
     out = summary_metrics([float(s.get("error") or 0.0) for s in ok],
                           [float(s.get("solve_time") or 0.0) for s in ok],
-                          [s.get("reason") for s in sols if s.get("status") != "ok"],
+                          [s.get("reason") for s in sols if s.get("status") != Status.OK],
                           len(sols), float(t[-1]) if t else None)  # fmt: skip
     out["extra"] |= _trajectory_figures(plan) if t else {}
     return out

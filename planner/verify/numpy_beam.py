@@ -87,24 +87,47 @@ class BeamRays(NamedTuple):
     ahead: list[Array]
 
 
+def _dot(a: Array, b: Array) -> Array:
+    """Row-wise dot products of two (M, 3) arrays."""
+    return np.einsum("ij,ij->i", a, b)
+
+
+def mirror_intersect(world_T_mirror: Array, p: Array, v: Array) -> tuple[Array, Array, Array]:
+    """The checker's own mirror surface (flat: the z = 0 plane of the mirror frame): where
+    the M rays ``p + t v`` (M x 3, world) meet the mirrors at ``world_T_mirror`` (M x 4 x 4):
+    (t (M,) m, hit (M x 3) world, uv (M x 2) mirror x/y m)."""
+    c, n = world_T_mirror[:, :3, 3], world_T_mirror[:, :3, 2]
+    t = _dot(n, c - p) / _dot(n, v)
+    h = p + t[:, None] * v
+    uv = np.stack([_dot(world_T_mirror[:, :3, k], h - c) for k in (0, 1)], axis=1)
+    return t, h, uv
+
+
+def mirror_normal(world_T_mirror: Array, hit: Array) -> Array:
+    """Unit face normals (M x 3, world) of the mirrors at the hits (flat: mirror +z)."""
+    return np.asarray(world_T_mirror[:, :3, 2])
+
+
+def mirror_reflect(world_T_mirror: Array, v: Array, hit: Array) -> Array:
+    """Directions (M x 3) of the rays ``v`` reflected at ``hit``: v - 2 (v.n) n."""
+    n = mirror_normal(world_T_mirror, hit)
+    return np.asarray(v - 2 * _dot(v, n)[:, None] * n)
+
+
 def trace_rays(world_T_laser: Array, world_T_mirrors: Sequence[Array]) -> BeamRays:
-    """Reflect the laser beam off each mirror in turn (t = n.(c - p)/(n.v),
-    h = p + t v, v' = v - 2 (v.n) n); ``world_T_mirrors`` holds one (M, 4, 4) stack per
-    mirror, the M configurations traced side by side."""
+    """Reflect the laser beam off each mirror in turn (:func:`mirror_intersect`,
+    :func:`mirror_reflect`); ``world_T_mirrors`` holds one (M, 4, 4) stack per mirror, the M
+    configurations traced side by side."""
     M = len(world_T_mirrors[0]) if len(world_T_mirrors) else 1
     p = np.tile(world_T_laser[:3, 3], (M, 1))
     v = np.tile(world_T_laser[:3, 2] / np.linalg.norm(world_T_laser[:3, 2]), (M, 1))
     rays = BeamRays(p, v, [], [], [], [])
     for wTm in world_T_mirrors:
-        c, n = wTm[:, :3, 3], wTm[:, :3, 2]
-        nv = np.einsum("ij,ij->i", n, v)
-        t = np.einsum("ij,ij->i", n, c - p) / nv
-        h = p + t[:, None] * v
-        uv = np.stack([np.einsum("ij,ij->i", wTm[:, :3, k], h - c) for k in (0, 1)], axis=1)
+        t, h, uv = mirror_intersect(wTm, p, v)
         rays.hits.append(h)
         rays.uv.append(uv)
-        rays.front.append(-nv)
+        rays.front.append(-_dot(mirror_normal(wTm, h), v))
         rays.ahead.append(t)
-        v = v - 2 * np.einsum("ij,ij->i", v, n)[:, None] * n
+        v = mirror_reflect(wTm, v, h)
         p = h
     return rays._replace(p=p, v=v)

@@ -17,11 +17,12 @@ import numpy as np
 import numpy.typing as npt
 
 from planner.model.transforms import Array
+from planner.verify.findings import Finding, Severity, trajectory_finding
 from planner.verify.tolerances import Tolerances
 from schemas import defaults
 
 if TYPE_CHECKING:
-    from planner.verify.trajectory import Finding, Solved, _Robot
+    from planner.verify.trajectory import Solved, _Robot
 
 Mask = npt.NDArray[np.bool_]
 REL_DURATION = 0.1  # path segments lasting more than 10 % off length / speed: a warning
@@ -62,7 +63,6 @@ def check_spot(plan: dict[str, Any], robots: list[_Robot], t: Array, tol: Tolera
     """Spot findings of a plan's trajectory (see the module docstring)."""
     from planner.verify.trajectory import (
         NUMPY_FK,
-        Finding,
         matched_deviation,
         point_deviation,
         solved_targets,
@@ -96,7 +96,7 @@ def check_spot(plan: dict[str, Any], robots: list[_Robot], t: Array, tol: Tolera
         i = int(np.argmax(np.where(np.isfinite(dev), dev, np.inf)))
         msg = (f"{kind}: max spot deviation {1e3 * dev[i]:.4f} mm at t = {t[mask][i]:.3f} s "
                f"(tolerance {1e3 * tol.path:.4f} mm, {mask.sum()} samples)")  # fmt: skip
-        out.append(Finding("info" if tol.deviation_ok(dev[i]) else "error", f"{kind}_deviation",
+        out.append(trajectory_finding("info" if tol.deviation_ok(dev[i]) else "error", f"{kind}_deviation",
                            msg, float(dev[i]), tol.path))  # fmt: skip
         if kind == "arrival" and path_spec is None and solved is not None:
             out += _unvisited(p, v, Qall[mask], t[mask], solved, tol)
@@ -111,7 +111,7 @@ def _unvisited(p: Array, v: Array, Qa: Array, ta: Array, solved: Solved, tol: To
     must put the spot within the path tolerance of it."""
     from scipy.spatial import cKDTree
 
-    from planner.verify.trajectory import Finding, _plane_spots
+    from planner.verify.trajectory import _plane_spots
 
     _, j = cKDTree(Qa).query(solved.Q)
     j = np.asarray(j, dtype=int)
@@ -119,25 +119,23 @@ def _unvisited(p: Array, v: Array, Qa: Array, ta: Array, solved: Solved, tol: To
     dev = np.linalg.norm(spot - solved.P, axis=1)
     bad = np.flatnonzero(~(dev <= tol.path))
     if not len(bad):
-        return [Finding("info", "not_visited", f"every one of {len(solved.Q)} solved targets "
+        return [trajectory_finding("info", "not_visited", f"every one of {len(solved.Q)} solved targets "
                         "is arrived at", 0.0, 0.0)]  # fmt: skip
     k = int(bad[0])
     ids = ", ".join(str(int(x)) for x in solved.ids[bad[:5]])
-    return [Finding("error", "not_visited", f"{len(bad)} solved target(s) never reached by the "
+    return [trajectory_finding("error", "not_visited", f"{len(bad)} solved target(s) never reached by the "
                     f"trajectory (targets {ids}{', ...' if len(bad) > 5 else ''}; target "
                     f"{int(solved.ids[k])}: nearest arrival at t = {ta[j[k]]:.3f} s puts the spot "
                     f"{1e3 * dev[k]:.3g} mm away)", float(len(bad)), 0.0)]  # fmt: skip
 
 
 def _path_duration(scn: dict[str, Any], P: Array, closed: bool, segments: list[Any]) -> Finding:
-    from planner.verify.trajectory import Finding
-
     speed = float((scn.get("trajectory") or {}).get("spot_speed", defaults.SPOT_SPEED_MPS))
     length = float(np.linalg.norm(np.diff(P, axis=0), axis=1).sum())
     length += float(np.linalg.norm(P[0] - P[-1])) if closed else 0.0
     spent = sum(s["t1"] - s["t0"] for s in segments if s["kind"] == "path")
     ideal = length / speed
-    sev = "warning" if abs(spent - ideal) > REL_DURATION * ideal else "info"
-    return Finding(sev, "path_duration", f"path segments last {spent:.3f} s; length "
+    sev: Severity = "warning" if abs(spent - ideal) > REL_DURATION * ideal else "info"
+    return trajectory_finding(sev, "path_duration", f"path segments last {spent:.3f} s; length "
                    f"{1e3 * length:.1f} mm / {1e3 * speed:.1f} mm/s = {ideal:.3f} s",
                    spent, ideal)  # fmt: skip

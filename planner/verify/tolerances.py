@@ -17,10 +17,12 @@ from typing import Any
 import numpy as np
 
 from schemas import defaults
+from planner.model import validity
 
 JOINT_SLACK = 1e-7  # rad: a joint position may lie this far beyond its limit
 INCIDENCE_SLACK = 1e-7  # rad: the incidence angle may exceed max_incidence_deg by this much
 ROI_SLACK = 1e-9  # m: a mirror hit may lie this far outside the region of interest
+TRACE_SLACK = 1e-9  # front cosine, m: the checker's slack on the other beam-chain thresholds
 RATE_SLACK = 0.02  # fraction: finite-difference |qd|, |qdd|, |jerk| may exceed a limit by 2 %
 DERIVATIVE_SLACK = 1e-3  # fraction of the limit: declared qd (qdd) vs differences of q (qd)
 TIME_GRID_SLACK = 1e-6  # fraction of the period 1/rate: sample spacing off the grid
@@ -92,6 +94,6 @@ def joints_ok(violation: float) -> bool:
 
 
 def roi_ok(margin: float) -> bool:
-    """A hit's ROI margin (m, half-size minus |uv|, negative outside) within
-    :data:`ROI_SLACK`."""
-    return bool(margin >= -ROI_SLACK)
+    """A hit's ROI margin (m, half-size minus |uv|, negative outside) inside by the beam-chain
+    rule (:func:`planner.model.validity.roi_ok`) less :data:`ROI_SLACK`."""
+    return bool(validity.roi_ok(margin, ROI_SLACK))

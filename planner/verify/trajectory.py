@@ -16,12 +16,15 @@ solved configurations).
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from planner.model.limits import Limits
+from planner.model.status import Status
 from planner.model.transforms import Array
+from planner.verify.findings import Finding, trajectory_finding
 from planner.verify.numpy_beam import limits_from_dict, pose_matrix, trace_rays, ur5e_dh_fk
 from planner.verify.tolerances import (
     DERIVATIVE_SLACK,
@@ -33,17 +36,6 @@ from planner.verify.tolerances import (
 
 NUMPY_FK = {"ur5e": ur5e_dh_fk}  # model -> batched base_T_flange (M x 6 -> M x 4 x 4)
 CHUNK_ELEMENTS = 1 << 21  # rays x targets per block of the brute-force nearest search
-
-
-class Finding(NamedTuple):
-    """One check result: ``severity`` error | warning | info, a machine ``code``, a message
-    with the evidence, the worst ``value`` and the ``limit`` it was compared with."""
-
-    severity: str
-    code: str
-    message: str
-    value: float = float("nan")
-    limit: float = float("nan")
 
 
 class _Robot(NamedTuple):
@@ -141,7 +133,7 @@ class Solved(NamedTuple):
 
 def solved_targets(plan: dict[str, Any], robots: list[_Robot]) -> Solved | None:
     """The plan's solved targets (None when it lists no solved solution)."""
-    sols = [s for s in plan.get("solutions") or [] if s.get("status") == "ok"]
+    sols = [s for s in plan.get("solutions") or [] if s.get("status") == Status.OK]
     if not sols:
         return None
     tg = {int(t["id"]): t for t in plan["targets"]}
@@ -180,7 +172,7 @@ def _limit_finding(code: str, X: Array, bound: Array, slack: float, t: Array, un
     bad = not ratio[i, j] <= 1 + slack
     msg = f"{code}: max |{X[i, j]:.4g}| {unit} on joint {j} at t = {t[min(i, len(t) - 1)]:.3f} s"
     msg += f" ({100 * ratio[i, j]:.1f}% of limit {lim:.4g})"
-    return Finding("error" if bad else "info", code, msg, worst, lim)
+    return trajectory_finding("error" if bad else "info", code, msg, worst, lim)
 
 
 def _differences(q: Array, rate: float) -> tuple[Array, Array]:
@@ -212,7 +204,7 @@ def _declared(r: _Robot, traj: dict[str, Any], q: Array, t: Array, rate: float) 
         msg = (f"{r.name}: declared {key} on joint {j} at t = {t[i + 1]:.3f} s is {X[i, j]:.4g} "
                f"{unit}, {gap[i, j] * bound[j]:.4g} {unit} off the differences of the "
                f"positions (allowed {bound[j]:.3g} {unit})")  # fmt: skip
-        out.append(Finding("info" if gap[i, j] <= 1.0 else "error", code, msg,
+        out.append(trajectory_finding("info" if gap[i, j] <= 1.0 else "error", code, msg,
                            float(gap[i, j] * bound[j]), float(bound[j])))  # fmt: skip
     return out
 
@@ -220,7 +212,7 @@ def _declared(r: _Robot, traj: dict[str, Any], q: Array, t: Array, rate: float) 
 def trajectory_expected(plan: dict[str, Any]) -> bool:
     """Whether the plan must carry a trajectory: it has a solved target and does not say
     ``trajectory_requested: false``."""
-    solved = any(s.get("status") == "ok" for s in plan.get("solutions") or [])
+    solved = any(s.get("status") == Status.OK for s in plan.get("solutions") or [])
     return solved and plan.get("trajectory_requested") is not False
 
 
@@ -233,26 +225,28 @@ def check_trajectory(plan: dict[str, Any], tol: Tolerances | None = None) -> lis
     traj = plan.get("trajectory")
     if not traj:
         if trajectory_expected(plan):
-            return [Finding("error", "trajectory_missing", "the plan has solved targets but no "
+            return [trajectory_finding("error", "trajectory_missing", "the plan has solved targets but no "
                             "trajectory (and does not say trajectory_requested: false)", 0.0, 1.0)]  # fmt: skip
-        return [Finding("info", "trajectory_absent", "plan has no trajectory")]
+        return [trajectory_finding("info", "trajectory_absent", "plan has no trajectory")]
     rate = tol.rate
     t = np.asarray(traj["t"], dtype=float)
     out: list[Finding] = []
     dt = np.diff(t)
     if len(dt) and not np.abs(dt - 1 / rate).max() <= TIME_GRID_SLACK / rate:
-        out.append(Finding("error", "time_grid", f"samples not on the 1/{rate:g} s grid "
+        out.append(trajectory_finding("error", "time_grid", f"samples not on the 1/{rate:g} s grid "
                            f"(dt in [{dt.min():.6g}, {dt.max():.6g}])", float(dt.max()), 1 / rate))  # fmt: skip
     robots = _robots(scn)
     for r in robots:
         q = np.asarray(traj["q"][r.name], dtype=float)
         if r.model not in NUMPY_FK:
             out.append(
-                Finding("warning", "model_unchecked", f"{r.name}: no numpy model for {r.model}")
+                trajectory_finding(
+                    "warning", "model_unchecked", f"{r.name}: no numpy model for {r.model}"
+                )
             )
         viol = np.maximum(r.limits.lower - q, q - r.limits.upper).max()
         if not viol <= JOINT_SLACK:
-            out.append(Finding("error", "joint_limits", f"{r.name}: position limit exceeded by "
+            out.append(trajectory_finding("error", "joint_limits", f"{r.name}: position limit exceeded by "
                                f"{viol:.3g} rad", float(viol), 0.0))  # fmt: skip
         for order, (code, unit) in enumerate(
             [("velocity", "rad/s"), ("acceleration", "rad/s^2"), ("jerk", "rad/s^3")], start=1
@@ -260,7 +254,7 @@ def check_trajectory(plan: dict[str, Any], tol: Tolerances | None = None) -> lis
             X = np.diff(q, n=order, axis=0) * rate**order
             if len(X):
                 f = _limit_finding(f"{code}", X, getattr(r.limits, code), RATE_SLACK, t, unit)
-                out.append(f._replace(message=f"{r.name}: {f.message}"))
+                out.append(replace(f, message=f"{r.name}: {f.message}"))
         out += _declared(r, traj, q, t, rate)
     from planner.verify.spot import check_spot
 

@@ -23,7 +23,7 @@ from planner.planning import (
     spot_rays,
     time_solutions,
 )
-from planner.verify.check import ArmGeometry, Trace, check_plan, ur5e_dh_fk
+from planner.verify.check import ArmGeometry, check_plan, trace_arms, ur5e_dh_fk
 from schemas.plan import Plan
 from tests.paths import REPO
 from tests.planner.ik import ik_systems as sy
@@ -157,9 +157,9 @@ def test_spot_rays_match_numpy_trace() -> None:
     Q = system.home + rng.uniform(-0.05, 0.05, (5, system.nq))
     p, v = spot_rays(system, Q)
     for k in range(5):
-        tr = Trace(system.world_T_laser, arms, system.split_q(Q[k]))
-        np.testing.assert_allclose(p[k], tr.p, atol=1e-12)
-        np.testing.assert_allclose(v[k], tr.v, atol=1e-12)
+        tr = trace_arms(system.world_T_laser, arms, system.split_q(Q[k]))
+        np.testing.assert_allclose(p[k], tr.p[0], atol=1e-12)
+        np.testing.assert_allclose(v[k], tr.v[0], atol=1e-12)
 
 
 def test_curve_path_end_to_end(curve_outcome: PlanOutcome) -> None:

@@ -90,11 +90,20 @@ unit = st.tuples(*[st.floats(-1, 1)] * 3).map(np.array).filter(lambda x: np.lina
 @settings(max_examples=200, deadline=None)
 @given(v=unit, n=unit)
 def test_reflection_properties(v: np.ndarray, n: np.ndarray) -> None:
-    from planner.beam.graph import reflect
+    from planner.model.mirror import Mirror, reflect_sx
 
     v, n = v / np.linalg.norm(v), n / np.linalg.norm(n)
-    f = ca.Function("r", [vs := ca.SX.sym("v", 3), ns := ca.SX.sym("n", 3)], [reflect(vs, ns)])
-    r = np.array(f(v, n)).ravel()
+    T = ca.SX.sym("world_T_mirror", 4, 4)
+    vs = ca.SX.sym("v", 3)
+    reflect = ca.Function("r", [vs, T], [reflect_sx(T, vs, ca.SX.zeros(3))])
+    M = Mirror(np.eye(4)).place(np.zeros(3), n, np.array([1.0, 0.0, 0.0]), 0.0, np.zeros(2))
+
+    def f(v: np.ndarray, n: np.ndarray) -> np.ndarray:
+        out = np.array(reflect(v, M)).ravel()  # the CasADi twin and numpy agree
+        np.testing.assert_allclose(out, Mirror(np.eye(4)).reflect(M, v, np.zeros(3)), atol=1e-15)
+        return out
+
+    r = f(v, n)
     assert np.linalg.norm(r) == pytest.approx(1.0, abs=1e-12)  # |v'| = 1
     assert abs(r @ n) == pytest.approx(abs(v @ n), abs=1e-12)  # incidence = reflection
     assert np.linalg.norm(np.cross(np.cross(v, n), n) - np.cross(np.cross(r, n), n)) < 1e-12

@@ -8,8 +8,8 @@ import numpy as np
 
 from planner.calibration.handeye import HandEyeData
 from planner.calibration.simulate import DepthNoise, default_handeye_truth, simulate_handeye
-from planner.model.kinematics import RobotKinematics
-from planner.model.system import DEFAULT_HOME, Camera, Intrinsics, Limits, Mirror, Robot, System
+from planner.model.build import build_system
+from planner.model.system import Camera, Intrinsics, System
 from planner.model.transforms import Array, axis_angle_to_matrix, look_at, make_T, rpy_to_matrix
 
 AIM = np.array([0.45, 0.1, 0.0])
@@ -19,15 +19,7 @@ INTRINSICS = Intrinsics(848, 480, 430.0, 430.0, 424.0, 240.0)
 def nominal_system() -> System:
     """N = 1: laser along -x into the UR5e's workspace, camera above the work area."""
     laser = make_T(rpy_to_matrix(np.deg2rad([0.0, -90.0, 0.0])), [0.9, -0.13, 0.5])
-    robot = Robot(
-        "arm0",
-        RobotKinematics.ur5e(),
-        np.eye(4),
-        Mirror(make_T(p=[0.0, 0.0, 0.03])),
-        np.array(DEFAULT_HOME),
-        Limits.ur_default(),
-    )
-    return System(laser, (robot,), Camera(look_at([0.5, 0.8, 0.9], AIM), INTRINSICS))
+    return build_system(laser, camera=Camera(look_at([0.5, 0.8, 0.9], AIM), INTRINSICS))
 
 
 def two_robot_system() -> System:

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
+from planner.model.build import ur5e_robot
 from planner.model.kinematics import RobotKinematics, ur5e_urdf_path
-from planner.model.system import DEFAULT_HOME, Limits, Mirror, Robot, System
+from planner.model.system import Limits, Robot, System
 from planner.model.transforms import look_at, make_T, rot_z
 
 LASER = look_at([0.6, -0.4, 0.3], [0.0, -0.4, 0.3])  # beam along -x, 0.4 m in front of arm0
@@ -16,14 +17,7 @@ LASER = look_at([0.6, -0.4, 0.3], [0.0, -0.4, 0.3])  # beam along -x, 0.4 m in f
 
 def robot(name: str, base: np.ndarray | None = None, kin: RobotKinematics | None = None,
           limits: Limits | None = None, margin: float = 0.01) -> Robot:  # fmt: skip
-    return Robot(
-        name,
-        kin or RobotKinematics.ur5e(),
-        np.eye(4) if base is None else base,
-        Mirror(make_T(p=[0, 0, 0.03]), (0.075, 0.075), margin),
-        np.array(DEFAULT_HOME),
-        limits or Limits.ur_default(),
-    )
+    return ur5e_robot(name, base, roi_margin=margin, limits=limits, kinematics=kin)
 
 
 def n1(laser: np.ndarray = LASER, **kw: object) -> System:

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from planner.beam.graph import BeamModel
-from planner.ik.closed_form import ClosedForm, bisector, mirror_frame, pick_branch, seed_kinematics
+from planner.ik.closed_form import ClosedForm, bisector, pick_branch, seed_kinematics
 from planner.model.kinematics import RobotKinematics
+from planner.model.mirror import Mirror
 from planner.model.transforms import inv_T
 from tests.planner.ik import ik_systems as sy
 
@@ -25,7 +26,7 @@ def test_bisector_reflects_incoming_into_outgoing() -> None:
 
 def test_mirror_frame_places_hit_at_uv() -> None:
     h, n = np.array([0.1, 0.2, 0.3]), np.array([0.0, 0.6, 0.8])
-    T = mirror_frame(h, n, np.array([1.0, 0.0, 0.0]), 0.7, np.array([0.01, -0.02]))
+    T = Mirror(np.eye(4)).place(h, n, np.array([1.0, 0.0, 0.0]), 0.7, np.array([0.01, -0.02]))
     np.testing.assert_allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-15)
     assert np.linalg.det(T[:3, :3]) == pytest.approx(1.0)
     np.testing.assert_allclose(T[:3, 2], n)
@@ -71,7 +72,7 @@ def test_every_member_branch_satisfies_the_nlp_constraints(s, psi, uv) -> None: 
     d = (target - h) / np.linalg.norm(target - h)
     n = bisector(v0, d)
     assert n is not None
-    T = mirror_frame(h, n, np.array([1.0, 0, 0]), psi, np.array(uv))
+    T = r.mirror.place(h, n, np.array([1.0, 0, 0]), psi, np.array(uv))
     branches = r.kinematics.analytic_ik(inv_T(r.world_T_base) @ T @ inv_T(r.mirror.flange_T_mirror))
     assert branches
     for q in branches:

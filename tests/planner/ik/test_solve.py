@@ -8,12 +8,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from planner.beam.trace import mirror_poses, trace_beam
 from planner.ik import BeamIK, IKOptions
-from planner.ik.evaluate import evaluate, mirror_poses
 from planner.model.kinematics import RobotKinematics
 from planner.model.system import DEFAULT_HOME, Limits, System
 from planner.model.transforms import look_at
-from planner.verify.check import ArmGeometry, Trace, ur5e_dh_fk
+from planner.verify.check import ArmGeometry, spots, trace_arms, ur5e_dh_fk
 from tests.planner.ik import ik_systems as sy
 
 
@@ -22,9 +22,10 @@ def independent_error(system: System, q: np.ndarray, target: np.ndarray) -> floa
     arms = [ArmGeometry(r.name, ur5e_dh_fk, r.world_T_base, r.mirror.flange_T_mirror,
                         r.mirror.roi_half, r.limits.lower, r.limits.upper)
             for r in system.robots]  # fmt: skip
-    spot, s, _ = Trace(system.world_T_laser, arms, system.split_q(q)).spot(target, None)
-    assert s > 0
-    return float(np.linalg.norm(spot - target))
+    rays = trace_arms(system.world_T_laser, arms, system.split_q(q))
+    spot, s, _ = spots(rays.p, rays.v, target[None], np.full((1, 3), np.nan))
+    assert s[0] > 0
+    return float(np.linalg.norm(spot[0] - target))
 
 
 def test_grid_n1_exact_and_verified_independently() -> None:
@@ -48,7 +49,7 @@ def test_target_with_normal_and_incidence_limit() -> None:
     normal = np.array([0.0, -1.0, 0.0])  # faces the arriving beam (it comes from -y)
     sol = ik.solve(target, normal)
     assert sol.ok and sol.q is not None
-    ev = evaluate(system, sol.q, target, normal)
+    ev = trace_beam(system, sol.q, target, normal)
     assert ev.error <= 1e-12
     assert ev.incidence <= np.radians(60) + 1e-12
     assert sol.incidence == pytest.approx(ev.incidence)
@@ -63,7 +64,7 @@ def test_n2_relay_exact() -> None:
         assert sol.ok and sol.q is not None
         assert sol.error <= 1e-12
         assert independent_error(system, sol.q, p) <= 1e-12
-        ev = evaluate(system, sol.q, p)
+        ev = trace_beam(system, sol.q, p)
         assert ev.valid and len(ev.hits) == 2
         q = sol.q
 
@@ -91,10 +92,10 @@ def test_calibrated_urdf_closed_by_newton(tmp_path) -> None:  # type: ignore[no-
     sol = BeamIK(system).solve(np.array([0.3, 0.3, 0.3]))
     assert sol.ok and sol.q is not None
     assert sol.method == "closed_form+newton"
-    assert evaluate(system, sol.q, np.array([0.3, 0.3, 0.3])).error <= 1e-12
+    assert trace_beam(system, sol.q, np.array([0.3, 0.3, 0.3])).error <= 1e-12
     # the nominal analytic member alone misses by about the calibration offset
     nominal = sy.n1()
-    assert evaluate(nominal, sol.q, np.array([0.3, 0.3, 0.3])).error > 1e-5
+    assert trace_beam(nominal, sol.q, np.array([0.3, 0.3, 0.3])).error > 1e-5
 
 
 def test_reason_unreachable_beyond_reach() -> None:
@@ -138,7 +139,7 @@ def test_ipopt_alone_solves_a_non_ur_arm(tmp_path) -> None:  # type: ignore[no-u
     system = sy.n1(kin=far)
     sol = BeamIK(system).solve([0.3, 0.3, 0.3])
     assert sol.ok and sol.q is not None and sol.method == "multistart"
-    ev = evaluate(system, sol.q, np.array([0.3, 0.3, 0.3]))
+    ev = trace_beam(system, sol.q, np.array([0.3, 0.3, 0.3]))
     assert ev.error <= 1e-12 and ev.valid
 
 
@@ -165,4 +166,4 @@ def test_fk_round_trip(dq: list[float], came_from: tuple[float, float, float], d
     sol = BeamIK(system).solve(target)
     assert sol.ok, sol.evidence
     assert sol.q is not None
-    assert evaluate(system, sol.q, target).error <= 1e-11
+    assert trace_beam(system, sol.q, target).error <= 1e-11

@@ -151,11 +151,16 @@ def test_valid_samples_agrees_with_why(fine):
     Qb[10, 2] = ctx.upper[2] + 0.1  # beyond the elbow limit
     Qb[20] += 0.3  # spot far off
     ok = valid_samples(ctx, ks, Qb, NB)
-    G, H, _ = sample_function(ctx.kin)(Qb[30], *ctx.geo, ctx.P[30], NB[30], 1.0, tangents(NB[30]))
+
+    def sample(k: int) -> tuple[np.ndarray, np.ndarray]:
+        out = sample_function(ctx.kin)(q=Qb[k], **ctx.geo, target=ctx.P[k], nbar=NB[k],
+                                       has_normal=1.0, tangents=tangents(NB[k]))  # fmt: skip
+        return out["g"], out["h"]
+
+    G, H = sample(30)
     assert ctx.why(30, Qb[30], np.asarray(G), np.asarray(H)) is None
     for k in (10, 20, 30, 100):
-        E = tangents(NB[k])
-        G, H, _ = sample_function(ctx.kin)(Qb[k], *ctx.geo, ctx.P[k], NB[k], 1.0, E)
+        G, H = sample(k)
         assert ok[k] == (ctx.why(k, Qb[k], np.asarray(G), np.asarray(H)) is None)
     assert not ok[10] and not ok[20] and ok.sum() == len(Q) - 2
 

@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 from ruckig import InputParameter, Result, Ruckig, Trajectory
 
-from planner.model.kinematics import RobotKinematics
-from planner.model.system import DEFAULT_HOME, Limits, Mirror, Robot, System
+from planner.model.build import build_system
 from planner.model.transforms import make_T
 from planner.path.timing import (
     move_time,
@@ -23,9 +22,7 @@ RATE = 500.0
 
 @pytest.fixture(scope="module")
 def system():
-    robot = Robot("arm0", RobotKinematics.ur5e(), np.eye(4), Mirror(make_T(p=[0, 0, 0.03])),
-                  np.array(DEFAULT_HOME), Limits.ur_default())  # fmt: skip
-    return System(make_T(p=[0.5, 0, 0.3]), (robot,))
+    return build_system(make_T(p=[0.5, 0, 0.3]))
 
 
 @pytest.mark.parametrize("d", [1e-4, 0.05, 0.5, 3.0])

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from planner.model.kinematics import RobotKinematics
-from planner.model.system import DEFAULT_HOME, Limits, Mirror, Robot, System
+from planner.model.build import ur5e_robot
+from planner.model.system import DEFAULT_HOME, Robot, System
 from planner.model.transforms import Array, look_at, make_T, rot_z
 
 #: both arms stretched horizontally toward each other (they overlap in the middle)
@@ -15,9 +15,7 @@ UPRIGHT = np.array(DEFAULT_HOME)
 
 
 def robot(name: str, world_T_base: Array, mount_z: float = 0.03) -> Robot:
-    kin = RobotKinematics.ur5e()
-    mirror = Mirror(make_T(p=[0.0, 0.0, mount_z]))
-    return Robot(name, kin, world_T_base, mirror, np.array(DEFAULT_HOME), Limits.ur_default())
+    return ur5e_robot(name, world_T_base, flange_T_mirror=make_T(p=[0.0, 0.0, mount_z]))
 
 
 def single() -> System:

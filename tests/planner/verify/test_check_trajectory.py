@@ -53,7 +53,7 @@ def test_curve_path_meets_goals(plan):
     found = {f.code: f for f in check_trajectory(plan)}
     assert not [f for f in found.values() if f.severity != "info"], found
     assert found["path_deviation"].value <= 5e-5  # issue goal: 0.05 mm
-    assert abs(found["path_duration"].value / found["path_duration"].limit - 1) < 0.1
+    assert abs(found["path_duration"].value / found["path_duration"].bound - 1) < 0.1
 
 
 def test_violations_are_found(plan):

@@ -1,0 +1,43 @@
+"""What became of a target: a :class:`Status` and, when it failed, a :class:`Reason`.
+
+String enums, so plan.json carries exactly the strings the file format names (``ok``,
+``failed``; ``unreachable``, ``outside_roi``, ...): ``Status.OK == "ok"`` and
+``json.dumps(Reason.OCCLUDED) == '"occluded"'``. Inside the planner a reason travels as the
+enum, next to a free-text detail, never folded into one ``"reason: detail"`` string.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from typing import NamedTuple
+
+
+class Status(StrEnum):
+    """Outcome of one target."""
+
+    OK = "ok"
+    FAILED = "failed"
+
+
+class Reason(StrEnum):
+    """Why a target failed (machine-readable, as written to plan.json)."""
+
+    UNREACHABLE = "unreachable"  # no configuration sends the beam there (reach, incidence)
+    OUTSIDE_ROI = "outside_roi"  # only with a mirror hit outside its region of interest
+    JOINT_LIMITS = "joint_limits"  # only outside the joint position limits
+    BACK_FACE = "back_face"  # only with the beam on a mirror's back face or the target behind
+    OCCLUDED = "occluded"  # the beam crosses a scene object or a robot link
+    KEEP_OUT = "keep_out"  # the beam (or the target) inside a keep-out volume
+    COLLISION = "collision"  # arms, or an arm and the scene, closer than the clearance
+    SOLVER_FAILED = "solver_failed"  # the solver gave no usable answer
+
+
+class Failure(NamedTuple):
+    """Why something failed: the machine-readable ``reason`` and a human ``detail`` (the
+    evidence, values with units), carried side by side, never parsed out of one string."""
+
+    reason: Reason
+    detail: str = ""
+
+    def __str__(self) -> str:
+        return f"{self.reason}: {self.detail}" if self.detail else str(self.reason)
