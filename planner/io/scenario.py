@@ -20,10 +20,9 @@ import numpy as np
 from planner.errors import InputError, ScenarioError
 from planner.io.plausibility import emit, scenario_warnings
 from planner.model import robots
+from planner.model.polyline import resample_path
 from planner.model.scene import SceneItem, SceneModel
 from planner.model.settings import TrajectorySettings
-from planner.model.kinematics import RobotKinematics
-from planner.model.polyline import resample_path
 from planner.model.system import (
     DEFAULT_HOME,
     Camera,

@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from schemas import defaults
 from planner.model import validity
+from schemas import defaults
 
 JOINT_SLACK = 1e-7  # rad: a joint position may lie this far beyond its limit
 INCIDENCE_SLACK = 1e-7  # rad: the incidence angle may exceed max_incidence_deg by this much
