@@ -22,9 +22,11 @@ from planner.io.plan_file import plan_json as plan_json  # re-exported
 from planner.io.plan_file import write_plan as write_plan
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
+from planner.verify.tolerances import DEFAULT_PATH_TOLERANCE
 
 if TYPE_CHECKING:
     from planner.model.scene import SceneModel
+    from planner.path.marking import MarkRun
     from planner.path.solve import PathResult
     from planner.path.timing import Trajectory, VisitReport
     from planner.verify.spot import Mask
@@ -228,12 +230,13 @@ def time_solutions(
     order: str = "optimal",
     path: PathResult | None = None,
     progress: Progress | None = None,
+    skywriting: bool = True,
 ) -> Timed | None:
     """Time the solved targets from ``q_start`` (stacked rad, default home) at the scenario
     ``rate`` (Hz). Points/grid: rest-to-rest Ruckig moves in the ``optimal`` (or ``given``)
     order with ``dwell`` s on each. Path: each feasible run (``path.segments``, else runs of
     consecutive solved samples) swept at ``spot_speed`` (m/s). None if nothing was solved."""
-    from planner.path.timing import path_trajectory, points_trajectory
+    from planner.path.timing import points_trajectory
 
     rate = float(settings.get("rate", 500.0))
     q0 = system.home if q_start is None else np.asarray(q_start, dtype=float)
@@ -246,17 +249,45 @@ def time_solutions(
         figures = {"duration_given_order": visit.duration_given,
                    "duration_chosen_order": visit.duration_optimised}  # fmt: skip
         return Timed(traj, visit, figures | limit_ratios(system, traj))
+    from planner.path.marking import marking_trajectory
     from planner.path.solve import arc_length
 
     arc = path.arc if path is not None else arc_length(targets.points)
-    ok = np.isfinite(Q).all(axis=1)
-    spans = [(s.k0, s.k1) for s in path.segments] if path is not None else _runs(ok)
-    runs = [(Q[a:b], arc[a:b]) for k0, k1 in spans for a, b in _runs(ok[k0:k1], k0)]
-    traj = path_trajectory(system, runs, q0, float(settings.get("spot_speed", 0.02)), rate)
+    speed = float(settings.get("spot_speed", 0.02))
+    tol = float(settings.get("path_tolerance", DEFAULT_PATH_TOLERANCE))
+    runs = mark_runs(system, targets, Q, arc, speed, skywriting=skywriting)
+    traj = marking_trajectory(system, runs, q0, speed, rate, tol)
     figures = {"path_time": traj.span("path"), "path_length": float(arc[-1]),
                "path_deviation_max": path_deviation(system, targets, traj),
                "slowdowns": float(len(traj.slowdowns))}  # fmt: skip
     return Timed(traj, None, figures | limit_ratios(system, traj))
+
+
+def mark_runs(system: System, targets: Targets, Q: Array, arc: Array, spot_speed: float,
+              *, skywriting: bool = True) -> list[MarkRun]:  # fmt: skip
+    """The marked runs of a path: each stroke (``targets.meta["strokes"]``, default the whole
+    path, back to sample 0 when closed) cut at unsolved samples, extended by a run-in and a
+    run-out (:func:`planner.path.marking.extend_run`) unless ``skywriting`` is off (then it
+    is marked from rest to rest: for comparison only). ``Q``: joints per sample (NaN rows:
+    unsolved), ``arc``: the samples' arc length (m)."""
+    from planner.path.marking import MarkRun, extend_run
+
+    K = len(Q)
+    default = (*range(K), 0) if targets.closed and K > 2 else tuple(range(K))
+    strokes = targets.meta.get("strokes") or (default,)
+    ok = np.isfinite(Q).all(axis=1)
+    runs = []
+    for stroke in strokes:  # type: ignore[attr-defined]
+        idx = np.asarray(stroke, dtype=int)
+        for a, b in _runs(ok[idx]):
+            sub = idx[a:b]
+            if skywriting:
+                runs.append(extend_run(system, targets, sub, Q[sub], float(arc[sub[0]]), spot_speed))
+                continue
+            seg = np.linalg.norm(np.diff(targets.points[sub], axis=0), axis=1)
+            local = np.concatenate([[0.0], np.cumsum(seg)])
+            runs.append(MarkRun(Q[sub], local, 0, len(sub), float(arc[sub[0]])))
+    return runs
 
 
 def _runs(ok: Array, offset: int = 0) -> list[tuple[int, int]]:
@@ -359,7 +390,8 @@ def run_scenario(
     model = SceneModel.from_scenario(loaded) if scene else None
     options = ik_options(scn.solver, optimal)
     settings = scn.trajectory.model_dump() if scn.trajectory is not None else {}
-    order = "given" if scn.targets.order == "given" else "optimal"
+    order_key = scn.trajectory.order or scn.targets.order
+    order = "given" if order_key == "given" else "optimal"
     columns = ("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
                TimeRemainingColumn())  # fmt: skip
     path = None

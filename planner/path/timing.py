@@ -26,24 +26,28 @@ from planner.model.system import Limits, System
 from planner.model.transforms import Array
 from planner.path.tour import visit_order
 
-SEGMENT_KINDS = ("approach", "move", "path", "dwell")
+SEGMENT_KINDS = ("approach", "move", "run_in", "path", "run_out", "dwell")
+LASER_KINDS = ("path", "dwell")  # segments in which the laser is on
 
 
 class Segment(NamedTuple):
-    kind: str  # approach | move | path | dwell
+    kind: str  # one of SEGMENT_KINDS
     t0: float  # s
     t1: float  # s
 
 
 class Slowdown(NamedTuple):
     """Where the spot runs slower than requested: arc length s0..s1 (m), the binding limit
-    (velocity | acceleration | jerk), the joint index (stacked) and the speed reached (m/s)."""
+    (velocity | acceleration | jerk), the joint index (stacked) and the speed reached (m/s);
+    ``t0``..``t1`` (s, NaN if not timed) the span of trajectory time it covers."""
 
     s0: float
     s1: float
     limit: str
     joint: int
     speed: float
+    t0: float = float("nan")
+    t1: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -65,6 +69,20 @@ class Trajectory:
         """Total time (s) spent in segments of one kind."""
         return float(sum(s.t1 - s.t0 for s in self.segments if s.kind == kind))
 
+    @property
+    def laser_on(self) -> tuple[tuple[float, float], ...]:
+        """Time intervals (s) in which the laser gate is on: the ``path`` and ``dwell``
+        segments, adjacent ones merged."""
+        out: list[tuple[float, float]] = []
+        for s in self.segments:
+            if s.kind not in LASER_KINDS:
+                continue
+            if out and s.t0 <= out[-1][1] + 1e-12:
+                out[-1] = (out[-1][0], max(out[-1][1], s.t1))
+            else:
+                out.append((s.t0, s.t1))
+        return tuple(out)
+
     def to_plan_dict(self, system: System) -> dict[str, object]:
         """The SPEC plan.json ``trajectory`` mapping (per robot name)."""
 
@@ -81,7 +99,23 @@ class Trajectory:
             "qd": per_robot(self.qd),
             "qdd": per_robot(self.qdd),
             "segments": [{"kind": s.kind, "t0": s.t0, "t1": s.t1} for s in self.segments],
+            "laser_on": [[t0, t1] for t0, t1 in self.laser_on],
+            "slowdowns": [_slowdown_dict(system, s) for s in self.slowdowns],
         }
+
+
+def _slowdown_dict(system: System, s: Slowdown) -> dict[str, object]:
+    """A slowdown as plan.json writes it: the joint as robot name and index within it."""
+    robot: str | None = None
+    j = s.joint
+    for r in system.robots:
+        if 0 <= j < r.nq:
+            robot = r.name
+            break
+        j -= r.nq
+    j = j if robot is not None else -1
+    return {"s0": s.s0, "s1": s.s1, "t0": s.t0, "t1": s.t1, "limit": s.limit,
+            "robot": robot, "joint": int(j), "speed": s.speed}  # fmt: skip
 
 
 class _Piece(NamedTuple):
@@ -225,6 +259,8 @@ def points_trajectory(
 # paths
 # ------------------------------------------------------------------------------------------
 _SHARE_V, _SHARE_A, _SHARE_J = 0.9, 0.5, 0.3  # share of each limit given to each term
+SPOT_ACCEL_PER_SPEED = 20.0  # 1/s: nominal spot acceleration (m/s^2) per m/s of spot speed
+SPOT_JERK_PER_ACCEL = 20.0  # 1/s: nominal spot jerk (m/s^3) per m/s^2 of spot acceleration
 
 
 def path_speed_limit(
@@ -268,17 +304,54 @@ def _slowdowns(arc: Array, speed: Array, code: Array, joint: Array) -> tuple[Slo
     return tuple(out)
 
 
-def time_path(
-    q_path: Array, arc: Array, lim: Limits, spot_speed: float, rate: float
-) -> tuple[_Piece, tuple[Slowdown, ...]]:
-    """Sample s(t) from rest to rest along the path at ``rate`` and map it to joints."""
+class Profile(NamedTuple):
+    """The path parameter s(t) (m, m/s, m/s^2) sampled at ``rate`` along a joint spline of
+    arc length, with the speed caps the joint limits impose at each path sample (``speed``
+    m/s, binding ``code`` 0 spot speed .. 3 jerk, stacked ``joint``) and the spot
+    acceleration and jerk used (m/s^2, m/s^3; ``accel_joint``: the joint that capped the
+    acceleration, -1 if none)."""
+
+    s: Array
+    sd: Array
+    sdd: Array
+    spline: object
+    speed: Array
+    code: Array
+    joint: Array
+    a_s: float
+    j_s: float
+    accel_joint: int
+
+
+def spot_ramp(spot_speed: float) -> tuple[float, float]:
+    """Nominal spot acceleration (m/s^2) and jerk (m/s^3) for a spot speed (m/s)."""
+    a_s = spot_speed * SPOT_ACCEL_PER_SPEED
+    return a_s, a_s * SPOT_JERK_PER_ACCEL
+
+
+def ramp_length(spot_speed: float, a_s: float | None = None, j_s: float | None = None) -> float:
+    """Distance (m) a jerk-limited ramp from rest to ``spot_speed`` (m/s) takes with spot
+    acceleration ``a_s`` and jerk ``j_s`` (default :func:`spot_ramp`)."""
+    a0, j0 = spot_ramp(spot_speed)
+    a, j = a0 if a_s is None else a_s, j0 if j_s is None else j_s
+    v = spot_speed
+    t_acc = v / a + a / j if v * j >= a * a else 2 * np.sqrt(v / j)
+    return float(v * t_acc / 2)
+
+
+def profile(q_path: Array, arc: Array, lim: Limits, spot_speed: float, rate: float) -> Profile:
+    """Sample s(t) from rest to rest along the path at ``rate`` (1-DOF online Ruckig whose
+    velocity limit is the spot speed, lowered ahead of time where a joint limit binds)."""
     from ruckig import InputParameter, OutputParameter, Result, Ruckig
     from scipy.interpolate import make_interp_spline
 
     spline = make_interp_spline(arc, q_path, k=5 if len(arc) > 5 else min(3, len(arc) - 1))
     d1max = np.abs(spline(arc, 1)).max(axis=0) + 1e-12
-    a_s = float(min(spot_speed * 20.0, (_SHARE_A * lim.acceleration / d1max).min()))
-    j_s = float(min(a_s * 20.0, (_SHARE_J * lim.jerk / d1max).min()))
+    a_nom, _ = spot_ramp(spot_speed)
+    a_caps = _SHARE_A * lim.acceleration / d1max
+    a_s = float(min(a_nom, a_caps.min()))
+    j_s = float(min(a_s * SPOT_JERK_PER_ACCEL, (_SHARE_J * lim.jerk / d1max).min()))
+    accel_joint = int(np.argmin(a_caps)) if a_caps.min() < a_nom else -1
     speed, code, joint = path_speed_limit(spline, arc, lim, spot_speed, a_s)
     L = float(arc[-1])
     otg, inp, out = Ruckig(1, 1.0 / rate), InputParameter(1), OutputParameter(1)
@@ -301,11 +374,26 @@ def time_path(
     else:
         raise PlanError(f"path timing did not finish (length {L:.4f} m)")
     s, sd, sdd = np.clip(np.array(S), [0.0, 0.0, -np.inf], [L, np.inf, np.inf]).T
-    q = spline(s)
-    d1, d2 = spline(s, 1), spline(s, 2)
-    q[-1] = q_path[-1]
-    piece = _Piece(q, d1 * sd[:, None], d2 * sd[:, None] ** 2 + d1 * sdd[:, None], "path")
-    return piece, _slowdowns(arc, speed, code, joint)
+    return Profile(s, sd, sdd, spline, speed, code, joint, a_s, j_s, accel_joint)
+
+
+def profile_piece(prof: Profile, q_end: Array, kind: str = "path") -> _Piece:
+    """Joints, velocities and accelerations along a timed profile (the last sample exactly
+    ``q_end``)."""
+    spline, s, sd, sdd = prof.spline, prof.s, prof.sd, prof.sdd
+    q = spline(s)  # type: ignore[operator]
+    d1, d2 = spline(s, 1), spline(s, 2)  # type: ignore[operator]
+    q[-1] = q_end
+    return _Piece(q, d1 * sd[:, None], d2 * sd[:, None] ** 2 + d1 * sdd[:, None], kind)
+
+
+def time_path(
+    q_path: Array, arc: Array, lim: Limits, spot_speed: float, rate: float
+) -> tuple[_Piece, tuple[Slowdown, ...]]:
+    """Sample s(t) from rest to rest along the path at ``rate`` and map it to joints."""
+    prof = profile(q_path, arc, lim, spot_speed, rate)
+    piece = profile_piece(prof, q_path[-1])
+    return piece, _slowdowns(arc, prof.speed, prof.code, prof.joint)
 
 
 def path_trajectory(
