@@ -198,7 +198,7 @@ def plan_document(
     metrics = plan_metrics(solutions, duration)
     metrics["extra"] |= extra or {}
     requested = trajectory is not None if trajectory_requested is None else trajectory_requested
-    return {
+    doc = {
         "schema": PLAN_SCHEMA,
         "scenario": scenario,
         "robots": list(system.robot_names),
@@ -209,6 +209,12 @@ def plan_document(
         "trajectory_requested": bool(requested),
         "metrics": metrics,
     }
+    power = ((scenario.get("system") or {}).get("laser") or {}).get("power")
+    if power is not None and "targets" in scenario:
+        from planner.verify.marking import exposure
+
+        metrics["exposure"] = exposure(doc, float(power))
+    return doc
 
 
 class Timed(NamedTuple):

@@ -35,6 +35,7 @@ if TYPE_CHECKING:
 
 SPEED_SLACK = 0.02  # fraction: the marked spot speed may differ this much from spot_speed
 EDGE_SLACK = 1e-9  # s: a laser interval may reach this far beyond its segment
+EXPOSURE_SLACK = 1e-4  # relative: marked speeds from joints written to 1e-10 rad, 40 um steps
 MARK_KINDS = ("path", "dwell")
 DARK_KINDS = ("approach", "move", "run_in", "run_out")
 
@@ -227,6 +228,27 @@ def _speed_findings(plan: dict[str, Any], rate: float) -> tuple[list[tuple[str, 
     return [(msg, float(v[i]), v0)], figures
 
 
+def _exposure_findings(plan: dict[str, Any]) -> list[tuple[str, float, float]]:
+    """``metrics.exposure`` against the one recomputed from the trajectory and power."""
+    reported = (plan.get("metrics") or {}).get("exposure")
+    power = ((plan["scenario"].get("system") or {}).get("laser") or {}).get("power")
+    want = exposure(plan, None if power is None else float(power))
+    if reported is None and want is None:
+        return []
+    if reported is None or want is None:
+        return [(f"metrics.exposure is {reported}, the plan gives {want}", 0.0, 0.0)]
+    out = []
+    for key, exp in want.items():
+        got = reported.get(key)
+        if (got is None) != (exp is None) or (
+            got is not None and exp is not None and abs(got - exp) > EXPOSURE_SLACK * abs(exp)
+        ):
+            out.append((f"metrics.exposure.{key} is {got}, the plan gives {exp}",
+                        float("nan") if got is None else float(got),
+                        float("nan") if exp is None else float(exp)))  # fmt: skip
+    return out
+
+
 def check_marking(ctx: PlanContext) -> CheckResult:
     """The laser gate against the segments, the spot on the path at every laser-on sample,
     and the marked speed (see the module docstring)."""
@@ -251,7 +273,7 @@ def check_marking(ctx: PlanContext) -> CheckResult:
             found.append((f"laser on with the spot {1e3 * value:.4f} mm from {what} at t = "
                           f"{at:.3f} s (tolerance {1e3 * ctx.tol.path:.4f} mm)", value, ctx.tol.path))  # fmt: skip
     speed, speed_figures = _speed_findings(ctx.plan, ctx.tol.rate)
-    found += speed
+    found += speed + _exposure_findings(ctx.plan)
     figures |= speed_figures
     res.findings += [Finding("laser", None, m, value, bound) for m, value, bound in found]
     res.figures = figures
