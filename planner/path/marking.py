@@ -121,7 +121,8 @@ def marked_slowdowns(prof: Profile, run: MarkRun, i0: int, i1: int, spot_speed: 
     """Spans of marked samples ``i0..i1`` of a timed run slower than the spot speed by more
     than half the speed slack, with the limit and joint that bind there (looked up in the
     speed caps from the span to its braking distance ahead; the spot acceleration's joint
-    when no cap binds: a ramp that did not fit in the run-in). Times from ``t0`` (s)."""
+    when no cap binds: a ramp that did not fit in the run-in; a slow span where no joint
+    limit binds is not reported). Times from ``t0`` (s)."""
     sd = prof.sd[i0 : i1 + 1]
     slow = sd < (1 - SPEED_SLACK / 2) * spot_speed
     out: list[Slowdown] = []
@@ -136,8 +137,10 @@ def marked_slowdowns(prof: Profile, run: MarkRun, i0: int, i1: int, spot_speed: 
         if len(capped):
             k = int(capped[np.argmin(prof.speed[capped])])
             limit, joint = _LIMITS[int(prof.code[k])], int(prof.joint[k])
-        else:
+        elif prof.accel_joint >= 0:
             limit, joint = "acceleration", prof.accel_joint
+        else:
+            continue  # no joint limit binds: not a slowdown (the check flags it)
         out.append(Slowdown(run.offset + s_lo - base, run.offset + s_hi - base, limit, joint,
                             float(sd[a:b].min()), t0 + (i0 + a) / rate,
                             t0 + (i0 + b - 1) / rate))  # fmt: skip

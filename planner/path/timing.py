@@ -401,21 +401,28 @@ def path_trajectory(
     spot_speed: float = 0.02, rate: float = 500.0,
 ) -> Trajectory:  # fmt: skip
     """Approach from ``q_start`` (default home), then each feasible run ``(q_k K x nq,
-    arc_k K)`` swept at ``spot_speed`` (m/s); rest-to-rest ``move`` (laser gated) between
-    runs. Slowdowns carry the arc length along the whole path."""
+    arc_k K)`` swept at ``spot_speed`` (m/s) from rest to rest, with no run-in or run-out
+    (:mod:`planner.path.marking` adds them); rest-to-rest ``move`` between runs.
+    Slowdowns carry the arc length along the whole path and their trajectory times."""
     lim = system.limits
     prev = system.home if q_start is None else np.asarray(q_start, dtype=float)
     pieces: list[_Piece] = []
     slow: list[Slowdown] = []
+    i0 = 0  # index of the current piece's first sample
     for n, (Qp, arc) in enumerate(runs):
         Qm, QDm, QDDm = ruckig_move(prev, Qp[0], lim, rate)
         pieces.append(_Piece(Qm, QDm, QDDm, "approach" if n == 0 else "move"))
+        i0 += len(Qm) - 1
         if len(Qp) < 2:
             prev = Qp[0]
             continue
-        piece, sl = time_path(Qp, arc - arc[0], lim, spot_speed, rate)
-        pieces.append(piece)
-        slow += [s._replace(s0=s.s0 + arc[0], s1=s.s1 + arc[0]) for s in sl]
+        prof = profile(Qp, arc - arc[0], lim, spot_speed, rate)
+        pieces.append(profile_piece(prof, Qp[-1]))
+        for sd in _slowdowns(arc - arc[0], prof.speed, prof.code, prof.joint):
+            k0, k1 = np.searchsorted(prof.s, [sd.s0, sd.s1])
+            slow.append(sd._replace(s0=sd.s0 + arc[0], s1=sd.s1 + arc[0], t0=(i0 + k0) / rate,
+                                    t1=(i0 + min(k1, len(prof.s) - 1)) / rate))  # fmt: skip
+        i0 += len(prof.s) - 1
         prev = Qp[-1]
     if not pieces:
         raise PlanError("no feasible path run to time")

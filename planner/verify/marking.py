@@ -119,7 +119,7 @@ def exposure(plan: dict[str, Any], power: float | None) -> dict[str, float | Non
     if speeds is not None and len(speeds[0]):
         v = speeds[0]
         out["fluence_min"] = float(power / v.max())
-        out["fluence_max"] = float(power / max(float(v.min()), 1e-300))
+        out["fluence_max"] = float(power / v.min()) if v.min() > 0 else None  # at rest: no bound
     dwell = float((plan["scenario"].get("trajectory") or {}).get("dwell") or 0.0)
     if _path_spec(plan["scenario"]) is None and dwell > 0:
         out["dwell_energy"] = float(power * dwell)
