@@ -281,14 +281,16 @@ def mark_runs(system: System, targets: Targets, Q: Array, arc: Array, spot_speed
     K = len(Q)
     default = (*range(K), 0) if targets.closed and K > 2 else tuple(range(K))
     strokes = targets.meta.get("strokes") or (default,)
-    ok = np.isfinite(Q).all(axis=1)
+    ok = np.asarray(np.isfinite(Q).all(axis=1), dtype=bool)
     runs = []
     for stroke in strokes:  # type: ignore[attr-defined]
         idx = np.asarray(stroke, dtype=int)
         for a, b in _runs(ok[idx]):
             sub = idx[a:b]
             if skywriting:
-                runs.append(extend_run(system, targets, sub, Q[sub], float(arc[sub[0]]), spot_speed))
+                runs.append(
+                    extend_run(system, targets, sub, Q[sub], float(arc[sub[0]]), spot_speed)
+                )
                 continue
             seg = np.linalg.norm(np.diff(targets.points[sub], axis=0), axis=1)
             local = np.concatenate([[0.0], np.cumsum(seg)])

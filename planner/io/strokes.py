@@ -19,6 +19,7 @@ frame (any rigid frame), metres; angles in degrees only where the name says so.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 
@@ -91,7 +92,9 @@ class _Stroke:
             t1, t2 = V[i] - d * U[i - 1], V[i] + d * U[i]
             pieces.append(("line", float(np.linalg.norm(t1 - start)), (start, U[i - 1]),
                            (s_poly, float(u[i]) - d)))  # fmt: skip
-            centre = V[i] + (U[i] - U[i - 1]) / np.linalg.norm(U[i] - U[i - 1]) * r / np.cos(theta / 2)
+            centre = V[i] + (U[i] - U[i - 1]) / np.linalg.norm(U[i] - U[i - 1]) * r / np.cos(
+                theta / 2
+            )
             a = (t1 - centre) / r
             pieces.append(("arc", r * theta, (centre, a, U[i - 1], np.array([r, theta])),
                            (float(u[i]) - d, float(u[i]) + d)))  # fmt: skip
@@ -186,14 +189,16 @@ def mark_path(
     V, N = _open_polyline(V, N, loop, corner)
     if N is not None:
         for v in np.flatnonzero(np.einsum("ij,ij->i", N[:-1], N[1:]) < -1 + 1e-9):
-            raise ValueError(f"normals of vertices {v} and {v + 1} are opposite; cannot interpolate")
+            raise ValueError(
+                f"normals of vertices {v} and {v + 1} are opposite; cannot interpolate"
+            )
     u = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(V, axis=0), axis=1))])
     cuts = [0, *(np.flatnonzero(turn_angles(V) > corner) + 1).tolist(), len(V) - 1]
     pts: list[Array] = []
     wts: list[Array] = []
     strokes: list[tuple[int, ...]] = []
     h_max, blended, k0 = 0.0, 0, 0
-    for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+    for a, b in pairwise(cuts):
         st = _Stroke(V[a : b + 1], u[a : b + 1], tolerance)
         n = _spacing(st.length, spacing, tolerance, st.min_radius)
         P, W = st.at(np.linspace(0.0, st.length, n + 1))

@@ -24,7 +24,6 @@ from planner.verify.trajectory import (
     NUMPY_FK,
     _robots,
     nearest_spots,
-    point_deviation,
     ray_polyline_closest,
     spot_deviation,
     trace_last_ray,
@@ -150,7 +149,9 @@ def _kind_at(segments: list[dict[str, Any]], t: float, kinds: tuple[str, ...]) -
     return "no segment"
 
 
-def _gate_findings(t: Array, on: Mask, segments: list[dict[str, Any]]) -> list[tuple[str, float, float]]:
+def _gate_findings(
+    t: Array, on: Mask, segments: list[dict[str, Any]]
+) -> list[tuple[str, float, float]]:
     """(message, value, bound): the laser on outside path/dwell segments, or off inside."""
     mark = segment_mask(t, segments, "path") | segment_mask(t, segments, "dwell")
     out = []
@@ -217,14 +218,18 @@ def _speed_findings(plan: dict[str, Any], rate: float) -> tuple[list[tuple[str, 
     starts = {float(t0) for t0, _ in plan["trajectory"]["laser_on"]}
     ends = {float(t1) for _, t1 in plan["trajectory"]["laser_on"]}
     first = [k for k in np.flatnonzero(bad) if any(abs(ts[k] - s) < 0.5 / rate for s in starts)]
-    last = [k for k in np.flatnonzero(bad) if any(abs(ts[k] + 1 / rate - e) < 0.5 / rate for e in ends)]
+    last = [
+        k for k in np.flatnonzero(bad) if any(abs(ts[k] + 1 / rate - e) < 0.5 / rate for e in ends)
+    ]
     msg = (f"marked spot speed {1e3 * v[i]:.3f} mm/s ({100 * ratio[i]:.1f}% of "
            f"{1e3 * v0:.3f} mm/s) at t = {ts[i]:.3f} s, {int(bad.sum())} step(s) beyond "
            f"{100 * SPEED_SLACK:g}% outside a reported slowdown")  # fmt: skip
     if first:
         msg += f"; a mark starts at {100 * ratio[first[0]]:.1f}% of the speed (t = {ts[first[0]]:.3f} s)"
     if last:
-        msg += f"; a mark ends at {100 * ratio[last[-1]]:.1f}% of the speed (t = {ts[last[-1]]:.3f} s)"
+        msg += (
+            f"; a mark ends at {100 * ratio[last[-1]]:.1f}% of the speed (t = {ts[last[-1]]:.3f} s)"
+        )
     return [(msg, float(v[i]), v0)], figures
 
 
@@ -260,7 +265,9 @@ def check_marking(ctx: PlanContext) -> CheckResult:
         return res
     t = np.asarray(traj["t"], dtype=float)
     if "laser_on" not in traj:
-        res.findings.append(Finding("laser", None, "trajectory has no laser_on intervals", 0.0, 1.0))
+        res.findings.append(
+            Finding("laser", None, "trajectory has no laser_on intervals", 0.0, 1.0)
+        )
         return res
     on = laser_mask(t, traj["laser_on"])
     res.checked = int(on.sum())

@@ -143,8 +143,13 @@ def _scenario(tmp_path: Path, laser: str = "", order: str = "", path: str = "spa
 
 
 def test_marking_keys_are_accepted(tmp_path: Path) -> None:
-    f = _scenario(tmp_path, "power: 0.005\n    gate: {robot: arm0, output: 3}", "order: optimal",
-                  "corner_deg: 30, smooth: true", "path_tolerance: 1.0e-4, order: given")
+    f = _scenario(
+        tmp_path,
+        "power: 0.005\n    gate: {robot: arm0, output: 3}",
+        "order: optimal",
+        "corner_deg: 30, smooth: true",
+        "path_tolerance: 1.0e-4, order: given",
+    )
     out = beamrelay("validate", f)
     assert out.returncode == 0, out.stdout + out.stderr
     for order in ("optimized", "given"):  # the old spelling stays an alias
