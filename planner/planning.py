@@ -26,7 +26,6 @@ from planner.verify.tolerances import DEFAULT_PATH_TOLERANCE
 
 if TYPE_CHECKING:
     from planner.model.scene import SceneModel
-    from planner.path.marking import MarkRun
     from planner.path.solve import PathResult
     from planner.path.timing import Trajectory, VisitReport
     from planner.verify.spot import Mask
@@ -255,7 +254,7 @@ def time_solutions(
         figures = {"duration_given_order": visit.duration_given,
                    "duration_chosen_order": visit.duration_optimised}  # fmt: skip
         return Timed(traj, visit, figures | limit_ratios(system, traj))
-    from planner.path.marking import marking_trajectory
+    from planner.path.marking import mark_runs, marking_trajectory
     from planner.path.solve import arc_length
 
     arc = path.arc if path is not None else arc_length(targets.points)
@@ -267,41 +266,6 @@ def time_solutions(
                "path_deviation_max": path_deviation(system, targets, traj),
                "slowdowns": float(len(traj.slowdowns))}  # fmt: skip
     return Timed(traj, None, figures | limit_ratios(system, traj))
-
-
-def mark_runs(system: System, targets: Targets, Q: Array, arc: Array, spot_speed: float,
-              *, skywriting: bool = True) -> list[MarkRun]:  # fmt: skip
-    """The marked runs of a path: each stroke (``targets.meta["strokes"]``, default the whole
-    path, back to sample 0 when closed) cut at unsolved samples, extended by a run-in and a
-    run-out (:func:`planner.path.marking.extend_run`) unless ``skywriting`` is off (then it
-    is marked from rest to rest: for comparison only). ``Q``: joints per sample (NaN rows:
-    unsolved), ``arc``: the samples' arc length (m)."""
-    from planner.path.marking import MarkRun, extend_run
-
-    K = len(Q)
-    default = (*range(K), 0) if targets.closed and K > 2 else tuple(range(K))
-    strokes = targets.meta.get("strokes") or (default,)
-    ok = np.asarray(np.isfinite(Q).all(axis=1), dtype=bool)
-    runs = []
-    for stroke in strokes:  # type: ignore[attr-defined]
-        idx = np.asarray(stroke, dtype=int)
-        for a, b in _runs(ok[idx]):
-            sub = idx[a:b]
-            if skywriting:
-                runs.append(
-                    extend_run(system, targets, sub, Q[sub], float(arc[sub[0]]), spot_speed)
-                )
-                continue
-            seg = np.linalg.norm(np.diff(targets.points[sub], axis=0), axis=1)
-            local = np.concatenate([[0.0], np.cumsum(seg)])
-            runs.append(MarkRun(Q[sub], local, 0, len(sub), float(arc[sub[0]])))
-    return runs
-
-
-def _runs(ok: Array, offset: int = 0) -> list[tuple[int, int]]:
-    """Half-open index ranges (plus ``offset``) of consecutive True values."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]]))) + offset
-    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
 def limit_ratios(system: System, traj: Trajectory) -> dict[str, float]:

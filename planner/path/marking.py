@@ -23,17 +23,8 @@ from planner.errors import PlanError
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
 from planner.path.nlp import PathOptions
-from planner.path.timing import (
-    Profile,
-    Slowdown,
-    Trajectory,
-    _assemble,
-    _Piece,
-    profile,
-    profile_piece,
-    ramp_length,
-    ruckig_move,
-)
+from planner.path.profile import Profile, profile, ramp_length
+from planner.path.timing import Slowdown, Trajectory, _assemble, _Piece, profile_piece, ruckig_move
 
 RUN_MARGIN = 1.5  # run-in/run-out length as a multiple of the nominal ramp distance
 SPEED_SLACK = 0.02  # fraction: the marked speed may be this much below/above the spot speed
@@ -107,6 +98,35 @@ def extend_run(
     Qx = np.vstack([q_in[::-1], Q, q_out])
     arcx = np.concatenate([-h * np.arange(n_in, 0, -1), arc, arc[-1] + h * np.arange(1, n_out + 1)])
     return MarkRun(Qx, arcx - arcx[0], n_in, n_in + len(Q), offset)
+
+
+def mark_runs(system: System, targets: Targets, Q: Array, arc: Array, spot_speed: float,
+              *, skywriting: bool = True) -> list[MarkRun]:  # fmt: skip
+    """The marked runs of a path: each stroke (``targets.meta["strokes"]``, default the whole
+    path, back to sample 0 when closed) cut at unsolved samples, extended by a run-in and a
+    run-out (:func:`planner.path.marking.extend_run`) unless ``skywriting`` is off (then it
+    is marked from rest to rest: for comparison only). ``Q``: joints per sample (NaN rows:
+    unsolved), ``arc``: the samples' arc length (m)."""
+    from planner.path.solve import _runs  # solve imports the CasADi graph: only when used
+
+    K = len(Q)
+    default = (*range(K), 0) if targets.closed and K > 2 else tuple(range(K))
+    strokes = targets.meta.get("strokes") or (default,)
+    ok = np.asarray(np.isfinite(Q).all(axis=1), dtype=bool)
+    runs = []
+    for stroke in strokes:  # type: ignore[attr-defined]
+        idx = np.asarray(stroke, dtype=int)
+        for a, b in _runs(ok[idx]):
+            sub = idx[a:b]
+            if skywriting:
+                runs.append(
+                    extend_run(system, targets, sub, Q[sub], float(arc[sub[0]]), spot_speed)
+                )
+                continue
+            seg = np.linalg.norm(np.diff(targets.points[sub], axis=0), axis=1)
+            local = np.concatenate([[0.0], np.cumsum(seg)])
+            runs.append(MarkRun(Q[sub], local, 0, len(sub), float(arc[sub[0]])))
+    return runs
 
 
 def _cut(s: Array, lo: float, hi: float) -> tuple[int, int]:
