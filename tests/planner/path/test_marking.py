@@ -131,3 +131,31 @@ def test_without_skywriting_the_mark_starts_from_rest(s_curve: PlanOutcome) -> N
     doc["metrics"] = dict(o.doc["metrics"], exposure=None)
     found = [f.message for r in check_plan(doc) if r.name == "laser" for f in r.findings]
     assert any("a mark starts at" in m for m in found), found
+
+
+def test_the_gate_robot_gets_the_intervals_and_plays_them(s_curve: PlanOutcome) -> None:
+    """plan -> JointTrajectory for the gate robot -> the driver's follower: the gate is on
+    for exactly the planned intervals (in trajectory time, one period per switch)."""
+    from drivers.robot.follower import TrajectoryFollower
+    from drivers.robot.trajectory_check import check_message
+    from planner.service.execution import trajectory_messages
+    from schemas.messages import JointTrajectory
+
+    doc = s_curve.doc
+    body = trajectory_messages(doc, "r1", "S")["arm0"]
+    msg = JointTrajectory.model_validate_json(body)
+    assert msg.laser_on == doc["trajectory"]["laser_on"]
+    plain = dict(doc, scenario=dict(doc["scenario"]))
+    plain["scenario"]["system"] = dict(doc["scenario"]["system"], laser={"world_T_laser": {}})
+    assert JointTrajectory.model_validate_json(trajectory_messages(plain)["arm0"]).laser_on is None
+    ref = check_message(msg, "arm0", tuple(msg.names), s_curve.system.limits).reference
+    f = TrajectoryFollower(ref.q[0], s_curve.system.limits, 1 / RATE)
+    f.follow(ref)
+    lit = []
+    for _ in range(len(ref.t) + 50):
+        f.step()
+        lit.append(f.laser_edge() is not None)
+    on_s = sum(lit) / RATE
+    planned = sum(b - a for a, b in doc["trajectory"]["laser_on"])
+    n = len(doc["trajectory"]["laser_on"])
+    assert abs(on_s - planned) <= (n + 0.5) / RATE
