@@ -253,7 +253,7 @@ def time_solutions(
         traj, visit = points_trajectory(system, Q, q0, dwell, rate, order, progress=progress)
         figures = {"duration_given_order": visit.duration_given,
                    "duration_chosen_order": visit.duration_optimised}  # fmt: skip
-        return Timed(traj, visit, figures | limit_ratios(system, traj))
+        return Timed(traj, visit, figures | limit_ratios(system, traj) | posture(system, Q))
     from planner.path.marking import mark_runs, marking_trajectory
     from planner.path.solve import arc_length
 
@@ -264,8 +264,21 @@ def time_solutions(
     traj = marking_trajectory(system, runs, q0, speed, rate, tol)
     figures = {"path_time": traj.span("path"), "path_length": float(arc[-1]),
                "path_deviation_max": path_deviation(system, targets, traj),
-               "slowdowns": float(len(traj.slowdowns))}  # fmt: skip
-    return Timed(traj, None, figures | limit_ratios(system, traj))
+               "slowdowns": float(len(traj.slowdowns)),
+               "approach_time": traj.span("approach")}  # fmt: skip
+    return Timed(traj, None, figures | limit_ratios(system, traj) | posture(system, Q))
+
+
+def posture(system: System, Q: Array) -> dict[str, float]:
+    """Largest and median condition number of the arms' Jacobians over the solved rows of
+    ``Q`` (:func:`planner.path.solve.jacobian_condition`)."""
+    from planner.path.solve import jacobian_condition
+
+    cond = jacobian_condition(system, Q)
+    if not len(cond):
+        return {}
+    return {"jacobian_condition_max": float(cond.max()),
+            "jacobian_condition_median": float(np.median(cond))}  # fmt: skip
 
 
 def limit_ratios(system: System, traj: Trajectory) -> dict[str, float]:

@@ -39,6 +39,7 @@ __all__ = [
     "PathSegment",
     "acceleration_weight",
     "arc_length",
+    "jacobian_condition",
     "plan_path",
     "resample_polyline",
     "sample_errors",
@@ -111,6 +112,20 @@ def resample_polyline(points: Array, spacing: float, closed: bool = False,
         return out, None
     nn = np.column_stack([np.interp(s_new, s, Nn[:, i]) for i in range(3)])
     return out, nn / np.linalg.norm(nn, axis=1, keepdims=True)
+
+
+def jacobian_condition(system: System, Q: Array, max_samples: int = 5000) -> Array:
+    """Condition number of each arm's 6 x nq flange Jacobian (rows: linear velocity m/s and
+    angular velocity rad/s, base axes) at the finite rows of ``Q`` (M x nq, stacked), the
+    largest over the arms; at most ``max_samples`` rows, evenly spread. Near-singular arm
+    postures give large values (a UR5e with its elbow straight: hundreds)."""
+    good = np.flatnonzero(np.all(np.isfinite(Q), axis=1))
+    good = good[np.unique(np.linspace(0, len(good) - 1, min(len(good), max_samples)).astype(int))]
+    out = np.zeros(len(good))
+    for k, i in enumerate(good):
+        parts = system.split_q(Q[i])
+        out[k] = max(np.linalg.cond(r.kinematics.jacobian(parts[r.name])) for r in system.robots)
+    return out
 
 
 def _runs(mask: Array) -> list[tuple[int, int]]:
