@@ -244,8 +244,13 @@ def plot_profiles(system: System, targets: Targets, plan: dict[str, Any], path: 
     axes[2].set_xlabel("t (s)")
     handles, names = axes[0].get_legend_handles_labels()
     fig.legend(handles, names, loc="lower center", ncol=6, fontsize=7, frameon=False)
-    shades = {"path": "path green (laser on)", "dwell": "dwell amber (laser on)",
-              "approach": "moves grey", "run_in": "run-in/out blue", "run_out": "run-in/out blue"}
+    shades = {
+        "path": "path green (laser on)",
+        "dwell": "dwell amber (laser on)",
+        "approach": "moves grey",
+        "run_in": "run-in/out blue",
+        "run_out": "run-in/out blue",
+    }
     shown = {shades.get(s["kind"], "moves grey") for s in segments}
     axes[0].set_title(f"joint profiles (shaded: {', '.join(sorted(shown))})", fontsize=9)
 
