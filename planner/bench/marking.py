@@ -58,7 +58,7 @@ def marking_figures(scenario: Path) -> dict[str, Any]:
     return {
         "scenario": scenario.name,
         "samples": len(o.targets),
-        "strokes": len(o.targets.meta.get("strokes") or ()),
+        "strokes": len(o.targets.meta.get("strokes") or ()),  # type: ignore[arg-type]
         "sharp_corners": o.targets.meta.get("sharp_corners"),
         "laser_on_deviation_max_m": figures.get("laser.laser_on_deviation_max_m"),
         "polyline_deviation_max_m": figures.get("laser.polyline_deviation_max_m"),
