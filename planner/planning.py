@@ -4,8 +4,9 @@ Point and grid targets are solved one by one with :class:`planner.ik.BeamIK`, ea
 the previous solution (smooth sequences); paths go to :func:`planner.path.solve.plan_path`. The
 ``trajectory`` field comes from :mod:`planner.path.timing` (:func:`time_solutions`): Ruckig
 rest-to-rest moves through the solved points (visit order optimised unless the scenario says
-``order: given``), or each feasible path run swept at the scenario's spot speed, dense at
-``rate``. A failed target is a status; it never stops the others.
+``order: given``), or each marked stroke of a path swept at the scenario's spot speed with
+sky-writing (:mod:`planner.path.marking`), dense at ``rate``, with the laser gate's
+``laser_on`` intervals. A failed target is a status; it never stops the others.
 """
 
 from __future__ import annotations
@@ -239,8 +240,10 @@ def time_solutions(
 ) -> Timed | None:
     """Time the solved targets from ``q_start`` (stacked rad, default home) at the scenario
     ``rate`` (Hz). Points/grid: rest-to-rest Ruckig moves in the ``optimal`` (or ``given``)
-    order with ``dwell`` s on each. Path: each feasible run (``path.segments``, else runs of
-    consecutive solved samples) swept at ``spot_speed`` (m/s). None if nothing was solved."""
+    order with ``dwell`` s on each (laser on while dwelling). Path: each stroke's runs of
+    solved samples marked at ``spot_speed`` (m/s) between a run-in and a run-out
+    (:func:`planner.path.marking.mark_runs`; ``skywriting=False``: from rest to rest, for
+    comparison only), laser on only on the path. None if nothing was solved."""
     from planner.path.timing import points_trajectory
 
     rate = float(settings.get("rate", 500.0))
