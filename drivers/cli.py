@@ -97,6 +97,8 @@ def robot(
     if state_rate < 100:
         raise InputError(f"must be >= 100 Hz, got {state_rate:g}", "--state-rate")
     r = system.robot(name)
+    gate = scn.model.system.laser.gate
+    gate_output = gate.output if gate is not None and gate.robot == name else None
     backend_obj: Any
     if backend == RobotBackendName.sim:
         from drivers.robot.sim import SimRobot
@@ -115,6 +117,7 @@ def robot(
             lookahead_time=lookahead,
             gain=gain,
             watchdog_hz=watchdog_hz,
+            gate_output=gate_output,
         )
     session = open_session(listen=listen, endpoint=endpoint, config_file=zenoh_config)
     node = RobotNode(
@@ -126,6 +129,7 @@ def robot(
         state_rate=state_rate,
         start_tolerance=start_tolerance,
         require_planner=require_planner,
+        gate_output=gate_output,
     )
     _run(node, session, f"{name}: {backend.value} robot driver up (prefix {prefix})")
 
@@ -161,8 +165,9 @@ def camera(
         from drivers.camera.sim import SimCamera
 
         source = SimCamera(
-            system_from_scenario(scn, truth=True), scene_objects(scn), stride=stride, seed=seed
-        )
+            system_from_scenario(scn, truth=True), scene_objects(scn), stride=stride, seed=seed,
+            gated=scn.model.system.laser.gate is not None,
+        )  # fmt: skip
     else:
         from drivers.camera.realsense import RealSenseCamera
 

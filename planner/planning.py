@@ -4,8 +4,9 @@ Point and grid targets are solved one by one with :class:`planner.ik.BeamIK`, ea
 the previous solution (smooth sequences); paths go to :func:`planner.path.solve.plan_path`. The
 ``trajectory`` field comes from :mod:`planner.path.timing` (:func:`time_solutions`): Ruckig
 rest-to-rest moves through the solved points (visit order optimised unless the scenario says
-``order: given``), or each feasible path run swept at the scenario's spot speed, dense at
-``rate``. A failed target is a status; it never stops the others.
+``order: given``), or each marked stroke of a path swept at the scenario's spot speed with
+sky-writing (:mod:`planner.path.marking`), dense at ``rate``, with the laser gate's
+``laser_on`` intervals. A failed target is a status; it never stops the others.
 """
 
 from __future__ import annotations
@@ -20,7 +21,6 @@ from planner.beam.trace import trace_beam
 from planner.ik import BeamIK, IKOptions, Solution
 from planner.io.plan_file import plan_json as plan_json  # re-exported
 from planner.io.plan_file import write_plan as write_plan
-from planner.model.polyline import runs
 from planner.model.status import Reason, Status
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
@@ -199,7 +199,7 @@ def plan_document(
     metrics = plan_metrics(solutions, duration)
     metrics["extra"] |= extra or {}
     requested = trajectory is not None if trajectory_requested is None else trajectory_requested
-    return {
+    doc = {
         "schema": PLAN_SCHEMA,
         "scenario": scenario,
         "robots": list(system.robot_names),
@@ -210,6 +210,12 @@ def plan_document(
         "trajectory_requested": bool(requested),
         "metrics": metrics,
     }
+    power = ((scenario.get("system") or {}).get("laser") or {}).get("power")
+    if power is not None and "targets" in scenario:
+        from planner.verify.marking import exposure
+
+        metrics["exposure"] = exposure(doc, float(power))
+    return doc
 
 
 class Timed(NamedTuple):
@@ -231,12 +237,15 @@ def time_solutions(
     order: str = "optimal",
     path: PathResult | None = None,
     progress: Progress | None = None,
+    skywriting: bool = True,
 ) -> Timed | None:
     """Time the solved targets from ``q_start`` (stacked rad, default home) at the scenario
     ``rate`` (Hz). Points/grid: rest-to-rest Ruckig moves in the ``optimal`` (or ``given``)
-    order with ``dwell`` s on each. Path: each feasible run (``path.segments``, else runs of
-    consecutive solved samples) swept at ``spot_speed`` (m/s). None if nothing was solved."""
-    from planner.path.timing import path_trajectory, points_trajectory
+    order with ``dwell`` s on each (laser on while dwelling). Path: each stroke's runs of
+    solved samples marked at ``spot_speed`` (m/s) between a run-in and a run-out
+    (:func:`planner.path.marking.mark_runs`; ``skywriting=False``: from rest to rest, for
+    comparison only), laser on only on the path. None if nothing was solved."""
+    from planner.path.timing import points_trajectory
 
     rate = settings.rate
     q0 = system.home if q_start is None else np.asarray(q_start, dtype=float)
@@ -249,18 +258,31 @@ def time_solutions(
         )
         figures = {"duration_given_order": visit.duration_given,
                    "duration_chosen_order": visit.duration_optimised}  # fmt: skip
-        return Timed(traj, visit, figures | limit_ratios(system, traj))
+        return Timed(traj, visit, figures | limit_ratios(system, traj) | posture(system, Q))
     from planner.model.polyline import arc_length
+    from planner.path.marking import mark_runs, marking_trajectory
 
     arc = path.arc if path is not None else arc_length(targets.points)
-    ok = np.isfinite(Q).all(axis=1)
-    spans = [(s.k0, s.k1) for s in path.segments] if path is not None else runs(ok)
-    pieces = [(Q[a:b], arc[a:b]) for k0, k1 in spans for a, b in runs(ok[k0:k1], k0)]
-    traj = path_trajectory(system, pieces, q0, settings.spot_speed, rate)
+    speed, tol = settings.spot_speed, settings.path_tolerance
+    pieces = mark_runs(system, targets, Q, arc, speed, skywriting=skywriting)
+    traj = marking_trajectory(system, pieces, q0, speed, rate, tol)
     figures = {"path_time": traj.span("path"), "path_length": float(arc[-1]),
                "path_deviation_max": path_deviation(system, targets, traj),
-               "slowdowns": float(len(traj.slowdowns))}  # fmt: skip
-    return Timed(traj, None, figures | limit_ratios(system, traj))
+               "slowdowns": float(len(traj.slowdowns)),
+               "approach_time": traj.span("approach")}  # fmt: skip
+    return Timed(traj, None, figures | limit_ratios(system, traj) | posture(system, Q))
+
+
+def posture(system: System, Q: Array) -> dict[str, float]:
+    """Largest and median condition number of the arms' Jacobians over the solved rows of
+    ``Q`` (:func:`planner.path.solve.jacobian_condition`)."""
+    from planner.path.solve import jacobian_condition
+
+    cond = jacobian_condition(system, Q)
+    if not len(cond):
+        return {}
+    return {"jacobian_condition_max": float(cond.max()),
+            "jacobian_condition_median": float(np.median(cond))}  # fmt: skip
 
 
 def limit_ratios(system: System, traj: Trajectory) -> dict[str, float]:
@@ -358,7 +380,8 @@ def run_scenario(
     model = scene_model(loaded) if scene else None
     options = ik_options(scn.solver, optimal)
     settings = trajectory_settings(loaded)
-    order = "given" if scn.targets.order == "given" else "optimal"
+    order_key = settings.order or scn.targets.order
+    order = "given" if order_key == "given" else "optimal"
     columns = ("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
                TimeRemainingColumn())  # fmt: skip
     path = None

@@ -5,7 +5,8 @@ origins (Pinocchio FK of every joint), the mirror as a square patch, the beam fr
 through every mirror to the spot (``make demo`` uses it for the README picture).
 :func:`plot_plan` draws a plan.json document's solutions that way. :func:`plot_profiles`
 draws the timed trajectory: joint profiles (q, qd and qdd as % of the limits) vs t, the spot
-trace against the target path, and the spot's deviation (or the move durations for points).
+trace against the target path, the fluence along the marked path (power / speed, J/m; the
+marked speed without a power) and the spot's deviation (or the move durations for points).
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ from planner.model.system import System, Targets
 from planner.model.transforms import Array, inv_T
 
 _COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:purple")
-_SEGMENT_COLOURS = {"approach": "0.92", "move": "0.92", "path": "#e3f2e1", "dwell": "#fdf0d5"}
+_SEGMENT_COLOURS = {"approach": "0.92", "move": "0.92", "path": "#e3f2e1", "dwell": "#fdf0d5",
+                    "run_in": "#e6eefa", "run_out": "#e6eefa"}  # fmt: skip
 
 
 def arm_points(system: System, q: Array) -> list[Array]:
@@ -175,6 +177,32 @@ def _arrival_spots(system: System, plan: dict[str, Any], targets: Targets, Q: Ar
     return _plane_spots(p, v, targets.points[k], nrm)
 
 
+def _fluence_panel(ax: Any, plan: dict[str, Any]) -> None:
+    """Fluence (J/m = power / spot speed) along the marked length (mm), or the marked spot
+    speed (mm/s) when the scenario gives no laser power."""
+    from planner.verify.marking import marked_speeds
+
+    speeds = marked_speeds(plan)
+    if speeds is None:
+        return
+    v, _, s = speeds
+    power = ((plan["scenario"].get("system") or {}).get("laser") or {}).get("power")
+    if power is None:
+        ax.plot(1e3 * s, 1e3 * v, "g.", ms=1)
+        ax.set_ylabel("marked speed (mm/s)")
+        ax.set_title(f"spot speed while the laser is on: {1e3 * v.min():.3f} - "
+                     f"{1e3 * v.max():.3f} mm/s", fontsize=9)  # fmt: skip
+    else:
+        fluence = float(power) / np.maximum(v, 1e-12)
+        ax.plot(1e3 * s, fluence, "g.", ms=1)
+        ax.set_ylabel("fluence (J/m)")
+        ax.set_title(f"fluence {fluence.min():.4g} - {fluence.max():.4g} J/m at "
+                     f"{1e3 * float(power):g} mW (max/min {fluence.max() / fluence.min():.4f})",
+                     fontsize=9)  # fmt: skip
+    ax.set_xlabel("marked length (mm)")
+    ax.grid(alpha=0.3)
+
+
 def plot_profiles(system: System, targets: Targets, plan: dict[str, Any], path: str | Path) -> None:
     """Joint profiles (q rad; qd, qdd in % of each joint's limit) vs t with the segments
     shaded, the spot trace vs the target path (mm, in the targets' principal plane) and the
@@ -217,13 +245,22 @@ def plot_profiles(system: System, targets: Targets, plan: dict[str, Any], path: 
     axes[2].set_xlabel("t (s)")
     handles, names = axes[0].get_legend_handles_labels()
     fig.legend(handles, names, loc="lower center", ncol=6, fontsize=7, frameon=False)
-    shades = {"path": "path green", "dwell": "dwell amber", "approach": "moves grey"}
+    shades = {
+        "path": "path green (laser on)",
+        "dwell": "dwell amber (laser on)",
+        "approach": "moves grey",
+        "run_in": "run-in/out blue",
+        "run_out": "run-in/out blue",
+    }
     shown = {shades.get(s["kind"], "moves grey") for s in segments}
     axes[0].set_title(f"joint profiles (shaded: {', '.join(sorted(shown))})", fontsize=9)
 
     P = targets.points
     c, e1, e2 = _plane_axes(P)
-    ax_xy = fig.add_subplot(grid[0:2, 1])
+    marks = targets.kind == "path" and bool(traj.get("laser_on"))
+    ax_xy = fig.add_subplot(grid[0, 1] if marks else grid[0:2, 1])
+    if marks:
+        _fluence_panel(fig.add_subplot(grid[1, 1]), plan)
     if targets.kind == "path":
         ax_xy.plot(1e3 * (P - c) @ e1, 1e3 * (P - c) @ e2, "k-", lw=3, alpha=0.25,
                    label="target path")  # fmt: skip

@@ -27,6 +27,8 @@ TRAJECTORY_SCHEMA: Final = "beamrelay.trajectory/1"
 ERROR_SCHEMA: Final = "beamrelay.error/1"
 JOINT_STATE_SCHEMA: Final = "beamrelay.joint_state/1"
 STATUS_SCHEMA: Final = "beamrelay.status/1"
+LASER_SCHEMA: Final = "beamrelay.laser/1"
+MAX_LASER_INTERVALS = 100_000  # laser_on intervals per trajectory
 SPOT_SCHEMA: Final = "beamrelay.spot/1"
 HEARTBEAT_SCHEMA: Final = "beamrelay.heartbeat/1"
 STOP_SCHEMA: Final = "beamrelay.stop/1"
@@ -120,12 +122,28 @@ class JointTrajectory(StrictModel):
     q: list[JointVector]
     qd: list[JointVector]
     qdd: list[JointVector]
+    laser_on: (
+        Annotated[
+            list[Annotated[list[Num], exact_length(2)]], Field(max_length=MAX_LASER_INTERVALS)
+        ]
+        | None
+    ) = None
+    """for the robot whose digital output gates the laser: the intervals ``[t0, t1]`` (s, on
+    the ``t`` axis) in which the gate is on; off outside them"""
 
     @model_validator(mode="after")
     def _shapes(self) -> Self:
         for k in range(1, len(self.t)):
             if self.t[k] <= self.t[k - 1]:
                 raise FieldError(("t", k), "times must increase")
+        for k, (t0, t1) in enumerate(self.laser_on or []):
+            if not t0 <= t1:
+                raise FieldError(("laser_on", k), f"ends ({t1:g} s) before it starts ({t0:g} s)")
+            if k and t0 < self.laser_on[k - 1][1]:  # type: ignore[index]
+                raise FieldError(("laser_on", k), "intervals must be in order, not overlapping")
+            if t0 < self.t[0] or t1 > self.t[-1]:
+                raise FieldError(("laser_on", k), f"[{t0:g}, {t1:g}] s is outside the "
+                                 f"trajectory's [{self.t[0]:g}, {self.t[-1]:g}] s")  # fmt: skip
         for key in ("q", "qd", "qdd"):
             rows: list[list[float]] = getattr(self, key)
             if len(rows) != len(self.t):
@@ -164,6 +182,25 @@ class RobotStatus(StrictModel):
     protective_stop: StrictBool = False
     fault: str | None = None
     trajectory: TrajectoryAck | None = None
+    laser_on: StrictBool | None = None
+    """the laser gate's state, from the driver of the robot that switches it (else null)"""
+
+
+class LaserState(StrictModel):
+    """The laser gate as its robot driver last switched it (published on ``<prefix>/laser``
+    at every switch and with every status): ``on``, the digital ``output`` index, why it
+    changed, and the switching figures of the last switch: ``lag`` (s of trajectory time
+    between the interval's edge and the control period that switched) and ``latency`` (s
+    from the start of that period to the output command). ``t`` is UNIX time."""
+
+    schema_: Literal["beamrelay.laser/1"] = Field(default=LASER_SCHEMA, alias="schema")
+    robot: str
+    t: Num
+    on: StrictBool
+    output: NonNegInt | None = None
+    reason: str | None = None
+    lag: Num | None = None
+    latency: Num | None = None
 
 
 class Heartbeat(StrictModel):

@@ -80,9 +80,12 @@ class Solution(StrictModel):
 
 
 class Segment(StrictModel):
-    """A labelled time span ``[t0, t1]`` (s) of the trajectory."""
+    """A labelled time span ``[t0, t1]`` (s) of the trajectory: ``approach``/``move`` (spot
+    not on a target), ``run_in``/``run_out`` (spot accelerating onto / leaving a path along
+    its extension, laser off), ``path`` (spot on the path), ``dwell`` (spot held on a
+    target)."""
 
-    kind: Literal["approach", "move", "path", "dwell"]
+    kind: Literal["approach", "move", "run_in", "path", "run_out", "dwell"]
     t0: Num
     t1: Num
 
@@ -93,20 +96,48 @@ class Segment(StrictModel):
         return self
 
 
+class Slowdown(StrictModel):
+    """Where the marked spot runs slower than the spot speed because a joint limit binds:
+    arc length ``s0``..``s1`` (m) along the path, trajectory time ``t0``..``t1`` (s), the
+    binding ``limit``, the joint (``robot``, index ``joint``; -1 and null when the spot
+    acceleration ramp did not fit) and the slowest speed reached (m/s)."""
+
+    s0: Num
+    s1: Num
+    t0: Num
+    t1: Num
+    limit: Literal["spot", "velocity", "acceleration", "jerk"]
+    robot: str | None = None
+    joint: int = -1
+    speed: NonNegNum
+
+
 class Trajectory(StrictModel):
-    """Dense joint trajectory at the scenario's rate: ``q[robot][k]`` at time ``t[k]``."""
+    """Dense joint trajectory at the scenario's rate: ``q[robot][k]`` at time ``t[k]``.
+
+    ``laser_on``: the time intervals ``[t0, t1]`` (s) in which the laser gate is on (off
+    outside them); ``slowdowns``: where the marked spot is slower than the spot speed."""
 
     t: list[Num]
     q: dict[str, JointRows]
     qd: dict[str, JointRows]
     qdd: dict[str, JointRows]
     segments: list[Segment] = Field(default_factory=list)
+    laser_on: list[Annotated[list[Num], Field(min_length=2, max_length=2)]] = Field(
+        default_factory=list
+    )
+    slowdowns: list[Slowdown] = Field(default_factory=list)
 
     @model_validator(mode="after")
     def _shapes(self) -> Self:
         for k in range(1, len(self.t)):
             if self.t[k] < self.t[k - 1]:
                 raise FieldError(("t", k), "times must not decrease")
+        for k, (t0, t1) in enumerate(self.laser_on):
+            if t1 < t0:
+                raise FieldError(("laser_on", k), f"ends ({t1:g} s) before it starts ({t0:g} s)")
+            if k and t0 < self.laser_on[k - 1][1]:
+                raise FieldError(("laser_on", k), "intervals must be in order, not overlapping")
         for key in ("q", "qd", "qdd"):
             table: dict[str, list[list[float]]] = getattr(self, key)
             if set(table) != set(self.q):
@@ -117,6 +148,15 @@ class Trajectory(StrictModel):
                         (key, robot), f"expected {len(self.t)} rows (one per t), got {len(rows)}"
                     )
         return self
+
+
+class Exposure(StrictModel):
+    """What the laser deposits (with ``laser.power``): fluence along paths (J/m = power /
+    spot speed) at its smallest and largest over the marked samples, energy per dwell (J)."""
+
+    fluence_min: NonNegNum | None = None
+    fluence_max: NonNegNum | None = None
+    dwell_energy: NonNegNum | None = None
 
 
 class Metrics(StrictModel):
@@ -132,6 +172,7 @@ class Metrics(StrictModel):
     solve_time_median: NonNegNum | None = None
     solve_time_p95: NonNegNum | None = None
     duration: NonNegNum | None = None
+    exposure: Exposure | None = None
     extra: dict[str, Num] = Field(default_factory=dict)
 
 

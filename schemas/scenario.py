@@ -27,6 +27,7 @@ from schemas.common import (
     MAX_WORLD_M,
     FieldError,
     JointVector,
+    NonNegInt,
     NonNegNum,
     Num,
     Pose,
@@ -46,13 +47,26 @@ UR_NQ = 6
 PosVec2 = Annotated[list[PosNum], exact_length(2)]
 PosVec3 = Annotated[list[PosNum], exact_length(3)]
 Name = Annotated[str, Field(min_length=1)]
+MAX_LASER_POWER_W = 1000.0
+"""A laser power (W) above this is no laser a lab steers with mirrors on arms."""
 
 
 # --- system -------------------------------------------------------------------------------
+class LaserGate(StrictModel):
+    """The digital output (index ``output``) of robot ``robot`` that switches the laser."""
+
+    robot: Name
+    output: Annotated[NonNegInt, Field(le=7)] = 0
+
+
 class Laser(StrictModel):
-    """The fixed laser: the beam exits at the origin of ``world_T_laser`` along its +z."""
+    """The fixed laser: the beam exits at the origin of ``world_T_laser`` along its +z.
+    ``power`` (W, optional) gives the plan's exposure figures; ``gate`` names the robot
+    digital output that switches it."""
 
     world_T_laser: Pose
+    power: Annotated[PosNum, Field(le=MAX_LASER_POWER_W)] | None = None
+    gate: LaserGate | None = None
 
     @model_validator(mode="after")
     def _plausible(self) -> Self:
@@ -208,6 +222,17 @@ class System(StrictModel):
             )
         return self
 
+    @model_validator(mode="after")
+    def _gate_robot(self) -> Self:
+        gate = self.laser.gate
+        names = [r.name for r in self.robots]
+        if gate is not None and gate.robot not in names:
+            raise FieldError(
+                ("laser", "gate", "robot"),
+                f"no robot named {gate.robot!r} (robots: {', '.join(names)})",
+            )
+        return self
+
 
 # --- partial system (include files, truth) --------------------------------------------------
 class PartialLaser(StrictModel):
@@ -354,11 +379,15 @@ class Solver(StrictModel):
 
 
 class TrajectorySettings(StrictModel):
-    """Path timing: spot speed (m/s), dwell per target (s), sample rate (Hz)."""
+    """Path timing: spot speed (m/s), dwell per target (s), sample rate (Hz), the largest
+    distance (m) of the spot from the path while the laser is on, and the visit order of
+    points (``optimal``/``optimized`` or ``given``; overrides ``targets.order``)."""
 
     spot_speed: PosNum = defaults.SPOT_SPEED_MPS
     dwell: NonNegNum = defaults.DWELL_S
     rate: PosNum = defaults.SERVO_RATE_HZ
+    path_tolerance: Annotated[PosNum, Field(le=MAX_TOLERANCE)] = defaults.PATH_TOLERANCE_M
+    order: Literal["optimal", "optimized", "given"] | None = None
 
     @model_validator(mode="after")
     def _plausible(self) -> Self:

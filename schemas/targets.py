@@ -55,13 +55,18 @@ class GridSpec(StrictModel):
 class PathSpec(StrictModel):
     """A polyline swept continuously, resampled every ``spacing`` m (closed: back to start).
 
-    ``normals`` are per vertex and interpolated between vertices.
+    ``normals`` are per vertex and interpolated between vertices. Where the direction turns
+    by more than ``corner_deg`` (degrees) the corner is marked sharp (laser off at the vertex,
+    run out, turn, run in); smaller turns are swept continuously. ``smooth`` reads the points
+    as samples of a smooth curve through them (no corners).
     """
 
     points: Annotated[list[Vec3], Field(min_length=2)]
     normals: list[Vec3] | None = None
     closed: StrictBool = False
     spacing: PosNum = defaults.PATH_SPACING_M
+    corner_deg: Annotated[PosNum, Field(le=180)] = 20.0
+    smooth: StrictBool = False
 
     @model_validator(mode="after")
     def _normals(self) -> Self:
@@ -74,7 +79,8 @@ class TargetSpec(StrictModel):
     """Where the spot should go: exactly one of ``points`` (+``normals``), ``grid``, ``path``.
 
     Coordinates are in ``frame`` (``world``, or ``camera`` = the camera's optical frame).
-    ``order: optimized`` lets the planner reorder points/grid targets.
+    ``order: optimal`` (default; ``optimized`` is the same) lets the planner reorder
+    points/grid targets, ``given`` keeps the file order.
     """
 
     frame: Literal["world", "camera"] = "world"
@@ -82,7 +88,7 @@ class TargetSpec(StrictModel):
     normals: list[Vec3] | None = None
     grid: GridSpec | None = None
     path: PathSpec | None = None
-    order: Literal["optimized", "given"] = "optimized"
+    order: Literal["optimal", "optimized", "given"] = "optimal"
 
     @model_validator(mode="after")
     def _one_kind(self) -> Self:

@@ -112,6 +112,8 @@ class CameraNode(LoopNode):
         self._pub_points = s.declare_publisher(k.camera_points)
         for robot in self.source.robot_names:
             self._handles.append(s.declare_subscriber(k.joint_states(robot), self._joints(robot)))
+        if hasattr(self.source, "on_laser"):  # a source that sees the spot only when lit
+            self._handles.append(s.declare_subscriber(k.laser, self._on_laser))
         self._handles.append(s.liveliness().declare_token(k.alive("camera")))
         self._start_loop("camera")
         return self
@@ -128,6 +130,15 @@ class CameraNode(LoopNode):
             self.source.on_joint_state(robot, np.asarray(msg.q, dtype=float))
 
         return on_state
+
+    def _on_laser(self, sample: Any) -> None:
+        from schemas.messages import LaserState
+
+        try:
+            msg = decode(sample.payload.to_bytes(), LaserState)
+        except InputError:
+            return  # a malformed state is ignored; the last good one stays
+        self.source.on_laser(msg.on)  # type: ignore[attr-defined]
 
     def _loop(self) -> None:
         next_t = time.monotonic()

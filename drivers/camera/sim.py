@@ -11,7 +11,10 @@ every frame only redraws the D435 depth noise, Gaussian along the pixel's ray wi
 (Intel's RMS-error model; 1.3 mm at 0.6 m with fx = 430 px). Points are in the camera
 optical frame (x right, y down, z forward), float32; pixels that see nothing are dropped.
 
-Laser spot: the *true* beam - the latest joint states of every robot traced with the
+Laser spot: only while the laser is on. With a gate (the scenario's ``laser.gate``,
+``gated``) that is while the last :class:`schemas.messages.LaserState` on ``<prefix>/laser``
+(published by the gate robot's driver at every switch) says ``on``, off before any; without
+one the laser counts as always on. The *true* beam - the latest joint states of every robot traced with the
 ``truth:`` geometry (:class:`planner.beam.graph.BeamModel`) - must be a valid reflection chain
 (ahead, front face, inside each ROI), else no spot. Each beam segment is raycast against the
 scene (an object in the way catches the beam there), the last one gives the spot. It must be
@@ -87,8 +90,9 @@ class SimCamera:
     kind = "sim"
 
     def __init__(
-        self, system: System, items: list[SceneItem], *, stride: int = 1, seed: int | None = None
-    ) -> None:
+        self, system: System, items: list[SceneItem], *, stride: int = 1, seed: int | None = None,
+        gated: bool = False,
+    ) -> None:  # fmt: skip
         from planner.errors import InputError
 
         if system.camera is None:
@@ -103,6 +107,8 @@ class SimCamera:
         self.beam = BeamModel(system)
         self.robot_names = system.robot_names
         self.q: dict[str, Array] = {}
+        self.gated = gated
+        self.laser = False  # the gate's last published state (off until told otherwise)
         z, rays = render_depth(self.scene, self.camera, stride)
         ok = np.isfinite(z)
         self._z = z[ok].astype(np.float32)
@@ -113,6 +119,10 @@ class SimCamera:
     def on_joint_state(self, robot: str, q: Array) -> None:
         """Latest measured joints of one robot (rad)."""
         self.q[robot] = np.asarray(q, dtype=float)
+
+    def on_laser(self, on: bool) -> None:
+        """The laser gate's state (``<prefix>/laser``)."""
+        self.laser = bool(on)
 
     def grab(self) -> None:
         """Nothing to grab: the scene is rendered on demand."""
@@ -126,7 +136,10 @@ class SimCamera:
         return pts, meta
 
     def true_spot_world(self) -> tuple[Array, Array, Array] | None:
-        """Noiseless spot in the world, the beam direction and surface normal there, or None."""
+        """Noiseless spot in the world, the beam direction and surface normal there, or None
+        (also while a gated laser is off)."""
+        if self.gated and not self.laser:
+            return None
         if not all(r in self.q for r in self.robot_names):
             return None
         tr = self.beam.trace(self.system.stack_q(self.q))

@@ -45,14 +45,31 @@ STOP_ACCELERATION = 40.0  # rad/s^2, deceleration of a watchdog/fault stop
 STOP_JERK = 4000.0  # rad/s^3
 
 
+LASER_EDGE = 1e-6  # s: slack on a laser interval's ends (they lie on the period grid)
+
+
 @dataclass(frozen=True)
 class Reference:
-    """A joint trajectory: ``q[k], qd[k], qdd[k]`` (K x n) at ``t[k]`` s from its start."""
+    """A joint trajectory: ``q[k], qd[k], qdd[k]`` (K x n) at ``t[k]`` s from its start;
+    ``laser_on`` (m x 2, s on the same axis, or None) the intervals in which the laser gate
+    is on."""
 
     t: Array
     q: Array
     qd: Array
     qdd: Array
+    laser_on: Array | None = None
+
+    def laser_edge(self, tau: float) -> float | None:
+        """The start (gate on) of the laser interval containing ``tau`` s after the first
+        sample, or None when the gate is off then."""
+        if self.laser_on is None or not len(self.laser_on):
+            return None
+        rel = self.laser_on - self.t[0]
+        k = int(np.searchsorted(rel[:, 0], tau + LASER_EDGE, side="right")) - 1
+        if k >= 0 and tau <= rel[k, 1] + LASER_EDGE:
+            return float(rel[k, 0])
+        return None
 
     @property
     def duration(self) -> float:
@@ -114,6 +131,18 @@ class TrajectoryFollower:
     @property
     def state(self) -> FollowerState:
         return FollowerState(self.q.copy(), self.qd.copy(), self.qdd.copy(), self.mode)
+
+    @property
+    def tau(self) -> float:
+        """Time (s) since the followed reference's first sample (0 outside ``following``)."""
+        return self._tau if self.mode == "following" else 0.0
+
+    def laser_edge(self) -> float | None:
+        """While a reference is played: the start (s, reference time) of the laser interval
+        the current sample lies in; None (gate off) in every other mode and outside them."""
+        if self.mode != "following" or self.reference is None:
+            return None
+        return self.reference.laser_edge(self._tau)
 
     def follow(self, reference: Reference) -> None:
         """Start a new trajectory (replaces any current one): approach its start, then play."""

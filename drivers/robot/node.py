@@ -16,7 +16,18 @@ Bus (``<prefix>`` = the namespace, ``beamrelay`` by default):
   process (:mod:`drivers.robot.intake`, checks in :mod:`drivers.robot.trajectory_check`); the loop picks
   up ready verdicts without waiting;
 - subscribes ``<prefix>/heartbeat`` (:class:`schemas.messages.Heartbeat`) and
-  ``<prefix>/stop``, declares ``<prefix>/alive/<robot>`` and watches ``<prefix>/alive/planner``.
+  ``<prefix>/stop``, declares ``<prefix>/alive/<robot>`` and watches ``<prefix>/alive/planner``;
+- with a laser gate (``gate_output``: this robot's digital output switches the laser):
+  publishes ``<prefix>/laser`` (:class:`schemas.messages.LaserState`) at every switch and
+  with every status; the status carries ``laser_on``.
+
+Laser gate: switched in the control loop, in the period that plays the trajectory's
+``laser_on`` intervals (:meth:`drivers.robot.follower.Reference.laser_edge`), by the
+backend's ``set_gate`` (sim: recorded; UR: ``setStandardDigitalOut``). It is off at start-up,
+outside ``following`` (approach, settle, braking, idle), on a backend fault, and forced off
+first thing in every safety stop and at exit (:class:`drivers.robot.gate.LaserGate`, which
+records each switch: its lag behind the interval's edge in trajectory time and its latency
+from the period's start). A trajectory with ``laser_on`` sent to a driver without a gate is refused.
 
 Acceptance, decided in the control loop when the worker's verdict arrives:
 
@@ -56,6 +67,7 @@ import numpy as np
 
 from drivers.loop_node import LoopNode
 from drivers.robot.follower import Reference, TrajectoryFollower
+from drivers.robot.gate import LaserGate
 from drivers.robot.intake import TrajectoryIntake, Verdict
 from drivers.robot.trajectory_check import START_TOLERANCE, check_start
 from drivers.robot.trajectory_check import check_trajectory as check_trajectory
@@ -96,6 +108,7 @@ class RobotBackend(Protocol):
     def command(self, reference: Reference) -> None: ...
     def queue(self, reference: Reference) -> None: ...
     def brake(self, reason: str) -> None: ...
+    def set_gate(self, on: bool) -> None: ...
     def close(self) -> None: ...
 
 
@@ -122,8 +135,11 @@ class RobotNode(LoopNode):
         status_rate: float = 10.0,
         start_tolerance: float = START_TOLERANCE,
         require_planner: bool = True,
+        gate_output: int | None = None,
     ) -> None:
         super().__init__()
+        self.gate_output = gate_output
+        self.gate: LaserGate | None = None  # made in start() (it publishes)
         self.session = session
         self.keys = keys
         self.robot = robot
@@ -157,6 +173,10 @@ class RobotNode(LoopNode):
         self.intake.start()
         self._pub_state = s.declare_publisher(k.joint_states(self.robot), encoding=JSON)
         self._pub_status = s.declare_publisher(k.status(self.robot), encoding=JSON)
+        if self.gate_output is not None:
+            pub = s.declare_publisher(k.laser, encoding=JSON)
+            self.gate = LaserGate(self.robot, self.gate_output, self.backend, pub.put)
+            self.gate.force_off("start-up")
         self._handles = [
             s.declare_subscriber(k.trajectory(self.robot), self._on_trajectory),
             s.declare_subscriber(k.heartbeat, self._on_heartbeat),
@@ -168,7 +188,9 @@ class RobotNode(LoopNode):
         return self
 
     def _close(self) -> None:
-        """Stop the arm (backend ``close``) and the parse worker."""
+        """Laser off, stop the arm (backend ``close``) and the parse worker."""
+        if self.gate is not None:
+            self.gate.force_off("driver exit")
         self.backend.close()
         self.intake.close()
 
@@ -207,7 +229,10 @@ class RobotNode(LoopNode):
         tick, last_mode = 0, ""
         while not self._stop.is_set():
             self.backend.begin_period()
-            self.period_starts[self.n_periods % PERIOD_LOG] = time.monotonic()
+            now = time.monotonic()
+            self.period_starts[self.n_periods % PERIOD_LOG] = now
+            if self.gate is not None:
+                self.gate.period_start = now
             self.n_periods += 1
             self._watch()
             for verdict in self.intake.take():
@@ -215,6 +240,8 @@ class RobotNode(LoopNode):
                 self._publish_status(self.backend.measured())
             m = self.backend.step()
             self._track()
+            if self.gate is not None:
+                self.gate.update(m.fault)
             if tick % self._state_every == 0:
                 state = JointState(
                     t=time.time(), names=list(self.backend.names), q=m.q.tolist(),
@@ -248,9 +275,10 @@ class RobotNode(LoopNode):
                 return
 
     def _safe_stop(self, reason: str) -> None:
-        """Every safety stop goes through here: brake with the stop deceleration, drop the
-        queued trajectory, and say why in the status. The laser gate, once drivers drive
-        one, is forced off here too."""
+        """Every safety stop goes through here: laser gate off, brake with the stop
+        deceleration, drop the queued trajectory, and say why in the status."""
+        if self.gate is not None:
+            self.gate.force_off(reason)
         self.backend.brake(reason)
         self._running = self._queued = None
         self.stopped_by = reason
@@ -268,6 +296,9 @@ class RobotNode(LoopNode):
         try:
             if v.reference is None:
                 raise InputError(v.reason or "rejected", "")
+            if v.reference.laser_on is not None and self.gate_output is None:
+                raise InputError("laser_on given, but this driver switches no laser gate "
+                                 "(laser.gate names another robot, or none)", "laser_on")  # fmt: skip
             self._admissible(v)
             acc = Accepted(v.id, v.session, v.reference)
             if self.backend.follower.mode in EXECUTING and self._running is not None:
@@ -316,8 +347,11 @@ class RobotNode(LoopNode):
         fault = m.fault or self.rejection or self.stopped_by
         if fault is None and not self.planner_alive and self.require_planner:
             fault = "no planner alive (watchdog)"
+        laser = self.gate.on if self.gate is not None else None
         msg = RobotStatus(
             robot=self.robot, t=time.time(), mode=m.mode, protective_stop=m.protective_stop,
-            fault=fault, trajectory=self.ack,
+            fault=fault, trajectory=self.ack, laser_on=laser,
         )  # fmt: skip
         self._pub_status.put(encode(msg))
+        if self.gate is not None:
+            self.gate.publish()

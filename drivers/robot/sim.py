@@ -43,6 +43,8 @@ class SimRobot:
         self.follower = TrajectoryFollower(q0, limits, self.dt, stop_acceleration)
         self.realtime = realtime
         self._next = time.monotonic()
+        self.gate = False  # the simulated laser gate output
+        self.gate_calls: list[tuple[float, bool]] = []  # (monotonic s, state) per command
 
     def begin_period(self) -> None:
         """Nothing to do for the model (the UR backend starts its RTDE period here)."""
@@ -81,6 +83,12 @@ class SimRobot:
 
     def brake(self, reason: str) -> None:
         self.follower.brake()
+
+    def set_gate(self, on: bool) -> None:
+        """The simulated digital output that switches the laser (recorded with its time)."""
+        self.gate = bool(on)
+        self.gate_calls.append((time.monotonic(), self.gate))
+        del self.gate_calls[:-4096]
 
     def close(self) -> None:
         self.follower.brake()

@@ -17,7 +17,10 @@ Every check and watchdog of :mod:`drivers.robot.node` applies here unchanged (po
 and limit checks, planner heartbeat and liveliness, ``<prefix>/stop``, parsing in a worker
 process): a safety stop calls :meth:`URRobot.brake`, a jerk-limited stop through ``servoJ``,
 then ``servoStop``. :meth:`URRobot.close` (Ctrl-C, node exit) calls
-``servoStop()`` and disconnects. How to run it on a real arm: ``drivers/README.md``.
+``servoStop()`` and disconnects. The laser gate (``gate_output``) is the controller's
+standard digital output of that index, set through ``RTDEIOInterface.setStandardDigitalOut``
+by :meth:`URRobot.set_gate` (the node decides when); it goes off on entering a fault and
+at exit. How to run it on a real arm: ``drivers/README.md``.
 """
 
 from __future__ import annotations
@@ -59,6 +62,8 @@ class URRobot:
         stop_acceleration: float = STOP_ACCELERATION,
         control: Any = None,
         receive: Any = None,
+        gate_output: int | None = None,
+        io: Any = None,
     ) -> None:
         if not LOOKAHEAD_RANGE[0] <= lookahead_time <= LOOKAHEAD_RANGE[1]:
             raise InputError(
@@ -75,6 +80,11 @@ class URRobot:
             control, receive = _connect(host, self.rate)
         self.control = control
         self.receive = receive
+        self.gate_output = gate_output
+        if gate_output is not None and io is None:
+            io = _connect_io(host)
+        self.io = io
+        self.gate_calls: list[tuple[float, int, bool]] = []  # (monotonic s, output, state)
         self.control.setWatchdog(watchdog_hz)
         self.follower = TrajectoryFollower(
             np.asarray(self.receive.getActualQ(), dtype=float), limits, self.dt, stop_acceleration
@@ -94,7 +104,8 @@ class URRobot:
         qd = np.asarray(self.receive.getActualQd(), dtype=float)
         fault = self._read_fault()
         if fault is not None:
-            if self.fault is None:  # entering the fault: stop servoing once
+            if self.fault is None:  # entering the fault: laser off, stop servoing once
+                self.set_gate(False)
                 self._servo_stop()
                 self.follower.reset(q)
             self.fault = fault
@@ -158,8 +169,20 @@ class URRobot:
     def brake(self, reason: str) -> None:
         self.follower.brake()
 
+    def set_gate(self, on: bool) -> None:
+        """The laser gate: standard digital output ``gate_output`` through RTDE IO (no-op
+        without one). Every command is recorded with its monotonic time."""
+        if self.gate_output is None or self.io is None:
+            return
+        import time
+
+        self.io.setStandardDigitalOut(self.gate_output, bool(on))
+        self.gate_calls.append((time.monotonic(), self.gate_output, bool(on)))
+        del self.gate_calls[:-4096]
+
     def close(self) -> None:
-        """Ctrl-C / exit: stop servoing and disconnect."""
+        """Ctrl-C / exit: laser off, stop servoing and disconnect."""
+        self.set_gate(False)
         self._servo_stop()
         self.control.disconnect()
         self.receive.disconnect()
@@ -176,3 +199,15 @@ def _connect(host: str, rate: float) -> tuple[Any, Any]:
     except RuntimeError as exc:  # ur_rtde raises RuntimeError on connection failures
         raise InputError(f"cannot connect to the UR controller: {exc}", f"--host {host}") from exc
     return control, receive
+
+
+def _connect_io(host: str) -> Any:
+    """The RTDE IO interface that drives the laser gate output (InputError when unreachable)."""
+    from rtde_io import RTDEIOInterface
+
+    try:
+        return RTDEIOInterface(host)
+    except RuntimeError as exc:
+        raise InputError(
+            f"cannot open RTDE IO on the UR controller: {exc}", f"--host {host}"
+        ) from exc

@@ -31,8 +31,9 @@ def command(
 
     from planner.errors import InputError
     from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
+    from planner.model.polyline import arc_length, resample_polyline
     from planner.model.system import Targets
-    from planner.path.solve import arc_length, plan_path, resample_polyline
+    from planner.path.solve import plan_path
 
     try:
         Ks = [int(k) for k in sizes.split(",")]

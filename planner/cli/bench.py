@@ -6,11 +6,18 @@ from __future__ import annotations
 
 import typer
 
-from planner.bench import ik, path, plan, safety, service
+from planner.bench import ik, marking, path, plan, safety, service
 
 app = typer.Typer(help="Benchmarks (figures printed, not asserted).", no_args_is_help=True)
 
-BENCHMARKS = {"ik": ik, "path": path, "service": service, "plan": plan, "safety": safety}
+BENCHMARKS = {
+    "ik": ik,
+    "path": path,
+    "marking": marking,
+    "service": service,
+    "plan": plan,
+    "safety": safety,
+}
 """Command name -> benchmark module (its ``command`` is the sub-command)."""
 
 for _name, _module in BENCHMARKS.items():

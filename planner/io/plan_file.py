@@ -37,7 +37,11 @@ def write_plan(doc: dict[str, Any], out: TextIO, digits: int = 10, chunk: int = 
             out.write(("," if n else "") + json.dumps(robot) + ":")
             rows(table)
         out.write("}")
-    out.write(f',\n"segments":{json.dumps(traj.get("segments", []))}}}' + tail)
+    out.write(f',\n"segments":{json.dumps(traj.get("segments", []))}')
+    for key, value in traj.items():  # small extra keys (laser_on, slowdowns, ...)
+        if key not in ("t", "q", "qd", "qdd", "segments"):
+            out.write(f",\n{json.dumps(key)}:{json.dumps(value)}")
+    out.write("}" + tail)
 
 
 def plan_json(doc: dict[str, Any], digits: int = 10) -> str:

@@ -50,10 +50,9 @@ def _system_dict(system: System, model: SystemModel, scn: LoadedScenario) -> dic
             {"name": r.name, **kind, "world_T_base": _pose(r.world_T_base)}
             | {"home": r.home.tolist(), "limits": limits, "mirror": mirror}
         )
-    out: dict[str, Any] = {
-        "laser": {"world_T_laser": _pose(system.world_T_laser)},
-        "robots": robots,
-    }
+    laser = {"world_T_laser": _pose(system.world_T_laser)}
+    laser |= model.laser.model_dump(include={"power", "gate"}, exclude_none=True)
+    out: dict[str, Any] = {"laser": laser, "robots": robots}
     if system.camera is not None:
         k = system.camera.intrinsics
         intrinsics = {"width": k.width, "height": k.height, "fx": k.fx, "fy": k.fy}

@@ -20,7 +20,6 @@ import numpy as np
 from planner.errors import InputError, ScenarioError
 from planner.io.plausibility import emit, scenario_warnings
 from planner.model import robots
-from planner.model.polyline import resample_path
 from planner.model.scene import SceneItem, SceneModel
 from planner.model.settings import TrajectorySettings
 from planner.model.system import (
@@ -295,17 +294,19 @@ def targets_from_scenario(scn: LoadedScenario, system: System) -> Targets:
         meta["n"] = tuple(spec.grid.n)
     else:
         assert spec.path is not None
-        closed = spec.path.closed
+        from planner.io.strokes import mark_path
+
+        closed, path = spec.path.closed, spec.path
         try:
-            points, normals = resample_path(
-                spec.path.points,
-                spacing=spec.path.spacing,
-                normals=spec.path.normals,
-                closed=closed,
-            )
+            marked = mark_path(path.points, path.spacing, normals=path.normals, closed=closed,
+                               corner_deg=path.corner_deg, smooth=path.smooth,
+                               tolerance=scn.model.trajectory.path_tolerance)  # fmt: skip
         except ValueError as exc:
             raise ScenarioError(str(exc), scn.where(("targets", "path"))) from None
-        meta |= {"spacing": spec.path.spacing, "vertices": len(spec.path.points)}
+        points, normals = marked.points, marked.normals
+        meta |= {"spacing": path.spacing, "vertices": len(path.points),
+                 "strokes": marked.strokes, "sample_spacing": marked.spacing,
+                 "sharp_corners": marked.sharp, "blended_corners": marked.blended}  # fmt: skip
     points = transform_points(world_T_frame, points)
     if normals is not None:
         normals = normals @ world_T_frame[:3, :3].T

@@ -45,7 +45,9 @@ class PathOptions:
     weight_velocity: float = 1.0  # integral |dq/ds|^2 ds
     weight_acceleration: float = 1e-6  # integral |d2q/ds2|^2 ds (m^2: ~1 mm correlation)
     weight_centring: float = 0.05  # integral |uv / roi_half|^2 ds
-    weight_reference: float = 1e-4  # integral |q - q_warm|^2 ds (regularises redundancy)
+    weight_reference: float = (
+        1.0  # integral |q - q_warm|^2 ds: posture (the warm start is seeded nearest home)
+    )
     acceleration_spacing: float = 1e-3  # m: finer spacing scales weight_acceleration by (ds/this)^2
     coarse_spacing: float = 1e-3  # m: finer paths are warm-started from every m-th sample
     polish: bool = True  # final per-sample min-norm Gauss-Newton to machine precision

@@ -41,6 +41,7 @@ __all__ = [
     "PathSegment",
     "acceleration_weight",
     "arc_length",
+    "jacobian_condition",
     "plan_path",
     "resample_polyline",
     "sample_errors",
@@ -88,6 +89,20 @@ class PathResult:
     @property
     def complete(self) -> bool:
         return not self.gaps
+
+
+def jacobian_condition(system: System, Q: Array, max_samples: int = 5000) -> Array:
+    """Condition number of each arm's 6 x nq flange Jacobian (rows: linear velocity m/s and
+    angular velocity rad/s, base axes) at the finite rows of ``Q`` (M x nq, stacked), the
+    largest over the arms; at most ``max_samples`` rows, evenly spread. Near-singular arm
+    postures give large values (a UR5e with its elbow straight: hundreds)."""
+    good = np.flatnonzero(np.all(np.isfinite(Q), axis=1))
+    good = good[np.unique(np.linspace(0, len(good) - 1, min(len(good), max_samples)).astype(int))]
+    out = np.zeros(len(good))
+    for k, i in enumerate(good):
+        parts = system.split_q(Q[i])
+        out[k] = max(np.linalg.cond(r.kinematics.jacobian(parts[r.name])) for r in system.robots)
+    return out
 
 
 def sample_errors(system: System, Q: Array, points: Array, normals: Array | None) -> Array:

@@ -24,25 +24,34 @@ import numpy as np
 from planner.errors import PlanError
 from planner.model.system import Limits, System
 from planner.model.transforms import Array
+from planner.path.profile import Profile, path_speed_limit, profile
 from planner.path.tour import visit_order
 from schemas import defaults
 
+__all__ = ["Profile", "path_speed_limit", "profile"]  # re-exported
+
+SEGMENT_KINDS = ("approach", "move", "run_in", "path", "run_out", "dwell")
+LASER_KINDS = ("path", "dwell")  # segments in which the laser is on
+
 
 class Segment(NamedTuple):
-    kind: str  # approach | move | path | dwell
+    kind: str  # one of SEGMENT_KINDS
     t0: float  # s
     t1: float  # s
 
 
 class Slowdown(NamedTuple):
     """Where the spot runs slower than requested: arc length s0..s1 (m), the binding limit
-    (velocity | acceleration | jerk), the joint index (stacked) and the speed reached (m/s)."""
+    (velocity | acceleration | jerk), the joint index (stacked) and the speed reached (m/s);
+    ``t0``..``t1`` (s, NaN if not timed) the span of trajectory time it covers."""
 
     s0: float
     s1: float
     limit: str
     joint: int
     speed: float
+    t0: float = float("nan")
+    t1: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -64,6 +73,20 @@ class Trajectory:
         """Total time (s) spent in segments of one kind."""
         return float(sum(s.t1 - s.t0 for s in self.segments if s.kind == kind))
 
+    @property
+    def laser_on(self) -> tuple[tuple[float, float], ...]:
+        """Time intervals (s) in which the laser gate is on: the ``path`` and ``dwell``
+        segments, adjacent ones merged."""
+        out: list[tuple[float, float]] = []
+        for s in self.segments:
+            if s.kind not in LASER_KINDS:
+                continue
+            if out and s.t0 <= out[-1][1] + 1e-12:
+                out[-1] = (out[-1][0], max(out[-1][1], s.t1))
+            else:
+                out.append((s.t0, s.t1))
+        return tuple(out)
+
     def to_plan_dict(self, system: System) -> dict[str, object]:
         """The plan.json ``trajectory`` mapping (per robot name)."""
 
@@ -80,7 +103,23 @@ class Trajectory:
             "qd": per_robot(self.qd),
             "qdd": per_robot(self.qdd),
             "segments": [{"kind": s.kind, "t0": s.t0, "t1": s.t1} for s in self.segments],
+            "laser_on": [[t0, t1] for t0, t1 in self.laser_on],
+            "slowdowns": [_slowdown_dict(system, s) for s in self.slowdowns],
         }
+
+
+def _slowdown_dict(system: System, s: Slowdown) -> dict[str, object]:
+    """A slowdown as plan.json writes it: the joint as robot name and index within it."""
+    robot: str | None = None
+    j = s.joint
+    for r in system.robots:
+        if 0 <= j < r.nq:
+            robot = r.name
+            break
+        j -= r.nq
+    j = j if robot is not None else -1
+    return {"s0": s.s0, "s1": s.s1, "t0": s.t0, "t1": s.t1, "limit": s.limit,
+            "robot": robot, "joint": int(j), "speed": s.speed}  # fmt: skip
 
 
 class _Piece(NamedTuple):
@@ -218,30 +257,6 @@ def points_trajectory(
 # ------------------------------------------------------------------------------------------
 # paths
 # ------------------------------------------------------------------------------------------
-_SHARE_V, _SHARE_A, _SHARE_J = 0.9, 0.5, 0.3  # share of each limit given to each term
-
-
-def path_speed_limit(
-    spline: object, arc: Array, lim: Limits, spot_speed: float, a_s: float
-) -> tuple[Array, Array, Array]:
-    """Largest spot speed (m/s) at each sample keeping q' sd, q'' sd^2 and the jerk terms
-    within their shares of the limits; returns (speed, limit code 0..3, joint index)."""
-    d1, d2, d3 = (np.abs(spline(arc, nu)) + 1e-12 for nu in (1, 2, 3))  # type: ignore[operator]
-    caps = np.stack(
-        [
-            np.full(len(arc), spot_speed),
-            (_SHARE_V * lim.velocity / d1).min(axis=1),
-            np.sqrt(_SHARE_A * lim.acceleration / d2).min(axis=1),
-            np.minimum(np.cbrt(_SHARE_J * lim.jerk / d3), _SHARE_J * lim.jerk / (3 * d2 * a_s))
-            .min(axis=1),
-        ]
-    )  # fmt: skip
-    code = caps.argmin(axis=0)
-    joints = np.stack(
-        [np.zeros(len(arc), dtype=int), (lim.velocity / d1).argmin(axis=1),
-         (lim.acceleration / d2).argmin(axis=1), (lim.jerk / d3).argmin(axis=1)]
-    )  # fmt: skip
-    return caps.min(axis=0), code, joints[code, np.arange(len(arc))]
 
 
 def _slowdowns(arc: Array, speed: Array, code: Array, joint: Array) -> tuple[Slowdown, ...]:
@@ -262,44 +277,23 @@ def _slowdowns(arc: Array, speed: Array, code: Array, joint: Array) -> tuple[Slo
     return tuple(out)
 
 
+def profile_piece(prof: Profile, q_end: Array, kind: str = "path") -> _Piece:
+    """Joints, velocities and accelerations along a timed profile (the last sample exactly
+    ``q_end``)."""
+    spline, s, sd, sdd = prof.spline, prof.s, prof.sd, prof.sdd
+    q = spline(s)  # type: ignore[operator]
+    d1, d2 = spline(s, 1), spline(s, 2)  # type: ignore[operator]
+    q[-1] = q_end
+    return _Piece(q, d1 * sd[:, None], d2 * sd[:, None] ** 2 + d1 * sdd[:, None], kind)
+
+
 def time_path(
     q_path: Array, arc: Array, lim: Limits, spot_speed: float, rate: float
 ) -> tuple[_Piece, tuple[Slowdown, ...]]:
     """Sample s(t) from rest to rest along the path at ``rate`` and map it to joints."""
-    from ruckig import InputParameter, OutputParameter, Result, Ruckig
-    from scipy.interpolate import make_interp_spline
-
-    spline = make_interp_spline(arc, q_path, k=5 if len(arc) > 5 else min(3, len(arc) - 1))
-    d1max = np.abs(spline(arc, 1)).max(axis=0) + 1e-12
-    a_s = float(min(spot_speed * 20.0, (_SHARE_A * lim.acceleration / d1max).min()))
-    j_s = float(min(a_s * 20.0, (_SHARE_J * lim.jerk / d1max).min()))
-    speed, code, joint = path_speed_limit(spline, arc, lim, spot_speed, a_s)
-    L = float(arc[-1])
-    otg, inp, out = Ruckig(1, 1.0 / rate), InputParameter(1), OutputParameter(1)
-    inp.current_position, inp.current_velocity, inp.current_acceleration = [0.0], [0.0], [0.0]
-    inp.target_position, inp.target_velocity, inp.target_acceleration = [L], [0.0], [0.0]
-    inp.max_acceleration, inp.max_jerk = [a_s], [j_s]
-    S = [(0.0, 0.0, 0.0)]
-    for _ in range(int(50 * (L / max(speed.min(), 1e-9) + 1) * rate)):
-        s, v = inp.current_position[0], inp.current_velocity[0]
-        brake = v * v / (2 * a_s) + v * a_s / j_s + 2 * v / rate  # stopping distance, m
-        i0, i1 = np.searchsorted(arc, [s, s + brake])
-        inp.max_velocity = [float(max(speed[max(i0 - 1, 0) : i1 + 1].min(), 1e-6))]
-        result = otg.update(inp, out)
-        if result not in (Result.Working, Result.Finished):
-            raise PlanError(f"Ruckig failed ({result}) timing the path at s = {s:.4f} m")
-        S.append((out.new_position[0], out.new_velocity[0], out.new_acceleration[0]))
-        out.pass_to_input(inp)
-        if result == Result.Finished:
-            break
-    else:
-        raise PlanError(f"path timing did not finish (length {L:.4f} m)")
-    s, sd, sdd = np.clip(np.array(S), [0.0, 0.0, -np.inf], [L, np.inf, np.inf]).T
-    q = spline(s)
-    d1, d2 = spline(s, 1), spline(s, 2)
-    q[-1] = q_path[-1]
-    piece = _Piece(q, d1 * sd[:, None], d2 * sd[:, None] ** 2 + d1 * sdd[:, None], "path")
-    return piece, _slowdowns(arc, speed, code, joint)
+    prof = profile(q_path, arc, lim, spot_speed, rate)
+    piece = profile_piece(prof, q_path[-1])
+    return piece, _slowdowns(arc, prof.speed, prof.code, prof.joint)
 
 
 def path_trajectory(
@@ -307,21 +301,28 @@ def path_trajectory(
     spot_speed: float = defaults.SPOT_SPEED_MPS, rate: float = defaults.SERVO_RATE_HZ,
 ) -> Trajectory:  # fmt: skip
     """Approach from ``q_start`` (default home), then each feasible run ``(q_k K x nq,
-    arc_k K)`` swept at ``spot_speed`` (m/s); rest-to-rest ``move`` (laser gated) between
-    runs. Slowdowns carry the arc length along the whole path."""
+    arc_k K)`` swept at ``spot_speed`` (m/s) from rest to rest, with no run-in or run-out
+    (:mod:`planner.path.marking` adds them); rest-to-rest ``move`` between runs.
+    Slowdowns carry the arc length along the whole path and their trajectory times."""
     lim = system.limits
     prev = system.home if q_start is None else np.asarray(q_start, dtype=float)
     pieces: list[_Piece] = []
     slow: list[Slowdown] = []
+    i0 = 0  # index of the current piece's first sample
     for n, (Qp, arc) in enumerate(runs):
         Qm, QDm, QDDm = ruckig_move(prev, Qp[0], lim, rate)
         pieces.append(_Piece(Qm, QDm, QDDm, "approach" if n == 0 else "move"))
+        i0 += len(Qm) - 1
         if len(Qp) < 2:
             prev = Qp[0]
             continue
-        piece, sl = time_path(Qp, arc - arc[0], lim, spot_speed, rate)
-        pieces.append(piece)
-        slow += [s._replace(s0=s.s0 + arc[0], s1=s.s1 + arc[0]) for s in sl]
+        prof = profile(Qp, arc - arc[0], lim, spot_speed, rate)
+        pieces.append(profile_piece(prof, Qp[-1]))
+        for sd in _slowdowns(arc - arc[0], prof.speed, prof.code, prof.joint):
+            k0, k1 = np.searchsorted(prof.s, [sd.s0, sd.s1])
+            slow.append(sd._replace(s0=sd.s0 + arc[0], s1=sd.s1 + arc[0], t0=(i0 + k0) / rate,
+                                    t1=(i0 + min(k1, len(prof.s) - 1)) / rate))  # fmt: skip
+        i0 += len(prof.s) - 1
         prev = Qp[-1]
     if not pieces:
         raise PlanError("no feasible path run to time")

@@ -120,11 +120,12 @@ class PathContext:
             return Failure(reason, f"{what} (constraint {i}: {h.ravel()[i]:.3g} < {lb[i]:.3g})")
         return None
 
-    def newton(
-        self, k: int, q0: Array, nbar: Array, iters: int = 8
-    ) -> tuple[Array, Failure | None]:
-        """Equality-constrained Newton steps toward sample k with a centring pull (1/m^2)."""
-        q, beta, nq = np.array(q0, dtype=float), 1e-3, len(q0)
+    def newton(self, k: int, q0: Array, nbar: Array, iters: int = 8, centring: float = 1e-3
+               ) -> tuple[Array, Failure | None]:  # fmt: skip
+        """Equality-constrained Newton steps toward sample k with a centring pull (weight
+        ``centring`` on the squared ROI-normalised hit offsets, first step only; 0 gives the
+        minimum-norm correction of ``q0``)."""
+        q, beta, nq = np.array(q0, dtype=float), centring, len(q0)
         for it in range(iters):
             beta = beta if it == 0 else 0.0  # centring in the predictor step only
             g, Jg, r, Jr, h, _, _ = self.eval(k, q, nbar)

@@ -71,6 +71,11 @@ class Keys:
     def stop(self) -> str:
         return f"{self.prefix}/stop"
 
+    @property
+    def laser(self) -> str:
+        """The laser gate state (:class:`schemas.messages.LaserState`)."""
+        return f"{self.prefix}/laser"
+
     def setpoint(self, robot: str) -> str:
         return f"{self.prefix}/{robot}/setpoint"
 

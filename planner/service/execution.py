@@ -183,7 +183,8 @@ def trajectory_messages(
     plan: dict[str, Any], request_id: str | None = None, session: str | None = None
 ) -> dict[str, bytes]:
     """One JointTrajectory body per robot from a plan's ``trajectory`` (times from 0),
-    carrying the request id and the planner session."""
+    carrying the request id and the planner session; the robot named in the scenario's
+    ``laser.gate`` also gets the ``laser_on`` intervals."""
     from schemas.messages import TRAJECTORY_SCHEMA, JointTrajectory
 
     traj = plan.get("trajectory")
@@ -191,6 +192,7 @@ def trajectory_messages(
         raise ExecuteError("the plan has no trajectory to execute", list(plan["robots"]))
     t = np.asarray(traj["t"], dtype=float)
     keep = np.concatenate([[True], np.diff(t) > 0])  # drivers require increasing times
+    gate = ((plan.get("scenario") or {}).get("system") or {}).get("laser", {}).get("gate") or {}
     out = {}
     for robot in plan["robots"]:
         rows = {k: np.asarray(traj[k][robot], dtype=float)[keep] for k in ("q", "qd", "qdd")}
@@ -203,6 +205,8 @@ def trajectory_messages(
             "names": list(plan["joint_names"][robot]),
             **{k: v.tolist() for k, v in rows.items()},
         }
+        if robot == gate.get("robot"):  # its digital output switches the laser
+            body["laser_on"] = [[a - t[0], b - t[0]] for a, b in traj.get("laser_on") or []]
         JointTrajectory.model_validate(body)  # the driver's contract, checked before sending
         out[robot] = encode_json(body)  # in pieces: the heartbeat keeps running
     return out

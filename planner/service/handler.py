@@ -217,7 +217,7 @@ class RequestHandler:
                 normals = normals @ world_T_camera[:3, :3].T
         if req.mode != "path":
             return Targets(points, normals, kind="points")
-        from planner.io.scenario import resample_path
+        from planner.model.polyline import resample_path
 
         length = float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)))
         if length / self.path_spacing > MAX_PATH_SAMPLES:

@@ -330,12 +330,21 @@ def check_metrics(ctx: PlanContext) -> CheckResult:
     return res
 
 
+def check_laser(ctx: PlanContext) -> CheckResult:
+    """The laser gate: on only (and always) in path and dwell segments, the spot on the path
+    and at the spot speed while it is on (:mod:`planner.verify.marking`)."""
+    from planner.verify.marking import check_marking
+
+    return check_marking(ctx)
+
+
 CHECKS: list[Callable[[PlanContext], CheckResult]] = [
     check_spots,
     check_mirrors,
     check_limits,
     check_trajectory_limits,
     check_trajectory_spot,
+    check_laser,
     check_metrics,
 ]
 

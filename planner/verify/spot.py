@@ -40,8 +40,12 @@ def segment_mask(t: Array, segments: Iterable[Mapping[str, Any]], kind: str) -> 
 
 
 def arrival_mask(t: Array, segments: Iterable[Mapping[str, Any]]) -> Mask:
-    """The sample nearest the end of every ``approach``/``move`` segment."""
-    ends = np.array([float(s["t1"]) for s in segments if s["kind"] in ("approach", "move")])
+    """The sample nearest the end of every ``approach``/``move`` segment that arrives on a
+    target (not one that ends where a ``run_in`` starts, off the path on its extension)."""
+    segs = list(segments)
+    nxt = [s["kind"] for s in segs[1:]] + [None] * bool(segs)
+    ends = np.array([float(s["t1"]) for s, n in zip(segs, nxt, strict=True)
+                     if s["kind"] in ("approach", "move") and n != "run_in"])  # fmt: skip
     mask = np.zeros(len(t), dtype=bool)
     if len(ends) and len(t):
         i = np.clip(np.searchsorted(t, ends), 1, max(len(t) - 1, 1))

@@ -103,8 +103,11 @@ def point_deviation(p: Array, v: Array, targets: Array, normals: Array | None) -
 def spot_deviation(
     p: Array, v: Array, targets: Array, normals: Array | None, closed: bool
 ) -> Array:
-    """Distance (m) from each sample's spot to the target polyline. The spot is where the ray
-    meets the plane of the nearest target (its normal, or perpendicular to the ray)."""
+    """Distance (m) from each sample's spot to the target polyline. With normals the spot is
+    where the ray meets the plane of the nearest target; without, the distance is the ray's
+    closest approach to the polyline (a target is hit when the ray passes through it, so a
+    beam grazing along the path is measured where it crosses it, not at whichever sample
+    lies nearest its line)."""
     if len(targets) < 2:
         return point_deviation(p, v, targets, normals)
     out = np.empty(len(p))
@@ -113,12 +116,39 @@ def spot_deviation(
     ab = segs_b - segs_a
     ab2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
     step = _chunk(len(targets))
+    if normals is None:
+        for i0 in range(0, len(p), step):
+            sl = slice(i0, i0 + step)
+            out[sl] = ray_polyline_closest(p[sl], v[sl], segs_a, ab, ab2)[0]
+        return out
     for i0 in range(0, len(p), step):
         _, spot = nearest_spots(p[i0 : i0 + step], v[i0 : i0 + step], targets, normals)
         u = np.clip(np.einsum("mkj,kj->mk", spot[:, None, :] - segs_a[None], ab) / ab2, 0, 1)
         near = segs_a[None] + u[..., None] * ab[None]
         out[i0 : i0 + step] = np.linalg.norm(spot[:, None, :] - near, axis=2).min(axis=1)
     return out
+
+
+def ray_polyline_closest(p: Array, v: Array, a: Array, ab: Array, ab2: Array
+                         ) -> tuple[Array, Array]:  # fmt: skip
+    """Closest approach (m) of each ray (origins ``p``, unit directions ``v``, M x 3; the
+    part ahead, t >= 0) to segments ``a + u ab`` (u in [0, 1]; ``ab2`` = |ab|^2), the
+    minimum over the segments (M,), and the ray's point there (M x 3)."""
+    w = p[:, None, :] - a[None]  # M x S x 3
+    b = np.einsum("mj,sj->ms", v, ab)
+    d = np.einsum("mj,msj->ms", v, w)
+    e = np.einsum("sj,msj->ms", ab, w)
+    denom = ab2[None] - b * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.where(denom > 1e-18 * ab2[None], (e - d * b) / denom, 0.0)
+    u = np.clip(u, 0.0, 1.0)
+    t = np.maximum(u * b - d, 0.0)
+    u = np.clip((e + t * b) / ab2[None], 0.0, 1.0)
+    gap = w + t[..., None] * v[:, None, :] - u[..., None] * ab[None]
+    dist = np.linalg.norm(gap, axis=2)
+    j = np.argmin(dist, axis=1)
+    rows = np.arange(len(p))
+    return np.asarray(dist[rows, j]), p + t[rows, j][:, None] * v
 
 
 class Solved(NamedTuple):

@@ -176,8 +176,11 @@ def test_curve_path_end_to_end(curve_outcome: PlanOutcome) -> None:
     assert x["path_deviation_max"] <= 5e-5  # issue 5 goal: 0.05 mm
     length = float(np.linalg.norm(np.diff(curve_outcome.targets.points, axis=0), axis=1).sum())
     assert x["path_length"] == pytest.approx(length, rel=1e-12)
-    assert x["path_time"] == pytest.approx(length / 0.02, rel=0.1)
-    assert [s["kind"] for s in doc["trajectory"]["segments"]] == ["approach", "path"]
+    assert x["path_time"] == pytest.approx(length / 0.02, rel=0.01)
+    assert [s["kind"] for s in doc["trajectory"]["segments"]] == [
+        "approach", "run_in", "path", "run_out"]  # fmt: skip
+    path = doc["trajectory"]["segments"][2]
+    assert doc["trajectory"]["laser_on"] == [[path["t0"], path["t1"]]]
 
 
 def test_path_gap_becomes_a_move(curve_outcome: PlanOutcome) -> None:
@@ -195,11 +198,11 @@ def test_path_gap_becomes_a_move(curve_outcome: PlanOutcome) -> None:
     )
     assert timed is not None
     kinds = [s.kind for s in timed.trajectory.segments]
-    assert kinds == ["approach", "path", "move", "path"]
+    assert kinds == ["approach", "run_in", "path", "run_out", "move", "run_in", "path", "run_out"]
     t_path = timed.trajectory.span("path")
-    # two runs of 29 mm each, at 20 mm/s plus ramps
+    # two runs of 29 mm each, at 20 mm/s (the ramps are in the run-in and run-out)
     runs = [res.arc[29] - res.arc[0], res.arc[60] - res.arc[31]]
-    assert t_path == pytest.approx(sum(runs) / 0.02, rel=0.1)
+    assert t_path == pytest.approx(sum(runs) / 0.02, rel=0.01)
 
 
 def test_write_plan_in_small_chunks(grid_outcome: PlanOutcome) -> None:
@@ -240,7 +243,8 @@ def test_a_rejected_path_sample_splits_the_sweep(curve_outcome: PlanOutcome) -> 
     timed = time_solutions(o.system, o.targets, verdict, settings, path=o.path)
     assert timed is not None
     kinds = [s.kind for s in timed.trajectory.segments]
-    assert kinds == ["approach", "path", "move", "path"]  # around the rejected sample
+    # around the rejected sample: each side marked with its own run-in and run-out
+    assert kinds == ["approach", "run_in", "path", "run_out", "move", "run_in", "path", "run_out"]
     doc = plan_document(o.system, o.targets, verdict, o.doc["scenario"],
                         timed.trajectory.to_plan_dict(o.system), timed.figures)  # fmt: skip
     assert doc["metrics"]["n_ok"] == len(sols) - 1

@@ -61,3 +61,31 @@ def test_arrival_spots_are_the_targets(tmp_path: Path) -> None:
     d = np.linalg.norm(spots[:, None, :] - out.targets.points[None], axis=2)
     assert d.min(axis=1).max() < 1e-9
     assert sorted(d.argmin(axis=1).tolist()) == list(range(18))
+
+
+def test_profiles_with_the_fluence_panel(tmp_path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from unittest import mock
+
+    import matplotlib.figure
+
+    from tests.paths import SCENARIOS
+
+    out = run_scenario(SCENARIOS / "s_curve.yaml", progress=False)
+    png = tmp_path / "s.png"
+    titles: list[str] = []
+    real = matplotlib.figure.Figure.savefig
+
+    def grab(fig: matplotlib.figure.Figure, *a: object, **k: object) -> None:
+        titles.extend(ax.get_title() for ax in fig.axes)
+        real(fig, *a, **k)
+
+    with mock.patch.object(matplotlib.figure.Figure, "savefig", grab):
+        plot_profiles(out.system, out.targets, out.doc, png)
+    assert png.stat().st_size > 30_000
+    # 5 mW at 20 mm/s: 0.25 J/m, uniform within the 2 % speed band
+    fluence = next(t for t in titles if t.startswith("fluence"))
+    lo, hi = (float(x) for x in fluence.split()[1:4:2])
+    assert 0.245 < lo <= hi < 0.255
