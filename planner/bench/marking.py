@@ -36,6 +36,7 @@ def marking_figures(scenario: Path) -> dict[str, Any]:
 
     from planner.errors import InputError
     from planner.io.scenario import load_scenario
+    from planner.model.settings import TrajectorySettings
     from planner.planning import run_scenario, time_solutions
     from planner.verify.check import check_plan
 
@@ -48,7 +49,8 @@ def marking_figures(scenario: Path) -> dict[str, Any]:
         raise InputError("no sample of the path could be solved", str(scenario))
     figures = {f"{r.name}.{k}": v for r in check_plan(o.doc) for k, v in r.figures.items()}
     violations = sum(len(r.findings) for r in check_plan(o.doc))
-    rest = time_solutions(o.system, o.targets, o.solutions, o.doc["scenario"]["trajectory"],
+    settings = TrajectorySettings.from_mapping(o.doc["scenario"]["trajectory"])
+    rest = time_solutions(o.system, o.targets, o.solutions, settings,
                           path=o.path, skywriting=False)  # fmt: skip
     extra = o.doc["metrics"]["extra"]
     lo, hi = (

@@ -81,7 +81,14 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
     assert sorted(groups["study"].commands) == sorted(
         ["ik-grid", "calibration", "sensitivity", "mirror-sweep", "coverage", "tracking", "all"]
     )
-    assert sorted(groups["bench"].commands) == ["ik", "path", "plan", "safety", "service"]
+    assert sorted(groups["bench"].commands) == [
+        "ik",
+        "marking",
+        "path",
+        "plan",
+        "safety",
+        "service",
+    ]
 
 
 @pytest.mark.parametrize("module", ["planner.studies.coverage", "planner.bench.safety",

@@ -116,6 +116,6 @@ def test_segment_segment_matches_dense_sampling(p0, p1, q0, q1):
     brute = np.linalg.norm(P[:, None] - Q[None], axis=2).min()
     step = (np.linalg.norm(p1 - p0) + np.linalg.norm(q1 - q0)) / 400
     assert d <= brute + 1e-12
-    assert d >= brute - step
+    assert d >= brute - step - 1e-12  # step may be 0 (degenerate segments): allow round-off
     assert np.linalg.norm(x - y) == pytest.approx(d, abs=1e-12)
     assert point_segment(x, p0, p1)[0] < 1e-12 and point_segment(y, q0, q1)[0] < 1e-12
