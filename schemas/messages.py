@@ -164,6 +164,7 @@ class RobotStatus(StrictModel):
     protective_stop: StrictBool = False
     fault: str | None = None
     trajectory: TrajectoryAck | None = None
+    safety_mode: str | None = None  # the controller's safety mode (normal, reduced, ...)
 
 
 class Heartbeat(StrictModel):
