@@ -144,6 +144,12 @@ def camera(
     seed: int | None = typer.Option(None, "--seed", help="sim: noise seed."),
     serial: str | None = typer.Option(None, "--serial", help="realsense: device serial number."),
     file: Path | None = RECORDING,
+    frame_timeout: float = typer.Option(
+        5.0, "--frame-timeout", help="realsense: longest wait for a frameset, s (then restart)."
+    ),
+    exposure: float = typer.Option(
+        150.0, "--exposure", help="realsense: manual colour exposure, us (0: auto exposure)."
+    ),
 ) -> None:
     """Run a camera driver: point cloud and laser spot."""
     from drivers.camera.node import CameraNode
@@ -166,7 +172,14 @@ def camera(
 
         if file is not None and not file.is_file():
             raise InputError("recording not found", f"--file {file}")
-        source = RealSenseCamera(serial=serial, file=file)
+        if not 0.05 <= frame_timeout <= 60:
+            raise InputError(f"must be in [0.05, 60] s, got {frame_timeout:g}", "--frame-timeout")
+        if not 0 <= exposure <= 165000:
+            raise InputError(f"must be in [0, 165000] us, got {exposure:g}", "--exposure")
+        source = RealSenseCamera(
+            serial=serial, file=file, timeout_ms=round(1e3 * frame_timeout),
+            exposure_us=exposure or None,
+        )  # fmt: skip
     session = open_session(listen=listen, endpoint=endpoint, config_file=zenoh_config)
     node = CameraNode(session, Keys(prefix), source, spot_rate=spot_rate, points_rate=points_rate)
     _run(node, session, f"camera: {backend.value} driver up (prefix {prefix})")
@@ -213,3 +226,6 @@ def _run(node: Any, session: Any, banner: str) -> None:
     finally:
         node.stop()
         session.close()
+    if node.failure is not None:
+        typer.echo(f"error: {node.failure}", err=True)
+        raise typer.Exit(1)
