@@ -8,7 +8,8 @@ must describe: OpenCV x right, y down, z forward, metres).
 Robustness, as the SDK examples do it: a frameset without depth or colour is skipped (no
 message); a timeout restarts the pipeline (up to ``reconnects`` times in a row, e.g. after
 a USB reset); no complete frameset for ``3 x timeout`` or too many failed restarts raises
-:class:`CameraLost`, which ends the node's loop and the process with a non-zero status.
+:class:`CameraLostError`, which ends the node's loop and the process with a non-zero
+status.
 
 Time: :meth:`RealSenseCamera.frame_time` is the colour frame's own timestamp when the SDK
 gives it on the host clock (``global_time`` or ``system_time`` domain: ms since the UNIX
@@ -53,7 +54,7 @@ HISTORY = 8  # frames kept for the gated difference
 PREDICTION_TTL = 1.0  # s a predicted spot stays valid
 
 
-class CameraLost(RuntimeError):
+class CameraLostError(RuntimeError):
     """The camera stopped delivering complete framesets (with the evidence)."""
 
 
@@ -76,13 +77,13 @@ class RealSenseCamera:
         reconnects: int = 3,
         exposure_us: float | None = 150.0,
         gain: float | None = 16.0,
-        params: SpotParams = SpotParams(),
+        params: SpotParams | None = None,
     ) -> None:
         import pyrealsense2 as rs
 
         self.rs, self.file, self.realtime = rs, file, realtime
         self.timeout_ms, self.reconnects, self.fps = timeout_ms, reconnects, fps
-        self.params = params
+        self.params = params or SpotParams()
         self.config = rs.config()
         if file is not None:
             self.config.enable_device_from_file(str(file), repeat_playback=True)
@@ -153,7 +154,7 @@ class RealSenseCamera:
             self.incomplete += 1
             silent = time.monotonic() - self._last_complete
             if silent > 3e-3 * self.timeout_ms:
-                raise CameraLost(
+                raise CameraLostError(
                     f"no complete frameset (depth and colour) for {silent:.1f} s "
                     f"({self.incomplete} incomplete, {self.timeouts} timeouts) from {self.where}"
                 )
@@ -172,7 +173,7 @@ class RealSenseCamera:
 
     def _restart(self, why: str) -> None:
         if self._failed_restarts >= self.reconnects:
-            raise CameraLost(
+            raise CameraLostError(
                 f"{why}; {self.reconnects} pipeline restarts did not help ({self.where})"
             )
         self._failed_restarts += 1
@@ -182,7 +183,7 @@ class RealSenseCamera:
         try:
             self._start()
         except InputError as exc:
-            raise CameraLost(f"{why}; restart failed: {exc}") from exc
+            raise CameraLostError(f"{why}; restart failed: {exc}") from exc
 
     def frame_time(self) -> float:
         """UNIX time (s) of the last complete frameset (see the module docstring)."""

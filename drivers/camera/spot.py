@@ -32,6 +32,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -66,7 +67,7 @@ class SpotDetection:
 def signal(frame: Array, channel: str = "red") -> Array:
     """The laser signal of one frame: red channel (or BT.601 luma) of RGB, or the single
     channel (float32)."""
-    img = np.asarray(frame)
+    img: Any = np.asarray(frame)
     if img.ndim == 3 and channel == "luma":
         img = img.astype(np.float32) @ np.array([0.299, 0.587, 0.114], dtype=np.float32)
     elif img.ndim == 3:
@@ -106,11 +107,12 @@ def detect_gated_spot(
     on: Sequence[Array],
     off: Sequence[Array],
     predicted_uv: tuple[float, float] | None = None,
-    params: SpotParams = SpotParams(),
+    params: SpotParams | None = None,
 ) -> SpotDetection | None:
     """The laser spot in the on/off difference near ``predicted_uv`` (px), or None."""
     from scipy import ndimage
 
+    params = params or SpotParams()
     d = difference(on, off, params.channel)
     win = _window(d.shape, predicted_uv, params.radius)
     if not win.any():
@@ -124,7 +126,7 @@ def detect_gated_spot(
     if peak < params.min_contrast or peak < params.min_snr * sigma:
         return None
     thr = max(params.blob_fraction * peak, 3.0 * sigma)
-    labels, _ = ndimage.label((d > thr) & win)
+    labels, _ = ndimage.label(np.logical_and(d > thr, win))
     blob = labels == labels[v0, u0]
     vs, us = np.nonzero(blob)
     wgt = d[vs, us] - thr
