@@ -79,6 +79,11 @@ def robot(
         "--require-planner/--no-require-planner",
         help="Refuse to move without a live planner and its heartbeat (off: bench work only).",
     ),
+    realtime: bool = typer.Option(
+        False,
+        "--realtime",
+        help="ur: SCHED_FIFO for the control loop and ur_rtde's threads (when permitted).",
+    ),
 ) -> None:
     """Run a robot driver: joint_states, status, trajectories, planner heartbeat watchdog."""
     from drivers.robot.node import RobotNode
@@ -109,6 +114,8 @@ def robot(
             host,
             r.joint_names,
             r.limits,
+            robot=name,
+            realtime=realtime,
             rate=rate,
             lookahead_time=lookahead,
             gain=gain,

@@ -59,6 +59,8 @@ ARRIVE_TOLERANCE = 1e-4  # rad: the held final target counts as reached (every j
 HOLD_STALL = 1.0  # s (at 100 % speed) without progress toward the held target: give up
 CALL_TIMEOUT = 1.0  # s: longest wait for servoStop / disconnect
 RECOVER_TIMEOUT = 15.0  # s: reuploadScript + setWatchdog
+RT_PRIORITY = 80  # SCHED_FIFO priority of ur_rtde's receive/control threads (--realtime)
+LOOP_PRIORITY = 70  # SCHED_FIFO priority of the control loop (below ur_rtde's, as it advises)
 
 
 class URRobot:
@@ -83,7 +85,7 @@ class URRobot:
         gain: float = 300.0,
         watchdog_hz: float = 10.0,
         stop_acceleration: float = STOP_ACCELERATION,
-        rt_priority: int = 0,
+        realtime: bool = False,
         control: Any = None,
         receive: Any = None,
     ) -> None:
@@ -100,8 +102,9 @@ class URRobot:
         self.lookahead_time = lookahead_time
         self.gain = gain
         self.watchdog_hz = watchdog_hz
+        self.realtime = realtime
         if control is None or receive is None:
-            control, receive = _connect(host, self.rate, rt_priority)
+            control, receive = _connect(host, self.rate, RT_PRIORITY if realtime else 0)
         self.control = control
         self.receive = receive
         if not self.control.setWatchdog(watchdog_hz):
@@ -126,6 +129,9 @@ class URRobot:
 
     # -- period ---------------------------------------------------------------------------
     def begin_period(self) -> None:
+        if self.realtime:  # first period, in the control thread: ask for SCHED_FIFO once
+            self.realtime = False
+            self.log(set_realtime(LOOP_PRIORITY))
         self._t0 = self.control.initPeriod()
 
     def step(self) -> Measured:
@@ -347,3 +353,17 @@ def _connect(host: str, rate: float, rt_priority: int = 0) -> tuple[Any, Any]:
     except RuntimeError as exc:  # ur_rtde raises RuntimeError on connection failures
         raise InputError(f"cannot connect to the UR controller: {exc}", f"--host {host}") from exc
     return control, receive
+
+
+def set_realtime(priority: int) -> str:
+    """Put the calling thread under SCHED_FIFO at ``priority``; what happened (one line)."""
+    import os
+
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (PermissionError, OSError, AttributeError) as exc:
+        return (
+            f"--realtime: SCHED_FIFO not permitted ({exc}); grant CAP_SYS_NICE or an rtprio "
+            "limit (/etc/security/limits.d), running with normal priority"
+        )
+    return f"--realtime: control loop under SCHED_FIFO priority {priority}"

@@ -43,6 +43,7 @@ _GROUPS = [
     ("planner.cli.study", "app", "study"),
     ("planner.cli.bench", "app", "bench"),
     ("drivers.cli", "app", "driver"),
+    ("planner.cli.robot", "app", "robot"),
 ]
 
 
