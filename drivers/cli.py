@@ -157,6 +157,9 @@ def camera(
     exposure: float = typer.Option(
         150.0, "--exposure", help="realsense: manual colour exposure, us (0: auto exposure)."
     ),
+    record: Path | None = typer.Option(
+        None, "--record", help="realsense device: also record the raw streams to this .db3."
+    ),
 ) -> None:
     """Run a camera driver: point cloud and laser spot."""
     from drivers.camera.node import CameraNode
@@ -183,9 +186,11 @@ def camera(
             raise InputError(f"must be in [0.05, 60] s, got {frame_timeout:g}", "--frame-timeout")
         if not 0 <= exposure <= 165000:
             raise InputError(f"must be in [0, 165000] us, got {exposure:g}", "--exposure")
+        if record is not None and (file is not None or record.suffix != ".db3"):
+            raise InputError("records a live device to a *.db3 file", f"--record {record}")
         source = RealSenseCamera(
             serial=serial, file=file, timeout_ms=round(1e3 * frame_timeout),
-            exposure_us=exposure or None,
+            exposure_us=exposure or None, record_to=record,
         )  # fmt: skip
     session = open_session(listen=listen, endpoint=endpoint, config_file=zenoh_config)
     node = CameraNode(session, Keys(prefix), source, spot_rate=spot_rate, points_rate=points_rate)

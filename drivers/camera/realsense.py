@@ -78,6 +78,7 @@ class RealSenseCamera:
         exposure_us: float | None = 150.0,
         gain: float | None = 16.0,
         params: SpotParams | None = None,
+        record_to: Path | None = None,
     ) -> None:
         import pyrealsense2 as rs
 
@@ -92,6 +93,8 @@ class RealSenseCamera:
                 self.config.enable_device(serial)
             self.config.enable_stream(rs.stream.depth, width, height, rs.format.z16, fps)
             self.config.enable_stream(rs.stream.color, width, height, rs.format.rgb8, fps)
+            if record_to is not None:  # the SDK writes every frame to a .db3 as it streams
+                self.config.enable_record_to_file(str(record_to))
         self.where = f"--file {file}" if file is not None else f"--serial {serial or '(any)'}"
         self.pipeline = rs.pipeline()
         self._start()

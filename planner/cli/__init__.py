@@ -37,6 +37,8 @@ _COMMANDS = [
     ("planner.cli.node", "serve", "serve"),
     ("planner.cli.node", "up", "up"),
     ("planner.cli.node", "request", "request"),
+    ("planner.cli.record", "record", "record"),
+    ("planner.cli.record", "replay", "replay"),
 ]
 _GROUPS = [
     ("planner.cli.calibrate", "app", "calibrate"),
