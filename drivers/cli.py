@@ -45,6 +45,9 @@ class CameraBackendName(StrEnum):
 
 ROBOT_BACKEND = typer.Option(RobotBackendName.sim, "--backend", help="sim or ur.")
 CAMERA_BACKEND = typer.Option(CameraBackendName.sim, "--backend", help="sim or realsense.")
+DB3_RECORD = typer.Option(
+    None, "--record", help="realsense device: also record the raw streams to this .db3."
+)
 RECORDING = typer.Option(
     None, "--file", help="realsense: play a .db3 recording (librealsense 2.59) instead of a device."
 )
@@ -157,9 +160,7 @@ def camera(
     exposure: float = typer.Option(
         150.0, "--exposure", help="realsense: manual colour exposure, us (0: auto exposure)."
     ),
-    record: Path | None = typer.Option(
-        None, "--record", help="realsense device: also record the raw streams to this .db3."
-    ),
+    record: Path | None = DB3_RECORD,
 ) -> None:
     """Run a camera driver: point cloud and laser spot."""
     from drivers.camera.node import CameraNode

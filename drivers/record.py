@@ -118,7 +118,7 @@ class Recorder:
 def _is_json(zenoh_encoding: str, payload: bytes) -> bool:
     if zenoh_encoding.startswith("application/json"):
         return True
-    if not payload[:1] == b"{":
+    if payload[:1] != b"{":
         return False
     try:
         return isinstance(json.loads(payload), dict)

@@ -77,7 +77,8 @@ def replay(
     zenoh_config: ZenohConfigOpt = None,
 ) -> None:
     """Play a recording back onto the bus (original bytes, keys and timing)."""
-    from drivers.record import read, replay as play
+    from drivers.record import read
+    from drivers.record import replay as play
     from planner.service.bus import open_session
 
     if not recording.is_file():

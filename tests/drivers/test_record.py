@@ -16,7 +16,7 @@ import pytest
 
 from drivers.record import Recorder, is_command, read, replay
 from planner.errors import InputError
-from tests.drivers.conftest import free_port, raw_session, wait_for
+from tests.drivers.conftest import free_port, wait_for
 from tests.paths import REPO
 
 SCENARIO = REPO / "scenarios" / "paper_n1.yaml"
@@ -117,11 +117,9 @@ class _Session:
         self.put_log.append(key)
 
     def get(self, key: str, timeout: float = 1.0) -> list[Any]:
-        class _R:
-            class ok:
-                key_expr = "p/alive/arm0"
+        from types import SimpleNamespace
 
-        return [_R()]
+        return [SimpleNamespace(ok=SimpleNamespace(key_expr="p/alive/arm0"))]
 
 
 def test_commands_are_not_replayed_by_default_and_refused_on_a_live_bus(tmp_path: Path) -> None:
