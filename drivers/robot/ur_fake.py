@@ -76,6 +76,8 @@ class FakeURController:
         self.watchdog_hz = 0.0
         self.watchdog_trips = 0
         self.reuploads = 0
+        self.outputs = 0  # standard digital output bits, as read back over RTDE
+        self._outputs_pending = 0
         self._writes: list[int] = []
         self._target: Array | None = None
         self._servo_args: tuple[float, float] = (CYCLE, 0.1)  # (t, lookahead)
@@ -233,6 +235,17 @@ class FakeURController:
     def getRobotMode(self) -> int:
         return 7  # running
 
+    def getActualDigitalOutputBits(self) -> int:
+        return self.outputs
+
+    # -- io interface (rtde_io.RTDEIOInterface) ------------------------------------------
+    def setStandardDigitalOut(self, output_id: int, signal_level: bool) -> bool:
+        """Switch an output; the receive side sees it from the next controller cycle."""
+        with self._lock:
+            bit = 1 << int(output_id)
+            self._outputs_pending = (self._outputs_pending & ~bit) | (bit if signal_level else 0)
+        return True
+
     # -- one controller cycle ---------------------------------------------------------------
     def cycle(self) -> None:
         """Read the register (last write of the cycle), move the arm, check the watchdog."""
@@ -243,6 +256,7 @@ class FakeURController:
             if not self.link_alive:
                 return
             self.timestamp += CYCLE
+            self.outputs = self._outputs_pending
             if read == CMD_SERVOJ and writes and self.running:
                 self._target, self._servo_args = self._pending
             self._move()
@@ -262,3 +276,31 @@ class FakeURController:
                 k = 1.0 - np.exp(-t_ctrl / max(self._servo_args[1], 1e-6))
                 self.q = self.q + k * (self._target - self.q)
         self.qd = (self.q - q_old) / CYCLE
+
+
+class FakeDashboard:
+    """ur_rtde's ``DashboardClient`` (port 29999) answers of a healthy e-Series controller."""
+
+    def __init__(self, controller: FakeURController) -> None:
+        self.controller = controller
+        self.version = "URSoftware 5.11.6.1130617 (Jun 06 2023)"
+
+    def connect(self, timeout_ms: int = 2000) -> None:
+        pass
+
+    def disconnect(self) -> None:
+        pass
+
+    def polyscopeVersion(self) -> str:
+        return self.version
+
+    def robotmode(self) -> str:
+        return "Robotmode: RUNNING"
+
+    def safetystatus(self) -> str:
+        names = {1: "NORMAL", 2: "REDUCED", 3: "PROTECTIVE_STOP", 5: "SAFEGUARD_STOP",
+                 7: "ROBOT_EMERGENCY_STOP"}  # fmt: skip
+        return f"Safetystatus: {names.get(self.controller.safety_mode, 'FAULT')}"
+
+    def isInRemoteControl(self) -> bool:
+        return self.controller.remote_control

@@ -46,6 +46,7 @@ _GROUPS = [
     ("planner.cli.bench", "app", "bench"),
     ("drivers.cli", "app", "driver"),
     ("planner.cli.robot", "app", "robot"),
+    ("planner.cli.hw", "app", "hw"),
 ]
 
 
