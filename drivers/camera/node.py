@@ -11,6 +11,10 @@
 - subscribes ``<prefix>/<robot>/joint_states`` of the robots the source asks for (the
   simulated camera needs them to trace the true beam),
 - declares the liveliness token ``<prefix>/alive/camera``,
+- for sources that can (``markers``): the queryable ``<prefix>/camera/markers``: the query
+  body is JSON (``board_points``, and what the source needs: ``charuco`` for the RealSense
+  source, ``board_pose`` / ``robot`` for the simulated one), the reply
+  ``{"t": UNIX s, "points_camera": [[x, y, z] or null, ...]}`` (camera optical frame, m),
 - for sources that use them (the RealSense source): subscribes the laser gate state,
   ``<prefix>/laser`` (JSON ``{"on": bool, "t": UNIX s}``) and the ``laser_on`` field of
   ``<prefix>/*/status``, and ``<prefix>/camera/predicted`` (JSON ``{"p_camera": [x, y, z],
@@ -24,6 +28,7 @@ one (``frame_time``), else the time it was grabbed.
 from __future__ import annotations
 
 import json
+import threading
 import time
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -113,6 +118,7 @@ class CameraNode(LoopNode):
         self._points_every = max(1, round(spot_rate / points_rate))
         self.frames = 0
         self.skipped = 0  # framesets the source could not deliver (incomplete, timeout)
+        self._lock = threading.Lock()  # the source: frame loop vs. marker queries
         self.error: str | None = None
 
     def start(self, loop: bool = True) -> CameraNode:
@@ -128,6 +134,10 @@ class CameraNode(LoopNode):
                 s.declare_subscriber(f"{k.prefix}/laser", self._on_gate),
                 s.declare_subscriber(f"{k.prefix}/*/status", self._on_gate),
             ]
+        if hasattr(self.source, "markers"):
+            self._handles.append(
+                s.declare_queryable(f"{k.prefix}/camera/markers", self._on_markers)
+            )
         if hasattr(self.source, "on_predicted"):
             self._handles.append(
                 s.declare_subscriber(f"{k.prefix}/camera/predicted", self._on_predicted)
@@ -159,6 +169,19 @@ class CameraNode(LoopNode):
             stamp = float(t) if isinstance(t, int | float) and np.isfinite(t) else time.time()
             self.source.on_gate(on, stamp)  # type: ignore[attr-defined]
 
+    def _on_markers(self, query: Any) -> None:
+        """Board markers as the camera sees them now (see the module docstring)."""
+        body = _small_json(query) or {}
+        try:
+            with self._lock:
+                found = self.source.markers(body)  # type: ignore[attr-defined]
+            pts = np.asarray(found, dtype=np.float64)
+            rows = [p.tolist() if np.all(np.isfinite(p)) else None for p in pts.reshape(-1, 3)]
+            reply = {"t": time.time(), "points_camera": rows}
+        except (InputError, ValueError, KeyError, TypeError, AttributeError) as exc:
+            reply = {"error": str(exc)}
+        query.reply(query.key_expr, json.dumps(reply).encode())
+
     def _on_predicted(self, sample: Any) -> None:
         body = _small_json(sample)
         p = body.get("p_camera") if body else None
@@ -183,6 +206,10 @@ class CameraNode(LoopNode):
     def publish_frame(self) -> None:
         """Grab one frame (blocks at the device rate for a real camera), publish its spot
         and, when due, its cloud."""
+        with self._lock:
+            self._publish_frame()
+
+    def _publish_frame(self) -> None:
         if self.source.grab() is False:
             self.skipped += 1
             return
@@ -205,11 +232,12 @@ class CameraNode(LoopNode):
 
 
 def _small_json(sample: Any) -> dict[str, Any] | None:
-    """A JSON object body of at most 64 KiB, or None."""
+    """A JSON object body (sample or query) of at most 64 KiB, or None."""
     try:
-        if len(sample.payload) > 65536:
+        payload = sample.payload
+        if payload is None or len(payload) > 65536:
             return None
-        body = json.loads(sample.payload.to_bytes())
+        body = json.loads(payload.to_bytes())
     except (ValueError, UnicodeDecodeError):
         return None
     return body if isinstance(body, dict) else None

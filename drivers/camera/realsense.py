@@ -252,6 +252,16 @@ class RealSenseCamera:
         except ValueError:
             return None
 
+    def markers(self, request: dict[str, Any]) -> Array:
+        """ChArUco corners of the last frame (camera frame, m; NaN = not seen); the request's
+        ``charuco`` gives the board (:class:`drivers.camera.markers.CharucoSpec` fields)."""
+        from drivers.camera.markers import CharucoSpec, detect_charuco
+
+        spec = CharucoSpec(**request.get("charuco", {}))
+        depth_m = np.asanyarray(self._depth.get_data()) * self._depth.get_units()
+        return detect_charuco(np.asanyarray(self._color.get_data()), depth_m,
+                              self.intrinsics(), spec)  # fmt: skip
+
     def close(self) -> None:
         with contextlib.suppress(RuntimeError):  # already stopped
             self.pipeline.stop()

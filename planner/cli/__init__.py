@@ -67,6 +67,10 @@ def _register() -> None:
 
 
 _register()
+if _exists("planner.cli.collect"):  # calibrate collect handeye|beam
+    importlib.import_module("planner.cli.calibrate").app.add_typer(
+        importlib.import_module("planner.cli.collect").app, name="collect"
+    )
 
 
 def _version(value: bool) -> None:
