@@ -56,7 +56,7 @@ def test_conditioning_selection_and_degenerate_poses() -> None:
     assert cond == pytest.approx(condition(J), rel=1e-6)  # the reported figure is J's
     # rotating only wrist_3 leaves directions poorly excited: far worse conditioned
     q0 = qs[0]
-    spin = np.array([q0 + [0, 0, 0, 0, 0, a] for a in np.linspace(-0.5, 0.5, 6)])
+    spin = np.array([q0 + np.array([0, 0, 0, 0, 0, a]) for a in np.linspace(-0.5, 0.5, 6)])
     bad = condition(handeye_jacobian(system, "arm0", "eye_to_hand", spin, board, cam, pose))
     assert bad > 10 * cond
     # greedy selection beats taking the first candidates
@@ -179,6 +179,9 @@ def test_collect_user_mistakes_and_a_hostile_marker_query(sim_system: Any) -> No
         assert r.returncode == 2 and r.stderr.decode().count("\n") == 1, args
     client = raw_session(ep)
     try:
+        end = time.monotonic() + 10.0  # let the client discover the camera peer
+        while not list(client.get(f"{prefix}/camera/markers", timeout=1.0)):
+            assert time.monotonic() < end, "no camera answers markers queries"
         for body in (b"", b"garbage", b'{"board_points": "x"}', b'{"board_points": [[0,0,0]]}'):
             replies = list(client.get(f"{prefix}/camera/markers", payload=body, timeout=5.0))
             assert replies and "error" in json.loads(replies[0].ok.payload.to_bytes())
