@@ -204,8 +204,12 @@ def bench(
     samples: int = typer.Option(8900, "--samples", help="Samples per flood trajectory."),
     rate: float = typer.Option(10.0, "--rate", help="Flood trajectories per second."),
     quiet: float = typer.Option(3.0, "--quiet", help="Quiet measurement before the flood, s."),
+    backend: RobotBackendName = typer.Option(  # noqa: B008
+        RobotBackendName.sim, "--backend", help="sim, or ur on the simulated controller."
+    ),
+    realtime: bool = typer.Option(False, "--realtime", help="ur: SCHED_FIFO control loop."),
 ) -> None:
-    """Control-loop jitter of the simulated robot driver, quiet and under a trajectory flood."""
+    """Control-loop jitter of a robot driver, quiet and under a trajectory flood."""
     from drivers.bench import flood_jitter
     from planner.errors import InputError
 
@@ -215,7 +219,10 @@ def bench(
         raise InputError(f"must be in [2, 10000] (bodies under 4 MiB), got {samples}", "--samples")
     if not 0 < rate <= 100:
         raise InputError(f"must be in (0, 100] per s, got {rate:g}", "--rate")
-    r = flood_jitter(seconds=seconds, samples=samples, rate=rate, quiet=quiet)
+    r = flood_jitter(seconds=seconds, samples=samples, rate=rate, quiet=quiet,
+                     backend=backend.value, realtime=realtime)  # fmt: skip
+    typer.echo(f"backend {r['backend']}" + ("" if r["watchdog_trips"] is None
+               else f" (simulated controller, RTDE watchdog trips: {r['watchdog_trips']})"))  # fmt: skip
     typer.echo(f"quiet: {r['quiet'].line()}")
     typer.echo(
         f"flood ({r['sent']} x {r['bytes'] / 1e6:.1f} MB at {rate:g}/s, {r['checked']} checked, "

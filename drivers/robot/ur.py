@@ -30,6 +30,9 @@ Per control period (``rate``, 500 Hz on e-Series):
    :data:`ARRIVE_TOLERANCE` of it, then the servo session ends with ``servoStop``.
 4. ``waitPeriod()``.
 
+The RTDE watchdog (``setWatchdog(watchdog_hz)``: the controller stops the arm when the
+command register is not written for ``1/watchdog_hz`` s) is armed in the first period.
+
 Calls that wait for the controller's answer (``servoStop``, ``setWatchdog``, ``reuploadScript``,
 ``disconnect``) never run in the control loop: :class:`drivers.robot.ur_link.AsyncCall`.
 Every check and watchdog of :mod:`drivers.robot.node` applies unchanged; a safety stop calls
@@ -107,8 +110,6 @@ class URRobot:
             control, receive = _connect(host, self.rate, RT_PRIORITY if realtime else 0)
         self.control = control
         self.receive = receive
-        if not self.control.setWatchdog(watchdog_hz):
-            raise InputError("the controller refused setWatchdog", f"--host {host}")
         q0 = np.asarray(self.receive.getActualQ(), dtype=float)
         self.follower = TrajectoryFollower(q0, limits, self.dt, stop_acceleration)
         self.log = RateLimitedLog(f"{robot or 'ur'}")
@@ -125,6 +126,8 @@ class URRobot:
         self._ts_at = time.monotonic()
         self._hold = (np.inf, 0.0)  # (best distance to the held target, when), rad, s
         self._t0: Any = None
+        self._armed = False  # the RTDE watchdog is armed in the first period, not before:
+        # the node may take seconds to start its loop, and nothing would feed it meanwhile
         self._last = Measured(q0.copy(), np.zeros(len(self.names)), "idle")
 
     # -- period ---------------------------------------------------------------------------
@@ -135,6 +138,11 @@ class URRobot:
         self._t0 = self.control.initPeriod()
 
     def step(self) -> Measured:
+        if not self._armed:
+            self._armed = True
+            self._ts_at = time.monotonic()  # staleness counts from the first period
+            self.call.start("setWatchdog", lambda: self.control.setWatchdog(self.watchdog_hz),
+                            CALL_TIMEOUT)  # fmt: skip
         q = np.asarray(self.receive.getActualQ(), dtype=float)
         qd = np.asarray(self.receive.getActualQd(), dtype=float)
         self._read_state()
@@ -326,6 +334,8 @@ class URRobot:
             else:
                 self.note = f"recover failed: {detail or 'the cause came back'}"
                 self.log(self.note)
+        elif name == "setWatchdog" and not ok:
+            self._enter_fault(f"the controller refused setWatchdog: {detail}", q)
         elif not ok:
             self.log(f"{name} failed: {detail}")
 

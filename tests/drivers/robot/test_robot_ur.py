@@ -27,7 +27,9 @@ def make_robot(
 ) -> tuple[URRobot, FakeURController]:
     fake = FakeURController(HOME, speed_scaling=speed, lag=lag)
     robot = URRobot("fake", JOINT_NAMES_UR, LIMITS, control=fake, receive=fake, **kw)
-    fake.cycle()  # the controller cycle that takes setWatchdog
+    period(robot)  # the first period arms the RTDE watchdog (helper thread)
+    while robot.call.busy:
+        robot.call.poll()
     fake.cycles.clear()
     return robot, fake
 
@@ -56,7 +58,7 @@ def test_one_command_register_write_per_period() -> None:
     """Each controller cycle sees exactly one write of the command register: the servo
     target while moving (never overwritten by a watchdog kick), a kick at rest."""
     robot, fake = make_robot(lookahead_time=0.05, gain=500.0, watchdog_hz=25.0)
-    assert fake.calls[0] == "setWatchdog" and fake.watchdog_hz == 25.0
+    assert fake.calls[0] == "setWatchdog" and fake.watchdog_hz == 25.0  # armed
     dq = np.array([0.1, 0, 0, 0, 0, -0.1])
     robot.command(reference(dq, 0.6))
     n = 400  # 0.8 s at 500 Hz: the move (0.6 s) and then rest

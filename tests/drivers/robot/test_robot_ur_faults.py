@@ -216,8 +216,19 @@ def test_node_stale_link_and_recover_over_the_bus(hub: Any, endpoint: str, keys:
         client.close()
 
 
-def test_ur_robot_refuses_when_control_refuses_watchdog() -> None:
+def test_watchdog_armed_in_the_first_period_and_refusal_is_a_fault() -> None:
+    """Armed when the loop runs (a slow node start must not trip it); refused -> fault."""
     fake = FakeURController(HOME)
-    fake.running = False
-    with pytest.raises(InputError, match="refused setWatchdog"):
-        URRobot("fake", tuple(f"j{i}" for i in range(6)), LIMITS, control=fake, receive=fake)
+    robot = URRobot("fake", tuple(f"j{i}" for i in range(6)), LIMITS, control=fake, receive=fake)
+    time.sleep(0.2)  # the node starting its parse worker, say: longer than 1/10 Hz
+    assert fake.watchdog_hz == 0.0 and "setWatchdog" not in fake.calls
+    for _ in range(5):
+        period(robot)
+    assert fake.watchdog_hz == 10.0 and fake.watchdog_trips == 0
+    assert robot.measured().mode == "idle"  # no stale-link fault from the slow start
+    bad = FakeURController(HOME)
+    robot = URRobot("fake", tuple(f"j{i}" for i in range(6)), LIMITS, control=bad, receive=bad)
+    bad.running = False
+    for _ in range(5):
+        period(robot)
+    assert robot.measured().mode == "fault"
