@@ -17,7 +17,8 @@ both). What it models, per 2 ms controller cycle (one cycle per ``waitPeriod`` c
   ``lookahead_time / speed_scaling``: below 100 % every servoJ target is executed slower.
   ``servoStop`` ends the servo: the arm stops where it is.
 - **RTDE watchdog.** After ``setWatchdog(f)``, a gap of more than ``1/f`` s between two
-  register writes stops the control script (``isProgramRunning()`` false).
+  register writes stops the control script (``isProgramRunning()`` false): wall time when
+  ``realtime`` (the loop is paced), else controller cycles of 2 ms (deterministic tests).
 - **Safety.** :meth:`protective_stop` / :meth:`emergency_stop` stop the arm and the control
   script (the controller aborts the program); :meth:`release` clears the stop (as the
   operator does on the pendant) but the script stays stopped until ``reuploadScript``.
@@ -83,6 +84,7 @@ class FakeURController:
         self._servo_args: tuple[float, float] = (CYCLE, 0.1)  # (t, lookahead)
         self._pending: tuple[Array, tuple[float, float]] = (self.q.copy(), self._servo_args)
         self._last_write = time.monotonic()
+        self._idle_cycles = 0  # cycles since the last register write
         self._frozen = (self.q.copy(), self.qd.copy(), self.timestamp)
         self._lock = threading.Lock()
         self._link = threading.Event()
@@ -178,6 +180,7 @@ class FakeURController:
             self.watchdog_hz = 0.0
             self.reuploads += 1
             self._last_write = time.monotonic()
+            self._idle_cycles = 0
         return True
 
     def initPeriod(self) -> datetime.timedelta:
@@ -251,6 +254,7 @@ class FakeURController:
         """Read the register (last write of the cycle), move the arm, check the watchdog."""
         with self._lock:
             writes, self._writes = self._writes, []
+            self._idle_cycles = 0 if writes else self._idle_cycles + 1
             read = writes[-1] if writes else (self.cycles[-1][1] if self.cycles else CMD_NONE)
             self.cycles.append((writes, read))
             if not self.link_alive:
@@ -261,7 +265,8 @@ class FakeURController:
                 self._target, self._servo_args = self._pending
             self._move()
             wd = self.watchdog_hz
-            if self.running and wd > 0 and time.monotonic() - self._last_write > 1.0 / wd:
+            gap = time.monotonic() - self._last_write if self.realtime else self._idle_cycles * CYCLE
+            if self.running and wd > 0 and gap > 1.0 / wd:
                 self.running = False
                 self.watchdog_trips += 1
                 self._target = None

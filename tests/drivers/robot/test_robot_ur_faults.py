@@ -88,8 +88,11 @@ def test_watchdog_trip_needs_recover() -> None:
     """A script stopped by the RTDE watchdog (the loop stalled) is a fault too."""
     robot, fake = make_robot(watchdog_hz=10.0)
     period(robot)
-    time.sleep(0.15)  # the loop stalls for 150 ms > 1/10 Hz
-    fake.cycle()
+    for _ in range(49):  # the loop stalls: 98 ms of controller cycles without a write
+        fake.cycle()
+    assert fake.watchdog_trips == 0
+    for _ in range(2):  # 102 ms > 1 / 10 Hz
+        fake.cycle()
     assert fake.watchdog_trips == 1
     period(robot)
     assert robot.measured().mode == "fault"
