@@ -265,7 +265,9 @@ class FakeURController:
                 self._target, self._servo_args = self._pending
             self._move()
             wd = self.watchdog_hz
-            gap = time.monotonic() - self._last_write if self.realtime else self._idle_cycles * CYCLE
+            gap = (
+                time.monotonic() - self._last_write if self.realtime else self._idle_cycles * CYCLE
+            )
             if self.running and wd > 0 and gap > 1.0 / wd:
                 self.running = False
                 self.watchdog_trips += 1
