@@ -1,7 +1,11 @@
-"""Control-loop timing of the simulated robot driver, quiet and under a trajectory flood.
+"""Control-loop timing of a robot driver, quiet and under a trajectory flood.
 
 :func:`flood_jitter` runs a :class:`drivers.robot.node.RobotNode` with the 500 Hz
-:class:`drivers.robot.sim.SimRobot` on a private loopback bus, records the start time of
+:class:`drivers.robot.sim.SimRobot` (``backend="sim"``) or the UR backend
+(:class:`drivers.robot.ur.URRobot`) on the simulated controller
+(:class:`drivers.robot.ur_fake.FakeURController`, paced by ``waitPeriod`` like ur_rtde's),
+optionally with ``realtime`` (SCHED_FIFO for the control loop, when permitted), on a
+private loopback bus, records the start time of
 every control period (monotonic clock) for ``quiet`` seconds, then for ``seconds`` while a
 plain Zenoh publisher in another process sends ``samples``-sample trajectories (``rate`` per second, ~3.5 MB
 each at 8900 samples) that the driver parses and checks in full and then rejects (they
@@ -81,7 +85,12 @@ def flood_body(
 
 
 def flood_jitter(
-    seconds: float = 5.0, samples: int = 8900, rate: float = 10.0, quiet: float = 3.0
+    seconds: float = 5.0,
+    samples: int = 8900,
+    rate: float = 10.0,
+    quiet: float = 3.0,
+    backend: str = "sim",
+    realtime: bool = False,
 ) -> dict[str, Any]:
     """Loop figures without and with the flood (see the module docstring), and the counts of
     trajectories sent, checked (a verdict) and superseded before they were checked."""
@@ -93,8 +102,18 @@ def flood_jitter(
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     keys, limits, home = Keys("bench"), Limits.ur_default(), np.array(DEFAULT_HOME)
     session = open_session(listen=True, endpoint=endpoint)  # the driver hosts the bus
-    backend = SimRobot(JOINT_NAMES_UR, home, limits)
-    node = RobotNode(session, keys, "arm0", backend, limits, require_planner=False).start()
+    robot: Any
+    fake: Any = None
+    if backend == "ur":
+        from drivers.robot.ur import URRobot
+        from drivers.robot.ur_fake import FakeURController
+
+        fake = FakeURController(home, realtime=True, lag=False)
+        robot = URRobot("bench", JOINT_NAMES_UR, limits, robot="arm0", control=fake,
+                        receive=fake, realtime=realtime)  # fmt: skip
+    else:
+        robot = SimRobot(JOINT_NAMES_UR, home, limits)
+    node = RobotNode(session, keys, "arm0", robot, limits, require_planner=False).start()
     sent, size = 0, 0
     try:
         time.sleep(1.0)  # connect, settle
@@ -110,7 +129,7 @@ def flood_jitter(
     finally:
         node.stop()
         session.close()
-    dt = 1.0 / backend.rate
+    dt = 1.0 / robot.rate
     return {
         "quiet": loop_stats(node_window(node, n0, n1), dt),
         "flood": loop_stats(node_window(node, n1, n2), dt),
@@ -118,6 +137,8 @@ def flood_jitter(
         "bytes": size,
         "checked": node.n_accepted + node.n_rejected - node.intake.n_superseded,
         "superseded": node.intake.n_superseded,
+        "backend": backend,
+        "watchdog_trips": None if fake is None else fake.watchdog_trips,
     }
 
 

@@ -47,6 +47,9 @@ class CameraBackendName(StrEnum):
 
 ROBOT_BACKEND = typer.Option(RobotBackendName.sim, "--backend", help="sim or ur.")
 CAMERA_BACKEND = typer.Option(CameraBackendName.sim, "--backend", help="sim or realsense.")
+DB3_RECORD = typer.Option(
+    None, "--record", help="realsense device: also record the raw streams to this .db3."
+)
 RECORDING = typer.Option(
     None, "--file", help="realsense: play a .db3 recording (librealsense 2.59) instead of a device."
 )
@@ -81,6 +84,11 @@ def robot(
         "--require-planner/--no-require-planner",
         help="Refuse to move without a live planner and its heartbeat (off: bench work only).",
     ),
+    realtime: bool = typer.Option(
+        False,
+        "--realtime",
+        help="ur: SCHED_FIFO for the control loop and ur_rtde's threads (when permitted).",
+    ),
 ) -> None:
     """Run a robot driver: joint_states, status, trajectories, planner heartbeat watchdog."""
     from drivers.robot.node import RobotNode
@@ -113,6 +121,8 @@ def robot(
             host,
             r.joint_names,
             r.limits,
+            robot=name,
+            realtime=realtime,
             rate=rate,
             lookahead_time=lookahead,
             gain=gain,
@@ -150,6 +160,13 @@ def camera(
     seed: int | None = typer.Option(None, "--seed", help="sim: noise seed."),
     serial: str | None = typer.Option(None, "--serial", help="realsense: device serial number."),
     file: Path | None = RECORDING,
+    frame_timeout: float = typer.Option(
+        5.0, "--frame-timeout", help="realsense: longest wait for a frameset, s (then restart)."
+    ),
+    exposure: float = typer.Option(
+        150.0, "--exposure", help="realsense: manual colour exposure, us (0: auto exposure)."
+    ),
+    record: Path | None = DB3_RECORD,
 ) -> None:
     """Run a camera driver: point cloud and laser spot."""
     from drivers.camera.node import CameraNode
@@ -173,7 +190,16 @@ def camera(
 
         if file is not None and not file.is_file():
             raise InputError("recording not found", f"--file {file}")
-        source = RealSenseCamera(serial=serial, file=file)
+        if not 0.05 <= frame_timeout <= 60:
+            raise InputError(f"must be in [0.05, 60] s, got {frame_timeout:g}", "--frame-timeout")
+        if not 0 <= exposure <= 165000:
+            raise InputError(f"must be in [0, 165000] us, got {exposure:g}", "--exposure")
+        if record is not None and (file is not None or record.suffix != ".db3"):
+            raise InputError("records a live device to a *.db3 file", f"--record {record}")
+        source = RealSenseCamera(
+            serial=serial, file=file, timeout_ms=round(1e3 * frame_timeout),
+            exposure_us=exposure or None, record_to=record,
+        )  # fmt: skip
     session = open_session(listen=listen, endpoint=endpoint, config_file=zenoh_config)
     node = CameraNode(session, Keys(prefix), source, spot_rate=spot_rate, points_rate=points_rate)
     _run(node, session, f"camera: {backend.value} driver up (prefix {prefix})")
@@ -185,8 +211,12 @@ def bench(
     samples: int = typer.Option(8900, "--samples", help="Samples per flood trajectory."),
     rate: float = typer.Option(10.0, "--rate", help="Flood trajectories per second."),
     quiet: float = typer.Option(3.0, "--quiet", help="Quiet measurement before the flood, s."),
+    backend: RobotBackendName = typer.Option(  # noqa: B008
+        RobotBackendName.sim, "--backend", help="sim, or ur on the simulated controller."
+    ),
+    realtime: bool = typer.Option(False, "--realtime", help="ur: SCHED_FIFO control loop."),
 ) -> None:
-    """Control-loop jitter of the simulated robot driver, quiet and under a trajectory flood."""
+    """Control-loop jitter of a robot driver, quiet and under a trajectory flood."""
     from drivers.bench import flood_jitter
     from planner.errors import InputError
 
@@ -196,7 +226,10 @@ def bench(
         raise InputError(f"must be in [2, 10000] (bodies under 4 MiB), got {samples}", "--samples")
     if not 0 < rate <= 100:
         raise InputError(f"must be in (0, 100] per s, got {rate:g}", "--rate")
-    r = flood_jitter(seconds=seconds, samples=samples, rate=rate, quiet=quiet)
+    r = flood_jitter(seconds=seconds, samples=samples, rate=rate, quiet=quiet,
+                     backend=backend.value, realtime=realtime)  # fmt: skip
+    typer.echo(f"backend {r['backend']}" + ("" if r["watchdog_trips"] is None
+               else f" (simulated controller, RTDE watchdog trips: {r['watchdog_trips']})"))  # fmt: skip
     typer.echo(f"quiet: {r['quiet'].line()}")
     typer.echo(
         f"flood ({r['sent']} x {r['bytes'] / 1e6:.1f} MB at {rate:g}/s, {r['checked']} checked, "
@@ -220,3 +253,6 @@ def _run(node: Any, session: Any, banner: str) -> None:
     finally:
         node.stop()
         session.close()
+    if node.failure is not None:
+        typer.echo(f"error: {node.failure}", err=True)
+        raise typer.Exit(1)

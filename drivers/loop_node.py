@@ -4,11 +4,17 @@ A :class:`LoopNode` runs its ``_loop`` in one daemon thread until :meth:`LoopNod
 stop sets the ``_stop`` event, joins the thread (at most ``join_timeout`` s), lets the
 subclass release its device (``_close``) and undeclares the Zenoh handles (subscribers,
 tokens) in reverse order of declaration. :meth:`LoopNode.wait` blocks until the loop ends.
+
+A loop that raises is a dead node, not a quiet one: :attr:`LoopNode.failure` keeps the
+error (one line), the traceback goes to stderr, and the driver command exits non-zero
+(``drivers.cli``), so ``beamrelay up`` sees the exit.
 """
 
 from __future__ import annotations
 
+import sys
 import threading
+import traceback
 from typing import Any
 
 
@@ -21,6 +27,7 @@ class LoopNode:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._handles: list[Any] = []  # anything with .undeclare(), in declaration order
+        self.failure: str | None = None  # why the loop died (None: it did not)
 
     def _loop(self) -> None:
         raise NotImplementedError
@@ -29,8 +36,17 @@ class LoopNode:
         """Release the backend (stop the arm, close the camera); the loop has ended."""
 
     def _start_loop(self, name: str) -> None:
-        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
+        self._thread = threading.Thread(target=self._guarded, name=name, daemon=True)
         self._thread.start()
+
+    def _guarded(self) -> None:
+        """Run the loop; record and print an exception that ends it."""
+        try:
+            self._loop()
+        except Exception as exc:
+            name = self._thread.name if self._thread is not None else "loop"
+            self.failure = f"{name} loop died: {type(exc).__name__}: {exc}"
+            traceback.print_exc(file=sys.stderr)
 
     def stop(self) -> None:
         """Stop the loop, close the backend and withdraw every bus handle (token last

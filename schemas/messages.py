@@ -184,6 +184,7 @@ class RobotStatus(StrictModel):
     trajectory: TrajectoryAck | None = None
     laser_on: StrictBool | None = None
     """the laser gate's state, from the driver of the robot that switches it (else null)"""
+    safety_mode: str | None = None  # the controller's safety mode (normal, reduced, ...)
 
 
 class LaserState(StrictModel):

@@ -10,12 +10,25 @@
   attachment = JSON metadata (:func:`points_metadata`), decoded by :func:`decode_points`,
 - subscribes ``<prefix>/<robot>/joint_states`` of the robots the source asks for (the
   simulated camera needs them to trace the true beam),
-- declares the liveliness token ``<prefix>/alive/camera``.
+- declares the liveliness token ``<prefix>/alive/camera``,
+- for sources that can (``markers``): the queryable ``<prefix>/camera/markers``: the query
+  body is JSON (``board_points``, and what the source needs: ``charuco`` for the RealSense
+  source, ``board_pose`` / ``robot`` for the simulated one), the reply
+  ``{"t": UNIX s, "points_camera": [[x, y, z] or null, ...]}`` (camera optical frame, m),
+- for sources that use them (the RealSense source): subscribes the laser gate state,
+  ``<prefix>/laser`` (JSON ``{"on": bool, "t": UNIX s}``) and the ``laser_on`` field of
+  ``<prefix>/*/status``, and ``<prefix>/camera/predicted`` (JSON ``{"p_camera": [x, y, z],
+  "t": UNIX s}``: the planner's predicted spot, camera optical frame, m).
+
+A source's ``grab`` may return False (an incomplete frameset, a timeout): nothing is
+published for it. Message times ``t`` are the frame's capture time when the source gives
+one (``frame_time``), else the time it was grabbed.
 """
 
 from __future__ import annotations
 
 import json
+import threading
 import time
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -46,7 +59,7 @@ class CameraSource(Protocol):
     robot_names: tuple[str, ...]
 
     def on_joint_state(self, robot: str, q: Array) -> None: ...
-    def grab(self) -> None: ...
+    def grab(self) -> bool | None: ...
     def points(self) -> tuple[Any, dict[str, Any]]: ...
     def spot(self) -> SpotReading | None: ...
     def close(self) -> None: ...
@@ -104,9 +117,13 @@ class CameraNode(LoopNode):
         self.period = 1.0 / spot_rate
         self._points_every = max(1, round(spot_rate / points_rate))
         self.frames = 0
+        self.skipped = 0  # framesets the source could not deliver (incomplete, timeout)
+        self._lock = threading.Lock()  # the source: frame loop vs. marker queries
         self.error: str | None = None
 
-    def start(self) -> CameraNode:
+    def start(self, loop: bool = True) -> CameraNode:
+        """Declare the bus handles and (``loop``) run the frame loop; without it the caller
+        calls :meth:`publish_frame` itself (tests, replays)."""
         s, k = self.session, self.keys
         self._pub_spot = s.declare_publisher(k.camera_spot, encoding=JSON)
         self._pub_points = s.declare_publisher(k.camera_points)
@@ -114,8 +131,22 @@ class CameraNode(LoopNode):
             self._handles.append(s.declare_subscriber(k.joint_states(robot), self._joints(robot)))
         if hasattr(self.source, "on_laser"):  # a source that sees the spot only when lit
             self._handles.append(s.declare_subscriber(k.laser, self._on_laser))
+        if hasattr(self.source, "on_gate"):
+            self._handles += [
+                s.declare_subscriber(f"{k.prefix}/laser", self._on_gate),
+                s.declare_subscriber(f"{k.prefix}/*/status", self._on_gate),
+            ]
+        if hasattr(self.source, "markers"):
+            self._handles.append(
+                s.declare_queryable(f"{k.prefix}/camera/markers", self._on_markers)
+            )
+        if hasattr(self.source, "on_predicted"):
+            self._handles.append(
+                s.declare_subscriber(f"{k.prefix}/camera/predicted", self._on_predicted)
+            )
         self._handles.append(s.liveliness().declare_token(k.alive("camera")))
-        self._start_loop("camera")
+        if loop:
+            self._start_loop("camera")
         return self
 
     def _close(self) -> None:
@@ -140,6 +171,38 @@ class CameraNode(LoopNode):
             return  # a malformed state is ignored; the last good one stays
         self.source.on_laser(msg.on)  # type: ignore[attr-defined]
 
+    def _on_gate(self, sample: Any) -> None:
+        """Laser gate state from ``<prefix>/laser`` (``on``) or a robot status (``laser_on``)."""
+        body = _small_json(sample)
+        on = body.get("on", body.get("laser_on")) if body else None
+        if isinstance(on, bool):
+            t = body.get("t") if body else None
+            stamp = float(t) if isinstance(t, int | float) and np.isfinite(t) else time.time()
+            self.source.on_gate(on, stamp)  # type: ignore[attr-defined]
+
+    def _on_markers(self, query: Any) -> None:
+        """Board markers as the camera sees them now (see the module docstring)."""
+        body = _small_json(query) or {}
+        try:
+            with self._lock:
+                found = self.source.markers(body)  # type: ignore[attr-defined]
+            pts = np.asarray(found, dtype=np.float64)
+            rows = [p.tolist() if np.all(np.isfinite(p)) else None for p in pts.reshape(-1, 3)]
+            reply = {"t": time.time(), "points_camera": rows}
+        except (InputError, ValueError, KeyError, TypeError, AttributeError) as exc:
+            reply = {"error": str(exc)}
+        query.reply(query.key_expr, json.dumps(reply).encode())
+
+    def _on_predicted(self, sample: Any) -> None:
+        body = _small_json(sample)
+        p = body.get("p_camera") if body else None
+        try:
+            arr = np.asarray(p, dtype=float)
+        except (TypeError, ValueError):
+            return
+        if arr.shape == (3,) and np.all(np.isfinite(arr)):
+            self.source.on_predicted(arr, time.time())  # type: ignore[attr-defined]
+
     def _loop(self) -> None:
         next_t = time.monotonic()
         while not self._stop.is_set():
@@ -152,9 +215,17 @@ class CameraNode(LoopNode):
                 next_t = time.monotonic()  # late: do not try to catch up
 
     def publish_frame(self) -> None:
-        """Grab one frame (blocks at the device rate for a real camera), publish its spot and and, when due, its cloud."""
-        self.source.grab()
-        now = time.time()
+        """Grab one frame (blocks at the device rate for a real camera), publish its spot
+        and, when due, its cloud."""
+        with self._lock:
+            self._publish_frame()
+
+    def _publish_frame(self) -> None:
+        if self.source.grab() is False:
+            self.skipped += 1
+            return
+        frame_time = getattr(self.source, "frame_time", None)
+        now = frame_time() if frame_time is not None else time.time()
         if self.frames % self._points_every == 0:
             pts, extra = self.source.points()
             pts = np.ascontiguousarray(pts, dtype=np.float32)
@@ -169,3 +240,15 @@ class CameraNode(LoopNode):
             )
         self._pub_spot.put(encode(msg))
         self.frames += 1
+
+
+def _small_json(sample: Any) -> dict[str, Any] | None:
+    """A JSON object body (sample or query) of at most 64 KiB, or None."""
+    try:
+        payload = sample.payload
+        if payload is None or len(payload) > 65536:
+            return None
+        body = json.loads(payload.to_bytes())
+    except (ValueError, UnicodeDecodeError):
+        return None
+    return body if isinstance(body, dict) else None

@@ -178,6 +178,30 @@ class SimCamera:
         confidence = max(0.05, abs(float(np.dot(v, normal))))
         return SpotReading(ray * z, min(confidence, 1.0))
 
+    def markers(self, request: dict[str, Any]) -> Array:
+        """Board markers in the camera frame (P x 3, m; NaN outside the image), for hand-eye
+        collection. The simulated camera renders no board: the request gives the board's
+        points and its true mount (``board_pose``: ``flange_T_board`` on ``robot``, the
+        eye-to-hand setup), and the markers are placed from the latest joint states with the
+        truth geometry plus the D435 noise model (no occlusion check)."""
+        from planner.calibration.simulate import DepthNoise
+
+        board = np.asarray(request["board_points"], dtype=float).reshape(-1, 3)
+        pose = np.asarray(request["board_pose"], dtype=float).reshape(4, 4)
+        robot = str(request["robot"])
+        if robot not in self.q:
+            raise ValueError(f"no joint state of {robot!r} yet")
+        r = self.system.robot(robot)
+        c_T_b = self.camera_T_world @ r.world_T_base @ r.kinematics.fk(self.q[robot]) @ pose
+        p = board @ c_T_b[:3, :3].T + c_T_b[:3, 3]
+        k = self.camera.intrinsics
+        p = DepthNoise(focal_px=k.fx).apply(p, self.rng)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u, v = k.fx * p[:, 0] / p[:, 2] + k.cx, k.fy * p[:, 1] / p[:, 2] + k.cy
+        seen = (p[:, 2] > 0.1) & (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)
+        p[~seen] = np.nan
+        return p
+
     def _cast(self, p: Array, v: Array) -> tuple[float, Array]:
         """Distance along unit ray (p, v) to the scene (inf = miss) and the surface normal."""
         import open3d as o3d

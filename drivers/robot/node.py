@@ -71,6 +71,7 @@ from drivers.robot.gate import LaserGate
 from drivers.robot.intake import TrajectoryIntake, Verdict
 from drivers.robot.trajectory_check import START_TOLERANCE, check_start
 from drivers.robot.trajectory_check import check_trajectory as check_trajectory
+from drivers.robot.ur_link import RateLimitedLog, parse_recover, recover_key
 from planner.errors import InputError
 from planner.model.system import Limits
 from planner.model.transforms import Array
@@ -91,6 +92,8 @@ class Measured(NamedTuple):
     mode: str
     protective_stop: bool = False
     fault: str | None = None
+    stale: bool = False  # the link to the arm is stale: q, qd are old, not published
+    safety: str | None = None  # the controller's safety mode (normal, reduced, ...)
 
 
 class RobotBackend(Protocol):
@@ -166,6 +169,8 @@ class RobotNode(LoopNode):
         self._queued: Accepted | None = None
         self._triggers: list[str] = []  # stop reasons from callbacks, for the loop
         self._handled_stop: float | None = None
+        self.recover_requested = False
+        self.recover_log = RateLimitedLog(robot)
 
     # -- lifecycle ---------------------------------------------------------------------
     def start(self) -> RobotNode:
@@ -182,6 +187,7 @@ class RobotNode(LoopNode):
             s.declare_subscriber(k.heartbeat, self._on_heartbeat),
             s.declare_subscriber(k.stop, self._on_stop),
             s.liveliness().declare_subscriber(k.alive("planner"), self._on_planner, history=True),
+            s.declare_subscriber(recover_key(k.prefix, self.robot), self._on_recover),
             s.liveliness().declare_token(k.alive(self.robot)),
         ]
         self._start_loop(f"{self.robot}-control")
@@ -224,6 +230,15 @@ class RobotNode(LoopNode):
     def _on_trajectory(self, sample: Any) -> None:
         self.intake.submit(sample.payload)
 
+    def _on_recover(self, sample: Any) -> None:
+        """The operator's acknowledgement after a fault (``beamrelay robot recover``)."""
+        try:
+            parse_recover(sample.payload.to_bytes(), self.robot)
+        except (ValueError, UnicodeDecodeError) as exc:
+            self.recover_log(f"ignored a bad recover request: {exc}")
+            return
+        self.recover_requested = True
+
     # -- control loop --------------------------------------------------------------------
     def _loop(self) -> None:
         tick, last_mode = 0, ""
@@ -238,11 +253,15 @@ class RobotNode(LoopNode):
             for verdict in self.intake.take():
                 self._decide(verdict)
                 self._publish_status(self.backend.measured())
+            if self.recover_requested:
+                self.recover_requested = False
+                recover = getattr(self.backend, "recover", None)
+                self.recover_log(recover() if recover else "recover: nothing to do (sim)")
             m = self.backend.step()
             self._track()
             if self.gate is not None:
                 self.gate.update(m.fault)
-            if tick % self._state_every == 0:
+            if tick % self._state_every == 0 and not m.stale:
                 state = JointState(
                     t=time.time(), names=list(self.backend.names), q=m.q.tolist(),
                     qd=m.qd.tolist(),
@@ -350,7 +369,7 @@ class RobotNode(LoopNode):
         laser = self.gate.on if self.gate is not None else None
         msg = RobotStatus(
             robot=self.robot, t=time.time(), mode=m.mode, protective_stop=m.protective_stop,
-            fault=fault, trajectory=self.ack, laser_on=laser,
+            fault=fault, trajectory=self.ack, laser_on=laser, safety_mode=m.safety,
         )  # fmt: skip
         self._pub_status.put(encode(msg))
         if self.gate is not None:

@@ -19,7 +19,7 @@ from typing import Annotated
 import typer
 
 from drivers import cli as driver_cli
-from planner.cli import bench, calibrate, core, node, plan, study
+from planner.cli import bench, calibrate, collect, core, hw, node, plan, record, robot, study
 from planner.errors import InputError
 
 app = typer.Typer(
@@ -41,6 +41,11 @@ app.add_typer(calibrate.app, name="calibrate")
 app.add_typer(study.app, name="study")
 app.add_typer(bench.app, name="bench")
 app.add_typer(driver_cli.app, name="driver")
+app.command("record")(record.record)
+app.command("replay")(record.replay)
+app.add_typer(robot.app, name="robot")
+app.add_typer(hw.app, name="hw")
+calibrate.app.add_typer(collect.app, name="collect")
 
 
 def _version(value: bool) -> None:

@@ -121,6 +121,13 @@ def up(
             dir_okay=False,
         ),
     ] = None,
+    host: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--host",
+            help="ur backend: NAME=ADDRESS of each robot's controller (repeat per robot).",
+        ),
+    ] = None,
 ) -> None:
     """Start planner + camera + one robot driver per robot, supervised, until Ctrl-C.
 
@@ -143,6 +150,7 @@ def up(
         live=live,
         zenoh_config=zenoh_config,
         planner_zenoh_config=planner_zenoh_config,
+        hosts=host,
     )
 
 

@@ -3,7 +3,9 @@
 Each child runs in its own session (so a terminal's Ctrl-C reaches only the supervisor, which
 then stops the children in order) and, on Linux, gets SIGTERM if the supervisor dies. Output
 goes to ``<log_dir>/<name>.log``. A child that exits while the supervisor runs is restarted
-after ``RESTART_DELAY`` seconds (doubling for each quick crash, at most ``MAX_DELAY``).
+after ``RESTART_DELAY`` seconds (doubling for each quick crash, at most ``MAX_DELAY``),
+except children marked ``manual`` (drivers of real hardware): they stay down until
+:meth:`Supervisor.restart` (the operator's acknowledgement).
 """
 
 from __future__ import annotations
@@ -41,7 +43,13 @@ class Child:
     last_exit: int | None = None
     next_start: float = 0.0
     delay: float = RESTART_DELAY
+    manual: bool = False  # restart only on the operator's acknowledgement
     log: IO[bytes] | None = field(default=None, repr=False)
+
+    @property
+    def awaiting_operator(self) -> bool:
+        """A manual child that exited and waits for :meth:`Supervisor.restart`."""
+        return self.manual and self.proc is not None and not self.running
 
     @property
     def pid(self) -> int | None:
@@ -58,8 +66,12 @@ class Child:
 class Supervisor:
     """Start children, restart the ones that exit, stop them all on :meth:`stop`."""
 
-    def __init__(self, children: dict[str, list[str]], log_dir: Path) -> None:
-        self.children = {name: Child(name, argv) for name, argv in children.items()}
+    def __init__(
+        self, children: dict[str, list[str]], log_dir: Path, manual: tuple[str, ...] = ()
+    ) -> None:
+        self.children = {
+            name: Child(name, argv, manual=name in manual) for name, argv in children.items()
+        }
         self.log_dir = Path(log_dir)
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.stopping = False
@@ -88,6 +100,9 @@ class Supervisor:
         for child in self.children.values():
             if self.stopping or child.proc is None or child.running:
                 continue
+            if child.manual:
+                child.last_exit = child.proc.returncode
+                continue
             if child.next_start == 0.0:  # just noticed the exit
                 child.last_exit = child.proc.returncode
                 if now - child.started > STABLE_AFTER:
@@ -100,6 +115,15 @@ class Supervisor:
                 self._spawn(child)
                 restarted.append(child.name)
         return restarted
+
+    def restart(self, name: str) -> bool:
+        """Start a manual child that exited (the operator acknowledged); whether it started."""
+        child = self.children.get(name)
+        if self.stopping or child is None or not child.awaiting_operator:
+            return False
+        child.restarts += 1
+        self._spawn(child)
+        return True
 
     def kill(self, name: str, sig: int = signal.SIGKILL) -> None:
         """Send ``sig`` to one child (tests and fault drills)."""

@@ -4,6 +4,11 @@ The ``up`` process is the bus hub: it listens on the endpoint, the children conn
 It watches every node's liveliness token and message rates (``joint_states`` per robot,
 ``camera/spot``) and shows them in a rich live table; crashed children are restarted
 (:class:`planner.service.supervisor.Supervisor`); Ctrl-C, SIGTERM or ``duration`` stop everything.
+
+With ``--backend ur`` the robot drivers are *not* restarted automatically: a driver of a real
+arm that died stays down (the table says so) until the operator acknowledges with
+``beamrelay robot recover --name <robot>``, which publishes on ``<prefix>/<robot>/recover``;
+``up`` then restarts that driver. Each robot gets its own controller address (``hosts``).
 """
 
 from __future__ import annotations
@@ -41,6 +46,7 @@ def child_commands(
     camera: bool = True,
     zenoh_config: Path | None = None,
     planner_zenoh_config: Path | None = None,
+    hosts: dict[str, str] | None = None,
 ) -> dict[str, list[str]]:
     """argv of every child: ``planner``, ``camera`` (if any), then one per robot. Every child
     gets ``zenoh_config`` except the planner, which gets ``planner_zenoh_config`` if given
@@ -59,11 +65,39 @@ def child_commands(
             *cli, "driver", "camera", "--backend", cam_backend, "--scenario", str(scenario), *bus
         ]  # fmt: skip
     for r in robots:
+        host = ["--host", hosts[r]] if hosts and r in hosts else []
         out[r] = [
-            *cli, "driver", "robot", "--name", r, "--backend", backend, "--scenario",
+            *cli, "driver", "robot", "--name", r, "--backend", backend, *host, "--scenario",
             str(scenario), *bus,
         ]  # fmt: skip
     return out
+
+
+def parse_hosts(items: list[str], robots: list[str], backend: str) -> dict[str, str]:
+    """``NAME=ADDRESS`` items -> {robot: address}; the ur backend needs one per robot."""
+    hosts: dict[str, str] = {}
+    for item in items:
+        name, sep, addr = item.partition("=")
+        if not sep or not name or not addr or any(c.isspace() for c in item):
+            raise InputError(
+                f"expected NAME=ADDRESS (e.g. arm0=192.168.1.10), got {item!r}", "--host"
+            )
+        if name not in robots:
+            raise InputError(
+                f"unknown robot {name!r}; the scenario has {', '.join(robots)}", "--host"
+            )
+        if name in hosts:
+            raise InputError(f"robot {name!r} given twice", "--host")
+        hosts[name] = addr
+    if backend == "ur" and (missing := [r for r in robots if r not in hosts]):
+        raise InputError(
+            f"the ur backend needs one controller per robot: add --host {missing[0]}=ADDRESS"
+            + (f" (missing: {', '.join(missing)})" if len(missing) > 1 else ""),
+            "--host",
+        )
+    if backend != "ur" and hosts:
+        raise InputError("only the ur backend talks to controllers", "--host")
+    return hosts
 
 
 class Health:
@@ -77,7 +111,9 @@ class Health:
             session.liveliness().declare_subscriber(keys.alive_all, self._on_alive, history=True),
             session.declare_subscriber(keys.joint_states("*"), self._on_joints),
             session.declare_subscriber(keys.camera_spot, self._on_spot),
+            session.declare_subscriber(f"{keys.prefix}/*/recover", self._on_recover),
         ]
+        self.recover_requests: list[str] = []  # robots the operator acknowledged
 
     def _on_alive(self, sample: Any) -> None:
         import zenoh
@@ -103,6 +139,22 @@ class Health:
     def _on_spot(self, sample: Any) -> None:
         self._tick("camera")
 
+    def _on_recover(self, sample: Any) -> None:
+        from drivers.robot.ur_link import parse_recover
+
+        robot = str(sample.key_expr).split("/")[-2]
+        try:
+            parse_recover(sample.payload.to_bytes(), robot)
+        except (ValueError, UnicodeDecodeError):
+            return
+        with self._lock:
+            self.recover_requests.append(robot)
+
+    def take_recover_requests(self) -> list[str]:
+        with self._lock:
+            out, self.recover_requests = self.recover_requests, []
+        return out
+
     def rate(self, name: str) -> float:
         """Messages per second over the last ``RATE_WINDOW`` s (joint_states or spot)."""
         now = time.monotonic()
@@ -127,6 +179,11 @@ def health_table(sup: Supervisor, health: Health, title: str) -> Any:
             state = "[green]running[/]"
         elif c.proc is None:
             state = "not started"
+        elif c.awaiting_operator:
+            state = (
+                f"[red]exited {c.proc.returncode}[/], not restarted: check the arm, then "
+                f"`beamrelay robot recover --name {name}`"
+            )
         else:
             state = f"[red]exited {c.proc.returncode}[/], restarting"
         alive = "[green]yes[/]" if name in health.alive else "[red]no[/]"
@@ -161,6 +218,7 @@ def run_up(
     live: bool = True,
     zenoh_config: Path | None = None,
     planner_zenoh_config: Path | None = None,
+    hosts: list[str] | None = None,
 ) -> dict[str, int | None]:
     """Run the system until Ctrl-C / SIGTERM / ``duration`` s; the children's exit codes.
 
@@ -174,12 +232,14 @@ def run_up(
 
     scn = load_scenario(scenario)
     robots = [r.name for r in scn.model.system.robots]
+    host_map = parse_hosts(hosts or [], robots, backend)
     endpoint = endpoint or default_endpoint()
     configs = [_child_config(c) for c in (zenoh_config, planner_zenoh_config)]
     has_camera = scn.model.system.camera is not None
     argv = child_commands(
         Path(scenario).resolve(), robots, backend=backend, endpoint=endpoint, prefix=prefix,
         camera=has_camera, zenoh_config=configs[0], planner_zenoh_config=configs[1],
+        hosts=host_map,
     )  # fmt: skip
     log_dir = Path(log_dir or tempfile.mkdtemp(prefix="beamrelay-up-"))
     session = open_session(listen=True, endpoint=endpoint, config_file=configs[0])
@@ -187,7 +247,7 @@ def run_up(
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     console = Console(stderr=not live)
     health = Health(session, Keys(prefix))
-    sup = Supervisor(argv, log_dir)
+    sup = Supervisor(argv, log_dir, manual=tuple(robots) if backend == "ur" else ())
     title = f"beamrelay up {scn.model.name} on {endpoint} (logs {log_dir})"
     t_end = None if duration is None else time.monotonic() + duration
     try:
@@ -197,6 +257,9 @@ def run_up(
             while not stop.wait(0.25):
                 for name in sup.poll():
                     console.log(f"restarted {name}")
+                for name in health.take_recover_requests():
+                    if sup.restart(name):
+                        console.log(f"restarted {name} (operator recover)")
                 if view is not None:
                     view.update(health_table(sup, health, title))
                 if t_end is not None and time.monotonic() >= t_end:

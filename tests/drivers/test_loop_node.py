@@ -55,3 +55,18 @@ def test_wait_returns_when_the_loop_ends() -> None:
     assert node.log == ["loop ended"]  # wait neither closes nor undeclares
     node.stop()
     assert node.log[-2:] == ["undeclare token", "undeclare sub"]
+
+
+class _Dying(_Node):
+    def _loop(self) -> None:
+        self.started.set()
+        raise RuntimeError("Frame didn't arrive within 5000")
+
+
+def test_a_dying_loop_records_why(capsys: object) -> None:
+    node = _Dying()
+    node._start_loop("camera")
+    node.wait()
+    assert node.failure == "camera loop died: RuntimeError: Frame didn't arrive within 5000"
+    node.stop()
+    assert node.log[0] == "close (loop alive: False)"  # the device is still released

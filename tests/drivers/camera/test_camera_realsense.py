@@ -76,7 +76,8 @@ def test_playback_cloud_and_spot_match_the_scene(recording: tuple[Path, Any, np.
         z_true = depth[v, u]
         truth = np.array([(u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0]) * z_true
         assert np.linalg.norm(spot.p_camera - truth) < 1e-3
-        assert spot.confidence == pytest.approx(215 / 255, abs=1e-6)  # full window has depth
+        # ungated (no gate information): confidence halved; the full window has depth
+        assert spot.confidence == pytest.approx(0.5 * 215 / 255, abs=1e-6)
     finally:
         src.close()
 

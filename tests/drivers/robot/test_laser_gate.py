@@ -17,11 +17,11 @@ from drivers.robot.follower import Reference, TrajectoryFollower
 from drivers.robot.node import RobotNode
 from drivers.robot.sim import MAX_CATCH_UP, SimRobot
 from drivers.robot.ur import URRobot
+from drivers.robot.ur_fake import FakeURController
 from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
 from planner.service.bus import Keys, open_session
 from tests.drivers.conftest import Heartbeats, raw_session, wait_for
 from tests.drivers.robot.test_robot_node import Recorder, smooth_move
-from tests.drivers.robot.test_robot_ur import FakeUR
 
 HOME = np.array(DEFAULT_HOME)
 LIMITS = Limits.ur_default()
@@ -186,23 +186,35 @@ def test_laser_on_to_a_driver_without_gate_is_refused(hub: Any, endpoint: str, k
         c.close()
 
 
-def _ur(gate_output: int | None = 3) -> tuple[URRobot, FakeUR, list[tuple[float, int, bool]]]:
-    fake = FakeUR(HOME)
+def _ur(
+    gate_output: int | None = 3,
+) -> tuple[URRobot, FakeURController, list[tuple[float, int, bool]], list[str]]:
+    """A UR backend on the simulated controller; gate IO calls and the order of gate and
+    servoStop calls are recorded."""
+    fake = FakeURController(HOME)
     io_calls: list[tuple[float, int, bool]] = []
+    order: list[str] = []
+    servo_stop = fake.servoStop
+
+    def recorded_stop(*a: Any) -> bool:
+        order.append("servoStop")
+        return servo_stop(*a)
+
+    fake.servoStop = recorded_stop  # type: ignore[method-assign]
 
     class FakeIO:
         def setStandardDigitalOut(self, output: int, state: bool) -> bool:
             io_calls.append((time.monotonic(), output, state))
-            fake.calls.append(("setStandardDigitalOut", (output, state)))  # one call order
+            order.append("setStandardDigitalOut")
             return True
 
     robot = URRobot("fake", JOINT_NAMES_UR, LIMITS, control=fake, receive=fake,
                     gate_output=gate_output, io=FakeIO())  # fmt: skip
-    return robot, fake, io_calls
+    return robot, fake, io_calls, order
 
 
 def test_ur_gate_output_switches_and_goes_off_on_a_fault_and_at_exit() -> None:
-    robot, fake, io = _ur()
+    robot, fake, io, order = _ur()
     robot.set_gate(True)
     assert [(o, s) for _, o, s in io] == [(3, True)] and robot.gate_calls[0][1:] == (3, True)
     m = smooth_move(HOME, DQ, 0.5)
@@ -211,28 +223,28 @@ def test_ur_gate_output_switches_and_goes_off_on_a_fault_and_at_exit() -> None:
         robot.begin_period()
         robot.step()
         robot.end_period()
-    fake.protective = True
-    robot.begin_period()
-    robot.step()
+    fake.protective_stop()
+    for _ in range(5):
+        robot.begin_period()
+        robot.step()
+        robot.end_period()
+    robot.call.wait(1.0)
     assert [(o, s) for _, o, s in io][-1] == (3, False)  # entering the fault: off ...
-    names = fake.names()
-    i_off = len(names) - 1 - names[::-1].index("setStandardDigitalOut")
-    assert names[i_off + 1] == "servoStop"  # ... before the servo stops
+    i_off = order.index("setStandardDigitalOut", 1)  # the first switch after the "on"
+    assert "servoStop" in order[i_off + 1 :]  # ... before the servo stops
     robot.close()
     assert [(o, s) for _, o, s in io][-1] == (3, False)
     times = [t for t, _, _ in io]
     assert times == sorted(times)
-    robot2, _, io2 = _ur(gate_output=None)
+    robot2, _, io2, _ = _ur(gate_output=None)
     robot2.set_gate(True)
     assert io2 == [] and robot2.gate_calls == []
 
 
 def test_ur_node_gate_forced_off_on_a_stop(hub: Any, endpoint: str, keys: Keys) -> None:
     """Through the node with the fake RTDE: a stop request mid-mark turns the output off."""
-    from tests.drivers.robot.test_robot_ur import _sleeping_wait
-
-    robot, _, io = _ur(gate_output=1)
-    robot.control.waitPeriod = _sleeping_wait  # type: ignore[method-assign]
+    robot, fake, io, _ = _ur(gate_output=1)
+    fake.realtime = True  # paced like a real controller: the node's loop runs in real time
     client = raw_session(endpoint)
     token = client.liveliness().declare_token(keys.alive("planner"))
     beats = Heartbeats(client, keys.prefix, "P")

@@ -159,7 +159,7 @@ def test_version() -> None:
 
 
 def test_suggestion_for_a_typo() -> None:
-    assert_usage_error(run("plna"), "No such command 'plna'", "Did you mean 'plan'?")
+    assert_usage_error(run("plna"), "No such command 'plna'", "Did you mean 'plan'")
 
 
 @pytest.mark.parametrize(

@@ -1,0 +1,166 @@
+"""Calibration data collection over the bus (``beamrelay calibrate collect``).
+
+The collector plays the planner for its own moves: it declares ``<prefix>/alive/planner``
+and sends a heartbeat (100 Hz, its own session) so the robot drivers accept its
+trajectories, and stops beating when it ends (the drivers then brake if anything still
+moves). For each planned pose (:mod:`planner.calibration.collect`): a minimum-jerk move
+from the measured joints, checked with the swept collision check of the scene and the other
+robots at their measured joints, sent as a ``JointTrajectory``; the collector waits for the
+driver's verdict and for the arm to come to rest on the pose, then asks the camera:
+``<prefix>/camera/markers`` (hand-eye) or the median of the next ``camera/spot`` messages
+(beam). A pose whose move fails the safety check, is refused, or is not seen is skipped
+and reported. Joints in rad, points in m (camera optical frame).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import threading
+import time
+import uuid
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from planner.calibration.collect import min_jerk_move
+from planner.errors import InputError
+from planner.model.system import System
+from planner.model.transforms import Array
+from planner.service.bus import Keys, decode
+from schemas.messages import JointState, JointTrajectory, RobotStatus, SpotMessage
+
+ARRIVE = 2e-3  # rad: the arm counts as on the pose
+SETTLE = 0.3  # s at rest before the camera is asked
+
+
+class BusPlanner:
+    """Heartbeat, planner token, joint states, statuses and spots of a collection run."""
+
+    def __init__(self, session: Any, keys: Keys, system: System) -> None:
+        self.session, self.keys, self.system = session, keys, system
+        self.name = f"collect-{uuid.uuid4().hex[:8]}"
+        self.q: dict[str, Array] = {}
+        self.status: dict[str, RobotStatus] = {}
+        self.spots: deque[SpotMessage] = deque(maxlen=64)
+        self._halt = threading.Event()
+        s = session
+        self._handles: list[Any] = [s.liveliness().declare_token(keys.alive("planner"))]
+        for r in system.robot_names:
+            self._handles += [
+                s.declare_subscriber(keys.joint_states(r), self._on_joints(r)),
+                s.declare_subscriber(keys.status(r), self._on_status(r)),
+            ]
+        self._handles.append(s.declare_subscriber(keys.camera_spot, self._on_spot))
+        self._pub = s.declare_publisher(keys.heartbeat)
+        self._beat = threading.Thread(target=self._beats, daemon=True)
+        self._beat.start()
+
+    def _beats(self) -> None:
+        seq = 0
+        while not self._halt.wait(0.01):
+            body = {"schema": "beamrelay.heartbeat/1", "t": time.time(), "session": self.name,
+                    "seq": seq}  # fmt: skip
+            self._pub.put(json.dumps(body).encode())
+            seq += 1
+
+    def _on_joints(self, robot: str) -> Any:
+        def cb(sample: Any) -> None:
+            with contextlib.suppress(InputError):
+                self.q[robot] = np.asarray(decode(sample.payload.to_bytes(), JointState).q)
+
+        return cb
+
+    def _on_status(self, robot: str) -> Any:
+        def cb(sample: Any) -> None:
+            with contextlib.suppress(InputError):
+                self.status[robot] = decode(sample.payload.to_bytes(), RobotStatus)
+
+        return cb
+
+    def _on_spot(self, sample: Any) -> None:
+        with contextlib.suppress(InputError):
+            self.spots.append(decode(sample.payload.to_bytes(), SpotMessage))
+
+    def wait_joints(self, timeout: float = 10.0) -> dict[str, Array]:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if all(r in self.q for r in self.system.robot_names):
+                return dict(self.q)
+            time.sleep(0.02)
+        missing = [r for r in self.system.robot_names if r not in self.q]
+        raise InputError(f"no joint states from {', '.join(missing)} (drivers running?)", "bus")
+
+    def move(self, robot: str, target: Array, speed: float, world: Any) -> str | None:
+        """Move ``robot`` to ``target``; None when it arrived, else why not."""
+        from planner.safety.sweep import check_sweep
+
+        q_all = self.wait_joints()
+        mv = min_jerk_move(q_all[robot], target, speed)
+        Q = np.hstack([np.tile(q_all[r], (len(mv.t), 1)) if r != robot else mv.q
+                       for r in self.system.robot_names])  # fmt: skip
+        hit = check_sweep(world, mv.t, Q)
+        if hit is not None:
+            return f"safety check: {hit}"
+        ident = uuid.uuid4().hex[:12]
+        names = list(self.system.robot(robot).joint_names)
+        msg = JointTrajectory(robot=robot, id=ident, session=self.name, t=mv.t.tolist(),
+                              names=names, q=mv.q.tolist(), qd=mv.qd.tolist(),
+                              qdd=mv.qdd.tolist())  # fmt: skip
+        self.session.put(self.keys.trajectory(robot), msg.model_dump_json(by_alias=True))
+        return self._arrive(robot, ident, target, float(mv.t[-1]) + 15.0)
+
+    def _arrive(self, robot: str, ident: str, target: Array, timeout: float) -> str | None:
+        end, rest_since = time.monotonic() + timeout, None
+        while time.monotonic() < end:
+            st = self.status.get(robot)
+            ack = None if st is None else st.trajectory
+            if st is None or ack is None or ack.id != ident:  # not yet judged: older status
+                time.sleep(0.01)
+                continue
+            if not ack.accepted:
+                return f"refused by the driver: {ack.reason}"
+            if st.mode in ("braking", "stopped", "fault"):
+                return f"driver {st.mode}: {st.fault}"
+            near = float(np.max(np.abs(self.q[robot] - target))) <= ARRIVE
+            if near and st.mode == "idle":
+                rest_since = rest_since or time.monotonic()
+                if time.monotonic() - rest_since >= SETTLE:
+                    return None
+            else:
+                rest_since = None
+            time.sleep(0.01)
+        return "did not arrive in time"
+
+    def markers(self, request: dict[str, Any], timeout: float = 5.0) -> Array | None:
+        """Board points seen now (P x 3, NaN = not seen), or None when the camera did not answer."""
+        key = f"{self.keys.prefix}/camera/markers"
+        for reply in self.session.get(key, payload=json.dumps(request).encode(), timeout=timeout):
+            if reply.ok is None:
+                continue
+            body = json.loads(reply.ok.payload.to_bytes())
+            if "error" in body:
+                raise InputError(f"camera: {body['error']}", key)
+            rows = body["points_camera"]
+            return np.array([[np.nan] * 3 if p is None else p for p in rows], dtype=float)
+        return None
+
+    def spot(self, n: int = 10, min_confidence: float = 0.3, timeout: float = 3.0) -> Array | None:
+        """Median of the next ``n`` spot messages with a spot (camera frame, m), or None."""
+        self.spots.clear()
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            good = [s.p_camera for s in list(self.spots)
+                    if s.p_camera is not None and s.confidence >= min_confidence]  # fmt: skip
+            if len(good) >= n:
+                return np.median(np.array(good, dtype=float), axis=0)
+            time.sleep(0.02)
+        return None
+
+    def close(self) -> None:
+        self._halt.set()
+        self._beat.join(2.0)
+        self._pub.undeclare()
+        for h in reversed(self._handles):
+            h.undeclare()

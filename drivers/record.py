@@ -1,0 +1,212 @@
+"""Recording the bus to MCAP and playing it back (``beamrelay record`` / ``beamrelay replay``).
+
+File layout (MCAP, profile ``beamrelay``; opens in Foxglove Studio):
+
+- one channel per key expression seen (topic = the key, e.g. ``beamrelay/arm0/joint_states``);
+  JSON samples (encoding ``application/json``, or a body that parses as a JSON object) use
+  message encoding ``json`` (schemaless), everything else ``beamrelay.bytes``; a sample
+  with a Zenoh attachment (``camera/points`` metadata) uses ``beamrelay.attached``: data =
+  4-byte big-endian attachment length, attachment, payload;
+- liveliness: token appearances and disappearances as JSON ``{"alive": bool}`` messages on
+  the topic ``@liveliness/<key>``;
+- ``log_time`` = the UNIX ns the recorder received the sample, ``publish_time`` = the
+  sample's Zenoh timestamp when it has one (else the receive time); ``sequence`` counts
+  every message of the file from 0.
+
+Replay publishes every message on its key in ``log_time`` order, at the original pace
+divided by ``speed`` (``speed = 0``: as fast as possible), with the original bytes,
+encoding and attachment. Liveliness tokens are re-declared and withdrawn as recorded.
+Command keys (trajectories, setpoints, heartbeats, stop, recover, targets) are skipped
+unless ``commands=True``: a replay onto a bus with a real arm must not move it, and even
+then it is refused while any robot driver token is alive on the bus.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any, BinaryIO, NamedTuple
+
+from planner.errors import InputError
+
+PROFILE = "beamrelay"
+LIVELINESS = "@liveliness/"
+COMMAND_SUFFIXES = ("/trajectory", "/setpoint", "/heartbeat", "/stop", "/recover", "/targets")
+_LEN = struct.Struct(">I")
+
+
+class Recorded(NamedTuple):
+    """One message of a recording: key, payload bytes, encoding, attachment, times (ns)."""
+
+    key: str
+    payload: bytes
+    encoding: str
+    attachment: bytes | None
+    log_time: int
+    sequence: int
+
+
+class Recorder:
+    """Subscribes ``<prefix>/**`` (and its liveliness) and writes an MCAP file until closed."""
+
+    def __init__(self, session: Any, prefix: str, out: BinaryIO) -> None:
+        from mcap.writer import Writer
+
+        self.writer = Writer(out)
+        self.writer.start(profile=PROFILE, library="beamrelay")
+        self.channels: dict[tuple[str, str], int] = {}
+        self.count = 0
+        self._lock = threading.Lock()
+        self._closed = False
+        self._handles = [
+            session.declare_subscriber(f"{prefix}/**", self._on_sample),
+            session.liveliness().declare_subscriber(f"{prefix}/**", self._on_token, history=True),
+        ]
+
+    def _channel(self, topic: str, encoding: str, zenoh_encoding: str) -> int:
+        ch = self.channels.get((topic, encoding))
+        if ch is None:
+            meta = {"zenoh_encoding": zenoh_encoding}
+            ch = self.writer.register_channel(topic, encoding, 0, meta)
+            self.channels[(topic, encoding)] = ch
+        return ch
+
+    def _write(self, topic: str, encoding: str, zenc: str, data: bytes, stamp: Any) -> None:
+        now = time.time_ns()
+        pub = now
+        if stamp is not None:
+            pub = int(stamp.get_time().timestamp() * 1e9)
+        with self._lock:
+            if self._closed:
+                return
+            ch = self._channel(topic, encoding, zenc)
+            self.writer.add_message(ch, now, data, pub, self.count)
+            self.count += 1
+
+    def _on_sample(self, sample: Any) -> None:
+        payload = sample.payload.to_bytes()
+        zenc = str(sample.encoding)
+        att = sample.attachment
+        if att is not None:
+            a = att.to_bytes()
+            data, enc = _LEN.pack(len(a)) + a + payload, "beamrelay.attached"
+        else:
+            data, enc = payload, ("json" if _is_json(zenc, payload) else "beamrelay.bytes")
+        self._write(str(sample.key_expr), enc, zenc, data, sample.timestamp)
+
+    def _on_token(self, sample: Any) -> None:
+        import zenoh
+
+        alive = sample.kind == zenoh.SampleKind.PUT
+        body = json.dumps({"alive": alive}).encode()
+        self._write(LIVELINESS + str(sample.key_expr), "json", "application/json", body, None)
+
+    def close(self) -> int:
+        """Stop recording, finish the file; the number of messages written."""
+        for h in self._handles:
+            h.undeclare()
+        with self._lock:
+            self._closed = True
+            self.writer.finish()
+        return self.count
+
+
+def _is_json(zenoh_encoding: str, payload: bytes) -> bool:
+    if zenoh_encoding.startswith("application/json"):
+        return True
+    if payload[:1] != b"{":
+        return False
+    try:
+        return isinstance(json.loads(payload), dict)
+    except (ValueError, UnicodeDecodeError):
+        return False
+
+
+def read(path: Path) -> Iterator[Recorded]:
+    """The messages of a recording in ``log_time`` order (InputError for a bad file)."""
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    try:
+        with path.open("rb") as f:
+            reader = make_reader(f)
+            for _, channel, msg in reader.iter_messages(log_time_order=True):
+                zenc = channel.metadata.get("zenoh_encoding", "")
+                data, att = msg.data, None
+                if channel.message_encoding == "beamrelay.attached":
+                    (n,) = _LEN.unpack_from(data)
+                    att, data = data[4 : 4 + n], data[4 + n :]
+                yield Recorded(channel.topic, data, zenc, att, msg.log_time, msg.sequence)
+    except (McapError, struct.error, EOFError, ValueError) as exc:
+        raise InputError(f"not a readable MCAP recording: {exc}", str(path)) from exc
+
+
+def is_command(key: str) -> bool:
+    return key.endswith(COMMAND_SUFFIXES)
+
+
+def replay(
+    session: Any,
+    path: Path,
+    *,
+    speed: float = 1.0,
+    commands: bool = False,
+    stop: threading.Event | None = None,
+    on_message: Callable[[Recorded], None] | None = None,
+) -> tuple[int, int]:
+    """Publish a recording onto the bus (see the module docstring); (published, skipped)."""
+    if commands:
+        live = [r.ok.key_expr for r in session.liveliness().get("**/alive/*", timeout=1.0)]
+        robots = [str(k) for k in live if not str(k).endswith(("/planner", "/camera"))]
+        if robots:
+            raise InputError(
+                f"robot drivers are alive on this bus ({', '.join(robots)}): "
+                "refusing to replay commands onto it",
+                "--commands",
+            )
+    tokens: dict[str, Any] = {}
+    sent = skipped = 0
+    t_rec0: int | None = None
+    t_wall0 = time.monotonic()
+    try:
+        for m in read(path):
+            if stop is not None and stop.is_set():
+                break
+            if t_rec0 is None:
+                t_rec0 = m.log_time
+            if speed > 0:
+                due = t_wall0 + (m.log_time - t_rec0) / 1e9 / speed
+                if (wait := due - time.monotonic()) > 0:
+                    time.sleep(wait)
+            if not commands and is_command(m.key):
+                skipped += 1
+                continue
+            _publish(session, m, tokens)
+            sent += 1
+            if on_message is not None:
+                on_message(m)
+    finally:
+        for tok in tokens.values():
+            tok.undeclare()
+    return sent, skipped
+
+
+def _publish(session: Any, m: Recorded, tokens: dict[str, Any]) -> None:
+    if m.key.startswith(LIVELINESS):
+        key = m.key[len(LIVELINESS) :]
+        alive = json.loads(m.payload).get("alive", False)
+        if alive and key not in tokens:
+            tokens[key] = session.liveliness().declare_token(key)
+        elif not alive and key in tokens:
+            tokens.pop(key).undeclare()
+        return
+    kw: dict[str, Any] = {}
+    if m.encoding:
+        kw["encoding"] = m.encoding
+    if m.attachment is not None:
+        kw["attachment"] = m.attachment
+    session.put(m.key, m.payload, **kw)

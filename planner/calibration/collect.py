@@ -1,0 +1,173 @@
+"""Planning a calibration data collection on the real (or simulated) robot.
+
+- Poses. Hand-eye: board poses inside the camera's view (0.35-1.2 m, tilted up to 35 deg),
+  reached by analytic IK nearest home (:func:`planner.calibration.simulate.simulate_handeye`
+  with the *nominal* geometry). Beam: small joint perturbations around the configuration
+  that aims the chain at ``aim`` (the board), kept when the nominal beam stays valid and
+  lands within the board (:func:`planner.calibration.simulate.simulate_beam`).
+- Conditioning. Of ``oversample`` x n candidates, greedy selection keeps the n that give
+  the best-conditioned calibration Jacobian at the nominal solution: the hand-eye residual
+  Jacobian w.r.t. the 12 pose corrections, rotation columns scaled by :data:`LEVER` (m) so
+  rad and m compare; the beam residual Jacobian w.r.t. the observable laser/mirror
+  corrections. The condition number (largest / smallest singular value) is reported.
+- Moves. Each pose is reached by a minimum-jerk joint move (peak speed ``speed`` rad/s),
+  sampled at 500 Hz, checked with the swept collision check
+  (:func:`planner.safety.sweep.check_sweep`) before it is sent; a move that fails is skipped.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+
+from planner.model.system import System
+from planner.model.transforms import Array, inv_T
+
+LEVER = 0.5  # m: rotation columns are scaled by this to compare with translations
+RATE = 500.0  # Hz, samples of a move
+
+
+class Move(NamedTuple):
+    """A joint move of one robot: times (s), q, qd, qdd (K x nq)."""
+
+    t: Array
+    q: Array
+    qd: Array
+    qdd: Array
+
+
+def min_jerk_move(q0: Array, q1: Array, speed: float, rate: float = RATE) -> Move:
+    """Minimum-jerk joint move from ``q0`` to ``q1`` whose fastest joint peaks at ``speed``."""
+    q0, q1 = np.asarray(q0, dtype=float), np.asarray(q1, dtype=float)
+    dq = q1 - q0
+    duration = max(0.5, 1.875 * float(np.max(np.abs(dq))) / speed)
+    t = np.arange(0.0, duration + 0.5 / rate, 1.0 / rate)
+    x = t / duration
+    s = 10 * x**3 - 15 * x**4 + 6 * x**5
+    sd = (30 * x**2 - 60 * x**3 + 30 * x**4) / duration
+    sdd = (60 * x - 180 * x**2 + 120 * x**3) / duration**2
+    return Move(t, q0 + s[:, None] * dq, sd[:, None] * dq, sdd[:, None] * dq)
+
+
+def handeye_jacobian(
+    system: System, robot: str, mode: str, qs: Array, board: Array, camera: Array, board_pose: Array
+) -> Array:
+    """Stacked hand-eye residual Jacobian (3 K P x 12) at the nominal poses, scaled."""
+    from planner.calibration.handeye import handeye_residual
+
+    r = system.robot(robot)
+    fn = handeye_residual()
+    rows = []
+    for q in qs:
+        w = r.world_T_base @ r.kinematics.fk(q)
+        if mode == "eye_to_hand":
+            Z0, A, Y0 = inv_T(camera), w, board_pose
+        else:
+            Z0, A, Y0 = inv_T(camera), inv_T(w), board_pose
+        T = Z0 @ A @ Y0
+        for b in board:
+            p = T[:3, :3] @ b + T[:3, 3]
+            rows.append(np.asarray(fn(np.zeros(6), np.zeros(6), Z0, A, Y0, b, p)[1]))
+    J = np.vstack(rows)
+    J[:, [0, 1, 2, 6, 7, 8]] *= LEVER  # delta_T: rotation first (rad), then translation
+    return J
+
+
+def condition(J: Array) -> float:
+    """Largest / smallest singular value of ``J`` (inf when rank deficient)."""
+    sv = np.linalg.svd(J, compute_uv=False)
+    return float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
+
+
+def _gram_condition(G: Array) -> float:
+    ev = np.linalg.eigvalsh(G)
+    return float(np.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else float("inf")
+
+
+def select_conditioned(grams: Array, n: int) -> tuple[list[int], float]:
+    """Greedy choice of ``n`` candidates by their Jacobian blocks' Gram matrices ``J_i^T J_i``
+    (C x m x m): start from the best pair of the first few, add the candidate that lowers
+    the condition number of the stacked Jacobian most; (indices, condition number)."""
+    C = len(grams)
+    if n > C:
+        raise ValueError(f"{C} candidates for {n} poses")
+    chosen = [0, 1]
+    G = grams[0] + grams[1]
+    rest = list(range(2, C))
+    while len(chosen) < n:
+        scores = [_gram_condition(G + grams[i]) for i in rest]
+        best = rest[int(np.argmin(scores))]
+        chosen.append(best)
+        rest.remove(best)
+        G = G + grams[best]
+    return chosen, _gram_condition(G)
+
+
+def handeye_plan(
+    system: System,
+    robot: str,
+    mode: str,
+    n: int,
+    board: Array,
+    board_pose: Array,
+    rng: np.random.Generator,
+    oversample: int = 3,
+    feasible: Callable[[Array], bool] | None = None,
+) -> tuple[Array, float]:
+    """n well-conditioned hand-eye poses (rad) and the Jacobian's condition number;
+    ``feasible`` (e.g. a static collision check) filters the candidates first."""
+    from planner.calibration.simulate import simulate_handeye
+
+    assert system.camera is not None
+    cam = system.camera.world_T_camera
+    cand = simulate_handeye(system, robot, mode, oversample * n, camera_pose=cam,
+                            board_pose=board_pose, board_points=board, rng=rng).q  # fmt: skip
+    if feasible is not None:
+        cand = cand[[bool(feasible(q)) for q in cand]]
+    grams = []
+    for q in cand:
+        J = handeye_jacobian(system, robot, mode, q[None], board, cam, board_pose)
+        grams.append(J.T @ J)
+    chosen, cond = select_conditioned(np.array(grams), n)
+    return cand[chosen], cond
+
+
+def beam_plan(
+    system: System,
+    robot: str,
+    n: int,
+    aim: Array,
+    rng: np.random.Generator,
+    oversample: int = 3,
+    feasible: Callable[[Array], bool] | None = None,
+) -> tuple[Array, float]:
+    """n well-conditioned beam poses (stacked chain joints) aiming at ``aim`` (world, m)."""
+    from planner.calibration.beam import (
+        OBSERVABLE_LASER,
+        OBSERVABLE_MIRROR,
+        _mapped,
+    )
+    from planner.calibration.simulate import simulate_beam
+
+    data = simulate_beam(system, robot, oversample * n, 1, aim_world=aim, rng=rng)
+    if feasible is not None:
+        keep = [bool(feasible(q)) for q in data.q]
+        data = type(data)(data.robot, data.q[keep], data.spots_world[keep], data.boards[keep])
+    names = system.robot_names
+    idx = names.index(robot)
+    chain = system.robots[: idx + 1]
+    kin = tuple(r.kinematics for r in chain)
+    cols = (OBSERVABLE_LASER if idx == 0 else []) + OBSERVABLE_MIRROR
+    bases = np.hstack([r.world_T_base for r in chain])
+    mounts = np.hstack([r.mirror.flange_T_mirror for r in chain])
+
+    k = len(data.q)
+    out = _mapped(kin, k)(data.q.T, np.zeros(6), np.zeros(6), system.world_T_laser, bases,
+                          mounts, data.spots_world.T)  # fmt: skip
+    Jk: Array = np.asarray(out[1]).reshape(3, k, 12).transpose(1, 0, 2)  # (k, 3, 12)
+    Jk[..., [0, 1, 2, 6, 7, 8]] *= LEVER
+    Jk = Jk[..., cols]
+    chosen, cond = select_conditioned(np.einsum("kri,krj->kij", Jk, Jk), n)
+    return data.q[chosen], cond

@@ -1,0 +1,187 @@
+"""``beamrelay calibrate collect handeye|beam``: collect a calibration dataset on the running
+system (real or simulated): planned, well-conditioned poses, each move checked with the
+safety geometry, markers or spots from the camera; writes the dataset file that
+``beamrelay calibrate handeye|beam`` reads. How: :mod:`drivers.collect`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from planner.cli.args import parse_xyz
+from planner.cli.node import EndpointOpt, PrefixOpt, ZenohConfigOpt
+from planner.errors import InputError
+
+app = typer.Typer(help="Collect calibration data on the running system (moves the robot).")
+
+ScenarioOpt = Annotated[Path, typer.Option("--scenario", "-s", help="Scenario YAML.")]
+OutOpt = Annotated[Path, typer.Option("--output", "-o", help="Dataset JSON to write.")]
+RobotOpt = Annotated[str, typer.Option("--robot", help="Robot to move (e.g. arm0).")]
+PosesOpt = Annotated[int, typer.Option("--poses", help="Poses to collect.")]
+SpeedOpt = Annotated[float, typer.Option("--speed", help="Peak joint speed of the moves, rad/s.")]
+SeedOpt = Annotated[int, typer.Option("--seed", help="Pose generator seed.")]
+
+
+def _setup(scenario: Path, robot: str, poses: int, speed: float, output: Path) -> Any:
+    from planner.io.scenario import load_scenario, scene_objects, system_from_scenario
+    from planner.safety.geometry import SafetyWorld
+    from planner.safety.shapes import volumes_from_scene_items
+
+    if not scenario.is_file():
+        raise InputError("scenario not found", str(scenario))
+    if not 3 <= poses <= 200:
+        raise InputError(f"must be in [3, 200], got {poses}", "--poses")
+    if not 0.01 <= speed <= 1.0:
+        raise InputError(f"must be in [0.01, 1.0] rad/s, got {speed:g}", "--speed")
+    if output.suffix != ".json" or not output.parent.is_dir():
+        raise InputError("expected a *.json file in an existing directory", f"--output {output}")
+    scn = load_scenario(scenario)
+    system = system_from_scenario(scn)
+    if robot not in system.robot_names:
+        raise InputError(f"unknown robot {robot!r}; the scenario has {', '.join(system.robot_names)}",
+                         "--robot")  # fmt: skip
+    if system.camera is None:
+        raise InputError("collection needs system.camera in the scenario", str(scenario))
+    scene = volumes_from_scene_items(scene_objects(scn))  # type: ignore[arg-type]
+    return system, SafetyWorld(system, scene)
+
+
+def _static_check(system: Any, world: Any, robot: str) -> Any:
+    """A pose test: no collision at ``q`` with the other robots at home."""
+    import numpy as np
+
+    from planner.safety.sweep import check_sweep
+
+    def ok(q: Any) -> bool:
+        Q = np.concatenate([q if r.name == robot else r.home for r in system.robots])
+        return check_sweep(world, np.zeros(1), Q[None]) is None
+
+    return ok
+
+
+@app.command("handeye")
+def handeye(
+    scenario: ScenarioOpt,
+    output: OutOpt,
+    robot: RobotOpt = "arm0",
+    poses: PosesOpt = 12,
+    speed: SpeedOpt = 0.3,
+    board_offset: Annotated[
+        str, typer.Option(help="Nominal board origin on the flange X,Y,Z (m), eye_to_hand.")
+    ] = "0,0,0.01",
+    seed: SeedOpt = 0,
+    endpoint: EndpointOpt = None,
+    prefix: PrefixOpt = "beamrelay",
+    zenoh_config: ZenohConfigOpt = None,
+) -> None:
+    """Hand-eye (eye_to_hand): ChArUco board on the flange, camera fixed."""
+    import numpy as np
+
+    from drivers.camera.markers import CharucoSpec
+    from planner.calibration.collect import handeye_plan
+    from planner.calibration.dataset import handeye_json, write_json
+    from planner.calibration.handeye import HandEyeData
+    from planner.model.transforms import make_T
+
+    system, world = _setup(scenario, robot, poses, speed, output)
+    spec = CharucoSpec()
+    board = spec.points() - np.array([spec.squares_x, spec.squares_y, 0]) * spec.square / 2
+    board_pose = make_T(p=parse_xyz(board_offset, "--board-offset"))
+    rng = np.random.default_rng(seed)
+    qs, cond = handeye_plan(system, robot, "eye_to_hand", poses, board, board_pose, rng,
+                            feasible=_static_check(system, world, robot))  # fmt: skip
+    typer.echo(f"{len(qs)} poses planned; condition number of the hand-eye Jacobian {cond:.1f}")
+    request = {"robot": robot, "board_points": board.tolist(), "board_pose": board_pose.tolist(),
+               "charuco": dataclasses.asdict(spec)}  # fmt: skip
+    got_q, got_p, log = _run(system, world, robot, qs, speed, endpoint, prefix, zenoh_config,
+                             lambda bp: bp.markers(request))  # fmt: skip
+    data = HandEyeData(robot, "eye_to_hand", board, np.array(got_q), np.array(got_p))
+    _finish(output, handeye_json(data) if got_q else None, log, len(qs), write_json)
+
+
+@app.command("beam")
+def beam(
+    scenario: ScenarioOpt,
+    output: OutOpt,
+    aim: Annotated[str, typer.Option("--aim", help="Board centre X,Y,Z in the world (m).")],
+    robot: RobotOpt = "arm0",
+    poses: PosesOpt = 16,
+    speed: SpeedOpt = 0.3,
+    board: Annotated[int, typer.Option("--board", help="Placement label of this board.")] = 0,
+    seed: SeedOpt = 0,
+    endpoint: EndpointOpt = None,
+    prefix: PrefixOpt = "beamrelay",
+    zenoh_config: ZenohConfigOpt = None,
+) -> None:
+    """Beam: laser spots on a board placed at --aim, one placement per run."""
+    import numpy as np
+
+    from planner.calibration.collect import beam_plan
+    from planner.calibration.dataset import write_json
+
+    system, world = _setup(scenario, robot, poses, speed, output)
+    if system.robot_names.index(robot) != 0:
+        raise InputError("collects for the first robot of the chain only (for now)", "--robot")
+    rng = np.random.default_rng(seed)
+    qs, cond = beam_plan(system, robot, poses, np.asarray(parse_xyz(aim, "--aim")), rng,
+                         feasible=_static_check(system, world, robot))  # fmt: skip
+    typer.echo(f"{len(qs)} poses planned; condition number of the beam Jacobian {cond:.1f}")
+    got_q, got_p, log = _run(system, world, robot, qs, speed, endpoint, prefix, zenoh_config,
+                             lambda bp: bp.spot())  # fmt: skip
+    doc = {"schema": "beamrelay.beam/1", "robot": robot,
+           "samples": [{"q": {robot: q.tolist()}, "spot_camera": p.tolist(), "board": board}
+                       for q, p in zip(got_q, got_p, strict=True)]}  # fmt: skip
+    _finish(output, doc if got_q else None, log, len(qs), write_json)
+
+
+def _run(system: Any, world: Any, robot: str, qs: Any, speed: float, endpoint: str | None,
+         prefix: str, zenoh_config: Path | None, observe: Any) -> tuple[list[Any], list[Any], list[str]]:  # fmt: skip
+    """Visit every pose; (joints reached, observations, log lines)."""
+    import numpy as np
+
+    from drivers.collect import BusPlanner
+    from planner.service.bus import Keys, open_session
+
+    session = open_session(listen=False, endpoint=endpoint, config_file=zenoh_config)
+    bp = BusPlanner(session, Keys(prefix), system)
+    got_q: list[Any] = []
+    got_p: list[Any] = []
+    log: list[str] = []
+    try:
+        bp.wait_joints()
+        home = system.robot(robot).home
+        for i, q in enumerate(qs):
+            why = bp.move(robot, q, speed, world)
+            if (
+                why is not None
+                and why.startswith("safety check")
+                and bp.move(robot, home, speed, world) is None
+            ):  # the direct path collides: go through home
+                why = bp.move(robot, q, speed, world)
+            obs = observe(bp) if why is None else None
+            if why is None and (obs is None or not np.any(np.isfinite(obs))):
+                why = "nothing seen by the camera"
+            line = f"pose {i + 1}/{len(qs)}: " + ("ok" if why is None else f"skipped ({why})")
+            typer.echo(line)
+            log.append(line)
+            if why is None:
+                got_q.append(bp.q[robot].copy())
+                got_p.append(obs)
+    finally:
+        bp.close()
+        session.close()
+    return got_q, got_p, log
+
+
+def _finish(output: Path, doc: dict[str, Any] | None, log: list[str], n: int, write: Any) -> None:
+    ok = sum(line.endswith("ok") for line in log)
+    if doc is not None:
+        write(output, doc)
+    typer.echo(json.dumps({"output": str(output) if doc else None, "planned": n, "collected": ok}))
+    if ok < min(n, 3):
+        raise typer.Exit(1)

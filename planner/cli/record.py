@@ -1,0 +1,108 @@
+"""``beamrelay record`` / ``beamrelay replay``: the bus to an MCAP file and back.
+
+A lab sends a session to a colleague; a bug is reproduced without the cell. Format and
+safety rules: :mod:`drivers.record`.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from planner.cli.node import EndpointOpt, PrefixOpt, ZenohConfigOpt
+from planner.errors import InputError
+
+
+def record(
+    output: Annotated[Path, typer.Option("--output", "-o", help="MCAP file to write.")],
+    duration: Annotated[
+        float | None, typer.Option(help="Stop after this many seconds (default: Ctrl-C).")
+    ] = None,
+    endpoint: EndpointOpt = None,
+    prefix: PrefixOpt = "beamrelay",
+    zenoh_config: ZenohConfigOpt = None,
+    force: Annotated[bool, typer.Option("--force", help="Overwrite an existing file.")] = False,
+) -> None:
+    """Record every bus key under the prefix (and liveliness) with timestamps to MCAP."""
+    from drivers.record import Recorder
+    from planner.service.bus import open_session
+
+    if duration is not None and not 0 < duration <= 86400:
+        raise InputError(f"must be in (0, 86400] s, got {duration:g}", "--duration")
+    if output.suffix != ".mcap":
+        raise InputError("the recording is MCAP: name it *.mcap", f"--output {output}")
+    if output.exists() and not force:
+        raise InputError("exists (use --force to overwrite)", f"--output {output}")
+    if not output.parent.is_dir():
+        raise InputError("no such directory", f"--output {output}")
+    stop = _stop_event()
+    session = open_session(listen=False, endpoint=endpoint, config_file=zenoh_config)
+    tmp = output.with_suffix(".mcap.part")
+    t0 = time.monotonic()
+    try:
+        with tmp.open("wb") as f:
+            rec = Recorder(session, prefix, f)
+            typer.echo(f"recording {prefix}/** to {output} (Ctrl-C to stop)", err=True)
+            stop.wait(duration)
+            n = rec.close()
+        tmp.replace(output)  # a complete file only, never a truncated one under the name
+    finally:
+        session.close()
+        tmp.unlink(missing_ok=True)
+    typer.echo(f"{output}: {n} messages in {time.monotonic() - t0:.1f} s")
+
+
+def replay(
+    recording: Annotated[Path, typer.Argument(help="MCAP file written by beamrelay record.")],
+    speed: Annotated[
+        float, typer.Option(help="Playback speed: 1 = original timing, 0 = as fast as possible.")
+    ] = 1.0,
+    commands: Annotated[
+        bool,
+        typer.Option(
+            "--commands",
+            help="Also replay trajectories, setpoints, heartbeats, stop, recover, targets "
+            "(refused while a robot driver is alive on the bus).",
+        ),
+    ] = False,
+    endpoint: EndpointOpt = None,
+    listen: Annotated[
+        bool, typer.Option("--listen", help="Host the bus (when nothing else does).")
+    ] = False,
+    zenoh_config: ZenohConfigOpt = None,
+) -> None:
+    """Play a recording back onto the bus (original bytes, keys and timing)."""
+    from drivers.record import read
+    from drivers.record import replay as play
+    from planner.service.bus import open_session
+
+    if not recording.is_file():
+        raise InputError("recording not found", str(recording))
+    if not (0 <= speed <= 1000):
+        raise InputError(f"must be in [0, 1000], got {speed:g}", "--speed")
+    next(iter(read(recording)), None)  # a bad file is a user error before touching the bus
+    stop = _stop_event()
+    session = open_session(listen=listen, endpoint=endpoint, config_file=zenoh_config)
+    try:
+        time.sleep(0.5)  # let subscribers connect before the first message
+        sent, skipped = play(session, recording, speed=speed, commands=commands, stop=stop)
+    finally:
+        session.close()
+    note = f", {skipped} command messages skipped (--commands to include)" if skipped else ""
+    typer.echo(f"{recording}: {sent} messages replayed{note}")
+
+
+def _stop_event() -> threading.Event:
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: Any) -> None:
+        stop.set()
+
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, on_signal)
+    return stop

@@ -1,0 +1,197 @@
+"""Calibration data collection: pose planning and conditioning, ChArUco corners from a
+rendered image, and ``calibrate collect handeye|beam`` on the simulated system."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from drivers.camera.markers import CharucoSpec, detect_charuco
+from planner.calibration.collect import (
+    condition,
+    handeye_jacobian,
+    handeye_plan,
+    min_jerk_move,
+    select_conditioned,
+)
+from planner.calibration.dataset import load_beam, load_handeye
+from planner.calibration.handeye import calibrate_handeye
+from planner.calibration.simulate import board_grid
+from planner.io.scenario import load_scenario, system_from_scenario
+from planner.model.system import Intrinsics
+from planner.model.transforms import axis_angle_to_matrix, inv_T, make_T
+from tests.drivers.conftest import free_port, raw_session
+from tests.paths import REPO
+
+SCENARIO = REPO / "scenarios" / "paper_n1.yaml"
+CLI = [sys.executable, "-m", "planner.cli"]
+ENV = dict(os.environ, PYTHONPATH=os.getcwd())
+
+
+def test_min_jerk_move_peaks_at_the_speed() -> None:
+    q0, q1 = np.zeros(6), np.array([0.4, -0.2, 0, 0, 0, 0.1])
+    mv = min_jerk_move(q0, q1, 0.3)
+    assert np.max(np.abs(mv.qd[:, 0])) == pytest.approx(0.3, rel=1e-3)
+    np.testing.assert_allclose(mv.q[-1], q1, atol=1e-12)
+    assert np.allclose(np.diff(mv.q, axis=0) / np.diff(mv.t)[:, None], mv.qd[1:], atol=2e-3)
+
+
+def test_conditioning_selection_and_degenerate_poses() -> None:
+    system = system_from_scenario(load_scenario(SCENARIO))
+    assert system.camera is not None
+    board, pose = board_grid(), make_T(p=[0, 0, 0.01])
+    rng = np.random.default_rng(0)
+    qs, cond = handeye_plan(system, "arm0", "eye_to_hand", 6, board, pose, rng, oversample=4)
+    cam = system.camera.world_T_camera
+    J = handeye_jacobian(system, "arm0", "eye_to_hand", qs, board, cam, pose)
+    assert J.shape == (6 * len(board) * 3, 12)
+    assert cond == pytest.approx(condition(J), rel=1e-6)  # the reported figure is J's
+    # rotating only wrist_3 leaves directions poorly excited: far worse conditioned
+    q0 = qs[0]
+    spin = np.array([q0 + np.array([0, 0, 0, 0, 0, a]) for a in np.linspace(-0.5, 0.5, 6)])
+    bad = condition(handeye_jacobian(system, "arm0", "eye_to_hand", spin, board, cam, pose))
+    assert bad > 10 * cond
+    # greedy selection beats taking the first candidates
+    grams = np.array([m.T @ m for m in (np.random.default_rng(k).normal(size=(3, 4)) *
+                                        [1, 1, 1, 0.01 if k < 4 else 1] for k in range(12))])  # fmt: skip
+    chosen, c = select_conditioned(grams, 4)
+    first = np.sqrt(np.linalg.cond(grams[:4].sum(axis=0)))
+    assert c < first and len(set(chosen)) == 4
+
+
+def render_charuco(spec: CharucoSpec, k: Intrinsics, c_T_b: np.ndarray) -> tuple[Any, Any]:
+    """A colour image and depth (m) of the board at pose ``c_T_b`` (board frame: OpenCV's)."""
+    import cv2
+
+    ppm = 4000.0  # board image pixels per metre
+    w, h = spec.squares_x * spec.square, spec.squares_y * spec.square
+    img = spec.board().generateImage((round(w * ppm), round(h * ppm)), marginSize=0)
+    K = np.array([[k.fx, 0, k.cx], [0, k.fy, k.cy], [0, 0, 1]])
+    # board pixel (x, y) -> board point (x / ppm, y / ppm, 0); pixel centres at +0.5
+    S = np.array([[1 / ppm, 0, -0.5 / ppm + 0.5 / ppm], [0, 1 / ppm, 0], [0, 0, 1]])
+    S[0, 2] = S[1, 2] = 0.5 / ppm
+    H = K @ np.column_stack([c_T_b[:3, 0], c_T_b[:3, 1], c_T_b[:3, 3]]) @ S
+    gray = cv2.warpPerspective(img, H, (k.width, k.height), flags=cv2.INTER_AREA,
+                               borderValue=128)  # fmt: skip
+    vv, uu = np.mgrid[0 : k.height, 0 : k.width].astype(float)
+    rays = np.stack([(uu - k.cx) / k.fx, (vv - k.cy) / k.fy, np.ones_like(uu)], -1)
+    n = c_T_b[:3, 2]
+    depth = (n @ c_T_b[:3, 3]) / (rays @ n)
+    return np.repeat(gray[..., None], 3, axis=2), depth
+
+
+def test_charuco_corners_deprojected_with_depth() -> None:
+    spec = CharucoSpec()
+    k = Intrinsics(848, 480, 615.0, 615.0, 423.5, 239.5)
+    R = axis_angle_to_matrix(np.array([0.25, -0.3, 0.1]))
+    c_T_b = make_T(R, [-0.12, -0.08, 0.6])
+    rgb, depth = render_charuco(spec, k, c_T_b)
+    found = detect_charuco(rgb, depth, k, spec)
+    truth = spec.points() @ c_T_b[:3, :3].T + c_T_b[:3, 3]
+    seen = np.all(np.isfinite(found), axis=1)
+    assert seen.sum() >= 20  # of 24 inner corners
+    err = np.linalg.norm(found[seen] - truth[seen], axis=1)
+    print(f"\nChArUco corners: {seen.sum()}/24 seen, error median {1e3 * np.median(err):.2f} mm,"
+          f" max {1e3 * err.max():.2f} mm at 0.6 m")  # fmt: skip
+    assert np.max(err) < 2e-3
+    hidden = rgb.copy()
+    hidden[:, : k.width // 2] = 128  # half the board hidden: the rest keeps its ids
+    part = detect_charuco(hidden, depth, k, spec)
+    ok = np.all(np.isfinite(part), axis=1)
+    assert 0 < ok.sum() < seen.sum()
+    assert np.max(np.linalg.norm(part[ok] - truth[ok], axis=1)) < 2e-3
+
+
+@pytest.fixture(scope="module")
+def sim_system() -> Any:
+    ep, prefix = f"tcp/127.0.0.1:{free_port()}", "brcol"
+    bus = ["--scenario", str(SCENARIO), "--endpoint", ep, "--prefix", prefix]
+    robot = subprocess.Popen([*CLI, "driver", "robot", "--name", "arm0", "--listen", *bus],
+                             stderr=subprocess.DEVNULL, env=ENV)  # fmt: skip
+    camera = subprocess.Popen([*CLI, "driver", "camera", "--stride", "8", "--seed", "3", *bus],
+                              stderr=subprocess.DEVNULL, env=ENV)  # fmt: skip
+    time.sleep(4.0)
+    yield ep, prefix
+    for p in (camera, robot):
+        p.terminate()
+        p.wait(30)
+
+
+def test_collect_handeye_on_the_simulated_system_calibrates(
+    sim_system: Any, tmp_path: Path
+) -> None:
+    ep, prefix = sim_system
+    out = tmp_path / "handeye.json"
+    run = subprocess.run([*CLI, "calibrate", "collect", "handeye", "-s", str(SCENARIO), "-o",
+                          str(out), "--poses", "4", "--speed", "1.0", "--endpoint", ep,
+                          "--prefix", prefix], capture_output=True, env=ENV, timeout=300)  # fmt: skip
+    text = run.stdout.decode()
+    assert run.returncode == 0, text + run.stderr.decode()
+    assert "condition number of the hand-eye Jacobian" in text
+    summary = json.loads(text.strip().splitlines()[-1])
+    assert summary["collected"] >= 3
+    data = load_handeye(out)
+    system = system_from_scenario(load_scenario(SCENARIO))
+    truth = system_from_scenario(load_scenario(SCENARIO), truth=True)
+    assert truth.camera is not None
+    res = calibrate_handeye(data, system)
+    d = inv_T(truth.camera.world_T_camera) @ res.camera_pose
+    err_t = float(np.linalg.norm(d[:3, 3]))
+    err_r = float(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1)))
+    sd_t = float(np.linalg.norm(res.std["camera_translation"]))
+    sd_r = float(np.linalg.norm(res.std["camera_rotation"]))
+    print(f"\nhand-eye from {len(data.q)} collected poses: camera {1e3 * err_t:.2f} mm "
+          f"(1 sigma {1e3 * sd_t:.2f} mm), {np.rad2deg(err_r):.3f} deg "
+          f"(1 sigma {np.rad2deg(sd_r):.3f} deg) from its true pose")  # fmt: skip
+    # the sim camera's true pose, within the D435 noise the calibration itself predicts
+    assert err_t < 5 * sd_t + 5e-4 and err_r < 5 * sd_r + 1e-4
+    assert sd_t < 0.02 and res.converged
+
+
+def test_collect_beam_on_the_simulated_system(sim_system: Any, tmp_path: Path) -> None:
+    ep, prefix = sim_system
+    system = system_from_scenario(load_scenario(SCENARIO))
+    aim = np.array([-0.492, -0.55, -0.06])  # the top of the scenario's board (0.3 m square)
+    out = tmp_path / "beam.json"
+    run = subprocess.run([*CLI, "calibrate", "collect", "beam", "-s", str(SCENARIO), "-o",
+                          str(out), "--aim", ",".join(f"{x:.4f}" for x in aim), "--poses", "4",
+                          "--speed", "1.0", "--endpoint", ep, "--prefix", prefix],
+                         capture_output=True, env=ENV, timeout=300)  # fmt: skip
+    text = run.stdout.decode()
+    summary = json.loads(text.strip().splitlines()[-1])
+    assert "condition number of the beam Jacobian" in text
+    assert run.returncode == 0 and summary["collected"] >= 3, text
+    data = load_beam(out, system)
+    assert len(data.q) == summary["collected"] and data.camera_spots == len(data.q)
+    assert np.all(np.abs(data.spots_world[:, 2] + 0.06) < 3e-3)  # on the board's top face
+    assert np.all(np.abs(data.spots_world[:, :2] - aim[:2]) < 0.15)
+
+
+def test_collect_user_mistakes_and_a_hostile_marker_query(sim_system: Any) -> None:
+    ep, prefix = sim_system
+    for args in (["handeye", "-s", "nope.yaml", "-o", "x.json"],
+                 ["handeye", "-s", str(SCENARIO), "-o", "x.json", "--poses", "1"],
+                 ["handeye", "-s", str(SCENARIO), "-o", "x.txt"],
+                 ["handeye", "-s", str(SCENARIO), "-o", "x.json", "--robot", "arm9"],
+                 ["beam", "-s", str(SCENARIO), "-o", "x.json", "--aim", "1,2"]):  # fmt: skip
+        r = subprocess.run([*CLI, "calibrate", "collect", *args], capture_output=True, env=ENV,
+                           timeout=120)  # fmt: skip
+        assert r.returncode == 2 and r.stderr.decode().count("\n") == 1, args
+    client = raw_session(ep)
+    try:
+        end = time.monotonic() + 10.0  # let the client discover the camera peer
+        while not list(client.get(f"{prefix}/camera/markers", timeout=1.0)):
+            assert time.monotonic() < end, "no camera answers markers queries"
+        for body in (b"", b"garbage", b'{"board_points": "x"}', b'{"board_points": [[0,0,0]]}'):
+            replies = list(client.get(f"{prefix}/camera/markers", payload=body, timeout=5.0))
+            assert replies and "error" in json.loads(replies[0].ok.payload.to_bytes())
+    finally:
+        client.close()
