@@ -12,7 +12,7 @@ from typing import Annotated
 import typer
 
 from planner.cli.args import parse_xyz
-from planner.errors import InputError
+from planner.errors import BeamrelayError, InputError
 from planner.model.status import Status
 
 EndpointOpt = Annotated[
@@ -61,11 +61,11 @@ def serve(
     import threading
 
     from planner.service.bus import Keys, open_session
-    from planner.service.node import PlannerNode, handler_from_scenario
+    from planner.service.node import BusAddress, PlannerNode, handler_from_scenario
 
     handler = handler_from_scenario(scenario)
     session = open_session(listen=not connect, endpoint=endpoint, config_file=zenoh_config)
-    node = PlannerNode(handler, session, Keys(prefix))
+    node = PlannerNode(handler, session, Keys(prefix), bus=BusAddress(endpoint, zenoh_config))
     stop = threading.Event()
 
     def on_signal(signum: int, _frame: object) -> None:
@@ -85,7 +85,12 @@ def serve(
         f"{'up' if up else 'DOWN'}: {name}", err=not up
     )
     node.on_fatal = on_fatal
-    node.start()
+    try:
+        node.start()
+    except BeamrelayError as exc:  # the heartbeat process could not start
+        session.close()
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(1) from None
     names = ", ".join(handler.system.robot_names)
     typer.echo(f"planner ready: {prefix}/plan, robots {names}, session {node.session_id}")
     try:
