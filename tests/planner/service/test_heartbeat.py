@@ -20,7 +20,6 @@ import numpy as np
 import pytest
 
 from planner.data import shipped_scenario
-from planner.model.system import System
 from planner.service.bus import Keys, open_session
 from planner.service.heartbeat import STOP, TICK, BusAddress, beat_loop, process_state
 from planner.service.node import PlannerNode, RequestHandler, make_plan_fn
