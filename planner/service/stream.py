@@ -2,14 +2,17 @@
 
 A message body may hold at most :data:`~planner.service.bus.MAX_PAYLOAD_BYTES` (4 MiB), about
 13,000 samples of one robot: a long path or a large batch of targets makes a longer
-trajectory (the 1000 targets of the paper's grid: 52,707 samples, 16.7 MB). It is split at
-sample boundaries into chunks of at most :data:`CHUNK_BYTES`, each a complete
-JointTrajectory whose first sample is the previous chunk's last (times from 0 in each), with
-the id ``<request id>#<k>/<n>`` and the planner's session. A driver queues at most one
-trajectory behind the one it plays (it must start where that one ends, and starts when it
-ends), so the chunks are streamed: chunk 1, then chunk 2 (queued), then chunk k + 1 once
-chunk k has started playing (:data:`START_LEAD` s after its start, timed from the plan and
-the moment chunk 1 started), so that at most one is ever queued.
+trajectory (the 1000 targets of the paper's grid: 52,707 samples, 16.7 MB). It is split into
+chunks of at most :data:`CHUNK_BYTES`, each a complete JointTrajectory whose first sample is
+the previous chunk's last (times from 0 in each), with the id ``<request id>#<k>/<n>`` and the
+planner's session. Chunks end where every robot rests (on a target): a driver joins a queued
+trajectory with an approach from the state where the running one ended, which is no motion
+only from rest; a trajectory that moves too long without a stop to fit is refused with the
+figures. A driver queues at most one trajectory behind the one it plays (it must start
+where that one ends, and starts when it ends), so the chunks are streamed: chunk 1, then
+chunk 2 (queued), then chunk k + 1 once chunk k plays (halfway through it,
+:data:`START_LEAD`, timed from the plan and the moment chunk 1 started), so that at most
+one is ever queued.
 
 :class:`Execution` does this for the planner node: the reply's ``execution`` is the verdict
 on the first chunks (``accepted`` once chunk 1 and chunk 2 are accepted by every driver);
@@ -20,6 +23,7 @@ started), another execution is refused (it would replace the queued chunk).
 
 from __future__ import annotations
 
+import itertools
 import logging
 import threading
 import time
@@ -42,9 +46,10 @@ log = logging.getLogger("beamrelay.node")
 
 #: largest body (bytes) of one trajectory chunk: under the 4 MiB limit with room to spare
 CHUNK_BYTES = 3 * 1024 * 1024
-#: the next chunk is sent this long (s) after the running one started (at most a quarter
-#: of its duration), so it is queued behind a chunk that plays
-START_LEAD = 1.0
+#: the next chunk is sent when this fraction of the running one has played (by the clock):
+#: a driver that runs late or early by up to half a chunk (seconds, for a full chunk) still
+#: finds it queued behind the chunk it plays
+START_LEAD = 0.5
 #: extra time (s per whole MiB of body) a driver may take for its verdict (it parses it)
 PARSE_ALLOWANCE = 0.5
 
@@ -75,20 +80,91 @@ def split_trajectory(
     request_id: str | None,
     session: str | None,
     max_bytes: int | None = CHUNK_BYTES,
+    at_rest_only: bool = True,
 ) -> list[Chunk]:
     """The plan's ``trajectory`` as chunks of at most ``max_bytes`` per body (one chunk,
     id = the request id, when it fits or ``max_bytes`` is None). Chunk k + 1 starts with
-    chunk k's last sample."""
-    from schemas.messages import TRAJECTORY_SCHEMA, JointTrajectory
+    chunk k's last sample, chosen (``at_rest_only``) where every robot rests (qd = qdd = 0,
+    e.g. on a target): a driver joins a queued trajectory by an approach from the state
+    where the running one ends, which is no motion only from rest. ExecuteError when no
+    such split keeps every chunk under ``max_bytes``."""
+    t, rows = _samples(plan)
+    make = _chunk_maker(plan, t, rows, session)
+    whole = make(request_id, 0, len(t))
+    if max_bytes is None or whole.nbytes <= max_bytes:
+        return [whole]
+    budget = int(0.97 * max_bytes * len(t) / whole.nbytes)  # samples per chunk, about
+    rest = np.ones(len(t), dtype=bool)
+    if at_rest_only:
+        for r in rows.values():
+            rest &= (np.abs(r["qd"]).max(axis=1) <= REST) & (np.abs(r["qdd"]).max(axis=1) <= REST)
+    candidates = np.flatnonzero(rest[1:-1]) + 1
+    while budget >= 2:
+        edges = split_edges(candidates, len(t), budget)
+        if edges is None:
+            break
+        n = len(edges) - 1
+        chunks = [make(chunk_id(request_id or "trajectory", k + 1, n), a, b + 1)
+                  for k, (a, b) in enumerate(itertools.pairwise(edges))]  # fmt: skip
+        if all(c.nbytes <= max_bytes for c in chunks):
+            return chunks
+        budget = int(0.9 * budget)
+    stops = np.concatenate([[0], candidates, [len(t) - 1]])
+    longest = float(np.max(np.diff(t[stops])))
+    raise ExecuteError(
+        f"the trajectory ({whole.nbytes} bytes per robot, {t[-1] - t[0]:.1f} s) exceeds the "
+        f"{max_bytes}-byte message size and cannot be split where the robots rest: they "
+        f"move for {longest:.1f} s without a stop, a message holds about "
+        f"{budget * (t[-1] - t[0]) / len(t):.1f} s; send shorter requests",
+        list(rows),
+    )
 
+
+#: joint speed (rad/s) and acceleration (rad/s^2) below which a sample counts as at rest
+REST = 1e-9
+
+
+def split_edges(candidates: Any, n_samples: int, budget: int) -> list[int] | None:
+    """Sample indices ``[0, e1, ..., n_samples - 1]`` splitting ``n_samples`` samples into
+    chunks of at most ``budget`` + 1 samples (consecutive chunks share their edge sample),
+    edges taken from ``candidates`` (sorted) and as even as they allow; None if impossible."""
+    last = n_samples - 1
+    n_min = int(np.ceil(last / budget))
+    for n in range(n_min, n_min + 8):  # balanced: each edge nearest its even share
+        edges = [0]
+        for i in range(1, n):
+            near = candidates[(candidates > edges[-1]) & (candidates <= edges[-1] + budget)]
+            if near.size == 0:
+                break
+            edges.append(int(near[np.argmin(np.abs(near - i * last / n))]))
+        else:
+            if last - edges[-1] <= budget:
+                return [*edges, last]
+    edges = [0]  # greedy: each chunk as long as it may be
+    while last - edges[-1] > budget:
+        near = candidates[(candidates > edges[-1]) & (candidates <= edges[-1] + budget)]
+        if near.size == 0:
+            return None
+        edges.append(int(near[-1]))
+    return [*edges, last]
+
+
+def _samples(plan: dict[str, Any]) -> tuple[Any, dict[str, dict[str, Any]]]:
+    """The trajectory's times (s) and per robot q, qd, qdd rows, repeated times dropped."""
     traj = plan.get("trajectory")
     if not traj:
         raise ExecuteError("the plan has no trajectory to execute", list(plan["robots"]))
     t = np.asarray(traj["t"], dtype=float)
     keep = np.concatenate([[True], np.diff(t) > 0])  # drivers require increasing times
-    t = t[keep]
     rows = {robot: {k: np.asarray(traj[k][robot], dtype=float)[keep] for k in ("q", "qd", "qdd")}
             for robot in plan["robots"]}  # fmt: skip
+    return t[keep], rows
+
+
+def _chunk_maker(
+    plan: dict[str, Any], t: Any, rows: dict[str, dict[str, Any]], session: str | None
+) -> Callable[[str | None, int, int], Chunk]:
+    from schemas.messages import TRAJECTORY_SCHEMA, JointTrajectory
 
     def body(robot: str, cid: str | None, a: int, b: int) -> bytes:
         msg = {"schema": TRAJECTORY_SCHEMA, "robot": robot, "id": cid, "session": session,
@@ -97,26 +173,12 @@ def split_trajectory(
         JointTrajectory.model_validate(msg)  # the driver's contract, checked before sending
         return encode_json(msg)
 
-    n = 1
-    while True:
-        edges = np.linspace(0, len(t) - 1, n + 1).round().astype(int) if n > 1 else None
-        chunks = []
-        for k in range(n):
-            a, b = (0, len(t)) if edges is None else (int(edges[k]), int(edges[k + 1]) + 1)
-            cid = request_id if n == 1 else chunk_id(request_id or "trajectory", k + 1, n)
-            bodies = {robot: body(robot, cid, a, b) for robot in rows}
-            chunks.append(Chunk(cid, bodies, float(t[a] - t[0]), float(t[b - 1] - t[a])))
-            if max_bytes is not None and chunks[-1].nbytes > max_bytes:
-                break
-        else:
-            return chunks
-        assert max_bytes is not None
-        if n == 1:  # jump to about the right count, then refine one by one
-            n = max(2, int(np.ceil(1.1 * chunks[0].nbytes / max_bytes)))
-        elif n >= len(t) - 1:
-            raise ExecuteError(f"one trajectory sample exceeds {max_bytes} bytes", list(rows))
-        else:
-            n += 1
+    def make(cid: str | None, a: int, b: int) -> Chunk:
+        """Samples a..b-1 as one chunk."""
+        bodies = {robot: body(robot, cid, a, b) for robot in rows}
+        return Chunk(cid, bodies, float(t[a] - t[0]), float(t[b - 1] - t[a]))
+
+    return make
 
 
 class Execution:
@@ -244,7 +306,7 @@ class _Stream:
     def _due(self, k: int) -> float:
         """Monotonic time (s) to send chunk ``k`` (0-based, k >= 1): once chunk k - 1 plays."""
         prev = self.chunks[k - 1]
-        return self.begin + prev.t0 + min(START_LEAD, 0.25 * prev.duration)
+        return self.begin + prev.t0 + START_LEAD * prev.duration
 
     def _run(self) -> None:
         try:

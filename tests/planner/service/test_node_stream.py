@@ -18,9 +18,10 @@ import pytest
 
 from planner.model.system import System
 from planner.service.bus import MAX_PAYLOAD_BYTES, Keys, open_session
+from planner.service.execution import ExecuteError
 from planner.service.heartbeat import BusAddress
 from planner.service.node import PlannerNode, RequestHandler, make_plan_fn
-from planner.service.stream import CHUNK_BYTES, chunk_id, split_trajectory
+from planner.service.stream import CHUNK_BYTES, chunk_id, split_edges, split_trajectory
 from schemas.messages import JointTrajectory
 from tests.drivers.conftest import free_port, wait_for
 from tests.planner.raw_zenoh import Inbox, ask, raw_session
@@ -213,39 +214,80 @@ def test_execute_is_refused_while_chunks_remain_and_a_stop_ends_the_stream(
     assert len(rig.driver.received) == sent < n + 1  # nothing sent after the stop
 
 
-def big_plan(n: int, robots: tuple[str, ...] = ("arm0",)) -> dict[str, Any]:
-    """A plan.json with an n-sample trajectory at 500 Hz (random smooth joints)."""
+def big_plan(n: int, robots: tuple[str, ...] = ("arm0",), rest_every: int | None = 300) -> dict:
+    """A plan.json with an n-sample trajectory at 500 Hz: moves from rest to rest, every
+    robot at rest (qd = qdd = 0) on every ``rest_every``-th sample (never: None)."""
     rng = np.random.default_rng(7)
     t = np.arange(n) * 0.002
     traj: dict[str, Any] = {"t": t.tolist(), "q": {}, "qd": {}, "qdd": {}}
     for r in robots:
-        q = np.cumsum(rng.normal(0, 1e-4, (n, 6)), axis=0)
-        traj["q"][r] = q.tolist()
-        traj["qd"][r] = np.gradient(q, t, axis=0).tolist()
-        traj["qdd"][r] = np.zeros((n, 6)).tolist()
+        qd = rng.normal(0, 0.05, (n, 6))
+        qdd = rng.normal(0, 0.5, (n, 6))
+        if rest_every is not None:
+            qd[::rest_every] = qdd[::rest_every] = 0.0
+        traj["q"][r] = np.cumsum(qd * 0.002, axis=0).tolist()
+        traj["qd"][r], traj["qdd"][r] = qd.tolist(), qdd.tolist()
     names = {r: [f"j{k}" for k in range(6)] for r in robots}
     return {"robots": list(robots), "joint_names": names, "trajectory": traj}
 
 
-def test_the_paper_sized_trajectory_splits_under_the_body_limit() -> None:
-    """52,707 samples (the paper grid's 1000 targets): about 17 MB in one body."""
+def resting(plan: dict[str, Any]) -> np.ndarray:
+    traj = plan["trajectory"]
+    return np.all([(np.abs(traj["qd"][r]).max(1) == 0) & (np.abs(traj["qdd"][r]).max(1) == 0)
+                   for r in plan["robots"]], axis=0)  # fmt: skip
+
+
+def test_the_paper_sized_trajectory_splits_under_the_body_limit_where_robots_rest() -> None:
+    """52,707 samples (the paper grid's 1000 targets): about 17 MB per robot in one body."""
     plan = big_plan(52_707, ("arm0", "arm1"))
     chunks = split_trajectory(plan, "grid", "sess")
-    assert len(chunks) >= 5
     t, q = np.asarray(plan["trajectory"]["t"]), np.asarray(plan["trajectory"]["q"]["arm1"])
-    pieces = []
+    rest = resting(plan)
+    n, start, pieces = len(chunks), 0, []
+    assert n >= 5
     for k, c in enumerate(chunks, start=1):
-        assert c.id == f"grid#{k}/{len(chunks)}"
+        assert c.id == f"grid#{k}/{n}"
         for robot, body in c.bodies.items():
             assert len(body) <= CHUNK_BYTES < MAX_PAYLOAD_BYTES
             msg = JointTrajectory.model_validate_json(body)
             assert (msg.robot, msg.id, msg.session, msg.t[0]) == (robot, c.id, "sess", 0.0)
         msg = JointTrajectory.model_validate_json(c.bodies["arm1"])
-        assert c.t0 == pytest.approx(t[len(np.concatenate(pieces)) - 1] if pieces else 0.0)
-        pieces.append(np.asarray(msg.q) if not pieces else np.asarray(msg.q)[1:])
-        np.testing.assert_allclose(np.asarray(msg.t) + c.t0, t[len(np.concatenate(pieces)) -
-                                   len(msg.t):len(np.concatenate(pieces))], atol=1e-9)  # fmt: skip
+        end = start + len(msg.t) - 1  # this chunk covers samples start..end
+        assert rest[start] and (rest[end] or end == len(t) - 1)  # split where robots rest
+        np.testing.assert_allclose(np.asarray(msg.t) + t[start], t[start : end + 1], atol=1e-9)
+        assert (c.t0, c.duration) == pytest.approx((t[start], t[end] - t[start]))
+        pieces.append(np.asarray(msg.q)[0 if k == 1 else 1 :])
+        start = end
+    assert start == len(t) - 1
     np.testing.assert_array_equal(np.concatenate(pieces), q)
+    sizes = [c.nbytes for c in chunks]
+    assert max(sizes) < 1.5 * min(sizes)  # about even
+
+
+def test_a_trajectory_that_never_rests_is_refused_unless_moving_splits_are_allowed() -> None:
+    plan = big_plan(30_000, rest_every=None)
+    with pytest.raises(
+        ExecuteError,
+        match=r"exceeds the 3145728-byte message size and cannot "
+        r"be split where the robots rest: they move for 60\.0 s without a stop",
+    ):
+        split_trajectory(plan, "r", "sess")
+    chunks = split_trajectory(plan, "r", "sess", at_rest_only=False)
+    assert len(chunks) >= 3 and all(c.nbytes <= CHUNK_BYTES for c in chunks)
+    plan = big_plan(30_000, rest_every=20_000)  # a rest point, but chunks would be too long
+    with pytest.raises(ExecuteError, match=r"move for 40\.0 s without a stop"):
+        split_trajectory(plan, "r", "sess")
+
+
+def test_split_edges() -> None:
+    cands = np.array([3, 5, 9, 12, 16])
+    assert split_edges(cands, 20, 7) == [0, 5, 12, 19]
+    assert split_edges(cands, 20, 19) == [0, 19]
+    assert split_edges(np.array([10]), 20, 7) is None
+    edges = split_edges(np.arange(1, 99), 100, 10)  # any sample may be an edge: even shares
+    assert edges is not None and len(edges) == 11 and edges[-1] == 99
+    assert max(np.diff(edges)) <= 10
+    np.testing.assert_allclose(edges, np.arange(11) * 9.9, atol=0.5)
 
 
 def test_a_trajectory_that_fits_stays_one_message_with_the_request_id() -> None:
@@ -258,7 +300,57 @@ def test_chunk_ids_fit_the_id_length() -> None:
     rid = "x" * 256
     cid = chunk_id(rid, 12, 40)
     assert len(cid) == 256 and cid.endswith("#12/40")
-    plan = big_plan(30_000)
-    chunks = split_trajectory(plan, rid, "sess", max_bytes=CHUNK_BYTES)
-    for c in chunks:
-        JointTrajectory.model_validate_json(c.bodies["arm0"])
+    for c in split_trajectory(big_plan(30_000), rid, "sess"):
+        assert JointTrajectory.model_validate_json(c.bodies["arm0"]).id == c.id
+
+
+def test_chunks_play_back_to_back_on_the_sim_driver(system: System) -> None:
+    """The real robot driver (simulated arm, in this process): every chunk is accepted,
+    queued behind the one that plays and started when it ends, without a settle, a brake
+    or a safety stop in between; the arm ends where the plan ends."""
+    from drivers.robot.node import RobotNode
+    from drivers.robot.sim import SimRobot
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    hub = open_session(listen=True, endpoint=endpoint)
+    node = PlannerNode(RequestHandler(system, make_plan_fn(system, {})), hub, Keys(PREFIX),
+                       bus=BusAddress(endpoint))  # fmt: skip
+    node.execution.chunk_bytes = 3 * SMALL_CHUNKS
+    node.start()
+    robot = system.robots[0]
+    side, client = open_session(listen=False, endpoint=endpoint), raw_session(endpoint)
+    sim = SimRobot(robot.joint_names, robot.home, robot.limits)
+    driver = RobotNode(side, Keys(PREFIX), "arm0", sim, robot.limits).start()
+    modes: list[str] = []
+    status = client.declare_subscriber(f"{PREFIX}/arm0/status", lambda s: modes.append(
+        json.loads(s.payload.to_bytes())["mode"]))  # fmt: skip
+    try:
+        wait_for(lambda: "arm0" in node.alive and node.joints.get("arm0") is not None
+                 and driver.planner_alive, 30.0, "driver and planner")  # fmt: skip
+        body = {"schema": "beamrelay.request/1", "id": "sim", "execute": True,
+                "points": reachable_targets(system, 24, seed=8).tolist()}  # fmt: skip
+        ok, reply = ask(client, f"{PREFIX}/plan", json.dumps(body).encode(), timeout=60)
+        plan = json.loads(reply)
+        assert ok and plan["execution"] == "accepted", plan
+        n, duration = plan["execution_chunks"], float(plan["trajectory"]["t"][-1])
+        wait_for(lambda: driver.n_accepted + driver.n_rejected == n, duration + 15.0,
+                 "every chunk judged")  # fmt: skip
+        print(f"{duration:.1f} s in {n} chunks; driver modes: {dict.fromkeys(modes)}")
+        wait_for(
+            lambda: sim.follower.mode == "idle",
+            15.0,
+            f"the arm at rest (mode {sim.follower.mode}, {driver.stopped_by}, {driver.rejection})",
+        )
+        assert (driver.n_accepted, driver.n_rejected, driver.stopped_by) == (n, 0, None)
+        assert n >= 3
+        np.testing.assert_allclose(sim.follower.q, plan["trajectory"]["q"]["arm0"][-1],
+                                   atol=1e-9)  # fmt: skip
+        moving = modes[modes.index("approach") : len(modes) - modes[::-1].index("following")]
+        assert set(moving) <= {"approach", "following"}, dict.fromkeys(moving)
+    finally:
+        status.undeclare()
+        driver.stop()
+        client.close()
+        side.close()
+        node.close()
+        hub.close()
