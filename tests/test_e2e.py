@@ -165,6 +165,7 @@ def truth_system(bus: Bus) -> Any:
 def test_ten_targets_executed_spot_within_a_millimetre(bus: Bus, system: Any) -> None:
     points = board_targets(10, seed=1)
     plan, spots = bus.client.execute(make_request(points, normals=np.tile(UP, (10, 1))), 20.0)
+    assert plan["execution"] == "accepted", plan["execution_reason"]
     assert [s["status"] for s in plan["solutions"]] == ["ok"] * 10
     q_end = np.asarray(plan["solutions"][-1]["q"]["arm0"])
     np.testing.assert_allclose(bus.client.recorder.joints["arm0"][1], q_end, atol=1e-6)
@@ -181,6 +182,7 @@ def test_miscalibrated_mirror_shows_the_predicted_error(
     try:
         points = board_targets(4, seed=2)
         plan, spots = bus.client.execute(make_request(points, normals=np.tile(UP, (4, 1))), 20.0)
+        assert plan["execution"] == "accepted", plan["execution_reason"]
         truth = BeamModel(truth_system)
         for sol, p, s in zip(plan["solutions"], points, spots, strict=True):
             q = system.stack_q(sol["q"])
@@ -214,12 +216,14 @@ def test_camera_killed_mid_run_is_reported_and_nothing_hangs(bus: Bus) -> None:
     plan, spots = bus.client.execute(req, 20.0)
     killer.join()
     elapsed = time.monotonic() - t0
+    assert plan["execution"] == "accepted", plan["execution_reason"]
     assert elapsed < plan["trajectory"]["t"][-1] + 5.0
     assert spots[0] is not None and spots[-1] is None  # seen before the kill, not after
     wait_for(lambda: "DOWN: camera" in bus.log("planner"), 5.0, "planner reporting the camera")
     assert "camera" not in bus.alive
     # the planner still serves, execute still works (the camera is not needed to move)
     plan2, spots2 = bus.client.execute(make_request(board_targets(1, seed=4)), 20.0)
+    assert plan2["execution"] == "accepted", plan2["execution_reason"]
     assert plan2["solutions"][0]["status"] == "ok" and spots2 == [None]
     bus.start("camera")
 
@@ -297,6 +301,65 @@ def test_random_requests_never_crash_or_hang(bus: Bus) -> None:
     assert bus.procs["planner"].poll() is None
 
 
+def test_a_trajectory_over_the_body_limit_is_streamed_to_the_sim_arm(bus: Bus) -> None:
+    """50 targets with a 0.4 s dwell each: a trajectory of more than 30 s, more than one
+    4 MiB body; it reaches the simulated arm in chunks, played back to back without a stop,
+    and every spot lands within a millimetre."""
+    from planner.service.bus import MAX_PAYLOAD_BYTES
+
+    ids: list[tuple[str, int]] = []
+    modes: set[str] = set()
+    subs = [
+        bus.hub.declare_subscriber(bus.keys.trajectory("arm0"), lambda s: ids.append(
+            (json.loads(s.payload.to_bytes())["id"], len(s.payload)))),
+        bus.hub.declare_subscriber(bus.keys.status("arm0"), lambda s: modes.add(
+            json.loads(s.payload.to_bytes())["mode"])),
+    ]  # fmt: skip
+    points = board_targets(50, seed=11)
+    try:
+        plan, spots = bus.client.execute(
+            make_request(points, normals=np.tile(UP, (50, 1)), request_id="long"), 90.0
+        )
+    finally:
+        for sub in subs:
+            sub.undeclare()
+    n = plan.get("execution_chunks", 1)
+    duration = float(plan["trajectory"]["t"][-1])
+    print(f"{duration:.1f} s trajectory sent in {n} chunks of at most "
+          f"{max(size for _, size in ids) / 2**20:.2f} MiB; driver modes seen: {sorted(modes)}")  # fmt: skip
+    assert plan["execution"] == "accepted", plan["execution_reason"]
+    assert duration > 30.0 and n >= 2
+    assert [i for i, _ in ids] == [f"long#{k}/{n}" for k in range(1, n + 1)]
+    assert all(size <= MAX_PAYLOAD_BYTES for _, size in ids)
+    assert not modes & {"braking", "stopped", "fault"}
+    q_end = np.asarray(plan["trajectory"]["q"]["arm0"][-1])
+    np.testing.assert_allclose(bus.client.recorder.joints["arm0"][1], q_end, atol=1e-6)
+    errors = np.array([np.linalg.norm(s - p) for s, p in zip(spots, points, strict=True)
+                       if s is not None])  # fmt: skip
+    print(f"{len(errors)}/50 spots seen: error median {1e3 * np.median(errors):.3f} mm, "
+          f"max {1e3 * errors.max():.3f} mm")  # fmt: skip
+    assert len(errors) >= 48 and errors.max() < 1e-3
+
+
+def test_request_cli_reports_the_verdict_and_measured_errors_as_json(bus: Bus) -> None:
+    point = ",".join(f"{x:.4f}" for x in board_targets(1, seed=12)[0])
+    argv = [*bus.argv["planner"][:3], "request", "--points", point, "--normals", "0,0,1",
+            "--execute", "--json", "--endpoint", bus.endpoint, "--prefix", PREFIX,
+            "--timeout", "30"]  # fmt: skip
+    out = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    doc = json.loads(out.stdout.strip().splitlines()[-1])
+    print(f"request --json: { ({k: v for k, v in doc.items() if k != 'targets'}) }")
+    assert doc["execution"] == "accepted" and doc["execution_reason"] is None
+    assert (doc["n_ok"], doc["n_targets"]) == (1, 1)
+    target = doc["targets"][0]
+    expected = float(np.linalg.norm(np.subtract(target["measured_spot"], target["p"])))
+    assert doc["measured_error_median"] == doc["measured_error_max"] == target["measured_error"]
+    assert target["measured_error"] == pytest.approx(expected, rel=1e-9)
+    assert target["measured_error"] < 1e-3
+    assert "execution: accepted" in out.stderr
+
+
 def test_planner_heartbeat_session_and_sigstop(bus: Bus) -> None:
     """The planner process beats at >= 50 Hz with one session; an executed trajectory
     carries that session and the request id; a SIGSTOPped planner falls silent at once."""
@@ -312,7 +375,10 @@ def test_planner_heartbeat_session_and_sigstop(bus: Bus) -> None:
         ),
     ]
     try:
-        bus.client.execute(make_request(board_targets(1, seed=9), request_id="hb-1"), 20.0)
+        plan, _ = bus.client.execute(
+            make_request(board_targets(1, seed=9), request_id="hb-1"), 20.0
+        )
+        assert plan["execution"] == "accepted", plan["execution_reason"]
         pid = bus.procs["planner"].pid
         os.kill(pid, signal.SIGSTOP)
         t_stop = time.monotonic()
@@ -346,7 +412,8 @@ def test_planner_killed_sim_robot_stops_within_100ms(bus: Bus, system: Any) -> N
     """The arm is still within 100 ms of the planner's death: the watchdog on its liveliness
     token brakes at once with the stop deceleration (drivers.robot.follower.STOP_ACCELERATION)."""
     near, far = [-0.44, -0.47, BOARD_Z], [-0.62, -0.65, BOARD_Z]
-    bus.client.execute(make_request([near]), 20.0)
+    plan, _ = bus.client.execute(make_request([near]), 20.0)
+    assert plan["execution"] == "accepted", plan["execution_reason"]
     states: list[tuple[float, np.ndarray]] = []
     braking: list[float] = []
 

@@ -1,5 +1,6 @@
-"""``beamrelay bench service``: the planner node's request -> reply latency, and the rate and
-jitter of a simulated robot driver's ``joint_states``.
+"""``beamrelay bench service``: the planner node's request -> reply latency, the rate and
+jitter of a simulated robot driver's ``joint_states``, and the planner heartbeat's gaps
+while it plans (heartbeat process, and a heartbeat thread for comparison).
 
 Runs everything on a private loopback port: the planner node (:class:`planner.service.node.PlannerNode`
 on the scenario's system) listens, a client session sends TargetRequests over TCP (so the
@@ -123,6 +124,93 @@ def measure_joint_states(seconds: float) -> dict[str, float]:
     }
 
 
+#: a separate process timing heartbeats (a subscriber in the planner's process would wait
+#: for the same GIL as the heartbeat it measures); prints the times when its stdin closes
+LISTENER = """
+import json, os, sys, time, zenoh
+conf = zenoh.Config()
+conf.insert_json5("mode", '"client"')
+conf.insert_json5("connect/endpoints", json.dumps([sys.argv[1]]))
+session = zenoh.open(conf)
+times = []
+sub = session.declare_subscriber(sys.argv[2], lambda s: times.append(time.monotonic()))
+print("ready", flush=True)
+sys.stdin.read()
+print(json.dumps(times), flush=True)
+os._exit(0)
+"""
+
+
+def heartbeat_workloads(scenario: Path) -> dict[str, tuple[Any, str]]:
+    """Requests to plan while the heartbeat is timed: the curve path (about 150 samples at
+    1 mm), the curve there and back three times (about 900), and the scenario's targets."""
+    import numpy as np
+
+    from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
+
+    curve_targets = load_scenario(shipped_scenario("curve_path.yaml")).model.targets
+    assert curve_targets is not None and curve_targets.path is not None
+    curve = np.asarray(curve_targets.path.points)
+    back = np.concatenate([curve, curve[::-1][1:]])
+    loaded = load_scenario(scenario)
+    grid = targets_from_scenario(loaded, system_from_scenario(loaded)).points
+    return {
+        "path_150": (curve, "path"),
+        "path_900": (np.concatenate([back, back[1:], back[1:]]), "path"),
+        f"targets_{len(grid)}": (grid, "points"),
+    }
+
+
+def measure_heartbeat(scenario: Path, in_process: bool) -> dict[str, dict[str, float]]:
+    """Heartbeat gaps (ms: p50, p99, max) seen by a separate process while the node plans
+    each workload of :func:`heartbeat_workloads`; ``in_process``: the heartbeat thread of
+    the planner process instead of the heartbeat process."""
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    from planner.service.bus import Keys, open_session
+    from planner.service.client import PlanClient, make_request
+    from planner.service.node import BusAddress, PlannerNode, handler_from_scenario
+
+    handler = handler_from_scenario(scenario)
+    endpoint = _free_endpoint()
+    hub = open_session(listen=True, endpoint=endpoint)
+    bus = None if in_process else BusAddress(endpoint)
+    node = PlannerNode(handler, hub, Keys("bench"), bus=bus).start()
+    listener = subprocess.Popen([sys.executable, "-c", LISTENER, endpoint, "bench/heartbeat"],
+                                stdin=subprocess.PIPE, stdout=subprocess.PIPE)  # fmt: skip
+    spans = {}
+    try:
+        assert listener.stdout is not None
+        listener.stdout.readline()
+        with PlanClient(endpoint=endpoint, prefix="bench") as client:
+            client.wait_for_node("planner", 10.0)
+            for name, (points, mode) in heartbeat_workloads(scenario).items():
+                t0 = time.monotonic()
+                client.request(make_request(points, path=mode == "path"), timeout=600.0)
+                spans[name] = (t0, time.monotonic())
+        out, _ = listener.communicate(b"", timeout=60)
+    finally:
+        if listener.poll() is None:
+            listener.kill()
+        node.close()
+        hub.close()
+    times = np.asarray(json.loads(out.decode().splitlines()[-1]))
+    figures = {}
+    for name, (t0, t1) in spans.items():
+        inside = times[(times >= t0) & (times <= t1)]
+        gaps = 1e3 * np.diff(np.concatenate([[t0], inside, [t1]]))
+        figures[name] = {
+            "plan_s": t1 - t0,
+            "gap_p50_ms": float(np.median(gaps)),
+            "gap_p99_ms": float(np.percentile(gaps, 99)),
+            "gap_max_ms": float(gaps.max()),
+        }
+    return figures
+
+
 def command(
     scenario: Annotated[Path, typer.Option(help="Scenario whose system and targets are used.")] = (
         DEFAULT_SCENARIO
@@ -130,6 +218,13 @@ def command(
     n_single: Annotated[int, typer.Option("--n-single", help="Single-target requests.")] = 200,
     n_batch: Annotated[int, typer.Option("--n-batch", help="100-target requests.")] = 10,
     seconds: Annotated[float, typer.Option(help="Joint-state listening time (s).")] = 3.0,
+    heartbeat: Annotated[
+        bool,
+        typer.Option(
+            help="Time the heartbeat while the node plans a path and the scenario's "
+            "targets, from its process and, for comparison, from a thread."
+        ),
+    ] = True,
     as_json: Annotated[bool, typer.Option("--json", help="Figures as JSON on the last line.")] = (
         False
     ),
@@ -148,6 +243,11 @@ def command(
         lat = measure_latency(scenario, n_single, n_batch)
     with console.status(f"listening to joint_states for {seconds:g} s..."):
         js = measure_joint_states(seconds)
+    beats = {}
+    if heartbeat:
+        for where, in_process in (("process", False), ("thread", True)):
+            with console.status(f"timing the heartbeat ({where}) while planning..."):
+                beats[where] = measure_heartbeat(scenario, in_process)
     s, b = lat["single"], lat["batch100"]
     goal = "meets" if s["median_ms"] <= GOAL_SINGLE_MS else "MISSES"
     console.print(
@@ -163,5 +263,13 @@ def command(
         f"jitter std {js['jitter_std_ms']:.3f} ms, p99 {js['period_p99_ms']:.2f} ms, max "
         f"{js['period_max_ms']:.2f} ms"
     )
+    for where, figures in beats.items():
+        for name, f in figures.items():
+            console.print(
+                f"heartbeat ({where}) while planning {name} ({f['plan_s']:.1f} s): gap p50 "
+                f"{f['gap_p50_ms']:.1f} ms, p99 {f['gap_p99_ms']:.1f} ms, max "
+                f"{f['gap_max_ms']:.1f} ms"
+            )
     if as_json:
-        print(json.dumps({"latency": lat, "joint_states": js, "goal_single_ms": GOAL_SINGLE_MS}))
+        print(json.dumps({"latency": lat, "joint_states": js, "heartbeat": beats,
+                          "goal_single_ms": GOAL_SINGLE_MS}))  # fmt: skip

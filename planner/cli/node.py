@@ -12,7 +12,7 @@ from typing import Annotated
 import typer
 
 from planner.cli.args import parse_xyz
-from planner.errors import InputError
+from planner.errors import BeamrelayError, InputError
 from planner.model.status import Status
 
 EndpointOpt = Annotated[
@@ -61,11 +61,11 @@ def serve(
     import threading
 
     from planner.service.bus import Keys, open_session
-    from planner.service.node import PlannerNode, handler_from_scenario
+    from planner.service.node import BusAddress, PlannerNode, handler_from_scenario
 
     handler = handler_from_scenario(scenario)
     session = open_session(listen=not connect, endpoint=endpoint, config_file=zenoh_config)
-    node = PlannerNode(handler, session, Keys(prefix))
+    node = PlannerNode(handler, session, Keys(prefix), bus=BusAddress(endpoint, zenoh_config))
     stop = threading.Event()
 
     def on_signal(signum: int, _frame: object) -> None:
@@ -85,7 +85,12 @@ def serve(
         f"{'up' if up else 'DOWN'}: {name}", err=not up
     )
     node.on_fatal = on_fatal
-    node.start()
+    try:
+        node.start()
+    except BeamrelayError as exc:  # the heartbeat process could not start
+        session.close()
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(1) from None
     names = ", ".join(handler.system.robot_names)
     typer.echo(f"planner ready: {prefix}/plan, robots {names}, session {node.session_id}")
     try:
@@ -168,11 +173,30 @@ def request(
     endpoint: EndpointOpt = None,
     prefix: PrefixOpt = "beamrelay",
     zenoh_config: ZenohConfigOpt = None,
+    as_json: Annotated[
+        bool,
+        typer.Option(
+            "--json",
+            help="End with one JSON object (id, execution, n_ok, measured errors in m, per "
+            "target figures) on the last line of standard output; the table goes to stderr.",
+        ),
+    ] = False,
 ) -> None:
-    """Send one TargetRequest, print the plan summary (and the measured spots if executing)."""
+    """Send one TargetRequest, print the plan summary (and the measured spots if executing).
+
+    Exits 1 when a target could not be solved or the robot drivers rejected the trajectory.
+    """
+    import json
+
     from rich.console import Console
 
-    from planner.service.client import PlanClient, RequestError, make_request
+    from planner.service.client import (
+        PlanClient,
+        RequestError,
+        make_request,
+        request_summary,
+        world_T_camera_of,
+    )
 
     if frame not in ("world", "camera"):
         raise InputError(f"--frame {frame!r}: expected world or camera")
@@ -183,7 +207,7 @@ def request(
     if nrm is not None and len(nrm) != len(pts):
         raise InputError(f"--normals: {len(nrm)} given for {len(pts)} points")
     req = make_request(pts, frame=frame, normals=nrm, path=path, execute=execute)
-    console = Console()
+    console = Console(stderr=as_json)
     client = PlanClient(
         endpoint=endpoint, prefix=prefix, zenoh_config=zenoh_config, connect_timeout=timeout
     )
@@ -198,8 +222,18 @@ def request(
         except RequestError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(1) from exc
+    if world_T_camera_of(plan) is None:
+        spots = None  # nothing can be measured: no column for it
     print_summary(console, plan, spots)
-    if any(s["status"] != Status.OK for s in plan["solutions"]):
+    rejected = execute and plan.get("execution") != "accepted"
+    if execute:
+        reason = plan.get("execution_reason") or "no verdict in the reply"
+        console.print(f"execution: REJECTED: {reason}" if rejected else "execution: accepted",
+                      style="bold red" if rejected else None, markup=False,
+                      soft_wrap=True)  # fmt: skip
+    if as_json:
+        print(json.dumps(request_summary(plan, spots)))
+    if rejected or any(s["status"] != Status.OK for s in plan["solutions"]):
         raise typer.Exit(1)
 
 

@@ -227,15 +227,57 @@ class PlanClient:
         """Request with ``execute: true``, wait for the motion, return (plan, measured spots).
 
         Waits the trajectory's duration, then until every robot is at rest, then ``settle``
-        seconds more so the camera sees the final target.
+        seconds more so the camera sees the final target; returns at once when the drivers
+        rejected the trajectory (``plan["execution"]``). Spots are None where not measured
+        (all of them when rejected, or when the plan's scenario has no fixed camera).
         """
         self.watch()
         since = time.monotonic()
         plan = self.request({**req, "execute": True}, timeout)
+        unmeasured: list[Array | None] = [None] * len(plan["solutions"])
+        if plan.get("execution") == "rejected":  # nothing moves: nothing to wait for
+            return plan, unmeasured
         duration = float(plan["trajectory"]["t"][-1]) if plan.get("trajectory") else 0.0
         deadline = time.monotonic() + duration + timeout
         time.sleep(duration)
         while self.recorder.moving() and time.monotonic() < deadline:
             time.sleep(0.02)
         time.sleep(settle)
+        if world_T_camera_of(plan) is None:  # no camera (or one on a flange): not measured
+            return plan, unmeasured
         return plan, measured_spots(plan, self.recorder, since)
+
+
+def request_summary(plan: dict[str, Any], spots: list[Array | None] | None) -> dict[str, Any]:
+    """The figures of one answered request, as plain JSON data: ``id``, ``execution`` and
+    ``execution_reason`` (None when not executed), ``n_ok``, ``n_targets``, per target its
+    status, reason, planned error and measured error (m; None when not seen), and over the
+    measured targets ``measured_error_median`` / ``measured_error_max`` (m)."""
+    rows, measured = [], []
+    for k, (tgt, sol) in enumerate(zip(plan["targets"], plan["solutions"], strict=True)):
+        spot = None if spots is None else spots[k]
+        err = None if spot is None else float(np.linalg.norm(spot - np.asarray(tgt["p"])))
+        if err is not None:
+            measured.append(err)
+        rows.append({"id": tgt["id"], "p": tgt["p"], "status": sol["status"],
+                     "reason": sol.get("reason"), "planned_error": _finite(sol.get("error")),
+                     "measured_spot": None if spot is None else np.asarray(spot).tolist(),
+                     "measured_error": err})  # fmt: skip
+    out: dict[str, Any] = {
+        "id": plan.get("id"),
+        "execution": plan.get("execution"),
+        "execution_reason": plan.get("execution_reason"),
+        "n_ok": plan["metrics"]["n_ok"],
+        "n_targets": plan["metrics"]["n_targets"],
+        "duration": plan["metrics"].get("duration"),
+    }
+    if measured:
+        out["measured_error_median"] = float(np.median(measured))
+        out["measured_error_max"] = float(np.max(measured))
+        out["n_measured"] = len(measured)
+    out["targets"] = rows
+    return out
+
+
+def _finite(x: Any) -> float | None:
+    return float(x) if isinstance(x, int | float) and np.isfinite(x) else None

@@ -7,7 +7,8 @@
   that final state while the trajectory still runs, and from ``joint_states`` afterwards.
 - :class:`AckBoard`: the drivers' verdicts (:class:`~schemas.messages.TrajectoryAck`, carried
   by their ``status``) on the trajectories of one request id.
-- :func:`trajectory_messages`: plan.json ``trajectory`` -> one JointTrajectory per robot.
+- :func:`trajectory_messages`: plan.json ``trajectory`` -> one JointTrajectory per robot
+  (chunked for execution by :mod:`planner.service.stream`).
 """
 
 from __future__ import annotations
@@ -21,7 +22,6 @@ import numpy as np
 
 from planner.errors import BeamrelayError
 from planner.model.transforms import Array
-from planner.service.bodies import encode_json
 
 #: a joint state older than this (s, receiver clock) does not count as "current"
 STATE_MAX_AGE = 0.5
@@ -43,6 +43,19 @@ class ExecuteError(BeamrelayError):
         self.reason = reason
         self.robots = robots
         super().__init__(reason)
+
+
+def base_id(trajectory_id: str | None) -> str | None:
+    """The request id of a trajectory (chunk) id: ``"r#2/5"`` -> ``"r"``; others unchanged."""
+    if trajectory_id is None or "#" not in trajectory_id:
+        return trajectory_id
+    head, _, tail = trajectory_id.rpartition("#")
+    k, _, n = tail.partition("/")
+    return head if k.isdigit() and n.isdigit() and len(tail) <= CHUNK_SUFFIX_MAX else trajectory_id
+
+
+#: longest chunk suffix of a trajectory id after the "#": "<k>/<n>", numbers of 6 digits
+CHUNK_SUFFIX_MAX = 13
 
 
 @dataclass
@@ -102,14 +115,15 @@ class MotionTracks:
     _tracks: dict[str, Track] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
-    def accepted(self, robot: str, request_id: str, q_end: Array, duration: float) -> None:
+    def accepted(self, robot: str, request_id: str, q_end: Array, duration: float) -> float:
         """Record an accepted trajectory of ``duration`` s: it starts now, or when the one
-        still running ends (the driver queues it)."""
+        still running ends (the driver queues it). Returns that start (monotonic s)."""
         now = time.monotonic()
         with self._lock:
             prev = self._tracks.get(robot)
             begin = now if prev is None or prev.end + self.margin <= now else max(now, prev.end)
             self._tracks[robot] = Track(request_id, np.asarray(q_end, float), begin + duration)
+        return begin
 
     def running_end(self, robot: str) -> Array | None:
         """Final joints (rad) of the robot's trajectory while it may still run, else None."""
@@ -121,10 +135,11 @@ class MotionTracks:
 
     def halted(self, robot: str, trajectory_id: str | None) -> None:
         """The robot stopped (braking, protective stop, fault) while its status names the
-        trajectory ``trajectory_id`` (None: no trajectory): forget where it was going."""
+        trajectory ``trajectory_id`` (None: no trajectory; a chunk id counts for its
+        request): forget where it was going."""
         with self._lock:
             track = self._tracks.get(robot)
-            if track is not None and trajectory_id in (None, track.id):
+            if track is not None and base_id(trajectory_id) in (None, track.id):
                 del self._tracks[robot]
 
     def clear(self) -> None:
@@ -137,11 +152,11 @@ class MotionTracks:
 class AckBoard:
     """Drivers' verdicts on the trajectories of the request being executed; thread safe."""
 
-    _want: dict[str, str] = field(default_factory=dict)
+    _want: dict[str, str | None] = field(default_factory=dict)
     _got: dict[str, Any] = field(default_factory=dict)
     _cond: threading.Condition = field(default_factory=threading.Condition)
 
-    def expect(self, robots: list[str], request_id: str) -> None:
+    def expect(self, robots: list[str], request_id: str | None) -> None:
         """Start collecting verdicts on ``request_id`` (call before publishing)."""
         with self._cond:
             self._want = dict.fromkeys(robots, request_id)
@@ -183,30 +198,9 @@ def trajectory_messages(
     plan: dict[str, Any], request_id: str | None = None, session: str | None = None
 ) -> dict[str, bytes]:
     """One JointTrajectory body per robot from a plan's ``trajectory`` (times from 0),
-    carrying the request id and the planner session; the robot named in the scenario's
-    ``laser.gate`` also gets the ``laser_on`` intervals."""
-    from schemas.messages import TRAJECTORY_SCHEMA, JointTrajectory
+    carrying the request id and the planner session (the ``laser.gate`` robot also gets
+    the ``laser_on`` intervals), whatever its size (see
+    :func:`planner.service.stream.split_trajectory` for chunks under the body limit)."""
+    from planner.service.stream import split_trajectory
 
-    traj = plan.get("trajectory")
-    if not traj:
-        raise ExecuteError("the plan has no trajectory to execute", list(plan["robots"]))
-    t = np.asarray(traj["t"], dtype=float)
-    keep = np.concatenate([[True], np.diff(t) > 0])  # drivers require increasing times
-    gate = ((plan.get("scenario") or {}).get("system") or {}).get("laser", {}).get("gate") or {}
-    out = {}
-    for robot in plan["robots"]:
-        rows = {k: np.asarray(traj[k][robot], dtype=float)[keep] for k in ("q", "qd", "qdd")}
-        body = {
-            "schema": TRAJECTORY_SCHEMA,
-            "robot": robot,
-            "id": request_id,
-            "session": session,
-            "t": (t[keep] - t[0]).tolist(),
-            "names": list(plan["joint_names"][robot]),
-            **{k: v.tolist() for k, v in rows.items()},
-        }
-        if robot == gate.get("robot"):  # its digital output switches the laser
-            body["laser_on"] = [[a - t[0], b - t[0]] for a, b in traj.get("laser_on") or []]
-        JointTrajectory.model_validate(body)  # the driver's contract, checked before sending
-        out[robot] = encode_json(body)  # in pieces: the heartbeat keeps running
-    return out
+    return split_trajectory(plan, request_id, session, max_bytes=None)[0].bodies

@@ -135,10 +135,13 @@ def make_plan_fn(
     ``scenario`` is the resolved scenario dict echoed in every plan; ``options`` an
     :class:`~planner.ik.IKOptions`; ``settings`` the scenario's ``trajectory`` section. Points
     are solved in order, each seeded by the previous solution (the first by ``start``); the
-    trajectory starts at ``start`` (the robots' current joints) instead of home. ``scene``
-    (a :class:`~planner.model.scene.SceneModel`) makes beams that cross it fail as ``occluded``.
+    trajectory starts at ``start`` (the robots' current joints) instead of home. Solutions
+    are re-verified (:func:`~planner.planning.verify_solutions`: the checks of ``beamrelay
+    check`` on the resolved ``scenario``) *before* the trajectory is timed, so a rejected
+    one is never part of it. ``scene`` (a :class:`~planner.model.scene.SceneModel`) makes
+    beams that cross it fail as ``occluded``.
     """
-    from planner.planning import plan_document, plan_path_targets, plan_points
+    from planner.planning import plan_document, plan_path_targets, plan_points, verify_solutions
 
     timing = settings or TrajectorySettings()
 
@@ -152,11 +155,13 @@ def make_plan_fn(
             sols = plan_path_targets(system, targets, options or IKOptions(), q0, scene)
         else:
             sols = plan_points(system, targets, options, q0, scene=scene)
+        if "system" in scenario:  # re-verified before timing: a rejected one is not visited
+            sols = verify_solutions(system, scenario, targets, sols)
         traj = None
         if trajectory:
             q_from = system.home if q0 is None else q0
             traj = timed_trajectory(system, targets, sols, q_from, timing)
-        return plan_document(system, targets, sols, scenario, traj)
+        return plan_document(system, targets, sols, scenario, traj, verify=False)
 
     return plan_fn
 

@@ -9,16 +9,21 @@ watchdog, heartbeat) are :mod:`planner.service.guard`. :class:`PlannerNode`:
   ``<prefix>/targets`` publishes its result on ``<prefix>/plans``. Bodies over
   ``MAX_PAYLOAD_BYTES`` are refused in the Zenoh callback, before they are copied or queued;
   every other body, whatever it holds, gets a plan or an error naming the field.
-- With ``execute: true`` it sends one :class:`~schemas.messages.JointTrajectory` per robot
-  (carrying the request id and the node's session id) to ``<prefix>/<robot>/trajectory``,
-  planned from where each robot will be when it starts (the end of the trajectory it still
-  plays, else its latest ``joint_states``), then waits up to ``ACK_TIMEOUT`` s for every
-  driver's verdict in ``<prefix>/<robot>/status`` and replies ``execution: accepted |
-  rejected`` with ``execution_reason``. It refuses while a robot driver's liveliness token
-  ``<prefix>/alive/<robot>`` is missing. If some robots accepted and others did not, it
-  publishes ``<prefix>/stop`` (a partial multi-robot motion would misdirect the beam).
-- publishes the heartbeat ``<prefix>/heartbeat`` (``session`` = :attr:`session_id`, random
-  per node) at 100 Hz and declares ``<prefix>/alive/planner``.
+- With ``execute: true`` it sends the trajectory to ``<prefix>/<robot>/trajectory`` (one
+  :class:`~schemas.messages.JointTrajectory` per robot carrying the request id and the node's
+  session id; streamed in chunks when over the body limit, see
+  :mod:`planner.service.stream`), planned from where each robot will be when it starts (the
+  end of the trajectory it still plays, else its latest ``joint_states``), waits up to
+  ``ACK_TIMEOUT`` s for every driver's verdict in ``<prefix>/<robot>/status`` and replies
+  ``execution: accepted | rejected`` with ``execution_reason``. It refuses while a robot
+  driver's liveliness token ``<prefix>/alive/<robot>`` is missing or a streamed trajectory
+  still has chunks to send. If some robots accepted and others did not, it publishes
+  ``<prefix>/stop`` (a partial multi-robot motion would misdirect the beam).
+- the heartbeat ``<prefix>/heartbeat`` (``session`` = :attr:`session_id`, random per node,
+  100 Hz) comes from a child process (:mod:`planner.service.heartbeat`) when the node is
+  given its :class:`~planner.service.heartbeat.BusAddress`, else from a thread of this
+  process (which the solvers can starve for up to a second); it starts before the node
+  declares ``<prefix>/alive/planner``.
 
 One worker thread plans; requests queue up behind it (bounded in count and bytes: a full
 queue gets a "busy" error). If the worker dies or stays busy on one request beyond its
@@ -50,7 +55,6 @@ from planner.service.execution import (
     ExecuteError,
     JointCache,
     MotionTracks,
-    execution_verdict,
     trajectory_messages,
 )
 from planner.service.guard import QUEUE_SIZE, Heartbeat, Job, JobQueue, Progress
@@ -61,10 +65,13 @@ from planner.service.handler import (
     make_plan_fn,
     request_id_of,
 )
+from planner.service.heartbeat import BusAddress, HeartbeatProcess
+from planner.service.stream import Execution
 
 __all__ = [
     "QUEUE_SIZE",
     "STATE_MAX_AGE",
+    "BusAddress",
     "ExecuteError",
     "PlannerNode",
     "RequestHandler",
@@ -90,6 +97,7 @@ class PlannerNode:
         progress: Progress | None = None,
         heartbeat_rate: float | None = None,
         ack_timeout: float = ACK_TIMEOUT,
+        bus: BusAddress | None = None,
     ) -> None:
         self.handler = handler
         self.session = session
@@ -103,6 +111,12 @@ class PlannerNode:
         self.session_id = uuid.uuid4().hex
         self.progress = progress or Progress()
         self._heartbeat_rate = heartbeat_rate
+        self.bus = bus
+        self.heartbeat: Heartbeat | HeartbeatProcess | None = None
+        self._beat_pub: Any = None
+        self._publishers: dict[str, Any] = {}
+        self.execution = Execution(self.robots, self._publish_trajectory, self.send_stop,
+                                   self.acks, self.tracks, ack_timeout)  # fmt: skip
         self._alive_lock = threading.Lock()
         self._jobs = JobQueue()
         self._handles: list[Any] = []
@@ -116,7 +130,13 @@ class PlannerNode:
 
     # --- lifecycle -------------------------------------------------------------------------
     def start(self) -> PlannerNode:
+        """Start beating, then declare the token and serve (HeartbeatError if the heartbeat
+        process cannot start)."""
         s, k = self.session, self.keys
+        self._publishers = {r: s.declare_publisher(k.trajectory(r)) for r in self.robots}
+        self._plans = s.declare_publisher(k.plans)
+        self._stop_pub = s.declare_publisher(k.stop)
+        self.heartbeat = self._start_heartbeat()
         self._token = s.liveliness().declare_token(k.alive("planner"))
         self._handles.append(
             s.liveliness().declare_subscriber(k.alive_all, self._on_alive, history=True)
@@ -125,35 +145,42 @@ class PlannerNode:
             self._handles.append(s.declare_subscriber(k.joint_states(robot), self._joint_cb(robot)))
             self._handles.append(s.declare_subscriber(k.status(robot), self._status_cb(robot)))
         self._handles.append(s.declare_subscriber(k.stop, self._on_stop))
-        self._publishers = {r: s.declare_publisher(k.trajectory(r)) for r in self.robots}
-        self._plans = s.declare_publisher(k.plans)
-        self._stop_pub = s.declare_publisher(k.stop)
-        self._beat_pub = s.declare_publisher(k.heartbeat)
         self._handles.append(s.declare_subscriber(k.targets, self._on_target))
         self._handles.append(s.declare_queryable(k.plan, self._on_query))
-        rate = {} if self._heartbeat_rate is None else {"rate": self._heartbeat_rate}
-        self.heartbeat = Heartbeat(
-            lambda body: self._beat_pub.put(body, encoding=JSON),
-            self.session_id,
-            self.progress,
-            lambda reason: self._fatal(f"planner wedged: {reason}"),
-            **rate,
-        ).start()
         self._worker.start()
         return self
+
+    def _start_heartbeat(self) -> Heartbeat | HeartbeatProcess:
+        rate = {} if self._heartbeat_rate is None else {"rate": self._heartbeat_rate}
+
+        def on_wedged(reason: str) -> None:
+            self._fatal(f"planner wedged: {reason}")
+
+        if self.bus is not None:
+            return HeartbeatProcess(self.bus, self.keys.heartbeat, self.session_id,
+                                    self.progress, on_wedged, **rate).start()  # fmt: skip
+        log.warning("heartbeat published from the planner process (no bus address given): "
+                    "long solver calls can delay it")  # fmt: skip
+        self._beat_pub = self.session.declare_publisher(self.keys.heartbeat)
+        return Heartbeat(lambda body: self._beat_pub.put(body, encoding=JSON), self.session_id,
+                         self.progress, on_wedged, **rate).start()  # fmt: skip
 
     def close(self) -> None:
         """Stop beating, undeclare everything, stop the worker (the session stays open)."""
         self._closing.set()
-        self.heartbeat.stop()
+        if self.heartbeat is not None:
+            self.heartbeat.stop()
         self._undeclare_token()
         for h in reversed(self._handles):
             h.undeclare()
         self._handles.clear()
         self._jobs.close()
         self._worker.join(timeout=1 if self.failed else 5)
-        for p in [*self._publishers.values(), self._plans, self._stop_pub, self._beat_pub]:
-            p.undeclare()
+        self.execution.close()
+        pubs = [*self._publishers.values(), self._plans, self._stop_pub, self._beat_pub]
+        for p in pubs:
+            if p is not None:
+                p.undeclare()
         self._publishers.clear()
 
     def _undeclare_token(self) -> None:
@@ -167,7 +194,8 @@ class PlannerNode:
             return
         self.failed = reason
         log.critical("planner node failed: %s", reason)
-        self.heartbeat.stop()
+        if self.heartbeat is not None:
+            self.heartbeat.stop()
         try:
             self._undeclare_token()
         except Exception:  # the session may be closing; the process exit drops it anyway
@@ -218,11 +246,14 @@ class PlannerNode:
                 self.acks.offer(robot, ack)
             if msg.mode in HALTED_MODES or msg.protective_stop:
                 self.tracks.halted(robot, None if ack is None else ack.id)
+                if ack is not None:
+                    self.execution.cancel(f"{robot} is {msg.mode}", ack.id)
 
         return cb
 
     def _on_stop(self, _sample: Any) -> None:
         self.tracks.clear()
+        self.execution.cancel(f"stop seen on {self.keys.stop}")
 
     def _on_query(self, query: Any) -> None:
         payload = query.payload
@@ -310,11 +341,15 @@ class PlannerNode:
 
     # --- execution -------------------------------------------------------------------------
     def check_drivers(self) -> None:
-        """ExecuteError naming every robot whose driver's liveliness token is missing."""
+        """ExecuteError naming every robot whose driver's liveliness token is missing, or
+        when a streamed trajectory still has chunks to send."""
         with self._alive_lock:
             down = [r for r in self.robots if r not in self.alive]
         if down:
             raise ExecuteError(f"robot driver down: {', '.join(down)}", down)
+        busy = self.execution.busy()
+        if busy is not None:
+            raise ExecuteError(f"{busy}: execute again after that", list(self.robots))
 
     def start_state(self) -> dict[str, Array]:
         """Where each robot will be when a trajectory sent now starts (rad): the end of the
@@ -332,22 +367,10 @@ class PlannerNode:
         ``plan`` (``execution``, ``execution_reason``)."""
         if all(s["status"] != "ok" for s in plan["solutions"]):
             raise ExecuteError("no target could be solved, nothing to execute", [])
-        bodies = trajectory_messages(plan, request_id, self.session_id)
-        traj = plan["trajectory"]
-        duration = float(traj["t"][-1] - traj["t"][0])
-        self.acks.expect(list(bodies), request_id)
-        for robot, body in bodies.items():
-            self._publishers[robot].put(body, encoding=JSON)
-        acks = self.acks.wait(self.ack_timeout)
-        for robot, ack in acks.items():
-            if ack is not None and ack.accepted:
-                self.tracks.accepted(robot, request_id, traj["q"][robot][-1], duration)
-        verdict, reason = execution_verdict(acks, self.ack_timeout)
-        moving = [r for r, a in acks.items() if a is not None and a.accepted]
-        if verdict == "rejected" and moving:
-            reason = f"{reason}; stopped {', '.join(moving)}: the robots move only together"
-            self.send_stop(f"request {request_id}: {reason}")
-        plan["execution"], plan["execution_reason"] = verdict, reason
+        self.execution.execute(plan, request_id, self.session_id)
+
+    def _publish_trajectory(self, robot: str, body: bytes) -> None:
+        self._publishers[robot].put(body, encoding=JSON)
 
     def send_stop(self, reason: str) -> None:
         """Publish ``<prefix>/stop`` (every driver brakes, laser off)."""

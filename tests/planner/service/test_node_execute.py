@@ -15,6 +15,7 @@ import pytest
 
 from planner.model.system import System
 from planner.service.bus import Keys, open_session
+from planner.service.heartbeat import BusAddress
 from planner.service.node import PlannerNode, RequestHandler, make_plan_fn
 from tests.drivers.conftest import free_port, wait_for
 from tests.planner.raw_zenoh import Inbox, ask, raw_session
@@ -74,7 +75,8 @@ def system() -> System:
 def rig(system: System) -> Iterator[tuple[PlannerNode, Any, FakeDriver]]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     hub = open_session(listen=True, endpoint=endpoint)
-    node = PlannerNode(RequestHandler(system, make_plan_fn(system, {})), hub, Keys(PREFIX))
+    node = PlannerNode(RequestHandler(system, make_plan_fn(system, {})), hub, Keys(PREFIX),
+                       bus=BusAddress(endpoint))  # fmt: skip
     node.tracks.margin = 0.2
     node.start()
     client, fake_side = raw_session(endpoint), raw_session(endpoint)

@@ -16,6 +16,7 @@ import pytest
 from planner.model.system import System
 from planner.service.bus import MAX_PAYLOAD_BYTES, Keys, open_session
 from planner.service.guard import QUEUE_BYTES, Job, JobQueue, Progress
+from planner.service.heartbeat import BusAddress
 from planner.service.node import PlannerNode, RequestHandler, make_plan_fn
 from tests.drivers.conftest import free_port, wait_for
 from tests.planner.raw_zenoh import Inbox, ask, raw_session, token_exists
@@ -46,7 +47,7 @@ class Rig:
             return plan_fn(*args)
 
         self.node = PlannerNode(RequestHandler(system, held), self.hub, Keys(PREFIX),
-                                progress=progress)  # fmt: skip
+                                progress=progress, bus=BusAddress(self.endpoint))  # fmt: skip
         self.fatal: list[str] = []
         self.node.on_fatal = self.fatal.append
         self.node.start()
