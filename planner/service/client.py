@@ -104,6 +104,19 @@ class Recorder:
         with self.lock:
             return any(float(np.max(np.abs(v[2]))) >= REST_QD for v in self.joints.values())
 
+    def rests_at(self, q_end: dict[str, Array]) -> bool:
+        """Whether every robot of ``q_end`` (rad) is at rest within AT_TARGET_Q of it; with
+        no joint state of a robot, whether the robots seen are at rest."""
+        with self.lock:
+            seen = {r: v for r, v in self.joints.items() if r in q_end}
+            if len(seen) < len(q_end):
+                return not any(float(np.max(np.abs(v[2]))) >= REST_QD for v in self.joints.values())
+            return all(
+                float(np.max(np.abs(v[2]))) < REST_QD
+                and float(np.max(np.abs(v[1] - q_end[r]))) < AT_TARGET_Q
+                for r, v in seen.items()
+            )
+
 
 def measured_spots(plan: dict[str, Any], rec: Recorder, since: float) -> list[Array | None]:
     """Median measured spot (world, m) per solution of ``plan``; None where never seen."""
@@ -226,8 +239,9 @@ class PlanClient:
     ) -> tuple[dict[str, Any], list[Array | None]]:
         """Request with ``execute: true``, wait for the motion, return (plan, measured spots).
 
-        Waits the trajectory's duration, then until every robot is at rest, then ``settle``
-        seconds more so the camera sees the final target; returns at once when the drivers
+        Waits the trajectory's duration, then until every robot rests on the trajectory's
+        final joints (at most ``timeout`` s more), then ``settle`` seconds more so the camera
+        sees the final target; returns at once when the drivers
         rejected the trajectory (``plan["execution"]``). Spots are None where not measured
         (all of them when rejected, or when the plan's scenario has no fixed camera).
         """
@@ -237,10 +251,13 @@ class PlanClient:
         unmeasured: list[Array | None] = [None] * len(plan["solutions"])
         if plan.get("execution") == "rejected":  # nothing moves: nothing to wait for
             return plan, unmeasured
-        duration = float(plan["trajectory"]["t"][-1]) if plan.get("trajectory") else 0.0
+        traj = plan.get("trajectory") or {}
+        duration = float(traj["t"][-1]) if traj.get("t") else 0.0
+        q_end = {r: np.asarray(q[-1]) for r, q in traj.get("q", {}).items()}
         deadline = time.monotonic() + duration + timeout
         time.sleep(duration)
-        while self.recorder.moving() and time.monotonic() < deadline:
+        # the arm may run late (a dwell looks like the end): wait until it rests at the end
+        while not self.recorder.rests_at(q_end) and time.monotonic() < deadline:
             time.sleep(0.02)
         time.sleep(settle)
         if world_T_camera_of(plan) is None:  # no camera (or one on a flange): not measured

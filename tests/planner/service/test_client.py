@@ -48,3 +48,16 @@ def test_make_request_matches_the_schema() -> None:
     req = make_request([[1, 2, 3]], frame="camera", normals=[[0, 0, 2]], path=False, request_id="a")
     msg = TargetRequest.model_validate(req)
     assert msg.id == "a" and msg.frame == "camera" and msg.normals == [[0.0, 0.0, 1.0]]
+
+
+def test_the_client_waits_for_the_arm_to_rest_at_the_end_not_on_a_dwell() -> None:
+    q_end = {"arm0": np.full(6, 0.3)}
+    rec = Recorder()
+    assert rec.rests_at(q_end)  # no joint state at all: nothing to wait for
+    rec.on_joints("arm0", np.full(6, 0.1), np.zeros(6))  # resting on a target on the way
+    assert not rec.rests_at(q_end)
+    rec.on_joints("arm0", np.full(6, 0.3), np.full(6, 0.01))  # passing the end, moving
+    assert not rec.rests_at(q_end)
+    rec.on_joints("arm0", np.full(6, 0.3) + 0.5 * cl.AT_TARGET_Q, np.zeros(6))
+    assert rec.rests_at(q_end)
+    assert rec.rests_at({**q_end, "arm1": np.zeros(6)})  # arm1 never seen: arm0 at rest counts
