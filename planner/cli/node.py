@@ -215,7 +215,12 @@ def request(
         try:
             if execute:
                 client.watch()
-                client.wait_for_node("planner", timeout)
+            # a query sent before the bus has routed to the planner gets no reply: wait for
+            # its liveliness token first (a missing planner is then named as such)
+            if not client.wait_for_node("planner", timeout):
+                raise RequestError(f"no planner on the bus ({prefix}/alive/planner) within "
+                                   f"{timeout:g} s")  # fmt: skip
+            if execute:
                 plan, spots = client.execute(req, timeout)
             else:
                 plan, spots = client.request(req, timeout), None
