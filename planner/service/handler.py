@@ -222,7 +222,7 @@ class RequestHandler:
                 normals = normals @ world_T_camera[:3, :3].T
         if req.mode != "path":
             return Targets(points, normals, kind="points")
-        from planner.model.polyline import resample_path
+        from planner.io.strokes import mark_path
 
         length = float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)))
         if length / self.path_spacing > MAX_PATH_SAMPLES:
@@ -231,11 +231,12 @@ class RequestHandler:
                 f"at {1e3 * self.path_spacing:g} mm spacing",
                 "points",
             )
-        try:
-            points, normals = resample_path(points, spacing=self.path_spacing, normals=normals)
+        try:  # corners above the default corner angle are marked sharp, as in scenarios
+            marked = mark_path(points, self.path_spacing, normals=normals)
         except ValueError as exc:
             raise InputError(str(exc), "normals" if "normal" in str(exc) else "points") from exc
-        return Targets(points, normals, kind="path")
+        meta = {"strokes": marked.strokes, "sharp_corners": marked.sharp}
+        return Targets(marked.points, marked.normals, kind="path", meta=meta)
 
     def parse(self, payload: bytes) -> Any:
         """Validate a request body (raises InputError naming the field)."""

@@ -34,16 +34,25 @@ def test_camera_frame_targets_use_world_T_camera(system: System) -> None:
     np.testing.assert_allclose(t.normals, n_world, atol=1e-12)
 
 
-def test_path_requests_are_resampled_at_one_millimetre(system: System) -> None:
+def test_path_requests_are_resampled_at_one_millimetre_with_sharp_corners(
+    system: System,
+) -> None:
     handler = RequestHandler(system, make_plan_fn(system, {}))
     corners = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.01, 0.0035, 0.0]])
     t = handler.targets(handler.parse(encode(make_request(corners, path=True))))
     assert t.kind == "path"
     steps = np.linalg.norm(np.diff(t.points, axis=0), axis=1)
-    np.testing.assert_allclose(steps[:-1], 1e-3, atol=1e-12)  # chords of exactly 1 mm
-    assert steps[-1] <= 1e-3 + 1e-12
+    assert np.all(steps <= 1e-3 + 1e-12)  # at most 1 mm apart
+    np.testing.assert_allclose(steps[:10], 1e-3, atol=1e-12)  # 10 mm edge: 1 mm chords
+    np.testing.assert_allclose(steps[10:], 0.875e-3, atol=1e-12)  # 3.5 mm edge: 4 chords
     np.testing.assert_allclose(t.points[[0, -1]], corners[[0, -1]], atol=1e-12)
-    assert len(t) == 15  # x = 0..10 mm (11), y = 1, 2, 3 mm, then the end at y = 3.5 mm
+    assert len(t) == 15
+    # the 90 deg turn (> the 20 deg corner angle) is marked sharp: two strokes sharing
+    # the vertex sample, as a scenario path would be
+    assert t.meta["sharp_corners"] == 1
+    first, second = t.meta["strokes"]
+    assert first[-1] == second[0] == 10
+    np.testing.assert_allclose(t.points[10], corners[1], atol=1e-12)
     far = np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0]])  # 3000 samples > 2000
     with pytest.raises(InputError) as exc:
         handler.targets(handler.parse(encode(make_request(far, path=True))))
