@@ -76,3 +76,25 @@ def test_timed_trajectory_starts_at_the_current_joints(system: System) -> None:
         assert seg["t1"] - seg["t0"] == pytest.approx(0.2)
         i = round(seg["t0"] * 500)
         np.testing.assert_allclose(q[i], sol.q, atol=1e-9)
+
+
+def test_a_path_request_with_a_corner_is_marked_in_two_strokes() -> None:
+    """Through the node's own handler (scenario paper_n1): an L-shaped path request gives two
+    laser-on intervals (the corner is marked sharp, with run-out and run-in), and the plan
+    passes the independent checker."""
+    from planner.service.handler import handler_from_scenario
+    from planner.verify.check import check_plan
+    from tests.paths import SCENARIOS
+
+    handler = handler_from_scenario(SCENARIOS / "paper_n1.yaml")
+    c = np.array([-0.49, -0.52, 0.0])
+    pts = [c, c + np.array([0.02, 0, 0]), c + np.array([0.02, 0.015, 0])]
+    req = handler.parse(encode(make_request(pts, path=True, normals=[[0, 0, 1]] * 3)))
+    plan = handler.plan(req, None, trajectory=True)
+    assert all(s["status"] == "ok" for s in plan["solutions"])
+    laser_on = plan["trajectory"]["laser_on"]
+    assert len(laser_on) == 2
+    kinds = [s["kind"] for s in plan["trajectory"]["segments"]]
+    assert kinds.count("run_in") == 2 and kinds.count("run_out") == 2
+    findings = [f for r in check_plan(plan) for f in r.findings]
+    assert findings == [], findings[:3]
