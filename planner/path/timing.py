@@ -2,7 +2,7 @@
 
 Data in, data out. Discrete targets: visit order (``optimal``: nearest neighbour + 2-opt
 on the rest-to-rest move time in joint space, candidates from a k-d tree, memory linear in
-the target count, :mod:`planner.path.solve.tour`; ``given``: the targets' own order), then
+the target count, :mod:`planner.path.tour`; ``given``: the targets' own order), then
 time-optimal rest-to-rest Ruckig moves with an optional dwell on each target. Paths: the joint samples ``q_k`` are
 splined against the spot's arc length s (metres) and the path parameter s(t) is generated
 by a 1-DOF online Ruckig whose velocity limit is the spot speed, lowered ahead of time where
@@ -24,7 +24,7 @@ import numpy as np
 from planner.errors import PlanError
 from planner.model.system import Limits, System
 from planner.model.transforms import Array
-from planner.path.solve.tour import visit_order
+from planner.path.tour import visit_order
 
 SEGMENT_KINDS = ("approach", "move", "path", "dwell")
 
@@ -193,7 +193,7 @@ def points_trajectory(
     """Rest-to-rest moves visiting every row of ``Q`` (solved targets, n x nq; NaN rows are
     skipped), ``dwell`` s on each. ``order``: ``given`` visits the rows as they come (the
     scenario's target order), ``optimal`` shortens the total move time
-    (:func:`planner.path.solve.tour.visit_order`, memory linear in n). ``progress(n)`` is called after
+    (:func:`planner.path.tour.visit_order`, memory linear in n). ``progress(n)`` is called after
     the n-th move."""
     lim = system.limits
     q0 = system.home if q_start is None else np.asarray(q_start, dtype=float)

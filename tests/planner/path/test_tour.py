@@ -7,7 +7,7 @@ import tracemalloc
 
 import numpy as np
 import pytest
-from planner.path.solve.tour import candidate_lists, visit_order
+from planner.path.tour import candidate_lists, visit_order
 
 from planner.model.system import DEFAULT_HOME, Limits
 from planner.path.timing import move_time, points_trajectory
