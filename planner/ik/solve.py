@@ -17,10 +17,13 @@ from planner.ik.closed_form import ClosedForm, seed_kinematics
 from planner.ik.evaluate import MIN_AHEAD, MIN_FRONT, Evaluation, evaluate
 from planner.ik.newton import Newton
 from planner.ik.nlp import BeamNLP
+from planner.ik.safe_members import MemberSafety
 from planner.model.system import System
 from planner.model.transforms import Array
+from planner.safety.model import Safety, Violation
 
-REASONS = ("unreachable", "outside_roi", "joint_limits", "back_face", "occluded", "solver_failed")
+REASONS = ("unreachable", "outside_roi", "joint_limits", "back_face", "occluded", "keep_out",
+           "collision", "solver_failed")  # fmt: skip
 EXACT = 1e-12  # metres: what "machine precision" means for a spot error here
 
 
@@ -69,11 +72,15 @@ class BeamIK:
     """Beam IK for one system. Heavy pieces (Newton function, IPOPT NLP) are built lazily,
     once, and reused for every target."""
 
-    def __init__(self, system: System, options: IKOptions | None = None) -> None:
+    def __init__(
+        self, system: System, options: IKOptions | None = None, safety: Safety | None = None
+    ) -> None:
         self.system = system
         self.options = options or IKOptions()
+        self.safety = safety
         has_seed = all(seed_kinematics(r.kinematics) is not None for r in system.robots)
-        self.closed_form = ClosedForm(system) if has_seed else None
+        guard = None if safety is None else MemberSafety(safety)
+        self.closed_form = ClosedForm(system, guard) if has_seed else None
 
     @cached_property
     def newton(self) -> Newton:
@@ -135,6 +142,14 @@ class BeamIK:
             q = self.newton.polish(q, target, normal).q
         return q, evaluate(self.system, q, target, normal), res.status, res.iterations
 
+    def unsafe(self, q: Array, ev: Evaluation) -> Violation | None:
+        """The safety rules' worst violation at ``q`` with its traced beam (None: safe or no
+        rules)."""
+        if self.safety is None:
+            return None
+        P = np.vstack([self.system.world_T_laser[:3, 3], ev.hits, ev.spot])
+        return self.safety.config(q, P)
+
     def _multistart(
         self, target: Array, normal: Array | None, q_prev: Array, first: list[Array]
     ) -> tuple[Array | None, Evaluation | None, int, tuple[str, dict[str, object]]]:
@@ -143,6 +158,7 @@ class BeamIK:
         seeds = [*first, q_prev, self.system.home]
         seeds += [rng.uniform(lo, hi) for _ in range(self.options.starts)]
         best: tuple[float, str, dict[str, object]] | None = None
+        unsafe: Violation | None = None
         iters = 0
         for q0 in seeds:
             q, ev, status, it = self._nlp(
@@ -150,20 +166,57 @@ class BeamIK:
             )
             iters += it
             if self.accept(ev, q):
-                return q, ev, iters, ("", {})
+                bad = self.unsafe(q, ev)
+                if bad is None:
+                    return q, ev, iters, ("", {})
+                unsafe = bad if unsafe is None or bad.margin > unsafe.margin else unsafe
+                continue
             reason, evidence = self.classify(ev, q, status)
             if best is None or ev.error < best[0]:
                 best = (ev.error, reason, {**evidence, "starts": len(seeds)})
+        if unsafe is not None:  # reachable, but never safely
+            return None, None, iters, (unsafe.reason, {**unsafe.evidence, "why": unsafe.text})
         assert best is not None
         return None, None, iters, (best[1], best[2])
+
+    def _closed_form(
+        self, target: Array, normal: Array | None, q_prev: Array
+    ) -> tuple[
+        Array | None, Evaluation | None, str, int, str | None, dict[str, object], list[Array]
+    ]:
+        """The closed-form member (Newton-polished for calibrated arms): (q, evaluation,
+        method, members, reason, evidence, seeds for the multi-start)."""
+        assert self.closed_form is not None
+        cf = self.closed_form.search(target, normal, q_prev, self.options.max_incidence)
+        reason, evidence = cf.reason, dict(cf.evidence)
+        if cf.q is None:
+            return None, None, "closed_form", cf.members, reason, evidence, []
+        q, method = cf.q, "closed_form"
+        if not self.closed_form.exact:
+            q = self.newton.polish(q, target, normal).q
+            method = "closed_form+newton"
+        ev = evaluate(self.system, q, target, normal)
+        if not self.accept(ev, q):
+            why: dict[str, object] = {"why": "closed-form member rejected"}
+            return None, None, method, cf.members, "solver_failed", why, [q]
+        bad = None if self.closed_form.exact else self.unsafe(q, ev)
+        if bad is not None:
+            return None, None, method, cf.members, bad.reason, bad.evidence, [q]
+        return q, ev, method, cf.members, None, evidence, []
 
     def solve(
         self, target: Array, normal: Array | None = None, q_prev: Array | None = None
     ) -> Solution:
-        """Solve one target (world frame); ``q_prev`` (stacked) defaults to home."""
+        """Solve one target (world frame); ``q_prev`` (stacked) defaults to home. With safety
+        rules, a target inside a keep-out volume fails as ``keep_out`` at once and every
+        accepted configuration passes the rules."""
         t0 = time.perf_counter()
         target = np.asarray(target, dtype=float)
         q_prev = self.system.home if q_prev is None else np.asarray(q_prev, dtype=float)
+        inside = None if self.safety is None else self.safety.target(target)
+        if inside is not None:
+            where = {**inside.evidence, "why": inside.text}
+            return _failed("keep_out", where, time.perf_counter() - t0, 0, "keep_out")
         q: Array | None = None
         ev: Evaluation | None = None
         method, iters = "closed_form", 0
@@ -171,22 +224,14 @@ class BeamIK:
         evidence: dict[str, object] = {}
         first: list[Array] = []
         if self.closed_form is not None:
-            cf = self.closed_form.search(target, normal, q_prev, self.options.max_incidence)
-            iters = cf.members
-            reason, evidence = cf.reason, dict(cf.evidence)
-            if cf.q is not None:
-                q = cf.q
-                if not self.closed_form.exact:
-                    q = self.newton.polish(q, target, normal).q
-                    method = "closed_form+newton"
-                ev = evaluate(self.system, q, target, normal)
-                if not self.accept(ev, q):
-                    first, q, ev = [q], None, None
-                    reason, evidence = "solver_failed", {"why": "closed-form member rejected"}
+            q, ev, method, iters, reason, evidence, first = self._closed_form(
+                target, normal, q_prev
+            )
         if q is not None and ev is not None and self.options.optimal:
             q2, ev2, _, it = self._nlp(q, target, normal, q_prev)
             iters = it
-            if self.accept(ev2, q2) and ev2.error <= max(ev.error, EXACT):
+            better = self.accept(ev2, q2) and ev2.error <= max(ev.error, EXACT)
+            if better and self.unsafe(q2, ev2) is None:
                 q, ev, method = q2, ev2, method + "+ipopt"
         if q is None:
             method = "multistart"
@@ -197,31 +242,13 @@ class BeamIK:
                 evidence = {**evidence, "nlp": e2}
         dt = time.perf_counter() - t0
         if q is None or ev is None:
-            return Solution(
-                "failed",
-                reason or "solver_failed",
-                None,
-                None,
-                float("inf"),
-                None,
-                None,
-                dt,
-                iters,
-                method,
-                0.0,
-                evidence,
-            )
-        return Solution(
-            "ok",
-            None,
-            q,
-            ev.spot,
-            ev.error,
-            ev.hits,
-            ev.uv,
-            dt,
-            iters,
-            method,
-            ev.incidence,
-            evidence,
-        )
+            return _failed(reason or "solver_failed", evidence, dt, iters, method)
+        return Solution("ok", None, q, ev.spot, ev.error, ev.hits, ev.uv, dt, iters, method,
+                        ev.incidence, evidence)  # fmt: skip
+
+
+def _failed(
+    reason: str, evidence: dict[str, object], dt: float, iters: int, method: str
+) -> Solution:
+    return Solution("failed", reason, None, None, float("inf"), None, None, dt, iters, method,
+                    0.0, evidence)  # fmt: skip

@@ -183,6 +183,7 @@ def _check_files(scn: LoadedScenario) -> None:
     files: list[tuple[Loc, str | None]] = [
         (("scene", i, "mesh"), o.mesh) for i, o in enumerate(scn.model.scene)
     ]
+    files += [(("keep_out", i, "mesh"), o.mesh) for i, o in enumerate(scn.model.keep_out)]
     for root, system in ((("system",), scn.model.system), (("truth", "system"), scn.truth_system)):
         robots = system.robots if system is not None else []
         files += [((*root, "robots", i, "urdf"), r.urdf) for i, r in enumerate(robots)]
@@ -396,6 +397,36 @@ def scene_objects(scn: LoadedScenario) -> list[SceneItem]:
     return items
 
 
+def keep_out_objects(scn: LoadedScenario) -> list[SceneItem]:
+    """The ``keep_out`` volumes (sphere, box or mesh) with world matrices and absolute mesh
+    paths."""
+    items = []
+    for obj in scn.model.keep_out:
+        T = obj.world_T_object.matrix()
+        if obj.box is not None:
+            items.append(SceneItem(obj.name, "box", T, extents=np.asarray(obj.box, dtype=float)))
+        elif obj.sphere is not None:
+            items.append(SceneItem(obj.name, "sphere", T, radius=obj.sphere))
+        elif obj.mesh is not None:
+            path, scale = scn.resolve_path(obj.mesh), obj.scale or 1.0
+            items.append(SceneItem(obj.name, "mesh", T, mesh_path=path, scale=scale))
+    return items
+
+
+def _item_dict(item: SceneItem) -> dict[str, Any]:
+    """A scene object or keep-out volume as resolved YAML (pose as a matrix, mesh absolute)."""
+    shape: dict[str, Any]
+    if item.shape == "box":
+        shape = {"box": np.asarray(item.extents).tolist()}
+    elif item.shape == "sphere":
+        shape = {"sphere": item.radius}
+    elif item.shape == "cylinder":
+        shape = {"cylinder": [item.radius, item.height]}
+    else:
+        shape = {"mesh": str(item.mesh_path), "scale": item.scale}
+    return {"name": item.name, **shape, "world_T_object": _pose(item.world_T_object)}
+
+
 def _pose(T: Array) -> dict[str, Any]:
     return {"matrix": np.asarray(T, dtype=float).tolist()}
 
@@ -438,22 +469,12 @@ def resolved_scenario_dict(scn: LoadedScenario) -> dict[str, Any]:
     a :class:`~schemas.scenario.Scenario` (plan.json ``scenario``).
     """
     m = scn.model
-    scene = []
-    for item in scene_objects(scn):
-        shape: dict[str, Any]
-        if item.shape == "box":
-            shape = {"box": np.asarray(item.extents).tolist()}
-        elif item.shape == "sphere":
-            shape = {"sphere": item.radius}
-        elif item.shape == "cylinder":
-            shape = {"cylinder": [item.radius, item.height]}
-        else:
-            shape = {"mesh": str(item.mesh_path), "scale": item.scale}
-        scene.append({"name": item.name, **shape, "world_T_object": _pose(item.world_T_object)})
     out: dict[str, Any] = {
         "name": scn.name,
         "system": _system_dict(system_from_scenario(scn), m.system, scn),
-        "scene": scene,
+        "scene": [_item_dict(item) for item in scene_objects(scn)],
+        "keep_out": [_item_dict(item) for item in keep_out_objects(scn)],
+        "safety": m.safety.model_dump(),
         "targets": m.targets.model_dump(exclude_none=True),
         "solver": m.solver.model_dump(),
         "trajectory": m.trajectory.model_dump(),

@@ -27,6 +27,8 @@ from planner.model.transforms import Array
 from planner.path.tour import visit_order
 
 SEGMENT_KINDS = ("approach", "move", "path", "dwell")
+#: a rest-to-rest move ``(q0, q1, limits, rate) -> (q, qd, qdd)`` sampled at ``rate``
+MoveFn = Callable[[Array, Array, Limits, float], tuple[Array, Array, Array]]
 
 
 class Segment(NamedTuple):
@@ -189,12 +191,14 @@ def _hold(q: Array, seconds: float, rate: float, kind: str) -> _Piece:
 def points_trajectory(
     system: System, Q: Array, q_start: Array | None = None, dwell: float = 0.0,
     rate: float = 500.0, order: str = "optimal", progress: Callable[[int], None] | None = None,
+    move: MoveFn | None = None,
 ) -> tuple[Trajectory, VisitReport]:  # fmt: skip
     """Rest-to-rest moves visiting every row of ``Q`` (solved targets, n x nq; NaN rows are
     skipped), ``dwell`` s on each. ``order``: ``given`` visits the rows as they come (the
     scenario's target order), ``optimal`` shortens the total move time
     (:func:`planner.path.tour.visit_order`, memory linear in n). ``progress(n)`` is called after
-    the n-th move."""
+    the n-th move. ``move`` (default :func:`ruckig_move`) makes each rest-to-rest move."""
+    move = move or ruckig_move
     lim = system.limits
     q0 = system.home if q_start is None else np.asarray(q_start, dtype=float)
     idx = np.flatnonzero(np.all(np.isfinite(Q), axis=1))
@@ -208,7 +212,7 @@ def points_trajectory(
     pieces: list[_Piece] = []
     prev = q0
     for n, k in enumerate(idx[seq]):
-        Qm, QDm, QDDm = ruckig_move(prev, Q[k], lim, rate)
+        Qm, QDm, QDDm = move(prev, Q[k], lim, rate)
         pieces.append(_Piece(Qm, QDm, QDDm, "approach" if n == 0 else "move"))
         if dwell > 0:
             pieces.append(_hold(Q[k], dwell, rate, "dwell"))
@@ -310,17 +314,19 @@ def time_path(
 
 def path_trajectory(
     system: System, runs: list[tuple[Array, Array]], q_start: Array | None = None,
-    spot_speed: float = 0.02, rate: float = 500.0,
+    spot_speed: float = 0.02, rate: float = 500.0, move: MoveFn | None = None,
 ) -> Trajectory:  # fmt: skip
     """Approach from ``q_start`` (default home), then each feasible run ``(q_k K x nq,
     arc_k K)`` swept at ``spot_speed`` (m/s); rest-to-rest ``move`` (laser gated) between
-    runs. Slowdowns carry the arc length along the whole path."""
+    runs, made by ``move`` (default :func:`ruckig_move`). Slowdowns carry the arc length
+    along the whole path."""
+    move = move or ruckig_move
     lim = system.limits
     prev = system.home if q_start is None else np.asarray(q_start, dtype=float)
     pieces: list[_Piece] = []
     slow: list[Slowdown] = []
     for n, (Qp, arc) in enumerate(runs):
-        Qm, QDm, QDDm = ruckig_move(prev, Qp[0], lim, rate)
+        Qm, QDm, QDDm = move(prev, Qp[0], lim, rate)
         pieces.append(_Piece(Qm, QDm, QDDm, "approach" if n == 0 else "move"))
         if len(Qp) < 2:
             prev = Qp[0]
