@@ -118,12 +118,31 @@ def mirror_boxes(robot: Robot, blocks: MirrorBlocks) -> list[tuple[str, Array, A
     return out
 
 
+def is_ur5e(robot: Robot, tolerance: float = 0.01) -> bool:
+    """True for the nominal UR5e, or a 6-joint model whose joint origins lie within
+    ``tolerance`` (m) of the nominal UR5e's at a few configurations (a calibrated UR5e)."""
+    kin = robot.kinematics
+    if kin.name == "ur5e":
+        return True
+    if kin.nq != 6:
+        return False
+    from planner.model.kinematics import RobotKinematics
+
+    nominal = RobotKinematics.ur5e()
+    for q in np.random.default_rng(0).uniform(-np.pi, np.pi, (4, 6)):
+        if np.abs(kin.joint_origins(q) - nominal.joint_origins(q)).max() > tolerance:
+            return False
+    return True
+
+
 class SafetyWorld:
     """The collision world of ``system`` (see the module docstring).
 
     ``scene``: obstacles the arms must keep clear of; ``keep_out``: volumes the beam must not
     enter; ``capsules``: per robot name, ``(capsules, boxes)`` link tables for robots that
-    are not the UR5e.
+    are not the UR5e (a URDF whose joint origins lie within 1 cm of the nominal UR5e's
+    counts as one). ``bare``: a robot without a table gets only its mirror and mount (listed
+    in :attr:`unchecked`) instead of an error.
     """
 
     def __init__(
@@ -134,6 +153,7 @@ class SafetyWorld:
         *,
         blocks: MirrorBlocks = DEFAULT_MIRROR_BLOCKS,
         capsules: Mapping[str, tuple[Sequence[CapsuleSpec], Sequence[BoxSpec]]] | None = None,
+        bare: bool = False,
     ) -> None:
         self.system = system
         self.blocks = blocks
@@ -143,15 +163,20 @@ class SafetyWorld:
         self.flange_joint: list[int] = []
         #: per robot, the mirror frame in the frame of the joint that carries it
         self.joint_T_mirror: list[Array] = []
+        #: robots whose links have no collision geometry (``bare``)
+        self.unchecked: list[str] = []
         for k, robot in enumerate(system.robots):
             table = (capsules or {}).get(robot.name)
+            if table is None and is_ur5e(robot):
+                table = (UR5E_CAPSULES, UR5E_BOXES)
             if table is None:
-                if robot.kinematics.name != "ur5e" or robot.nq != 6:
+                if not bare:
                     raise InputError(
                         f"no collision capsules for robot model {robot.kinematics.name!r}",
                         robot.name,
                     )
-                table = (UR5E_CAPSULES, UR5E_BOXES)
+                self.unchecked.append(robot.name)
+                table = ((), ())
             self._add_robot(k, robot, *table)
         for v in scene:
             self._add_fixed(f"scene/{v.name}", PartKind.SCENE, v, solid=False)

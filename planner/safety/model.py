@@ -149,7 +149,10 @@ class Safety:
     @cached_property
     def world(self) -> SafetyWorld:
         """The collision world, with each pair's security margin = its required distance."""
-        world = SafetyWorld(self.system, self.scene, self.keep_out)
+        world = SafetyWorld(self.system, self.scene, self.keep_out, bare=True)
+        if world.unchecked:
+            emit_warning(f"no collision geometry for robot(s) {', '.join(world.unchecked)}: "
+                         "their links are not checked for collisions or beam clearance")  # fmt: skip
         for req, kind in zip(world.geom_data.collisionRequests, world.pair_kinds, strict=True):
             req.security_margin = self.required(kind)
         return world
@@ -314,3 +317,10 @@ def aperture_rows(
         return None
     m, k = np.argwhere(hit)[0]
     return int(m), int(k) + first
+
+
+def emit_warning(message: str) -> None:
+    """One warning line on stderr."""
+    import sys
+
+    print(f"warning: {message}", file=sys.stderr)

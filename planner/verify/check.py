@@ -29,6 +29,7 @@ from planner.errors import InputError
 from planner.model.transforms import Array
 from planner.verify.numpy_beam import BeamRays, limits_from_dict, trace_rays, ur5e_dh_fk
 from planner.verify.numpy_beam import pose_matrix as pose
+from planner.verify.safety import check_safety, check_trajectory_safety
 from planner.verify.tolerances import (
     INCIDENCE_SLACK,
     REPORT_SLACK,
@@ -366,6 +367,8 @@ CHECKS: list[Callable[[PlanContext], CheckResult]] = [
     check_trajectory_limits,
     check_trajectory_spot,
     check_metrics,
+    check_safety,
+    check_trajectory_safety,
 ]
 
 
