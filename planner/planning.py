@@ -367,7 +367,7 @@ def time_safely(
         return time_solutions(system, targets, sols, settings, order=order, path=pth,
                               progress=progress, move=mover)  # fmt: skip
 
-    res = safe_timing(safety, solutions, path, targets.points, time_fn, ruckig_move)
+    res = safe_timing(safety, solutions, path, targets.points, time_fn, ruckig_move, system.home)
     return res.timed, res.solutions, res.path, res.figures
 
 

@@ -49,8 +49,8 @@ def run_size(scenario: str, n: int, stages: tuple[str, ...]) -> dict[str, Any]:
         system_from_scenario,
         targets_from_scenario,
     )
-    from planner.path.tour import visit_order
     from planner.path.timing import points_trajectory
+    from planner.path.tour import visit_order
     from planner.planning import (
         ik_options,
         plan_document,

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 
 from planner.model.transforms import Array
-from planner.safety.model import Safety, Violation, clearance_violation
+from planner.safety.model import Safety, Violation, clearance_violation, emit_warning
 from planner.safety.occlusion import SampleGap, failed_with, split_path
 from planner.safety.trajectory import MoveFn, SafeMover, TrajectoryCheck, check_trajectory
 
@@ -51,15 +51,21 @@ def safe_timing(
     targets: Array,
     time_fn: TimeFn,
     move: MoveFn,
+    start: Array,
     rounds: int = ROUNDS,
 ) -> SafeTiming:
     """Time ``solutions`` (see the module docstring). ``time_fn(solutions, path, mover)``
     returns an object with a ``trajectory`` (``t``, ``q``, ``segments``) or None; ``move``
     is the plain rest-to-rest move the mover wraps; ``targets`` (K x 3, world) locate the
-    spot while the laser is on."""
+    spot while the laser is on; ``start`` (stacked rad) is where the trajectory starts: if it
+    breaks the rules itself, a warning says so and no target is blamed for it."""
     figures = {"safety_detours": 0.0, "safety_dropped": 0.0, "safety_check_time": 0.0}
+    unsafe_start = safety.arms(start)
+    if unsafe_start is not None:  # no target is to blame for that
+        emit_warning(f"the start configuration breaks the safety rules: {unsafe_start.text}")
+        figures["safety_start_unsafe"] = 1.0
     timed, check = None, None
-    for _ in range(rounds):
+    for n in range(rounds):
         mover = SafeMover(safety, move)
         timed = time_fn(solutions, path, mover)
         figures["safety_detours"] += mover.detours
@@ -72,7 +78,7 @@ def safe_timing(
         figures["safety_check_time"] = check.seconds
         figures["safety_beam_samples"] = float(check.beam_samples)
         blamed = _blame(solutions, mover, check, traj)
-        if not blamed:
+        if not blamed or n == rounds - 1:
             break
         figures["safety_dropped"] += len(blamed)
         solutions, path = _drop(solutions, path, blamed)
@@ -94,6 +100,8 @@ def _blame(
     """Solution index -> the violation that fails it."""
     out: dict[int, Violation] = {}
     for f in mover.failures:
+        if f.violation.sample == 0 and f.violation.t == 0.0:
+            continue  # the move starts in violation: not the destination's fault
         k = _nearest(solutions, f.q1)
         if k is not None:
             v = clearance_violation(f.violation.clearance)
