@@ -28,11 +28,14 @@ FAILURE_REASONS = (
     "joint_limits",
     "back_face",
     "occluded",
+    "keep_out",
+    "collision",
     "solver_failed",
 )
 Reason = Literal[
-    "unreachable", "outside_roi", "joint_limits", "back_face", "occluded", "solver_failed"
-]
+    "unreachable", "outside_roi", "joint_limits", "back_face", "occluded", "keep_out",
+    "collision", "solver_failed",
+]  # fmt: skip
 JointRows = list[JointVector]
 
 

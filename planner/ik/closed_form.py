@@ -353,7 +353,7 @@ class ClosedForm:
             return ClosedFormResult(q, None, _with_unsafe(stats), stats.members)
         if stats.least_unsafe is not None:
             v = stats.least_unsafe
-            evidence = {**v.evidence, "why": v.text, "members_unsafe": stats.unsafe}
+            evidence = {**v.evidence, "members_unsafe": stats.unsafe}
             return ClosedFormResult(None, v.reason, evidence, stats.members)
         if stats.limits:
             return ClosedFormResult(

@@ -175,7 +175,7 @@ class BeamIK:
             if best is None or ev.error < best[0]:
                 best = (ev.error, reason, {**evidence, "starts": len(seeds)})
         if unsafe is not None:  # reachable, but never safely
-            return None, None, iters, (unsafe.reason, {**unsafe.evidence, "why": unsafe.text})
+            return None, None, iters, (unsafe.reason, dict(unsafe.evidence))
         assert best is not None
         return None, None, iters, (best[1], best[2])
 
@@ -215,7 +215,7 @@ class BeamIK:
         q_prev = self.system.home if q_prev is None else np.asarray(q_prev, dtype=float)
         inside = None if self.safety is None else self.safety.target(target)
         if inside is not None:
-            where = {**inside.evidence, "why": inside.text}
+            where = dict(inside.evidence)
             return _failed("keep_out", where, time.perf_counter() - t0, 0, "keep_out")
         q: Array | None = None
         ev: Evaluation | None = None

@@ -197,7 +197,7 @@ def check_path_safety(
         bad = safety.config(sol.q, np.vstack([p0, sol.hits, sol.spot]))
         if bad is not None:
             point = np.asarray(bad.evidence.get("point", sol.spot), dtype=float)
-            gaps[k] = SampleGap(bad.reason, {**bad.evidence, "why": bad.text}, bad.text, point)
+            gaps[k] = SampleGap(bad.reason, dict(bad.evidence), bad.text, point)
     return split_path(solutions, path, gaps)
 
 

@@ -133,11 +133,11 @@ def _drop(
     solutions: list[Solution], path: PathResult | None, blamed: dict[int, Violation]
 ) -> tuple[list[Solution], PathResult | None]:
     if path is not None:
-        gaps = {k: SampleGap(v.reason, {**v.evidence, "why": v.text}, v.text,
+        gaps = {k: SampleGap(v.reason, dict(v.evidence), v.text,
                              np.asarray(v.evidence.get("point", [np.nan] * 3), dtype=float))
                 for k, v in blamed.items()}  # fmt: skip
         return split_path(solutions, path, gaps)
     out = list(solutions)
     for k, v in blamed.items():
-        out[k] = failed_with(solutions[k], v.reason, {**v.evidence, "why": v.text})
+        out[k] = failed_with(solutions[k], v.reason, dict(v.evidence))
     return out, None
