@@ -11,7 +11,7 @@ import typer
 
 app = typer.Typer(help="Benchmarks (figures printed, not asserted).", no_args_is_help=True)
 
-for _name in ("ik", "path", "service", "plan"):
+for _name in ("ik", "path", "service", "plan", "safety"):
     if importlib.util.find_spec(_module := f"planner.bench.{_name}") is None:
         continue
     _mod = importlib.import_module(_module)
