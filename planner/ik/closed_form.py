@@ -143,14 +143,24 @@ class SearchStats:
     min_limit_violation: float = np.inf
     min_incidence: float = np.inf
     unsafe: int = 0  # members (or configurations) rejected by the safety rules
-    least_unsafe: Violation | None = None  # the rejection with the largest margin
+    by_reason: dict[str, int] = field(default_factory=dict)  # rejections per reason
+    nearest: dict[str, Violation] = field(default_factory=dict)  # per reason, largest margin
     evidence: dict[str, object] = field(default_factory=dict)
 
     def reject(self, v: Violation) -> None:
-        """Count a safety rejection; keep the one nearest to passing as the evidence."""
+        """Count a safety rejection; per reason, keep the one nearest to passing."""
         self.unsafe += 1
-        if self.least_unsafe is None or v.margin > self.least_unsafe.margin:
-            self.least_unsafe = v
+        self.by_reason[v.reason] = self.by_reason.get(v.reason, 0) + 1
+        if v.reason not in self.nearest or v.margin > self.nearest[v.reason].margin:
+            self.nearest[v.reason] = v
+
+    @property
+    def least_unsafe(self) -> Violation | None:
+        """The evidence of a target no member of which is safe: the most frequent reason's
+        rejection nearest to passing."""
+        if not self.by_reason:
+            return None
+        return self.nearest[max(self.by_reason, key=lambda r: self.by_reason[r])]
 
 
 class ClosedFormResult(NamedTuple):
@@ -353,7 +363,8 @@ class ClosedForm:
             return ClosedFormResult(q, None, _with_unsafe(stats), stats.members)
         if stats.least_unsafe is not None:
             v = stats.least_unsafe
-            evidence = {**v.evidence, "members_unsafe": stats.unsafe}
+            evidence = {**v.evidence, "members_unsafe": stats.unsafe,
+                        "unsafe_by_reason": dict(stats.by_reason)}  # fmt: skip
             return ClosedFormResult(None, v.reason, evidence, stats.members)
         if stats.limits:
             return ClosedFormResult(

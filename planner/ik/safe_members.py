@@ -5,7 +5,8 @@ rules that depend on the beam alone (keep-out volumes, the laser aperture, a fix
 lens) reject the whole member at once. The rules that depend on the arms (arm-arm, arm-self,
 arm-scene, the beam against every arm part) are tried on the member's first configuration
 (nearest the previous one), then on a few alternatives (other mirror rolls and IK branches,
-nearest first); the first one that passes wins. World frame, metres, radians.
+nearest first); the first one that passes wins. A target's search gives up after
+:data:`BUDGET` rejections. World frame, metres, radians.
 """
 
 from __future__ import annotations
@@ -24,6 +25,9 @@ if TYPE_CHECKING:
 
 #: configurations of one member tried after its first one fails an arm rule
 ALTERNATIVES = 12
+#: safety rejections after which a target's search gives up (bounds the time a target that
+#: no member can serve safely costs: ~0.1-0.3 ms per rejection)
+BUDGET = 400
 
 
 def _index_combos(n: int, most: int) -> Iterator[tuple[int, ...]]:
@@ -41,9 +45,12 @@ def _index_combos(n: int, most: int) -> Iterator[tuple[int, ...]]:
 class MemberSafety:
     """Filters closed-form members through :class:`~planner.safety.model.Safety` rules."""
 
-    def __init__(self, safety: Safety, alternatives: int = ALTERNATIVES) -> None:
+    def __init__(
+        self, safety: Safety, alternatives: int = ALTERNATIVES, budget: int = BUDGET
+    ) -> None:
         self.safety = safety
         self.alternatives = alternatives
+        self.budget = budget
         laser = safety.system.world_T_laser
         self.p0 = laser[:3, 3].copy()
 
@@ -62,7 +69,10 @@ class MemberSafety:
     ) -> Array | None:
         """``q`` (stacked joints of the member's first configuration) if it passes, else the
         first alternative drawn from ``gens`` (per-robot candidate iterators whose first
-        items are ``firsts``) that does; None when none does (rejections in ``stats``)."""
+        items are ``firsts``) that does; None when none does (rejections in ``stats``) or
+        when the search has used up its budget of rejections."""
+        if stats.unsafe >= self.budget:
+            return None
         P = self.polyline(hits, target)
         bad = self.safety.geometry(P)
         if bad is not None:
@@ -74,6 +84,8 @@ class MemberSafety:
         stats.reject(bad)
         pools: list[list[Array]] = [[f[0]] for f in firsts]
         for combo in _index_combos(len(gens), self.alternatives):
+            if stats.unsafe >= self.budget:
+                return None
             if not all(_fill(pools[i], gens[i], k) for i, k in enumerate(combo)):
                 continue
             q2 = np.concatenate([pools[i][k] for i, k in enumerate(combo)])

@@ -123,8 +123,10 @@ def _self_pairs(parts: list[Shape]) -> list[tuple[Shape, Shape]]:
 
 
 def _collect(hits: list[Hit], d: Array, bound: float, check: str, what: str, reason: str) -> None:
-    """The rows where ``d`` < ``bound`` - SLACK become hits."""
-    for m in np.flatnonzero(d < bound - SLACK):
+    """The rows where ``d`` < ``bound`` - SLACK become hits; with ``bound`` 0 (must not
+    touch) also where d is 0 (box distances are 0 wherever the shapes meet)."""
+    bad = (d < bound - SLACK) | ((bound <= 0.0) & (d <= 0.0))
+    for m in np.flatnonzero(bad):
         hits.append(Hit(int(m), check, what, float(d[m]), bound, reason))
 
 

@@ -132,8 +132,9 @@ def volume(d: dict[str, Any], base_dir: Path, where: str) -> Shape:
 
 
 def distance(a: Shape, b: Shape) -> Array:
-    """Distances (M,) between two shapes (0 when they meet); ``b`` may be fixed (a scene
-    object). Cylinders: the distance to the enclosing box and capsule, whichever is larger
+    """Distances (M,) between two shapes: negative (the radii minus the axes' distance) where
+    a rounded shape overlaps, 0 where a segment or box meets a box; ``b`` may be fixed (a
+    scene object). Cylinders: the distance to the enclosing box and capsule, whichever is larger
     (a lower bound of the true distance)."""
     if a.kind == "box" and b.kind == "capsule":
         a, b = b, a
@@ -141,16 +142,16 @@ def distance(a: Shape, b: Shape) -> Array:
         return np.maximum(distance(a, _cylinder_box(b)), distance(a, _cylinder_axis(b)))
     if a.kind == "capsule":
         if b.kind == "capsule":
-            return np.maximum(bd.segment_segment(a.A, a.B, b.A, b.B) - a.r - b.r, 0.0)
+            return bd.segment_segment(a.A, a.B, b.A, b.B) - a.r - b.r
         if b.kind == "box":
-            return np.maximum(bd.segment_box(a.A, a.B, b.T, b.ext) - a.r, 0.0)
+            return bd.segment_box(a.A, a.B, b.T, b.ext) - a.r
         if b.kind == "sphere":
-            return np.maximum(bd.point_segment(b.A, a.A, a.B) - a.r - b.r, 0.0)
+            return bd.point_segment(b.A, a.A, a.B) - a.r - b.r
     if a.kind == "box":
         if b.kind == "box":
             return bd.box_box(a.T, a.ext, b.T, b.ext)
         if b.kind == "sphere":
-            return np.maximum(bd.point_box(b.A, a.T, a.ext) - b.r, 0.0)
+            return bd.point_box(b.A, a.T, a.ext) - b.r
     raise ValueError(f"no distance between a {a.kind} and a {b.kind}")
 
 
