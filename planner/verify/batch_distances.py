@@ -42,6 +42,7 @@ def segment_segment(A: Array, B: Array, C: Array, D: Array) -> Array:
     s = np.where(
         t < 0.0, np.clip(-c / a_, 0.0, 1.0), np.where(t > 1.0, np.clip((b - c) / a_, 0.0, 1.0), s)
     )
+    s = np.where(e_ok, s, np.clip(-c / a_, 0.0, 1.0))  # C-D a point: nearest point of A-B
     s = np.where(a_ok, s, 0.0)
     t = np.where(e_ok, np.clip((b * s + f) / e_, 0.0, 1.0), 0.0)
     x = r + s[..., None] * d1 - t[..., None] * d2
