@@ -6,7 +6,8 @@ space looks for an intermediate waypoint (clear itself, both Ruckig legs clear) 
 goes through it, else the collision is recorded. :func:`check_trajectory` checks a whole
 trajectory densely: the arms swept between every pair of samples, and the beam at every
 sample while the laser is on (``path`` and ``dwell`` segments, or explicit ``laser_on``
-intervals), its end being the point of the last ray nearest the targets. Times in s, joints
+intervals), its end being the point of the last ray nearest the targets (or 2 m out when it
+is not on one). Times in s, joints
 in rad, world frame, metres.
 """
 
@@ -136,10 +137,15 @@ def trace_batch(safety: Safety, Q: Array) -> tuple[Array, Array]:
     return np.concatenate([p0, hits], axis=1), dirs[:, -1]
 
 
+#: m: a ray passing this close to a target ends there; else it runs on for BEYOND m
+ON_TARGET, BEYOND = 0.01, 2.0
+
+
 def beam_ends(p: Array, v: Array, targets: Array, chunk: int = 256) -> Array:
-    """Per ray (p, unit v: M x 3) the point of the ray nearest the target closest to it
-    (ahead of p); 1 m along the ray when no target lies ahead. Chunks of ``chunk`` rays."""
-    out = p + v
+    """Where each ray (p, unit v: M x 3) ends: at its point nearest the target closest to it
+    (ahead of p) when that target is within :data:`ON_TARGET`; otherwise the beam is not on
+    a target and runs on :data:`BEYOND` m (it must stay clear all that way)."""
+    out = p + BEYOND * v
     for a in range(0, len(p), chunk):
         P, V = p[a : a + chunk, None, :], v[a : a + chunk, None, :]
         w = targets[None, :, :] - P  # (m, K, 3)
@@ -147,9 +153,9 @@ def beam_ends(p: Array, v: Array, targets: Array, chunk: int = 256) -> Array:
         perp = np.where(s > 0, np.linalg.norm(w - s[:, :, None] * V, axis=2), np.inf)
         k = np.argmin(perp, axis=1)
         rows = np.arange(len(k))
-        found = np.isfinite(perp[rows, k])
+        on = perp[rows, k] <= ON_TARGET
         ends = P[:, 0] + s[rows, k][:, None] * V[:, 0]
-        out[a : a + chunk] = np.where(found[:, None], ends, out[a : a + chunk])
+        out[a : a + chunk] = np.where(on[:, None], ends, out[a : a + chunk])
     return out
 
 

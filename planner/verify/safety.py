@@ -46,6 +46,8 @@ SLACK = 1e-6
 #: configurations measured at once
 CHUNK = 4096
 LASER_KINDS = ("path", "dwell")
+#: m: a beam passing this close to a target ends there; else it runs on for BEYOND m
+ON_TARGET, BEYOND = 0.01, 2.0
 
 
 class Hit(NamedTuple):
@@ -260,10 +262,12 @@ def _camera_poses(setup: Setup, Q: dict[str, Array], M: int) -> Array | None:
 
 def polylines(setup: Setup, Q: dict[str, Array], ends: Array | None, targets: Array) -> Array:
     """Beams at joint rows Q: laser exit, mirror hits, then ``ends`` (M x 3) or, without
-    them, the point of the last ray nearest the closest target ahead (1 m out if none)."""
+    them, the point of the last ray nearest the closest target ahead when it passes within
+    :data:`ON_TARGET` of it, else :data:`BEYOND` m out (a beam off the targets must stay
+    clear that far)."""
     rays = trace_rays(setup.laser, setup.mirrors(Q))
     if ends is None:
-        ends = rays.p + rays.v
+        ends = rays.p + BEYOND * rays.v
         for a in range(0, len(rays.p), 256):
             p, v = rays.p[a : a + 256, None, :], rays.v[a : a + 256, None, :]
             w = targets[None, :, :] - p
@@ -271,9 +275,9 @@ def polylines(setup: Setup, Q: dict[str, Array], ends: Array | None, targets: Ar
             perp = np.where(s > 0, np.linalg.norm(w - s[:, :, None] * v, axis=2), np.inf)
             rows = np.arange(len(perp))
             best = np.argmin(perp, axis=1)
-            found = np.isfinite(perp[rows, best])
-            sb = np.where(found, s[rows, best], 1.0)
-            ends[a : a + 256] = p[:, 0] + sb[:, None] * v[:, 0]
+            on = perp[rows, best] <= ON_TARGET
+            spot = p[:, 0] + s[rows, best][:, None] * v[:, 0]
+            ends[a : a + 256] = np.where(on[:, None], spot, ends[a : a + 256])
     p0 = np.broadcast_to(setup.laser[:3, 3], rays.p.shape)
     return np.stack([p0, *rays.hits, ends], axis=1)
 

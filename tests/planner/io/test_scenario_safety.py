@@ -47,7 +47,9 @@ def test_keep_out_and_safety_are_read(tmp_path: Path) -> None:
     items = keep_out_objects(scn)
     assert [(i.name, i.shape) for i in items] == [("eye", "sphere"), ("slab", "box"),
                                                   ("nose", "mesh")]  # fmt: skip
-    assert items[0].radius == 0.016 and np.allclose(items[0].world_T_object[:3, 3], [0.5, 0.1, 0.05])
+    assert items[0].radius == 0.016 and np.allclose(
+        items[0].world_T_object[:3, 3], [0.5, 0.1, 0.05]
+    )
     assert items[2].mesh_path == tmp_path / "meshes" / "cube.ply" and items[2].scale == 0.001
     rules = Safety.from_scenario(scn, system_from_scenario(scn))
     assert rules.settings.clearance == 0.02

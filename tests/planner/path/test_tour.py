@@ -7,10 +7,10 @@ import tracemalloc
 
 import numpy as np
 import pytest
-from planner.path.tour import candidate_lists, visit_order
 
 from planner.model.system import DEFAULT_HOME, Limits
 from planner.path.timing import move_time, points_trajectory
+from planner.path.tour import candidate_lists, visit_order
 
 HOME = np.array(DEFAULT_HOME)
 LIM = Limits.ur_default()

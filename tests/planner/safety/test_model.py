@@ -82,7 +82,9 @@ def test_planner_and_checker_geometry_agree(rules: Safety) -> None:
         ours = [v for v in (rules.arms(q), rules.beam(q, P, apertures=False)) if v]
         theirs = {h.reason for h in hits(s, system, q, P)}
         near = min(
-            np.min(np.abs(all_pair_distances(world, q) - [rules.required(k) for k in world.pair_kinds])),
+            np.min(
+                np.abs(all_pair_distances(world, q) - [rules.required(k) for k in world.pair_kinds])
+            ),
             min(abs(c.distance - c.required) for c in beam_arm(world, q, P, 0.02)),
         )
         if near > 1e-3:
@@ -136,4 +138,7 @@ def test_robot_without_collision_geometry_is_reported(tmp_path) -> None:  # type
     with pytest.raises(Exception, match="no collision capsules"):
         SafetyWorld(system)
     world = SafetyWorld(system, bare=True)
-    assert world.unchecked == ["odd"] and [p.name for p in world.parts] == ["odd/mirror", "odd/mount"]
+    assert world.unchecked == ["odd"] and [p.name for p in world.parts] == [
+        "odd/mirror",
+        "odd/mount",
+    ]
