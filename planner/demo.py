@@ -92,7 +92,7 @@ def _safety_steps(console: Console, out: Path) -> None:
 
     from rich.table import Table
 
-    from planner.verify.safety import keep_out_summary
+    from planner.verify.safety_report import keep_out_summary
 
     table = Table(title="keep-out volumes of the face plan (numpy re-check)")
     for col in ("volume", "targets inside", "failed keep_out", "beam min (mm)",

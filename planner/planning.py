@@ -116,9 +116,10 @@ def plan_path_targets(
     options: IKOptions,
     q_start: Array | None = None,
     scene: SceneModel | None = None,
+    safety: Safety | None = None,
 ) -> list[Solution]:
     """A continuous sweep through :func:`planner.path.solve.plan_path`, as per-sample solutions."""
-    return solve_path(system, targets, options, q_start, scene)[0]
+    return solve_path(system, targets, options, q_start, scene, safety)[0]
 
 
 def solution_json(system: System, k: int, sol: Solution) -> dict[str, Any]:
@@ -352,22 +353,24 @@ class PlanOutcome(NamedTuple):
 def time_safely(
     system: System, targets: Targets, solutions: list[Solution], settings: dict[str, Any], *,
     safety: Safety | None, order: str, path: PathResult | None, progress: Progress | None,
+    q_start: Array | None = None,
 ) -> tuple[Timed | None, list[Solution], PathResult | None, dict[str, float]]:  # fmt: skip
-    """:func:`time_solutions` under the ``safety`` rules (:func:`planner.safety.timing.safe_timing`:
-    collision-free moves, the whole trajectory checked densely, unsafe targets dropped);
-    returns (timed, solutions, path, figures)."""
+    """:func:`time_solutions` (from ``q_start``, default home) under the ``safety`` rules
+    (:func:`planner.safety.timing.safe_timing`: collision-free moves, the whole trajectory
+    checked densely, unsafe targets dropped); returns (timed, solutions, path, figures)."""
+    q0 = system.home if q_start is None else np.asarray(q_start, dtype=float)
     if safety is None:
         timed = time_solutions(system, targets, solutions, settings, order=order, path=path,
-                               progress=progress)  # fmt: skip
+                               progress=progress, q_start=q0)  # fmt: skip
         return timed, solutions, path, {}
     from planner.path.timing import ruckig_move
     from planner.safety.timing import safe_timing
 
     def time_fn(sols: list[Solution], pth: PathResult | None, mover: MoveFn) -> Timed | None:
         return time_solutions(system, targets, sols, settings, order=order, path=pth,
-                              progress=progress, move=mover)  # fmt: skip
+                              progress=progress, move=mover, q_start=q0)  # fmt: skip
 
-    res = safe_timing(safety, solutions, path, targets.points, time_fn, ruckig_move, system.home)
+    res = safe_timing(safety, solutions, path, targets.points, time_fn, ruckig_move, q0)
     return res.timed, res.solutions, res.path, res.figures
 
 

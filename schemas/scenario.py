@@ -392,8 +392,8 @@ class Safety(StrictModel):
             value = getattr(self, key)
             if value > MAX_CLEARANCE:
                 raise FieldError(
-                    (key,), f"{value:g} m is above {MAX_CLEARANCE:g} m: did you give millimetres?"
-                    " (metres)"
+                    (key,),
+                    f"{value:g} m is above {MAX_CLEARANCE:g} m: did you give millimetres? (metres)",
                 )
         return self
 

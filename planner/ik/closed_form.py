@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Iterator
-from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import NamedTuple
 
@@ -25,10 +24,10 @@ import numpy as np
 
 from planner.ik.evaluate import mirror_poses
 from planner.ik.safe_members import MemberSafety
+from planner.ik.search_stats import SearchStats
 from planner.model.kinematics import RobotKinematics
 from planner.model.system import System
 from planner.model.transforms import Array, inv_T
-from planner.safety.model import Violation
 
 TWO_PI = 2.0 * np.pi
 _DEGENERATE = 1e-9  # |d_out - d_in| below this: grazing, the bisector is undefined
@@ -129,38 +128,6 @@ def pick_branch(
     Returns (q, 0) or (None, smallest limit violation in rad over the branches)."""
     qs, viol = branches_within_limits(branches, q_ref, lower, upper)
     return (qs[0], 0.0) if len(qs) else (None, viol)
-
-
-@dataclass
-class SearchStats:
-    """What the search saw; the evidence of a failure."""
-
-    members: int = 0
-    grazing: int = 0
-    no_ik: int = 0
-    limits: int = 0
-    incidence: int = 0
-    min_limit_violation: float = np.inf
-    min_incidence: float = np.inf
-    unsafe: int = 0  # members (or configurations) rejected by the safety rules
-    by_reason: dict[str, int] = field(default_factory=dict)  # rejections per reason
-    nearest: dict[str, Violation] = field(default_factory=dict)  # per reason, largest margin
-    evidence: dict[str, object] = field(default_factory=dict)
-
-    def reject(self, v: Violation) -> None:
-        """Count a safety rejection; per reason, keep the one nearest to passing."""
-        self.unsafe += 1
-        self.by_reason[v.reason] = self.by_reason.get(v.reason, 0) + 1
-        if v.reason not in self.nearest or v.margin > self.nearest[v.reason].margin:
-            self.nearest[v.reason] = v
-
-    @property
-    def least_unsafe(self) -> Violation | None:
-        """The evidence of a target no member of which is safe: the most frequent reason's
-        rejection nearest to passing."""
-        if not self.by_reason:
-            return None
-        return self.nearest[max(self.by_reason, key=lambda r: self.by_reason[r])]
 
 
 class ClosedFormResult(NamedTuple):

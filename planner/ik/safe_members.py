@@ -21,7 +21,7 @@ from planner.model.transforms import Array
 from planner.safety.model import Safety
 
 if TYPE_CHECKING:
-    from planner.ik.closed_form import SearchStats
+    from planner.ik.search_stats import SearchStats
 
 #: configurations of one member tried after its first one fails an arm rule
 ALTERNATIVES = 12

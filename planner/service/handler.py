@@ -26,6 +26,7 @@ from planner.service.execution import ExecuteError
 
 if TYPE_CHECKING:
     from planner.model.scene import SceneModel
+    from planner.safety.model import Safety
 
 PlanFn = Callable[[Targets, dict[str, Array] | None, bool], dict[str, Any]]
 #: path requests are resampled every PATH_SPACING m, at most MAX_PATH_SAMPLES samples
@@ -127,6 +128,7 @@ def make_plan_fn(
     options: Any = None,
     settings: dict[str, Any] | None = None,
     scene: SceneModel | None = None,
+    safety: Safety | None = None,
 ) -> PlanFn:
     """The node's plan function over :mod:`planner.planning` for one (calibrated) system.
 
@@ -134,9 +136,11 @@ def make_plan_fn(
     :class:`~planner.ik.IKOptions`; ``settings`` the scenario's ``trajectory`` section. Points
     are solved in order, each seeded by the previous solution (the first by ``start``); the
     trajectory starts at ``start`` (the robots' current joints) instead of home. ``scene``
-    (a :class:`~planner.model.scene.SceneModel`) makes beams that cross it fail as ``occluded``.
+    (a :class:`~planner.model.scene.SceneModel`) makes beams that cross it fail as ``occluded``;
+    ``safety`` (:class:`~planner.safety.model.Safety`) applies the collision, keep-out and
+    clearance rules to the solutions and the trajectory.
     """
-    from planner.planning import plan_document, plan_path_targets, plan_points
+    from planner.planning import plan_document, plan_path_targets, plan_points, time_safely
 
     settings = dict(settings or {})
 
@@ -147,13 +151,19 @@ def make_plan_fn(
         if targets.kind == "path":
             from planner.ik import IKOptions
 
-            sols = plan_path_targets(system, targets, options or IKOptions(), q0, scene)
+            sols = plan_path_targets(system, targets, options or IKOptions(), q0, scene, safety)
         else:
-            sols = plan_points(system, targets, options, q0, scene=scene)
+            sols = plan_points(system, targets, options, q0, scene=scene, safety=safety)
         traj = None
         if trajectory:
             q_from = system.home if q0 is None else q0
-            traj = timed_trajectory(system, targets, sols, q_from, settings)
+            if safety is None:
+                traj = timed_trajectory(system, targets, sols, q_from, settings)
+            else:
+                timed, sols, _, _ = time_safely(system, targets, sols, settings, safety=safety,
+                                                order="given", path=None, progress=None,
+                                                q_start=q_from)  # fmt: skip
+                traj = None if timed is None else timed.trajectory.to_plan_dict(system)
         return plan_document(system, targets, sols, scenario, traj)
 
     return plan_fn
@@ -179,13 +189,14 @@ def handler_from_scenario(path: Any) -> RequestHandler:
     from planner.io.scenario import load_scenario, resolved_scenario_dict, system_from_scenario
     from planner.model.scene import SceneModel
     from planner.planning import ik_options
+    from planner.safety.model import Safety
 
     scn = load_scenario(path)
     system = system_from_scenario(scn)
     model = scn.model
     settings = model.trajectory.model_dump() if model.trajectory is not None else {}
     plan_fn = make_plan_fn(system, resolved_scenario_dict(scn), ik_options(model.solver), settings,
-                           SceneModel.from_scenario(scn))  # fmt: skip
+                           SceneModel.from_scenario(scn), Safety.from_scenario(scn, system))  # fmt: skip
     return RequestHandler(system, plan_fn)
 
 

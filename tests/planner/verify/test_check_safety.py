@@ -158,3 +158,17 @@ def test_cli_check_exits_1_on_an_edited_plan(face: Doc, tmp_path: Path) -> None:
                          capture_output=True, text=True, timeout=300)  # fmt: skip
     assert out.returncode == 1, out.stdout + out.stderr
     assert "keep_out/mole" in out.stdout and "Traceback" not in out.stderr
+
+
+def test_keep_out_summary_of_the_face(face: Doc) -> None:
+    from planner.verify.safety_report import keep_out_summary
+
+    rows = {r["volume"]: r for r in keep_out_summary(face)}
+    P = np.array([t["p"] for t in face["targets"]])
+    for v in face["scenario"]["keep_out"]:
+        centre = np.asarray(v["world_T_object"]["matrix"])[:3, 3]
+        inside = np.linalg.norm(P - centre, axis=1) < v["sphere"]
+        row = rows[v["name"]]
+        assert row["targets_inside"] == inside.sum() == row["failed_keep_out"] > 0
+        assert 0.0 < row["beam_min_m"] < 0.05 and 0.0 < row["laser_on_min_m"] < 0.05
+        assert row["laser_on_samples"] > 0
