@@ -84,7 +84,7 @@ def solve_path(
     opts = PathOptions(tolerance=options.tolerance, max_iter=options.max_iter,
                        max_incidence_deg=inc)  # fmt: skip
     t0 = time.perf_counter()
-    res = plan_path(system, targets, q_start, opts)
+    res = plan_path(system, targets, q_start, opts, safety)
     per_sample = (time.perf_counter() - t0) / max(len(targets), 1)
     gap_of = {k: g for g in res.gaps for k in range(g.k0, g.k1)}
     out = []

@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import time
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -199,6 +199,31 @@ def check_path_safety(
             point = np.asarray(bad.evidence.get("point", sol.spot), dtype=float)
             gaps[k] = SampleGap(bad.reason, dict(bad.evidence), bad.text, point)
     return split_path(solutions, path, gaps)
+
+
+def unsafe_samples(safety: Safety, Q: Array, points: Array, normals: Array | None) -> Array:
+    """(K,) True where the configuration Q[k] (stacked rad) aiming at ``points[k]`` (world)
+    breaks a safety rule; NaN rows are not counted."""
+    from planner.ik.evaluate import evaluate
+
+    system, out = safety.system, np.zeros(len(Q), dtype=bool)
+    p0 = system.world_T_laser[:3, 3]
+    for k in np.flatnonzero(np.all(np.isfinite(Q), axis=1)):
+        n = None if normals is None or not np.all(np.isfinite(normals[k])) else normals[k]
+        ev = evaluate(system, Q[k], points[k], n)
+        out[k] = safety.config(Q[k], np.vstack([p0, ev.hits, ev.spot])) is not None
+    return out
+
+
+def safer_warm_start(
+    safety: Safety, Q_nlp: Array, Q_warm: Array, ks: Any, targets: Targets
+) -> bool:
+    """True when the path NLP's samples ``ks`` break the safety rules more often than their
+    warm start (then the warm start is kept)."""
+    P = targets.points[ks]
+    N = None if targets.normals is None else targets.normals[ks]
+    bad_nlp = int(unsafe_samples(safety, Q_nlp, P, N).sum())
+    return bad_nlp > 0 and bad_nlp > int(unsafe_samples(safety, Q_warm, P, N).sum())
 
 
 class SampleGap(NamedTuple):

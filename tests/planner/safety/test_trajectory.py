@@ -139,3 +139,32 @@ def test_planned_path_with_an_eye_checks_clean(tmp_path, curve) -> None:  # type
     results = {r.name: r for r in check_plan(doc)}
     assert not results["safety"].findings and not results["trajectory safety"].findings
     assert results["trajectory safety"].figures["laser_on_samples"] > 100
+
+
+def test_unsafe_path_nlp_result_falls_back_to_its_warm_start(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """Three arms relay the beam to a square: the path NLP alone converges to arm2 poses
+    whose last beam runs through arm2's own base; with the rules the run keeps its (safe)
+    warm start, every sample solved and clear by the numpy geometry."""
+    from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
+    from planner.planning import ik_options, solve_path
+    from tests.planner.verify.test_plan_check_agreement import N3_SQUARE
+
+    (tmp_path / "n3.yaml").write_text(N3_SQUARE)
+    scn = load_scenario(tmp_path / "n3.yaml")
+    system = system_from_scenario(scn)
+    targets = targets_from_scenario(scn, system)
+    options = ik_options(scn.model.solver)
+    plain, _ = solve_path(system, targets, options)
+    s = setup(system)
+
+    def unsafe(sols) -> int:  # type: ignore[no-untyped-def]
+        n = 0
+        for sol in sols:
+            beam = np.vstack([system.world_T_laser[:3, 3], sol.hits, sol.spot])
+            n += bool(hits(s, system, sol.q, beam))
+        return n
+
+    assert unsafe(plain) == len(plain)  # every NLP sample beams through arm2
+    sols, path = solve_path(system, targets, options, safety=Safety.from_scenario(scn, system))
+    assert all(sol.ok for sol in sols) and unsafe(sols) == 0
+    assert path.segments[0].status.startswith("warm_start (NLP result unsafe")
