@@ -1,9 +1,10 @@
 """Timing under the safety rules: time the solved targets with collision-free moves, check
 the whole trajectory densely, and drop what cannot be made safe.
 
-:func:`safe_timing` times the solutions through a caller's timing function whose moves are
-made by a :class:`~planner.safety.trajectory.SafeMover` (detours around arm collisions),
-then runs :func:`~planner.safety.trajectory.check_trajectory` on the result. A move left
+:func:`safe_timing` times the solutions through a caller's timing function with plain moves
+and runs :func:`~planner.safety.trajectory.check_trajectory` on the result; when that finds
+a collision in a move it times again, every move now made by a
+:class:`~planner.safety.trajectory.SafeMover` (swept, detoured around arm collisions). A move left
 colliding fails its destination target (``collision``); a swept collision inside a path or
 dwell, or a beam violation while the laser is on, fails the solved target or path sample
 whose configuration is nearest in joint space (a path sample becomes a gap); then the rest
@@ -64,9 +65,9 @@ def safe_timing(
     if unsafe_start is not None:  # no target is to blame for that
         emit_warning(f"the start configuration breaks the safety rules: {unsafe_start.text}")
         figures["safety_start_unsafe"] = 1.0
-    timed, check = None, None
+    timed, check, guard = None, None, False
     for n in range(rounds):
-        mover = SafeMover(safety, move)
+        mover = SafeMover(safety, move, guard=guard)
         timed = time_fn(solutions, path, mover)
         figures["safety_detours"] += mover.detours
         if timed is None:
@@ -77,6 +78,9 @@ def safe_timing(
                                  getattr(traj, "laser_on", None))  # fmt: skip
         figures["safety_check_time"] = check.seconds
         figures["safety_beam_samples"] = float(check.beam_samples)
+        if not guard and _in_a_move(check, traj) and n < rounds - 1:
+            guard = True  # re-time with every move swept and detoured where needed
+            continue
         blamed = _blame(solutions, mover, check, traj)
         if not blamed or n == rounds - 1:
             break
@@ -84,6 +88,14 @@ def safe_timing(
         solutions, path = _drop(solutions, path, blamed)
     figures["safety_unresolved"] = float(check is not None and not check.ok)
     return SafeTiming(solutions, path, timed, check, figures)
+
+
+def _in_a_move(check: TrajectoryCheck, traj: Any) -> bool:
+    """The swept check found a collision inside an approach or move segment."""
+    if check.sweep is None:
+        return False
+    t = check.sweep.t
+    return any(s.kind in ("approach", "move") and s.t0 <= t <= s.t1 for s in traj.segments)
 
 
 def _nearest(solutions: list[Solution], q: Array) -> int | None:

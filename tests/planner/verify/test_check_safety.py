@@ -172,3 +172,14 @@ def test_keep_out_summary_of_the_face(face: Doc) -> None:
         assert row["targets_inside"] == inside.sum() == row["failed_keep_out"] > 0
         assert 0.0 < row["beam_min_m"] < 0.05 and 0.0 < row["laser_on_min_m"] < 0.05
         assert row["laser_on_samples"] > 0
+
+
+def test_shared_space_moves_are_detoured(shared: Doc) -> None:
+    """Without the rules a move of the two-arm plan brings the arms closer than the 20 mm
+    clearance (the checker says so); with them the plan re-times that move through a
+    waypoint and checks clean."""
+    plain = run_scenario(REPO / "scenarios" / "n2_shared.yaml", progress=False, safety=False)
+    plain_doc = json.loads(json.dumps(plain.doc))
+    assert any("arm_arm" in f.message for f in _findings(plain_doc, "trajectory safety"))
+    assert shared["metrics"]["extra"]["safety_detours"] >= 1
+    assert shared["metrics"]["n_ok"] == 25 and not _findings(shared, "trajectory safety")
