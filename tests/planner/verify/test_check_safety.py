@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from planner.ik.closed_form import mirror_frame
 from planner.model.kinematics import RobotKinematics
+from planner.model.mirror import Mirror
 from planner.model.transforms import inv_T, look_at
 from planner.planning import run_scenario
 from planner.verify.check import check_plan
@@ -92,7 +92,7 @@ def test_beam_back_into_the_laser(face: Doc) -> None:
     c = (ur5e_dh_fk(q) @ flange_T_mirror)[:3, 3]
     v0 = laser[:3, 2]
     h = laser[:3, 3] + ((c - laser[:3, 3]) @ v0) * v0  # on the beam
-    mirror = mirror_frame(h, -v0, np.array([1.0, 0.0, 0.0]), 0.0, np.zeros(2))  # normal incidence
+    mirror = Mirror(flange_T_mirror).place(h, -v0, np.array([1.0, 0.0, 0.0]), 0.0, np.zeros(2))
     branches = np.array(RobotKinematics.ur5e().analytic_ik(mirror @ inv_T(flange_T_mirror)))
     retro = branches[np.argmin(np.abs(branches - q).sum(axis=1))]
     for i in rows:
