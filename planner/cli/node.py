@@ -207,7 +207,9 @@ def request(
         try:
             if execute:
                 client.watch()
-                client.wait_for_node("planner", timeout)
+            # a fresh session may not reach the planner yet (peers link by gossip)
+            client.wait_for_node("planner", timeout)
+            if execute:
                 plan, spots = client.execute(req, timeout)
             else:
                 plan, spots = client.request(req, timeout), None
