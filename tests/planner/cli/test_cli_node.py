@@ -46,7 +46,7 @@ def test_request_without_planner_fails_in_time() -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     out = run("request", "--points", "0,0,1", "--endpoint", endpoint, "--timeout", "1")
     assert out.returncode == 1
-    assert "no reply from the planner on beamrelay/plan within 1 s" in out.stderr
+    assert "no planner on the bus (beamrelay/alive/planner) within 1 s" in out.stderr
 
 
 # --- `serve` as a real process, watched by an outside client (plain zenoh) -------------------
