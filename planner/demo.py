@@ -63,13 +63,46 @@ def main(out: Path) -> None:
         ],
     )
     _run(console, "8. re-verify the path trajectory", ["check", str(out / "plan_curve.json")])
+    _safety_steps(console, out)
 
-    console.print(Rule("[bold]9. the running system: planner + simulated drivers over Zenoh"))
+    console.print(Rule("[bold]11. the running system: planner + simulated drivers over Zenoh"))
     from planner.demo_live import run_live_demo
 
     run_live_demo(n1, seconds=5)
     console.print(Rule("[bold green]demo done"))
     console.print(f"outputs in {out}/: plan_*.json (plan.json) and plan_*.png")
+
+
+def _safety_steps(console: Console, out: Path) -> None:
+    """Two arms sharing space, and a face whose eyes the beam must never enter."""
+    shared, face = SCENARIOS / "n2_shared.yaml", SCENARIOS / "face_keepout.yaml"
+    plan_shared, plan_face = out / "plan_shared.json", out / "plan_face.json"
+    _run(
+        console,
+        "9. two arms sharing space (N = 2, 20 mm arm-arm clearance)",
+        ["plan", str(shared), "-o", str(plan_shared), "--plot", str(out / "plan_shared.png")],
+    )
+    _run(console, "   re-verify it (independent numpy geometry)", ["check", str(plan_shared)])
+    # exit status 1: the targets inside the eyes fail as keep_out, as they must
+    _run(console, "10. a face with keep-out eyes (targets inside an eye fail as keep_out)",
+         ["plan", str(face), "-o", str(plan_face), "--plot", str(out / "plan_face.png")],
+         ok=(0, 1))  # fmt: skip
+    _run(console, "    re-verify it (independent numpy geometry)", ["check", str(plan_face)])
+    import json
+
+    from rich.table import Table
+
+    from planner.verify.safety_report import keep_out_summary
+
+    table = Table(title="keep-out volumes of the face plan (numpy re-check)")
+    for col in ("volume", "targets inside", "failed keep_out", "beam min (mm)",
+                "laser-on samples", "laser-on min (mm)"):  # fmt: skip
+        table.add_column(col)
+    for row in keep_out_summary(json.loads(plan_face.read_text())):
+        table.add_row(row["volume"], str(row["targets_inside"]), str(row["failed_keep_out"]),
+                      f"{1e3 * row['beam_min_m']:.1f}", str(row["laser_on_samples"]),
+                      f"{1e3 * row['laser_on_min_m']:.1f}")  # fmt: skip
+    console.print(table)
 
 
 if __name__ == "__main__":

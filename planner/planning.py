@@ -29,7 +29,8 @@ if TYPE_CHECKING:
     from planner.model.scene import SceneModel
     from planner.model.settings import TrajectorySettings
     from planner.path.solve import PathResult
-    from planner.path.timing import Trajectory, VisitReport
+    from planner.path.timing import MoveFn, Trajectory, VisitReport
+    from planner.safety.model import Safety
     from planner.verify.spot import Mask
 
 PLAN_SCHEMA = "beamrelay.plan/1"
@@ -43,12 +44,14 @@ def plan_points(
     q_start: Array | None = None,
     progress: Progress | None = None,
     scene: SceneModel | None = None,
+    safety: Safety | None = None,
 ) -> list[Solution]:
     """Solve every target in order; each solve starts from the last solved configuration
     (``q_start``, default home, at first). ``progress(k)`` is called after target k. With a
     ``scene``, beams that cross it are re-solved or fail as ``occluded``
-    (:func:`planner.safety.occlusion.check_points`)."""
-    ik = BeamIK(system, options)
+    (:func:`planner.safety.occlusion.check_points`). With ``safety`` rules every solution
+    passes them, or the target fails with their reason (:class:`planner.ik.BeamIK`)."""
+    ik = BeamIK(system, options, safety)
     q_prev = system.home if q_start is None else np.asarray(q_start, dtype=float)
     out = []
     for k in range(len(targets)):
@@ -71,18 +74,20 @@ def solve_path(
     options: IKOptions,
     q_start: Array | None = None,
     scene: SceneModel | None = None,
+    safety: Safety | None = None,
 ) -> tuple[list[Solution], PathResult]:
     """A continuous sweep through :func:`planner.path.solve.plan_path`: per-sample solutions (a
     sample in a gap is ``failed`` with the gap's reason and evidence) and the path result.
     With a ``scene``, samples whose beam crosses it become ``occluded`` gaps
-    (:func:`planner.safety.occlusion.check_path`)."""
+    (:func:`planner.safety.occlusion.check_path`); with ``safety`` rules, samples that
+    break them become gaps with their reason (:func:`~planner.safety.occlusion.check_path_safety`)."""
     from planner.path.solve import PathOptions, plan_path
 
     inc = 90.0 if options.max_incidence is None else float(np.degrees(options.max_incidence))
     opts = PathOptions(tolerance=options.tolerance, max_iter=options.max_iter,
                        max_incidence_deg=inc)  # fmt: skip
     t0 = time.perf_counter()
-    res = plan_path(system, targets, q_start, opts)
+    res = plan_path(system, targets, q_start, opts, safety)
     per_sample = (time.perf_counter() - t0) / max(len(targets), 1)
     gap_of = {k: g for g in res.gaps for k in range(g.k0, g.k1)}
     out = []
@@ -98,7 +103,11 @@ def solve_path(
     if scene is not None and not scene.empty:
         from planner.safety.occlusion import check_path
 
-        return check_path(system, scene, out, res)
+        out, res = check_path(system, scene, out, res)
+    if safety is not None:
+        from planner.safety.occlusion import check_path_safety
+
+        out, res = check_path_safety(system, safety, out, res)
     return out, res
 
 
@@ -108,9 +117,10 @@ def plan_path_targets(
     options: IKOptions,
     q_start: Array | None = None,
     scene: SceneModel | None = None,
+    safety: Safety | None = None,
 ) -> list[Solution]:
     """A continuous sweep through :func:`planner.path.solve.plan_path`, as per-sample solutions."""
-    return solve_path(system, targets, options, q_start, scene)[0]
+    return solve_path(system, targets, options, q_start, scene, safety)[0]
 
 
 def solution_json(system: System, k: int, sol: Solution) -> dict[str, Any]:
@@ -238,13 +248,15 @@ def time_solutions(
     path: PathResult | None = None,
     progress: Progress | None = None,
     skywriting: bool = True,
+    move: MoveFn | None = None,
 ) -> Timed | None:
     """Time the solved targets from ``q_start`` (stacked rad, default home) at the scenario
     ``rate`` (Hz). Points/grid: rest-to-rest Ruckig moves in the ``optimal`` (or ``given``)
     order with ``dwell`` s on each (laser on while dwelling). Path: each stroke's runs of
     solved samples marked at ``spot_speed`` (m/s) between a run-in and a run-out
     (:func:`planner.path.marking.mark_runs`; ``skywriting=False``: from rest to rest, for
-    comparison only), laser on only on the path. None if nothing was solved."""
+    comparison only), laser on only on the path. None if nothing was solved. ``move`` makes
+    the rest-to-rest moves between point targets (default Ruckig, :mod:`planner.path.timing`)."""
     from planner.path.timing import points_trajectory
 
     rate = settings.rate
@@ -254,7 +266,7 @@ def time_solutions(
         return None
     if targets.kind != "path":
         traj, visit = points_trajectory(
-            system, Q, q0, settings.dwell, rate, order, progress=progress
+            system, Q, q0, settings.dwell, rate, order, progress=progress, move=move
         )
         figures = {"duration_given_order": visit.duration_given,
                    "duration_chosen_order": visit.duration_optimised}  # fmt: skip
@@ -356,11 +368,37 @@ class PlanOutcome(NamedTuple):
     solutions: list[Solution]
 
 
+def time_safely(
+    system: System, targets: Targets, solutions: list[Solution], settings: TrajectorySettings, *,
+    safety: Safety | None, order: str, path: PathResult | None, progress: Progress | None,
+    q_start: Array | None = None,
+) -> tuple[Timed | None, list[Solution], PathResult | None, dict[str, float]]:  # fmt: skip
+    """:func:`time_solutions` (from ``q_start``, default home) under the ``safety`` rules
+    (:func:`planner.safety.timing.safe_timing`: collision-free moves, the whole trajectory
+    checked densely, unsafe targets dropped); returns (timed, solutions, path, figures)."""
+    q0 = system.home if q_start is None else np.asarray(q_start, dtype=float)
+    if safety is None:
+        timed = time_solutions(system, targets, solutions, settings, order=order, path=path,
+                               progress=progress, q_start=q0)  # fmt: skip
+        return timed, solutions, path, {}
+    from planner.path.timing import ruckig_move
+    from planner.safety.timing import safe_timing
+
+    def time_fn(sols: list[Solution], pth: PathResult | None, mover: MoveFn) -> Timed | None:
+        return time_solutions(system, targets, sols, settings, order=order, path=pth,
+                              progress=progress, move=mover, q_start=q0)  # fmt: skip
+
+    res = safe_timing(safety, solutions, path, targets.points, time_fn, ruckig_move, q0)
+    return res.timed, res.solutions, res.path, res.figures
+
+
 def run_scenario(
-    scenario_path: Any, *, optimal: bool = False, progress: bool = True, scene: bool = True
-) -> PlanOutcome:
+    scenario_path: Any, *, optimal: bool = False, progress: bool = True, scene: bool = True,
+    safety: bool = True,
+) -> PlanOutcome:  # fmt: skip
     """Load, plan, time and assemble plan.json for a scenario file (rich progress bars);
-    ``scene=False`` skips the occlusion check against the scenario's ``scene:``."""
+    ``scene=False`` skips the occlusion check against the scenario's ``scene:``,
+    ``safety=False`` the safety rules (collisions, keep-out, clearance)."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 
     from planner.io.resolved import resolved_scenario_dict
@@ -378,6 +416,9 @@ def run_scenario(
     system = system_from_scenario(loaded)
     targets = targets_from_scenario(loaded, system)
     model = scene_model(loaded) if scene else None
+    from planner.safety.model import Safety
+
+    guard = Safety.from_scenario(loaded, system) if safety else None
     options = ik_options(scn.solver, optimal)
     settings = trajectory_settings(loaded)
     order_key = settings.order or scn.targets.order
@@ -388,19 +429,20 @@ def run_scenario(
     with Progress(*columns, disable=not progress, transient=True) as bar:
         if targets.kind == "path":
             task = bar.add_task("path NLP", total=None)
-            solutions, path = solve_path(system, targets, options, scene=model)
+            solutions, path = solve_path(system, targets, options, scene=model, safety=guard)
             bar.update(task, total=1, completed=1)
         else:
             task = bar.add_task("solving targets", total=len(targets))
-            solutions = plan_points(system, targets, options, scene=model,
+            solutions = plan_points(system, targets, options, scene=model, safety=guard,
                                     progress=lambda k: bar.update(task, completed=k + 1))  # fmt: skip
         solutions = verify_solutions(system, resolved, targets, solutions)
         n_ok = sum(s.ok for s in solutions)
         timing = bar.add_task("timing", total=n_ok if targets.kind != "path" else None)
-        timed = time_solutions(system, targets, solutions, settings, order=order, path=path,
-                               progress=lambda k: bar.update(timing, completed=k + 1))  # fmt: skip
+        timed, solutions, path, safe_figures = time_safely(
+            system, targets, solutions, settings, safety=guard, order=order, path=path,
+            progress=lambda k: bar.update(timing, completed=k + 1))  # fmt: skip
     traj = None if timed is None else timed.trajectory.to_plan_dict(system)
-    extra = None if timed is None else timed.figures
+    extra = None if timed is None else timed.figures | safe_figures
     doc = plan_document(system, targets, solutions, resolved, traj, extra,
                         trajectory_requested=True, verify=False)  # fmt: skip
     return PlanOutcome(doc, system, targets, timed, path, solutions)

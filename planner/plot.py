@@ -3,7 +3,8 @@
 :func:`plot_beam_chain` draws configurations in 3D: each arm as the chain of its joint
 origins (Pinocchio FK of every joint), the mirror as a square patch, the beam from the laser
 through every mirror to the spot (``make demo`` uses it for the README picture).
-:func:`plot_plan` draws a plan.json document's solutions that way. :func:`plot_profiles`
+:func:`plot_plan` draws a plan.json document's solutions that way, with the scene objects (grey), the keep-out
+volumes (red) and the failed targets (red crosses, one legend entry per reason). :func:`plot_profiles`
 draws the timed trajectory: joint profiles (q, qd and qdd as % of the limits) vs t, the spot
 trace against the target path, the fluence along the marked path (power / speed, J/m; the
 marked speed without a power) and the spot's deviation (or the move durations for points).
@@ -11,6 +12,7 @@ marked speed without a power) and the spot's deviation (or the move durations fo
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -76,10 +78,12 @@ def plot_beam_chain(
     path: str | Path,
     title: str = "",
     max_beams: int = 25,
+    overlay: Callable[[Any], list[Array]] | None = None,
 ) -> None:
     """Draw configurations ``q`` (one stacked vector or a list, one per target) with the laser,
     the arms (joint chains of one representative configuration), mirrors, beam paths and all
-    targets; save to ``path``."""
+    targets; ``overlay(ax)`` draws more (scene, keep-out, failed targets) and returns the
+    points it drew (for the axis limits); save to ``path``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -103,6 +107,8 @@ def plot_beam_chain(
         aim = points[min(k, len(points) - 1)]
         alpha = 0.8 if len(qs) == 1 else 0.5
         drawn.append(_draw_config(ax, system, qs[k], aim, alpha, arms=k == show_arms))
+    if overlay is not None:
+        drawn += overlay(ax)
     pts = np.vstack(drawn)
     centre = (pts.min(axis=0) + pts.max(axis=0)) / 2
     span = float(np.ptp(pts, axis=0).max()) / 2 + 0.05
@@ -129,12 +135,23 @@ def plot_plan(system: System, targets: Targets, plan: dict[str, Any], path: str 
             pts.append(targets.points[sol["target"]])
     m = plan["metrics"]
     title = f"{plan['scenario'].get('name') or ''}: {m['n_ok']}/{m['n_targets']} targets solved"
+
+    def overlay(ax: Any) -> list[Array]:
+        from planner.plot_scene import draw_failed, draw_volumes
+
+        scn = plan["scenario"]
+        drawn = draw_volumes(ax, scn.get("scene") or [], "0.55", "scene")
+        drawn += draw_volumes(ax, scn.get("keep_out") or [], "red", "keep-out")
+        drawn += draw_failed(ax, plan, targets.points)
+        return drawn
+
     if not qs:
-        plot_beam_chain(system, [], targets, path, title)
+        plot_beam_chain(system, [], targets, path, title, overlay=overlay)
         return
     # one beam per drawn configuration, aimed at its own target
     order = np.argsort([np.linalg.norm(p) for p in pts])
-    plot_beam_chain(system, [qs[i] for i in order], np.array([pts[i] for i in order]), path, title)
+    plot_beam_chain(system, [qs[i] for i in order], np.array([pts[i] for i in order]), path,
+                    title, overlay=overlay)  # fmt: skip
 
 
 def profiles_path(plot: str | Path) -> Path:

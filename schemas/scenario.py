@@ -359,6 +359,72 @@ class SceneObject(StrictModel):
         return next(k for k in SHAPE_KEYS if getattr(self, k) is not None)
 
 
+KEEP_OUT_SHAPES = ("sphere", "box", "mesh")
+
+
+class KeepOutObject(StrictModel):
+    """A volume the beam must never enter while the laser is on (an eye, a finger): exactly
+    one of ``sphere`` (radius), ``box`` (full extents [x, y, z], centred) or ``mesh`` (a
+    closed triangle mesh, taken as its convex hull; path relative to the scenario, times
+    ``scale``), in the frame ``world_T_object`` (m). A target inside one fails as
+    ``keep_out``."""
+
+    name: Name
+    sphere: PosNum | None = None
+    box: PosVec3 | None = None
+    mesh: Name | None = None
+    scale: PosNum | None = None
+    world_T_object: Pose = Field(default_factory=Pose)
+
+    @model_validator(mode="after")
+    def _one_shape(self) -> Self:
+        given = [k for k in KEEP_OUT_SHAPES if getattr(self, k) is not None]
+        if not given:
+            raise ValueError(f"needs one shape: {', '.join(KEEP_OUT_SHAPES)}")
+        if len(given) > 1:
+            raise FieldError((given[1],), f"give only one shape of {', '.join(given)}")
+        if self.scale is not None and self.mesh is None:
+            raise FieldError(("scale",), "only allowed with mesh")
+        check_translation(self.world_T_object, "world_T_object", MAX_WORLD_M)
+        sizes = {"box": self.box, "sphere": [self.sphere]}
+        for key, values in sizes.items():
+            for i, v in enumerate(values or []):
+                if v is not None and v > MAX_WORLD_M:
+                    loc = (key,) if key == "sphere" else (key, i)
+                    raise FieldError(loc, f"{v:g} m: did you give millimetres? (metres)")
+        return self
+
+    @property
+    def shape(self) -> str:
+        return next(k for k in KEEP_OUT_SHAPES if getattr(self, k) is not None)
+
+
+#: m: the largest clearance accepted (a larger value is almost surely millimetres)
+MAX_CLEARANCE = 0.5
+
+
+class Safety(StrictModel):
+    """Hard safety margins. ``clearance`` (m): the least distance arm-arm, arm-scene and
+    beam-arm; ``return_cone_deg``: a reflected beam passing within ``return_radius`` (m) of
+    the laser exit (or the camera centre) travelling back within this angle of the laser
+    axis (the camera's optical axis) counts as entering the laser aperture (the lens)."""
+
+    clearance: NonNegNum = 0.01
+    return_cone_deg: Annotated[PosNum, Field(le=90)] = 10.0
+    return_radius: PosNum = 0.01
+
+    @model_validator(mode="after")
+    def _plausible(self) -> Self:
+        for key in ("clearance", "return_radius"):
+            value = getattr(self, key)
+            if value > MAX_CLEARANCE:
+                raise FieldError(
+                    (key,),
+                    f"{value:g} m is above {MAX_CLEARANCE:g} m: did you give millimetres? (metres)",
+                )
+        return self
+
+
 # --- settings -----------------------------------------------------------------------------
 class Solver(StrictModel):
     """IK settings: ``tolerance`` is a spot error (m); ``max_incidence_deg`` in degrees."""
@@ -406,6 +472,8 @@ class Scenario(StrictModel):
     name: Name | None = None
     system: System
     scene: list[SceneObject] = Field(default_factory=list)
+    keep_out: list[KeepOutObject] = Field(default_factory=list)
+    safety: Safety = Field(default_factory=Safety)
     targets: TargetSpec
     solver: Solver = Field(default_factory=Solver)
     trajectory: TrajectorySettings = Field(default_factory=TrajectorySettings)
@@ -417,6 +485,12 @@ class Scenario(StrictModel):
     def _unique(cls, scene: list[SceneObject]) -> list[SceneObject]:
         check_unique_names([o.name for o in scene], "scene object")
         return scene
+
+    @field_validator("keep_out")
+    @classmethod
+    def _unique_keep_out(cls, volumes: list[KeepOutObject]) -> list[KeepOutObject]:
+        check_unique_names([o.name for o in volumes], "keep_out volume")
+        return volumes
 
     @model_validator(mode="after")
     def _camera_frame(self) -> Self:

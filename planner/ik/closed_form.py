@@ -17,13 +17,14 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Iterator
-from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
 
 from planner.beam.trace import mirror_poses
+from planner.ik.safe_members import MemberSafety
+from planner.ik.search_stats import SearchStats
 from planner.model.kinematics import RobotKinematics
 from planner.model.status import Reason
 from planner.model.system import System
@@ -84,35 +85,31 @@ def bisector(d_in: Array, d_out: Array) -> Array | None:
     return None if norm < _DEGENERATE else n / norm
 
 
-def pick_branch(
+def branches_within_limits(
     branches: Array, q_ref: Array, lower: Array, upper: Array
-) -> tuple[Array | None, float]:
-    """Branch (each joint shifted by 2 pi k toward ``q_ref``) nearest ``q_ref`` within limits.
-
-    Returns (q, 0) or (None, smallest limit violation in rad over the branches)."""
+) -> tuple[Array, float]:
+    """Branches (each joint shifted by 2 pi k toward ``q_ref``) within limits, nearest
+    ``q_ref`` first, and the smallest limit violation (rad) over all branches (0 if any is
+    within the limits)."""
     q = branches + TWO_PI * np.round((q_ref - branches) / TWO_PI)
     q = np.where(q > upper, q - TWO_PI, q)
     q = np.where(q < lower, q + TWO_PI, q)
     viol = np.maximum(q - upper, 0.0).max(axis=1) + np.maximum(lower - q, 0.0).max(axis=1)
     ok = viol <= 0.0
     if not ok.any():
-        return None, float(viol.min())
-    dist = np.where(ok, ((q - q_ref) ** 2).sum(axis=1), np.inf)
-    return q[int(np.argmin(dist))], 0.0
+        return q[:0], float(viol.min())
+    dist = ((q[ok] - q_ref) ** 2).sum(axis=1)
+    return q[ok][np.argsort(dist, kind="stable")], 0.0
 
 
-@dataclass
-class SearchStats:
-    """What the search saw; the evidence of a failure."""
+def pick_branch(
+    branches: Array, q_ref: Array, lower: Array, upper: Array
+) -> tuple[Array | None, float]:
+    """Branch (each joint shifted by 2 pi k toward ``q_ref``) nearest ``q_ref`` within limits.
 
-    members: int = 0
-    grazing: int = 0
-    no_ik: int = 0
-    limits: int = 0
-    incidence: int = 0
-    min_limit_violation: float = np.inf
-    min_incidence: float = np.inf
-    evidence: dict[str, object] = field(default_factory=dict)
+    Returns (q, 0) or (None, smallest limit violation in rad over the branches)."""
+    qs, viol = branches_within_limits(branches, q_ref, lower, upper)
+    return (qs[0], 0.0) if len(qs) else (None, viol)
 
 
 class ClosedFormResult(NamedTuple):
@@ -125,7 +122,8 @@ class ClosedFormResult(NamedTuple):
 class ClosedForm:
     """The closed-form family search for one system (requires a seed model for every arm)."""
 
-    def __init__(self, system: System) -> None:
+    def __init__(self, system: System, safety: MemberSafety | None = None) -> None:
+        self.safety = safety
         seeds = [seed_kinematics(r.kinematics) for r in system.robots]
         if any(s is None for s in seeds):
             raise ValueError("closed form needs an analytic seed model for every robot")
@@ -174,7 +172,7 @@ class ClosedForm:
             d_in = d_out
         return normals, d_in
 
-    def _robot(
+    def _candidates(
         self,
         i: int,
         T_args: tuple[Array, Array, Array],
@@ -182,7 +180,9 @@ class ClosedForm:
         inside: bool,
         q_ref: Array,
         stats: SearchStats,
-    ) -> tuple[Array | None, Array]:
+    ) -> Iterator[tuple[Array, Array]]:
+        """Robot i's joint solutions (and hit offsets uv) placing its mirror on the hit, lazily:
+        by roll psi, then offset uv, then branch (within limits, nearest ``q_ref`` first)."""
         h, n, x_ref = T_args
         r = self.system.robots[i]
         hu, hv = self.roi_half[i]
@@ -206,13 +206,15 @@ class ClosedForm:
                 if not branches:
                     stats.no_ik += 1
                     continue
-                q, viol = pick_branch(np.array(branches), q_ref, r.limits.lower, r.limits.upper)
-                if q is None:
+                qs, viol = branches_within_limits(
+                    np.array(branches), q_ref, r.limits.lower, r.limits.upper
+                )
+                if not len(qs):
                     stats.limits += 1
                     stats.min_limit_violation = min(stats.min_limit_violation, viol)
                     continue
-                return q, uv
-        return None, np.zeros(2)
+                for q in qs:
+                    yield q, uv
 
     def _run(
         self,
@@ -243,23 +245,39 @@ class ClosedForm:
                     stats.incidence += 1
                     stats.min_incidence = min(stats.min_incidence, inc)
                     continue
-            qs = []
-            for i in range(len(hits)):
-                q_i, uv = self._robot(
-                    i,
-                    (hits[i], normals[i], prev[i][:3, 0]),
-                    stage,
-                    inside,
-                    q_prev[self.slices[i]],
-                    stats,
-                )
-                if q_i is None:
+            gens = [
+                self._candidates(i, (hits[i], normals[i], prev[i][:3, 0]), stage, inside,
+                                 q_prev[self.slices[i]], stats)
+                for i in range(len(hits))
+            ]  # fmt: skip
+            firsts = []
+            for gen in gens:
+                first = next(gen, None)
+                if first is None:
                     break
-                qs.append(q_i)
+                firsts.append(first)
             else:
-                stats.evidence = {"s": float(self.v0 @ (hits[0] - self.p0)), "uv_last": uv.tolist()}
-                return np.concatenate(qs)
+                q = self._safe(gens, firsts, hits, target, stats)
+                if q is not None:
+                    stats.evidence = {"s": float(self.v0 @ (hits[0] - self.p0)),
+                                      "uv_last": firsts[-1][1].tolist()}  # fmt: skip
+                    return q
         return None
+
+    def _safe(
+        self,
+        gens: list[Iterator[tuple[Array, Array]]],
+        firsts: list[tuple[Array, Array]],
+        hits: list[Array],
+        target: Array,
+        stats: SearchStats,
+    ) -> Array | None:
+        """The member's first configuration that passes the safety rules (the first one when
+        there are none), or None with the rejection counted in ``stats``."""
+        q = np.concatenate([f[0] for f in firsts])
+        if self.safety is None:
+            return q
+        return self.safety.first_safe(q, gens, firsts, hits, target, stats)
 
     def search(
         self, target: Array, normal: Array | None, q_prev: Array, max_incidence: float | None = None
@@ -274,7 +292,7 @@ class ClosedForm:
         full = Stage(_S_OFFSETS, _PSI, (0.0,))
         q = self._run(target, normal, q_prev, max_incidence, full, True, stats)
         if q is not None:
-            return ClosedFormResult(q, None, stats.evidence, stats.members)
+            return ClosedFormResult(q, None, _with_unsafe(stats), stats.members)
         if stats.grazing == stats.members:
             d = target - self.p0
             off = float(np.linalg.norm(d - (d @ self.v0) * self.v0))
@@ -291,7 +309,12 @@ class ClosedForm:
         coarse = Stage(_S_OFFSETS, _PSI[::2], (0.5, 1.0))
         q = self._run(target, normal, q_prev, max_incidence, coarse, True, stats)
         if q is not None:
-            return ClosedFormResult(q, None, stats.evidence, stats.members)
+            return ClosedFormResult(q, None, _with_unsafe(stats), stats.members)
+        if stats.least_unsafe is not None:
+            v = stats.least_unsafe
+            evidence = {**v.evidence, "members_unsafe": stats.unsafe,
+                        "unsafe_by_reason": dict(stats.by_reason)}  # fmt: skip
+            return ClosedFormResult(None, Reason(v.reason), evidence, stats.members)
         if stats.limits:
             return ClosedFormResult(
                 None,
@@ -339,3 +362,10 @@ class ClosedForm:
             },
             stats.members + probe.members,
         )
+
+
+def _with_unsafe(stats: SearchStats) -> dict[str, object]:
+    """Success evidence, with the count of members the safety rules turned down."""
+    if not stats.unsafe:
+        return stats.evidence
+    return {**stats.evidence, "safety_rejected": stats.unsafe}

@@ -17,10 +17,12 @@ from planner.beam.trace import BeamTrace, trace_beam
 from planner.ik.closed_form import ClosedForm, seed_kinematics
 from planner.ik.newton import Newton
 from planner.ik.nlp import BeamNLP
+from planner.ik.safe_members import MemberSafety
 from planner.model.status import Reason, Status
 from planner.model.system import System
 from planner.model.transforms import Array
 from planner.model.validity import ahead_ok, front_ok, roi_ok
+from planner.safety.model import Safety, Violation
 
 EXACT = 1e-12  # metres: what "machine precision" means for a spot error here
 
@@ -98,11 +100,15 @@ class BeamIK:
     """Beam IK for one system. Heavy pieces (Newton function, IPOPT NLP) are built lazily,
     once, and reused for every target."""
 
-    def __init__(self, system: System, options: IKOptions | None = None) -> None:
+    def __init__(
+        self, system: System, options: IKOptions | None = None, safety: Safety | None = None
+    ) -> None:
         self.system = system
         self.options = options or IKOptions()
+        self.safety = safety
         has_seed = all(seed_kinematics(r.kinematics) is not None for r in system.robots)
-        self.closed_form = ClosedForm(system) if has_seed else None
+        guard = None if safety is None else MemberSafety(safety)
+        self.closed_form = ClosedForm(system, guard) if has_seed else None
 
     @cached_property
     def newton(self) -> Newton:
@@ -167,6 +173,14 @@ class BeamIK:
             q = self.newton.polish(q, target, normal).q
         return q, trace_beam(self.system, q, target, normal), res.status, res.iterations
 
+    def unsafe(self, q: Array, ev: BeamTrace) -> Violation | None:
+        """The safety rules' worst violation at ``q`` with its traced beam (None: safe or no
+        rules)."""
+        if self.safety is None:
+            return None
+        P = np.vstack([self.system.world_T_laser[:3, 3], ev.hits, ev.spot])
+        return self.safety.config(q, P)
+
     def _multistart(
         self, target: Array, normal: Array | None, q_prev: Array, first: list[Array]
     ) -> tuple[Array | None, BeamTrace | None, int, tuple[Reason | None, dict[str, object]]]:
@@ -175,6 +189,7 @@ class BeamIK:
         seeds = [*first, q_prev, self.system.home]
         seeds += [rng.uniform(lo, hi) for _ in range(self.options.starts)]
         best: tuple[float, Reason, dict[str, object]] | None = None
+        unsafe: Violation | None = None
         iters = 0
         for q0 in seeds:
             q, ev, status, it = self._nlp(
@@ -182,12 +197,43 @@ class BeamIK:
             )
             iters += it
             if self.accept(ev, q):
-                return q, ev, iters, (None, {})
+                bad = self.unsafe(q, ev)
+                if bad is None:
+                    return q, ev, iters, (None, {})
+                unsafe = bad if unsafe is None or bad.margin > unsafe.margin else unsafe
+                continue
             reason, evidence = self.classify(ev, q, status)
             if best is None or ev.error < best[0]:
                 best = (ev.error, reason, {**evidence, "starts": len(seeds)})
+        if unsafe is not None:  # reachable, but never safely
+            return None, None, iters, (Reason(unsafe.reason), dict(unsafe.evidence))
         assert best is not None
         return None, None, iters, (best[1], best[2])
+
+    def _closed_form(
+        self, target: Array, normal: Array | None, q_prev: Array
+    ) -> tuple[
+        Array | None, BeamTrace | None, str, int, Reason | None, dict[str, object], list[Array]
+    ]:
+        """The closed-form member (Newton-polished for calibrated arms): (q, evaluation,
+        method, members, reason, evidence, seeds for the multi-start)."""
+        assert self.closed_form is not None
+        cf = self.closed_form.search(target, normal, q_prev, self.options.max_incidence)
+        reason, evidence = cf.reason, dict(cf.evidence)
+        if cf.q is None:
+            return None, None, "closed_form", cf.members, reason, evidence, []
+        q, method = cf.q, "closed_form"
+        if not self.closed_form.exact:
+            q = self.newton.polish(q, target, normal).q
+            method = "closed_form+newton"
+        ev = trace_beam(self.system, q, target, normal)
+        if not self.accept(ev, q):
+            why: dict[str, object] = {"why": "closed-form member rejected"}
+            return None, None, method, cf.members, Reason.SOLVER_FAILED, why, [q]
+        bad = None if self.closed_form.exact else self.unsafe(q, ev)
+        if bad is not None:
+            return None, None, method, cf.members, Reason(bad.reason), bad.evidence, [q]
+        return q, ev, method, cf.members, None, evidence, []
 
     def solve(
         self, target: Array, normal: Array | None = None, q_prev: Array | None = None
@@ -200,6 +246,9 @@ class BeamIK:
                 spot is the point of the last ray closest to ``target``).
             q_prev: stacked joints (rad) to start from and stay near; default home.
 
+        With safety rules, a target inside a keep-out volume fails as ``keep_out`` at once and
+        every accepted configuration passes the rules.
+
         Returns:
             A :class:`Solution`: ``status`` ok or a failure ``reason`` with its evidence,
             ``q`` (stacked, rad), the spot error (m) and the traced beam.
@@ -207,6 +256,10 @@ class BeamIK:
         t0 = time.perf_counter()
         target = np.asarray(target, dtype=float)
         q_prev = self.system.home if q_prev is None else np.asarray(q_prev, dtype=float)
+        inside = None if self.safety is None else self.safety.target(target)
+        if inside is not None:
+            where = dict(inside.evidence)
+            return Solution.failed(Reason.KEEP_OUT, time.perf_counter() - t0, 0, "keep_out", where)
         q: Array | None = None
         ev: BeamTrace | None = None
         method, iters = "closed_form", 0
@@ -214,23 +267,14 @@ class BeamIK:
         evidence: dict[str, object] = {}
         first: list[Array] = []
         if self.closed_form is not None:
-            cf = self.closed_form.search(target, normal, q_prev, self.options.max_incidence)
-            iters = cf.members
-            reason, evidence = cf.reason, dict(cf.evidence)
-            if cf.q is not None:
-                q = cf.q
-                if not self.closed_form.exact:
-                    q = self.newton.polish(q, target, normal).q
-                    method = "closed_form+newton"
-                ev = trace_beam(self.system, q, target, normal)
-                if not self.accept(ev, q):
-                    first, q, ev = [q], None, None
-                    reason = Reason.SOLVER_FAILED
-                    evidence = {"why": "closed-form member rejected"}
+            q, ev, method, iters, reason, evidence, first = self._closed_form(
+                target, normal, q_prev
+            )
         if q is not None and ev is not None and self.options.optimal:
             q2, ev2, _, it = self._nlp(q, target, normal, q_prev)
             iters = it
-            if self.accept(ev2, q2) and ev2.error <= max(ev.error, EXACT):
+            better = self.accept(ev2, q2) and ev2.error <= max(ev.error, EXACT)
+            if better and self.unsafe(q2, ev2) is None:
                 q, ev, method = q2, ev2, method + "+ipopt"
         if q is None:
             method = "multistart"

@@ -11,8 +11,15 @@ from typing import Any
 
 import numpy as np
 
-from planner.io.scenario import LIMIT_KEYS, LoadedScenario, scene_objects, system_from_scenario
+from planner.io.scenario import (
+    LIMIT_KEYS,
+    LoadedScenario,
+    keep_out_objects,
+    scene_objects,
+    system_from_scenario,
+)
 from planner.model.robots import DEFAULT_MODEL
+from planner.model.scene import SceneItem
 from planner.model.system import System
 from planner.model.transforms import Array
 from schemas.scenario import System as SystemModel
@@ -65,6 +72,20 @@ def _system_dict(system: System, model: SystemModel, scn: LoadedScenario) -> dic
     return out
 
 
+def _item_dict(item: SceneItem) -> dict[str, Any]:
+    """A scene object or keep-out volume as resolved YAML (pose as a matrix, mesh absolute)."""
+    shape: dict[str, Any]
+    if item.shape == "box":
+        shape = {"box": np.asarray(item.extents).tolist()}
+    elif item.shape == "sphere":
+        shape = {"sphere": item.radius}
+    elif item.shape == "cylinder":
+        shape = {"cylinder": [item.radius, item.height]}
+    else:
+        shape = {"mesh": str(item.mesh_path), "scale": item.scale}
+    return {"name": item.name, **shape, "world_T_object": _pose(item.world_T_object)}
+
+
 def resolved_scenario_dict(scn: LoadedScenario) -> dict[str, Any]:
     """The validated scenario with defaults filled in and every pose as ``{matrix: 4x4}``.
 
@@ -73,22 +94,12 @@ def resolved_scenario_dict(scn: LoadedScenario) -> dict[str, Any]:
     a :class:`~schemas.scenario.Scenario` (plan.json ``scenario``).
     """
     m = scn.model
-    scene = []
-    for item in scene_objects(scn):
-        shape: dict[str, Any]
-        if item.shape == "box":
-            shape = {"box": np.asarray(item.extents).tolist()}
-        elif item.shape == "sphere":
-            shape = {"sphere": item.radius}
-        elif item.shape == "cylinder":
-            shape = {"cylinder": [item.radius, item.height]}
-        else:
-            shape = {"mesh": str(item.mesh_path), "scale": item.scale}
-        scene.append({"name": item.name, **shape, "world_T_object": _pose(item.world_T_object)})
     out: dict[str, Any] = {
         "name": scn.name,
         "system": _system_dict(system_from_scenario(scn), m.system, scn),
-        "scene": scene,
+        "scene": [_item_dict(item) for item in scene_objects(scn)],
+        "keep_out": [_item_dict(item) for item in keep_out_objects(scn)],
+        "safety": m.safety.model_dump(),
         "targets": m.targets.model_dump(exclude_none=True),
         "solver": m.solver.model_dump(),
         "trajectory": m.trajectory.model_dump(),

@@ -173,6 +173,7 @@ def _check_files(scn: LoadedScenario) -> None:
     files: list[tuple[Loc, str | None]] = [
         (("scene", i, "mesh"), o.mesh) for i, o in enumerate(scn.model.scene)
     ]
+    files += [(("keep_out", i, "mesh"), o.mesh) for i, o in enumerate(scn.model.keep_out)]
     for root, system in ((("system",), scn.model.system), (("truth", "system"), scn.truth_system)):
         robots = system.robots if system is not None else []
         files += [((*root, "robots", i, "urdf"), r.urdf) for i, r in enumerate(robots)]
@@ -351,3 +352,19 @@ def trajectory_settings(scn: LoadedScenario) -> TrajectorySettings:
 def scene_model(scn: LoadedScenario) -> SceneModel:
     """The raycasting model of a loaded scenario's ``scene:`` objects (world frame, m)."""
     return SceneModel(scene_objects(scn))
+
+
+def keep_out_objects(scn: LoadedScenario) -> list[SceneItem]:
+    """The ``keep_out`` volumes (sphere, box or mesh) with world matrices and absolute mesh
+    paths."""
+    items = []
+    for obj in scn.model.keep_out:
+        T = obj.world_T_object.matrix()
+        if obj.box is not None:
+            items.append(SceneItem(obj.name, "box", T, extents=np.asarray(obj.box, dtype=float)))
+        elif obj.sphere is not None:
+            items.append(SceneItem(obj.name, "sphere", T, radius=obj.sphere))
+        elif obj.mesh is not None:
+            path, scale = scn.resolve_path(obj.mesh), obj.scale or 1.0
+            items.append(SceneItem(obj.name, "mesh", T, mesh_path=path, scale=scale))
+    return items

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -25,6 +25,10 @@ from planner.model.status import Failure, Reason
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
 from planner.path.nlp import PathOptions, path_nlp, tangents
+
+if TYPE_CHECKING:
+    from planner.safety.model import Safety
+
 from planner.path.warm import (
     Indices,
     PathContext,
@@ -33,6 +37,7 @@ from planner.path.warm import (
     project,
     valid_samples,
 )
+from planner.safety.occlusion import safer_warm_start
 
 __all__ = [
     "PathGap",
@@ -191,13 +196,17 @@ def plan_path(
     targets: Targets,
     q_start: Array | None = None,
     solver_options: PathOptions | dict[str, object] | None = None,
+    safety: Safety | None = None,
 ) -> PathResult:
     """Joint configurations sweeping the spot along ``targets`` (resampled path, world frame).
 
     ``q_start`` (stacked joints, default the robots' home) seeds the first sample. Infeasible
     stretches are reported as :class:`PathGap` and the feasible runs solved separately. Long
     finely sampled paths are warm-started coarse-to-fine; every solved sample is finally
-    polished to machine precision by a minimum-norm Gauss-Newton step (never worse).
+    polished to machine precision by a minimum-norm Gauss-Newton step (never worse). With
+    ``safety`` rules the closed-form seeds are members that pass them, and a run's NLP result
+    that breaks them at more samples than its warm start is dropped for the warm start (the
+    samples are checked afterwards: :func:`planner.safety.occlusion.check_path_safety`).
     """
     opts = (
         solver_options if isinstance(solver_options, PathOptions)
@@ -205,6 +214,11 @@ def plan_path(
     )  # fmt: skip
     q_start = system.home if q_start is None else np.asarray(q_start, dtype=float)
     ctx = PathContext(system, targets, opts)
+    if safety is not None and ctx.closed_form is not None:
+        from planner.ik.closed_form import ClosedForm
+        from planner.ik.safe_members import MemberSafety
+
+        ctx.closed_form = ClosedForm(system, MemberSafety(safety))
     K, P = len(ctx.P), ctx.P
     arc = arc_length(P)
     t0 = time.perf_counter()
@@ -228,6 +242,8 @@ def plan_path(
             continue
         ks = np.arange(k0, k1)
         Qs, seg, valid = _solve_run(ctx, ks, Q[k0:k1], NB[k0:k1], ds, closed)
+        if valid and safety is not None and safer_warm_start(safety, Qs, Q[k0:k1], ks, targets):
+            valid, seg = False, seg._replace(status=f"warm_start (NLP result unsafe: {seg.status})")
         if valid:
             Q[k0:k1] = Qs
         segments.append(seg)

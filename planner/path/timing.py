@@ -32,6 +32,8 @@ __all__ = ["Profile", "path_speed_limit", "profile"]  # re-exported
 
 SEGMENT_KINDS = ("approach", "move", "run_in", "path", "run_out", "dwell")
 LASER_KINDS = ("path", "dwell")  # segments in which the laser is on
+#: a rest-to-rest move ``(q0, q1, limits, rate) -> (q, qd, qdd)`` sampled at ``rate``
+MoveFn = Callable[[Array, Array, Limits, float], tuple[Array, Array, Array]]
 
 
 class Segment(NamedTuple):
@@ -222,12 +224,14 @@ def _hold(q: Array, seconds: float, rate: float, kind: str) -> _Piece:
 def points_trajectory(
     system: System, Q: Array, q_start: Array | None = None, dwell: float = 0.0,
     rate: float = defaults.SERVO_RATE_HZ, order: str = "optimal", progress: Callable[[int], None] | None = None,
+    move: MoveFn | None = None,
 ) -> tuple[Trajectory, VisitReport]:  # fmt: skip
     """Rest-to-rest moves visiting every row of ``Q`` (solved targets, n x nq; NaN rows are
     skipped), ``dwell`` s on each. ``order``: ``given`` visits the rows as they come (the
     scenario's target order), ``optimal`` shortens the total move time
     (:func:`planner.path.tour.visit_order`, memory linear in n). ``progress(n)`` is called after
-    the n-th move."""
+    the n-th move. ``move`` (default :func:`ruckig_move`) makes each rest-to-rest move."""
+    move = move or ruckig_move
     lim = system.limits
     q0 = system.home if q_start is None else np.asarray(q_start, dtype=float)
     idx = np.flatnonzero(np.all(np.isfinite(Q), axis=1))
@@ -241,7 +245,7 @@ def points_trajectory(
     pieces: list[_Piece] = []
     prev = q0
     for n, k in enumerate(idx[seq]):
-        Qm, QDm, QDDm = ruckig_move(prev, Q[k], lim, rate)
+        Qm, QDm, QDDm = move(prev, Q[k], lim, rate)
         pieces.append(_Piece(Qm, QDm, QDDm, "approach" if n == 0 else "move"))
         if dwell > 0:
             pieces.append(_hold(Q[k], dwell, rate, "dwell"))
@@ -299,18 +303,21 @@ def time_path(
 def path_trajectory(
     system: System, runs: list[tuple[Array, Array]], q_start: Array | None = None,
     spot_speed: float = defaults.SPOT_SPEED_MPS, rate: float = defaults.SERVO_RATE_HZ,
+    move: MoveFn | None = None,
 ) -> Trajectory:  # fmt: skip
     """Approach from ``q_start`` (default home), then each feasible run ``(q_k K x nq,
     arc_k K)`` swept at ``spot_speed`` (m/s) from rest to rest, with no run-in or run-out
-    (:mod:`planner.path.marking` adds them); rest-to-rest ``move`` between runs.
-    Slowdowns carry the arc length along the whole path and their trajectory times."""
+    (:mod:`planner.path.marking` adds them); rest-to-rest ``move`` between runs, made by
+    ``move`` (default :func:`ruckig_move`). Slowdowns carry the arc length along the whole
+    path and their trajectory times."""
+    move = move or ruckig_move
     lim = system.limits
     prev = system.home if q_start is None else np.asarray(q_start, dtype=float)
     pieces: list[_Piece] = []
     slow: list[Slowdown] = []
     i0 = 0  # index of the current piece's first sample
     for n, (Qp, arc) in enumerate(runs):
-        Qm, QDm, QDDm = ruckig_move(prev, Qp[0], lim, rate)
+        Qm, QDm, QDDm = move(prev, Qp[0], lim, rate)
         pieces.append(_Piece(Qm, QDm, QDDm, "approach" if n == 0 else "move"))
         i0 += len(Qm) - 1
         if len(Qp) < 2:

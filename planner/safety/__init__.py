@@ -1,6 +1,7 @@
 """Safety geometry: collision capsules of the arms, mirror and mount blocks, scene objects
-and keep-out volumes in one Pinocchio/coal world, and the clearance checks built on it
-(world frame, metres, radians)."""
+and keep-out volumes in one Pinocchio/coal world, the clearance checks built on it, the
+rules the planner applies (:class:`Safety`) and the trajectory checks (world frame, metres,
+radians)."""
 
 from planner.safety.beam import (
     ApertureHit,
@@ -24,8 +25,10 @@ from planner.safety.checks import (
     worst,
 )
 from planner.safety.geometry import PairKind, Part, PartKind, SafetyWorld
+from planner.safety.model import Safety, SafetySettings, Violation
 from planner.safety.shapes import Volume, box, sphere, volumes_from_scene_items
 from planner.safety.sweep import SweepViolation, check_sweep
+from planner.safety.trajectory import SafeMover, TrajectoryCheck, check_trajectory
 from planner.safety.ur5e import (
     UR5E_BOXES,
     UR5E_CAPSULES,
@@ -49,8 +52,13 @@ __all__ = [
     "PairKind",
     "Part",
     "PartKind",
+    "SafeMover",
+    "Safety",
+    "SafetySettings",
     "SafetyWorld",
     "SweepViolation",
+    "TrajectoryCheck",
+    "Violation",
     "Volume",
     "all_pair_distances",
     "arm_arm",
@@ -62,6 +70,7 @@ __all__ = [
     "box",
     "camera_lens",
     "check_sweep",
+    "check_trajectory",
     "laser_return",
     "pair_clearances",
     "sphere",

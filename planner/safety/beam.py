@@ -15,6 +15,7 @@ clearance.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -181,30 +182,33 @@ def target_keep_out(world: SafetyWorld, targets: Array) -> list[Clearance]:
     return out
 
 
-def _point_segment(c: Array, p0: Array, p1: Array) -> tuple[float, Array]:
-    d = p1 - p0
-    L2 = float(d @ d)
-    s = 0.0 if L2 == 0 else float(np.clip((c - p0) @ d / L2, 0.0, 1.0))
-    x = p0 + s * d
-    return float(np.linalg.norm(c - x)), x
-
-
 def _into(
     check: Check, what: str, P: Array, world_T_device: Array, radius: float, cone: float, first: int
 ) -> list[ApertureHit]:
-    centre, axis = (
-        world_T_device[:3, 3],
-        world_T_device[:3, 2] / np.linalg.norm(world_T_device[:3, 2]),
-    )
+    """Segments ``first..`` of ``P`` passing within ``radius`` of the device centre while
+    travelling back along its axis within ``cone`` (plain floats: a polyline has a few
+    segments and this runs per configuration)."""
+    cx, cy, cz = (float(v) for v in world_T_device[:3, 3])
+    ax, ay, az = (float(v) for v in world_T_device[:3, 2])
+    na = math.sqrt(ax * ax + ay * ay + az * az)
+    cos_cone = math.cos(cone)
+    pts = P.tolist()
     out = []
-    for k in range(first, len(P) - 1):
-        d = P[k + 1] - P[k]
-        if not np.any(d):
+    for k in range(first, len(pts) - 1):
+        (px, py, pz), (qx, qy, qz) = pts[k], pts[k + 1]
+        dx, dy, dz = qx - px, qy - py, qz - pz
+        L2 = dx * dx + dy * dy + dz * dz
+        if L2 == 0.0:
             continue
-        angle = float(np.arccos(np.clip(-(d / np.linalg.norm(d)) @ axis, -1.0, 1.0)))
-        dist, x = _point_segment(centre, P[k], P[k + 1])
-        if angle <= cone and dist <= radius:
-            out.append(ApertureHit(check, what, k, dist, angle, x))
+        cos = -(dx * ax + dy * ay + dz * az) / (math.sqrt(L2) * na)
+        if cos < cos_cone:
+            continue
+        s = min(max(((cx - px) * dx + (cy - py) * dy + (cz - pz) * dz) / L2, 0.0), 1.0)
+        x = (px + s * dx, py + s * dy, pz + s * dz)
+        dist = math.dist((cx, cy, cz), x)
+        if dist <= radius:
+            angle = math.acos(min(max(cos, -1.0), 1.0))
+            out.append(ApertureHit(check, what, k, dist, angle, np.array(x)))
     return out
 
 
@@ -228,22 +232,26 @@ def camera_lens(
     )
 
 
-def beam_points(world: SafetyWorld, q: Array, end: Array | Sequence[float]) -> Array:
-    """The polyline laser -> mirror hits -> ``end`` at stacked joints ``q``, the mirror hits
-    by the mirror seam (:meth:`planner.model.mirror.Mirror.intersect`, world, m); a miss
-    gives NaN rows."""
+def trace(world: SafetyWorld, q: Array) -> tuple[Array, Array]:
+    """The beam at stacked joints ``q`` by the beam model's plane intersections: the points
+    laser exit, hit on mirror 1, ..., hit on mirror N ((N + 1) x 3, world, m; a miss gives
+    NaN) and the unit direction leaving the last mirror."""
     world.update(q)
     sys_ = world.system
     p, v = sys_.world_T_laser[:3, 3], sys_.world_T_laser[:3, 2]
     v = v / np.linalg.norm(v)
     pts = [p]
     for k, robot in enumerate(sys_.robots):
-        M = world.data.oMi[world.flange_joint[k]].homogeneous
-        frame = robot.kinematics.model.frames[robot.kinematics.flange_id].placement.homogeneous
-        wTm = M @ frame @ robot.mirror.flange_T_mirror
+        wTm = world.data.oMi[world.flange_joint[k]].homogeneous @ world.joint_T_mirror[k]
         t, hit, _ = robot.mirror.intersect(wTm, p, v)
         v = robot.mirror.reflect(wTm, v, hit)
         p = hit if np.isfinite(t) else np.full(3, np.nan)
         pts.append(p)
-    pts.append(np.asarray(end, dtype=float))
-    return np.array(pts)
+    return np.array(pts), v
+
+
+def beam_points(world: SafetyWorld, q: Array, end: Array | Sequence[float]) -> Array:
+    """The polyline laser -> mirror hits -> ``end`` at stacked joints ``q``, the mirror hits
+    by the beam model's plane intersection (world, m); a miss gives NaN rows."""
+    pts, _ = trace(world, q)
+    return np.vstack([pts, np.asarray(end, dtype=float)])

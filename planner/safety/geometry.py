@@ -17,6 +17,7 @@ placements only (:mod:`planner.safety.beam`).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from enum import Enum
@@ -80,17 +81,25 @@ def _se3(T: Array) -> pin.SE3:
 def capsule_placement(a: Array, b: Array) -> tuple[Array, float]:
     """Pose (4x4, z along ``b - a``, origin at the midpoint) and length (m) of the coal
     capsule whose segment is ``a -> b``."""
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    d = b - a
-    length = float(np.linalg.norm(d))
-    z = d / length if length > 0 else np.array([0.0, 0.0, 1.0])
-    # x = e_x cross z (or e_y cross z near the x axis), y = z cross x; written out: np.cross
-    # costs ~10 µs a call and this runs per beam segment
-    x = np.array([0.0, -z[2], z[1]]) if abs(z[0]) < 0.9 else np.array([z[2], 0.0, -z[0]])
-    x /= np.sqrt(x @ x)
-    y = np.array([z[1] * x[2] - z[2] * x[1], z[2] * x[0] - z[0] * x[2], z[0] * x[1] - z[1] * x[0]])
-    T = np.eye(4)
-    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, y, z, (a + b) / 2
+    # plain floats: numpy calls on 3-vectors cost ~1 µs each and this runs per beam segment
+    ax, ay, az = (float(v) for v in a)
+    bx, by, bz = (float(v) for v in b)
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    length = math.sqrt(dx * dx + dy * dy + dz * dz)
+    zx, zy, zz = (dx / length, dy / length, dz / length) if length > 0 else (0.0, 0.0, 1.0)
+    # x = e_x cross z (or e_y cross z near the x axis), normalised; y = z cross x
+    xx, xy, xz = (0.0, -zz, zy) if abs(zx) < 0.9 else (zz, 0.0, -zx)
+    nx = math.sqrt(xx * xx + xy * xy + xz * xz)
+    xx, xy, xz = xx / nx, xy / nx, xz / nx
+    yx, yy, yz = zy * xz - zz * xy, zz * xx - zx * xz, zx * xy - zy * xx
+    T = np.array(
+        [
+            [xx, yx, zx, (ax + bx) / 2],
+            [xy, yy, zy, (ay + by) / 2],
+            [xz, yz, zz, (az + bz) / 2],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    )
     return T, length
 
 
@@ -108,12 +117,31 @@ def mirror_boxes(robot: Robot, blocks: MirrorBlocks) -> list[tuple[str, Array, A
     return out
 
 
+def is_ur5e(robot: Robot, tolerance: float = 0.01) -> bool:
+    """True for the nominal UR5e, or a 6-joint model whose joint origins lie within
+    ``tolerance`` (m) of the nominal UR5e's at a few configurations (a calibrated UR5e)."""
+    kin = robot.kinematics
+    if kin.name == "ur5e":
+        return True
+    if kin.nq != 6:
+        return False
+    from planner.model.kinematics import RobotKinematics
+
+    nominal = RobotKinematics.ur5e()
+    for q in np.random.default_rng(0).uniform(-np.pi, np.pi, (4, 6)):
+        if np.abs(kin.joint_origins(q) - nominal.joint_origins(q)).max() > tolerance:
+            return False
+    return True
+
+
 class SafetyWorld:
     """The collision world of ``system`` (see the module docstring).
 
     ``scene``: obstacles the arms must keep clear of; ``keep_out``: volumes the beam must not
     enter; ``capsules``: per robot name, ``(capsules, boxes)`` link tables for robots that
-    are not the UR5e.
+    are not the UR5e (a URDF whose joint origins lie within 1 cm of the nominal UR5e's
+    counts as one). ``bare``: a robot without a table gets only its mirror and mount (listed
+    in :attr:`unchecked`) instead of an error.
     """
 
     def __init__(
@@ -124,6 +152,7 @@ class SafetyWorld:
         *,
         blocks: MirrorBlocks = DEFAULT_MIRROR_BLOCKS,
         capsules: Mapping[str, tuple[Sequence[CapsuleSpec], Sequence[BoxSpec]]] | None = None,
+        bare: bool = False,
     ) -> None:
         self.system = system
         self.blocks = blocks
@@ -131,16 +160,24 @@ class SafetyWorld:
         self.geom_model = pin.GeometryModel()
         self.parts: list[Part] = []
         self.flange_joint: list[int] = []
+        #: per robot, the mirror frame in the frame of the joint that carries it
+        self.joint_T_mirror: list[Array] = []
+        #: robots whose links have no collision geometry (``bare``)
+        self.unchecked: list[str] = []
         for k, robot in enumerate(system.robots):
             table = (capsules or {}).get(robot.name)
             if table is None:
                 shapes = collision_shapes(robot.kinematics.name)
-                if shapes is None or robot.nq != shapes.nq:
+                if (shapes is None or robot.nq != shapes.nq) and not bare:
                     raise InputError(
                         f"no collision capsules for robot model {robot.kinematics.name!r}",
                         robot.name,
                     )
-                table = (shapes.capsules, shapes.boxes)
+                if shapes is not None and robot.nq == shapes.nq:
+                    table = (shapes.capsules, shapes.boxes)
+                else:
+                    self.unchecked.append(robot.name)
+                    table = ((), ())
             self._add_robot(k, robot, *table)
         for v in scene:
             self._add_fixed(f"scene/{v.name}", PartKind.SCENE, v, solid=False)
@@ -153,7 +190,7 @@ class SafetyWorld:
         for req in self.geom_data.distanceRequests:
             req.gjk_tolerance = 1e-12
         self._geometries = [g.geometry for g in self.geom_model.geometryObjects]
-        self._placements: list[coal.Transform3s] | None = None
+        self._placements: dict[int, coal.Transform3s] | None = None
         self._q: Array | None = None
         self.update(pin.neutral(self.model))  # places the fixed parts once
 
@@ -197,6 +234,7 @@ class SafetyWorld:
         flange = km.frames[robot.kinematics.flange_id]
         joint6_T_flange = flange.placement.homogeneous
         self.flange_joint.append(joints[flange.parentJoint])
+        self.joint_T_mirror.append(joint6_T_flange @ robot.mirror.flange_T_mirror)
         for name, fTb, extents in mirror_boxes(robot, self.blocks):
             kind = PartKind.MIRROR if name == "mirror" else PartKind.MOUNT
             part = Part(len(self.parts), f"{robot.name}/{name}", kind, k, FLANGE_LINK)
@@ -254,10 +292,12 @@ class SafetyWorld:
     def placement(self, index: int) -> coal.Transform3s:
         """World pose of part ``index`` at the last :meth:`update`."""
         if self._placements is None:
-            self._placements = [
-                coal.Transform3s(M.rotation, M.translation) for M in self.geom_data.oMg
-            ]
-        return self._placements[index]
+            self._placements = {}
+        T = self._placements.get(index)
+        if T is None:
+            M = self.geom_data.oMg[index]
+            T = self._placements[index] = coal.Transform3s(M.rotation, M.translation)
+        return T
 
     def geometry(self, index: int) -> coal.CollisionGeometry:
         """The coal shape of part ``index`` in its own frame."""

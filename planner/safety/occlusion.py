@@ -10,7 +10,8 @@ with evidence: the segment (``laser->arm0``, ``arm0->arm1``, ``arm1->target``) a
 points, the object, the world point where the beam meets it and the blocked configuration.
 Point targets first try other members of the closed-form family (the first hit slid along
 the incoming beam, :func:`check_points`); path samples become gaps (:func:`check_path`).
-An empty scene returns the input untouched.
+An empty scene returns the input untouched. The same gap machinery
+(:func:`split_path`) drops path samples that break a safety rule (:func:`check_path_safety`).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -31,6 +32,7 @@ from planner.model.transforms import Array
 if TYPE_CHECKING:
     from planner.ik import BeamIK, Solution
     from planner.path.solve import PathResult
+    from planner.safety.model import Safety
 
 #: m, slides of the first mirror's hit along the laser beam tried for an occluded target
 RETRY_SHIFTS = (0.05, -0.05, 0.12, -0.12, 0.25, -0.25)
@@ -82,12 +84,19 @@ def occlusions(
     return out
 
 
-def failed_occluded(sol: Solution, evidence: dict[str, object]) -> Solution:
-    """``sol`` as a failed ``occluded`` target (no configuration, spot or hits)."""
+def failed_with(sol: Solution, reason: Reason | str, evidence: dict[str, object]) -> Solution:
+    """``sol`` as a failed target (no configuration, spot or hits) with ``reason``; the
+    evidence is kept under the reason's key."""
     from planner.ik import Solution
 
-    evidence = {**sol.evidence, "occluded": evidence}
-    return Solution.failed(Reason.OCCLUDED, sol.solve_time, sol.iterations, sol.method, evidence)
+    why = Reason(reason)
+    evidence = {**sol.evidence, str(why): evidence}
+    return Solution.failed(why, sol.solve_time, sol.iterations, sol.method, evidence)
+
+
+def failed_occluded(sol: Solution, evidence: dict[str, object]) -> Solution:
+    """``sol`` as a failed ``occluded`` target (no configuration, spot or hits)."""
+    return failed_with(sol, Reason.OCCLUDED, evidence)
 
 
 def check_points(
@@ -169,29 +178,106 @@ def check_path(
     """Path samples with blocked beams become ``occluded`` gaps: their solutions fail, the
     path result loses them (q NaN, ok False) and its feasible segments split around them."""
     blocked = occlusions(system, scene, solutions)
-    if not blocked:
+    gaps = {}
+    for k, ev in blocked.items():
+        detail = (f"beam {ev['segment']} blocked by {ev['object']} at "
+                  f"{np.round(np.asarray(ev['point']), 4).tolist()} m")  # fmt: skip
+        gaps[k] = SampleGap("occluded", ev, detail, np.asarray(ev["point"], dtype=float))
+    return split_path(solutions, path, gaps)
+
+
+def check_path_safety(
+    system: System, safety: Safety, solutions: list[Solution], path: PathResult
+) -> tuple[list[Solution], PathResult]:
+    """Path samples whose configuration or beam breaks a safety rule (arm collision, beam
+    through an arm, into a keep-out volume or back into the laser or camera) become gaps
+    with the rule's reason (``collision``, ``occluded``, ``keep_out``) and evidence."""
+    gaps = {}
+    p0 = system.world_T_laser[:3, 3]
+    for k, sol in enumerate(solutions):
+        if not sol.ok or sol.q is None or sol.hits is None or sol.spot is None:
+            continue
+        bad = safety.config(sol.q, np.vstack([p0, sol.hits, sol.spot]))
+        if bad is not None:
+            point = np.asarray(bad.evidence.get("point", sol.spot), dtype=float)
+            gaps[k] = SampleGap(bad.reason, dict(bad.evidence), bad.text, point)
+    return split_path(solutions, path, gaps)
+
+
+def unsafe_samples(safety: Safety, Q: Array, points: Array, normals: Array | None) -> Array:
+    """(K,) True where the configuration Q[k] (stacked rad) aiming at ``points[k]`` (world)
+    breaks a safety rule; NaN rows are not counted."""
+    from planner.beam.trace import trace_beam
+
+    system, out = safety.system, np.zeros(len(Q), dtype=bool)
+    p0 = system.world_T_laser[:3, 3]
+    for k in np.flatnonzero(np.all(np.isfinite(Q), axis=1)):
+        n = None if normals is None or not np.all(np.isfinite(normals[k])) else normals[k]
+        ev = trace_beam(system, Q[k], points[k], n)
+        out[k] = safety.config(Q[k], np.vstack([p0, ev.hits, ev.spot])) is not None
+    return out
+
+
+def safer_warm_start(
+    safety: Safety, Q_nlp: Array, Q_warm: Array, ks: Any, targets: Targets
+) -> bool:
+    """True when the path NLP's samples ``ks`` break the safety rules more often than their
+    warm start (then the warm start is kept)."""
+    P = targets.points[ks]
+    N = None if targets.normals is None else targets.normals[ks]
+    bad_nlp = int(unsafe_samples(safety, Q_nlp, P, N).sum())
+    return bad_nlp > 0 and bad_nlp > int(unsafe_samples(safety, Q_warm, P, N).sum())
+
+
+class SampleGap(NamedTuple):
+    """Why one path sample is dropped: status ``reason``, ``evidence``, a one-line
+    ``detail`` and the world ``point`` (m) where it happens."""
+
+    reason: str
+    evidence: dict[str, object]
+    detail: str
+    point: Array
+
+
+def split_path(
+    solutions: list[Solution], path: PathResult, gaps: dict[int, SampleGap]
+) -> tuple[list[Solution], PathResult]:
+    """Drop the samples in ``gaps`` (by sample index): their solutions fail with the gap's
+    reason and evidence, the path result loses them (q NaN, ok False), consecutive dropped
+    samples with one reason become one :class:`~planner.path.solve.PathGap`, and the
+    feasible segments split around them."""
+    if not gaps:
         return solutions, path
     from planner.path.solve import PathGap
 
     out = list(solutions)
-    for k, evidence in blocked.items():
-        out[k] = failed_occluded(solutions[k], evidence)
+    for k, gap in gaps.items():
+        out[k] = failed_with(solutions[k], gap.reason, gap.evidence)
     mask = np.zeros(len(solutions), dtype=bool)
-    mask[list(blocked)] = True
+    mask[list(gaps)] = True
     q, ok = path.q.copy(), path.ok & ~mask
     q[mask] = np.nan
-    gaps = list(path.gaps)
+    new_gaps = list(path.gaps)
     for k0, k1 in runs(mask):
-        ev = blocked[k0]
-        detail = (f"beam {ev['segment']} blocked by {ev['object']} at "
-                  f"{np.round(np.asarray(ev['point']), 4).tolist()} m")  # fmt: skip
-        p = np.asarray(solutions[k0].spot if solutions[k0].spot is not None else ev["point"])
-        gaps.append(PathGap(k0, k1, float(path.arc[k0]), float(path.arc[k1 - 1]), p,
-                            Reason.OCCLUDED, detail))  # fmt: skip
+        for a, b in _same_reason(gaps, k0, k1):
+            g = gaps[a]
+            p = solutions[a].spot if solutions[a].spot is not None else g.point
+            new_gaps.append(PathGap(a, b, float(path.arc[a]), float(path.arc[b - 1]),
+                                    np.asarray(p), Reason(g.reason), g.detail))  # fmt: skip
     segments = []
     for seg in path.segments:
         for a, b in runs(ok[seg.k0 : seg.k1]):
             segments.append(seg._replace(k0=seg.k0 + a, k1=seg.k0 + b))
     new = dataclasses.replace(path, q=q, ok=ok, segments=tuple(segments),
-                              gaps=tuple(sorted(gaps, key=lambda g: g.k0)))  # fmt: skip
+                              gaps=tuple(sorted(new_gaps, key=lambda g: g.k0)))  # fmt: skip
     return out, new
+
+
+def _same_reason(gaps: dict[int, SampleGap], k0: int, k1: int) -> list[tuple[int, int]]:
+    """Split the run k0..k1 of dropped samples where the reason changes."""
+    out, a = [], k0
+    for k in range(k0 + 1, k1 + 1):
+        if k == k1 or gaps[k].reason != gaps[a].reason:
+            out.append((a, k))
+            a = k
+    return out

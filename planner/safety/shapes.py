@@ -64,14 +64,22 @@ def box(name: str, extents: Sequence[float], world_T_object: Array) -> Volume:
 
 
 class _SceneItemLike(Protocol):
-    name: str
-    shape: str
-    world_T_object: Array
-    extents: Array | None
-    radius: float | None
-    height: float | None
-    mesh_path: Path | None
-    scale: float
+    @property
+    def name(self) -> str: ...
+    @property
+    def shape(self) -> str: ...
+    @property
+    def world_T_object(self) -> Array: ...
+    @property
+    def extents(self) -> Array | None: ...
+    @property
+    def radius(self) -> float | None: ...
+    @property
+    def height(self) -> float | None: ...
+    @property
+    def mesh_path(self) -> Path | None: ...
+    @property
+    def scale(self) -> float: ...
 
 
 def volumes_from_scene_items(items: Iterable[_SceneItemLike]) -> tuple[Volume, ...]:

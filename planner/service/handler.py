@@ -28,6 +28,7 @@ from schemas import defaults
 
 if TYPE_CHECKING:
     from planner.model.scene import SceneModel
+    from planner.safety.model import Safety
 
 PlanFn = Callable[[Targets, dict[str, Array] | None, bool], dict[str, Any]]
 #: path requests are resampled every PATH_SPACING m, at most MAX_PATH_SAMPLES samples
@@ -129,6 +130,7 @@ def make_plan_fn(
     options: Any = None,
     settings: TrajectorySettings | None = None,
     scene: SceneModel | None = None,
+    safety: Safety | None = None,
 ) -> PlanFn:
     """The node's plan function over :mod:`planner.planning` for one (calibrated) system.
 
@@ -139,9 +141,16 @@ def make_plan_fn(
     are re-verified (:func:`~planner.planning.verify_solutions`: the checks of ``beamrelay
     check`` on the resolved ``scenario``) *before* the trajectory is timed, so a rejected
     one is never part of it. ``scene`` (a :class:`~planner.model.scene.SceneModel`) makes
-    beams that cross it fail as ``occluded``.
+    beams that cross it fail as ``occluded``; ``safety`` (:class:`~planner.safety.model.Safety`)
+    applies the collision, keep-out and clearance rules to the solutions and the trajectory.
     """
-    from planner.planning import plan_document, plan_path_targets, plan_points, verify_solutions
+    from planner.planning import (
+        plan_document,
+        plan_path_targets,
+        plan_points,
+        time_safely,
+        verify_solutions,
+    )
 
     timing = settings or TrajectorySettings()
 
@@ -152,15 +161,21 @@ def make_plan_fn(
         if targets.kind == "path":
             from planner.ik import IKOptions
 
-            sols = plan_path_targets(system, targets, options or IKOptions(), q0, scene)
+            sols = plan_path_targets(system, targets, options or IKOptions(), q0, scene, safety)
         else:
-            sols = plan_points(system, targets, options, q0, scene=scene)
+            sols = plan_points(system, targets, options, q0, scene=scene, safety=safety)
         if "system" in scenario:  # re-verified before timing: a rejected one is not visited
             sols = verify_solutions(system, scenario, targets, sols)
         traj = None
         if trajectory:
             q_from = system.home if q0 is None else q0
-            traj = timed_trajectory(system, targets, sols, q_from, timing)
+            if safety is None:
+                traj = timed_trajectory(system, targets, sols, q_from, timing)
+            else:
+                timed, sols, _, _ = time_safely(system, targets, sols, timing, safety=safety,
+                                                order="given", path=None, progress=None,
+                                                q_start=q_from)  # fmt: skip
+                traj = None if timed is None else timed.trajectory.to_plan_dict(system)
         return plan_document(system, targets, sols, scenario, traj, verify=False)
 
     return plan_fn
@@ -191,13 +206,14 @@ def handler_from_scenario(path: Any) -> RequestHandler:
         trajectory_settings,
     )
     from planner.planning import ik_options
+    from planner.safety.model import Safety
 
     scn = load_scenario(path)
     system = system_from_scenario(scn)
     model = scn.model
     settings = trajectory_settings(scn)
     plan_fn = make_plan_fn(system, resolved_scenario_dict(scn), ik_options(model.solver), settings,
-                           scene_model(scn))  # fmt: skip
+                           scene_model(scn), Safety.from_scenario(scn, system))  # fmt: skip
     return RequestHandler(system, plan_fn)
 
 

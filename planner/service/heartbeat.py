@@ -74,13 +74,13 @@ class BusAddress:
     config_file: Path | None = None
 
 
-def child_config(bus: BusAddress) -> Any:
+def child_config(bus: BusAddress, connect_timeout: float = CONNECT_TIMEOUT) -> Any:
     """The heartbeat child's Zenoh config: the planner's (same endpoint, same config file,
     so the same identity), in *client* mode toward the bus, listening nowhere."""
     from planner.service.bus import _ENDPOINT, _HOST_PORT, zenoh_config
 
     conf = zenoh_config(listen=False, endpoint=bus.endpoint, config_file=bus.config_file,
-                        connect_timeout=CONNECT_TIMEOUT)  # fmt: skip
+                        connect_timeout=connect_timeout)  # fmt: skip
     connect = json.loads(conf.get_json("connect/endpoints"))
     if isinstance(connect, dict):  # per-mode defaults of a file naming only where it listens
         connect = []
@@ -95,7 +95,7 @@ def child_config(bus: BusAddress) -> Any:
         conf.insert_json5("connect/endpoints", json.dumps(connect))
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("listen/endpoints", "[]")
-    conf.insert_json5("connect/timeout_ms", str(round(1e3 * CONNECT_TIMEOUT)))
+    conf.insert_json5("connect/timeout_ms", str(round(1e3 * connect_timeout)))
     return conf
 
 
@@ -127,8 +127,10 @@ class HeartbeatProcess:
         on_wedged: Callable[[str], None],
         rate: float = HEARTBEAT_RATE,
         stall: float = PARENT_STALL,
+        connect_timeout: float = CONNECT_TIMEOUT,
     ) -> None:
         self.bus = bus
+        self.connect_timeout = connect_timeout
         self.key = key
         self.session_id = session_id
         self.progress = progress
@@ -147,7 +149,8 @@ class HeartbeatProcess:
     def argv(self) -> list[str]:
         argv = [sys.executable, "-m", "planner.service.heartbeat", "--key", self.key,
                 "--session", self.session_id, "--parent", str(os.getpid()),
-                "--rate", repr(self.rate), "--stall", repr(self.stall)]  # fmt: skip
+                "--rate", repr(self.rate), "--stall", repr(self.stall),
+                "--connect-timeout", repr(self.connect_timeout)]  # fmt: skip
         if self.bus.endpoint is not None:
             argv += ["--endpoint", self.bus.endpoint]
         if self.bus.config_file is not None:
@@ -284,6 +287,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--parent", type=int, required=True)
     ap.add_argument("--rate", type=float, default=HEARTBEAT_RATE)
     ap.add_argument("--stall", type=float, default=PARENT_STALL)
+    ap.add_argument("--connect-timeout", type=float, default=CONNECT_TIMEOUT)
     ap.add_argument("--endpoint")
     ap.add_argument("--zenoh-config", type=Path)
     args = ap.parse_args(argv)
@@ -293,7 +297,8 @@ def main(argv: list[str] | None = None) -> int:
     from planner.service.bus import JSON, _zenoh_message
 
     try:
-        session = zenoh.open(child_config(BusAddress(args.endpoint, args.zenoh_config)))
+        bus = BusAddress(args.endpoint, args.zenoh_config)
+        session = zenoh.open(child_config(bus, args.connect_timeout))
     except Exception as exc:  # zenoh's ZError, or an InputError of the config
         print(f"heartbeat: cannot open the Zenoh session: {_zenoh_message(exc)}", file=sys.stderr)
         return 2

@@ -31,6 +31,7 @@ from planner.model.validity import MIN_AHEAD, MIN_FRONT, ahead_ok, front_ok
 from planner.verify.findings import Finding
 from planner.verify.numpy_beam import BeamRays, limits_from_dict, trace_rays, ur5e_dh_fk
 from planner.verify.numpy_beam import pose_matrix as pose
+from planner.verify.safety import check_safety, check_trajectory_safety
 from planner.verify.tolerances import (
     INCIDENCE_SLACK,
     REPORT_SLACK,
@@ -346,6 +347,8 @@ CHECKS: list[Callable[[PlanContext], CheckResult]] = [
     check_trajectory_spot,
     check_laser,
     check_metrics,
+    check_safety,
+    check_trajectory_safety,
 ]
 
 

@@ -75,9 +75,10 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
     root = typer.main.get_command(app)
     assert sorted(root.commands) == sorted(  # type: ignore[attr-defined]
         ["validate", "trace", "plan", "check", "serve", "up", "request", "calibrate", "study",
-         "bench", "driver"]
+         "bench", "driver", "record", "replay", "robot", "hw"]
     )  # fmt: skip
     groups = root.commands  # type: ignore[attr-defined]
+    assert sorted(groups["calibrate"].commands) == ["beam", "collect", "handeye", "simulate"]
     assert sorted(groups["study"].commands) == sorted(
         ["ik-grid", "calibration", "sensitivity", "mirror-sweep", "coverage", "tracking", "all"]
     )

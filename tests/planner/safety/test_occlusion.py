@@ -188,7 +188,8 @@ def test_node_plan_reports_occluded(tmp_path: Path) -> None:
     from planner.service.handler import handler_from_scenario
 
     text = (ROOT / "n2_relay.yaml").read_text()
-    roof = "  - name: roof\n    box: [0.53, 1.2, 0.01]\n    world_T_object: {xyz: [-1.035, 0.3, 0.12]}\n"
+    # a roof over the targets, clear of arm1 (whose base stands at x = -1.2)
+    roof = "  - name: roof\n    box: [0.23, 0.4, 0.01]\n    world_T_object: {xyz: [-0.885, 0.3, 0.12]}\n"
     text = text.replace("targets:\n", roof + "targets:\n", 1)
     (tmp_path / "n2_roof.yaml").write_text(text)
     handler = handler_from_scenario(tmp_path / "n2_roof.yaml")
@@ -196,3 +197,25 @@ def test_node_plan_reports_occluded(tmp_path: Path) -> None:
     [sol] = doc["solutions"]
     assert (sol["status"], sol["reason"], "q" in sol) == ("failed", "occluded", False)
     assert doc["metrics"]["extra"] == {"failed_occluded": 1}
+
+
+def test_node_plan_applies_the_keep_out_rules(tmp_path: Path) -> None:
+    """The running planner node plans under the same safety rules as ``beamrelay plan``."""
+    from planner.service.bus import encode
+    from planner.service.client import make_request
+    from planner.service.handler import handler_from_scenario
+
+    text = (ROOT / "n2_relay.yaml").read_text()
+    text += "keep_out:\n  - {name: eye, sphere: 0.01, world_T_object: {xyz: [-0.88, 0.3, 0.05]}}\n"
+    (tmp_path / "n2_eye.yaml").write_text(text)
+    handler = handler_from_scenario(tmp_path / "n2_eye.yaml")
+    doc = handler.plan(
+        handler.parse(encode(make_request([[-0.88, 0.30, 0.05], [-0.86, 0.28, 0.05]])))
+    )
+    first, second = doc["solutions"]
+    assert (first["status"], first["reason"]) == ("failed", "keep_out")  # inside the eye
+    assert second["status"] == "ok"  # 28 mm away: a beam that misses the eye is found
+    from planner.verify.check import check_plan
+
+    results = {r.name: r for r in check_plan(doc)}
+    assert not results["safety"].findings

@@ -300,3 +300,37 @@ def test_sigkill_of_serve_takes_the_heartbeat_process_with_it(tmp_path: Path) ->
         assert last - t_kill < 0.100
     finally:
         s.close()
+
+
+def test_child_config_is_a_client_of_the_planners_bus(tmp_path: Path) -> None:
+    from planner.service.heartbeat import child_config
+
+    def get(conf: Any, key: str) -> Any:
+        return json.loads(conf.get_json(key))
+
+    conf = child_config(BusAddress("tcp/127.0.0.1:7999"))
+    assert get(conf, "mode") == "client"
+    assert get(conf, "connect/endpoints") == ["tcp/127.0.0.1:7999"]
+    assert get(conf, "listen/endpoints") == []
+    # a config file of the bus host naming where it listens: the child connects there,
+    # with the file's credentials (the planner's identity)
+    (tmp_path / "host.json5").write_text(
+        '{mode: "peer", listen: {endpoints: ["tcp/0.0.0.0:7998"]}, transport: {auth: '
+        '{usrpwd: {user: "planner", password: "pw"}}}}'
+    )
+    conf = child_config(BusAddress(None, tmp_path / "host.json5"))
+    assert get(conf, "mode") == "client"
+    assert get(conf, "connect/endpoints") == ["tcp/127.0.0.1:7998"]
+    assert get(conf, "listen/endpoints") == []
+    assert get(conf, "transport/auth/usrpwd/user") == "planner"
+
+
+def test_a_heartbeat_process_that_cannot_reach_the_bus_fails_the_start() -> None:
+    from planner.service.guard import Progress
+    from planner.service.heartbeat import HeartbeatError, HeartbeatProcess
+
+    hb = HeartbeatProcess(BusAddress("tcp/127.0.0.1:1"), "x/heartbeat", "s", Progress(),
+                          lambda _: None, connect_timeout=1.0)  # fmt: skip
+    with pytest.raises(HeartbeatError, match="the heartbeat process did not start"):
+        hb.start(timeout=60.0)
+    assert hb.proc is not None and hb.proc.poll() is not None

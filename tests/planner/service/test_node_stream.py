@@ -7,10 +7,13 @@ replaces the queued one)."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -304,53 +307,68 @@ def test_chunk_ids_fit_the_id_length() -> None:
         assert JointTrajectory.model_validate_json(c.bodies["arm0"]).id == c.id
 
 
-def test_chunks_play_back_to_back_on_the_sim_driver(system: System) -> None:
-    """The real robot driver (simulated arm, in this process): every chunk is accepted,
-    queued behind the one that plays and started when it ends, without a settle, a brake
-    or a safety stop in between; the arm ends where the plan ends."""
-    from drivers.robot.node import RobotNode
-    from drivers.robot.sim import SimRobot
+def test_chunks_play_back_to_back_on_the_sim_driver(tmp_path: Path) -> None:
+    """The real robot driver (``beamrelay driver robot --backend sim``, its own process as in
+    production): every chunk is accepted, queued behind the one that plays and started when
+    it ends, without a settle, a brake or a safety stop in between; the arm ends where the
+    plan ends."""
+    from planner.service.node import handler_from_scenario
+    from tests.test_e2e import SCENARIO, board_targets
 
+    scenario = tmp_path / "scenario.yaml"
+    scenario.write_text(SCENARIO)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     hub = open_session(listen=True, endpoint=endpoint)
-    node = PlannerNode(RequestHandler(system, make_plan_fn(system, {})), hub, Keys(PREFIX),
+    node = PlannerNode(handler_from_scenario(scenario), hub, Keys(PREFIX),
                        bus=BusAddress(endpoint))  # fmt: skip
     node.execution.chunk_bytes = 3 * SMALL_CHUNKS
     node.start()
-    robot = system.robots[0]
-    side, client = open_session(listen=False, endpoint=endpoint), raw_session(endpoint)
-    sim = SimRobot(robot.joint_names, robot.home, robot.limits)
-    driver = RobotNode(side, Keys(PREFIX), "arm0", sim, robot.limits).start()
-    modes: list[str] = []
-    status = client.declare_subscriber(f"{PREFIX}/arm0/status", lambda s: modes.append(
-        json.loads(s.payload.to_bytes())["mode"]))  # fmt: skip
+    client = raw_session(endpoint)
+    statuses: list[dict[str, Any]] = []
+    states: list[dict[str, Any]] = []
+    subs = [client.declare_subscriber(f"{PREFIX}/arm0/status", lambda s: statuses.append(
+                json.loads(s.payload.to_bytes()))),
+            client.declare_subscriber(f"{PREFIX}/arm0/joint_states", lambda s: states.append(
+                json.loads(s.payload.to_bytes())))]  # fmt: skip
+    argv = [sys.executable, "-m", "planner.cli", "driver", "robot", "--name", "arm0",
+            "--backend", "sim", "--scenario", str(scenario), "--endpoint", endpoint,
+            "--prefix", PREFIX]  # fmt: skip
+    log = (tmp_path / "driver.log").open("wb")
+    driver = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT)
     try:
-        wait_for(lambda: "arm0" in node.alive and node.joints.get("arm0") is not None
-                 and driver.planner_alive, 30.0, "driver and planner")  # fmt: skip
+        wait_for(lambda: "arm0" in node.alive and node.joints.get("arm0") is not None, 60.0,
+                 "the driver")  # fmt: skip
         body = {"schema": "beamrelay.request/1", "id": "sim", "execute": True,
-                "points": reachable_targets(system, 24, seed=8).tolist()}  # fmt: skip
+                "points": board_targets(24, seed=8).tolist()}  # fmt: skip
         ok, reply = ask(client, f"{PREFIX}/plan", json.dumps(body).encode(), timeout=60)
         plan = json.loads(reply)
         assert ok and plan["execution"] == "accepted", plan
         n, duration = plan["execution_chunks"], float(plan["trajectory"]["t"][-1])
-        wait_for(lambda: driver.n_accepted + driver.n_rejected == n, duration + 15.0,
-                 "every chunk judged")  # fmt: skip
-        print(f"{duration:.1f} s in {n} chunks; driver modes: {dict.fromkeys(modes)}")
-        wait_for(
-            lambda: sim.follower.mode == "idle",
-            15.0,
-            f"the arm at rest (mode {sim.follower.mode}, {driver.stopped_by}, {driver.rejection})",
-        )
-        assert (driver.n_accepted, driver.n_rejected, driver.stopped_by) == (n, 0, None)
-        assert n >= 3
-        np.testing.assert_allclose(sim.follower.q, plan["trajectory"]["q"]["arm0"][-1],
-                                   atol=1e-9)  # fmt: skip
-        moving = modes[modes.index("approach") : len(modes) - modes[::-1].index("following")]
-        assert set(moving) <= {"approach", "following"}, dict.fromkeys(moving)
+        q_end = np.asarray(plan["trajectory"]["q"]["arm0"][-1])
+
+        def at_rest_at_the_end() -> bool:
+            last = states[-1]
+            return bool(np.max(np.abs(np.subtract(last["q"], q_end))) < 1e-9
+                        and np.max(np.abs(last["qd"])) == 0.0)  # fmt: skip
+
+        wait_for(at_rest_at_the_end, duration + 20.0, "the arm at rest at the end")
+        time.sleep(0.3)
+        verdicts = {m["trajectory"]["id"]: m["trajectory"] for m in statuses if m["trajectory"]}
+        first = next(k for k, m in enumerate(statuses) if (m["trajectory"] or {}).get("id"))
+        modes = [m["mode"] for m in statuses[first:]]
+        faults = {m["fault"] for m in statuses[first:]} - {None}
+        print(f"{duration:.1f} s in {n} chunks; driver modes: {list(dict.fromkeys(modes))}")
+        assert n >= 4 and not faults, faults
+        assert [verdicts.get(chunk_id("sim", k, n), {}).get("accepted") for k in
+                range(1, n + 1)] == [True] * n  # fmt: skip
+        moving = modes[: len(modes) - modes[::-1].index("following")]
+        assert set(moving) <= {"approach", "following"}, list(dict.fromkeys(moving))
     finally:
-        status.undeclare()
-        driver.stop()
+        driver.terminate()
+        driver.wait(20)
+        log.close()
+        for sub in subs:
+            sub.undeclare()
         client.close()
-        side.close()
         node.close()
         hub.close()
