@@ -32,6 +32,13 @@ MAX_LASER_INTERVALS = 100_000  # laser_on intervals per trajectory
 SPOT_SCHEMA: Final = "beamrelay.spot/1"
 HEARTBEAT_SCHEMA: Final = "beamrelay.heartbeat/1"
 STOP_SCHEMA: Final = "beamrelay.stop/1"
+SETPOINT_SCHEMA: Final = "beamrelay.setpoint/1"
+TARGET_STREAM_SCHEMA: Final = "beamrelay.target_stream/1"
+CALIBRATION_SCHEMA: Final = "beamrelay.calibration/1"
+#: largest closed-loop tolerance a request may ask for (m): beyond it, it is a unit mistake
+MAX_TOLERANCE = 0.05
+#: longest dwell a request may ask for (s)
+MAX_DWELL = 600.0
 MAX_REQUEST_POINTS = 10_000
 MAX_ID_LENGTH = 256
 #: a request/session id: 1..256 characters, no lone surrogates (they cannot be encoded)
@@ -65,8 +72,12 @@ Direction = Annotated[list[Annotated[Num, _within(MAX_NORMAL_COMPONENT, "")]], e
 class TargetRequest(StrictModel):
     """Targets to plan for: ``points`` (+ optional unit ``normals``) in ``frame``.
 
-    ``mode: path`` sweeps the points as one polyline; ``execute`` sends the trajectory to the
-    robots after planning. Coordinates are bounded by :data:`MAX_COORDINATE` (m).
+    ``mode: path`` sweeps the points as one polyline; ``mode: track`` follows the target
+    stream (``beamrelay/targets/stream``) whose ``id`` the first point names; ``execute``
+    sends the trajectory to the robots after planning. ``closed_loop`` corrects each target
+    from the camera's measured spot until it is within ``tolerance`` (m; default the
+    scenario's, 0.3 mm); ``dwell`` (s) holds the spot on each target with the laser on.
+    Coordinates are bounded by :data:`MAX_COORDINATE` (m).
     """
 
     schema_: Literal["beamrelay.request/1"] = Field(alias="schema")
@@ -74,8 +85,13 @@ class TargetRequest(StrictModel):
     frame: Literal["world", "camera"] = "world"
     points: Annotated[list[Point], Field(min_length=1, max_length=MAX_REQUEST_POINTS)]
     normals: list[Direction] | None = None
-    mode: Literal["points", "path"] = "points"
+    mode: Literal["points", "path", "track"] = "points"
     execute: StrictBool = False
+    closed_loop: StrictBool = False
+    dwell: Annotated[Num, Field(ge=0, le=MAX_DWELL)] | None = None
+    tolerance: Annotated[Num, Field(gt=0, le=MAX_TOLERANCE)] | None = None
+    duration: Annotated[Num, Field(gt=0, le=3600)] | None = None
+    """``mode: track`` only: how long to follow the stream (s); default until ``stop``"""
 
     @model_validator(mode="after")
     def _normals(self) -> Self:
@@ -231,6 +247,63 @@ class SpotMessage(StrictModel):
     t: Num
     p_camera: Vec3 | None = None
     confidence: Annotated[Num, Field(ge=0, le=1)] = 0.0
+
+
+class Setpoint(StrictModel):
+    """One streamed joint setpoint for ``robot`` (``beamrelay/<robot>/setpoint``): positions
+    ``q`` (rad) and velocities ``qd`` (rad/s) to be reached at ``t`` (UNIX s, sender's clock).
+    ``session`` is the planner session (its heartbeat's); ``seq`` counts up per stream;
+    ``laser_on`` asks the gating robot's driver for the laser state with this setpoint. The
+    driver follows within its limits and stops when no setpoint arrived for 50 ms."""
+
+    schema_: Literal["beamrelay.setpoint/1"] = Field(default=SETPOINT_SCHEMA, alias="schema")
+    robot: str
+    t: Num
+    session: Ident
+    seq: NonNegInt
+    id: Ident | None = None
+    q: JointVector
+    qd: JointVector
+    laser_on: StrictBool = False
+
+    @model_validator(mode="after")
+    def _lengths(self) -> Self:
+        if len(self.qd) != len(self.q):
+            raise FieldError(("qd",), f"expected {len(self.q)} numbers (as q), got {len(self.qd)}")
+        return self
+
+
+class TargetStream(StrictModel):
+    """A tracker's latest estimate of a moving target (``beamrelay/targets/stream``): ``points``
+    (m, world frame) with optional unit ``normals``, measured at ``t`` (UNIX s, the camera
+    frame's capture time, not the send time). ``id`` names the tracked target."""
+
+    schema_: Literal["beamrelay.target_stream/1"] = Field(
+        default=TARGET_STREAM_SCHEMA, alias="schema"
+    )
+    t: Num
+    id: Ident
+    frame: Literal["world", "camera"] = "world"
+    points: Annotated[list[Point], Field(min_length=1, max_length=MAX_REQUEST_POINTS)]
+    normals: list[Direction] | None = None
+
+    @model_validator(mode="after")
+    def _normals(self) -> Self:
+        check_normals(self.points, self.normals)
+        self.normals = unit_normals(self.normals)
+        return self
+
+
+class CalibrationMessage(StrictModel):
+    """The planner's current calibration after an online refinement (``beamrelay/calibration``):
+    ``calibration`` is the calibration YAML document (``system:`` + ``report:``) as JSON,
+    ``version`` counts refits from 1, ``samples`` is how many measured spots it used."""
+
+    schema_: Literal["beamrelay.calibration/1"] = Field(default=CALIBRATION_SCHEMA, alias="schema")
+    t: Num
+    version: NonNegInt
+    samples: NonNegInt
+    calibration: dict[str, object]
 
 
 class ErrorReply(StrictModel):

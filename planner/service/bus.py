@@ -77,7 +77,18 @@ class Keys:
         return f"{self.prefix}/laser"
 
     def setpoint(self, robot: str) -> str:
+        """Streamed joint setpoints (:class:`schemas.messages.Setpoint`)."""
         return f"{self.prefix}/{robot}/setpoint"
+
+    @property
+    def target_stream(self) -> str:
+        """A tracker's moving target (:class:`schemas.messages.TargetStream`)."""
+        return f"{self.prefix}/targets/stream"
+
+    @property
+    def calibration(self) -> str:
+        """The refined calibration (:class:`schemas.messages.CalibrationMessage`)."""
+        return f"{self.prefix}/calibration"
 
     def alive(self, node: str) -> str:
         return f"{self.prefix}/alive/{node}"
