@@ -17,14 +17,21 @@ Modes (one of :data:`MODES`):
 3. ``settle`` - after the last sample Ruckig brings the arm to rest on the final position.
    A trajectory *queued* with :meth:`TrajectoryFollower.enqueue` while another runs
    starts instead when the running one reaches its last sample (approach from there).
-4. ``braking`` - watchdog or fault: Ruckig's velocity interface takes the velocity to zero
+4. ``streaming`` - a setpoint stream (:meth:`TrajectoryFollower.stream`): Ruckig (position
+   interface, online) drives the state toward the latest streamed target (q, qd, qdd)
+   within the velocity, acceleration and jerk limits; the caller updates the
+   target every period (:mod:`drivers.robot.streaming` moves it on along its velocity
+   between setpoints). Once on the target the arm plays it exactly. A stream that ends with
+   the arm at rest goes ``idle`` (:meth:`TrajectoryFollower.finish_stream`); one that ends
+   moving brakes.
+5. ``braking`` - watchdog or fault: Ruckig's velocity interface takes the velocity to zero
    at once with the *stop* deceleration ``stop_acceleration`` (default 40 rad/s^2) and jerk
    ``stop_jerk`` (default 4000 rad/s^3: full deceleration within 10 ms), like a UR
    protective stop (category 2) rather than a planned motion, whose limits (UR5e default
    5 rad/s^2) are for work near people, not for stopping. Time to rest from joint speed v:
    ``2 sqrt(v / j)`` for ``v <= a^2 / j``, else ``v / a + a / j``: at most 89 ms from the
    3.14 rad/s velocity limit, so the arm is still within 100 ms of a fault from any speed.
-5. ``idle`` / ``stopped`` - at rest (``stopped``: after a brake, until the next command).
+6. ``idle`` / ``stopped`` - at rest (``stopped``: after a brake, until the next command).
 """
 
 from __future__ import annotations
@@ -39,7 +46,7 @@ from planner.model.system import Limits
 from planner.model.transforms import Array
 from schemas import defaults
 
-MODES = ("idle", "approach", "following", "settle", "braking", "stopped")
+MODES = ("idle", "approach", "following", "settle", "streaming", "braking", "stopped")
 REST_VELOCITY = 1e-9  # rad/s: below this (every joint) the arm counts as at rest
 STOP_ACCELERATION = 40.0  # rad/s^2, deceleration of a watchdog/fault stop
 STOP_JERK = 4000.0  # rad/s^3
@@ -126,6 +133,7 @@ class TrajectoryFollower:
         self.mode = "idle"
         self.reference: Reference | None = None
         self.queued: Reference | None = None
+        self.target: tuple[Array, Array, Array] | None = None  # streamed (q, qd, qdd)
         self._tau = 0.0
 
     @property
@@ -145,9 +153,11 @@ class TrajectoryFollower:
         return self.reference.laser_edge(self._tau)
 
     def follow(self, reference: Reference) -> None:
-        """Start a new trajectory (replaces any current one): approach its start, then play."""
+        """Start a new trajectory (replaces any current one, a stream too): approach its
+        start, then play."""
         self.reference = reference
         self.queued = None
+        self.target = None
         self._tau = 0.0
         self.mode = "approach"
 
@@ -159,12 +169,44 @@ class TrajectoryFollower:
         else:
             self.follow(reference)
 
+    def stream(self, q: Array, qd: Array, qdd: Array | None = None) -> None:
+        """Make (q, qd, qdd) (rad, rad/s, rad/s^2; qdd default 0) the state to reach from
+        the next step on; replaces any trajectory. ``qd`` and ``qdd`` are clipped to the
+        velocity and acceleration limits (Ruckig refuses a target beyond them); the caller
+        checked them against the limits."""
+        vmax = np.asarray(self.limits.velocity, dtype=float)
+        amax = np.asarray(self.limits.acceleration, dtype=float)
+        acc = np.zeros(self.n) if qdd is None else np.asarray(qdd, dtype=float)
+        self.target = (
+            np.asarray(q, dtype=float).copy(),
+            np.clip(np.asarray(qd, dtype=float), -vmax, vmax),
+            np.clip(acc, -amax, amax),
+        )
+        self.reference = None
+        self.queued = None
+        self._tau = 0.0
+        self.mode = "streaming"
+
+    def finish_stream(self) -> bool:
+        """End a stream: ``idle`` when the arm is at rest (True), else brake (False)."""
+        if self.mode != "streaming":
+            return self.mode in ("idle", "stopped")
+        self.target = None
+        if np.all(np.abs(self.qd) <= REST_VELOCITY):
+            self.qd[:] = 0.0
+            self.qdd[:] = 0.0
+            self.mode = "idle"
+            return True
+        self.brake()
+        return False
+
     def brake(self) -> None:
         """Decelerate to rest now (no-op when already at rest or braking)."""
         if self.mode in ("braking", "stopped"):
             return
         self.reference = None
         self.queued = None
+        self.target = None
         self.mode = "braking" if np.any(np.abs(self.qd) > REST_VELOCITY) else "stopped"
         if self.mode == "stopped":
             self.qd[:] = 0.0
@@ -194,6 +236,9 @@ class TrajectoryFollower:
             if self._ruckig(self.reference.q[-1], np.zeros(self.n), np.zeros(self.n)):
                 self.mode = "idle"
                 self.reference = None
+        elif self.mode == "streaming":
+            assert self.target is not None
+            self._ruckig(*self.target)
         elif self.mode == "braking" and self._ruckig_brake():
             self.mode = "stopped"
         return self.state
