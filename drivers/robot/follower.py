@@ -40,7 +40,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig
+from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig, RuckigError
 
 from planner.model.system import Limits
 from planner.model.transforms import Array
@@ -53,6 +53,11 @@ STOP_JERK = 4000.0  # rad/s^3
 
 
 LASER_EDGE = 1e-6  # s: slack on a laser interval's ends (they lie on the period grid)
+#: rad: Ruckig 0.19 raises on a rest-to-rest distance of exactly 2 a^3 / j^2 (the profile
+#: that just touches the acceleration limit: 0.1 rad at 5 rad/s^2, 50 rad/s^3) for about
+#: two in three starting positions, and plans a 250 s motion from the states along that
+#: profile; a target this much further away is solved (kept while the target stands)
+RUCKIG_NUDGE = 1e-10
 
 
 @dataclass(frozen=True)
@@ -119,6 +124,7 @@ class TrajectoryFollower:
         self.dt = dt
         self.limits = limits
         self._otg = Ruckig(self.n, dt)
+        self._aim: tuple[Array, Array] | None = None  # (target, nudged target): RUCKIG_NUDGE
         self._inp = InputParameter(self.n)
         self._out = OutputParameter(self.n)
         self._stop_acceleration = np.full(self.n, float(stop_acceleration))
@@ -267,10 +273,21 @@ class TrajectoryFollower:
         """One online Ruckig step toward state (q, qd, qdd); True once it is reached."""
         inp = self._load(self.limits.jerk)
         inp.control_interface = ControlInterface.Position
-        inp.target_position = np.asarray(q, dtype=float).tolist()
+        q = np.asarray(q, dtype=float)
+        aim = self._aim[1] if self._aim is not None and np.array_equal(q, self._aim[0]) else q
+        inp.target_position = aim.tolist()
         inp.target_velocity = np.asarray(qd, dtype=float).tolist()
         inp.target_acceleration = np.asarray(qdd, dtype=float).tolist()
-        done = self._take(self._otg.update(inp, self._out))
+        try:
+            result = self._otg.update(inp, self._out)
+        except RuckigError:  # the boundary case of RUCKIG_NUDGE: aim a hair further for as
+            # long as this target stands, on a fresh instance (the failed call left the
+            # online one mid-calculation)
+            self._aim = (q.copy(), q + RUCKIG_NUDGE * np.sign(q - self.q))
+            inp.target_position = self._aim[1].tolist()
+            self._otg = Ruckig(self.n, self._otg.delta_time)
+            result = self._otg.update(inp, self._out)
+        done = self._take(result)
         if done:  # land exactly on the target (Ruckig finishes within numerical noise)
             self.q, self.qd, self.qdd = (np.asarray(a, dtype=float).copy() for a in (q, qd, qdd))
         return done
