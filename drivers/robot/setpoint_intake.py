@@ -20,7 +20,9 @@ tens of microseconds; nothing waits for it), then classified into *streams*, in 
 The control loop takes the :class:`StreamEvent` objects with :meth:`take` (a pointer swap
 under a lock). Consecutive ``next`` events of one stream are coalesced (only the newest
 setpoint matters to the loop; the checks already saw every one), so the list stays short;
-at most :data:`MAX_EVENTS` wait, beyond that new rejections of no open stream are dropped.
+at most :data:`MAX_EVENTS` wait: beyond that no stream is started (its setpoints are
+ignored) and rejections are dropped, except the one that ends a stream the loop knows of
+(so at most ``2 MAX_EVENTS`` events wait).
 """
 
 from __future__ import annotations
@@ -116,6 +118,10 @@ class SetpointIntake:
         if last is not None and s.received - last <= self.stale_after:
             self._ended[s.key] = s.received
             self.n_ignored += 1
+            return
+        if len(self._events) >= MAX_EVENTS:  # the loop is not taking: never open one it
+            self.n_dropped += 1  # cannot know of (its setpoints are ignored for 50 ms)
+            self._close(s, s.received)
             return
         self._ended.pop(s.key, None)
         self._stream += 1

@@ -9,15 +9,18 @@ and decides admission and safety stops.
 Where the arm is driven. A setpoint says which state (q, qd) the arm should have at its
 ``t``. The sender's clock is mapped onto the driver's receive clock by the smallest
 ``received - t`` seen in the stream (the transport delay at its least, so jitter in
-delivery does not move the target and clocks of different hosts need not agree); between
-setpoints the target moves on from the newest one along its velocity and its acceleration
-``qdd`` (from the last two setpoints' velocities): at the end of the period (``now + dt``)
-``q = q_k + qd_k h + qdd_k h^2 / 2``, ``qd = qd_k + qdd_k h`` with ``h`` the time since the
-setpoint's ``t``, at most :data:`MAX_EXTRAPOLATION` (twice the 50 ms after which the stream
-is stale, so that the bound never binds on a stream that is still followed), positions
-clamped to the limits. The follower's Ruckig step takes the arm
-there within the velocity, acceleration and jerk limits; a stream that moves within them is
-played exactly.
+delivery does not move the target and clocks of different hosts need not agree): a setpoint
+applies when it arrives (at the least delay), and the arm is on it at the end of the period
+that received it (one period, 2 ms, behind the stream). Without a newer setpoint the target
+moves on from the newest one along its velocity and its acceleration ``qdd`` (from the last
+two setpoints' velocities): ``q = q_k + qd_k h + qdd_k h^2 / 2``, ``qd = qd_k + qdd_k h``,
+``h`` the time since the setpoint applied, at most :data:`MAX_EXTRAPOLATION` (twice the
+50 ms after which the stream is stale, so the bound never binds on a followed stream),
+positions clamped to the limits. The follower's Ruckig step takes the arm there within the
+velocity, acceleration and jerk limits. A stream that the jerk limit can follow from the
+arm's state is played exactly; one that it cannot (a step in acceleration, noisy ``qd``)
+is chased time-optimally toward each period's target, which lags and overshoots a moving
+target by millimetres of joint motion for a second or more: stream smooth references.
 """
 
 from __future__ import annotations
@@ -37,11 +40,14 @@ MAX_EXTRAPOLATION = 2 * STALE_AFTER  # s: longest time the target moves on from 
 
 @dataclass
 class ActiveStream:
-    """The stream followed: its number in the intake, key, newest setpoint, the clock
-    offset (s: receive clock minus sender clock, smallest seen) and setpoints followed."""
+    """The stream followed: its number in the intake, newest setpoint, the clock offset
+    (s: receive clock minus the sender's time since the first setpoint ``t0``, smallest
+    seen; relative times keep the sub-microsecond resolution a UNIX ``t`` lacks) and the
+    number of setpoints followed."""
 
     stream: int
     latest: SetpointSample
+    t0: float
     offset: float
     n: int = 1
 
@@ -65,7 +71,7 @@ class StreamControl:
 
     def begin(self, stream: int, first: SetpointSample) -> None:
         """Follow stream number ``stream`` from its first setpoint (admitted by the node)."""
-        self.active = ActiveStream(stream, first, first.received - first.t)
+        self.active = ActiveStream(stream, first, first.t, first.received)
         self.n_streams += 1
         self._set("streaming", None, False)
 
@@ -75,7 +81,7 @@ class StreamControl:
         if a is None or a.stream != stream:
             return False
         a.latest = sample
-        a.offset = min(a.offset, sample.received - sample.t)
+        a.offset = min(a.offset, sample.received - (sample.t - a.t0))
         a.n += 1
         return True
 
@@ -95,12 +101,12 @@ class StreamControl:
         return self.active is not None and self.active.latest.laser_on
 
     def target(self, now: float) -> tuple[Array, Array, Array]:
-        """(q, qd, qdd) the arm should have at the end of this period (``now + dt``)."""
+        """(q, qd, qdd) the arm should have at the end of this period (started at ``now``)."""
         a = self.active
         assert a is not None
         s = a.latest
         qdd = s.qdd if s.qdd is not None else np.zeros_like(s.qd)
-        h = min(max(now + self.dt - (s.t + a.offset), 0.0), MAX_EXTRAPOLATION)
+        h = min(max(now - (s.t - a.t0 + a.offset), 0.0), MAX_EXTRAPOLATION)
         q = np.clip(s.q + s.qd * h + 0.5 * qdd * h * h, self.limits.lower, self.limits.upper)
         return q, s.qd + qdd * h, qdd
 
