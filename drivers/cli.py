@@ -215,13 +215,31 @@ def bench(
         RobotBackendName.sim, "--backend", help="sim, or ur on the simulated controller."
     ),
     realtime: bool = typer.Option(False, "--realtime", help="ur: SCHED_FIFO control loop."),
+    stream: bool = typer.Option(
+        False, "--stream", help="sim: a 500 Hz setpoint stream instead of the flood."
+    ),
+    garbage: float = typer.Option(
+        0.0, "--garbage", help="--stream: also this many bad bodies per second on the key."
+    ),
 ) -> None:
-    """Control-loop jitter of a robot driver, quiet and under a trajectory flood."""
+    """Control-loop jitter of a robot driver, quiet and under a trajectory flood (or while
+    it follows a setpoint stream)."""
     from drivers.bench import flood_jitter
     from planner.errors import InputError
 
     if not 0 < seconds <= 600 or not 0 < quiet <= 600:
         raise InputError("must be in (0, 600] s", "--seconds/--quiet")
+    if not 0 <= garbage <= 1000:
+        raise InputError(f"must be in [0, 1000] per s, got {garbage:g}", "--garbage")
+    if stream:
+        from drivers.stream_bench import stream_jitter
+
+        r = stream_jitter(seconds=seconds, quiet=quiet, garbage=garbage)
+        typer.echo(f"quiet: {r['quiet'].line()}")
+        typer.echo(f"streaming ({r['sent']} setpoints sent, {r['received']} bodies received, "
+                   f"{r['rejected']} rejected): {r['streaming'].line()}")  # fmt: skip
+        typer.echo(f"stream: {r['stream']}")
+        return
     if not 2 <= samples <= 10_000:
         raise InputError(f"must be in [2, 10000] (bodies under 4 MiB), got {samples}", "--samples")
     if not 0 < rate <= 100:
