@@ -11,8 +11,8 @@ the measured error ``|spot - target|`` (m, 3D, world) is above the tolerance app
 - ``not_seen``: the camera saw no spot (at the start, or after a step);
 - ``refused``: the next step would break a joint limit, the beam chain or a safety rule
   (the result's ``failure`` says which, with its evidence);
-- ``max_iterations``; ``aborted``: ``should_stop()`` said so (a stop request; nothing more
-  is commanded).
+- ``max_iterations``; ``aborted``: ``should_stop()`` said so, checked before and after
+  every measurement (a stop request; nothing more is commanded).
 
 When the last commanded configuration is not the best measured one (a step made it worse or
 lost the spot), the arm(s) go back to the best one and its spot is measured again, so the
@@ -138,6 +138,8 @@ def servo(
     if stop():
         return result(ServoStatus.ABORTED, q0, None, 0)
     m = run.take(q0)
+    if stop():
+        return result(ServoStatus.ABORTED, q0, None, 0)
     if m is None:
         return result(ServoStatus.NOT_SEEN, q0, None, 0)
     plane_normal = corrector.model.plane_normal(q0, target, normal)
@@ -155,6 +157,8 @@ def servo(
             return result(ServoStatus.ABORTED, best_q, None, it)
         it += 1
         m_new = run.take(step.q)
+        if stop():
+            return result(ServoStatus.ABORTED, step.q, None, it)
         err = run.errors[-1]
         if m_new is not None and err < best_err:
             improved = err <= (1.0 - s.min_improvement) * best_err
