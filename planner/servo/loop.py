@@ -1,9 +1,11 @@
 """The spot servo loop: measure, correct, measure again, until within tolerance.
 
 :func:`servo` starts where the open-loop plan put the arm(s) (``q0``), measures the spot
-(:class:`~planner.servo.measure.Measure`: move, grab ``frames`` frames, average), and while
+(:class:`~planner.servo.measure.Measure`: move, grab ``first_frames`` frames, average: the
+open-loop error is large, one frame's noise does not matter for the first correction), and while
 the measured error ``|spot - target|`` (m, 3D, world) is above the tolerance applies the
-:class:`~planner.servo.step.Corrector`'s step and measures again. It stops as
+:class:`~planner.servo.step.Corrector`'s step and measures again (``frames`` frames). It stops
+as
 
 - ``converged``: the measured error is within the tolerance;
 - ``not_improving``: a step reduced the best error so far by less than ``min_improvement``
@@ -93,15 +95,15 @@ class ServoResult:
 class _Run:
     """Book-keeping of one run: frames, errors, the best measurement so far."""
 
-    def __init__(self, measure: Measure, target: Array, frames: int,
-                 should_stop: Callable[[], bool]) -> None:  # fmt: skip
-        self.measure, self.target, self.n, self.should_stop = measure, target, frames, should_stop
+    def __init__(self, measure: Measure, target: Array, frames: int) -> None:
+        self.measure, self.target, self.n = measure, target, frames
         self.frames = 0
         self.errors: list[float] = []
 
-    def take(self, q: Array) -> SpotMeasurement | None:
-        m = self.measure(q, self.n)
-        self.frames += self.n if m is None else m.frames
+    def take(self, q: Array, n: int | None = None) -> SpotMeasurement | None:
+        n = self.n if n is None else n
+        m = self.measure(q, n)
+        self.frames += n if m is None else m.frames
         self.errors.append(
             np.nan if m is None else float(np.linalg.norm(m.spot_world - self.target))
         )
@@ -126,7 +128,7 @@ def servo(
     t0 = time.perf_counter()
     target = np.asarray(target, dtype=float)
     q0 = np.asarray(q0, dtype=float)
-    run = _Run(measure, target, s.frames, stop)
+    run = _Run(measure, target, s.frames)
 
     def result(status: ServoStatus, q: Array, m: SpotMeasurement | None, it: int,
                failure: Failure | None = None) -> ServoResult:  # fmt: skip
@@ -137,7 +139,7 @@ def servo(
 
     if stop():
         return result(ServoStatus.ABORTED, q0, None, 0)
-    m = run.take(q0)
+    m = run.take(q0, s.first_frames)
     if stop():
         return result(ServoStatus.ABORTED, q0, None, 0)
     if m is None:

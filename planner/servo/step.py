@@ -30,6 +30,7 @@ from planner.model.validity import ahead_ok, front_ok, roi_ok
 from planner.safety.model import Safety
 from planner.servo.jacobian import SpotModel
 from schemas.defaults import (
+    SERVO_FIRST_FRAMES,
     SERVO_FRAMES,
     SERVO_MAX_ITERATIONS,
     SERVO_MAX_STEP_RAD,
@@ -40,7 +41,8 @@ from schemas.defaults import (
 @dataclass(frozen=True)
 class ServoSettings:
     """``tolerance`` (m): measured error that counts as converged; ``max_iterations``:
-    correction steps at most; ``frames``: camera frames per measurement; ``max_step`` (rad):
+    correction steps at most; ``frames``: camera frames per measurement, ``first_frames`` for
+    the first (open-loop) one; ``max_step`` (rad):
     largest joint change per step; ``damping`` (m/rad) of the least squares; ``gain`` (1 =
     the full correction); ``min_improvement``: fraction by which a step must reduce the best
     measured error so far, else the loop stops as not improving."""
@@ -48,6 +50,7 @@ class ServoSettings:
     tolerance: float = SERVO_TOLERANCE_M
     max_iterations: int = SERVO_MAX_ITERATIONS
     frames: int = SERVO_FRAMES
+    first_frames: int = SERVO_FIRST_FRAMES
     max_step: float = SERVO_MAX_STEP_RAD
     damping: float = 1e-3
     gain: float = 1.0
@@ -62,9 +65,9 @@ class ServoSettings:
             raise ValueError(f"servo damping must be finite and >= 0 m/rad, got {self.damping}")
         if not (0.0 <= self.min_improvement < 1.0):
             raise ValueError(f"servo min_improvement must be in [0, 1), got {self.min_improvement}")
-        if self.max_iterations < 0 or self.frames < 1:
-            raise ValueError(f"servo needs max_iterations >= 0 and frames >= 1, got "
-                             f"{self.max_iterations} and {self.frames}")  # fmt: skip
+        if self.max_iterations < 0 or min(self.frames, self.first_frames) < 1:
+            raise ValueError(f"servo needs max_iterations >= 0 and frames, first_frames >= 1, "
+                             f"got {self.max_iterations}, {self.frames}, {self.first_frames}")  # fmt: skip
 
 
 class Step(NamedTuple):

@@ -91,7 +91,7 @@ def test_servo_converges_from_5mm_to_half_a_millimetre_within_ten_frames(
         assert abs(r.error_before - open_loop) < 1e-3  # the first measurement sees it (noise)
         assert r.error_after <= 0.3e-3 and r.error_after == r.errors[-1]
         assert _true_error(world, r.q, p) <= 0.5e-3
-        assert r.frames <= 10 and r.frames == 3 * len(r.errors)
+        assert r.frames <= 10 and r.frames == 1 + 3 * (len(r.errors) - 1)
         assert r.iterations == len(r.errors) - 1 >= 1
         assert np.max(np.abs(r.q - q0)) <= corrector.settings.max_step + 1e-12
 
@@ -105,7 +105,7 @@ def test_not_seen_at_the_start_commands_nothing(world: SimWorld, plans: list[Any
         return average_frames([SpotFrame(None)] * frames, world.world_T_camera)
 
     r = servo(blind, q0, p, UP, Corrector(world.model))
-    assert r.status is ServoStatus.NOT_SEEN and r.iterations == 0 and r.frames == 3
+    assert r.status is ServoStatus.NOT_SEEN and r.iterations == 0 and r.frames == 1
     assert np.isnan(r.error_before) and np.isnan(r.error_after) and r.spot is None
     assert len(calls) == 1 and np.array_equal(r.q, q0)
 
@@ -154,7 +154,7 @@ def test_a_measurement_that_does_not_follow_the_arm_stops_as_not_improving(
     r = servo(frozen, q0, p, UP, Corrector(world.model))
     assert r.status is ServoStatus.NOT_IMPROVING and r.iterations == 1
     assert np.array_equal(calls[-1], q0) and np.array_equal(r.q, q0)  # went back
-    assert r.errors == pytest.approx((4e-3, 4e-3, 4e-3)) and r.frames == 9
+    assert r.errors == pytest.approx((4e-3, 4e-3, 4e-3)) and r.frames == 1 + 3 + 3
 
 
 def test_a_stop_aborts_before_the_next_move(world: SimWorld, plans: list[Any]) -> None:
@@ -174,14 +174,14 @@ def test_a_stop_aborts_before_the_next_move(world: SimWorld, plans: list[Any]) -
 def test_max_iterations_zero_measures_once(world: SimWorld, plans: list[Any]) -> None:
     p, q0 = plans[5]
     r = servo(world.measure, q0, p, UP, Corrector(world.model), ServoSettings(max_iterations=0))
-    assert r.status is ServoStatus.MAX_ITERATIONS and r.frames == 3 and r.iterations == 0
+    assert r.status is ServoStatus.MAX_ITERATIONS and r.frames == 1 and r.iterations == 0
     assert r.to_json()["measured_error_after"] == pytest.approx(r.error_before)
 
 
 @pytest.mark.parametrize(
     "kw",
     [{"tolerance": float("nan")}, {"tolerance": 0.0}, {"frames": 0}, {"max_step": -1.0},
-     {"max_iterations": -1}, {"min_improvement": 1.0}, {"damping": float("inf")}],
+     {"max_iterations": -1}, {"first_frames": 0}, {"min_improvement": 1.0}, {"damping": float("inf")}],
 )  # fmt: skip
 def test_bad_settings_are_refused_with_the_value(kw: dict[str, float]) -> None:
     with pytest.raises(ValueError, match="servo"):
