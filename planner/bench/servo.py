@@ -26,6 +26,18 @@ GOAL_M = 0.5e-3
 GOAL_FRAMES = 10
 
 
+class _Visits:
+    """The world's measurement, remembering every configuration it was asked to go to."""
+
+    def __init__(self, world: Any) -> None:
+        self.world = world
+        self.visited: list[np.ndarray] = []
+
+    def __call__(self, q: np.ndarray, frames: int) -> Any:
+        self.visited.append(np.asarray(q, dtype=float))
+        return self.world.measure(q, frames)
+
+
 def _targets_figures(world: Any, n: int, seed: int, frames: int) -> dict[str, Any]:
     from planner.bench.servo_world import UP, board_targets
     from planner.ik import BeamIK
@@ -39,13 +51,9 @@ def _targets_figures(world: Any, n: int, seed: int, frames: int) -> dict[str, An
         sol = ik.solve(p, UP)
         if not sol.ok or sol.q is None:
             continue
-        visited: list[np.ndarray] = []
-
-        def measure(q: np.ndarray, k: int) -> Any:
-            visited.append(np.asarray(q, dtype=float))
-            return world.measure(q, k)
-
-        res = servo(measure, sol.q, p, UP, corr)
+        rec = _Visits(world)
+        res = servo(rec, sol.q, p, UP, corr)
+        visited = rec.visited
         spot = world.true_spot(res.q)
         moves = move_time(np.array(visited[:-1]), np.array(visited[1:]), world.model.limits)
         rows.append({
