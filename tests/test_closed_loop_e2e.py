@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import json
 import subprocess
+import threading
+import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -94,3 +96,36 @@ def test_closed_loop_without_execute_is_refused_naming_the_field(bus: Bus) -> No
     assert "execute" in info.value.reply["error"]
     out = _cli(bus, "--points", "-0.54,-0.57,-0.06", "--closed-loop")
     assert out.returncode == 2 and "--closed-loop needs --execute" in out.stderr
+
+
+def test_a_stop_aborts_the_closed_loop_at_once_and_the_node_keeps_serving(bus: Bus) -> None:
+    from planner.service.client import make_request
+
+    points = board_targets(4, seed=31)
+    req = make_request(points, normals=np.tile(UP, (4, 1)), closed_loop=True, execute=True)
+    result: dict[str, Any] = {}
+
+    def send() -> None:
+        result["plan"] = bus.client.request(req, 60.0)
+        result["t"] = time.monotonic()
+
+    th = threading.Thread(target=send)
+    th.start()
+    wait_for(bus.client.recorder.moving, 20.0, "the arm moving")
+    time.sleep(0.3)
+    t_stop = time.monotonic()
+    bus.hub.put(bus.keys.stop, b"test stop")
+    th.join(30)
+    plan = result["plan"]
+    rows = plan["closed_loop"]["targets"]
+    print(f"reply {result['t'] - t_stop:.3f} s after the stop; {[r['status'] for r in rows]}")
+    assert result["t"] - t_stop < 1.5
+    assert "stop" in plan["execution_reason"] and rows[-1]["status"] == "aborted"
+    assert sum(r["status"] == "converged" for r in rows) < 4
+    # nothing more is sent: the arm comes to rest and stays there
+    wait_for(lambda: not bus.client.recorder.moving(), 5.0, "the arm at rest")
+    q_rest = bus.client.recorder.joints["arm0"][1].copy()
+    time.sleep(1.0)
+    np.testing.assert_allclose(bus.client.recorder.joints["arm0"][1], q_rest, atol=1e-9)
+    again = bus.client.request(make_request(points[:1], normals=UP[None]), 20.0)
+    assert again["solutions"][0]["status"] == "ok"

@@ -45,9 +45,6 @@ FRAME_PERIOD = 1.0 / 30.0
 SETTLE = 0.04
 #: how long (s) past a move's planned end the robots may take to rest on its final joints
 ARRIVAL_TIMEOUT = 2.0
-#: a robot within AT_Q rad (every joint) of the commanded joints, slower than REST_QD rad/s
-AT_Q = 1e-4
-REST_QD = 1e-3
 
 MoveFn = Callable[[Array, Array, float, Array, Array | None], dict[str, Any]]
 """(q_from, q_to stacked rad, dwell s, target world m, normal or None) -> plan.json

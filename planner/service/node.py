@@ -415,17 +415,7 @@ class PlannerNode:
 
     def rests_at(self, q: Array) -> bool:
         """Whether every robot's fresh joint state is at rest on stacked ``q`` (rad)."""
-        from planner.service.closed_loop import AT_Q, REST_QD
-
-        now = time.monotonic()
-        for robot, q_r in self.handler.system.split_q(q).items():
-            entry = self.joints.get(robot)
-            if entry is None or now - entry[0] > STATE_MAX_AGE:
-                return False
-            _, q_now, qd_now = entry
-            if np.max(np.abs(q_now - q_r)) >= AT_Q or np.max(np.abs(qd_now)) >= REST_QD:
-                return False
-        return True
+        return self.joints.rests_at(self.handler.system.split_q(q))
 
     def _publish_trajectory(self, robot: str, body: bytes) -> None:
         self._publishers[robot].put(body, encoding=JSON)

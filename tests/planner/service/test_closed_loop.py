@@ -202,3 +202,21 @@ def test_spot_buffer_collects_the_window_and_honours_stop() -> None:
     t0 = time.monotonic()
     assert buf.collect(t + 10, t + 20, 3, lambda: True) == []
     assert time.monotonic() - t0 < 0.5
+
+
+def test_joint_cache_rests_at_only_when_fresh_still_and_on_the_joints() -> None:
+    from planner.service.execution import AT_Q, JointCache
+
+    cache = JointCache(("a", "b"))
+    q = np.zeros(6)
+    assert not cache.rests_at({"a": q})  # no state yet
+    cache.update("a", q + 0.5 * AT_Q, np.zeros(6))
+    assert cache.rests_at({"a": q})
+    cache.update("a", q + 2 * AT_Q, np.zeros(6))
+    assert not cache.rests_at({"a": q})  # off the commanded joints
+    cache.update("a", q, np.full(6, 0.01))
+    assert not cache.rests_at({"a": q})  # still moving
+    cache.update("a", q, np.zeros(6))
+    assert cache.rests_at({"a": q}) and not cache.rests_at({"a": q, "b": q})
+    time.sleep(0.06)
+    assert not cache.rests_at({"a": q}, max_age=0.05)  # stale
