@@ -9,16 +9,19 @@ as
 
 - ``converged``: the measured error is within the tolerance;
 - ``not_improving``: a step reduced the best error so far by less than ``min_improvement``
-  (noise or a model too far off);
+  (a model too far off), unless the error is already within ``noise_floor`` times the
+  tolerance: there camera noise decides, and the loop keeps correcting from the latest
+  measurement (up to ``max_iterations``);
 - ``not_seen``: the camera saw no spot (at the start, or after a step);
 - ``refused``: the next step would break a joint limit, the beam chain or a safety rule
   (the result's ``failure`` says which, with its evidence);
 - ``max_iterations``; ``aborted``: ``should_stop()`` said so, checked before and after
   every measurement (a stop request; nothing more is commanded).
 
-When the last commanded configuration is not the best measured one (a step made it worse or
-lost the spot), the arm(s) go back to the best one and its spot is measured again, so the
-result's ``q`` is where the arms are left and ``error_after`` was measured there.
+When the loop stops as not improving or not seen and the last commanded configuration is
+not the best measured one, the arm(s) go back to the best one and its spot is measured
+again; the result's ``q`` is always where the arms are left and ``error_after`` was
+measured there.
 """
 
 from __future__ import annotations
@@ -146,26 +149,30 @@ def servo(
         return result(ServoStatus.NOT_SEEN, q0, None, 0)
     plane_normal = corrector.model.plane_normal(q0, target, normal)
     best_q, best_m, best_err = q0, m, run.errors[-1]
+    cur_q, cur_m, cur_err = q0, m, best_err
     it = 0
     while True:
-        if best_err <= s.tolerance:
-            return result(ServoStatus.CONVERGED, best_q, best_m, it)
+        if cur_err <= s.tolerance:
+            return result(ServoStatus.CONVERGED, cur_q, cur_m, it)
         if it >= s.max_iterations:
-            return result(ServoStatus.MAX_ITERATIONS, best_q, best_m, it)
-        step = corrector.step(best_q, target, normal, plane_normal, best_m.spot_world - target)
+            return result(ServoStatus.MAX_ITERATIONS, cur_q, cur_m, it)
+        step = corrector.step(cur_q, target, normal, plane_normal, cur_m.spot_world - target)
         if step.failure is not None:
-            return result(ServoStatus.REFUSED, best_q, best_m, it, step.failure)
+            return result(ServoStatus.REFUSED, cur_q, cur_m, it, step.failure)
         if stop():
-            return result(ServoStatus.ABORTED, best_q, None, it)
+            return result(ServoStatus.ABORTED, cur_q, None, it)
         it += 1
         m_new = run.take(step.q)
         if stop():
             return result(ServoStatus.ABORTED, step.q, None, it)
         err = run.errors[-1]
-        if m_new is not None and err < best_err:
+        if m_new is not None:
             improved = err <= (1.0 - s.min_improvement) * best_err
-            best_q, best_m, best_err = step.q, m_new, err
-            if improved or err <= s.tolerance:
+            near_floor = min(err, best_err) <= s.noise_floor * s.tolerance
+            if err < best_err:
+                best_q, best_m, best_err = step.q, m_new, err
+            if improved or near_floor or err <= s.tolerance:
+                cur_q, cur_m, cur_err = step.q, m_new, err
                 continue
         status = ServoStatus.NOT_SEEN if m_new is None else ServoStatus.NOT_IMPROVING
         if best_q is not step.q:  # worse or lost: back to the best configuration

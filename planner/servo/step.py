@@ -45,7 +45,8 @@ class ServoSettings:
     the first (open-loop) one; ``max_step`` (rad):
     largest joint change per step; ``damping`` (m/rad) of the least squares; ``gain`` (1 =
     the full correction); ``min_improvement``: fraction by which a step must reduce the best
-    measured error so far, else the loop stops as not improving."""
+    measured error so far, else the loop stops as not improving, unless the error is within
+    ``noise_floor`` times the tolerance (there the camera's noise decides)."""
 
     tolerance: float = SERVO_TOLERANCE_M
     max_iterations: int = SERVO_MAX_ITERATIONS
@@ -55,6 +56,7 @@ class ServoSettings:
     damping: float = 1e-3
     gain: float = 1.0
     min_improvement: float = 0.1
+    noise_floor: float = 2.0
 
     def __post_init__(self) -> None:
         positive = {"tolerance": self.tolerance, "max_step": self.max_step, "gain": self.gain}
@@ -63,6 +65,10 @@ class ServoSettings:
                 raise ValueError(f"servo {name} must be finite and > 0, got {v}")
         if not (math.isfinite(self.damping) and self.damping >= 0):
             raise ValueError(f"servo damping must be finite and >= 0 m/rad, got {self.damping}")
+        if not (math.isfinite(self.noise_floor) and self.noise_floor >= 1.0):
+            raise ValueError(
+                f"servo noise_floor must be >= 1 (x tolerance), got {self.noise_floor}"
+            )
         if not (0.0 <= self.min_improvement < 1.0):
             raise ValueError(f"servo min_improvement must be in [0, 1), got {self.min_improvement}")
         if self.max_iterations < 0 or min(self.frames, self.first_frames) < 1:

@@ -193,3 +193,19 @@ def test_a_plane_without_a_finite_normal_is_refused(world: SimWorld) -> None:
         SpotModel(world.model).evaluate(world.model.home, np.zeros(3), np.zeros(3))
     with pytest.raises(ValueError, match="normal"):
         SpotModel(world.model).evaluate(world.model.home, np.zeros(3), np.array([np.nan, 0, 1]))
+
+
+def test_near_the_noise_floor_the_loop_keeps_correcting_until_its_iteration_limit(
+    world: SimWorld, plans: list[Any]
+) -> None:
+    p, q0 = plans[3]
+    noisy_floor = p + np.array([0.0, 0.5e-3, 0.0])  # within 2 x 0.3 mm, never better
+
+    def floor(q: np.ndarray, frames: int) -> SpotMeasurement:
+        return SpotMeasurement(noisy_floor, frames, frames, 1.0, 0.0)
+
+    r = servo(floor, q0, p, UP, Corrector(world.model), ServoSettings(max_iterations=3))
+    assert r.status is ServoStatus.MAX_ITERATIONS and r.iterations == 3
+    assert r.frames == 1 + 3 * 3 and not np.array_equal(r.q, q0)
+    with pytest.raises(ValueError, match="noise_floor"):
+        ServoSettings(noise_floor=0.5)
