@@ -44,3 +44,16 @@ JOINT_ACCELERATION_RADPS2 = 5.0
 """Joint acceleration limit, rad/s^2 (conservative for work near people)."""
 JOINT_JERK_RADPS3 = 50.0
 """Joint jerk limit, rad/s^3 (conservative for work near people)."""
+
+# --- closed loop ----------------------------------------------------------------------------
+SERVO_TOLERANCE_M = 3e-4
+"""Measured spot error a closed-loop target is corrected to, m (a request's ``tolerance``)."""
+SERVO_FRAMES = 3
+"""Camera frames averaged per closed-loop spot measurement."""
+SERVO_FIRST_FRAMES = 1
+"""Camera frames of a closed-loop target's first (open-loop) measurement: its error is large,
+one frame's noise (~0.2 mm for a D435 at 0.9 m) does not matter for the first correction."""
+SERVO_MAX_ITERATIONS = 6
+"""Correction steps per closed-loop target at most."""
+SERVO_MAX_STEP_RAD = 0.02
+"""Largest change of any joint in one closed-loop correction step, rad."""

@@ -22,6 +22,8 @@ EndpointOpt = Annotated[
         help="Bus endpoint (default tcp/127.0.0.1:7447 or $BEAMRELAY_ZENOH_ENDPOINT).",
     ),
 ]
+#: seconds per target added to --timeout for a closed-loop reply (it comes after the motion)
+CLOSED_LOOP_SECONDS_PER_TARGET = 15.0
 #: seconds a failed planner node gets to shut down in order before the process is ended
 FATAL_EXIT_GRACE = 10.0
 
@@ -169,6 +171,22 @@ def request(
     normals: Annotated[
         list[str] | None, typer.Option("--normals", help="NX,NY,NZ per point (optional).")
     ] = None,
+    closed_loop: Annotated[
+        bool,
+        typer.Option(
+            "--closed-loop",
+            help="With --execute: correct each target from the camera's measured spot, then "
+            "dwell with the laser on (the reply comes after the motion; --timeout is extended "
+            f"by {CLOSED_LOOP_SECONDS_PER_TARGET:g} s per target).",
+        ),
+    ] = False,
+    dwell: Annotated[
+        float | None, typer.Option("--dwell", help="Laser-on dwell per target (s).")
+    ] = None,
+    tolerance: Annotated[
+        float | None,
+        typer.Option("--tolerance", help="Closed-loop measured-error tolerance (m; default 3e-4)."),
+    ] = None,
     timeout: Annotated[float, typer.Option(help="Seconds to wait for the reply.")] = 10.0,
     endpoint: EndpointOpt = None,
     prefix: PrefixOpt = "beamrelay",
@@ -184,7 +202,8 @@ def request(
 ) -> None:
     """Send one TargetRequest, print the plan summary (and the measured spots if executing).
 
-    Exits 1 when a target could not be solved or the robot drivers rejected the trajectory.
+    Exits 1 when a target could not be solved, the robot drivers rejected the trajectory or
+    (closed loop) a target did not converge to the tolerance.
     """
     import json
 
@@ -206,7 +225,17 @@ def request(
     nrm = [parse_xyz(n, "--normals") for n in normals] if normals else None
     if nrm is not None and len(nrm) != len(pts):
         raise InputError(f"--normals: {len(nrm)} given for {len(pts)} points")
-    req = make_request(pts, frame=frame, normals=nrm, path=path, execute=execute)
+    if dwell is not None and not (0 <= dwell <= 600):
+        raise InputError(f"--dwell {dwell}: expected 0 to 600 s")
+    if tolerance is not None and not (0 < tolerance <= 0.05):
+        raise InputError(f"--tolerance {tolerance}: expected 0 < m <= 0.05 (metres, not mm)")
+    if closed_loop and not execute:
+        raise InputError(
+            "--closed-loop needs --execute (the spot is measured on the moving robots)"
+        )
+    req = make_request(pts, frame=frame, normals=nrm, path=path, execute=execute,
+                       closed_loop=closed_loop, dwell=dwell, tolerance=tolerance)  # fmt: skip
+    reply_timeout = timeout + (CLOSED_LOOP_SECONDS_PER_TARGET * len(pts) if closed_loop else 0.0)
     console = Console(stderr=as_json)
     client = PlanClient(
         endpoint=endpoint, prefix=prefix, zenoh_config=zenoh_config, connect_timeout=timeout
@@ -221,7 +250,7 @@ def request(
                 raise RequestError(f"no planner on the bus ({prefix}/alive/planner) within "
                                    f"{timeout:g} s")  # fmt: skip
             if execute:
-                plan, spots = client.execute(req, timeout)
+                plan, spots = client.execute(req, reply_timeout)
             else:
                 plan, spots = client.request(req, timeout), None
         except RequestError as exc:
@@ -236,10 +265,41 @@ def request(
         console.print(f"execution: REJECTED: {reason}" if rejected else "execution: accepted",
                       style="bold red" if rejected else None, markup=False,
                       soft_wrap=True)  # fmt: skip
+    servo_rows = (plan.get("closed_loop") or {}).get("targets") or []
+    if servo_rows:
+        print_closed_loop(console, plan)
     if as_json:
         print(json.dumps(request_summary(plan, spots)))
-    if rejected or any(s["status"] != Status.OK for s in plan["solutions"]):
+    unconverged = any(r.get("status") != "converged" for r in servo_rows)
+    if rejected or unconverged or any(s["status"] != Status.OK for s in plan["solutions"]):
         raise typer.Exit(1)
+
+
+def print_closed_loop(console: object, plan: dict) -> None:
+    """One line per closed-loop target (status, measured error before/after, iterations,
+    frames, time, dwell) and the totals."""
+    from rich.console import Console
+
+    assert isinstance(console, Console)
+
+    def mm(x: float | None) -> str:
+        return "-" if x is None else f"{1e3 * x:.3f} mm"
+
+    cl = plan["closed_loop"]
+    for r in cl["targets"]:
+        why = f" ({r['reason']}: {r.get('detail')})" if r.get("reason") else ""
+        console.print(f"closed loop {r['id']}: {r['status']}{why}; measured error "
+                      f"{mm(r.get('measured_error_before'))} -> {mm(r.get('measured_error_after'))}"
+                      f", {r.get('iterations', 0)} corrections, {r.get('frames', 0)} frames, "
+                      f"{r.get('time', 0.0):.2f} s, dwell {r.get('dwell', 0.0):.2f} s",
+                      markup=False, soft_wrap=True)  # fmt: skip
+    x = plan["metrics"].get("extra", {})
+    console.print(f"closed loop: {x.get('closed_loop_converged', 0):.0f}/{len(cl['targets'])} "
+                  f"within {mm(cl['tolerance'])}; measured error median "
+                  f"{mm(x.get('measured_error_before_median'))} -> "
+                  f"{mm(x.get('measured_error_median'))}, max "
+                  f"{mm(x.get('measured_error_before_max'))} -> {mm(x.get('measured_error_max'))}",
+                  markup=False, soft_wrap=True)  # fmt: skip
 
 
 def print_summary(console: object, plan: dict, spots: list | None) -> None:

@@ -51,8 +51,12 @@ def make_request(
     path: bool = False,
     execute: bool = False,
     request_id: str | None = None,
+    closed_loop: bool = False,
+    dwell: float | None = None,
+    tolerance: float | None = None,
 ) -> dict[str, Any]:
-    """A TargetRequest dict; points/normals (K, 3) in ``frame``, metres."""
+    """A TargetRequest dict; points/normals (K, 3) in ``frame``, metres; ``dwell`` s and the
+    closed-loop ``tolerance`` m only when given."""
     req: dict[str, Any] = {
         "schema": "beamrelay.request/1",
         "id": request_id or uuid.uuid4().hex[:12],
@@ -63,6 +67,11 @@ def make_request(
     }
     if normals is not None:
         req["normals"] = np.asarray(normals, dtype=float).reshape(-1, 3).tolist()
+    if closed_loop:
+        req["closed_loop"] = True
+    for key, value in (("dwell", dwell), ("tolerance", tolerance)):
+        if value is not None:
+            req[key] = float(value)
     return req
 
 
@@ -247,6 +256,9 @@ class PlanClient:
         """
         self.watch()
         since = time.monotonic()
+        if req.get("closed_loop"):  # the node measured: the reply comes after the motion
+            plan = self.request({**req, "execute": True}, timeout)
+            return plan, closed_loop_spots(plan)
         plan = self.request({**req, "execute": True}, timeout)
         unmeasured: list[Array | None] = [None] * len(plan["solutions"])
         if plan.get("execution") == "rejected":  # nothing moves: nothing to wait for
@@ -265,12 +277,27 @@ class PlanClient:
         return plan, measured_spots(plan, self.recorder, since)
 
 
+def closed_loop_spots(plan: dict[str, Any]) -> list[Array | None]:
+    """The node's last measured spot (world, m) per target of a closed-loop reply."""
+    rows = (plan.get("closed_loop") or {}).get("targets") or []
+    spots: list[Array | None] = [None] * len(plan["solutions"])
+    for k, row in enumerate(rows[: len(spots)]):
+        if row.get("measured_spot") is not None:
+            spots[k] = np.asarray(row["measured_spot"], dtype=float)
+    return spots
+
+
+CLOSED_LOOP_KEYS = ("status", "iterations", "frames", "time", "measured_error_before",
+                    "measured_error_after", "dwell", "reason", "detail")  # fmt: skip
+
+
 def request_summary(plan: dict[str, Any], spots: list[Array | None] | None) -> dict[str, Any]:
     """The figures of one answered request, as plain JSON data: ``id``, ``execution`` and
     ``execution_reason`` (None when not executed), ``n_ok``, ``n_targets``, per target its
     status, reason, planned error and measured error (m; None when not seen), and over the
     measured targets ``measured_error_median`` / ``measured_error_max`` (m)."""
     rows, measured = [], []
+    servo_rows = (plan.get("closed_loop") or {}).get("targets")
     for k, (tgt, sol) in enumerate(zip(plan["targets"], plan["solutions"], strict=True)):
         spot = None if spots is None else spots[k]
         err = None if spot is None else float(np.linalg.norm(spot - np.asarray(tgt["p"])))
@@ -280,6 +307,8 @@ def request_summary(plan: dict[str, Any], spots: list[Array | None] | None) -> d
                      "reason": sol.get("reason"), "planned_error": _finite(sol.get("error")),
                      "measured_spot": None if spot is None else np.asarray(spot).tolist(),
                      "measured_error": err})  # fmt: skip
+        if servo_rows is not None and k < len(servo_rows):
+            rows[-1]["closed_loop"] = {key: servo_rows[k].get(key) for key in CLOSED_LOOP_KEYS}
     out: dict[str, Any] = {
         "id": plan.get("id"),
         "execution": plan.get("execution"),
@@ -292,6 +321,13 @@ def request_summary(plan: dict[str, Any], spots: list[Array | None] | None) -> d
         out["measured_error_median"] = float(np.median(measured))
         out["measured_error_max"] = float(np.max(measured))
         out["n_measured"] = len(measured)
+    if servo_rows is not None:
+        before = [r["measured_error_before"] for r in servo_rows
+                  if r.get("measured_error_before") is not None]  # fmt: skip
+        if before:
+            out["measured_error_before_median"] = float(np.median(before))
+            out["measured_error_before_max"] = float(np.max(before))
+        out["closed_loop"] = {k: v for k, v in plan["closed_loop"].items() if k != "targets"}
     out["targets"] = rows
     return out
 

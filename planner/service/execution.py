@@ -29,6 +29,10 @@ STATE_MAX_AGE = 0.5
 ACK_TIMEOUT = 1.0
 #: time (s) added to a trajectory's duration for the driver's approach and settle phases
 TRACK_MARGIN = 1.0
+#: a robot within AT_Q rad (every joint) of a commanded configuration, slower than REST_QD
+#: rad/s, rests there (the closed loop's measurements wait for it)
+AT_Q = 1e-4
+REST_QD = 1e-3
 #: status modes after which a robot is no longer where its last trajectory ends
 HALTED_MODES = frozenset({"braking", "stopped", "fault"})
 
@@ -94,6 +98,20 @@ class JointCache:
                 missing,
             )
         return out
+
+    def rests_at(self, q: dict[str, Array], at_q: float = AT_Q, rest_qd: float = REST_QD,
+                 max_age: float = STATE_MAX_AGE) -> bool:  # fmt: skip
+        """Whether every robot of ``q`` (rad) has a joint state younger than ``max_age`` s
+        within ``at_q`` rad of it (every joint) and slower than ``rest_qd`` rad/s."""
+        now = time.monotonic()
+        for robot, q_r in q.items():
+            entry = self.get(robot)
+            if entry is None or now - entry[0] > max_age:
+                return False
+            _, q_now, qd_now = entry
+            if np.max(np.abs(q_now - q_r)) >= at_q or np.max(np.abs(qd_now)) >= rest_qd:
+                return False
+        return True
 
 
 @dataclass(frozen=True)

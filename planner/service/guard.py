@@ -109,6 +109,14 @@ class Progress:
         with self._lock:
             self._allowance = self.timeout + self.per_target * n
 
+    def tick(self) -> None:
+        """The current job made progress (a closed-loop execution moved or measured): its
+        allowance starts again from now (a long execution is not a wedge; one that stops
+        ticking for the allowance still is)."""
+        with self._lock:
+            if self._since is not None:
+                self._since = time.monotonic()
+
     def end(self) -> None:
         with self._lock:
             self._since = None

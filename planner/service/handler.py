@@ -29,6 +29,7 @@ from schemas import defaults
 if TYPE_CHECKING:
     from planner.model.scene import SceneModel
     from planner.safety.model import Safety
+    from planner.service.closed_loop import ClosedLoopConfig
 
 PlanFn = Callable[[Targets, dict[str, Array] | None, bool], dict[str, Any]]
 #: path requests are resampled every PATH_SPACING m, at most MAX_PATH_SAMPLES samples
@@ -207,14 +208,16 @@ def handler_from_scenario(path: Any) -> RequestHandler:
     )
     from planner.planning import ik_options
     from planner.safety.model import Safety
+    from planner.service.closed_loop import closed_loop_config
 
     scn = load_scenario(path)
     system = system_from_scenario(scn)
     model = scn.model
     settings = trajectory_settings(scn)
+    safety = Safety.from_scenario(scn, system)
     plan_fn = make_plan_fn(system, resolved_scenario_dict(scn), ik_options(model.solver), settings,
-                           scene_model(scn), Safety.from_scenario(scn, system))  # fmt: skip
-    return RequestHandler(system, plan_fn)
+                           scene_model(scn), safety)  # fmt: skip
+    return RequestHandler(system, plan_fn, closed_loop=closed_loop_config(system, settings, safety))
 
 
 @dataclass
@@ -224,6 +227,8 @@ class RequestHandler:
     system: System
     plan_fn: PlanFn
     path_spacing: float = PATH_SPACING
+    closed_loop: ClosedLoopConfig | None = None
+    """closed-loop execution (:mod:`planner.service.closed_loop`); None: refused"""
 
     def targets(self, req: Any) -> Targets:
         """World-frame targets of a validated TargetRequest (points in metres)."""

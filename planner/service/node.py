@@ -66,6 +66,7 @@ from planner.service.handler import (
     request_id_of,
 )
 from planner.service.heartbeat import BusAddress, HeartbeatProcess
+from planner.service.spots import SpotBuffer
 from planner.service.stream import Execution
 
 __all__ = [
@@ -106,6 +107,8 @@ class PlannerNode:
         self.joints = JointCache(self.robots)
         self.tracks = MotionTracks()
         self.acks = AckBoard()
+        self.spots = SpotBuffer()
+        self.stop_seen = threading.Event()
         self.ack_timeout = ack_timeout
         self.alive: set[str] = set()
         self.session_id = uuid.uuid4().hex
@@ -145,6 +148,7 @@ class PlannerNode:
             self._handles.append(s.declare_subscriber(k.joint_states(robot), self._joint_cb(robot)))
             self._handles.append(s.declare_subscriber(k.status(robot), self._status_cb(robot)))
         self._handles.append(s.declare_subscriber(k.stop, self._on_stop))
+        self._handles.append(s.declare_subscriber(k.camera_spot, self._on_spot))
         self._handles.append(s.declare_subscriber(k.targets, self._on_target))
         self._handles.append(s.declare_queryable(k.plan, self._on_query))
         self._worker.start()
@@ -252,8 +256,19 @@ class PlannerNode:
         return cb
 
     def _on_stop(self, _sample: Any) -> None:
+        self.stop_seen.set()
         self.tracks.clear()
         self.execution.cancel(f"stop seen on {self.keys.stop}")
+
+    def _on_spot(self, sample: Any) -> None:
+        from schemas.messages import SpotMessage
+
+        try:
+            msg = decode(sample.payload.to_bytes(), SpotMessage)
+        except InputError as exc:
+            log.warning("bad spot message: %s", exc)
+            return
+        self.spots.offer(msg.t, msg.p_camera, msg.confidence)
 
     def _on_query(self, query: Any) -> None:
         payload = query.payload
@@ -325,16 +340,24 @@ class PlannerNode:
 
     def serve(self, payload: bytes) -> bytes:
         """Handle one request body: validate, plan, maybe execute; the plan.json reply."""
+        from planner.service.closed_loop import check_closed_loop
+
         req = self.handler.parse(payload)
+        check_closed_loop(req, self.handler.system)
+        if req.closed_loop and self.handler.closed_loop is None:
+            raise InputError("this planner serves no closed_loop requests", "closed_loop")
         targets = self.handler.targets(req)
         self.progress.targets(len(targets.points))
         start = None
         if req.execute:
             self.check_drivers()
             start = self.start_state()
-        plan = self.handler.plan_fn(targets, start, req.execute)
+        plan = self.handler.plan_fn(targets, start, req.execute and not req.closed_loop)
         plan["id"] = req.id
-        if req.execute:
+        if req.execute and req.closed_loop:
+            assert start is not None
+            self.execute_closed_loop(plan, targets, req, start)
+        elif req.execute:
             self.execute(plan, req.id)
         self.served += 1
         return encode_json(plan)
@@ -368,6 +391,31 @@ class PlannerNode:
         if all(s["status"] != "ok" for s in plan["solutions"]):
             raise ExecuteError("no target could be solved, nothing to execute", [])
         self.execution.execute(plan, request_id, self.session_id)
+
+    def execute_closed_loop(
+        self, plan: dict[str, Any], targets: Any, req: Any, start: dict[str, Array]
+    ) -> None:
+        """Servo every solved target on the camera's measured spot, then dwell
+        (:mod:`planner.service.closed_loop`); writes ``closed_loop`` and the verdict."""
+        from planner.service.closed_loop import Motion, execute_closed_loop
+
+        config = self.handler.closed_loop
+        assert config is not None
+        head = {k: plan[k] for k in ("robots", "joint_names", "scenario")}
+
+        def send(trajectory: dict[str, Any], move_id: str) -> tuple[str, str | None]:
+            mini = head | {"trajectory": trajectory}
+            self.execution.execute(mini, move_id, self.session_id)
+            return mini["execution"], mini["execution_reason"]
+
+        self.stop_seen.clear()
+        motion = Motion(send, self.rests_at, self.spots, self.stop_seen, self.progress.tick)
+        system = self.handler.system
+        execute_closed_loop(plan, targets, req, system.stack_q(start), config, motion, system)
+
+    def rests_at(self, q: Array) -> bool:
+        """Whether every robot's fresh joint state is at rest on stacked ``q`` (rad)."""
+        return self.joints.rests_at(self.handler.system.split_q(q))
 
     def _publish_trajectory(self, robot: str, body: bytes) -> None:
         self._publishers[robot].put(body, encoding=JSON)

@@ -1,0 +1,280 @@
+"""Closed-loop execution of point targets on the running system (no Zenoh here).
+
+For each solved target, in the request's order, :class:`ClosedLoopRunner` servos the spot
+(:func:`planner.servo.servo`) with a *measurement* as its basic act: a trajectory from where
+the robots are to the commanded joints (Ruckig, timed and checked under the scenario's
+safety rules like any plan, laser off while moving), ending in a short dwell of
+:func:`measure_time` s during which the laser gate is on; once every robot rests on the
+commanded joints, the camera frames captured in that dwell are averaged (confidence-weighted,
+mapped to the world with the scenario's calibrated camera pose). The first measurement is the
+open-loop move to the planned joints; each correction step is a small move of the same kind.
+When the servo ends converged, not improving or at its iteration limit, one more trajectory
+holds the final joints with the laser on for the dwell (the request's ``dwell``, else the
+scenario's ``trajectory.dwell``); after ``not_seen``, ``refused`` or a stop, the laser stays
+off.
+
+Laser safety: a measurement turns the laser on where the *uncorrected* spot lands, within
+the calibration error of the target (a few mm), for :func:`measure_time` s (0.2 s at 3
+frames); the commanded beam of every measurement passes the same keep-out and clearance rules
+as a planned dwell. A stop (``<prefix>/stop``) aborts at once: nothing more is sent (the
+drivers brake and switch the laser off themselves), remaining targets are ``aborted``.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from planner.errors import InputError
+from planner.model.settings import TrajectorySettings
+from planner.model.system import System, Targets
+from planner.model.transforms import Array
+from planner.service.execution import ExecuteError
+from planner.service.spots import SpotBuffer
+from planner.servo import Corrector, ServoResult, ServoSettings, average_frames, servo
+from planner.servo.measure import SpotMeasurement
+
+#: camera frame period assumed for the measurement dwell (s; the D435 / sim camera at 30 Hz)
+FRAME_PERIOD = 1.0 / 30.0
+#: time after the robots come to rest before frames count (s): one frame exposed while moving
+SETTLE = 0.04
+#: how long (s) past a move's planned end the robots may take to rest on its final joints
+ARRIVAL_TIMEOUT = 2.0
+
+MoveFn = Callable[[Array, Array, float, Array, Array | None], dict[str, Any]]
+"""(q_from, q_to stacked rad, dwell s, target world m, normal or None) -> plan.json
+``trajectory`` (laser on while dwelling); ExecuteError when no safe move exists."""
+
+
+def measure_time(frames: int) -> float:
+    """Dwell (s) of a measurement of ``frames`` camera frames: the settle time plus one frame
+    more than asked for (a frame straddling the start)."""
+    return SETTLE + (frames + 1) * FRAME_PERIOD
+
+
+def make_move_fn(system: System, settings: TrajectorySettings, safety: Any = None) -> MoveFn:
+    """Timed moves for the closed loop through :func:`planner.planning.time_safely` (the
+    scenario's timing settings with the given dwell; the safety rules when given)."""
+    from planner.beam.trace import trace_beam
+    from planner.ik.solve import Solution
+    from planner.planning import time_safely
+
+    def move(q_from: Array, q_to: Array, dwell: float, target: Array,
+             normal: Array | None) -> dict[str, Any]:  # fmt: skip
+        tr = trace_beam(system, q_to, target, normal)
+        sol = Solution.solved(np.asarray(q_to, dtype=float), tr, 0.0, 0, "servo")
+        tg = Targets(np.asarray(target, dtype=float)[None],
+                     None if normal is None else np.asarray(normal, dtype=float)[None])  # fmt: skip
+        timed, sols, _, _ = time_safely(system, tg, [sol], replace(settings, dwell=dwell),
+                                        safety=safety, order="given", path=None, progress=None,
+                                        q_start=np.asarray(q_from, dtype=float))  # fmt: skip
+        if timed is None or not sols[0].ok:
+            why = sols[0].reason if sols and sols[0].reason else "no safe move"
+            raise ExecuteError(f"closed-loop move refused: {why} {sols[0].evidence}",
+                               list(system.robot_names))  # fmt: skip
+        return timed.trajectory.to_plan_dict(system)
+
+    return move
+
+
+@dataclass(frozen=True)
+class ClosedLoopConfig:
+    """What a node needs for closed-loop requests: the corrector (calibrated model + safety
+    rules), the move function, the scenario's dwell (s) and the servo's default settings."""
+
+    corrector: Corrector
+    move: MoveFn
+    dwell: float
+    settings: ServoSettings
+
+
+def closed_loop_config(
+    system: System, settings: TrajectorySettings, safety: Any = None
+) -> ClosedLoopConfig:
+    """The closed-loop configuration of a scenario's system: its safety rules on every
+    correction, its timing settings and dwell, the servo defaults."""
+    return ClosedLoopConfig(Corrector(system, safety), make_move_fn(system, settings, safety),
+                            settings.dwell, ServoSettings())  # fmt: skip
+
+
+def check_closed_loop(req: Any, system: System) -> None:
+    """InputError naming the field when a request's ``closed_loop`` cannot be served."""
+    if not req.closed_loop:
+        return
+    if not req.execute:
+        raise InputError("closed_loop needs execute: true (the spot is measured on the "
+                         "moving system)", "closed_loop")  # fmt: skip
+    if req.mode != "points":
+        raise InputError(f"closed_loop is for mode points, got mode {req.mode}", "closed_loop")
+    if system.camera is None:
+        raise InputError("closed_loop needs a camera in the scenario", "closed_loop")
+
+
+@dataclass
+class Motion:
+    """The node's side of the runner: ``send(trajectory, id)`` -> (verdict, reason);
+    ``rest_at(q)`` whether every robot rests on stacked ``q`` (rad); the spot buffer; the
+    stop event; ``tick()`` reports progress to the worker's watchdog."""
+
+    send: Callable[[dict[str, Any], str], tuple[str, str | None]]
+    rest_at: Callable[[Array], bool]
+    spots: SpotBuffer
+    stop: threading.Event
+    tick: Callable[[], None]
+
+
+class ClosedLoopRunner:
+    """Servo every solved target of one request (see the module docstring)."""
+
+    def __init__(self, system: System, config: ClosedLoopConfig, motion: Motion,
+                 request_id: str, settings: ServoSettings) -> None:  # fmt: skip
+        self.system, self.config, self.motion = system, config, motion
+        self.request_id, self.settings = request_id, settings
+        self.q = system.home
+        self.moves = 0
+        self._target = np.zeros(3)
+        self._normal: Array | None = None
+
+    def _send(self, q_to: Array, dwell: float) -> float:
+        """Send one move to ``q_to`` with ``dwell`` and wait until the robots rest there;
+        the wall-clock time (UNIX s) they did. ExecuteError on a refusal."""
+        traj = self.config.move(self.q, q_to, dwell, self._target, self._normal)
+        self.moves += 1
+        verdict, reason = self.motion.send(traj, f"{self.request_id[:200]}.cl{self.moves}")
+        if verdict != "accepted":
+            raise ExecuteError(reason or "rejected", list(self.system.robot_names))
+        self.q = np.asarray(q_to, dtype=float)
+        deadline = time.monotonic() + float(traj["t"][-1]) - dwell + ARRIVAL_TIMEOUT
+        while not self.motion.stop.is_set():
+            self.motion.tick()
+            if self.motion.rest_at(self.q):
+                return time.time()
+            if time.monotonic() > deadline:
+                raise ExecuteError(f"the robots did not come to rest on the commanded joints "
+                                   f"within {ARRIVAL_TIMEOUT:g} s of the move's end",
+                                   list(self.system.robot_names))  # fmt: skip
+            time.sleep(0.004)
+        return time.time()
+
+    def measure(self, q: Array, frames: int) -> SpotMeasurement | None:
+        """Move to stacked ``q`` (rad) with a measurement dwell, average its frames."""
+        t_dwell = measure_time(frames)
+        t_rest = self._send(q, t_dwell)
+        stop = self.motion.stop.is_set
+        got = self.motion.spots.collect(t_rest + SETTLE, t_rest + t_dwell, frames, stop)
+        self.motion.tick()
+        assert self.system.camera is not None
+        return average_frames(got, self.system.world_T_camera(self.q))
+
+    def hold(self, dwell: float) -> float:
+        """The laser-on dwell (s) at the current joints; the dwell actually waited (s)."""
+        if dwell <= 0:
+            return 0.0
+        t0 = self._send(self.q, dwell)
+        while not self.motion.stop.wait(0.05):
+            self.motion.tick()
+            if time.time() - t0 >= dwell:
+                return dwell
+        return time.time() - t0
+
+    def target(self, k: int, q0: Array, p: Array, normal: Array | None,
+               dwell: float) -> tuple[ServoResult, float]:  # fmt: skip
+        """Servo target ``k`` (world, m) from its planned joints ``q0``, then dwell."""
+        self._target, self._normal = np.asarray(p, dtype=float), normal
+        res = servo(self.measure, q0, p, normal, self.config.corrector, self.settings,
+                    should_stop=self.motion.stop.is_set)  # fmt: skip
+        dwelt = 0.0
+        if res.status in ("converged", "not_improving", "max_iterations"):
+            dwelt = self.hold(dwell)
+        return res, dwelt
+
+
+def run_closed_loop(runner: ClosedLoopRunner, plan: dict[str, Any], targets: Targets,
+                    start: Array, dwell: float) -> list[dict[str, Any]]:  # fmt: skip
+    """Every target of ``plan`` in order; per target the figures of the reply's
+    ``closed_loop.targets``. A refused move ends the run (ExecuteError carries the rows so
+    far in ``rows``)."""
+    runner.q = np.asarray(start, dtype=float)
+    rows: list[dict[str, Any]] = []
+    for k, sol in enumerate(plan["solutions"]):
+        row: dict[str, Any] = {"id": plan["targets"][k]["id"], "dwell": 0.0}
+        if runner.motion.stop.is_set():
+            rows.append(row | {"status": "aborted"})
+            continue
+        if sol["status"] != "ok":
+            rows.append(row | {"status": "not_planned"})
+            continue
+        q0 = runner.system.stack_q(sol["q"])
+        try:
+            res, dwelt = runner.target(k, q0, targets.points[k], targets.normal(k), dwell)
+        except ExecuteError as exc:
+            rows.append(row | {"status": "rejected", "reason": "execution", "detail": exc.reason})
+            exc.rows = rows  # type: ignore[attr-defined]
+            raise
+        rows.append(row | res.to_json() | {"dwell": dwelt,
+                                           "q": runner.system.split_q(res.q)})  # fmt: skip
+        for robot, q in rows[-1]["q"].items():
+            rows[-1]["q"][robot] = [float(x) for x in q]
+    return rows
+
+
+def closed_loop_figures(rows: list[dict[str, Any]]) -> dict[str, float]:
+    """``metrics.extra`` figures of a closed-loop run (m, s): the measured error after and
+    before the servo (median, max over the targets measured), targets converged, frames,
+    iterations and servo time (max; median time)."""
+    after = [r["measured_error_after"] for r in rows if r.get("measured_error_after") is not None]
+    before = [
+        r["measured_error_before"] for r in rows if r.get("measured_error_before") is not None
+    ]
+    out: dict[str, float] = {
+        "closed_loop_converged": float(sum(r["status"] == "converged" for r in rows)),
+        "closed_loop_targets": float(len(rows)),
+    }
+    if after:
+        out |= {"measured_error_median": float(np.median(after)),
+                "measured_error_max": float(np.max(after))}  # fmt: skip
+    if before:
+        out |= {"measured_error_before_median": float(np.median(before)),
+                "measured_error_before_max": float(np.max(before))}  # fmt: skip
+    served = [r for r in rows if "frames" in r]
+    if served:
+        out |= {"closed_loop_frames_max": float(max(r["frames"] for r in served)),
+                "closed_loop_iterations_max": float(max(r["iterations"] for r in served)),
+                "closed_loop_time_median": float(np.median([r["time"] for r in served])),
+                "closed_loop_time_max": float(max(r["time"] for r in served))}  # fmt: skip
+    return out
+
+
+def execute_closed_loop(plan: dict[str, Any], targets: Targets, req: Any, start: Array,
+                        config: ClosedLoopConfig, motion: Motion, system: System) -> None:  # fmt: skip
+    """Run a closed-loop request's targets from stacked ``start`` (rad) and write the reply's
+    ``closed_loop`` (tolerance m, frames per measurement, dwell s, per-target figures),
+    ``metrics.extra`` (:func:`closed_loop_figures`), ``execution`` and ``execution_reason``."""
+    if all(s["status"] != "ok" for s in plan["solutions"]):
+        raise ExecuteError("no target could be solved, nothing to execute", [])
+    settings = config.settings
+    if req.tolerance is not None:
+        settings = replace(settings, tolerance=float(req.tolerance))
+    dwell = config.dwell if req.dwell is None else float(req.dwell)
+    runner = ClosedLoopRunner(system, config, motion, req.id, settings)
+    verdict, reason = "accepted", None
+    try:
+        rows = run_closed_loop(runner, plan, targets, start, dwell)
+    except ExecuteError as exc:
+        rows = list(getattr(exc, "rows", []))
+        k = len(rows) - 1
+        rest = [{"id": t["id"], "status": "not_executed", "dwell": 0.0}
+                for t in plan["targets"][len(rows):]]  # fmt: skip
+        rows += rest
+        verdict, reason = "rejected", f"target {k}: {exc.reason}"
+    if motion.stop.is_set():
+        reason = "closed loop aborted: a stop was seen on the bus"
+    plan["closed_loop"] = {"tolerance": settings.tolerance, "frames_per_measurement": settings.frames,
+                           "dwell": dwell, "moves": runner.moves, "targets": rows}  # fmt: skip
+    plan["metrics"].setdefault("extra", {}).update(closed_loop_figures(rows))
+    plan["execution"], plan["execution_reason"] = verdict, reason

@@ -1,0 +1,57 @@
+"""The camera's spot messages as the planner node sees them (no Zenoh here).
+
+:class:`SpotBuffer` keeps the last ``<prefix>/camera/spot`` messages (capture time ``t``,
+UNIX s; ``p_camera`` in the camera optical frame, m, or None; ``confidence``) and hands out
+the frames captured in a time window, waiting for them: what a closed-loop measurement
+averages (:func:`planner.servo.measure.average_frames`).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+
+import numpy as np
+
+from planner.servo.measure import SpotFrame
+
+#: frames kept (about 10 s at 30 Hz)
+BUFFER_FRAMES = 300
+#: how long (s) after a window closes its last frames may still arrive
+LATENCY = 0.1
+
+
+class SpotBuffer:
+    """The latest camera spot messages, thread safe."""
+
+    def __init__(self, size: int = BUFFER_FRAMES) -> None:
+        self._frames: deque[tuple[float, SpotFrame]] = deque(maxlen=size)
+        self._cond = threading.Condition()
+
+    def offer(self, t: float, p_camera: list[float] | None, confidence: float) -> None:
+        """One spot message: capture time ``t`` (UNIX s), the spot (camera frame, m) or None."""
+        p = None if p_camera is None else np.asarray(p_camera, dtype=float)
+        with self._cond:
+            self._frames.append((float(t), SpotFrame(p, float(confidence))))
+            self._cond.notify_all()
+
+    def window(self, t0: float, t1: float) -> list[SpotFrame]:
+        """Frames captured in ``[t0, t1]`` (UNIX s), oldest first."""
+        with self._cond:
+            return [f for t, f in self._frames if t0 <= t <= t1]
+
+    def collect(
+        self, t0: float, t1: float, n: int, stop: Callable[[], bool],
+        latency: float = LATENCY, poll: float = 0.01,
+    ) -> list[SpotFrame]:  # fmt: skip
+        """Wait until ``n`` frames captured in ``[t0, t1]`` (UNIX s) are in, the wall clock
+        passes ``t1`` plus ``latency`` (s, for the last frames' delivery), or ``stop()``;
+        the frames of the window (at most ``n``, oldest first)."""
+        while True:
+            got = self.window(t0, t1)
+            if len(got) >= n or stop() or time.time() > t1 + latency:
+                return got[:n]
+            with self._cond:
+                self._cond.wait(poll)

@@ -1,0 +1,222 @@
+"""Closed-loop execution as the node runs it, in-process: the runner against a fake bus side
+(trajectories "played" by moving the simulated camera's arm, camera frames streamed into the
+spot buffer at 30 Hz by a thread), plus the watchdog and the request checks."""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+
+from planner.bench.servo_world import UP, SimWorld, board_targets
+from planner.errors import InputError
+from planner.model.settings import TrajectorySettings
+from planner.model.system import Targets
+from planner.service.closed_loop import (
+    FRAME_PERIOD,
+    ClosedLoopConfig,
+    Motion,
+    check_closed_loop,
+    execute_closed_loop,
+    make_move_fn,
+)
+from planner.service.guard import Progress
+from planner.service.handler import make_plan_fn
+from planner.service.spots import SpotBuffer
+from planner.servo import Corrector, ServoSettings
+from schemas.messages import TargetRequest
+
+
+@pytest.fixture(scope="module")
+def world() -> SimWorld:
+    return SimWorld(seed=13)
+
+
+class FakeBus:
+    """Plays each trajectory at once (the arm jumps to its end) and streams the simulated
+    camera's frames at 30 Hz while its laser-on interval lasts (a gated laser: no frames
+    otherwise); a trajectory sent during another's dwell waits for it (the driver queues)."""
+
+    def __init__(self, world: SimWorld, *, reject_second_target: bool = False,
+                 stop_at: int | None = None) -> None:  # fmt: skip
+        self.world = world
+        self.q = world.model.home
+        self.sent: list[tuple[str, dict[str, Any]]] = []
+        self.spots = SpotBuffer()
+        self.stop = threading.Event()
+        self.reject_second, self.stop_at = reject_second_target, stop_at
+        self.threads: list[threading.Thread] = []
+
+    def send(self, traj: dict[str, Any], move_id: str) -> tuple[str, str | None]:
+        self.sent.append((move_id, traj))
+        for th in self.threads:
+            th.join()
+        q_end = self.world.model.stack_q({r: q[-1] for r, q in traj["q"].items()})
+        far = len(self.sent) > 1 and np.max(np.abs(q_end - self.q)) > 0.01  # a new target
+        if self.reject_second and far:
+            return "rejected", "arm0: simulated refusal"
+        self.q = q_end
+        on = sum(b - a for a, b in traj.get("laser_on") or [])
+        th = threading.Thread(target=self._frames, args=(self.q.copy(), on), daemon=True)
+        th.start()
+        self.threads.append(th)
+        if self.stop_at is not None and len(self.sent) >= self.stop_at:
+            self.stop.set()
+        return "accepted", None
+
+    def _frames(self, q: np.ndarray, on: float) -> None:
+        t0 = time.time()
+        for i in range(int(on / FRAME_PERIOD) + 1):
+            time.sleep(max(0.0, t0 + i * FRAME_PERIOD - time.time()))
+            f = self.world.frames(q, 1)[0]
+            p = None if f.p_camera is None else f.p_camera.tolist()
+            self.spots.offer(time.time(), p, f.confidence)
+
+    def rest_at(self, q: np.ndarray) -> bool:
+        return bool(np.allclose(self.q, q, atol=1e-12))
+
+    def motion(self, ticks: list[float]) -> Motion:
+        return Motion(self.send, self.rest_at, self.spots, self.stop,
+                      lambda: ticks.append(time.monotonic()))  # fmt: skip
+
+
+def _run(world: SimWorld, bus: FakeBus, k: int, dwell: float | None = 0.1) -> dict[str, Any]:
+    model = world.model
+    P = board_targets(k, seed=4)
+    targets = Targets(P, np.tile(UP, (k, 1)))
+    plan = make_plan_fn(model, {})(targets, None, False)
+    plan.setdefault("scenario", {})
+    req = TargetRequest.model_validate({"schema": "beamrelay.request/1", "id": "cl", "execute": True,
+                                        "closed_loop": True, "points": P.tolist(), "dwell": dwell})  # fmt: skip
+    config = ClosedLoopConfig(Corrector(model), make_move_fn(model, TrajectorySettings()), 0.3,
+                              ServoSettings())  # fmt: skip
+    ticks: list[float] = []
+    execute_closed_loop(plan, targets, req, model.home, config, bus.motion(ticks), model)
+    for th in bus.threads:
+        th.join()
+    plan["_ticks"] = ticks
+    plan["_targets"] = P
+    return plan
+
+
+def test_every_target_converges_and_the_laser_is_on_only_at_rest(world: SimWorld) -> None:
+    bus = FakeBus(world)
+    plan = _run(world, bus, 2)
+    rows = plan["closed_loop"]["targets"]
+    assert plan["execution"] == "accepted" and plan["execution_reason"] is None
+    assert [r["status"] for r in rows] == ["converged", "converged"]
+    assert all(r["measured_error_before"] > 3e-3 for r in rows)
+    assert all(r["measured_error_after"] <= 0.3e-3 and r["frames"] <= 10 for r in rows)
+    assert all(r["dwell"] == pytest.approx(0.1, abs=0.05) for r in rows)
+    spot = world.true_spot(bus.q)  # independent: the truth's spot where the arm was left
+    assert spot is not None and np.linalg.norm(spot - plan["_targets"][-1]) <= 0.5e-3
+    extra = plan["metrics"]["extra"]
+    assert extra["measured_error_max"] == max(r["measured_error_after"] for r in rows)
+    assert extra["closed_loop_converged"] == 2.0 and len(plan["_ticks"]) >= len(bus.sent)
+    for _, traj in bus.sent:  # the laser only while every joint rests, and always at the end
+        t = np.asarray(traj["t"])
+        for a, b in traj["laser_on"]:
+            inside = (t >= a) & (t <= b)
+            for qd in traj["qd"].values():
+                assert np.max(np.abs(np.asarray(qd)[inside])) < 1e-9
+        assert traj["laser_on"][-1][1] == pytest.approx(t[-1])
+
+
+def test_a_stop_aborts_at_once_and_nothing_more_is_sent(world: SimWorld) -> None:
+    bus = FakeBus(world, stop_at=2)
+    plan = _run(world, bus, 3)
+    rows = plan["closed_loop"]["targets"]
+    assert len(bus.sent) == 2
+    assert [r["status"] for r in rows] == ["aborted"] * 3
+    assert "stop" in plan["execution_reason"] and rows[0]["dwell"] == 0.0
+
+
+def test_a_rejected_move_ends_the_run_naming_the_target(world: SimWorld) -> None:
+    bus = FakeBus(world, reject_second_target=True)
+    plan = _run(world, bus, 3)
+    rows = plan["closed_loop"]["targets"]
+    assert plan["execution"] == "rejected"
+    assert plan["execution_reason"].startswith("target 1: arm0: simulated refusal")
+    assert [r["status"] for r in rows] == ["converged", "rejected", "not_executed"]
+
+
+def _req(**kw: Any) -> TargetRequest:
+    body = {"schema": "beamrelay.request/1", "id": "x", "points": [[0.0, 0.0, 0.1]] * 2} | kw
+    return TargetRequest.model_validate(body)
+
+
+@pytest.mark.parametrize(
+    "kw, text",
+    [({"closed_loop": True}, "needs execute"),
+     ({"closed_loop": True, "execute": True, "mode": "path"}, "mode points")],
+)  # fmt: skip
+def test_closed_loop_requests_that_cannot_be_served_name_the_field(
+    world: SimWorld, kw: dict[str, Any], text: str
+) -> None:
+    with pytest.raises(InputError, match=text) as info:
+        check_closed_loop(_req(**kw), world.model)
+    assert info.value.where == "closed_loop"
+    check_closed_loop(_req(), world.model)  # open loop: nothing to check
+    from dataclasses import replace
+
+    with pytest.raises(InputError, match="camera"):
+        check_closed_loop(_req(closed_loop=True, execute=True), replace(world.model, camera=None))
+
+
+@pytest.mark.parametrize("bad", [{"tolerance": 0.0}, {"tolerance": 0.5}, {"dwell": -1.0},
+                                 {"closed_loop": "yes"}, {"tolerance": float("nan")}])  # fmt: skip
+def test_bad_closed_loop_fields_are_refused_by_the_schema(bad: dict[str, Any]) -> None:
+    with pytest.raises(InputError) as info:
+        from planner.service.bus import decode
+
+        decode(__import__("json").dumps({"schema": "beamrelay.request/1", "id": "x",
+                                         "points": [[0, 0, 0.1]], **bad}).encode(),
+               TargetRequest)  # fmt: skip
+    assert info.value.where == next(iter(bad))
+
+
+def test_a_ticking_job_is_not_wedged_but_a_silent_one_is() -> None:
+    p = Progress(timeout=0.2, per_target=0.0)
+    p.begin()
+    for _ in range(8):
+        time.sleep(0.05)
+        p.tick()
+        assert p.overdue() is None
+    time.sleep(0.3)
+    assert "busy on one request" in (p.overdue() or "")
+    p.end()
+    p.tick()  # no job: nothing to extend
+    assert p.overdue() is None
+
+
+def test_spot_buffer_collects_the_window_and_honours_stop() -> None:
+    buf = SpotBuffer()
+    t = time.time()
+    for i in range(5):
+        buf.offer(t + 0.01 * i, [0.0, 0.0, 1.0 + i], 0.5)
+    got = buf.collect(t + 0.015, t + 0.035, 5, lambda: False, latency=0.0)
+    assert [f.p_camera[2] for f in got if f.p_camera is not None] == [3.0, 4.0]
+    t0 = time.monotonic()
+    assert buf.collect(t + 10, t + 20, 3, lambda: True) == []
+    assert time.monotonic() - t0 < 0.5
+
+
+def test_joint_cache_rests_at_only_when_fresh_still_and_on_the_joints() -> None:
+    from planner.service.execution import AT_Q, JointCache
+
+    cache = JointCache(("a", "b"))
+    q = np.zeros(6)
+    assert not cache.rests_at({"a": q})  # no state yet
+    cache.update("a", q + 0.5 * AT_Q, np.zeros(6))
+    assert cache.rests_at({"a": q})
+    cache.update("a", q + 2 * AT_Q, np.zeros(6))
+    assert not cache.rests_at({"a": q})  # off the commanded joints
+    cache.update("a", q, np.full(6, 0.01))
+    assert not cache.rests_at({"a": q})  # still moving
+    cache.update("a", q, np.zeros(6))
+    assert cache.rests_at({"a": q}) and not cache.rests_at({"a": q, "b": q})
+    time.sleep(0.06)
+    assert not cache.rests_at({"a": q}, max_age=0.05)  # stale
