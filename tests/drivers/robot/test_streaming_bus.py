@@ -5,13 +5,15 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
+import pytest
 
 from planner.service.bus import Keys
 from tests.drivers.conftest import wait_for
-from tests.drivers.robot.test_robot_node import HOME, Cell, cell  # noqa: F401 (fixture)
+from tests.drivers.robot.test_robot_node import HOME, Cell
 
 HOSTILE = [
     b"", b"\xff" * 5000, b"{", b"[]", b"null", b'"setpoint"', b"[" * 50_000 + b"]" * 50_000,
@@ -23,13 +25,22 @@ HOSTILE = [
 ]  # fmt: skip
 
 
+@pytest.fixture
+def cell(hub: Any, endpoint: str, keys: Keys) -> Iterator[Cell]:
+    c = Cell(endpoint, keys)
+    yield c
+    c.close()
+
+
 def test_hostile_setpoint_bodies_then_a_good_stream(cell: Cell, keys: Keys) -> None:
     pub = cell.client.declare_publisher(keys.setpoint("arm0"))
     try:
         for body in HOSTILE:
             pub.put(body)
-        wait_for(lambda: cell.node.setpoints.n_received >= len(HOSTILE), what="bodies "
-                 f"({cell.node.setpoints.n_received} of {len(HOSTILE)})")
+        wait_for(
+            lambda: cell.node.setpoints.n_received >= len(HOSTILE),
+            what=f"bodies ({cell.node.setpoints.n_received} of {len(HOSTILE)})",
+        )
         assert cell.node.setpoints.n_rejected == len(HOSTILE)
         n_states = len(cell.states.items)
         wait_for(lambda: len(cell.states.items) > n_states + 20, what="joint states go on")
