@@ -51,9 +51,9 @@ def test_hostile_setpoint_bodies_then_a_good_stream(cell: Cell, keys: Keys) -> N
         t0 = time.time()
         for k in range(150):  # 0.3 s at ~500 Hz: ramp 4 mrad in 4 steps, then hold
             q = HOME + min(k, 4) / 4 * (goal - HOME)
-            body = {"robot": "arm0", "t": t0 + 0.002 * k, "session": cell.name, "seq": k,
+            msg = {"robot": "arm0", "t": t0 + 0.002 * k, "session": cell.name, "seq": k,
                     "id": "good", "q": q.tolist(), "qd": [0.0] * 6}  # fmt: skip
-            pub.put(json.dumps(body).encode())
+            pub.put(json.dumps(msg).encode())
             time.sleep(0.002)
         acks: list[dict[str, Any]] = [s["stream"] for s in cell.statuses.items if s.get("stream")]
         assert any(a["id"] == "good" and a["state"] == "streaming" for a in acks), acks[-3:]
