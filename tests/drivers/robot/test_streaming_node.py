@@ -69,7 +69,7 @@ class Rig:
             self.k += 1
             self.q.append(self.sim.follower.q.copy())
             self.qdd.append(self.sim.follower.qdd.copy())
-            self.gate.append(self.sim.gate)
+            self.gate.append(bool(getattr(self.sim, "gate", False)))
             self.modes.append(self.sim.follower.mode)
 
     def stream(self, ref: Any, seconds: float, laser: Any = lambda t: False) -> float:
@@ -304,3 +304,35 @@ def test_a_trajectory_replaces_the_stream_through_the_approach() -> None:
     rig.period(600)
     assert rig.modes[-1] == "idle" and np.abs(f.q - q[-1]).max() == 0
     within_limits(rig)
+
+
+def test_the_ur_backend_streams_through_servoj_one_write_per_cycle() -> None:
+    """The UR backend on the simulated controller: each period's streamed target goes out
+    as that cycle's one servoJ; the stream's silence ends the servo session with servoStop
+    once the arm rests on the last setpoint."""
+    from drivers.robot.ur import URRobot
+    from drivers.robot.ur_fake import CMD_SERVOJ, FakeURController
+
+    fake = FakeURController(HOME, lag=False)
+    ur = URRobot("fake", JOINT_NAMES_UR, LIMITS, control=fake, receive=fake)
+    rig = Rig()
+    rig.sim = ur  # type: ignore[assignment]  # Rig records follower states only
+    rig.node = RobotNode(rig.bus, KEYS, "arm0", ur, LIMITS, clock=rig.clock).attach()
+    rig.bus.token(KEYS.alive("planner"))
+    rig.period(5)
+    while ur.call.busy:  # the first period armed the RTDE watchdog in a helper thread
+        ur.call.poll()
+    fake.cycles.clear()
+    goal = HOME + 0.004 * E3
+    for k in range(100):
+        rig.send(HOME + min(k, 4) / 4 * (goal - HOME), np.zeros(6))
+        rig.period()
+    assert rig.status()["mode"] == "streaming"
+    np.testing.assert_allclose(fake.targets[-1], goal, atol=0)
+    assert all(writes == [CMD_SERVOJ] for writes, _ in fake.cycles)
+    rig.period(40)
+    while ur.call.busy:
+        ur.call.poll()
+    assert "servoStop" in fake.calls and not ur.servoing
+    assert rig.ack()["state"] == "ended" and rig.ack()["braked"] is False
+    np.testing.assert_allclose(fake.getActualQ(), goal, atol=1e-12)
