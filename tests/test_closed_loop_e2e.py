@@ -111,7 +111,7 @@ def test_a_stop_aborts_the_closed_loop_at_once_and_the_node_keeps_serving(bus: B
 
     th = threading.Thread(target=send)
     th.start()
-    wait_for(bus.client.recorder.moving, 20.0, "the arm moving")
+    wait_for(bus.client.recorder.moving, 45.0, "the arm moving")
     time.sleep(0.3)
     t_stop = time.monotonic()
     bus.hub.put(bus.keys.stop, b"test stop")
@@ -122,10 +122,19 @@ def test_a_stop_aborts_the_closed_loop_at_once_and_the_node_keeps_serving(bus: B
     assert result["t"] - t_stop < 1.5
     assert "stop" in plan["execution_reason"] and rows[-1]["status"] == "aborted"
     assert sum(r["status"] == "converged" for r in rows) < 4
+
     # nothing more is sent: the arm comes to rest and stays there
-    wait_for(lambda: not bus.client.recorder.moving(), 5.0, "the arm at rest")
+    def braked() -> bool:  # at rest for 0.3 s
+        rec = bus.client.recorder
+        with rec.lock:
+            since = rec.rest_since.get("arm0", np.inf)
+        return time.monotonic() - since >= 0.3
+
+    wait_for(braked, 5.0, "the arm at rest")
     q_rest = bus.client.recorder.joints["arm0"][1].copy()
     time.sleep(1.0)
-    np.testing.assert_allclose(bus.client.recorder.joints["arm0"][1], q_rest, atol=1e-9)
+    drift = np.max(np.abs(bus.client.recorder.joints["arm0"][1] - q_rest))
+    print(f"after the stop: at rest, moved {drift:.2e} rad in the next second")
+    assert drift < 1e-6
     again = bus.client.request(make_request(points[:1], normals=UP[None]), 20.0)
     assert again["solutions"][0]["status"] == "ok"

@@ -213,6 +213,9 @@ def run_closed_loop(runner: ClosedLoopRunner, plan: dict[str, Any], targets: Tar
         try:
             res, dwelt = runner.target(k, q0, targets.points[k], targets.normal(k), dwell)
         except ExecuteError as exc:
+            if runner.motion.stop.is_set():  # a stop made the drivers brake: not a refusal
+                rows.append(row | {"status": "aborted", "reason": "stop", "detail": exc.reason})
+                continue
             rows.append(row | {"status": "rejected", "reason": "execution", "detail": exc.reason})
             exc.rows = rows  # type: ignore[attr-defined]
             raise

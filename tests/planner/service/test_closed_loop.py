@@ -220,3 +220,20 @@ def test_joint_cache_rests_at_only_when_fresh_still_and_on_the_joints() -> None:
     assert cache.rests_at({"a": q}) and not cache.rests_at({"a": q, "b": q})
     time.sleep(0.06)
     assert not cache.rests_at({"a": q}, max_age=0.05)  # stale
+
+
+def test_a_refusal_caused_by_a_stop_counts_as_aborted(world: SimWorld) -> None:
+    bus = FakeBus(world, reject_second_target=True)
+    send = bus.send
+
+    def stop_then_refuse(traj: dict[str, Any], move_id: str) -> tuple[str, str | None]:
+        verdict, reason = send(traj, move_id)
+        if verdict == "rejected":
+            bus.stop.set()  # the stop that made the driver refuse
+        return verdict, reason
+
+    bus.send = stop_then_refuse  # type: ignore[method-assign]
+    plan = _run(world, bus, 3)
+    rows = plan["closed_loop"]["targets"]
+    assert [r["status"] for r in rows] == ["converged", "aborted", "aborted"]
+    assert plan["execution"] == "accepted" and "stop" in plan["execution_reason"]
