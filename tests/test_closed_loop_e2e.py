@@ -3,7 +3,8 @@ real subprocesses on a private bus (the e2e setup of ``tests/test_e2e.py``).
 
 The planner plans with the nominal scenario; the camera traces a truth whose laser is tilted
 0.4 deg and whose mirror mount sits 3 mm further out, so open-loop spots land ~5 mm from
-their targets. ``beamrelay request --execute --closed-loop --json`` must bring every measured
+their targets. The laser is gated by arm0's output, so the camera sees a spot only in the
+laser-on dwells the closed loop's measurements command. ``beamrelay request --execute --closed-loop --json`` must bring every measured
 error within 0.5 mm; the independent check is the truth model's spot at the joints the arm
 was left at (read from the driver's joint states, not from the reply).
 """
@@ -37,10 +38,19 @@ truth:
 """
 
 
+#: the laser switched by arm0's digital output: the simulated camera sees the spot only while
+#: the gate is on, i.e. only in the dwells the closed loop's measurements ask for
+GATED = SCENARIO.replace(
+    "rpy_deg: [40, 0, 0]}\n", "rpy_deg: [40, 0, 0]}\n    gate: {robot: arm0, output: 0}\n", 1
+)
+
+
 @pytest.fixture(scope="module")
 def bus(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Bus]:
+    assert GATED != SCENARIO
     b = Bus(tmp_path_factory.mktemp("closed_loop"))
-    b.truth.write_text(SCENARIO + TRUTH)
+    b.scenario.write_text(GATED)
+    b.truth.write_text(GATED + TRUTH)
     try:
         b.start("planner")
         b.start("camera", b.truth)
