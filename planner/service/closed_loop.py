@@ -35,7 +35,7 @@ from planner.model.settings import TrajectorySettings
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
 from planner.service.execution import ExecuteError
-from planner.service.spots import SpotBuffer
+from planner.service.spots import LaserLog, SpotBuffer
 from planner.servo import Corrector, ServoResult, ServoSettings, average_frames, servo
 from planner.servo.measure import SpotMeasurement
 
@@ -91,15 +91,17 @@ class ClosedLoopConfig:
     move: MoveFn
     dwell: float
     settings: ServoSettings
+    gated: bool = False
+    """a robot's digital output switches the laser (``system.laser.gate``)"""
 
 
 def closed_loop_config(
-    system: System, settings: TrajectorySettings, safety: Any = None
+    system: System, settings: TrajectorySettings, safety: Any = None, gated: bool = False
 ) -> ClosedLoopConfig:
     """The closed-loop configuration of a scenario's system: its safety rules on every
-    correction, its timing settings and dwell, the servo defaults."""
+    correction, its timing settings and dwell, the servo defaults, whether it is ``gated``."""
     return ClosedLoopConfig(Corrector(system, safety), make_move_fn(system, settings, safety),
-                            settings.dwell, ServoSettings())  # fmt: skip
+                            settings.dwell, ServoSettings(), gated)  # fmt: skip
 
 
 def check_closed_loop(req: Any, system: System) -> None:
@@ -119,13 +121,16 @@ def check_closed_loop(req: Any, system: System) -> None:
 class Motion:
     """The node's side of the runner: ``send(trajectory, id)`` -> (verdict, reason);
     ``rest_at(q)`` whether every robot rests on stacked ``q`` (rad); the spot buffer; the
-    stop event; ``tick()`` reports progress to the worker's watchdog."""
+    stop event; ``tick()`` reports progress to the worker's watchdog; ``laser`` the gate's
+    on-intervals when a robot switches the laser (None: the laser is always on, frames count
+    from the robots' arrival)."""
 
     send: Callable[[dict[str, Any], str], tuple[str, str | None]]
     rest_at: Callable[[Array], bool]
     spots: SpotBuffer
     stop: threading.Event
     tick: Callable[[], None]
+    laser: LaserLog | None = None
 
 
 class ClosedLoopRunner:
@@ -162,11 +167,21 @@ class ClosedLoopRunner:
         return time.time()
 
     def measure(self, q: Array, frames: int) -> SpotMeasurement | None:
-        """Move to stacked ``q`` (rad) with a measurement dwell, average its frames."""
+        """Move to stacked ``q`` (rad) with a measurement dwell, average its frames: with a
+        gated laser those captured while the gate was on for it (after ``SETTLE``), else
+        those captured from the robots' arrival for the dwell."""
         t_dwell = measure_time(frames)
+        t_send = time.time()
         t_rest = self._send(q, t_dwell)
         stop = self.motion.stop.is_set
-        got = self.motion.spots.collect(t_rest + SETTLE, t_rest + t_dwell, frames, stop)
+        t0, t1 = t_rest + SETTLE, t_rest + t_dwell
+        if self.motion.laser is not None:
+            span = self.motion.laser.wait_span(t_send, t_dwell + ARRIVAL_TIMEOUT, stop)
+            if span is None:  # the gate never switched on for this measurement
+                self.motion.tick()
+                return None
+            t0, t1 = span[0] + SETTLE, span[1]
+        got = self.motion.spots.collect(t0, t1, frames, stop)
         self.motion.tick()
         assert self.system.camera is not None
         return average_frames(got, self.system.world_T_camera(self.q))
@@ -213,6 +228,9 @@ def run_closed_loop(runner: ClosedLoopRunner, plan: dict[str, Any], targets: Tar
         try:
             res, dwelt = runner.target(k, q0, targets.points[k], targets.normal(k), dwell)
         except ExecuteError as exc:
+            if runner.motion.stop.is_set():  # a stop made the drivers brake: not a refusal
+                rows.append(row | {"status": "aborted", "reason": "stop", "detail": exc.reason})
+                continue
             rows.append(row | {"status": "rejected", "reason": "execution", "detail": exc.reason})
             exc.rows = rows  # type: ignore[attr-defined]
             raise

@@ -217,7 +217,9 @@ def handler_from_scenario(path: Any) -> RequestHandler:
     safety = Safety.from_scenario(scn, system)
     plan_fn = make_plan_fn(system, resolved_scenario_dict(scn), ik_options(model.solver), settings,
                            scene_model(scn), safety)  # fmt: skip
-    return RequestHandler(system, plan_fn, closed_loop=closed_loop_config(system, settings, safety))
+    gated = model.system.laser.gate is not None
+    closed = closed_loop_config(system, settings, safety, gated)
+    return RequestHandler(system, plan_fn, closed_loop=closed)
 
 
 @dataclass

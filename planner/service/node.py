@@ -66,7 +66,7 @@ from planner.service.handler import (
     request_id_of,
 )
 from planner.service.heartbeat import BusAddress, HeartbeatProcess
-from planner.service.spots import SpotBuffer
+from planner.service.spots import LaserLog, SpotBuffer
 from planner.service.stream import Execution
 
 __all__ = [
@@ -108,6 +108,7 @@ class PlannerNode:
         self.tracks = MotionTracks()
         self.acks = AckBoard()
         self.spots = SpotBuffer()
+        self.laser = LaserLog()
         self.stop_seen = threading.Event()
         self.ack_timeout = ack_timeout
         self.alive: set[str] = set()
@@ -149,6 +150,7 @@ class PlannerNode:
             self._handles.append(s.declare_subscriber(k.status(robot), self._status_cb(robot)))
         self._handles.append(s.declare_subscriber(k.stop, self._on_stop))
         self._handles.append(s.declare_subscriber(k.camera_spot, self._on_spot))
+        self._handles.append(s.declare_subscriber(k.laser, self._on_laser))
         self._handles.append(s.declare_subscriber(k.targets, self._on_target))
         self._handles.append(s.declare_queryable(k.plan, self._on_query))
         self._worker.start()
@@ -269,6 +271,16 @@ class PlannerNode:
             log.warning("bad spot message: %s", exc)
             return
         self.spots.offer(msg.t, msg.p_camera, msg.confidence)
+
+    def _on_laser(self, sample: Any) -> None:
+        from schemas.messages import LaserState
+
+        try:
+            msg = decode(sample.payload.to_bytes(), LaserState)
+        except InputError as exc:
+            log.warning("bad laser state: %s", exc)
+            return
+        self.laser.offer(msg.t, msg.on)
 
     def _on_query(self, query: Any) -> None:
         payload = query.payload
@@ -409,7 +421,8 @@ class PlannerNode:
             return mini["execution"], mini["execution_reason"]
 
         self.stop_seen.clear()
-        motion = Motion(send, self.rests_at, self.spots, self.stop_seen, self.progress.tick)
+        laser = self.laser if config.gated else None
+        motion = Motion(send, self.rests_at, self.spots, self.stop_seen, self.progress.tick, laser)
         system = self.handler.system
         execute_closed_loop(plan, targets, req, system.stack_q(start), config, motion, system)
 

@@ -55,3 +55,47 @@ class SpotBuffer:
                 return got[:n]
             with self._cond:
                 self._cond.wait(poll)
+
+
+class LaserLog:
+    """The laser gate's on-intervals from ``<prefix>/laser`` (UNIX s, the gate driver's
+    clock), thread safe: a measurement's frames are the ones captured while it was on."""
+
+    def __init__(self, size: int = 64) -> None:
+        self._spans: deque[list[float]] = deque(maxlen=size)
+        self._on = False
+        self._cond = threading.Condition()
+
+    def offer(self, t: float, on: bool) -> None:
+        """One gate state message (sent at every switch and with every status)."""
+        with self._cond:
+            if on and not self._on:
+                self._spans.append([float(t), float("inf")])
+            elif not on and self._on and self._spans:
+                self._spans[-1][1] = float(t)
+            self._on = bool(on)
+            self._cond.notify_all()
+
+    def span_after(self, t0: float) -> tuple[float, float] | None:
+        """The first on-interval (t_on, t_off; t_off = inf while on) that began at or after
+        ``t0`` (UNIX s), or None."""
+        with self._cond:
+            for a, b in self._spans:
+                if a >= t0:
+                    return a, b
+        return None
+
+    def wait_span(
+        self, t0: float, timeout: float, stop: Callable[[], bool], poll: float = 0.01
+    ) -> tuple[float, float] | None:
+        """Wait (at most ``timeout`` s, or until ``stop()``) for the first on-interval that
+        began at or after ``t0`` to end; it, or None when none began or it did not end."""
+        deadline = time.monotonic() + timeout
+        while True:
+            span = self.span_after(t0)
+            if span is not None and np.isfinite(span[1]):
+                return span
+            if stop() or time.monotonic() > deadline:
+                return None
+            with self._cond:
+                self._cond.wait(poll)

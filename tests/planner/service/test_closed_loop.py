@@ -25,7 +25,7 @@ from planner.service.closed_loop import (
 )
 from planner.service.guard import Progress
 from planner.service.handler import make_plan_fn
-from planner.service.spots import SpotBuffer
+from planner.service.spots import LaserLog, SpotBuffer
 from planner.servo import Corrector, ServoSettings
 from schemas.messages import TargetRequest
 
@@ -41,7 +41,7 @@ class FakeBus:
     otherwise); a trajectory sent during another's dwell waits for it (the driver queues)."""
 
     def __init__(self, world: SimWorld, *, reject_second_target: bool = False,
-                 stop_at: int | None = None) -> None:  # fmt: skip
+                 stop_at: int | None = None, gated: bool = False) -> None:  # fmt: skip
         self.world = world
         self.q = world.model.home
         self.sent: list[tuple[str, dict[str, Any]]] = []
@@ -49,6 +49,7 @@ class FakeBus:
         self.stop = threading.Event()
         self.reject_second, self.stop_at = reject_second_target, stop_at
         self.threads: list[threading.Thread] = []
+        self.laser = LaserLog() if gated else None
 
     def send(self, traj: dict[str, Any], move_id: str) -> tuple[str, str | None]:
         self.sent.append((move_id, traj))
@@ -68,19 +69,25 @@ class FakeBus:
         return "accepted", None
 
     def _frames(self, q: np.ndarray, on: float) -> None:
+        time.sleep(0.05)  # the driver's approach: the gate opens a little after the ack
         t0 = time.time()
+        if self.laser is not None:
+            self.laser.offer(t0, True)
         for i in range(int(on / FRAME_PERIOD) + 1):
             time.sleep(max(0.0, t0 + i * FRAME_PERIOD - time.time()))
             f = self.world.frames(q, 1)[0]
             p = None if f.p_camera is None else f.p_camera.tolist()
             self.spots.offer(time.time(), p, f.confidence)
+        if self.laser is not None:
+            time.sleep(max(0.0, t0 + on - time.time()))
+            self.laser.offer(time.time(), False)
 
     def rest_at(self, q: np.ndarray) -> bool:
         return bool(np.allclose(self.q, q, atol=1e-12))
 
     def motion(self, ticks: list[float]) -> Motion:
         return Motion(self.send, self.rest_at, self.spots, self.stop,
-                      lambda: ticks.append(time.monotonic()))  # fmt: skip
+                      lambda: ticks.append(time.monotonic()), self.laser)  # fmt: skip
 
 
 def _run(world: SimWorld, bus: FakeBus, k: int, dwell: float | None = 0.1) -> dict[str, Any]:
@@ -102,8 +109,11 @@ def _run(world: SimWorld, bus: FakeBus, k: int, dwell: float | None = 0.1) -> di
     return plan
 
 
-def test_every_target_converges_and_the_laser_is_on_only_at_rest(world: SimWorld) -> None:
-    bus = FakeBus(world)
+@pytest.mark.parametrize("gated", [False, True])
+def test_every_target_converges_and_the_laser_is_on_only_at_rest(
+    world: SimWorld, gated: bool
+) -> None:
+    bus = FakeBus(world, gated=gated)
     plan = _run(world, bus, 2)
     rows = plan["closed_loop"]["targets"]
     assert plan["execution"] == "accepted" and plan["execution_reason"] is None
@@ -220,3 +230,35 @@ def test_joint_cache_rests_at_only_when_fresh_still_and_on_the_joints() -> None:
     assert cache.rests_at({"a": q}) and not cache.rests_at({"a": q, "b": q})
     time.sleep(0.06)
     assert not cache.rests_at({"a": q}, max_age=0.05)  # stale
+
+
+def test_a_refusal_caused_by_a_stop_counts_as_aborted(world: SimWorld) -> None:
+    bus = FakeBus(world, reject_second_target=True)
+    send = bus.send
+
+    def stop_then_refuse(traj: dict[str, Any], move_id: str) -> tuple[str, str | None]:
+        verdict, reason = send(traj, move_id)
+        if verdict == "rejected":
+            bus.stop.set()  # the stop that made the driver refuse
+        return verdict, reason
+
+    bus.send = stop_then_refuse  # type: ignore[method-assign]
+    plan = _run(world, bus, 3)
+    rows = plan["closed_loop"]["targets"]
+    assert [r["status"] for r in rows] == ["converged", "aborted", "aborted"]
+    assert plan["execution"] == "accepted" and "stop" in plan["execution_reason"]
+
+
+def test_laser_log_spans_begin_after_a_time_and_end_on_the_off_switch() -> None:
+    log = LaserLog()
+    log.offer(10.0, True)
+    log.offer(10.5, True)  # a status repeat: no new span
+    log.offer(11.0, False)
+    log.offer(12.0, True)
+    assert log.span_after(9.0) == (10.0, 11.0) and log.span_after(10.2) == (12.0, float("inf"))
+    t0 = time.monotonic()
+    assert log.wait_span(10.2, 0.1, lambda: False) is None  # still on after the timeout
+    assert 0.09 < time.monotonic() - t0 < 1.0
+    log.offer(12.4, False)
+    assert log.wait_span(10.2, 1.0, lambda: False) == (12.0, 12.4)
+    assert log.span_after(13.0) is None and log.wait_span(13.0, 5.0, lambda: True) is None
