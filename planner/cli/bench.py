@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import typer
 
-from planner.bench import ik, marking, path, plan, safety, service
+from planner.bench import ik, marking, path, plan, safety, service, track
 
 app = typer.Typer(help="Benchmarks (figures printed, not asserted).", no_args_is_help=True)
 
@@ -17,6 +17,7 @@ BENCHMARKS = {
     "service": service,
     "plan": plan,
     "safety": safety,
+    "track": track,
 }
 """Command name -> benchmark module (its ``command`` is the sub-command)."""
 
