@@ -184,11 +184,36 @@ class TrajectoryAck(StrictModel):
     t: Num
 
 
+class StreamAck(StrictModel):
+    """A driver's view of the latest setpoint stream (``beamrelay/<robot>/setpoint``) of
+    planner ``session`` and request ``id``.
+
+    ``state``: ``streaming`` (being followed), ``ended`` (no setpoint for 50 ms, a stop, a
+    heartbeat loss, a fault, or replaced by a trajectory), ``rejected`` (a setpoint, or a body
+    on the key, broke a rule: the stream ended, or never started when it was its first).
+    ``reason`` says why it ended (``"<field>: <what>"`` with the figures, e.g. ``"q: wrist_3
+    moves 0.0500 rad in 0.0020 s since seq 41 = 25.0 rad/s > 3.1416 rad/s"``); ``braked``
+    whether the arm was moving then (it braked with the stop deceleration; else it rests on
+    the last setpoint). ``seq`` is the last setpoint followed, ``n`` how many were; ``t`` the
+    UNIX time of the last change of state.
+    """
+
+    id: str | None = None
+    session: str | None = None
+    state: Literal["streaming", "ended", "rejected"]
+    reason: str | None = None
+    braked: StrictBool = False
+    seq: NonNegInt | None = None
+    n: NonNegInt = 0
+    t: Num
+
+
 class RobotStatus(StrictModel):
     """Controller state: ``mode`` (driver-defined text), protective stop flag, fault text.
 
     ``trajectory`` is the verdict on the latest trajectory received (published at once on
-    receipt, then repeated with every status).
+    receipt, then repeated with every status); ``stream`` likewise for setpoint streams
+    (published at once when a stream starts, is rejected or ends).
     """
 
     schema_: Literal["beamrelay.status/1"] = Field(default=STATUS_SCHEMA, alias="schema")
@@ -198,6 +223,7 @@ class RobotStatus(StrictModel):
     protective_stop: StrictBool = False
     fault: str | None = None
     trajectory: TrajectoryAck | None = None
+    stream: StreamAck | None = None
     laser_on: StrictBool | None = None
     """the laser gate's state, from the driver of the robot that switches it (else null)"""
     safety_mode: str | None = None  # the controller's safety mode (normal, reduced, ...)

@@ -17,14 +17,21 @@ Modes (one of :data:`MODES`):
 3. ``settle`` - after the last sample Ruckig brings the arm to rest on the final position.
    A trajectory *queued* with :meth:`TrajectoryFollower.enqueue` while another runs
    starts instead when the running one reaches its last sample (approach from there).
-4. ``braking`` - watchdog or fault: Ruckig's velocity interface takes the velocity to zero
+4. ``streaming`` - a setpoint stream (:meth:`TrajectoryFollower.stream`): Ruckig (position
+   interface, online) drives the state toward the latest streamed target (q, qd, qdd)
+   within the velocity, acceleration and jerk limits; the caller updates the
+   target every period (:mod:`drivers.robot.streaming` moves it on along its velocity
+   between setpoints). Once on the target the arm plays it exactly. A stream that ends with
+   the arm at rest goes ``idle`` (:meth:`TrajectoryFollower.finish_stream`); one that ends
+   moving brakes.
+5. ``braking`` - watchdog or fault: Ruckig's velocity interface takes the velocity to zero
    at once with the *stop* deceleration ``stop_acceleration`` (default 40 rad/s^2) and jerk
    ``stop_jerk`` (default 4000 rad/s^3: full deceleration within 10 ms), like a UR
    protective stop (category 2) rather than a planned motion, whose limits (UR5e default
    5 rad/s^2) are for work near people, not for stopping. Time to rest from joint speed v:
    ``2 sqrt(v / j)`` for ``v <= a^2 / j``, else ``v / a + a / j``: at most 89 ms from the
    3.14 rad/s velocity limit, so the arm is still within 100 ms of a fault from any speed.
-5. ``idle`` / ``stopped`` - at rest (``stopped``: after a brake, until the next command).
+6. ``idle`` / ``stopped`` - at rest (``stopped``: after a brake, until the next command).
 """
 
 from __future__ import annotations
@@ -33,19 +40,24 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig
+from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig, RuckigError
 
 from planner.model.system import Limits
 from planner.model.transforms import Array
 from schemas import defaults
 
-MODES = ("idle", "approach", "following", "settle", "braking", "stopped")
+MODES = ("idle", "approach", "following", "settle", "streaming", "braking", "stopped")
 REST_VELOCITY = 1e-9  # rad/s: below this (every joint) the arm counts as at rest
 STOP_ACCELERATION = 40.0  # rad/s^2, deceleration of a watchdog/fault stop
 STOP_JERK = 4000.0  # rad/s^3
 
 
 LASER_EDGE = 1e-6  # s: slack on a laser interval's ends (they lie on the period grid)
+#: rad: Ruckig 0.19 raises on a rest-to-rest distance of exactly 2 a^3 / j^2 (the profile
+#: that just touches the acceleration limit: 0.1 rad at 5 rad/s^2, 50 rad/s^3) for about
+#: two in three starting positions, and plans a 250 s motion from the states along that
+#: profile; a target this much further away is solved (kept while the target stands)
+RUCKIG_NUDGE = 1e-10
 
 
 @dataclass(frozen=True)
@@ -112,6 +124,7 @@ class TrajectoryFollower:
         self.dt = dt
         self.limits = limits
         self._otg = Ruckig(self.n, dt)
+        self._aim: tuple[Array, Array] | None = None  # (target, nudged target): RUCKIG_NUDGE
         self._inp = InputParameter(self.n)
         self._out = OutputParameter(self.n)
         self._stop_acceleration = np.full(self.n, float(stop_acceleration))
@@ -126,6 +139,7 @@ class TrajectoryFollower:
         self.mode = "idle"
         self.reference: Reference | None = None
         self.queued: Reference | None = None
+        self.target: tuple[Array, Array, Array] | None = None  # streamed (q, qd, qdd)
         self._tau = 0.0
 
     @property
@@ -145,9 +159,11 @@ class TrajectoryFollower:
         return self.reference.laser_edge(self._tau)
 
     def follow(self, reference: Reference) -> None:
-        """Start a new trajectory (replaces any current one): approach its start, then play."""
+        """Start a new trajectory (replaces any current one, a stream too): approach its
+        start, then play."""
         self.reference = reference
         self.queued = None
+        self.target = None
         self._tau = 0.0
         self.mode = "approach"
 
@@ -159,12 +175,44 @@ class TrajectoryFollower:
         else:
             self.follow(reference)
 
+    def stream(self, q: Array, qd: Array, qdd: Array | None = None) -> None:
+        """Make (q, qd, qdd) (rad, rad/s, rad/s^2; qdd default 0) the state to reach from
+        the next step on; replaces any trajectory. ``qd`` and ``qdd`` are clipped to the
+        velocity and acceleration limits (Ruckig refuses a target beyond them); the caller
+        checked them against the limits."""
+        vmax = np.asarray(self.limits.velocity, dtype=float)
+        amax = np.asarray(self.limits.acceleration, dtype=float)
+        acc = np.zeros(self.n) if qdd is None else np.asarray(qdd, dtype=float)
+        self.target = (
+            np.asarray(q, dtype=float).copy(),
+            np.clip(np.asarray(qd, dtype=float), -vmax, vmax),
+            np.clip(acc, -amax, amax),
+        )
+        self.reference = None
+        self.queued = None
+        self._tau = 0.0
+        self.mode = "streaming"
+
+    def finish_stream(self) -> bool:
+        """End a stream: ``idle`` when the arm is at rest (True), else brake (False)."""
+        if self.mode != "streaming":
+            return self.mode in ("idle", "stopped")
+        self.target = None
+        if np.all(np.abs(self.qd) <= REST_VELOCITY):
+            self.qd[:] = 0.0
+            self.qdd[:] = 0.0
+            self.mode = "idle"
+            return True
+        self.brake()
+        return False
+
     def brake(self) -> None:
         """Decelerate to rest now (no-op when already at rest or braking)."""
         if self.mode in ("braking", "stopped"):
             return
         self.reference = None
         self.queued = None
+        self.target = None
         self.mode = "braking" if np.any(np.abs(self.qd) > REST_VELOCITY) else "stopped"
         if self.mode == "stopped":
             self.qd[:] = 0.0
@@ -194,6 +242,9 @@ class TrajectoryFollower:
             if self._ruckig(self.reference.q[-1], np.zeros(self.n), np.zeros(self.n)):
                 self.mode = "idle"
                 self.reference = None
+        elif self.mode == "streaming":
+            assert self.target is not None
+            self._ruckig(*self.target)
         elif self.mode == "braking" and self._ruckig_brake():
             self.mode = "stopped"
         return self.state
@@ -222,10 +273,21 @@ class TrajectoryFollower:
         """One online Ruckig step toward state (q, qd, qdd); True once it is reached."""
         inp = self._load(self.limits.jerk)
         inp.control_interface = ControlInterface.Position
-        inp.target_position = np.asarray(q, dtype=float).tolist()
+        q = np.asarray(q, dtype=float)
+        aim = self._aim[1] if self._aim is not None and np.array_equal(q, self._aim[0]) else q
+        inp.target_position = aim.tolist()
         inp.target_velocity = np.asarray(qd, dtype=float).tolist()
         inp.target_acceleration = np.asarray(qdd, dtype=float).tolist()
-        done = self._take(self._otg.update(inp, self._out))
+        try:
+            result = self._otg.update(inp, self._out)
+        except RuckigError:  # the boundary case of RUCKIG_NUDGE: aim a hair further for as
+            # long as this target stands, on a fresh instance (the failed call left the
+            # online one mid-calculation)
+            self._aim = (q.copy(), q + RUCKIG_NUDGE * np.sign(q - self.q))
+            inp.target_position = self._aim[1].tolist()
+            self._otg = Ruckig(self.n, self._otg.delta_time)
+            result = self._otg.update(inp, self._out)
+        done = self._take(result)
         if done:  # land exactly on the target (Ruckig finishes within numerical noise)
             self.q, self.qd, self.qdd = (np.asarray(a, dtype=float).copy() for a in (q, qd, qdd))
         return done

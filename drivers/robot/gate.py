@@ -2,7 +2,8 @@
 
 :class:`LaserGate` is driven from the control loop of :class:`drivers.robot.node.RobotNode`
 once per period: on while the followed trajectory plays one of its ``laser_on`` intervals
-(:meth:`drivers.robot.follower.TrajectoryFollower.laser_edge`), off otherwise, off on a
+(:meth:`drivers.robot.follower.TrajectoryFollower.laser_edge`) or while a followed setpoint
+stream's newest setpoint has ``laser_on``, off otherwise, off on a
 backend fault, and forced off (commanded again even if already off) at start-up, in every
 safety stop and at exit. Each switch is recorded as a :class:`GateSwitch` and published as
 a :class:`schemas.messages.LaserState`. Times in s.
@@ -43,14 +44,21 @@ class LaserGate:
         self.switches: list[GateSwitch] = []
         self.period_start = time.monotonic()  # monotonic s, set by the loop every period
 
-    def update(self, fault: str | None) -> None:
-        """This period's state: on inside a laser interval of the followed trajectory."""
+    def update(self, fault: str | None, streamed: bool = False) -> None:
+        """This period's state: on inside a laser interval of the followed trajectory, or
+        while the follower streams and ``streamed`` (the followed stream's newest setpoint
+        asks for it); off on a fault."""
         follower = self.backend.follower
         edge = follower.laser_edge() if fault is None else None
-        if (edge is not None) == self.on:
+        stream = fault is None and streamed and follower.mode == "streaming"
+        if (edge is not None or stream) == self.on:
             return
         if edge is not None:
             self._switch(True, edge, "laser_on interval")
+        elif stream:
+            self._switch(True, None, "setpoint laser_on")
+        elif follower.mode == "streaming" and fault is None:
+            self._switch(False, None, "setpoint laser off")
         else:
             self._switch(False, self._off_edge(follower), fault or "interval ended")
 

@@ -15,6 +15,10 @@ Bus (``<prefix>`` = the namespace, ``beamrelay`` by default):
 - subscribes ``<prefix>/<robot>/trajectory``: bodies are parsed and checked in a worker
   process (:mod:`drivers.robot.intake`, checks in :mod:`drivers.robot.trajectory_check`); the loop picks
   up ready verdicts without waiting;
+- subscribes ``<prefix>/<robot>/setpoint`` (:class:`schemas.messages.Setpoint`): parsed and
+  checked in the Zenoh callback (:mod:`drivers.robot.setpoint_intake`), followed by the
+  loop (:mod:`drivers.robot.streaming`, rules below); the status's ``stream``
+  (:class:`schemas.messages.StreamAck`) says which stream is followed or why it ended;
 - subscribes ``<prefix>/heartbeat`` (:class:`schemas.messages.Heartbeat`) and
   ``<prefix>/stop``, declares ``<prefix>/alive/<robot>`` and watches ``<prefix>/alive/planner``;
 - with a laser gate (``gate_output``: this robot's digital output switches the laser):
@@ -22,9 +26,10 @@ Bus (``<prefix>`` = the namespace, ``beamrelay`` by default):
   with every status; the status carries ``laser_on``.
 
 Laser gate: switched in the control loop, in the period that plays the trajectory's
-``laser_on`` intervals (:meth:`drivers.robot.follower.Reference.laser_edge`), by the
+``laser_on`` intervals (:meth:`drivers.robot.follower.Reference.laser_edge`) or while a
+followed setpoint stream's newest setpoint says ``laser_on``, by the
 backend's ``set_gate`` (sim: recorded; UR: ``setStandardDigitalOut``). It is off at start-up,
-outside ``following`` (approach, settle, braking, idle), on a backend fault, and forced off
+outside ``following`` and ``streaming``, on a backend fault, and forced off
 first thing in every safety stop and at exit (:class:`drivers.robot.gate.LaserGate`, which
 records each switch: its lag behind the interval's edge in trajectory time and its latency
 from the period's start). A trajectory with ``laser_on`` sent to a driver without a gate is refused.
@@ -44,11 +49,25 @@ Acceptance, decided in the control loop when the worker's verdict arrives:
    runs and gets no second verdict). With the arm at rest it must start within
    ``start_tolerance`` of the measured joints and starts at once.
 
+Setpoint streams (a stream = the setpoints of one (session, id); the intake rejects a
+setpoint that breaks a limit against the previous one, which ends the stream):
+
+1. a stream starts with its first setpoint if rules 2 and 3 above hold for its session, the
+   arm executes no trajectory, the first setpoint lies within 0.01 rad and 0.1 rad/s of the
+   measured state (:func:`drivers.robot.setpoint_check.check_stream_start`), and
+   ``laser_on`` is only asked of the gating robot; else it is refused (the status says why)
+   and its later setpoints are ignored until they pause for 50 ms;
+2. it ends when no setpoint came for 50 ms (receive clock): the laser goes off; an arm at
+   rest on the last setpoint stays there (``idle``), a moving one brakes; on a rejected
+   setpoint, a stop, a heartbeat loss or a fault (a safety stop); or when a trajectory is
+   accepted, which then approaches from the moving state.
+
 Safety stops (:meth:`RobotNode._safe_stop`, the one place every stop goes through: brake
 with the stop deceleration of :mod:`drivers.robot.follower`, drop the queued trajectory):
 
-- heartbeat: while the arm executes a trajectory with ``require_planner``, the sessions of
-  the running and the queued trajectory must each have sent a heartbeat within
+- heartbeat: while the arm executes a trajectory or follows a stream with
+  ``require_planner``, the sessions of the running and the queued trajectory and of the
+  stream must each have sent a heartbeat within
   :data:`HEARTBEAT_TIMEOUT` (0.1 s), checked every period against the monotonic time the
   callback stored; heartbeats of other sessions do not count;
 - the planner's liveliness token disappearing (an extra trigger: it comes 2-9 ms after the
@@ -61,58 +80,30 @@ with the stop deceleration of :mod:`drivers.robot.follower`, drop the queued tra
 from __future__ import annotations
 
 import time
-from typing import Any, NamedTuple, Protocol
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from drivers.loop_node import LoopNode
-from drivers.robot.follower import Reference, TrajectoryFollower
+from drivers.robot.backend import Measured, RobotBackend
+from drivers.robot.follower import REST_VELOCITY, Reference
 from drivers.robot.gate import LaserGate
 from drivers.robot.intake import TrajectoryIntake, Verdict
+from drivers.robot.node_streams import EXECUTING, StreamingMixin
+from drivers.robot.setpoint_intake import SetpointIntake
+from drivers.robot.streaming import StreamControl
 from drivers.robot.trajectory_check import START_TOLERANCE, check_start
 from drivers.robot.trajectory_check import check_trajectory as check_trajectory
 from drivers.robot.ur_link import RateLimitedLog, parse_recover, recover_key
 from planner.errors import InputError
 from planner.model.system import Limits
-from planner.model.transforms import Array
 from planner.service.bus import JSON, Keys, decode, encode
 from schemas.messages import Heartbeat, JointState, RobotStatus, TrajectoryAck
 
 HEARTBEAT_TIMEOUT = 0.100  # s: longest planner silence before the arm brakes
 MAX_SESSIONS = 64  # heartbeat sessions remembered (oldest forgotten first)
-EXECUTING = ("approach", "following", "settle")
 PERIOD_LOG = 1 << 16  # control periods whose start times are kept (2 min at 500 Hz)
-
-
-class Measured(NamedTuple):
-    """The arm's state after one period: joints (rad, rad/s) and controller state."""
-
-    q: Array
-    qd: Array
-    mode: str
-    protective_stop: bool = False
-    fault: str | None = None
-    stale: bool = False  # the link to the arm is stale: q, qd are old, not published
-    safety: str | None = None  # the controller's safety mode (normal, reduced, ...)
-
-
-class RobotBackend(Protocol):
-    """What :class:`RobotNode` needs from a backend (see ``drivers.robot.sim`` / ``drivers.robot.ur``)."""
-
-    kind: str
-    names: tuple[str, ...]
-    rate: float
-    follower: TrajectoryFollower
-
-    def begin_period(self) -> None: ...
-    def step(self) -> Measured: ...
-    def end_period(self) -> None: ...
-    def measured(self) -> Measured: ...
-    def command(self, reference: Reference) -> None: ...
-    def queue(self, reference: Reference) -> None: ...
-    def brake(self, reason: str) -> None: ...
-    def set_gate(self, on: bool) -> None: ...
-    def close(self) -> None: ...
 
 
 class Accepted(NamedTuple):
@@ -123,7 +114,7 @@ class Accepted(NamedTuple):
     reference: Reference
 
 
-class RobotNode(LoopNode):
+class RobotNode(StreamingMixin, LoopNode):
     """Runs one backend on the bus (see the module docstring)."""
 
     def __init__(
@@ -139,8 +130,10 @@ class RobotNode(LoopNode):
         start_tolerance: float = START_TOLERANCE,
         require_planner: bool = True,
         gate_output: int | None = None,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         super().__init__()
+        self.clock = clock  # monotonic s: every receive time and period start
         self.gate_output = gate_output
         self.gate: LaserGate | None = None  # made in start() (it publishes)
         self.session = session
@@ -153,6 +146,8 @@ class RobotNode(LoopNode):
         self._state_every = max(1, round(backend.rate / state_rate))
         self._status_every = max(1, round(backend.rate / status_rate))
         self.intake = TrajectoryIntake(robot, backend.names, limits, 1.0 / backend.rate)
+        self.setpoints = SetpointIntake(robot, backend.names, limits, clock=clock)
+        self.streams = StreamControl(limits, 1.0 / backend.rate)
         self.heartbeats: dict[str, float] = {}  # session -> monotonic time of its last beat
         self.planner_alive = False
         self.planner_lost_at: float | None = None  # UNIX time the planner's token went away
@@ -171,11 +166,20 @@ class RobotNode(LoopNode):
         self._handled_stop: float | None = None
         self.recover_requested = False
         self.recover_log = RateLimitedLog(robot)
+        self._tick, self._last_mode = 0, ""
 
     # -- lifecycle ---------------------------------------------------------------------
     def start(self) -> RobotNode:
-        s, k = self.session, self.keys
+        """Start the parse worker, declare everything on the bus, run the control loop."""
         self.intake.start()
+        self.attach()
+        self._start_loop(f"{self.robot}-control")
+        return self
+
+    def attach(self) -> RobotNode:
+        """Declare publishers, subscribers and the token (no thread: tests then drive
+        :meth:`period` themselves)."""
+        s, k = self.session, self.keys
         self._pub_state = s.declare_publisher(k.joint_states(self.robot), encoding=JSON)
         self._pub_status = s.declare_publisher(k.status(self.robot), encoding=JSON)
         if self.gate_output is not None:
@@ -184,13 +188,13 @@ class RobotNode(LoopNode):
             self.gate.force_off("start-up")
         self._handles = [
             s.declare_subscriber(k.trajectory(self.robot), self._on_trajectory),
+            s.declare_subscriber(k.setpoint(self.robot), self._on_setpoint),
             s.declare_subscriber(k.heartbeat, self._on_heartbeat),
             s.declare_subscriber(k.stop, self._on_stop),
             s.liveliness().declare_subscriber(k.alive("planner"), self._on_planner, history=True),
             s.declare_subscriber(recover_key(k.prefix, self.robot), self._on_recover),
             s.liveliness().declare_token(k.alive(self.robot)),
         ]
-        self._start_loop(f"{self.robot}-control")
         return self
 
     def _close(self) -> None:
@@ -211,7 +215,7 @@ class RobotNode(LoopNode):
             self._triggers.append("planner liveliness lost")
 
     def _on_heartbeat(self, sample: Any) -> None:
-        now = time.monotonic()
+        now = self.clock()
         try:
             if len(sample.payload) > 4096:
                 raise InputError("heartbeat body over 4096 bytes", "body")
@@ -225,10 +229,13 @@ class RobotNode(LoopNode):
         beats[beat.session] = now
 
     def _on_stop(self, sample: Any) -> None:
-        self.stop_requested_at = time.monotonic()
+        self.stop_requested_at = self.clock()
 
     def _on_trajectory(self, sample: Any) -> None:
         self.intake.submit(sample.payload)
+
+    def _on_setpoint(self, sample: Any) -> None:
+        self.setpoints.submit(sample.payload)
 
     def _on_recover(self, sample: Any) -> None:
         """The operator's acknowledgement after a fault (``beamrelay robot recover``)."""
@@ -241,39 +248,45 @@ class RobotNode(LoopNode):
 
     # -- control loop --------------------------------------------------------------------
     def _loop(self) -> None:
-        tick, last_mode = 0, ""
         while not self._stop.is_set():
-            self.backend.begin_period()
-            now = time.monotonic()
-            self.period_starts[self.n_periods % PERIOD_LOG] = now
-            if self.gate is not None:
-                self.gate.period_start = now
-            self.n_periods += 1
-            self._watch()
-            for verdict in self.intake.take():
-                self._decide(verdict)
-                self._publish_status(self.backend.measured())
-            if self.recover_requested:
-                self.recover_requested = False
-                recover = getattr(self.backend, "recover", None)
-                self.recover_log(recover() if recover else "recover: nothing to do (sim)")
-            m = self.backend.step()
-            self._track()
-            if self.gate is not None:
-                self.gate.update(m.fault)
-            if tick % self._state_every == 0 and not m.stale:
-                state = JointState(
-                    t=time.time(), names=list(self.backend.names), q=m.q.tolist(),
-                    qd=m.qd.tolist(),
-                )  # fmt: skip
-                self._pub_state.put(encode(state))
-            if m.mode != last_mode or tick % self._status_every == 0:
-                self._publish_status(m)
-                last_mode = m.mode
-            tick += 1
-            self.backend.end_period()
+            self.period()
 
-    def _watch(self) -> None:
+    def period(self) -> None:
+        """One control period: stop triggers, verdicts, streams, one backend step, gate,
+        states and status (the backend paces it)."""
+        self.backend.begin_period()
+        now = self.clock()
+        self.period_starts[self.n_periods % PERIOD_LOG] = now
+        if self.gate is not None:
+            self.gate.period_start = now
+        self.n_periods += 1
+        self._watch(now)
+        for verdict in self.intake.take():
+            self._decide(verdict)
+            self._publish_status(self.backend.measured())
+        self._follow_streams(now)
+        if self.recover_requested:
+            self.recover_requested = False
+            recover = getattr(self.backend, "recover", None)
+            self.recover_log(recover() if recover else "recover: nothing to do (sim)")
+        m = self.backend.step()
+        self._track()
+        if self.streams.active is not None and m.mode != "streaming":
+            self._safe_stop(f"arm left the stream: {m.fault or m.mode}")
+        if self.gate is not None:
+            self.gate.update(m.fault, self.streams.laser_on)
+        if self._tick % self._state_every == 0 and not m.stale:
+            state = JointState(
+                t=time.time(), names=list(self.backend.names), q=m.q.tolist(), qd=m.qd.tolist()
+            )
+            self._pub_state.put(encode(state))
+        if m.mode != self._last_mode or self._tick % self._status_every == 0:
+            self._publish_status(m)
+            self._last_mode = m.mode
+        self._tick += 1
+        self.backend.end_period()
+
+    def _watch(self, now: float) -> None:
         """Stop triggers, once per period: stop requests, token loss, silent heartbeats."""
         stop_at = self.stop_requested_at
         if stop_at is not None and stop_at != self._handled_stop:
@@ -281,23 +294,28 @@ class RobotNode(LoopNode):
             self._safe_stop(f"stop requested on {self.keys.stop}")
         while self._triggers:
             self._safe_stop(self._triggers.pop(0))
-        if not self.require_planner or self.backend.follower.mode not in EXECUTING:
+        if not self.require_planner:
             return
-        now = time.monotonic()
-        for acc in (self._running, self._queued):
-            if acc is None or acc.session is None:
-                continue
-            silent = now - self.heartbeats.get(acc.session, -np.inf)
+        sessions = [self.streams.active.session] if self.streams.active is not None else []
+        if self.backend.follower.mode in EXECUTING:
+            sessions += [a.session for a in (self._running, self._queued) if a and a.session]
+        for session in sessions:
+            silent = now - self.heartbeats.get(session, -np.inf)
             if silent > HEARTBEAT_TIMEOUT:
                 quiet = "none heard" if np.isinf(silent) else f"silent for {1e3 * silent:.0f} ms"
-                self._safe_stop(f"planner heartbeat lost: session {acc.session} {quiet}")
+                self._safe_stop(f"planner heartbeat lost: session {session} {quiet}")
                 return
 
-    def _safe_stop(self, reason: str) -> None:
-        """Every safety stop goes through here: laser gate off, brake with the stop
-        deceleration, drop the queued trajectory, and say why in the status."""
+    def _safe_stop(self, reason: str, rejected: str | None = None) -> None:
+        """Every safety stop goes through here: laser gate off, end the stream (``rejected``:
+        the setpoint's reason), brake with the stop deceleration, drop the queued
+        trajectory, and say why in the status."""
         if self.gate is not None:
             self.gate.force_off(reason)
+        moving = bool(np.any(np.abs(self.backend.follower.qd) > REST_VELOCITY))
+        stream = self.streams.end(rejected or reason, moving, rejected is not None)
+        if stream is not None:
+            self.setpoints.end(stream)
         self.backend.brake(reason)
         self._running = self._queued = None
         self.stopped_by = reason
@@ -318,7 +336,7 @@ class RobotNode(LoopNode):
             if v.reference.laser_on is not None and self.gate_output is None:
                 raise InputError("laser_on given, but this driver switches no laser gate "
                                  "(laser.gate names another robot, or none)", "laser_on")  # fmt: skip
-            self._admissible(v)
+            self._admissible(v.received, v.session)
             acc = Accepted(v.id, v.session, v.reference)
             if self.backend.follower.mode in EXECUTING and self._running is not None:
                 last = self._running.reference.q[-1]
@@ -331,6 +349,8 @@ class RobotNode(LoopNode):
                             self.start_tolerance, "the current state")  # fmt: skip
                 self.backend.command(acc.reference)
                 self._running, self._queued = acc, None
+                if self.streams.active is not None:
+                    self._end_stream(f"replaced by trajectory {v.id}")
         except InputError as exc:
             self.n_rejected += 1
             self.rejection = f"trajectory rejected: {exc}"
@@ -340,10 +360,10 @@ class RobotNode(LoopNode):
         self.rejection = self.stopped_by = None
         self.ack = TrajectoryAck(id=v.id, accepted=True, t=time.time())
 
-    def _admissible(self, v: Verdict) -> None:
+    def _admissible(self, received: float, session: str | None) -> None:
         """Rules 2 and 3 of the module docstring (InputError if not)."""
         stop_at = self.stop_requested_at
-        if stop_at is not None and v.received <= stop_at:
+        if stop_at is not None and received <= stop_at:
             raise InputError(f"received before the stop requested on {self.keys.stop}", "body")
         if self.backend.follower.mode == "braking":
             raise InputError("the arm is braking: send it once the arm is at rest", "body")
@@ -351,13 +371,13 @@ class RobotNode(LoopNode):
             return
         if not self.planner_alive:
             raise InputError("no planner alive (watchdog): not moving", "body")
-        if v.session is None:
+        if session is None:
             raise InputError("no planner session given (a planner must send it)", "session")
-        silent = time.monotonic() - self.heartbeats.get(v.session, -np.inf)
+        silent = self.clock() - self.heartbeats.get(session, -np.inf)
         if silent > HEARTBEAT_TIMEOUT:
             heard = "never" if np.isinf(silent) else f"{1e3 * silent:.0f} ms ago"
             raise InputError(
-                f"no heartbeat from planner session {v.session} within "
+                f"no heartbeat from planner session {session} within "
                 f"{1e3 * HEARTBEAT_TIMEOUT:.0f} ms (last: {heard})",
                 "session",
             )
@@ -369,7 +389,8 @@ class RobotNode(LoopNode):
         laser = self.gate.on if self.gate is not None else None
         msg = RobotStatus(
             robot=self.robot, t=time.time(), mode=m.mode, protective_stop=m.protective_stop,
-            fault=fault, trajectory=self.ack, laser_on=laser, safety_mode=m.safety,
+            fault=fault, trajectory=self.ack, stream=self.streams.status(), laser_on=laser,
+            safety_mode=m.safety,
         )  # fmt: skip
         self._pub_status.put(encode(msg))
         if self.gate is not None:

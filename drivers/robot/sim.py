@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import time
 
+from drivers.robot.backend import Measured
 from drivers.robot.follower import STOP_ACCELERATION, FollowerState, Reference, TrajectoryFollower
-from drivers.robot.node import Measured
 from planner.model.system import Limits
 from planner.model.transforms import Array
 from schemas import defaults
@@ -80,6 +80,12 @@ class SimRobot:
 
     def queue(self, reference: Reference) -> None:
         self.follower.enqueue(reference)
+
+    def start_stream(self) -> None:
+        """A stream starts (the model can always follow one)."""
+
+    def stream(self, q: Array, qd: Array, qdd: Array) -> None:
+        self.follower.stream(q, qd, qdd)
 
     def brake(self, reason: str) -> None:
         self.follower.brake()

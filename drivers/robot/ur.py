@@ -50,15 +50,15 @@ from typing import Any
 
 import numpy as np
 
+from drivers.robot.backend import Measured
 from drivers.robot.follower import STOP_ACCELERATION, Reference, TrajectoryFollower
-from drivers.robot.node import Measured
 from drivers.robot.ur_link import MOTION_ALLOWED, AsyncCall, RateLimitedLog, safety_name
 from planner.errors import InputError
 from planner.model.system import Limits
 
 LOOKAHEAD_RANGE = (0.03, 0.2)  # s, accepted by servoJ
 GAIN_RANGE = (100.0, 2000.0)  # servoJ proportional gain
-MOVING = ("approach", "following", "settle", "braking")
+MOVING = ("approach", "following", "settle", "streaming", "braking")
 STALE_AFTER = 0.100  # s without a new RTDE timestamp: the link is stale
 SPEED_FLOOR = 0.05  # speed slider below which new trajectories are refused
 ARRIVE_TOLERANCE = 1e-4  # rad: the held final target counts as reached (every joint)
@@ -304,6 +304,18 @@ class URRobot:
         """Start ``reference`` when the running trajectory reaches its last sample."""
         self._ready()
         self.follower.enqueue(reference)
+
+    def start_stream(self) -> None:
+        """A setpoint stream starts: refused in a fault or below the speed floor; from
+        rest, the follower starts from where the arm really is."""
+        self._ready()
+        if not self.servoing:
+            self.follower.reset(self._last.q)
+        self.note = None
+
+    def stream(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> None:
+        """This period's streamed target (sent through servoJ by the next step)."""
+        self.follower.stream(q, qd, qdd)
 
     def brake(self, reason: str) -> None:
         """Decelerate the command at the stop deceleration (jerk-limited, through servoJ);
