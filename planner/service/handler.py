@@ -212,9 +212,21 @@ def handler_from_scenario(path: Any) -> RequestHandler:
     system = system_from_scenario(scn)
     model = scn.model
     settings = trajectory_settings(scn)
+    safety = Safety.from_scenario(scn, system)
     plan_fn = make_plan_fn(system, resolved_scenario_dict(scn), ik_options(model.solver), settings,
-                           scene_model(scn), Safety.from_scenario(scn, system))  # fmt: skip
-    return RequestHandler(system, plan_fn)
+                           scene_model(scn), safety)  # fmt: skip
+    return RequestHandler(
+        system, plan_fn, track_ik=track_ik(system, ik_options(model.solver), safety)
+    )
+
+
+def track_ik(system: System, options: Any, safety: Safety | None) -> Any:
+    """The IK that follows ``mode: track`` targets (closed form with the safety rules), or
+    None when an arm has no analytic seed model."""
+    from planner.ik import BeamIK
+
+    ik = BeamIK(system, options, safety)
+    return ik if ik.closed_form is not None else None
 
 
 @dataclass
@@ -224,6 +236,7 @@ class RequestHandler:
     system: System
     plan_fn: PlanFn
     path_spacing: float = PATH_SPACING
+    track_ik: Any = None  # a BeamIK for ``mode: track`` (None: tracking refused)
 
     def targets(self, req: Any) -> Targets:
         """World-frame targets of a validated TargetRequest (points in metres)."""

@@ -127,6 +127,8 @@ class PlannerNode:
         self.on_fatal: Callable[[str], None] | None = None
         self.failed: str | None = None
         self.served = 0
+        self.track: Any = None  # the running TrackSession of a ``mode: track`` request
+        self.track_settings: Any = None  # TrackSettings for track requests (None: defaults)
 
     # --- lifecycle -------------------------------------------------------------------------
     def start(self) -> PlannerNode:
@@ -168,6 +170,7 @@ class PlannerNode:
     def close(self) -> None:
         """Stop beating, undeclare everything, stop the worker (the session stays open)."""
         self._closing.set()
+        self._stop_track("the planner node closes")
         if self.heartbeat is not None:
             self.heartbeat.stop()
         self._undeclare_token()
@@ -194,6 +197,7 @@ class PlannerNode:
             return
         self.failed = reason
         log.critical("planner node failed: %s", reason)
+        self._stop_track(f"planner failed: {reason}")
         if self.heartbeat is not None:
             self.heartbeat.stop()
         try:
@@ -245,6 +249,7 @@ class PlannerNode:
             if ack is not None:
                 self.acks.offer(robot, ack)
             if msg.mode in HALTED_MODES or msg.protective_stop:
+                self._stop_track(f"{robot} is {msg.mode}")
                 self.tracks.halted(robot, None if ack is None else ack.id)
                 if ack is not None:
                     self.execution.cancel(f"{robot} is {msg.mode}", ack.id)
@@ -252,6 +257,7 @@ class PlannerNode:
         return cb
 
     def _on_stop(self, _sample: Any) -> None:
+        self._stop_track(f"stop seen on {self.keys.stop}")
         self.tracks.clear()
         self.execution.cancel(f"stop seen on {self.keys.stop}")
 
@@ -324,8 +330,16 @@ class PlannerNode:
             self._plans.put(body, encoding=JSON)
 
     def serve(self, payload: bytes) -> bytes:
-        """Handle one request body: validate, plan, maybe execute; the plan.json reply."""
+        """Handle one request body: validate, plan, maybe execute; the plan.json reply.
+        While a ``mode: track`` request runs, every request gets a "busy tracking" error."""
+        if self.track is not None and self.track.active:
+            raise InputError(f"planner busy tracking {self.track.id!r}: publish on "
+                             f"{self.keys.stop} to end it, or wait for its duration", "body")  # fmt: skip
         req = self.handler.parse(payload)
+        if req.mode == "track":
+            from planner.service.track import start_track
+
+            return encode_json(start_track(self, req))
         targets = self.handler.targets(req)
         self.progress.targets(len(targets.points))
         start = None
@@ -368,6 +382,17 @@ class PlannerNode:
         if all(s["status"] != "ok" for s in plan["solutions"]):
             raise ExecuteError("no target could be solved, nothing to execute", [])
         self.execution.execute(plan, request_id, self.session_id)
+
+    def _stop_track(self, reason: str) -> None:
+        if self.track is not None and self.track.active:
+            self.track.stop(reason)
+
+    def track_ended(self, summary: dict[str, Any]) -> None:
+        """A track session's figures, published on ``<prefix>/plans``."""
+        try:
+            self._plans.put(encode_json(summary), encoding=JSON)
+        except Exception:  # the session may be closing
+            log.exception("could not publish the tracking summary")
 
     def _publish_trajectory(self, robot: str, body: bytes) -> None:
         self._publishers[robot].put(body, encoding=JSON)

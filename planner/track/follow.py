@@ -164,6 +164,12 @@ class TargetFollower:
         self.segment = _Segment(t_a, sol_a.q, t_b, sol_b.q, pb.sigma, J, n, pb.p)
         return FrameOutcome(pa, time.perf_counter() - t0, None)
 
+    def warm_up(self, q: Array, normal: Array | None) -> None:
+        """Run the per-frame computations once at ``q`` (rad) on the first estimate, so the
+        first frame does not pay for first calls (caches, lazily built models)."""
+        self.ik.solve(self.first, normal, q)
+        self._J, self._J_at = self._jacobian(q, self.first, normal), np.asarray(q, dtype=float)
+
     def _halt(self, reason: str, t0: float) -> FrameOutcome:
         self.stop(reason)
         return FrameOutcome(None, time.perf_counter() - t0, reason)
