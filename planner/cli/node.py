@@ -170,6 +170,17 @@ def request(
         list[str] | None, typer.Option("--normals", help="NX,NY,NZ per point (optional).")
     ] = None,
     timeout: Annotated[float, typer.Option(help="Seconds to wait for the reply.")] = 10.0,
+    track: Annotated[
+        str | None,
+        typer.Option(
+            "--track",
+            help="Follow the target stream of this id (the first point is"
+            " its first estimate; moves the robots).",
+        ),
+    ] = None,
+    duration: Annotated[
+        float | None, typer.Option("--duration", help="--track: seconds to follow it.")
+    ] = None,
     endpoint: EndpointOpt = None,
     prefix: PrefixOpt = "beamrelay",
     zenoh_config: ZenohConfigOpt = None,
@@ -207,6 +218,12 @@ def request(
     if nrm is not None and len(nrm) != len(pts):
         raise InputError(f"--normals: {len(nrm)} given for {len(pts)} points")
     req = make_request(pts, frame=frame, normals=nrm, path=path, execute=execute)
+    if track is not None:
+        _track_request(req, track, duration, path, timeout, (endpoint, prefix, zenoh_config),
+                       as_json)  # fmt: skip
+        return
+    if duration is not None:
+        raise InputError("--duration: only with --track")
     console = Console(stderr=as_json)
     client = PlanClient(
         endpoint=endpoint, prefix=prefix, zenoh_config=zenoh_config, connect_timeout=timeout
@@ -240,6 +257,65 @@ def request(
         print(json.dumps(request_summary(plan, spots)))
     if rejected or any(s["status"] != Status.OK for s in plan["solutions"]):
         raise typer.Exit(1)
+
+
+def _track_request(
+    req: dict, stream: str, duration: float | None, path: bool, timeout: float,
+    bus: tuple, as_json: bool,
+) -> None:  # fmt: skip
+    """Send a ``mode: track`` request and, with a duration, wait for the session's summary
+    (published on ``<prefix>/plans``); prints it (``--json``: as one JSON object)."""
+    import json
+    import threading
+
+    from planner.service.client import PlanClient, RequestError
+
+    if path:
+        raise InputError("--track follows one moving target: not with --path")
+    if duration is not None and not 0 < duration <= 3600:
+        raise InputError(f"--duration {duration}: expected (0, 3600] s")
+    req.update(id=stream, mode="track", execute=True)
+    if duration is not None:
+        req["duration"] = duration
+    endpoint, prefix, zenoh_config = bus
+    summaries: list[dict] = []
+    got = threading.Event()
+
+    def on_plan(sample: object) -> None:
+        body = json.loads(sample.payload.to_bytes())  # type: ignore[attr-defined]
+        if body.get("schema") == "beamrelay.track/1" and body.get("id") == stream:
+            summaries.append(body)
+            got.set()
+
+    client = PlanClient(endpoint=endpoint, prefix=prefix, zenoh_config=zenoh_config,
+                        connect_timeout=timeout)  # fmt: skip
+    with client:
+        sub = client.session.declare_subscriber(f"{prefix}/plans", on_plan)
+        try:
+            if not client.wait_for_node("planner", timeout):
+                raise RequestError(f"no planner on the bus ({prefix}/alive/planner)")
+            reply = client.request(req, timeout)
+            typer.echo(f"tracking {stream!r}: {reply.get('execution')}", err=as_json)
+            if duration is not None and not got.wait(duration + timeout):
+                raise RequestError(
+                    f"no summary of tracking {stream!r} within {duration + timeout:g} s"
+                )
+        except RequestError as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(1) from exc
+        finally:
+            sub.undeclare()
+    if summaries:
+        s = summaries[-1]
+        if as_json:
+            print(json.dumps(s))
+        else:
+            lat = s.get("latency_p99")
+            typer.echo(
+                f"ended: {s['ended']}; {s['frames']} frames, laser on "
+                f"{100 * s['laser_on_fraction']:.0f} %"
+                + ("" if lat is None else f", frame -> setpoint p99 {1e3 * lat:.2f} ms")
+            )
 
 
 def print_summary(console: object, plan: dict, spots: list | None) -> None:

@@ -248,8 +248,9 @@ class PlannerNode:
             ack = msg.trajectory
             if ack is not None:
                 self.acks.offer(robot, ack)
+            if self.track is not None:
+                self.track.on_status(robot, msg)
             if msg.mode in HALTED_MODES or msg.protective_stop:
-                self._stop_track(f"{robot} is {msg.mode}")
                 self.tracks.halted(robot, None if ack is None else ack.id)
                 if ack is not None:
                     self.execution.cancel(f"{robot} is {msg.mode}", ack.id)

@@ -48,6 +48,8 @@ MAX_STREAM_BYTES = 64 * 1024
 #: s: the session stops when no frame of its stream came this long after its start
 FIRST_FRAME_TIMEOUT = 1.0
 TRACK_SCHEMA = "beamrelay.track/1"
+#: rad/s: a track request starts only while every joint is slower than this
+REST_SPEED = 0.01
 
 
 class TrackSession:
@@ -108,6 +110,18 @@ class TrackSession:
     def wait(self, timeout: float | None = None) -> bool:
         """Block until the session has ended; True if it has."""
         return self._done.wait(timeout)
+
+    def on_status(self, robot: str, msg: Any) -> None:
+        """A driver's :class:`~schemas.messages.RobotStatus`: end when it ended or refused
+        this stream (of this session, since it started), faults or protective-stops."""
+        if not self.active:
+            return
+        s: Any = getattr(msg, "stream", None)
+        ours = s is not None and s.id == self.id and s.session == self._streamer.session_id
+        if ours and s.state != "streaming" and (s.t or 0.0) >= self.t_start:
+            self.stop(f"{robot} ended the stream ({s.state}): {s.reason}")
+        if msg.protective_stop or msg.mode == "fault":
+            self.stop(f"{robot} is {msg.mode}: {msg.fault or 'protective stop'}")
 
     # --- target stream ---------------------------------------------------------------------
     def _on_sample(self, sample: Any) -> None:
@@ -235,6 +249,12 @@ def start_track(node: Any, req: Any) -> dict[str, Any]:
         raise InputError("this planner has no tracking IK (no closed form for its arms)", "mode")
     node.check_drivers()
     start = node.joints.current()
+    for robot in system.robot_names:
+        entry = node.joints.get(robot)
+        speed = 0.0 if entry is None else float(np.abs(entry[2]).max())
+        if speed > REST_SPEED:
+            raise ExecuteError(f"{robot} moves at {speed:.3f} rad/s: track once it rests",
+                               [robot])  # fmt: skip
     targets = handler.targets(req)
     first = targets.points[0]
     normal = None if targets.normals is None else targets.normals[0]
