@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import pytest
+
 from planner.bench.track import CASES, run_case
 
 
+@pytest.mark.slow
 def test_breathing_spot_error_with_the_laser_on_is_under_a_millimetre() -> None:
     f = run_case(CASES["breathing"], seconds=3.0, seed=1)
     assert f["stopped"] is None
