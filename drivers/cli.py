@@ -205,6 +205,45 @@ def camera(
     _run(node, session, f"camera: {backend.value} driver up (prefix {prefix})")
 
 
+@app.command("tracker")
+def tracker(
+    scenario: Path = SCENARIO,
+    endpoint: str | None = ENDPOINT,
+    zenoh_config: Path | None = ZCONFIG,
+    prefix: str = PREFIX,
+    listen: bool = LISTEN,
+    rate: float = typer.Option(30.0, "--rate", help="Frames per second, Hz."),
+    latency: float = typer.Option(0.02, "--latency", help="Capture -> message delay, s."),
+    seed: int | None = typer.Option(None, "--seed", help="Noise seed."),
+) -> None:
+    """Run the simulated marker tracker: the scenario's targets on moving objects."""
+    from drivers.camera.tracker import SimTracker, TrackerNode, tracked_objects
+    from planner.errors import InputError
+    from planner.io.scenario import load_scenario, scene_objects, system_from_scenario
+    from planner.io.scenario import targets_from_scenario as targets_of
+    from planner.service.bus import Keys, open_session
+
+    if not 1.0 <= rate <= 200.0:
+        raise InputError(f"must be in [1, 200] Hz, got {rate:g}", "--rate")
+    if not 0.0 <= latency < 1.0 / rate:
+        raise InputError(
+            f"must be in [0, {1 / rate:g}) s (one frame), got {latency:g}", "--latency"
+        )
+    scn = load_scenario(scenario)
+    truth = system_from_scenario(scn, truth=True)
+    if truth.camera is None:
+        raise InputError("the tracker needs system.camera in the scenario", "system.camera")
+    t = targets_of(scn, system_from_scenario(scn))
+    objects = tracked_objects(scene_objects(scn), t.points, t.normals)
+    if not objects:
+        raise InputError("no targets.points lie on a scene object with a motion", "targets")
+    source = SimTracker(objects, truth.camera.world_T_camera, truth.camera.intrinsics.fx, seed)
+    session = open_session(listen=listen, endpoint=endpoint, config_file=zenoh_config)
+    node = TrackerNode(session, Keys(prefix), source, rate=rate, latency=latency)
+    names = ", ".join(o.item.name for o in objects)
+    _run(node, session, f"tracker: {names} on {Keys(prefix).target_stream} (prefix {prefix})")
+
+
 @app.command("bench")
 def bench(
     seconds: float = typer.Option(5.0, "--seconds", help="Flood duration, s."),

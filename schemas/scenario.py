@@ -37,6 +37,7 @@ from schemas.common import (
     check_translation,
     exact_length,
 )
+from schemas.motion import Motion
 from schemas.targets import GridSpec as GridSpec
 from schemas.targets import PathSpec as PathSpec
 from schemas.targets import TargetSpec
@@ -325,7 +326,8 @@ class SceneObject(StrictModel):
 
     ``box``: full extents [x, y, z] centred on the frame; ``sphere``: radius; ``cylinder``:
     [radius, height] along z, centred; ``mesh``: PLY/OBJ/STL path (relative to the scenario)
-    in object coordinates times ``scale``.
+    in object coordinates times ``scale``. ``motion`` (:class:`schemas.motion.Motion`, simulation
+    only) moves the object in the simulated world; planning ignores it.
     """
 
     name: Name
@@ -335,6 +337,7 @@ class SceneObject(StrictModel):
     sphere: PosNum | None = None
     cylinder: PosVec2 | None = None
     world_T_object: Pose = Field(default_factory=Pose)
+    motion: Motion | None = None
 
     @model_validator(mode="after")
     def _one_shape(self) -> Self:

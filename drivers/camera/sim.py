@@ -3,8 +3,10 @@
 Point cloud: the scene objects (:func:`planner.io.scenario.scene_objects`: box, mesh, sphere,
 cylinder, in the world) go into one open3d ``RaycastingScene``; one ray per pixel (every
 ``stride``-th pixel) from the *true* camera pose (``truth:`` system) gives the noiseless
-depth z (m, along the optical axis). The scene is static, so that raycast is done once;
-every frame only redraws the D435 depth noise, Gaussian along the pixel's ray with
+depth z (m, along the optical axis). Static objects are raycast once; an object with a
+``motion:`` (:mod:`drivers.camera.moving`) is cast again every frame at the frame's time
+(``clock()``, UNIX s by default), only for the pixels whose rays meet its swept box. Every
+frame redraws the D435 depth noise, Gaussian along the pixel's ray with
 
     sigma_z = z^2 * subpixel / (fx * baseline),   subpixel = 0.08 px, baseline = 0.050 m
 
@@ -17,7 +19,8 @@ Laser spot: only while the laser is on. With a gate (the scenario's ``laser.gate
 one the laser counts as always on. The *true* beam - the latest joint states of every robot traced with the
 ``truth:`` geometry (:class:`planner.beam.graph.BeamModel`) - must be a valid reflection chain
 (ahead, front face, inside each ROI), else no spot. Each beam segment is raycast against the
-scene (an object in the way catches the beam there), the last one gives the spot. It must be
+scene at the frame's time (an object in the way catches the beam there: a moving object
+where it is then), the last one gives the spot. It must be
 inside the image and visible from the camera (no object between), else no spot. The
 detection deprojects the spot's centroid pixel (noise ``SIGMA_PX`` = 0.05 px per axis) with
 the depth of a plane fitted to the ``SPOT_WINDOW`` x ``SPOT_WINDOW`` pixels around it (noise
@@ -28,11 +31,14 @@ makes a long, dim spot), at least 0.05.
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.camera.moving import MovingScene
 from drivers.camera.node import SpotReading
 from planner.beam.graph import BeamModel
 from planner.model.scene import SceneItem
@@ -84,14 +90,14 @@ class SimCamera:
     """Camera source for :class:`drivers.camera.node.CameraNode` (see module docstring).
 
     ``system`` is the *true* system (``system_from_scenario(scn, truth=True)``); it must
-    have a camera.
+    have a camera. ``clock`` gives the simulation time (s) of a frame, read in :meth:`grab`.
     """
 
     kind = "sim"
 
     def __init__(
         self, system: System, items: list[SceneItem], *, stride: int = 1, seed: int | None = None,
-        gated: bool = False,
+        gated: bool = False, clock: Callable[[], float] = time.time,
     ) -> None:  # fmt: skip
         from planner.errors import InputError
 
@@ -103,18 +109,51 @@ class SimCamera:
         self.camera: Camera = system.camera
         self.stride = stride
         self.rng = np.random.default_rng(seed)
-        self.scene = build_scene(items)
+        self.world = MovingScene(items)
+        self.scene = self.world.static.raycasting_scene  # the objects that never move
+        self.clock = clock
+        self.t = clock()
         self.beam = BeamModel(system)
         self.robot_names = system.robot_names
         self.q: dict[str, Array] = {}
         self.gated = gated
         self.laser = False  # the gate's last published state (off until told otherwise)
-        z, rays = render_depth(self.scene, self.camera, stride)
+        z, rays = render_depth(self.world.static.raycasting_scene, self.camera, stride)
+        self._z_static, self._rays_all = z, rays
+        self._watch = [self._swept_pixels(j) for j in range(len(self.world.moving))]
         ok = np.isfinite(z)
         self._z = z[ok].astype(np.float32)
         self._rays = rays[ok].astype(np.float32)
         self._sigma = depth_sigma(self._z, self.camera.intrinsics.fx).astype(np.float32)
         self.camera_T_world = inv_T(self.camera.world_T_camera)
+
+    def _swept_pixels(self, j: int) -> Any:
+        """Indices of the pixel rays that meet moving object ``j``'s swept box."""
+        from planner.model.scene import SceneModel
+
+        box = SceneModel([self.world.swept_box(j)])
+        c, R = self.camera.world_T_camera[:3, 3], self.camera.world_T_camera[:3, :3]
+        dirs = self._rays_all @ R.T
+        t = box.cast(np.broadcast_to(c, dirs.shape), dirs).t
+        return np.flatnonzero(np.isfinite(t))
+
+    def depth(self) -> tuple[F32, F32]:
+        """Noiseless depth z (m) of the pixels that see something at the frame's time, and
+        their rays (x/z, y/z, 1), camera frame."""
+        if not self.world.has_motion:
+            return self._z, self._rays
+        z = self._z_static.copy()
+        c, R = self.camera.world_T_camera[:3, 3], self.camera.world_T_camera[:3, :3]
+        for j, idx in enumerate(self._watch):
+            dirs = self._rays_all[idx] @ R.T
+            zj = self.world.object_cast(j, np.broadcast_to(c, dirs.shape), dirs, self.t)
+            z[idx] = np.minimum(z[idx], zj)
+        ok = np.isfinite(z)
+        return z[ok].astype(np.float32), self._rays_all[ok].astype(np.float32)
+
+    def frame_time(self) -> float:
+        """The simulation time (s) of the current frame (set by :meth:`grab`)."""
+        return self.t
 
     def on_joint_state(self, robot: str, q: Array) -> None:
         """Latest measured joints of one robot (rad)."""
@@ -125,12 +164,18 @@ class SimCamera:
         self.laser = bool(on)
 
     def grab(self) -> None:
-        """Nothing to grab: the scene is rendered on demand."""
+        """Start a frame: read its time from the clock (the scene is rendered on demand)."""
+        self.t = self.clock()
 
     def points(self) -> tuple[F32, dict[str, Any]]:
         """One noisy cloud (M x 3 float32, camera frame) and its metadata."""
-        z = self._z + self._sigma * self.rng.standard_normal(len(self._z), dtype=np.float32)
-        pts = self._rays * z[:, None]
+        z0, rays = self.depth()
+        if self.world.has_motion:
+            sigma = depth_sigma(z0, self.camera.intrinsics.fx).astype(np.float32)
+        else:
+            sigma = self._sigma
+        z = z0 + sigma * self.rng.standard_normal(len(z0), dtype=np.float32)
+        pts = rays * z[:, None]
         k = self.camera.intrinsics
         meta = {"width": k.width, "height": k.height, "stride": self.stride, "organized": False}
         return pts, meta
@@ -203,13 +248,10 @@ class SimCamera:
         return p
 
     def _cast(self, p: Array, v: Array) -> tuple[float, Array]:
-        """Distance along unit ray (p, v) to the scene (inf = miss) and the surface normal."""
-        import open3d as o3d
-
-        ray = np.hstack([p + EPS * v, v]).astype(np.float32)[None]
-        hit = self.scene.cast_rays(o3d.core.Tensor.from_numpy(ray))
-        t = float(hit["t_hit"].numpy()[0])
-        return t + EPS, hit["primitive_normals"].numpy()[0].astype(float)
+        """Distance along unit ray (p, v) to the scene at the frame's time (inf = miss) and
+        the surface normal."""
+        hit = self.world.cast((p + EPS * v)[None], np.asarray(v)[None], self.t)
+        return float(hit.t[0]) + EPS, hit.normal[0]
 
     def close(self) -> None:
         """Nothing to release."""

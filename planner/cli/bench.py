@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import typer
 
-from planner.bench import ik, marking, path, plan, safety, service, servo
+from planner.bench import ik, marking, path, plan, safety, service, servo, track
 
 app = typer.Typer(help="Benchmarks (figures printed, not asserted).", no_args_is_help=True)
 
@@ -18,6 +18,7 @@ BENCHMARKS = {
     "plan": plan,
     "safety": safety,
     "servo": servo,
+    "track": track,
 }
 """Command name -> benchmark module (its ``command`` is the sub-command)."""
 

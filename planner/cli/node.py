@@ -188,6 +188,17 @@ def request(
         typer.Option("--tolerance", help="Closed-loop measured-error tolerance (m; default 3e-4)."),
     ] = None,
     timeout: Annotated[float, typer.Option(help="Seconds to wait for the reply.")] = 10.0,
+    track: Annotated[
+        str | None,
+        typer.Option(
+            "--track",
+            help="Follow the target stream of this id (the first point is"
+            " its first estimate; moves the robots).",
+        ),
+    ] = None,
+    duration: Annotated[
+        float | None, typer.Option("--duration", help="--track: seconds to follow it.")
+    ] = None,
     endpoint: EndpointOpt = None,
     prefix: PrefixOpt = "beamrelay",
     zenoh_config: ZenohConfigOpt = None,
@@ -236,6 +247,14 @@ def request(
     req = make_request(pts, frame=frame, normals=nrm, path=path, execute=execute,
                        closed_loop=closed_loop, dwell=dwell, tolerance=tolerance)  # fmt: skip
     reply_timeout = timeout + (CLOSED_LOOP_SECONDS_PER_TARGET * len(pts) if closed_loop else 0.0)
+    if track is not None:
+        if closed_loop:
+            raise InputError("--closed-loop: not with --track (tracking gates the laser itself)")
+        _track_request(req, track, duration, path, timeout, (endpoint, prefix, zenoh_config),
+                       as_json)  # fmt: skip
+        return
+    if duration is not None:
+        raise InputError("--duration: only with --track")
     console = Console(stderr=as_json)
     client = PlanClient(
         endpoint=endpoint, prefix=prefix, zenoh_config=zenoh_config, connect_timeout=timeout
@@ -300,6 +319,65 @@ def print_closed_loop(console: object, plan: dict) -> None:
                   f"{mm(x.get('measured_error_median'))}, max "
                   f"{mm(x.get('measured_error_before_max'))} -> {mm(x.get('measured_error_max'))}",
                   markup=False, soft_wrap=True)  # fmt: skip
+
+
+def _track_request(
+    req: dict, stream: str, duration: float | None, path: bool, timeout: float,
+    bus: tuple, as_json: bool,
+) -> None:  # fmt: skip
+    """Send a ``mode: track`` request and, with a duration, wait for the session's summary
+    (published on ``<prefix>/plans``); prints it (``--json``: as one JSON object)."""
+    import json
+    import threading
+
+    from planner.service.client import PlanClient, RequestError
+
+    if path:
+        raise InputError("--track follows one moving target: not with --path")
+    if duration is not None and not 0 < duration <= 3600:
+        raise InputError(f"--duration {duration}: expected (0, 3600] s")
+    req.update(id=stream, mode="track", execute=True)
+    if duration is not None:
+        req["duration"] = duration
+    endpoint, prefix, zenoh_config = bus
+    summaries: list[dict] = []
+    got = threading.Event()
+
+    def on_plan(sample: object) -> None:
+        body = json.loads(sample.payload.to_bytes())  # type: ignore[attr-defined]
+        if body.get("schema") == "beamrelay.track/1" and body.get("id") == stream:
+            summaries.append(body)
+            got.set()
+
+    client = PlanClient(endpoint=endpoint, prefix=prefix, zenoh_config=zenoh_config,
+                        connect_timeout=timeout)  # fmt: skip
+    with client:
+        sub = client.session.declare_subscriber(f"{prefix}/plans", on_plan)
+        try:
+            if not client.wait_for_node("planner", timeout):
+                raise RequestError(f"no planner on the bus ({prefix}/alive/planner)")
+            reply = client.request(req, timeout)
+            typer.echo(f"tracking {stream!r}: {reply.get('execution')}", err=as_json)
+            if duration is not None and not got.wait(duration + timeout):
+                raise RequestError(
+                    f"no summary of tracking {stream!r} within {duration + timeout:g} s"
+                )
+        except RequestError as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(1) from exc
+        finally:
+            sub.undeclare()
+    if summaries:
+        s = summaries[-1]
+        if as_json:
+            print(json.dumps(s))
+        else:
+            lat = s.get("latency_p99")
+            typer.echo(
+                f"ended: {s['ended']}; {s['frames']} frames, laser on "
+                f"{100 * s['laser_on_fraction']:.0f} %"
+                + ("" if lat is None else f", frame -> setpoint p99 {1e3 * lat:.2f} ms")
+            )
 
 
 def print_summary(console: object, plan: dict, spots: list | None) -> None:

@@ -83,7 +83,10 @@ def _item_dict(item: SceneItem) -> dict[str, Any]:
         shape = {"cylinder": [item.radius, item.height]}
     else:
         shape = {"mesh": str(item.mesh_path), "scale": item.scale}
-    return {"name": item.name, **shape, "world_T_object": _pose(item.world_T_object)}
+    out = {"name": item.name, **shape, "world_T_object": _pose(item.world_T_object)}
+    if item.motion is not None:
+        out["motion"] = item.motion.to_dict()
+    return out
 
 
 def resolved_scenario_dict(scn: LoadedScenario) -> dict[str, Any]:

@@ -20,6 +20,7 @@ import numpy as np
 from planner.errors import InputError, ScenarioError
 from planner.io.plausibility import emit, scenario_warnings
 from planner.model import robots
+from planner.model.motion import motion_from_schema
 from planner.model.scene import SceneItem, SceneModel
 from planner.model.settings import TrajectorySettings
 from planner.model.system import (
@@ -331,16 +332,18 @@ def scene_objects(scn: LoadedScenario) -> list[SceneItem]:
     items = []
     for obj in scn.model.scene:
         T = obj.world_T_object.matrix()
+        mv = None if obj.motion is None else motion_from_schema(obj.motion)
         if obj.box is not None:
-            items.append(SceneItem(obj.name, "box", T, extents=np.asarray(obj.box, dtype=float)))
+            extents = np.asarray(obj.box, dtype=float)
+            items.append(SceneItem(obj.name, "box", T, extents=extents, motion=mv))
         elif obj.sphere is not None:
-            items.append(SceneItem(obj.name, "sphere", T, radius=obj.sphere))
+            items.append(SceneItem(obj.name, "sphere", T, radius=obj.sphere, motion=mv))
         elif obj.cylinder is not None:
             r, h = obj.cylinder
-            items.append(SceneItem(obj.name, "cylinder", T, radius=r, height=h))
+            items.append(SceneItem(obj.name, "cylinder", T, radius=r, height=h, motion=mv))
         elif obj.mesh is not None:
             path, scale = scn.resolve_path(obj.mesh), obj.scale or 1.0
-            items.append(SceneItem(obj.name, "mesh", T, mesh_path=path, scale=scale))
+            items.append(SceneItem(obj.name, "mesh", T, mesh_path=path, scale=scale, motion=mv))
     return items
 
 

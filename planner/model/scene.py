@@ -24,6 +24,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from planner.errors import InputError
+from planner.model.motion import ObjectMotion
 from planner.model.transforms import Array
 
 SPHERE_RESOLUTION = 48
@@ -41,6 +42,8 @@ class SceneItem:
 
     ``extents``: box full size (m); ``radius``/``height``: sphere or cylinder (along the
     object's z, centred); ``mesh_path`` (absolute) scaled by ``scale`` into metres.
+    ``motion`` (simulation only) moves it in the simulated world; the planner's scene is
+    the object at ``world_T_object``.
     """
 
     name: str
@@ -51,6 +54,7 @@ class SceneItem:
     height: float | None = None
     mesh_path: Path | None = None
     scale: float = 1.0
+    motion: ObjectMotion | None = None
 
 
 class RayHits(NamedTuple):

@@ -219,7 +219,17 @@ def handler_from_scenario(path: Any) -> RequestHandler:
                            scene_model(scn), safety)  # fmt: skip
     gated = model.system.laser.gate is not None
     closed = closed_loop_config(system, settings, safety, gated)
-    return RequestHandler(system, plan_fn, closed_loop=closed)
+    tracker = track_ik(system, ik_options(model.solver), safety)
+    return RequestHandler(system, plan_fn, closed_loop=closed, track_ik=tracker)
+
+
+def track_ik(system: System, options: Any, safety: Safety | None) -> Any:
+    """The IK that follows ``mode: track`` targets (closed form with the safety rules), or
+    None when an arm has no analytic seed model."""
+    from planner.ik import BeamIK
+
+    ik = BeamIK(system, options, safety)
+    return ik if ik.closed_form is not None else None
 
 
 @dataclass
@@ -231,6 +241,7 @@ class RequestHandler:
     path_spacing: float = PATH_SPACING
     closed_loop: ClosedLoopConfig | None = None
     """closed-loop execution (:mod:`planner.service.closed_loop`); None: refused"""
+    track_ik: Any = None  # a BeamIK for ``mode: track`` (None: tracking refused)
 
     def targets(self, req: Any) -> Targets:
         """World-frame targets of a validated TargetRequest (points in metres)."""

@@ -131,6 +131,8 @@ class PlannerNode:
         self.on_fatal: Callable[[str], None] | None = None
         self.failed: str | None = None
         self.served = 0
+        self.track: Any = None  # the running TrackSession of a ``mode: track`` request
+        self.track_settings: Any = None  # TrackSettings for track requests (None: defaults)
 
     # --- lifecycle -------------------------------------------------------------------------
     def start(self) -> PlannerNode:
@@ -174,6 +176,7 @@ class PlannerNode:
     def close(self) -> None:
         """Stop beating, undeclare everything, stop the worker (the session stays open)."""
         self._closing.set()
+        self._stop_track("the planner node closes")
         if self.heartbeat is not None:
             self.heartbeat.stop()
         self._undeclare_token()
@@ -200,6 +203,7 @@ class PlannerNode:
             return
         self.failed = reason
         log.critical("planner node failed: %s", reason)
+        self._stop_track(f"planner failed: {reason}")
         if self.heartbeat is not None:
             self.heartbeat.stop()
         try:
@@ -250,6 +254,8 @@ class PlannerNode:
             ack = msg.trajectory
             if ack is not None:
                 self.acks.offer(robot, ack)
+            if self.track is not None:
+                self.track.on_status(robot, msg)
             if msg.mode in HALTED_MODES or msg.protective_stop:
                 self.tracks.halted(robot, None if ack is None else ack.id)
                 if ack is not None:
@@ -259,6 +265,7 @@ class PlannerNode:
 
     def _on_stop(self, _sample: Any) -> None:
         self.stop_seen.set()
+        self._stop_track(f"stop seen on {self.keys.stop}")
         self.tracks.clear()
         self.execution.cancel(f"stop seen on {self.keys.stop}")
 
@@ -358,6 +365,17 @@ class PlannerNode:
         check_closed_loop(req, self.handler.system)
         if req.closed_loop and self.handler.closed_loop is None:
             raise InputError("this planner serves no closed_loop requests", "closed_loop")
+
+        """Handle one request body: validate, plan, maybe execute; the plan.json reply.
+        While a ``mode: track`` request runs, every request gets a "busy tracking" error."""
+        if self.track is not None and self.track.active:
+            raise InputError(f"planner busy tracking {self.track.id!r}: publish on "
+                             f"{self.keys.stop} to end it, or wait for its duration", "body")  # fmt: skip
+        req = self.handler.parse(payload)
+        if req.mode == "track":
+            from planner.service.track import start_track
+
+            return encode_json(start_track(self, req))
         targets = self.handler.targets(req)
         self.progress.targets(len(targets.points))
         start = None
@@ -429,6 +447,17 @@ class PlannerNode:
     def rests_at(self, q: Array) -> bool:
         """Whether every robot's fresh joint state is at rest on stacked ``q`` (rad)."""
         return self.joints.rests_at(self.handler.system.split_q(q))
+
+    def _stop_track(self, reason: str) -> None:
+        if self.track is not None and self.track.active:
+            self.track.stop(reason)
+
+    def track_ended(self, summary: dict[str, Any]) -> None:
+        """A track session's figures, published on ``<prefix>/plans``."""
+        try:
+            self._plans.put(encode_json(summary), encoding=JSON)
+        except Exception:  # the session may be closing
+            log.exception("could not publish the tracking summary")
 
     def _publish_trajectory(self, robot: str, body: bytes) -> None:
         self._publishers[robot].put(body, encoding=JSON)

@@ -47,8 +47,10 @@ def child_commands(
     zenoh_config: Path | None = None,
     planner_zenoh_config: Path | None = None,
     hosts: dict[str, str] | None = None,
+    tracker: bool = False,
 ) -> dict[str, list[str]]:
-    """argv of every child: ``planner``, ``camera`` (if any), then one per robot. Every child
+    """argv of every child: ``planner``, ``camera`` (if any), the simulated ``tracker`` (sim
+    only, when asked: the scenario has targets on a moving object), then one per robot. Every child
     gets ``zenoh_config`` except the planner, which gets ``planner_zenoh_config`` if given
     (its own identity on a bus with access control)."""
     cli = [sys.executable, "-m", "planner.cli"]
@@ -64,6 +66,8 @@ def child_commands(
         out["camera"] = [
             *cli, "driver", "camera", "--backend", cam_backend, "--scenario", str(scenario), *bus
         ]  # fmt: skip
+    if tracker and backend == "sim":
+        out["tracker"] = [*cli, "driver", "tracker", "--scenario", str(scenario), *bus]
     for r in robots:
         host = ["--host", hosts[r]] if hosts and r in hosts else []
         out[r] = [
@@ -71,6 +75,17 @@ def child_commands(
             str(scenario), *bus,
         ]  # fmt: skip
     return out
+
+
+def has_tracked_targets(scn: Any) -> bool:
+    """True when some of the scenario's ``targets.points`` lie on a moving scene object."""
+    if scn.model.targets.points is None or not any(o.motion for o in scn.model.scene):
+        return False
+    from drivers.camera.tracker import tracked_objects
+    from planner.io.scenario import scene_objects, system_from_scenario, targets_from_scenario
+
+    t = targets_from_scenario(scn, system_from_scenario(scn))
+    return bool(tracked_objects(scene_objects(scn), t.points, t.normals))
 
 
 def parse_hosts(items: list[str], robots: list[str], backend: str) -> dict[str, str]:
@@ -239,7 +254,7 @@ def run_up(
     argv = child_commands(
         Path(scenario).resolve(), robots, backend=backend, endpoint=endpoint, prefix=prefix,
         camera=has_camera, zenoh_config=configs[0], planner_zenoh_config=configs[1],
-        hosts=host_map,
+        hosts=host_map, tracker=has_camera and has_tracked_targets(scn),
     )  # fmt: skip
     log_dir = Path(log_dir or tempfile.mkdtemp(prefix="beamrelay-up-"))
     session = open_session(listen=True, endpoint=endpoint, config_file=configs[0])

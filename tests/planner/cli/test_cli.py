@@ -89,6 +89,7 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
         "plan",
         "safety",
         "service",
+        "track",
     ]
 
 

@@ -1,0 +1,149 @@
+"""Simulated marker tracker: the moving targets of a scenario, seen by the D435, on the bus.
+
+Tracked points: the scenario's ``targets.points`` (world frame) that lie on a scene object
+with a ``motion:`` (within :data:`ON_SURFACE` of its surface at rest), one stream per such
+object, ``id`` = the object's name. At time ``t`` (the simulation clock,
+:mod:`planner.model.motion`) each point is where the motion puts it, seen through the
+marker noise of the simulated camera's spot model (:class:`planner.track.noise.MarkerNoise`
+with :data:`drivers.camera.sim.SIGMA_PX` and :data:`drivers.camera.sim.SPOT_WINDOW`) from
+the *true* camera pose; normals (when the scenario gives them) are unchanged (the motions
+translate). No occlusion test: a marker is always seen.
+
+:class:`TrackerNode` publishes :class:`schemas.messages.TargetStream` on
+``<prefix>/targets/stream`` (liveliness token ``<prefix>/alive/tracker``) at ``rate`` (30 Hz, the camera's), each message ``latency`` s
+after its capture time ``t`` (which it carries), as a marker tracker's processing would.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from drivers.camera.sim import SIGMA_PX, SPOT_WINDOW
+from drivers.loop_node import LoopNode
+from planner.model.scene import SceneItem, SceneModel
+from planner.model.transforms import Array
+from planner.service.bus import Keys
+from planner.track.noise import MarkerNoise
+from schemas.messages import TargetStream
+
+#: m: a target this close to a moving object's surface (at rest) moves with it
+ON_SURFACE = 1e-3
+#: s: default time from a frame's capture to its message
+LATENCY = 0.02
+
+
+@dataclass(frozen=True)
+class TrackedObject:
+    """The targets (world, m, at rest) on one moving scene object."""
+
+    item: SceneItem
+    points: Array
+    normals: Array | None
+
+
+def tracked_objects(
+    items: list[SceneItem], points: Array, normals: Array | None
+) -> list[TrackedObject]:
+    """The moving objects that carry some of ``points`` (K x 3, world), with those points."""
+    out = []
+    P = np.asarray(points, dtype=float).reshape(-1, 3)
+    for item in items:
+        if item.motion is None:
+            continue
+        import dataclasses
+
+        import open3d as o3d
+
+        scene = SceneModel([dataclasses.replace(item, motion=None)]).raycasting_scene
+        d = scene.compute_distance(
+            o3d.core.Tensor.from_numpy(np.ascontiguousarray(P, dtype=np.float32))
+        ).numpy()
+        on = d <= ON_SURFACE
+        if on.any():
+            n = None if normals is None else np.asarray(normals, dtype=float)[on]
+            out.append(TrackedObject(item, P[on], n))
+    return out
+
+
+class SimTracker:
+    """Noisy views of the tracked objects at time ``t`` (see the module docstring)."""
+
+    def __init__(
+        self, objects: list[TrackedObject], world_T_camera: Array, fx: float, seed: int | None
+    ) -> None:
+        self.objects = objects
+        self.world_T_camera = np.asarray(world_T_camera, dtype=float)
+        self.noise = MarkerNoise(fx=fx, centroid_px=SIGMA_PX, window_px=SPOT_WINDOW)
+        self.rng = np.random.default_rng(seed)
+
+    def true_points(self, obj: TrackedObject, t: float) -> Array:
+        """The object's targets at ``t`` (s), world, m."""
+        assert obj.item.motion is not None
+        return obj.points + obj.item.motion.offset(t)
+
+    def measure(self, t: float) -> list[TargetStream]:
+        """One message per tracked object for a frame captured at ``t`` (s)."""
+        R, c = self.world_T_camera[:3, :3], self.world_T_camera[:3, 3]
+        out = []
+        for obj in self.objects:
+            seen = [
+                R @ self.noise.sample_camera(R.T @ (p - c), self.rng) + c
+                for p in self.true_points(obj, t)
+            ]
+            normals = None if obj.normals is None else obj.normals.tolist()
+            out.append(TargetStream(t=t, id=obj.item.name, points=[s.tolist() for s in seen],
+                                    normals=normals))  # fmt: skip
+        return out
+
+
+class TrackerNode(LoopNode):
+    """Publishes a :class:`SimTracker`'s messages at ``rate`` Hz, ``latency`` s late."""
+
+    def __init__(
+        self,
+        session: Any,
+        keys: Keys,
+        tracker: SimTracker,
+        *,
+        rate: float = 30.0,
+        latency: float = LATENCY,
+        clock: Callable[[], float] = time.time,
+    ) -> None:
+        super().__init__()
+        if not 0 <= latency < 1.0 / rate:
+            raise ValueError(f"latency {latency:g} s must be in [0, {1 / rate:g}) s (one frame)")
+        self.session, self.keys, self.tracker = session, keys, tracker
+        self.period, self.latency, self.clock = 1.0 / rate, latency, clock
+        self.frames = 0
+
+    def start(self) -> TrackerNode:
+        from planner.service.bus import JSON
+
+        self._pub = self.session.declare_publisher(self.keys.target_stream, encoding=JSON)
+        self._handles.append(self._pub)
+        self._handles.append(self.session.liveliness().declare_token(self.keys.alive("tracker")))
+        self._start_loop("tracker")
+        return self
+
+    def _loop(self) -> None:
+        from planner.service.bus import encode
+
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            msgs = self.tracker.measure(self.clock())
+            if self._stop.wait(self.latency):
+                return
+            for msg in msgs:
+                self._pub.put(encode(msg))
+            self.frames += 1
+            next_t += self.period
+            delay = next_t - time.monotonic()
+            if delay > 0:
+                self._stop.wait(delay)
+            else:
+                next_t = time.monotonic()

@@ -1,0 +1,178 @@
+"""``beamrelay bench track``: spot error on a moving target and the frame -> setpoint latency.
+
+In one process, on a simulated clock (deterministic for a seed): the simulated tracker
+(:class:`drivers.camera.tracker.SimTracker`, D435 marker noise, 30 Hz, its ``latency``)
+reports the first target of ``scenarios/breathing.yaml`` on the moving phantom; the planner's
+:class:`planner.track.follow.TargetFollower` (Kalman prediction, closed-form IK nearest the
+current command with the scenario's safety rules, 500 Hz limited setpoints) follows it; the
+arm reaches each setpoint at its time ``t`` (an ideal follower: the setpoint's own lead is
+the only actuation delay); the simulated camera (:class:`drivers.camera.sim.SimCamera`)
+traces the true beam at the arm's joints onto the phantom where its motion puts it. Spot
+error = |true spot - true target| every 5th control period (100 Hz), over the periods with the laser
+on (and over all, for comparison). Cases: (a) ``linear``: the phantom moves in its plane at
+20 mm/s for 2.5 s, then back; (b) ``breathing``: the scenario's own sine, 5 mm at 0.25 Hz
+along its normal. The latency is wall time from a frame's receipt to its first setpoint:
+the follower's processing (prediction, two IK solves, the beam Jacobian) plus the wait for
+the next control period. Figures are printed, not asserted.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+
+from planner.model.motion import ObjectMotion
+
+#: the true spot is traced every SPOT_EVERY control periods (100 Hz)
+SPOT_EVERY = 5
+CASES = {
+    "linear": ObjectMotion.linear([0.02, 0.0, 0.0], 2.5),
+    "breathing": None,  # the scenario's own motion
+}
+
+
+def run_case(
+    motion: ObjectMotion | None, seconds: float, seed: int, latency: float = 0.02
+) -> dict[str, Any]:
+    """Simulate ``seconds`` s of tracking the breathing scenario's first moving target (its
+    motion replaced by ``motion`` when given); figures in m and s."""
+    from drivers.camera.sim import SimCamera
+    from drivers.camera.tracker import SimTracker, tracked_objects
+    from planner.data import shipped_scenario
+    from planner.ik import BeamIK
+    from planner.io.scenario import load_scenario, scene_objects, system_from_scenario
+    from planner.io.scenario import targets_from_scenario as targets_of
+    from planner.planning import ik_options
+    from planner.safety.model import Safety
+    from planner.track.follow import TargetFollower, TrackSettings
+
+    scn = load_scenario(shipped_scenario("breathing.yaml"))
+    system = system_from_scenario(scn)
+    items = scene_objects(scn)
+    if motion is not None:
+        items = [dataclasses.replace(i, motion=motion) if i.motion else i for i in items]
+    targets = targets_of(scn, system)
+    obj = tracked_objects(items, targets.points, targets.normals)[0]
+    assert system.camera is not None
+    clock = [0.0]
+    cam = SimCamera(system_from_scenario(scn, truth=True), items, seed=seed, clock=lambda: clock[0])
+    one = dataclasses.replace(
+        obj, points=obj.points[:1], normals=None if obj.normals is None else obj.normals[:1]
+    )
+    tracker = SimTracker([one],
+                         system.camera.world_T_camera, system.camera.intrinsics.fx, seed)  # fmt: skip
+    ik = BeamIK(system, ik_options(scn.model.solver), Safety.from_scenario(scn, system))
+    first = obj.points[0]
+    normal = None if obj.normals is None else obj.normals[0]
+    q0 = ik.solve(first, normal).q
+    assert q0 is not None
+    settings = TrackSettings()
+    follower = TargetFollower(ik, q0, first, system.camera.world_T_camera, settings)
+    return _simulate(follower, tracker, cam, clock, system, seconds, latency)
+
+
+def _simulate(
+    follower: Any, tracker: Any, cam: Any, clock: list[float], system: Any, seconds: float,
+    latency: float,
+) -> dict[str, Any]:  # fmt: skip
+    st = follower.settings
+    dt, frame_dt = 1.0 / st.rate, 1.0 / st.frame_rate
+    pending: list[tuple[float, Any]] = []  # (receipt time, message)
+    arm: list[tuple[float, np.ndarray, bool]] = []  # setpoints: (t, q, laser)
+    q_arm, laser = follower.q.copy(), False
+    errors, lit, proc, lat, cpu = [], [], [], [], []
+    robot = system.robot_names[0]
+    obj = tracker.objects[0]
+    frames = 0
+    for k in range(round(seconds / dt)):
+        now = k * dt
+        while frames * frame_dt <= now + 1e-12:  # captures up to now, received latency later
+            t_c = frames * frame_dt
+            pending += [(t_c + latency, m) for m in tracker.measure(t_c)]
+            frames += 1
+        while pending and pending[0][0] <= now + 1e-12:
+            r, msg = pending.pop(0)
+            t0, c0 = time.perf_counter(), time.thread_time()
+            normal = None if msg.normals is None else np.asarray(msg.normals[0])
+            follower.on_frame(msg.t, np.asarray(msg.points[0]), normal, r)
+            busy = time.perf_counter() - t0
+            proc.append(busy)
+            cpu.append(time.thread_time() - c0)
+            lat.append(np.ceil((r + busy) / dt - 1e-9) * dt - r)  # to the next period's setpoint
+        sp = follower.setpoint(now)
+        if sp is not None:
+            arm.append((sp[0], sp[1], sp[3]))
+        while arm and arm[0][0] <= now + 1e-9:  # the arm reaches a setpoint at its time
+            _, q_arm, laser = arm.pop(0)
+        follower.on_joint_state(q_arm, now)
+        if k % SPOT_EVERY:
+            continue
+        clock[0] = now
+        cam.grab()
+        cam.on_joint_state(robot, system.split_q(q_arm)[robot])
+        hit = cam.true_spot_world()
+        true = tracker.true_points(obj, now)[0]
+        errors.append(np.inf if hit is None else float(np.linalg.norm(hit[0] - true)))
+        lit.append(laser and follower.stopped is None)
+    out = _figures(np.asarray(errors), np.asarray(lit), np.asarray(proc), np.asarray(lat),
+                   follower, seconds)  # fmt: skip
+    out["cpu_p50_s"], out["cpu_p99_s"] = np.percentile(cpu, [50, 99]).tolist()
+    return out
+
+
+def _figures(
+    err: np.ndarray, lit: np.ndarray, proc: np.ndarray, latency: np.ndarray, follower: Any,
+    seconds: float,
+) -> dict[str, Any]:  # fmt: skip
+    settle = round(len(err) / seconds)  # the first second: the filter converges
+    e, on = err[settle:], lit[settle:]
+    out: dict[str, Any] = {
+        "stopped": follower.stopped,
+        "laser_on_fraction": float(on.mean()),
+        "frames": len(proc),
+        "manoeuvres": int(getattr(follower.predictor, "manoeuvres", 0)),
+        "processing_p50_s": float(np.percentile(proc, 50)),
+        "processing_p99_s": float(np.percentile(proc, 99)),
+        "latency_p50_s": float(np.percentile(latency, 50)),
+        "latency_p99_s": float(np.percentile(latency, 99)),
+    }
+    for name, sel in (("laser_on", on), ("all", np.ones_like(on))):
+        x = e[sel.astype(bool) & np.isfinite(e)]
+        out[f"rms_{name}_m"] = float(np.sqrt(np.mean(x**2))) if len(x) else None
+        out[f"p95_{name}_m"] = float(np.percentile(x, 95)) if len(x) else None
+        out[f"max_{name}_m"] = float(x.max()) if len(x) else None
+    return out
+
+
+def command(
+    seconds: Annotated[
+        float, typer.Option("--seconds", min=2.0, help="Simulated s per case.")
+    ] = 12.0,
+    seed: Annotated[int, typer.Option("--seed", help="Noise seed.")] = 0,
+    latency: Annotated[
+        float, typer.Option("--latency", min=0.0, max=0.033, help="Tracker latency, s.")
+    ] = 0.02,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="One JSON object on the last line.")
+    ] = False,
+) -> None:
+    """Spot error on a moving target (linear 20 mm/s, breathing 5 mm at 0.25 Hz) and the
+    frame -> setpoint latency, simulated in-process."""
+    figures = {name: run_case(m, seconds, seed, latency) for name, m in CASES.items()}
+    for name, f in figures.items():
+        mm = {k: (None if v is None else 1e3 * v) for k, v in f.items() if k.endswith("_m")}
+        typer.echo(
+            f"{name:10s} laser-on RMS {mm['rms_laser_on_m']:.3f} mm, p95 {mm['p95_laser_on_m']:.3f}"
+            f" mm (all: RMS {mm['rms_all_m']:.3f}, p95 {mm['p95_all_m']:.3f}, max"
+            f" {mm['max_all_m']:.3f} mm); laser on {100 * f['laser_on_fraction']:.1f} %;"
+            f" frame -> setpoint p50 {1e3 * f['latency_p50_s']:.2f} ms,"
+            f" p99 {1e3 * f['latency_p99_s']:.2f} ms (processing p99"
+            f" {1e3 * f['processing_p99_s']:.2f} ms, CPU p50 {1e3 * f['cpu_p50_s']:.2f} ms)"
+        )
+    if as_json:
+        typer.echo(json.dumps(figures))

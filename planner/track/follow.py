@@ -1,0 +1,229 @@
+"""Following a moving target: tracker frames in, joint setpoints and the laser gate out.
+
+Pure (no bus, no threads, no clock: every call takes its time ``now``, s on the sender's
+clock). :class:`TargetFollower`, per tracker frame (:meth:`~TargetFollower.on_frame`):
+
+1. feeds the measured point (world, m, captured at ``t``) to the predictor (a
+   :class:`~planner.track.predict.KalmanCV` by default) with the D435 covariance of a point
+   at that place (:class:`~planner.track.noise.MarkerNoise`);
+2. predicts the target at ``t_a = now + lead`` (when a setpoint sent now takes effect) and at
+   ``t_b = t_a + frame period``, and solves the beam IK for both, continuity-aware: the
+   closed-form member nearest the current command (:class:`~planner.ik.BeamIK` warm-started
+   at it, with the scenario's safety rules);
+3. the reference ``q_ref(t)`` is the line through (t_a, q_a) and (t_b, q_b).
+
+Per setpoint (:meth:`~TargetFollower.setpoint`, 500 Hz) the reference goes through a limiter
+(per joint: velocity within the limits, velocity change per period within the acceleration
+limits, a first-order pull of time constant ``pull`` onto the reference), so consecutive
+setpoints never break a limit. The laser is on only while ``confidence`` x the prediction's
+RMS error plus the commanded-vs-reached gap (the beam Jacobian times the limiter's lag and
+the measured arm's lag behind the command) is under ``tolerance``, and the stream is fresh.
+
+The follower *stops* (laser off, no more setpoints; :attr:`TargetFollower.stopped` says
+why) when no frame came for ``stale_frames`` frame periods, when a predicted target has no
+safe solution (unreachable, outside the ROI, joint limits, a safety rule) or leaves the
+region ``max_excursion`` (m) around the first estimate, when a frame's solution is more than
+``max_jump`` (rad, any joint) from the current command (the member nearest it lies in
+another posture: the arm is never swept there), or on :meth:`stop`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from planner.beam.trace import trace_beam
+from planner.ik import BeamIK
+from planner.model.transforms import Array
+from planner.track.noise import MarkerNoise
+from planner.track.predict import ConstantVelocity, KalmanCV, Prediction
+from schemas import defaults
+
+#: m: default largest predicted error with the laser on
+TRACK_TOLERANCE = 1e-3
+#: rad: the spot Jacobian is taken again when the joints moved this far from where it was
+JACOBIAN_REUSE = 0.01
+
+
+@dataclass(frozen=True)
+class TrackSettings:
+    """How a moving target is followed (SI units; see the module docstring)."""
+
+    rate: float = defaults.SERVO_RATE_HZ  # Hz, setpoints
+    frame_rate: float = 30.0  # Hz, tracker frames expected
+    lead: float = 2.0 / defaults.SERVO_RATE_HZ  # s, a setpoint's time ahead of its sending
+    tolerance: float = TRACK_TOLERANCE  # m
+    confidence: float = 2.0  # sigmas of the prediction counted in the predicted error
+    stale_frames: float = 3.0  # frame periods without a frame before the stop
+    max_excursion: float = 0.1  # m, around the first estimate
+    max_jump: float = 0.2  # rad, largest joint change of one frame's solution
+    pull: float = 4.0 / defaults.SERVO_RATE_HZ  # s, limiter time constant
+
+    @property
+    def stale_after(self) -> float:
+        """Seconds without a frame after which the stream counts as stale."""
+        return self.stale_frames / self.frame_rate
+
+
+@dataclass(frozen=True)
+class FrameOutcome:
+    """What one frame did: the prediction at ``t_a``, the solve time (s), the stop reason
+    (None while following)."""
+
+    prediction: Prediction | None
+    solve_time: float
+    stopped: str | None
+
+
+@dataclass
+class _Segment:
+    t_a: float
+    q_a: Array
+    t_b: float
+    q_b: Array
+    sigma: float  # m, prediction RMS at t_b
+    J: Array  # 3 x nq spot Jacobian at q_a (m/rad)
+    normal: Array | None
+    target_b: Array
+
+    def q_ref(self, t: float) -> tuple[Array, Array]:
+        qd = (self.q_b - self.q_a) / (self.t_b - self.t_a)
+        return self.q_a + (t - self.t_a) * qd, qd
+
+
+@dataclass
+class TargetFollower:
+    """One tracked target (see the module docstring). ``q0``: stacked joints (rad) at the
+    start; ``first``: the target's first estimate (m, world); ``world_T_camera`` gives the
+    measurement noise (None: the measurement covariance must be passed to ``on_frame``)."""
+
+    ik: BeamIK
+    q0: Array
+    first: Array
+    world_T_camera: Array | None
+    settings: TrackSettings = field(default_factory=TrackSettings)
+    noise: MarkerNoise = field(default_factory=MarkerNoise)
+    predictor: KalmanCV | ConstantVelocity = field(default_factory=KalmanCV)
+
+    def __post_init__(self) -> None:
+        s = self.ik.system
+        lim = s.limits
+        self._vmax, self._amax = lim.velocity, lim.acceleration
+        self._lower, self._upper = lim.lower, lim.upper
+        self.q = np.asarray(self.q0, dtype=float).copy()  # the limiter's output
+        self.qd = np.zeros_like(self.q)
+        self.t_last: float | None = None  # the last setpoint's time
+        self.segment: _Segment | None = None
+        self.frame_seen: float | None = None  # ``now`` of the last frame
+        self.stopped: str | None = None
+        self.arm_gap = 0.0  # m, spot offset of the measured arm from the command
+        self._J: Array | None = None  # spot Jacobian (m/rad), reused near where it was taken
+        self._J_at = self.q
+
+    # --- frames ----------------------------------------------------------------------------
+    def on_frame(
+        self, t: float, point: Array, normal: Array | None, now: float, R: Array | None = None
+    ) -> FrameOutcome:
+        """A tracker frame: ``point`` (m, world) captured at ``t`` (s), received at ``now``."""
+        t0 = time.perf_counter()
+        if self.stopped is not None:
+            return FrameOutcome(None, 0.0, self.stopped)
+        p = np.asarray(point, dtype=float)
+        if R is None:
+            if self.world_T_camera is None:
+                raise ValueError("no camera pose and no measurement covariance")
+            R = self.noise.covariance_world(p, self.world_T_camera)
+        self.predictor.update(t, p, R)
+        self.frame_seen = now
+        st = self.settings
+        t_a = now + st.lead
+        t_b = t_a + 1.0 / st.frame_rate
+        pa, pb = self.predictor.predict(t_a), self.predictor.predict(t_b)
+        n = None if normal is None else np.asarray(normal, dtype=float)
+        for pred in (pa, pb):
+            away = float(np.linalg.norm(pred.p - self.first))
+            if away > st.max_excursion:
+                return self._halt(f"target {1e3 * away:.1f} mm from its first estimate "
+                                  f"(limit {1e3 * st.max_excursion:.0f} mm)", t0)  # fmt: skip
+        q_from = self.q if self.segment is None else self.segment.q_ref(t_a)[0]
+        sol_a = self.ik.solve(pa.p, n, q_from)
+        sol_b = self.ik.solve(pb.p, n, sol_a.q) if sol_a.ok else sol_a
+        if not (sol_a.ok and sol_b.ok) or sol_a.q is None or sol_b.q is None:
+            bad = sol_a if not sol_a.ok else sol_b
+            reason = bad.reason.value if bad.reason is not None else "failed"
+            return self._halt(f"predicted target {np.round(pb.p, 4).tolist()} m: {reason}", t0)
+        jump = float(np.abs(sol_a.q - q_from).max())
+        if jump > st.max_jump:
+            return self._halt(f"the solution for {np.round(pa.p, 4).tolist()} m is {jump:.3f}"
+                              f" rad from the command (limit {st.max_jump:g} rad)", t0)  # fmt: skip
+        if self._J is None or np.abs(sol_a.q - self._J_at).max() > JACOBIAN_REUSE:
+            self._J, self._J_at = self._jacobian(sol_a.q, pa.p, n), sol_a.q
+        J = self._J
+        self.segment = _Segment(t_a, sol_a.q, t_b, sol_b.q, pb.sigma, J, n, pb.p)
+        return FrameOutcome(pa, time.perf_counter() - t0, None)
+
+    def warm_up(self, q: Array, normal: Array | None) -> None:
+        """Run the per-frame computations once at ``q`` (rad) on the first estimate, so the
+        first frame does not pay for first calls (caches, lazily built models)."""
+        self.ik.solve(self.first, normal, q)
+        self._J, self._J_at = self._jacobian(q, self.first, normal), np.asarray(q, dtype=float)
+
+    def _halt(self, reason: str, t0: float) -> FrameOutcome:
+        self.stop(reason)
+        return FrameOutcome(None, time.perf_counter() - t0, reason)
+
+    def _jacobian(self, q: Array, target: Array, normal: Array | None) -> Array:
+        """Spot on the target plane w.r.t. q (3 x nq, m/rad), forward differences."""
+        h = 1e-7
+        s0 = trace_beam(self.ik.system, q, target, normal).spot
+        cols = []
+        for j in range(len(q)):
+            dq = np.zeros_like(q)
+            dq[j] = h
+            cols.append((trace_beam(self.ik.system, q + dq, target, normal).spot - s0) / h)
+        return np.column_stack(cols)
+
+    def on_joint_state(self, q_measured: Array, t: float) -> None:
+        """The arm's measured joints (stacked, rad) at ``t`` (s): its spot gap from the
+        command then (m) counts in the predicted error."""
+        if self.segment is None:
+            return
+        q_cmd, _ = self.segment.q_ref(t)
+        self.arm_gap = float(np.linalg.norm(self.segment.J @ (np.asarray(q_measured) - q_cmd)))
+
+    # --- setpoints -------------------------------------------------------------------------
+    def stop(self, reason: str) -> None:
+        """Stop following (idempotent: the first reason stays)."""
+        if self.stopped is None:
+            self.stopped = reason
+
+    def check_stale(self, now: float) -> str | None:
+        """Stop when the stream is stale at ``now``; the stop reason or None."""
+        if self.stopped is None and self.frame_seen is not None:
+            age = now - self.frame_seen
+            if age > self.settings.stale_after:
+                self.stop(f"target stream stale: no frame for {1e3 * age:.0f} ms "
+                          f"(limit {1e3 * self.settings.stale_after:.0f} ms)")  # fmt: skip
+        return self.stopped
+
+    def setpoint(self, now: float) -> tuple[float, Array, Array, bool] | None:
+        """The setpoint to send at ``now``: (its time t = now + lead, q, qd, laser_on), or
+        None once stopped or before the first frame."""
+        if self.check_stale(now) is not None or self.segment is None:
+            return None
+        st = self.settings
+        t = now + st.lead
+        dt = 1.0 / st.rate if self.t_last is None else max(t - self.t_last, 1e-6)
+        q_ref, qd_ref = self.segment.q_ref(t)
+        behind = self.segment.q_ref(t - dt)[0] - self.q  # the last setpoint's lag
+        qd = qd_ref + behind / max(st.pull, dt)
+        qd = np.clip(qd, -self._vmax, self._vmax)
+        qd = np.clip(qd, self.qd - self._amax * dt, self.qd + self._amax * dt)
+        q = np.clip(self.q + qd * dt, self._lower, self._upper)
+        self.qd = (q - self.q) / dt
+        self.q, self.t_last = q, t
+        lag = float(np.linalg.norm(self.segment.J @ (q - q_ref)))
+        predicted = st.confidence * self.segment.sigma + lag + self.arm_gap
+        return t, q.copy(), self.qd.copy(), bool(predicted <= st.tolerance)

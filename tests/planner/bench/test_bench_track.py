@@ -1,0 +1,16 @@
+"""``bench track`` in-process: the spot stays on the moving target with the laser on."""
+
+from __future__ import annotations
+
+import pytest
+
+from planner.bench.track import CASES, run_case
+
+
+@pytest.mark.slow
+def test_breathing_spot_error_with_the_laser_on_is_under_a_millimetre() -> None:
+    f = run_case(CASES["breathing"], seconds=3.0, seed=1)
+    assert f["stopped"] is None
+    assert f["laser_on_fraction"] > 0.9
+    assert f["rms_laser_on_m"] < 1e-3 and f["p95_laser_on_m"] < 1e-3
+    assert f["frames"] == 90  # 30 Hz for 3 s (received up to 20 ms late)

@@ -1,0 +1,134 @@
+"""``mode: track`` on the bus: setpoints follow the target stream; garbage and other ids
+are ignored while the node keeps serving; other requests get "busy tracking"; a stale
+stream turns the laser off, ends the stream and publishes a stop."""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from planner.ik import BeamIK
+from planner.service.bus import Keys, open_session
+from planner.service.heartbeat import BusAddress
+from planner.service.node import PlannerNode, handler_from_scenario
+from planner.track.follow import TrackSettings
+from tests.drivers.conftest import free_port, wait_for
+from tests.paths import SCENARIOS
+from tests.planner.raw_zenoh import Inbox, ask, raw_session
+from tests.planner.service.test_node_execute import PREFIX, FakeDriver
+
+P0 = [-0.492, -0.55, -0.06]
+
+
+@pytest.fixture
+def rig(tmp_path: Path) -> Iterator[tuple[PlannerNode, Any, Any]]:
+    text = (
+        (SCENARIOS / "breathing.yaml")
+        .read_text()
+        .replace("rpy_deg: [40, 0, 0]}", "rpy_deg: [40, 0, 0]}\n    gate: {robot: arm0, output: 0}")
+    )
+    path = tmp_path / "breathing_gated.yaml"
+    path.write_text(text)
+    handler = handler_from_scenario(path)
+    q0 = BeamIK(handler.system).solve(np.array(P0), np.array([0, 0, 1.0])).q
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    hub = open_session(listen=True, endpoint=endpoint)
+    node = PlannerNode(handler, hub, Keys(PREFIX), bus=BusAddress(endpoint))
+    # 10 frame periods (333 ms) before the stale stop: the test's own process publishes the
+    # frames and parses 500 setpoints/s under the GIL of a shared, loaded machine
+    node.track_settings = TrackSettings(stale_frames=10)
+    node.start()
+    client, fake_side = raw_session(endpoint), raw_session(endpoint)
+    fake = FakeDriver(fake_side, "arm0", list(handler.system.robots[0].joint_names), q0)
+    try:
+        wait_for(lambda: "arm0" in node.alive and node.joints.get("arm0") is not None, 20.0,
+                 "fake driver seen by the node")  # fmt: skip
+        yield node, client, fake
+    finally:
+        fake.close()
+        client.close()
+        fake_side.close()
+        node.close()
+        hub.close()
+
+
+def request(client: Any, rid: str, **kw: Any) -> tuple[bool, dict[str, Any]]:
+    body = {"schema": "beamrelay.request/1", "id": rid, "points": [P0], "normals": [[0, 0, 1]],
+            **kw}  # fmt: skip
+    ok, reply = ask(client, f"{PREFIX}/plan", json.dumps(body).encode())
+    return ok, json.loads(reply)
+
+
+def frame(rid: str, p: list[float]) -> bytes:
+    return json.dumps({"schema": "beamrelay.target_stream/1", "t": time.time(), "id": rid,
+                       "points": [p], "normals": [[0, 0, 1]]}).encode()  # fmt: skip
+
+
+def test_track_follows_ignores_garbage_refuses_others_and_stops_when_stale(rig) -> None:
+    node, client, _ = rig
+    setpoints = Inbox(client, f"{PREFIX}/arm0/setpoint")
+    stops, plans = Inbox(client, f"{PREFIX}/stop"), Inbox(client, f"{PREFIX}/plans")
+    ok, reply = request(client, "phantom", mode="track", execute=True)
+    assert ok and reply["execution"] == "accepted" and reply["tracking"]["stream"] == "phantom"
+    key = f"{PREFIX}/targets/stream"
+    garbage = [b"\xff\xfe", b"[]", b'{"schema": "beamrelay.target_stream/1"}',
+               frame("phantom", [float("nan"), 0, 0]).replace(b"NaN", b"1e400"),
+               b"x" * 100_000, frame("someone-else", [0.3, 0.3, 0.3])]  # fmt: skip
+    t_end = time.monotonic() + 1.0
+    k = 0
+    while time.monotonic() < t_end:  # 30 Hz frames, garbage in between
+        x = P0[0] + 0.002 * np.sin(np.pi * time.monotonic())  # 2 mm at 0.5 Hz
+        client.put(key, frame("phantom", [x, P0[1], P0[2]]))
+        client.put(key, garbage[k % len(garbage)])
+        k += 1
+        time.sleep(1 / 30)
+    assert node.track.active, node.track.summary
+    busy_ok, busy = request(client, "other")
+    assert not busy_ok and "busy tracking 'phantom'" in busy["error"]
+    live = setpoints.bodies()
+    assert len(live) > 50  # 500 Hz for ~1 s on an idle machine; the count is no timing test
+    assert all(b["session"] == node.session_id and b["id"] == "phantom" for b in live)
+    assert any(b["laser_on"] for b in live)
+    # frames stop: stale after 10 frame periods -> laser off, stream ends, stop sent
+    t_last = time.monotonic()
+    wait_for(lambda: not node.track.active, 3.0, "the track session to end")
+    times, bodies = setpoints.times(), setpoints.bodies()
+    assert bodies[-1]["laser_on"] is False
+    assert times[-1] - t_last < 1.0
+    n = len(bodies)
+    time.sleep(0.2)
+    assert len(setpoints.bodies()) == n  # nothing after the end
+    wait_for(lambda: len(stops.bodies()) >= 1, 2.0, "a stop message")
+    assert "stale" in stops.bodies()[-1]["reason"]
+    wait_for(lambda: any(isinstance(b, dict) and b.get("schema") == "beamrelay.track/1"
+                         for b in plans.bodies()), 2.0, "the tracking summary")  # fmt: skip
+    summary = next(b for b in plans.bodies() if isinstance(b, dict) and "ended" in b)
+    assert summary["ignored"] >= len(garbage) and summary["frames"] >= 20
+    assert 0 < summary["latency_p50"] <= summary["latency_p99"]
+    print(
+        f"frame -> setpoint latency p50 {1e3 * summary['latency_p50']:.2f} ms, "
+        f"p99 {1e3 * summary['latency_p99']:.2f} ms over {summary['frames']} frames"
+    )
+    ok, after = request(client, "after")  # serving again
+    assert ok and after["solutions"][0]["status"] == "ok"
+
+
+def test_stop_ends_tracking_and_track_needs_execute(rig) -> None:
+    node, client, _ = rig
+    ok, reply = request(client, "p2", mode="track")
+    assert not ok and reply["field"] == "execute"
+    ok, reply = request(client, "p2", mode="track", execute=True, duration=30)
+    assert ok
+    for _ in range(10):
+        client.put(f"{PREFIX}/targets/stream", frame("p2", P0))
+        time.sleep(1 / 30)
+    assert node.track.active
+    client.put(f"{PREFIX}/stop", b"{}")
+    wait_for(lambda: not node.track.active, 2.0, "the session to end on stop")
+    assert "stop seen" in node.track.summary["ended"]

@@ -1,0 +1,144 @@
+"""The per-frame follower: continuity, limits, the laser gate and every stop."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from planner.beam.trace import trace_beam
+from planner.data import shipped_scenario
+from planner.ik import BeamIK
+from planner.io.scenario import load_scenario, system_from_scenario
+from planner.planning import ik_options
+from planner.safety.model import Safety
+from planner.track.follow import TargetFollower, TrackSettings
+
+P0 = np.array([-0.492, -0.55, -0.06])
+N = np.array([0.0, 0.0, 1.0])
+R_SMALL = 1e-12 * np.eye(3)  # m^2: a nearly exact tracker
+DT, FRAME = 1 / 500, 1 / 30
+
+
+@pytest.fixture(scope="module")
+def ik() -> BeamIK:
+    scn = load_scenario(shipped_scenario("breathing.yaml"))
+    system = system_from_scenario(scn)
+    return BeamIK(system, ik_options(scn.model.solver), Safety.from_scenario(scn, system))
+
+
+def follower(ik: BeamIK, **kw: Any) -> TargetFollower:
+    q0 = ik.solve(P0, N).q
+    assert q0 is not None
+    return TargetFollower(ik, q0, P0, None, TrackSettings(**kw))
+
+
+def drive(f: TargetFollower, path: Any, seconds: float, frames_until: float = np.inf,
+          R: np.ndarray = R_SMALL) -> list[tuple[float, Any]]:  # fmt: skip
+    """Frames of ``path(t)`` at 30 Hz (received at capture), setpoints at 500 Hz."""
+    out, next_frame = [], 0.0
+    for k in range(round(seconds / DT)):
+        now = k * DT
+        if now + 1e-12 >= next_frame and now < frames_until:
+            f.on_frame(now, path(now), N, now, R)
+            next_frame += FRAME
+        out.append((now, f.setpoint(now)))
+    return out
+
+
+def test_static_target_is_held_with_the_laser_on_once_its_velocity_is_known(ik: BeamIK) -> None:
+    """After the first frame the target's velocity is unknown (50 mm/s RMS: 1.8 mm in the
+    37 ms ahead), so the laser waits; from the second frame on it is held, laser on."""
+    f = follower(ik)
+    run = [(now, sp) for now, sp in drive(f, lambda t: P0, 1.0) if sp is not None]
+    q = np.array([sp[1] for _, sp in run])
+    np.testing.assert_allclose(q, np.broadcast_to(f.q0, q.shape), atol=1e-7)
+    assert not run[0][1][3]
+    assert all(sp[3] for now, sp in run if now >= FRAME)
+    assert f.stopped is None
+
+
+def test_moving_target_is_followed_and_each_setpoint_aims_at_its_time(ik: BeamIK) -> None:
+    """A noise-free target at 20 mm/s: the setpoint sent at ``now`` for time t = now + lead
+    puts the spot on the target at t (beam traced independently of the follower)."""
+    v = np.array([0.02, 0.0, 0.0])
+    f = follower(ik)
+    run = drive(f, lambda t: P0 + v * t, 2.0)
+    errors = [trace_beam(ik.system, sp[1], P0 + v * sp[0], N).error
+              for now, sp in run if sp is not None and now > 0.5]  # fmt: skip
+    assert max(errors) < 2e-5  # m: the limiter's and the line's residue
+    assert all(sp[3] for now, sp in run if sp is not None and now > 0.5)
+
+
+def test_setpoints_stay_within_limits_through_a_jump_and_the_laser_waits(ik: BeamIK) -> None:
+    """The target jumps 20 mm: consecutive setpoints never exceed the velocity and
+    acceleration limits, the laser is off while the arm catches up, then on again."""
+    f = follower(ik)
+    run = drive(f, lambda t: P0 + (np.array([0.02, 0, 0]) if t >= 0.5 else 0.0), 3.0)
+    t = np.array([sp[0] for _, sp in run if sp is not None])
+    q = np.array([sp[1] for _, sp in run if sp is not None])
+    on = np.array([sp[3] for _, sp in run if sp is not None])
+    lim = ik.system.limits
+    vel = np.diff(q, axis=0) / np.diff(t)[:, None]
+    acc = np.diff(vel, axis=0) / np.diff(t)[1:, None]
+    assert np.all(np.abs(vel) <= lim.velocity * (1 + 1e-9))
+    assert np.all(np.abs(acc) <= lim.acceleration * (1 + 1e-6))
+    sent = np.array([now for now, sp in run if sp is not None])
+    assert not on[sent >= 0.5][:5].any()  # off from the frame that saw the jump
+    assert on[-1]  # back on once caught up
+    err = trace_beam(ik.system, q[-1], P0 + np.array([0.02, 0, 0]), N).error
+    assert err < 1e-5
+
+
+def test_stale_stream_stops_after_three_frame_periods(ik: BeamIK) -> None:
+    f = follower(ik)
+    run = drive(f, lambda t: P0, 1.0, frames_until=0.5)
+    last_frame = max(k * FRAME for k in range(16) if k * FRAME < 0.5)
+    live = [now for now, sp in run if sp is not None]
+    assert max(live) == pytest.approx(last_frame + 3 * FRAME, abs=DT)
+    assert all(sp is None for now, sp in run if now > last_frame + 3 * FRAME + DT)
+    assert f.stopped is not None and "stale" in f.stopped
+    f.on_frame(1.0, P0, N, 1.0, R_SMALL)  # a late frame does not restart it
+    assert f.setpoint(1.0) is None
+
+
+def test_target_leaving_the_region_stops(ik: BeamIK) -> None:
+    f = follower(ik, max_excursion=0.05)
+    drive(f, lambda t: P0 + (np.array([0.0, 0.06, 0]) if t >= 0.2 else 0.0), 0.5)
+    assert f.stopped is not None and "from its first estimate" in f.stopped
+    assert f.setpoint(0.6) is None
+
+
+def test_target_entering_a_keep_out_volume_stops(ik: BeamIK) -> None:
+    """Every solution passes the safety rules: a target predicted inside a keep-out sphere
+    has none, and the follower stops with that reason."""
+    from planner.model.transforms import make_T
+    from planner.safety.shapes import sphere
+
+    eye = sphere("eye", 0.01, make_T(p=P0 + np.array([0.03, 0.0, 0.0])))
+    rules = Safety(ik.system, keep_out=[eye])
+    guarded = BeamIK(ik.system, ik.options, rules)
+    f = follower(guarded)
+    drive(f, lambda t: P0 + (np.array([0.03, 0, 0]) if t >= 0.2 else 0.0), 0.4)
+    assert f.stopped is not None and "keep_out" in f.stopped
+    assert f.setpoint(0.5) is None
+
+
+def test_a_discontinuous_solution_stops(ik: BeamIK) -> None:
+    """A target the arm reaches only in another posture (far in joint space) is not swept
+    to at full speed: the follower stops."""
+    f = follower(ik, max_excursion=10.0)
+    out = f.on_frame(0.0, np.array([-0.49, -0.13, 0.8]), N, 0.0, R_SMALL)  # above the mirror
+    assert out.stopped is not None and "rad from the command" in out.stopped
+    assert f.setpoint(0.0) is None
+
+
+def test_noisy_prediction_keeps_the_laser_off_when_over_tolerance(ik: BeamIK) -> None:
+    """With 2 mm measurement noise the prediction's uncertainty alone is over a 1 mm
+    tolerance: the laser never goes on."""
+    f = follower(ik)
+    rng = np.random.default_rng(0)
+    R = (2e-3) ** 2 * np.eye(3)
+    run = drive(f, lambda t: P0 + 2e-3 * rng.standard_normal(3), 1.0, R=R)
+    assert not any(sp[3] for _, sp in run if sp is not None)
