@@ -188,14 +188,18 @@ def test_the_sim_driver_process_follows_a_streamed_sine(tmp_path: Path) -> None:
         moving = [s for s in states[:n_during] if s["t"] > start + 0.2]
         t = np.array([s["t"] for s in moving])
         q = np.array([s["q"][0] for s in moving])
-        best = min(np.arange(0, 0.05, 0.001),
+        best = min(np.arange(0, 0.1, 0.001),
                    key=lambda lag: float(np.abs(q - [ref(x - lag)[0]["arm0"][0][0] for x in t]).max()))  # fmt: skip
         err = np.abs(q - [ref(x - best)[0]["arm0"][0][0] for x in t]).max()
         print(f"joint_states vs the stream: best lag {1e3 * best:.0f} ms, max error "
               f"{1e3 * err:.3f} mrad over {len(t)} states")  # fmt: skip
         assert np.ptp(q) > 0.03  # it moved (0.05 rad peak to peak)
-        assert best <= 0.045 and err < 3e-3  # a shared 2-core machine delays both processes
         acks = [x["stream"] for x in statuses if x["stream"]]
+        ends = {(a["n"], a["reason"]) for a in acks if a["state"] != "streaming"}
+        print(f"stream ends (setpoints followed, reason): {sorted(ends)}")
+        # a few ms of lag on a quiet machine; a loaded one delays both processes (a sender
+        # starved for 50 ms ends the stream, the simulated arm drops periods and lags)
+        assert best <= 0.05 and err < 3e-3
         assert acks[-1]["state"] == "ended" and acks[-1]["id"] == "sine", acks[-1]
         assert "streaming" in {x["mode"] for x in statuses}
     finally:
