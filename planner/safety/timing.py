@@ -14,11 +14,12 @@ joints in rad, world frame, metres.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
+from planner.model.polyline import runs
 from planner.model.transforms import Array
 from planner.safety.model import Safety, Violation, clearance_violation, emit_warning
 from planner.safety.occlusion import SampleGap, failed_with, split_path
@@ -54,12 +55,16 @@ def safe_timing(
     move: MoveFn,
     start: Array,
     rounds: int = ROUNDS,
+    strokes: Sequence[Sequence[int]] | None = None,
 ) -> SafeTiming:
     """Time ``solutions`` (see the module docstring). ``time_fn(solutions, path, mover)``
     returns an object with a ``trajectory`` (``t``, ``q``, ``segments``) or None; ``move``
     is the plain rest-to-rest move the mover wraps; ``targets`` (K x 3, world) locate the
     spot while the laser is on; ``start`` (stacked rad) is where the trajectory starts: if it
-    breaks the rules itself, a warning says so and no target is blamed for it."""
+    breaks the rules itself, a warning says so and no target is blamed for it. ``strokes``
+    (a path's sample index sequences marked in one go; default: every run of solved
+    samples) say which samples fail with a move to a stroke that has no collision-free
+    detour: the whole stroke."""
     figures = {"safety_detours": 0.0, "safety_dropped": 0.0, "safety_check_time": 0.0}
     unsafe_start = safety.arms(start)
     if unsafe_start is not None:  # no target is to blame for that
@@ -82,6 +87,8 @@ def safe_timing(
             guard = True  # re-time with every move swept and detoured where needed
             continue
         blamed = _blame(solutions, mover, check, traj)
+        if path is not None:
+            blamed = _whole_strokes(blamed, mover, solutions, path, strokes)
         if not blamed or n == rounds - 1:
             break
         figures["safety_dropped"] += len(blamed)
@@ -133,6 +140,26 @@ def _blame(
         k = _nearest(solutions, traj.q[i])
         if k is not None:
             out.setdefault(k, _at(v, t, "on the timed trajectory"))
+    return out
+
+
+def _whole_strokes(
+    blamed: dict[int, Violation], mover: SafeMover, solutions: list[Solution],
+    path: PathResult, strokes: Sequence[Sequence[int]] | None,
+) -> dict[int, Violation]:  # fmt: skip
+    """A path sample blamed for a move with no collision-free detour (the move to its
+    stroke's run-in) fails with every solved sample of its stroke: dropping it alone would
+    only move the run-in start a sample along, into the same collision."""
+    if not mover.failures:
+        return blamed
+    spans = [list(s) for s in strokes] if strokes else [list(range(a, b)) for a, b in
+                                                          runs(np.asarray(path.ok))]  # fmt: skip
+    out = dict(blamed)
+    for k, v in blamed.items():
+        mine = [s for s in spans if k in s]
+        for i in min(mine, key=lambda s: s.index(k), default=[k]):
+            if solutions[i].ok:
+                out.setdefault(i, v)
     return out
 
 
