@@ -38,7 +38,7 @@ def _move_between(traj) -> tuple[int, int]:  # type: ignore[no-untyped-def]
     i = kinds.index("move")
     assert kinds[i - 1] == "run_out" and kinds[i + 1] == "run_in"
     seg = traj.segments[i]
-    return int(round(seg.t0 * RATE)), int(round(seg.t1 * RATE))
+    return round(seg.t0 * RATE), round(seg.t1 * RATE)
 
 
 def test_colliding_move_between_strokes_is_detoured() -> None:
