@@ -4,8 +4,9 @@ the whole trajectory densely, and drop what cannot be made safe.
 :func:`safe_timing` times the solutions through a caller's timing function with plain moves
 and runs :func:`~planner.safety.trajectory.check_trajectory` on the result; when that finds
 a collision in a move it times again, every move now made by a
-:class:`~planner.safety.trajectory.SafeMover` (swept, detoured around arm collisions). A move left
-colliding fails its destination target (``collision``); a swept collision inside a path or
+:class:`~planner.safety.trajectory.SafeMover` (swept, detoured around arm collisions): the
+approach, the moves between targets and between a path's strokes. A move left colliding
+fails its destination target (``collision``; for a path, the whole stroke it leads to); a swept collision inside a path or
 dwell, or a beam violation while the laser is on, fails the solved target or path sample
 whose configuration is nearest in joint space (a path sample becomes a gap); then the rest
 is timed again, a few rounds at most. What remains is reported in the check. Times in s,
