@@ -256,7 +256,8 @@ def time_solutions(
     solved samples marked at ``spot_speed`` (m/s) between a run-in and a run-out
     (:func:`planner.path.marking.mark_runs`; ``skywriting=False``: from rest to rest, for
     comparison only), laser on only on the path. None if nothing was solved. ``move`` makes
-    the rest-to-rest moves between point targets (default Ruckig, :mod:`planner.path.timing`)."""
+    every rest-to-rest move: the approach, between point targets and between a path's
+    strokes (default Ruckig, :mod:`planner.path.timing`)."""
     from planner.path.timing import points_trajectory
 
     rate = settings.rate
@@ -277,7 +278,7 @@ def time_solutions(
     arc = path.arc if path is not None else arc_length(targets.points)
     speed, tol = settings.spot_speed, settings.path_tolerance
     pieces = mark_runs(system, targets, Q, arc, speed, skywriting=skywriting)
-    traj = marking_trajectory(system, pieces, q0, speed, rate, tol)
+    traj = marking_trajectory(system, pieces, q0, speed, rate, tol, move=move)
     figures = {"path_time": traj.span("path"), "path_length": float(arc[-1]),
                "path_deviation_max": path_deviation(system, targets, traj),
                "slowdowns": float(len(traj.slowdowns)),
@@ -388,7 +389,10 @@ def time_safely(
         return time_solutions(system, targets, sols, settings, order=order, path=pth,
                               progress=progress, move=mover, q_start=q0)  # fmt: skip
 
-    res = safe_timing(safety, solutions, path, targets.points, time_fn, ruckig_move, q0)
+    meta = targets.meta.get("strokes") if targets.kind == "path" else None
+    strokes = [list(s) for s in meta] if isinstance(meta, (list, tuple)) else None
+    res = safe_timing(safety, solutions, path, targets.points, time_fn, ruckig_move, q0,
+                      strokes=strokes)  # fmt: skip
     return res.timed, res.solutions, res.path, res.figures
 
 

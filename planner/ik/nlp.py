@@ -14,7 +14,12 @@ Constraints (thresholds of :mod:`planner.model.validity`):
     roi_half_i -+ uv_i >= 0                        hit inside each ROI
     s >= MIN_AHEAD                                 target ahead of the last mirror
     -v.n_target - cos_max >= 0                     incidence limit (only with a normal)
+    A q >= lb                                      clearance rows (``cuts`` > 0 only)
 Objective: |q - q_prev|^2 + w_centre * sum |uv_i|^2 (metres^2; the paper's centring term).
+
+The clearance rows are linearised safety distances (:mod:`planner.safety.linearize`): the
+row matrix ``A`` (cuts x nq) is a parameter and the lower bounds come with the call, unused
+rows zero with bound -inf, so one solver per chain and row count serves every target.
 """
 
 from __future__ import annotations
@@ -32,6 +37,8 @@ from planner.model.transforms import Array, plane_basis
 from planner.model.validity import MIN_AHEAD, MIN_FRONT, MIN_ROI_MARGIN
 
 INACTIVE_COS = -2.0
+#: IPOPT iterations of a solve with clearance rows (warm-started next to its solution)
+CUT_MAX_ITER = 60
 
 
 class NLPResult(NamedTuple):
@@ -41,9 +48,10 @@ class NLPResult(NamedTuple):
     iterations: int
 
 
-def _problem_parameters(nq: int) -> dict[str, ca.SX]:
+def _problem_parameters(nq: int, cuts: int = 0) -> dict[str, ca.SX]:
     """The per-call parameter symbols of the NLP, by name (geometry comes on top)."""
-    return {
+    rows = {"cuts": ca.SX.sym("cuts", cuts, nq)} if cuts else {}
+    return rows | {
         "target": ca.SX.sym("target", 3),
         "normal": ca.SX.sym("normal", 3),
         "plane": ca.SX.sym("plane", 3, 3),
@@ -58,14 +66,15 @@ GEOMETRY = tuple(name for name in ChainSymbols._fields if name != "q")
 
 @lru_cache(maxsize=8)
 def build_solver(
-    kinematics: tuple[RobotKinematics, ...], max_iter: int = 200, tol: float = 1e-10
-) -> tuple[ca.Function, Array, Array]:
+    kinematics: tuple[RobotKinematics, ...], max_iter: int = 200, tol: float = 1e-10,
+    cuts: int = 0,
+) -> tuple[ca.Function, Array, Array]:  # fmt: skip
     """The ``beam_ik`` nlpsol (IPOPT, expanded, silent) for a chain of robot models, with
-    its constraint bounds (lbg, ubg)."""
+    its constraint bounds (lbg, ubg; ``cuts`` clearance rows last, bounds set per call)."""
     N = len(kinematics)
     sym = chain_symbols(kinematics)
     q = sym.q
-    P = _problem_parameters(q.size1()) | {name: getattr(sym, name) for name in GEOMETRY}
+    P = _problem_parameters(q.size1(), cuts) | {name: getattr(sym, name) for name in GEOMETRY}
     hits, uvs, dirs, fronts, aheads, _ = beam_chain(
         q, sym.world_T_laser, sym.bases, sym.mounts, kinematics
     )
@@ -85,6 +94,10 @@ def build_solver(
     g += [along, -ca.dot(v, P["normal"]) - P["cos_max"]]
     lbg += [MIN_AHEAD, 0.0]
     ubg += [ca.inf, ca.inf]
+    if cuts:
+        g += [ca.mtimes(P["cuts"], q)]
+        lbg += [-ca.inf] * cuts
+        ubg += [ca.inf] * cuts
     dq = q - P["q_prev"]
     f = ca.dot(dq, dq) + P["w_centre"] * sum(ca.dot(uv, uv) for uv in uvs)
     p_all = ca.vertcat(*[ca.vec(x) for x in P.values()])
@@ -100,7 +113,8 @@ def build_solver(
         "ipopt.mu_init": 1e-5,
         "ipopt.warm_start_init_point": "yes",
     }
-    return ca.nlpsol("beam_ik", "ipopt", nlp, opts), np.array(lbg), np.array(ubg)
+    name = f"beam_ik_cuts{cuts}" if cuts else "beam_ik"
+    return ca.nlpsol(name, "ipopt", nlp, opts), np.array(lbg), np.array(ubg)
 
 
 class BeamNLP:
@@ -112,6 +126,7 @@ class BeamNLP:
     ) -> None:
         self.system = system
         kins = tuple(r.kinematics for r in system.robots)
+        self.kinematics, self.max_iter = kins, max_iter
         self.solver, self.lbg, self.ubg = build_solver(kins, max_iter)
         self.geometry = system_params(system)
         self.centre_weight = centre_weight
@@ -124,9 +139,11 @@ class BeamNLP:
         q_prev: Array,
         plane_normal: Array,
         max_incidence: float | None = None,
+        cuts: tuple[Array, Array] | None = None,
     ) -> NLPResult:
         """Solve from ``q0``. ``plane_normal``: the target normal, or (no normal) the expected
-        outgoing beam direction; the spot plane only fixes how the residual is measured."""
+        outgoing beam direction; the spot plane only fixes how the residual is measured.
+        ``cuts``: clearance rows ``(A, lb)``, ``A q >= lb`` (A rows x nq, m/rad; lb m)."""
         m = normal if normal is not None else plane_normal
         cos_max = INACTIVE_COS
         if normal is not None and max_incidence is not None:
@@ -139,11 +156,16 @@ class BeamNLP:
             "cos_max": np.array([cos_max]),
             "w_centre": np.array([self.centre_weight]),
         } | {name: self.geometry[name] for name in GEOMETRY}
+        solver, lbg, ubg = self.solver, self.lbg, self.ubg
+        if cuts is not None:
+            A, lb = cuts
+            solver, lbg, ubg = build_solver(self.kinematics, min(self.max_iter, CUT_MAX_ITER),
+                                            cuts=len(A))  # fmt: skip
+            values = {"cuts": np.asarray(A, dtype=float)} | values
+            lbg = np.concatenate([lbg[: len(lbg) - len(A)], lb])
         p = np.concatenate([np.asarray(x, dtype=float).ravel(order="F") for x in values.values()])
-        out = self.solver(
-            x0=q0, p=p, lbx=self.system.lower, ubx=self.system.upper, lbg=self.lbg, ubg=self.ubg
-        )
-        st = self.solver.stats()
+        out = solver(x0=q0, p=p, lbx=self.system.lower, ubx=self.system.upper, lbg=lbg, ubg=ubg)
+        st = solver.stats()
         return NLPResult(
             np.asarray(out["x"], dtype=float).ravel(),
             bool(st["success"]),

@@ -1,6 +1,11 @@
 """Per-target beam IK driver: closed form first, Newton to close calibration gaps, IPOPT for
 the optimal step and as the multi-start fallback. Data in, :class:`Solution` out.
 
+Under safety rules the IPOPT steps carry the clearance as constraints: a result that breaks
+a distance rule is re-solved, warm-started, with the pairs within a margin of their
+required distance as linearised rows (:mod:`planner.safety.linearize`), re-linearised at
+each new iterate, a few rounds at most; every accepted result still passes every rule.
+
 A failed target is a status with a machine-readable reason (plan.json ``reason``) and the numbers
 that show it (``evidence``); it never raises.
 """
@@ -22,9 +27,16 @@ from planner.model.status import Reason, Status
 from planner.model.system import System
 from planner.model.transforms import Array
 from planner.model.validity import ahead_ok, front_ok, roi_ok
+from planner.safety.linearize import ClearanceRow, Linearizer, cut_matrix
 from planner.safety.model import Safety, Violation
 
+#: rules that are no distance (no clearance row can fix them)
+APERTURE_CHECKS = ("laser_return", "camera_lens")
+
 EXACT = 1e-12  # metres: what "machine precision" means for a spot error here
+#: re-solves of an IPOPT result that breaks a distance rule, clearance rows per solve, and
+#: solves with rows per target (bounds the cost of a target no configuration serves safely)
+CLEARANCE_ROUNDS, CLEARANCE_ROWS, CLEARANCE_BUDGET = 4, 16, 6
 
 
 @dataclass(frozen=True)
@@ -106,6 +118,7 @@ class BeamIK:
         self.system = system
         self.options = options or IKOptions()
         self.safety = safety
+        self._cut_solves = CLEARANCE_BUDGET  # left for the current target
         has_seed = all(seed_kinematics(r.kinematics) is not None for r in system.robots)
         guard = None if safety is None else MemberSafety(safety)
         self.closed_form = ClosedForm(system, guard) if has_seed else None
@@ -118,6 +131,11 @@ class BeamIK:
     def nlp(self) -> BeamNLP:
         o = self.options
         return BeamNLP(self.system, max_iter=o.max_iter, centre_weight=o.centre_weight)
+
+    @cached_property
+    def linearizer(self) -> Linearizer:
+        assert self.safety is not None
+        return Linearizer(self.safety)
 
     # --------------------------------------------------------------------------------------
     def accept(self, ev: BeamTrace, q: Array) -> bool:
@@ -161,25 +179,66 @@ class BeamIK:
         return Reason.SOLVER_FAILED, evidence
 
     def _nlp(
-        self, q0: Array, target: Array, normal: Array | None, q_prev: Array
-    ) -> tuple[Array, BeamTrace, str, int]:
+        self, q0: Array, target: Array, normal: Array | None, q_prev: Array,
+        cuts: tuple[Array, Array] | None = None,
+    ) -> tuple[Array, BeamTrace, str, int]:  # fmt: skip
         ev0 = trace_beam(self.system, q0, target, normal)
         m = target - ev0.hits[-1]
         if np.linalg.norm(m) < 1e-9:
             m = ev0.dirs[-1]
-        res = self.nlp.solve(q0, target, normal, q_prev, m, self.options.max_incidence)
+        res = self.nlp.solve(q0, target, normal, q_prev, m, self.options.max_incidence, cuts)
         q = res.q
         if np.all(np.isfinite(q)):
             q = self.newton.polish(q, target, normal).q
         return q, trace_beam(self.system, q, target, normal), res.status, res.iterations
+
+    def _safe_nlp(
+        self, q0: Array, target: Array, normal: Array | None, q_prev: Array
+    ) -> tuple[Array, BeamTrace, str, int]:
+        """:meth:`_nlp`, then, while its accepted result breaks a distance rule, the NLP
+        again from that result with the near pairs' clearance rows (module docstring). A
+        start that is itself a solution (the optimal step) gives its near pairs' rows to
+        the first solve already."""
+        if self.safety is None:
+            return self._nlp(q0, target, normal, q_prev)
+        rows: dict[tuple[str, int], ClearanceRow] = {}
+        ev0 = trace_beam(self.system, q0, target, normal)
+        if self.accept(ev0, q0) and self._cut_solves > 0:
+            rows = {r.key: r for r in self.linearizer.rows(q0, self._polyline(ev0))}
+        first = cut_matrix(list(rows.values()), CLEARANCE_ROWS, self.system.nq) if rows else None
+        self._cut_solves -= first is not None
+        q, ev, status, iters = self._nlp(q0, target, normal, q_prev, first)
+        worst = -np.inf
+        for _ in range(CLEARANCE_ROUNDS):
+            if not self.accept(ev, q) or self._cut_solves <= 0:
+                break
+            bad = self.unsafe(q, ev)
+            if bad is None or bad.check.value in APERTURE_CHECKS:
+                break  # safe, or a rule that is not a distance
+            if bad.margin <= worst + 1e-4:
+                break  # no progress (0.1 mm): the rows cannot be met here
+            worst = bad.margin
+            rows |= {r.key: r for r in self.linearizer.rows(q, self._polyline(ev))}
+            near = sorted(rows.values(), key=lambda r: r.distance - r.required)
+            cuts = cut_matrix(near, CLEARANCE_ROWS, self.system.nq)
+            self._cut_solves -= 1
+            q2, ev2, status2, it = self._nlp(q, target, normal, q_prev, cuts)
+            iters += it
+            if not self.accept(ev2, q2):
+                break
+            q, ev, status = q2, ev2, status2
+        return q, ev, status, iters
 
     def unsafe(self, q: Array, ev: BeamTrace) -> Violation | None:
         """The safety rules' worst violation at ``q`` with its traced beam (None: safe or no
         rules)."""
         if self.safety is None:
             return None
-        P = np.vstack([self.system.world_T_laser[:3, 3], ev.hits, ev.spot])
-        return self.safety.config(q, P)
+        return self.safety.config(q, self._polyline(ev))
+
+    def _polyline(self, ev: BeamTrace) -> Array:
+        """The traced beam as world points: laser exit, mirror hits, spot (m)."""
+        return np.vstack([self.system.world_T_laser[:3, 3], ev.hits, ev.spot])
 
     def _multistart(
         self, target: Array, normal: Array | None, q_prev: Array, first: list[Array]
@@ -192,7 +251,7 @@ class BeamIK:
         unsafe: Violation | None = None
         iters = 0
         for q0 in seeds:
-            q, ev, status, it = self._nlp(
+            q, ev, status, it = self._safe_nlp(
                 np.clip(q0, self.system.lower, self.system.upper), target, normal, q_prev
             )
             iters += it
@@ -254,6 +313,7 @@ class BeamIK:
             ``q`` (stacked, rad), the spot error (m) and the traced beam.
         """
         t0 = time.perf_counter()
+        self._cut_solves = CLEARANCE_BUDGET
         target = np.asarray(target, dtype=float)
         q_prev = self.system.home if q_prev is None else np.asarray(q_prev, dtype=float)
         inside = None if self.safety is None else self.safety.target(target)
@@ -271,7 +331,7 @@ class BeamIK:
                 target, normal, q_prev
             )
         if q is not None and ev is not None and self.options.optimal:
-            q2, ev2, _, it = self._nlp(q, target, normal, q_prev)
+            q2, ev2, _, it = self._safe_nlp(q, target, normal, q_prev)
             iters = it
             better = self.accept(ev2, q2) and ev2.error <= max(ev.error, EXACT)
             if better and self.unsafe(q2, ev2) is None:

@@ -25,7 +25,15 @@ from planner.model.system import System, Targets
 from planner.model.transforms import Array
 from planner.path.nlp import PathOptions
 from planner.path.profile import Profile, profile, ramp_length
-from planner.path.timing import Slowdown, Trajectory, _assemble, _Piece, profile_piece, ruckig_move
+from planner.path.timing import (
+    MoveFn,
+    Slowdown,
+    Trajectory,
+    _assemble,
+    _Piece,
+    profile_piece,
+    ruckig_move,
+)
 
 RUN_MARGIN = 1.5  # run-in/run-out length as a multiple of the nominal ramp distance
 SPEED_SLACK = 0.02  # fraction: the marked speed may be this much below/above the spot speed
@@ -190,10 +198,14 @@ def time_run(run: MarkRun, lim: object, spot_speed: float, rate: float, t0: floa
 def marking_trajectory(
     system: System, runs: list[MarkRun], q_start: Array | None = None,
     spot_speed: float = 0.02, rate: float = 500.0, tolerance: float = 5e-5,
+    move: MoveFn | None = None,
 ) -> Trajectory:  # fmt: skip
     """Approach from ``q_start`` (default home) to the first run's start, each run timed by
-    :func:`time_run`, rest-to-rest ``move`` between runs (laser off). The laser is on in the
-    ``path`` segments only (``Trajectory.laser_on``)."""
+    :func:`time_run`, rest-to-rest ``move`` between runs (laser off; from one run's run-out
+    end to the next run's run-in start), both made by ``move`` (default
+    :func:`~planner.path.timing.ruckig_move`; a safety mover detours them around
+    collisions). The laser is on in the ``path`` segments only (``Trajectory.laser_on``)."""
+    move = move or ruckig_move
     lim = system.limits
     prev = system.home if q_start is None else np.asarray(q_start, dtype=float)
     pieces: list[_Piece] = []
@@ -201,7 +213,7 @@ def marking_trajectory(
     n_samples = 1
     edge = EDGE_SHARE * tolerance
     for n, run in enumerate(runs):
-        Qm, QDm, QDDm = ruckig_move(prev, run.q[0], lim, rate)
+        Qm, QDm, QDDm = move(prev, run.q[0], lim, rate)
         pieces.append(_Piece(Qm, QDm, QDDm, "approach" if n == 0 else "move"))
         n_samples += len(Qm) - 1
         prev = run.q[0]

@@ -13,6 +13,11 @@ Cheap to build: the per-sample SX function is built once per robot chain, the NL
 sample function ``map``-ed over K inside an MX graph that is never expanded. The Hessian of
 the Lagrangian is assembled from the constant smoothness band and mapped per-sample blocks.
 
+With ``cuts`` > 0 every sample also carries that many clearance rows ``A_k q_k >= lb_k``
+(linearised safety distances, :mod:`planner.safety.linearize`): the row matrices are the
+last parameter (``cuts`` x nq*K, sample-major), the bounds come with the call, unused rows
+zero with bound -inf; their Jacobian is the block diagonal of the A_k, their Hessian zero.
+
 The warm start lives in :mod:`planner.path.warm`, the public entry in :mod:`planner.path.solve`.
 """
 
@@ -189,11 +194,14 @@ class PathNlp(NamedTuple):
     solver: ca.Function
     n_h: int
     build_time: float
+    cuts: int = 0  # clearance rows per sample
 
 
 @lru_cache(maxsize=8)
-def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200) -> PathNlp:
-    """The IPOPT solver for K samples; parameters packed by :func:`pack_params`."""
+def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200,
+             cuts: int = 0) -> PathNlp:  # fmt: skip
+    """The IPOPT solver for K samples; parameters packed by :func:`pack_params` (then the
+    ``cuts`` clearance rows per sample, module docstring)."""
     t0 = time.perf_counter()
     nq = sum(k.nq for k in kinematics)
     F = sample_function(kinematics)
@@ -240,17 +248,28 @@ def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200) -> Pa
         },
         "print_time": False,
     }
-    g = ca.vec(ca.vertcat(G, H))
+    g: Any = ca.vec(ca.vertcat(G, H))
     x = ca.vec(Q)
     # constraint Jacobian, assembled: mapped dense per-sample blocks on the block diagonal
     jac_out = compiled(sample_jacobian(kinematics)).map(K)(q=Q, **per_sample)
     GH, JB = jac_out["gh"], jac_out["J"]
     m = int(GH.size1())
     jac = ca.MX(ca.diagcat(*[ca.Sparsity.dense(m, nq)] * K), ca.vec(JB))
-    opts["jac_g"] = ca.Function("path_jac_g", [x, p], [ca.vec(GH), jac])
+    g_all: Any = ca.vec(GH)
+    jac_all: Any = jac
+    if cuts:
+        A = ca.MX.sym("cuts", cuts, nq * K)
+        p = ca.vertcat(p, ca.vec(A))
+        qs, rows = ca.MX.sym("q", nq), ca.MX.sym("A", cuts, nq)
+        lin = ca.Function("clearance_rows", [rows, qs], [ca.mtimes(rows, qs)]).map(K)(A, Q)
+        g = ca.vertcat(g, ca.vec(lin))
+        g_all = ca.vertcat(g_all, ca.vec(lin))
+        blocks_a = ca.MX(ca.diagcat(*[ca.Sparsity.dense(cuts, nq)] * K), ca.vec(A))
+        jac_all = ca.vertcat(jac, blocks_a)
+    opts["jac_g"] = ca.Function("path_jac_g", [x, p], [g_all, jac_all])
     # Hessian of the Lagrangian, assembled: constant smoothness band + mapped per-sample blocks
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.size1())
-    LG = ca.reshape(lam_g, g.size1() // K, K)
+    LG = ca.reshape(lam_g[: m * K], m, K)
     wc = ca.repmat(lam_f * w[2] * ds, 1, K)
     B = compiled(sample_hessian(kinematics)).map(K)(q=Q, **per_sample, lam=LG, wc=wc)["H"]
     blocks = ca.MX(ca.diagcat(*[ca.Sparsity.dense(nq, nq)] * K), ca.vec(B))
@@ -260,7 +279,7 @@ def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200) -> Pa
     opts["hess_lag"] = hess
     problem: dict[str, Any] = {"x": x, "p": p, "f": f, "g": g}
     solver = ca.nlpsol("path_nlp", "ipopt", problem, opts)
-    return PathNlp(solver, int(H.size1()), time.perf_counter() - t0)
+    return PathNlp(solver, int(H.size1()), time.perf_counter() - t0, cuts)
 
 
 def pack_params(system: System, T: Array, NB: Array, HAS: Array, E: Array, QREF: Array,
@@ -301,17 +320,25 @@ def tangents_batch(N: Array) -> Array:
 
 def solve_window(
     nlp: PathNlp, system: System, P: Array, has: Array, lbh: Array, Q0: Array, NB: Array,
-    weights: tuple[float, ...],
+    weights: tuple[float, ...], cuts: tuple[Array, Array] | None = None,
 ) -> tuple[Array, dict[str, Any]]:  # fmt: skip
     """Run ``nlp`` on the K samples ``P`` (K x 3 world targets, ``has`` which carry a normal,
     ``lbh`` K x (4N+2) lower bounds of h) from ``Q0`` (K x nq) with target-plane normals
-    ``NB`` (K x 3). Returns (Q K x nq, IPOPT stats)."""
+    ``NB`` (K x 3); ``cuts``: the clearance rows ``(A K x cuts x nq, lb K x cuts)`` of an
+    NLP built with ``cuts``. Returns (Q K x nq, IPOPT stats)."""
     K = len(P)
     E = tangents_batch(NB)
     p = pack_params(system, P, NB, has.astype(float), E, Q0, np.array(weights))
     nh = nlp.n_h
     lbg = np.column_stack([np.zeros((K, 2)), lbh]).ravel()
     ubg = np.column_stack([np.zeros((K, 2)), np.full((K, nh), np.inf)]).ravel()
+    if nlp.cuts:
+        if cuts is None or cuts[0].shape != (K, nlp.cuts, system.nq):
+            raise ValueError(f"the NLP takes {nlp.cuts} clearance rows per sample for {K} samples")
+        A, lb = cuts
+        p = np.concatenate([p, np.concatenate(list(A), axis=1).ravel(order="F")])
+        lbg = np.concatenate([lbg, np.asarray(lb, dtype=float).ravel()])
+        ubg = np.concatenate([ubg, np.full(A.shape[0] * A.shape[1], np.inf)])
     sol = nlp.solver(
         x0=Q0.ravel(), p=p, lbx=np.tile(system.lower, K), ubx=np.tile(system.upper, K),
         lbg=lbg, ubg=ubg,

@@ -140,13 +140,35 @@ def acceleration_weight(opts: PathOptions, ds: float) -> float:
     return float(opts.weight_acceleration * min(1.0, (ds / ref) ** 2))
 
 
+def _weights(opts: PathOptions, ds: float) -> tuple[float, ...]:
+    """The path NLP's ``weights`` parameter at sample spacing ``ds`` (m)."""
+    return (opts.weight_velocity, acceleration_weight(opts, ds), opts.weight_centring,
+            opts.weight_reference, ds)  # fmt: skip
+
+
+def _clearance(ctx: PathContext, safety: Safety, ks: Indices, Qs: Array, Q0: Array, NB: Array,
+               ds: float, closed: bool, seg: PathSegment) -> tuple[Array, PathSegment]:  # fmt: skip
+    """The run's NLP result ``Qs`` (from the warm start ``Q0``) re-solved with the clearance
+    as constraints where it breaks a distance rule (:func:`planner.path.clearance.clear_run`); kept when it breaks
+    the rules at fewer samples."""
+    from planner.path.clearance import clear_run
+
+    t0 = time.perf_counter()
+    res = clear_run(ctx, safety, ks, Qs, Q0, NB, _weights(ctx.opts, ds), closed)
+    if res.unsafe_after >= res.unsafe_before:
+        return Qs, seg
+    status = (f"{seg.status} +clearance ({res.status}; unsafe samples {res.unsafe_before} -> "
+              f"{res.unsafe_after})")  # fmt: skip
+    return res.q, seg._replace(status=status, iterations=seg.iterations + res.iterations,
+                               solve_time=seg.solve_time + time.perf_counter() - t0)  # fmt: skip
+
+
 def _solve_run(ctx: PathContext, ks: Indices, Q0: Array, NB: Array, ds: float, closed: bool
                ) -> tuple[Array, PathSegment, bool]:  # fmt: skip
     """One path NLP over samples ``ks`` (``ds`` m apart) from ``Q0``; returns (Q, segment,
     every sample valid). An invalid NLP result is reported; the caller keeps ``Q0``."""
     opts, n = ctx.opts, len(ks)
-    weights = (opts.weight_velocity, acceleration_weight(opts, ds), opts.weight_centring,
-               opts.weight_reference, ds)  # fmt: skip
+    weights = _weights(opts, ds)
     cached = path_nlp.cache_info().hits
     nlp = path_nlp(ctx.kin, n, closed, opts.max_iter)
     build = 0.0 if path_nlp.cache_info().hits > cached else nlp.build_time
@@ -204,9 +226,11 @@ def plan_path(
     stretches are reported as :class:`PathGap` and the feasible runs solved separately. Long
     finely sampled paths are warm-started coarse-to-fine; every solved sample is finally
     polished to machine precision by a minimum-norm Gauss-Newton step (never worse). With
-    ``safety`` rules the closed-form seeds are members that pass them, and a run's NLP result
-    that breaks them at more samples than its warm start is dropped for the warm start (the
-    samples are checked afterwards: :func:`planner.safety.occlusion.check_path_safety`).
+    ``safety`` rules the closed-form seeds are members that pass them, a run's NLP result
+    that breaks a distance rule is re-solved with the clearance as constraints
+    (:mod:`planner.path.clearance`), and a result that still breaks them at more samples
+    than its warm start is dropped for the warm start (the samples are checked afterwards:
+    :func:`planner.safety.occlusion.check_path_safety`).
     """
     opts = (
         solver_options if isinstance(solver_options, PathOptions)
@@ -242,6 +266,8 @@ def plan_path(
             continue
         ks = np.arange(k0, k1)
         Qs, seg, valid = _solve_run(ctx, ks, Q[k0:k1], NB[k0:k1], ds, closed)
+        if valid and safety is not None:
+            Qs, seg = _clearance(ctx, safety, ks, Qs, Q[k0:k1], NB[k0:k1], ds, closed, seg)
         if valid and safety is not None and safer_warm_start(safety, Qs, Q[k0:k1], ks, targets):
             valid, seg = False, seg._replace(status=f"warm_start (NLP result unsafe: {seg.status})")
         if valid:

@@ -173,10 +173,12 @@ class PathContext:
         return best
 
     def solve(self, nlp: PathNlp, ks: list[int], Q0: Array, NB: Array,
-              weights: tuple[float, ...]) -> tuple[Array, dict[str, Any]]:  # fmt: skip
-        """Run the NLP on samples ``ks`` from ``Q0`` (len(ks) x nq); returns (Q, IPOPT stats)."""
+              weights: tuple[float, ...], cuts: tuple[Array, Array] | None = None,
+              ) -> tuple[Array, dict[str, Any]]:  # fmt: skip
+        """Run the NLP on samples ``ks`` from ``Q0`` (len(ks) x nq), with clearance rows
+        ``cuts`` if it was built with them; returns (Q, IPOPT stats)."""
         return solve_window(nlp, self.system, self.P[ks], self.has[ks], self.lbh[ks], Q0, NB,
-                            weights)  # fmt: skip
+                            weights, cuts)  # fmt: skip
 
 
 def continuation_chain(

@@ -4,8 +4,9 @@ the whole trajectory densely, and drop what cannot be made safe.
 :func:`safe_timing` times the solutions through a caller's timing function with plain moves
 and runs :func:`~planner.safety.trajectory.check_trajectory` on the result; when that finds
 a collision in a move it times again, every move now made by a
-:class:`~planner.safety.trajectory.SafeMover` (swept, detoured around arm collisions). A move left
-colliding fails its destination target (``collision``); a swept collision inside a path or
+:class:`~planner.safety.trajectory.SafeMover` (swept, detoured around arm collisions): the
+approach, the moves between targets and between a path's strokes. A move left colliding
+fails its destination target (``collision``; for a path, the whole stroke it leads to); a swept collision inside a path or
 dwell, or a beam violation while the laser is on, fails the solved target or path sample
 whose configuration is nearest in joint space (a path sample becomes a gap); then the rest
 is timed again, a few rounds at most. What remains is reported in the check. Times in s,
@@ -14,11 +15,12 @@ joints in rad, world frame, metres.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
+from planner.model.polyline import runs
 from planner.model.transforms import Array
 from planner.safety.model import Safety, Violation, clearance_violation, emit_warning
 from planner.safety.occlusion import SampleGap, failed_with, split_path
@@ -54,12 +56,16 @@ def safe_timing(
     move: MoveFn,
     start: Array,
     rounds: int = ROUNDS,
+    strokes: Sequence[Sequence[int]] | None = None,
 ) -> SafeTiming:
     """Time ``solutions`` (see the module docstring). ``time_fn(solutions, path, mover)``
     returns an object with a ``trajectory`` (``t``, ``q``, ``segments``) or None; ``move``
     is the plain rest-to-rest move the mover wraps; ``targets`` (K x 3, world) locate the
     spot while the laser is on; ``start`` (stacked rad) is where the trajectory starts: if it
-    breaks the rules itself, a warning says so and no target is blamed for it."""
+    breaks the rules itself, a warning says so and no target is blamed for it. ``strokes``
+    (a path's sample index sequences marked in one go; default: every run of solved
+    samples) say which samples fail with a move to a stroke that has no collision-free
+    detour: the whole stroke."""
     figures = {"safety_detours": 0.0, "safety_dropped": 0.0, "safety_check_time": 0.0}
     unsafe_start = safety.arms(start)
     if unsafe_start is not None:  # no target is to blame for that
@@ -82,6 +88,8 @@ def safe_timing(
             guard = True  # re-time with every move swept and detoured where needed
             continue
         blamed = _blame(solutions, mover, check, traj)
+        if path is not None:
+            blamed = _whole_strokes(blamed, mover, solutions, path, strokes)
         if not blamed or n == rounds - 1:
             break
         figures["safety_dropped"] += len(blamed)
@@ -133,6 +141,26 @@ def _blame(
         k = _nearest(solutions, traj.q[i])
         if k is not None:
             out.setdefault(k, _at(v, t, "on the timed trajectory"))
+    return out
+
+
+def _whole_strokes(
+    blamed: dict[int, Violation], mover: SafeMover, solutions: list[Solution],
+    path: PathResult, strokes: Sequence[Sequence[int]] | None,
+) -> dict[int, Violation]:  # fmt: skip
+    """A path sample blamed for a move with no collision-free detour (the move to its
+    stroke's run-in) fails with every solved sample of its stroke: dropping it alone would
+    only move the run-in start a sample along, into the same collision."""
+    if not mover.failures:
+        return blamed
+    spans = [list(s) for s in strokes] if strokes else [list(range(a, b)) for a, b in
+                                                          runs(np.asarray(path.ok))]  # fmt: skip
+    out = dict(blamed)
+    for k, v in blamed.items():
+        mine = [s for s in spans if k in s]
+        for i in min(mine, key=lambda s: s.index(k), default=[k]):
+            if solutions[i].ok:
+                out.setdefault(i, v)
     return out
 
 
