@@ -332,7 +332,9 @@ class PlannerNode:
         if req.execute:
             self.check_drivers()
             start = self.start_state()
-        plan = self.handler.plan_fn(targets, start, req.execute)
+        elif req.trajectory:  # a preview: the trajectory execute would send, not sent
+            start = self.start_state()
+        plan = self.handler.plan_fn(targets, start, req.execute or req.trajectory)
         plan["id"] = req.id
         if req.execute:
             self.execute(plan, req.id)

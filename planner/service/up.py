@@ -47,10 +47,12 @@ def child_commands(
     zenoh_config: Path | None = None,
     planner_zenoh_config: Path | None = None,
     hosts: dict[str, str] | None = None,
+    console_port: int | None = None,
 ) -> dict[str, list[str]]:
-    """argv of every child: ``planner``, ``camera`` (if any), then one per robot. Every child
-    gets ``zenoh_config`` except the planner, which gets ``planner_zenoh_config`` if given
-    (its own identity on a bus with access control)."""
+    """argv of every child: ``planner``, ``camera`` (if any), one per robot, then the
+    operator ``console`` on ``console_port`` (loopback) if given. Every child gets
+    ``zenoh_config`` except the planner, which gets ``planner_zenoh_config`` if given (its
+    own identity on a bus with access control)."""
     cli = [sys.executable, "-m", "planner.cli"]
     bus = ["--endpoint", endpoint, *(["--prefix", prefix] if prefix != "beamrelay" else [])]
     planner_bus = list(bus)
@@ -70,6 +72,8 @@ def child_commands(
             *cli, "driver", "robot", "--name", r, "--backend", backend, *host, "--scenario",
             str(scenario), *bus,
         ]  # fmt: skip
+    if console_port is not None:
+        out["console"] = [*cli, "console", str(scenario), "--port", str(console_port), *bus]
     return out
 
 
@@ -219,8 +223,10 @@ def run_up(
     zenoh_config: Path | None = None,
     planner_zenoh_config: Path | None = None,
     hosts: list[str] | None = None,
+    console_port: int | None = None,
 ) -> dict[str, int | None]:
     """Run the system until Ctrl-C / SIGTERM / ``duration`` s; the children's exit codes.
+    With ``console_port`` the operator console runs as one more supervised child.
 
     ``zenoh_config`` is used by ``up`` itself and passed on to every child,
     ``planner_zenoh_config`` (default ``zenoh_config``) to the planner child only.
@@ -239,7 +245,7 @@ def run_up(
     argv = child_commands(
         Path(scenario).resolve(), robots, backend=backend, endpoint=endpoint, prefix=prefix,
         camera=has_camera, zenoh_config=configs[0], planner_zenoh_config=configs[1],
-        hosts=host_map,
+        hosts=host_map, console_port=console_port,
     )  # fmt: skip
     log_dir = Path(log_dir or tempfile.mkdtemp(prefix="beamrelay-up-"))
     session = open_session(listen=True, endpoint=endpoint, config_file=configs[0])
