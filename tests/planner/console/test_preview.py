@@ -67,7 +67,7 @@ def test_the_swept_path_lies_on_the_board_along_the_requested_line(world: Any) -
 
 
 def test_joints_at_interpolates_the_trajectory(world: Any) -> None:
-    handler, system, _ = world
+    handler, _, _ = world
     traj = plan_of(handler, [[-0.52, -0.56, BOARD_TOP]])["trajectory"]
     T, Q = np.asarray(traj["t"]), np.asarray(traj["q"]["arm0"])
     k = len(T) // 2
