@@ -24,7 +24,7 @@ def console(
     ] = "127.0.0.1",
     max_points: Annotated[
         int, typer.Option("--max-points", help="Cloud points sent to the browser per frame.")
-    ] = 50_000,
+    ] = 30_000,
     endpoint: EndpointOpt = None,
     prefix: PrefixOpt = "beamrelay",
     zenoh_config: ZenohConfigOpt = None,

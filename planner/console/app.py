@@ -92,6 +92,7 @@ class Console:
         self.server.scene.set_up_direction("+z")
         # no HDRI: its decoding and filtering cost seconds in a software-rendered browser
         self.server.scene.configure_environment_map(hdri=None)
+        self.server.scene.configure_default_lights(cast_shadow=False)
         view = default_view(self.system, self.scene_items)
         cam = self.server.initial_camera
         cam.position, cam.look_at, cam.up, cam.fov = view.position, view.look_at, view.up, view.fov

@@ -43,6 +43,8 @@ def add_item(server: Any, name: str, item: SceneItem, colour: tuple[int, int, in
         opacity=opacity,
         flat_shading=True,
         side="double",
+        cast_shadow=False,
+        receive_shadow=False,
     )
 
 
@@ -50,7 +52,9 @@ def add_fixed(server: Any, system: System, scene: list[SceneItem], keep_out: lis
               ) -> None:  # fmt: skip
     """Grid, world axes, scene objects, keep-out volumes (translucent red), the laser and
     the fixed camera."""
-    server.scene.add_grid("/grid", width=2.0, height=2.0, cell_size=0.1, section_size=0.5)
+    server.scene.add_grid(
+        "/grid", width=2.0, height=2.0, cell_size=0.1, section_size=0.5, shadow_opacity=0.0
+    )
     server.scene.add_frame("/world", axes_length=0.1, axes_radius=0.003)
     for item in scene:
         add_item(server, f"/scene/{item.name}", item, SCENE_COLOUR, opacity=0.35)
@@ -95,6 +99,8 @@ class RobotDrawing:
                 np.asarray(mesh.faces, dtype=np.uint32),
                 color=colour,
                 opacity=0.9 if part.kind is PartKind.MIRROR else None,
+                cast_shadow=False,
+                receive_shadow=False,
             )
             self.nodes.append((part.index, node))
 

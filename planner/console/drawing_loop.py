@@ -19,6 +19,8 @@ from planner.errors import InputError
 if TYPE_CHECKING:
     from planner.console.app import Console
 
+#: at most this many cloud frames per second go to the browser (the camera sends 15)
+CLOUD_RATE = 10.0
 #: joints that moved less than this (rad, every joint) are not redrawn
 REDRAW_Q = 1e-5
 POINT_SIZE = 0.004  # m
@@ -32,6 +34,7 @@ class DrawLoop:
         self.seq = 0
         self.q_drawn: dict[str, Any] | None = None
         self.cloud_node: Any = None
+        self.cloud_due = 0.0
         self.spot_node: Any = None
 
     def run(self, stop: threading.Event, period: float, health_period: float) -> None:
@@ -62,9 +65,12 @@ class DrawLoop:
 
     def cloud(self, q: dict[str, Any] | None) -> None:
         c = self.c
+        if time.monotonic() < self.cloud_due:
+            return
         seq, raw = c.live.take_points(self.seq)
         if raw is None:
             return
+        self.cloud_due = time.monotonic() + 1.0 / CLOUD_RATE
         self.seq = seq
         try:
             cloud = c.new_cloud(raw[0], raw[1], q)

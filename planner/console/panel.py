@@ -64,7 +64,7 @@ def build_panel(server: Any) -> Panel:
         result = gui.add_markdown("")
         scrub = gui.add_slider("scrub t [s]", 0.0, 1.0, 0.01, 0.0, disabled=True)
         live = gui.add_button("Follow live robots")
-    with gui.add_folder("View", expand_by_default=False):
+    with gui.add_folder("View"):
         stats = gui.add_markdown("")
     return Panel(stop, health, targets, selected, up, down, delete, clear, mode, normals,
                  auto_preview, plan, dwell, closed_loop, execute, result, scrub, live, stats)  # fmt: skip

@@ -2,7 +2,7 @@
 
 It looks at the middle of the scene objects (or the robots' bases without any) from the
 fixed camera's side, a little farther back and higher, so the cloud the camera sees faces
-the viewer. The browser test projects cloud points into the page with this pose.
+the viewer.
 """
 
 from __future__ import annotations
@@ -45,23 +45,3 @@ def default_view(system: System, scene: list[SceneItem]) -> View:
         eye = look + np.array([-1.0, -1.0, 0.8])
     pos = look + PULL_BACK * (eye - look) + np.array([0.0, 0.0, RAISE])
     return View(pos, look, np.array([0.0, 0.0, 1.0]), float(VIEW_FOV))
-
-
-def project(view: View, points: Array, width: int, height: int) -> Array:
-    """Pixel coordinates (K x 2, px from the top-left corner) of world points in a
-    ``width`` x ``height`` canvas seen from ``view`` (a pinhole with the vertical ``fov``);
-    NaN for points behind the viewer."""
-    z = view.look_at - view.position
-    z = z / np.linalg.norm(z)
-    x = np.cross(z, view.up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)  # down in the image
-    rel = np.asarray(points, dtype=float).reshape(-1, 3) - view.position
-    c = np.column_stack([rel @ x, rel @ y, rel @ z])
-    f = 0.5 * height / np.tan(0.5 * view.fov)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uv = np.column_stack(
-            [width / 2 + f * c[:, 0] / c[:, 2], height / 2 + f * c[:, 1] / c[:, 2]]
-        )
-    uv[c[:, 2] <= 0] = np.nan
-    return uv

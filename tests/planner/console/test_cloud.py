@@ -49,10 +49,20 @@ def test_decimation_keeps_an_even_stride_within_the_budget() -> None:
         decimate(P, 0)
 
 
-def test_depth_ramp_spans_near_to_far() -> None:
+def test_depth_ramp_spans_near_to_far_at_constant_saturation() -> None:
+    import colorsys
+
     z = np.linspace(0.5, 1.5, 101)
     c = depth_colors(z).astype(int)
-    assert c[0].tolist() == [250, 210, 60] and c[-1].tolist() == [40, 90, 200]
+    for k in (0, 13, 50, 77, 100):  # against the standard library's HSV conversion
+        hue = (
+            50.0
+            + 180.0
+            * np.clip((z[k] - np.percentile(z, 2)) / np.ptp(np.percentile(z, [2, 98])), 0, 1)
+        ) / 360
+        expected = np.round(255 * np.array(colorsys.hsv_to_rgb(hue, 0.8, 0.95)))
+        assert np.abs(c[k] - expected).max() <= 1, (k, c[k], expected)
+    assert np.all(c.max(axis=1) - c.min(axis=1) >= 190)  # never a grey
     assert depth_colors(np.zeros(0)).shape == (0, 3)
     assert np.all(depth_colors(np.full(5, 0.7)) == depth_colors(np.full(5, 0.7))[0])
 
