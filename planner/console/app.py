@@ -54,6 +54,7 @@ class Console:
         from planner.model.scene import SceneModel
 
         scn = load_scenario(scenario)
+        self.scenario = Path(scenario).resolve()
         self.name = scn.model.name
         self.system = system_from_scenario(scn)
         self.scene_items = scene_objects(scn)
@@ -93,6 +94,7 @@ class Console:
         # no HDRI: its decoding and filtering cost seconds in a software-rendered browser
         self.server.scene.configure_environment_map(hdri=None)
         self.server.scene.configure_default_lights(cast_shadow=False)
+        self.server.scene.add_light_ambient("/ambient", intensity=1.5)  # what the HDRI lit
         view = default_view(self.system, self.scene_items)
         cam = self.server.initial_camera
         cam.position, cam.look_at, cam.up, cam.fov = view.position, view.look_at, view.up, view.fov
@@ -101,6 +103,7 @@ class Console:
         self.robots.update({r.name: r.home for r in self.system.robots})
         self.panel = build_panel(self.server)
         self._wire()
+        self._wire_wizard()
         self._thread = threading.Thread(target=self._draw_loop, name="console-draw", daemon=True)
         self._thread.start()
         return self
@@ -135,6 +138,48 @@ class Console:
         p.scrub.on_update(lambda _: self._on_scrub())
         p.live.on_click(lambda _: self._follow_live())
 
+    def _wire_wizard(self) -> None:
+        from planner.console.panel import build_calibration_panel
+        from planner.console.wizard import StepRunner
+
+        centre = self.scene_items[0].world_T_object[:3, 3] if self.scene_items else [0, 0, 0]
+        aim = ",".join(f"{v:.3f}" for v in centre)
+        self.cal = build_calibration_panel(self.server, aim, str(self.scenario.parent))
+        self.steps = StepRunner(lambda text: setattr(self.cal.log, "content", text))
+        self.cal.collect.on_click(lambda _: self._run_cal(self._cal_collect))
+        self.cal.calibrate.on_click(lambda _: self._run_cal(self._cal_calibrate))
+        self.cal.cancel.on_click(lambda _: self.steps.cancel())
+
+    def _run_cal(self, fn: Any) -> None:
+        try:
+            fn()
+        except BeamrelayError as exc:
+            self.cal.log.content = f"**{exc}**"
+
+    def _cal_collect(self) -> None:
+        from planner.console.wizard import bus_options, collect_argv, parse_aim
+
+        kind = str(self.cal.kind.value)
+        aim = parse_aim(str(self.cal.aim.value)) if kind == "beam" else None
+        bus = bus_options(**self.bus)  # type: ignore[arg-type]
+        argv = collect_argv(kind, self.scenario, Path(self.cal.dataset.value),
+                            int(self.cal.poses.value), aim, bus)  # fmt: skip
+        self.steps.run(argv)
+
+    def _cal_calibrate(self) -> None:
+        from planner.console.wizard import calibrate_argv, report_markdown
+
+        out = Path(self.cal.output.value)
+        argv = calibrate_argv(
+            str(self.cal.kind.value), self.scenario, Path(self.cal.dataset.value), out
+        )
+
+        def done(code: int) -> None:
+            if code in (0, 1) and out.is_file():
+                self.cal.log.content += "  \n" + report_markdown(out)
+
+        self.steps.run(argv, done)
+
     def _selected(self) -> int:
         return int(self.panel.selected.value)
 
@@ -163,12 +208,13 @@ class Console:
         if pick is None:
             self._message("the click hit no cloud point")
             return
+        p, normal = pick.p, None
         try:
-            normal = surface_normal(cloud.points, pick.p, np.asarray(event.ray_origin)).normal
+            fit = surface_normal(cloud.points, pick.p, np.asarray(event.ray_origin))
+            p, normal = fit.project(pick.p), fit.normal
         except InputError as exc:  # a lone point: keep it without a normal
-            normal = None
             self._message(f"{exc}; target added without a normal")
-        self._edit_list(lambda t: t.add(pick.p, normal))
+        self._edit_list(lambda t: t.add(p, normal))
         self.latency["pick"] = time.perf_counter() - t0
         if self.panel.auto_preview.value:
             self._run(self._do_preview)
@@ -187,9 +233,9 @@ class Console:
     def _draw_targets(self) -> None:
         """The list in the panel and the markers (and path) in the scene."""
         items = self.targets.items
-        lines = [f"- `{t.label(k)}`" + ("" if t.n is None else f" n=({t.n[0]:.2f}, {t.n[1]:.2f}, "
+        lines = [f"`{t.label(k)}`" + ("" if t.n is None else f" n=({t.n[0]:.2f}, {t.n[1]:.2f}, "
                  f"{t.n[2]:.2f})") for k, t in enumerate(items)]  # fmt: skip
-        self.panel.targets.content = "\n".join(lines) or "no targets: click the cloud to add one"
+        self.panel.targets.content = "  \n".join(lines) or "no targets: click the cloud to add one"
         self.server.scene.remove_by_name("/targets")
         for k, t in enumerate(items):
             self.server.scene.add_icosphere(f"/targets/{k}", radius=0.004, color=TARGET_COLOUR,

@@ -22,7 +22,7 @@ def health_markdown(snap: dict[str, Any], rates: dict[str, float], nodes: tuple[
     for node in nodes:
         alive = "up" if node in snap["alive"] else "**DOWN**"
         rate = rates.get(node)
-        text = f"- `{node}`: {alive}" + (f", {rate:.0f} Hz" if rate is not None else "")
+        text = f"`{node}`: {alive}" + (f", {rate:.0f} Hz" if rate is not None else "")
         st = snap["status"].get(node)
         if st is not None:
             m = st.value
@@ -34,21 +34,21 @@ def health_markdown(snap: dict[str, Any], rates: dict[str, float], nodes: tuple[
         lines.append(text)
     hb = snap["heartbeat"]
     if hb is None or now - hb.at > HEARTBEAT_STALE:
-        lines.append("- heartbeat: **silent** (robots brake)")
+        lines.append("heartbeat: **silent** (robots brake)")
     else:
-        lines.append(f"- heartbeat: ok, {rates.get('heartbeat', 0.0):.0f} Hz")
+        lines.append(f"heartbeat: ok, {rates.get('heartbeat', 0.0):.0f} Hz")
     laser = snap["laser"]
     if laser is None:
-        lines.append("- laser gate: no report (off until switched)")
+        lines.append("laser gate: no report (off until switched)")
     else:
-        lines.append(f"- laser gate: **{'ON' if laser.value.on else 'off'}** ({laser.value.robot})")
+        lines.append(f"laser gate: **{'ON' if laser.value.on else 'off'}** ({laser.value.robot})")
     spot = snap["spot"]
     if spot is None or now - spot.at > STALE_AFTER:
-        lines.append("- spot: no camera frames")
+        lines.append("spot: no camera frames")
     elif spot.value.p_camera is None:
-        lines.append("- spot: not seen")
+        lines.append("spot: not seen")
     else:
-        lines.append(f"- spot: seen, confidence {spot.value.confidence:.2f}")
+        lines.append(f"spot: seen, confidence {spot.value.confidence:.2f}")
     if snap["rejected"]:
-        lines.append(f"- {snap['rejected']} malformed messages dropped")
-    return "\n".join(lines)
+        lines.append(f"{snap['rejected']} malformed messages dropped")
+    return "  \n".join(lines)

@@ -68,3 +68,37 @@ def build_panel(server: Any) -> Panel:
         stats = gui.add_markdown("")
     return Panel(stop, health, targets, selected, up, down, delete, clear, mode, normals,
                  auto_preview, plan, dwell, closed_loop, execute, result, scrub, live, stats)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class CalibrationPanel:
+    """Handles of the calibration wizard's widgets."""
+
+    kind: Any
+    poses: Any
+    aim: Any
+    dataset: Any
+    output: Any
+    collect: Any
+    calibrate: Any
+    cancel: Any
+    log: Any
+
+
+def build_calibration_panel(server: Any, aim: str, folder: str) -> CalibrationPanel:
+    """The wizard's widgets (collapsed); ``aim``: the default board centre text, ``folder``
+    where the dataset and the calibration file go by default."""
+    from planner.console.wizard import KINDS
+
+    gui = server.gui
+    with gui.add_folder("Calibration wizard", expand_by_default=False):
+        kind = gui.add_dropdown("calibration", list(KINDS), initial_value=KINDS[0])
+        poses = gui.add_number("poses", 12, min=3, max=200, step=1)
+        aim_h = gui.add_text("board centre (beam) [m]", aim)
+        dataset = gui.add_text("dataset", f"{folder}/calibration_data.json")
+        output = gui.add_text("calibration file", f"{folder}/calibration.yaml")
+        collect = gui.add_button("1. Collect data (moves the robot)")
+        calibrate = gui.add_button("2. Calibrate and write the file")
+        cancel = gui.add_button("Cancel step")
+        log = gui.add_markdown("")
+    return CalibrationPanel(kind, poses, aim_h, dataset, output, collect, calibrate, cancel, log)

@@ -33,7 +33,7 @@ def answer_markdown(answer: Answer, pv: Preview, executed: bool) -> str:
         lines += _closed_loop(answer.plan)
     for f in pv.failed[:MAX_ROWS]:
         detail = f": {f.detail}" if f.detail else ""
-        lines.append(f"- #{f.target} failed: **{f.reason}**{detail}")
+        lines.append(f"#{f.target} failed: **{f.reason}**{detail}")
     if executed:
         lines += _measured_rows(s["targets"])
     return "  \n".join(lines)
@@ -46,10 +46,10 @@ def _measured_rows(rows: list[dict[str, Any]]) -> list[str]:
             continue
         p = ", ".join(f"{1e3 * c:.1f}" for c in r["p"])
         if r["measured_spot"] is None:
-            out.append(f"- #{r['id']} planned ({p}) mm: spot not measured")
+            out.append(f"#{r['id']} planned ({p}) mm: spot not measured")
         else:
             m = ", ".join(f"{1e3 * c:.1f}" for c in r["measured_spot"])
-            out.append(f"- #{r['id']} planned ({p}) measured ({m}) mm, "
+            out.append(f"#{r['id']} planned ({p}) measured ({m}) mm, "
                        f"error {1e3 * r['measured_error']:.2f} mm")  # fmt: skip
     return out
 

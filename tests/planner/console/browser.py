@@ -80,7 +80,7 @@ def canvas_rect(d: Any) -> tuple[float, float, float, float]:
 
 
 def page_text(d: Any) -> str:
-    return str(d.execute_script("return document.body.innerText;"))
+    return str(d.execute_script("return document.body.textContent;"))
 
 
 def click_button(d: Any, label: str) -> None:
