@@ -19,7 +19,7 @@ def answer_markdown(answer: Answer, pv: Preview, executed: bool) -> str:
     """Markdown summary of one reply (see the module docstring)."""
     s = answer.summary
     head = (f"**{pv.n_ok}/{pv.n} targets solved**, trajectory {pv.duration:.2f} s, "
-            f"reply in {1e3 * answer.seconds:.0f} ms")  # fmt: skip
+            f"reply in {1e3 * answer.seconds:.0f} ms (request {s.get('id')})")  # fmt: skip
     lines = [head]
     if executed:
         verdict = s.get("execution") or "not executed"
