@@ -74,9 +74,10 @@ class TargetRequest(StrictModel):
 
     ``mode: path`` sweeps the points as one polyline; ``mode: track`` follows the target
     stream (``beamrelay/targets/stream``) whose ``id`` the first point names; ``execute``
-    sends the trajectory to the robots after planning. ``closed_loop`` corrects each target
-    from the camera's measured spot until it is within ``tolerance`` (m; default the
-    scenario's, 0.3 mm); ``dwell`` (s) holds the spot on each target with the laser on.
+    sends the trajectory to the robots after planning; ``trajectory`` plans it (from the
+    robots' current state, as ``execute`` would) without sending it, for a preview.
+    ``closed_loop`` corrects each target from the camera's measured spot until it is within
+    ``tolerance`` (m; default the scenario's, 0.3 mm); ``dwell`` (s) holds the spot on each target with the laser on.
     Coordinates are bounded by :data:`MAX_COORDINATE` (m).
     """
 
@@ -87,6 +88,7 @@ class TargetRequest(StrictModel):
     normals: list[Direction] | None = None
     mode: Literal["points", "path", "track"] = "points"
     execute: StrictBool = False
+    trajectory: StrictBool = False
     closed_loop: StrictBool = False
     dwell: Annotated[Num, Field(ge=0, le=MAX_DWELL)] | None = None
     tolerance: Annotated[Num, Field(gt=0, le=MAX_TOLERANCE)] | None = None

@@ -40,8 +40,16 @@ from planner.errors import InputError
 from planner.model.transforms import Array
 from planner.service.bus import JSON, Keys, decode, encode
 from schemas.messages import JointState, SpotMessage
+from schemas.points import POINTS_SCHEMA, decode_points, points_metadata
 
-POINTS_SCHEMA = "beamrelay.points/1"
+__all__ = [
+    "POINTS_SCHEMA",
+    "CameraNode",
+    "CameraSource",
+    "SpotReading",
+    "decode_points",
+    "points_metadata",
+]
 
 
 @dataclass(frozen=True)
@@ -63,37 +71,6 @@ class CameraSource(Protocol):
     def points(self) -> tuple[Any, dict[str, Any]]: ...
     def spot(self) -> SpotReading | None: ...
     def close(self) -> None: ...
-
-
-def points_metadata(points: Array, t: float, seq: int, extra: dict[str, Any]) -> dict[str, Any]:
-    """Attachment of a ``camera/points`` sample (all lengths in m, camera optical frame)."""
-    fields = ["x", "y", "z", "r", "g", "b"][: points.shape[1]]
-    return {
-        "schema": POINTS_SCHEMA,
-        "t": t,
-        "seq": seq,
-        "frame": "camera",
-        "dtype": "float32",
-        "fields": fields,
-        "count": int(points.shape[0]),
-        **extra,
-    }
-
-
-def decode_points(payload: bytes, attachment: bytes) -> tuple[Any, dict[str, Any]]:
-    """``camera/points`` sample -> (count x len(fields) float32 array, metadata)."""
-    try:
-        meta = json.loads(attachment)
-        fields, count = meta["fields"], int(meta["count"])
-    except (ValueError, KeyError, TypeError) as exc:
-        raise InputError(f"bad points metadata: {exc}", "attachment") from exc
-    if meta.get("schema") != POINTS_SCHEMA or meta.get("dtype") != "float32":
-        raise InputError(
-            f"expected {POINTS_SCHEMA} float32, got {meta.get('schema')}", "attachment"
-        )
-    if len(payload) != 4 * count * len(fields):
-        raise InputError(f"{len(payload)} bytes for {count} x {len(fields)} float32", "payload")
-    return np.frombuffer(payload, dtype=np.float32).reshape(count, len(fields)), meta
 
 
 class CameraNode(LoopNode):

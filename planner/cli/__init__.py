@@ -19,7 +19,19 @@ from typing import Annotated
 import typer
 
 from drivers import cli as driver_cli
-from planner.cli import bench, calibrate, collect, core, hw, node, plan, record, robot, study
+from planner.cli import (
+    bench,
+    calibrate,
+    collect,
+    console,
+    core,
+    hw,
+    node,
+    plan,
+    record,
+    robot,
+    study,
+)
 from planner.errors import InputError
 
 app = typer.Typer(
@@ -37,6 +49,7 @@ app.command("check")(plan.check)
 app.command("serve")(node.serve)
 app.command("up")(node.up)
 app.command("request")(node.request)
+app.command("console")(console.console)
 app.add_typer(calibrate.app, name="calibrate")
 app.add_typer(study.app, name="study")
 app.add_typer(bench.app, name="bench")

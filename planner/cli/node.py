@@ -135,11 +135,22 @@ def up(
             help="ur backend: NAME=ADDRESS of each robot's controller (repeat per robot).",
         ),
     ] = None,
+    console: Annotated[
+        bool, typer.Option("--console", help="Also run the operator console (browser page).")
+    ] = False,
+    console_port: Annotated[
+        int, typer.Option("--console-port", help="Port of the console page on 127.0.0.1.")
+    ] = 8080,
 ) -> None:
     """Start planner + camera + one robot driver per robot, supervised, until Ctrl-C.
 
     --zenoh-config is used by up itself and passed on to every child."""
+    from planner.console.address import DEFAULT_HOST, check_free, check_port
     from planner.service.up import run_up
+
+    if console:
+        check_port(console_port, "--console-port")
+        check_free(DEFAULT_HOST, console_port, "--console-port")
 
     if backend not in ("sim", "ur"):
         raise InputError(f"--backend {backend!r}: expected sim or ur")
@@ -158,6 +169,7 @@ def up(
         zenoh_config=zenoh_config,
         planner_zenoh_config=planner_zenoh_config,
         hosts=host,
+        console_port=console_port if console else None,
     )
 
 

@@ -382,7 +382,10 @@ class PlannerNode:
         if req.execute:
             self.check_drivers()
             start = self.start_state()
-        plan = self.handler.plan_fn(targets, start, req.execute and not req.closed_loop)
+        elif req.trajectory:  # a preview: the trajectory execute would send, not sent
+            start = self.start_state()
+        timed = (req.execute and not req.closed_loop) or req.trajectory
+        plan = self.handler.plan_fn(targets, start, timed)
         plan["id"] = req.id
         if req.execute and req.closed_loop:
             assert start is not None

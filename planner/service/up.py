@@ -48,11 +48,13 @@ def child_commands(
     planner_zenoh_config: Path | None = None,
     hosts: dict[str, str] | None = None,
     tracker: bool = False,
+    console_port: int | None = None,
 ) -> dict[str, list[str]]:
     """argv of every child: ``planner``, ``camera`` (if any), the simulated ``tracker`` (sim
-    only, when asked: the scenario has targets on a moving object), then one per robot. Every child
-    gets ``zenoh_config`` except the planner, which gets ``planner_zenoh_config`` if given
-    (its own identity on a bus with access control)."""
+    only, when asked: the scenario has targets on a moving object), one per robot, then the
+    operator ``console`` on ``console_port`` (loopback) if given. Every child gets
+    ``zenoh_config`` except the planner, which gets ``planner_zenoh_config`` if given (its
+    own identity on a bus with access control)."""
     cli = [sys.executable, "-m", "planner.cli"]
     bus = ["--endpoint", endpoint, *(["--prefix", prefix] if prefix != "beamrelay" else [])]
     planner_bus = list(bus)
@@ -74,6 +76,8 @@ def child_commands(
             *cli, "driver", "robot", "--name", r, "--backend", backend, *host, "--scenario",
             str(scenario), *bus,
         ]  # fmt: skip
+    if console_port is not None:
+        out["console"] = [*cli, "console", str(scenario), "--port", str(console_port), *bus]
     return out
 
 
@@ -234,8 +238,10 @@ def run_up(
     zenoh_config: Path | None = None,
     planner_zenoh_config: Path | None = None,
     hosts: list[str] | None = None,
+    console_port: int | None = None,
 ) -> dict[str, int | None]:
     """Run the system until Ctrl-C / SIGTERM / ``duration`` s; the children's exit codes.
+    With ``console_port`` the operator console runs as one more supervised child.
 
     ``zenoh_config`` is used by ``up`` itself and passed on to every child,
     ``planner_zenoh_config`` (default ``zenoh_config``) to the planner child only.
@@ -255,6 +261,7 @@ def run_up(
         Path(scenario).resolve(), robots, backend=backend, endpoint=endpoint, prefix=prefix,
         camera=has_camera, zenoh_config=configs[0], planner_zenoh_config=configs[1],
         hosts=host_map, tracker=has_camera and has_tracked_targets(scn),
+        console_port=console_port,
     )  # fmt: skip
     log_dir = Path(log_dir or tempfile.mkdtemp(prefix="beamrelay-up-"))
     session = open_session(listen=True, endpoint=endpoint, config_file=configs[0])

@@ -75,7 +75,7 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
     root = typer.main.get_command(app)
     assert sorted(root.commands) == sorted(  # type: ignore[attr-defined]
         ["validate", "trace", "plan", "check", "serve", "up", "request", "calibrate", "study",
-         "bench", "driver", "record", "replay", "robot", "hw"]
+         "bench", "driver", "record", "replay", "robot", "hw", "console"]
     )  # fmt: skip
     groups = root.commands  # type: ignore[attr-defined]
     assert sorted(groups["calibrate"].commands) == ["beam", "collect", "handeye", "simulate"]

@@ -110,3 +110,12 @@ def test_up_on_a_locked_bus(tmp_path: Path) -> None:
         up.send_signal(signal.SIGTERM)
         out, _ = up.communicate(timeout=60)
     assert up.returncode == 0, out
+
+
+def test_the_console_child_gets_its_port_and_the_bus() -> None:
+    s = Path("/x/s.yaml")
+    argv = child_commands(s, ["arm0"], endpoint="tcp/127.0.0.1:9", console_port=8123)
+    assert list(argv) == ["planner", "camera", "arm0", "console"]
+    assert argv["console"] == [sys.executable, "-m", "planner.cli", "console", str(s),
+                               "--port", "8123", "--endpoint", "tcp/127.0.0.1:9"]  # fmt: skip
+    assert "console" not in child_commands(s, ["arm0"], endpoint="e")

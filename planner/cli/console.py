@@ -1,0 +1,60 @@
+"""``beamrelay console``: the operator page in a browser (argument parsing only)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from planner.cli.node import EndpointOpt, PrefixOpt, ZenohConfigOpt
+from planner.errors import InputError
+
+
+def console(
+    scenario: Annotated[Path, typer.Argument(help="Scenario YAML of the running system.")],
+    port: Annotated[int, typer.Option("--port", help="Web server port.")] = 8080,
+    host: Annotated[
+        str,
+        typer.Option(
+            "--host",
+            help="Address to listen on (default loopback only; the page has no login: "
+            "anyone who reaches it can move the robots).",
+        ),
+    ] = "127.0.0.1",
+    max_points: Annotated[
+        int, typer.Option("--max-points", help="Cloud points sent to the browser per frame.")
+    ] = 30_000,
+    endpoint: EndpointOpt = None,
+    prefix: PrefixOpt = "beamrelay",
+    zenoh_config: ZenohConfigOpt = None,
+) -> None:
+    """Serve the operator console until Ctrl-C: live cloud, robots and beam; click targets
+    on the cloud, preview, execute, stop."""
+    import signal
+    import threading
+
+    from planner.console.address import check_free, check_host, check_port, is_loopback
+    from planner.console.app import Console
+
+    check_port(port)
+    host = check_host(host)
+    if not scenario.is_file():
+        raise InputError(f"scenario not found: {scenario}")
+    if not 100 <= max_points <= 2_000_000:
+        raise InputError(f"--max-points {max_points}: expected 100-2000000")
+    if not is_loopback(host):
+        typer.echo(f"warning: the console listens on {host}, beyond this machine; it has no "
+                   "login: anyone who can reach it can move the robots", err=True)  # fmt: skip
+    check_free(host, port)
+    app = Console(scenario, host=host, port=port, endpoint=endpoint, prefix=prefix,
+                  zenoh_config=zenoh_config, max_points=max_points).start()  # fmt: skip
+    stop = threading.Event()
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, lambda *_: stop.set())
+    typer.echo(f"console of {app.name} on {app.url}")
+    try:
+        while not stop.wait(0.2):
+            pass
+    finally:
+        app.close()

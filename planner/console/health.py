@@ -1,0 +1,54 @@
+"""The node-health panel text: liveliness, heartbeat, driver status and faults, the laser.
+
+A pure function of :meth:`planner.console.live.LiveState.snapshot` and the stream rates, so
+it is tested without a bus.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from planner.console.live import STALE_AFTER
+
+#: the planner's heartbeat is stale after this silence (s), as the drivers judge it
+HEARTBEAT_STALE = 0.1
+
+
+def health_markdown(snap: dict[str, Any], rates: dict[str, float], nodes: tuple[str, ...],
+                    now: float) -> str:  # fmt: skip
+    """Markdown lines: one per expected node (alive or DOWN, its stream rate, the robot
+    driver's mode and fault), the heartbeat, the laser gate and the spot."""
+    lines = []
+    for node in nodes:
+        alive = "up" if node in snap["alive"] else "**DOWN**"
+        rate = rates.get(node)
+        text = f"`{node}`: {alive}" + (f", {rate:.0f} Hz" if rate is not None else "")
+        st = snap["status"].get(node)
+        if st is not None:
+            m = st.value
+            text += f", {m.mode}"
+            if m.protective_stop:
+                text += ", **protective stop**"
+            if m.fault:
+                text += f", **fault: {m.fault}**"
+        lines.append(text)
+    hb = snap["heartbeat"]
+    if hb is None or now - hb.at > HEARTBEAT_STALE:
+        lines.append("heartbeat: **silent** (robots brake)")
+    else:
+        lines.append(f"heartbeat: ok, {rates.get('heartbeat', 0.0):.0f} Hz")
+    laser = snap["laser"]
+    if laser is None:
+        lines.append("laser gate: no report (off until switched)")
+    else:
+        lines.append(f"laser gate: **{'ON' if laser.value.on else 'off'}** ({laser.value.robot})")
+    spot = snap["spot"]
+    if spot is None or now - spot.at > STALE_AFTER:
+        lines.append("spot: no camera frames")
+    elif spot.value.p_camera is None:
+        lines.append("spot: not seen")
+    else:
+        lines.append(f"spot: seen, confidence {spot.value.confidence:.2f}")
+    if snap["rejected"]:
+        lines.append(f"{snap['rejected']} malformed messages dropped")
+    return "  \n".join(lines)

@@ -1,0 +1,87 @@
+"""The console's requests to the running system, over the planner's public interface.
+
+Preview = a TargetRequest with ``trajectory: true`` (the planner plans the trajectory from
+the robots' current state, as it would for ``execute``, and sends nothing); execute = the
+same request with ``execute: true`` through :meth:`planner.service.client.PlanClient.execute`
+(which waits for the motion and measures the spot of every target); stop = a
+:class:`~schemas.messages.StopMessage` on ``<prefix>/stop``. One request at a time.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any, NamedTuple
+
+from planner.model.transforms import Array
+from planner.service.bus import JSON, encode
+from planner.service.client import PlanClient, request_summary
+from schemas.messages import StopMessage
+
+#: seconds to wait for a plan reply
+PLAN_TIMEOUT = 30.0
+
+
+class Answer(NamedTuple):
+    """A reply: the plan dict, the summary (:func:`planner.service.client.request_summary`),
+    the round trip (s) and the measured spots (world, m; None where unseen) if executed."""
+
+    plan: dict[str, Any]
+    summary: dict[str, Any]
+    seconds: float
+    spots: list[Array | None] | None
+
+
+class Operator:
+    """Sends the console's requests on one :class:`PlanClient`."""
+
+    def __init__(self, client: PlanClient) -> None:
+        self.client = client
+        self._busy = threading.Lock()
+
+    @property
+    def busy(self) -> bool:
+        return self._busy.locked()
+
+    def preview(self, req: dict[str, Any]) -> Answer:
+        """Plan ``req`` with its trajectory, without moving anything. RequestError on an
+        error reply; BusyError while another request runs."""
+        with self._claim():
+            t0 = time.perf_counter()
+            plan = self.client.request({**req, "execute": False, "trajectory": True},
+                                       PLAN_TIMEOUT)  # fmt: skip
+            dt = time.perf_counter() - t0
+        return Answer(plan, request_summary(plan, None), dt, None)
+
+    def execute(self, req: dict[str, Any]) -> Answer:
+        """Plan and execute ``req``, wait for the motion, measure the spots."""
+        with self._claim():
+            t0 = time.perf_counter()
+            plan, spots = self.client.execute({**req, "execute": True}, PLAN_TIMEOUT)
+            dt = time.perf_counter() - t0
+        return Answer(plan, request_summary(plan, spots), dt, spots)
+
+    def stop(self, reason: str = "operator pressed Stop") -> None:
+        """Publish ``<prefix>/stop``: every driver brakes and switches the laser off."""
+        msg = StopMessage(t=time.time(), source="console", reason=reason)
+        self.client.session.put(self.client.keys.stop, encode(msg), encoding=JSON)
+
+    def _claim(self) -> Any:
+        if not self._busy.acquire(blocking=False):
+            raise BusyError("a request is still running: wait for it or press Stop")
+        return _Release(self._busy)
+
+
+class BusyError(RuntimeError):
+    """Another request of this console is still running."""
+
+
+class _Release:
+    def __init__(self, lock: threading.Lock) -> None:
+        self.lock = lock
+
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, *exc: object) -> None:
+        self.lock.release()

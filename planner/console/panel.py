@@ -1,0 +1,104 @@
+"""The console's GUI widgets (viser handles), built in one place, no behaviour.
+
+Order on the page: the large Stop button, system health, the target list and its edits,
+plan / execute and their results, the trajectory scrubber, then the calibration wizard.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from planner.console.targets import Mode
+
+
+@dataclass(frozen=True)
+class Panel:
+    """Handles of every widget."""
+
+    stop: Any
+    health: Any
+    targets: Any
+    selected: Any
+    up: Any
+    down: Any
+    delete: Any
+    clear: Any
+    mode: Any
+    normals: Any
+    auto_preview: Any
+    plan: Any
+    dwell: Any
+    closed_loop: Any
+    execute: Any
+    result: Any
+    scrub: Any
+    live: Any
+    stats: Any
+
+
+def build_panel(server: Any) -> Panel:
+    """Add the widgets to ``server``'s GUI."""
+    gui = server.gui
+    stop = gui.add_button("STOP", color="red", icon=None, hint="Publish beamrelay/stop: "
+                          "every robot brakes, laser off")  # fmt: skip
+    with gui.add_folder("System"):
+        health = gui.add_markdown("waiting for the bus...")
+    with gui.add_folder("Targets"):
+        targets = gui.add_markdown("no targets: click the point cloud to add one")
+        selected = gui.add_number("target #", 0, min=0, step=1)
+        up = gui.add_button("Move up")
+        down = gui.add_button("Move down")
+        delete = gui.add_button("Delete")
+        clear = gui.add_button("Clear all")
+        mode = gui.add_dropdown(
+            "visit as", [m.value for m in Mode], initial_value=Mode.POINTS.value
+        )
+        normals = gui.add_checkbox("use fitted normals", True)
+        auto_preview = gui.add_checkbox("preview on click", True)
+    with gui.add_folder("Plan and execute"):
+        plan = gui.add_button("Plan (preview)")
+        dwell = gui.add_number("dwell [s]", 0.4, min=0.0, max=10.0, step=0.1)
+        closed_loop = gui.add_checkbox("closed loop", False)
+        execute = gui.add_button("Execute", color="green")
+        result = gui.add_markdown("")
+        scrub = gui.add_slider("scrub t [s]", 0.0, 1.0, 0.01, 0.0, disabled=True)
+        live = gui.add_button("Follow live robots")
+    with gui.add_folder("View"):
+        stats = gui.add_markdown("")
+    return Panel(stop, health, targets, selected, up, down, delete, clear, mode, normals,
+                 auto_preview, plan, dwell, closed_loop, execute, result, scrub, live, stats)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class CalibrationPanel:
+    """Handles of the calibration wizard's widgets."""
+
+    kind: Any
+    poses: Any
+    aim: Any
+    dataset: Any
+    output: Any
+    collect: Any
+    calibrate: Any
+    cancel: Any
+    log: Any
+
+
+def build_calibration_panel(server: Any, aim: str, folder: str) -> CalibrationPanel:
+    """The wizard's widgets (collapsed); ``aim``: the default board centre text, ``folder``
+    where the dataset and the calibration file go by default."""
+    from planner.console.wizard import KINDS
+
+    gui = server.gui
+    with gui.add_folder("Calibration wizard", expand_by_default=False):
+        kind = gui.add_dropdown("calibration", list(KINDS), initial_value=KINDS[0])
+        poses = gui.add_number("poses", 12, min=3, max=200, step=1)
+        aim_h = gui.add_text("board centre (beam) [m]", aim)
+        dataset = gui.add_text("dataset", f"{folder}/calibration_data.json")
+        output = gui.add_text("calibration file", f"{folder}/calibration.yaml")
+        collect = gui.add_button("1. Collect data (moves the robot)")
+        calibrate = gui.add_button("2. Calibrate and write the file")
+        cancel = gui.add_button("Cancel step")
+        log = gui.add_markdown("")
+    return CalibrationPanel(kind, poses, aim_h, dataset, output, collect, calibrate, cancel, log)

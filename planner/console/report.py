@@ -1,0 +1,61 @@
+"""The result text of a plan or execution: counts, duration, failures, measured spots.
+
+Pure: a markdown string from an :class:`~planner.console.operator.Answer` and its
+:class:`~planner.console.preview.Preview`. Lengths are printed in mm (labelled), times in s.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from planner.console.operator import Answer
+from planner.console.preview import Preview
+
+#: most per-target rows shown
+MAX_ROWS = 40
+
+
+def answer_markdown(answer: Answer, pv: Preview, executed: bool) -> str:
+    """Markdown summary of one reply (see the module docstring)."""
+    s = answer.summary
+    head = (f"**{pv.n_ok}/{pv.n} targets solved**, trajectory {pv.duration:.2f} s, "
+            f"reply in {1e3 * answer.seconds:.0f} ms (request {s.get('id')})")  # fmt: skip
+    lines = [head]
+    if executed:
+        verdict = s.get("execution") or "not executed"
+        reason = f" ({s['execution_reason']})" if s.get("execution_reason") else ""
+        lines.append(f"execution: **{verdict}**{reason}")
+        if "measured_error_median" in s:
+            lines.append(
+                f"measured error: median {1e3 * s['measured_error_median']:.2f} mm, "
+                f"max {1e3 * s['measured_error_max']:.2f} mm over {s['n_measured']} targets"
+            )
+        lines += _closed_loop(answer.plan)
+    for f in pv.failed[:MAX_ROWS]:
+        detail = f": {f.detail}" if f.detail else ""
+        lines.append(f"#{f.target} failed: **{f.reason}**{detail}")
+    if executed:
+        lines += _measured_rows(s["targets"])
+    return "  \n".join(lines)
+
+
+def _measured_rows(rows: list[dict[str, Any]]) -> list[str]:
+    out = []
+    for r in rows[:MAX_ROWS]:
+        if r["status"] != "ok":
+            continue
+        p = ", ".join(f"{1e3 * c:.1f}" for c in r["p"])
+        if r["measured_spot"] is None:
+            out.append(f"#{r['id']} planned ({p}) mm: spot not measured")
+        else:
+            m = ", ".join(f"{1e3 * c:.1f}" for c in r["measured_spot"])
+            out.append(f"#{r['id']} planned ({p}) measured ({m}) mm, "
+                       f"error {1e3 * r['measured_error']:.2f} mm")  # fmt: skip
+    return out
+
+
+def _closed_loop(plan: dict[str, Any]) -> list[str]:
+    """What the reply says about closed-loop correction, as it says it (free-form)."""
+    extra = (plan.get("metrics") or {}).get("extra") or {}
+    keys = [k for k in (*plan.keys(), *extra.keys()) if "closed" in k or "servo" in k]
+    return [f"{k}: `{plan.get(k, extra.get(k))}`"[:300] for k in keys]

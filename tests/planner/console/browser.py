@@ -1,0 +1,123 @@
+"""Headless chromium for the console's browser test: start it, count websocket traffic,
+read the page, project world points into the canvas the way the page's camera does."""
+
+from __future__ import annotations
+
+import shutil
+import time
+from typing import Any
+
+import numpy as np
+
+CHROMIUM = ("chromium", "chromium-browser", "google-chrome")
+#: records every websocket message (time ms, bytes) the page receives, from before it loads
+WS_PROBE = """
+window.__ws = [];
+const Native = window.WebSocket;
+window.WebSocket = function (...args) {
+  const ws = new Native(...args);
+  ws.addEventListener("message", (e) => {
+    const n = e.data.byteLength ?? e.data.size ?? e.data.length ?? 0;
+    window.__ws.push([performance.now(), n]);
+  });
+  return ws;
+};
+window.WebSocket.prototype = Native.prototype;
+Object.assign(window.WebSocket, Native);
+"""
+RAF_FPS = """
+const done = arguments[arguments.length - 1];
+let n = 0; const t0 = performance.now();
+function f() { n++; if (performance.now() - t0 < arguments_ms) requestAnimationFrame(f);
+               else done(n / ((performance.now() - t0) / 1000)); }
+requestAnimationFrame(f);
+"""
+
+
+def chromium_paths() -> tuple[str, str] | None:
+    """(browser, chromedriver) executables, or None when either is missing."""
+    browser = next((p for p in map(shutil.which, CHROMIUM) if p), None)
+    driver = shutil.which("chromedriver")
+    return (browser, driver) if browser and driver else None
+
+
+def open_browser(width: int = 1024, height: int = 700) -> Any:
+    from selenium import webdriver
+    from selenium.webdriver.chrome.options import Options
+    from selenium.webdriver.chrome.service import Service
+
+    paths = chromium_paths()
+    assert paths is not None
+    opts = Options()
+    opts.binary_location = paths[0]
+    for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
+              f"--window-size={width},{height}", "--enable-unsafe-swiftshader",
+              "--use-angle=swiftshader", "--ignore-gpu-blocklist"):  # fmt: skip
+        opts.add_argument(a)
+    d = webdriver.Chrome(options=opts, service=Service(paths[1]))
+    d.set_script_timeout(120)
+    d.set_page_load_timeout(120)
+    d.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": WS_PROBE})
+    return d
+
+
+def screenshot(d: Any) -> np.ndarray:
+    """The page as an H x W x 3 uint8 array."""
+    import io
+
+    from PIL import Image
+
+    return np.asarray(Image.open(io.BytesIO(d.get_screenshot_as_png())).convert("RGB"))
+
+
+def canvas_rect(d: Any) -> tuple[float, float, float, float]:
+    """(left, top, width, height) in CSS px of the largest canvas (the 3D view)."""
+    rects = d.execute_script(
+        "return [...document.querySelectorAll('canvas')].map(c => {"
+        "const r = c.getBoundingClientRect(); return [r.left, r.top, r.width, r.height];});"
+    )
+    return tuple(max(rects, key=lambda r: r[2] * r[3]))
+
+
+def page_text(d: Any) -> str:
+    return str(d.execute_script("return document.body.textContent;"))
+
+
+def click_button(d: Any, label: str) -> None:
+    from selenium.webdriver.common.by import By
+
+    for b in d.find_elements(By.TAG_NAME, "button"):
+        if b.text.strip() == label:
+            d.execute_script("arguments[0].scrollIntoView({block: 'center'});", b)
+            b.click()
+            return
+    raise AssertionError(f"no button {label!r} on the page")
+
+
+def wait_text(d: Any, pred: Any, timeout: float, what: str) -> str:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        text = page_text(d)
+        if pred(text):
+            return text
+        time.sleep(0.2)
+    raise AssertionError(f"timed out after {timeout:g} s waiting for {what}; page:\n{page_text(d)}")
+
+
+def render_fps(d: Any, seconds: float = 3.0) -> float:
+    return float(d.execute_async_script(RAF_FPS.replace("arguments_ms", str(1e3 * seconds))))
+
+
+def project(position: np.ndarray, look_at: np.ndarray, up: np.ndarray, fov: float,
+            points: np.ndarray, width: float, height: float) -> np.ndarray:  # fmt: skip
+    """Pixels (K x 2, from the canvas's top-left) of world points seen by a pinhole camera at
+    ``position`` looking at ``look_at`` with ``up`` and vertical field of view ``fov`` (rad),
+    as three.js's PerspectiveCamera projects them."""
+    z = (look_at - position) / np.linalg.norm(look_at - position)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)  # image down
+    rel = np.atleast_2d(points) - position
+    c = np.column_stack([rel @ x, rel @ y, rel @ z])
+    f = 0.5 * height / np.tan(0.5 * fov)
+    return np.column_stack([width / 2 + f * c[:, 0] / c[:, 2], height / 2 + f * c[:, 1] / c[:, 2]])

@@ -1,0 +1,200 @@
+"""The operator console in a real (headless) browser on the simulated system.
+
+``beamrelay up scenarios/paper_n1.yaml --console`` runs on a private bus; headless chromium
+opens the page; the test waits for the cloud to be drawn, clicks a known point of the board
+(its pixel computed from the page's starting camera), checks the target listed with the
+board's coordinates, plans, executes, and checks on the bus that the arm moved and that the
+spot the camera measured lies at the clicked point. Figures (page load to first cloud,
+cloud frames per second received by the browser, its render rate, click-to-preview
+latency) are printed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import re
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planner.console.view import default_view
+from planner.io.scenario import load_scenario, scene_objects, system_from_scenario
+from planner.service.client import PlanClient
+from tests.drivers.conftest import free_port, wait_for
+from tests.paths import SCENARIOS
+from tests.planner.console.browser import (
+    canvas_rect,
+    chromium_paths,
+    click_button,
+    open_browser,
+    page_text,
+    project,
+    render_fps,
+    screenshot,
+    wait_text,
+)
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
+
+SCENARIO = SCENARIOS / "paper_n1.yaml"
+BOARD_TOP = -0.06  # m, world z of the board's top face
+BOARD_CENTRE = np.array([-0.492, -0.55, BOARD_TOP])
+BOARD_HALF = 0.15
+CLICK = np.array([-0.50, -0.57, BOARD_TOP])  # the point of the board the operator clicks
+TARGET_ROW = re.compile(r"#0\s+(-?\d+\.\d), (-?\d+\.\d), (-?\d+\.\d) mm")
+REQUEST_ID = re.compile(r"\(request ([0-9a-f]{12})\)")
+MEASURED_ROW = re.compile(r"measured \((-?\d+\.\d), (-?\d+\.\d), (-?\d+\.\d)\) mm")
+#: bytes above which a websocket message is a cloud frame (a 30 k-point frame is ~0.3 MB)
+CLOUD_MESSAGE_BYTES = 60_000
+
+
+def saturated(img: np.ndarray) -> np.ndarray:
+    """Pixels with a strongly coloured RGB (the cloud's depth ramp; the background, grid and
+    translucent board are greys)."""
+    c = img.astype(int)
+    return (c.max(axis=2) - c.min(axis=2)) > 90
+
+
+def board_box(view: object, rect: tuple[float, float, float, float]) -> tuple[slice, slice]:
+    """Rows and columns of the screenshot inside the projected board (inner 60 %)."""
+    corners = BOARD_CENTRE + 0.6 * BOARD_HALF * np.array(
+        [[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], dtype=float
+    )
+    uv = project(view.position, view.look_at, view.up, view.fov, corners, rect[2], rect[3])  # type: ignore[attr-defined]
+    u0, v0 = np.floor(uv.min(axis=0)).astype(int)
+    u1, v1 = np.ceil(uv.max(axis=0)).astype(int)
+    top, left = int(rect[1]), int(rect[0])
+    return slice(top + v0, top + v1), slice(left + u0, left + u1)
+
+
+def wait_http(url: str, timeout: float) -> None:
+    def up() -> bool:
+        try:
+            with urllib.request.urlopen(url, timeout=2) as r:
+                return bool(r.status == 200)
+        except OSError:
+            return False
+
+    wait_for(up, timeout, f"the console page at {url}")
+
+
+def execute(d: object, attempts: int = 3) -> str:
+    """Press Execute until the drivers accept (a driver refuses while the planner's
+    heartbeat is late, which a starved shared machine causes: the operator presses again);
+    the page text with the measured spot."""
+    seen: set[str] = set(REQUEST_ID.findall(page_text(d)))
+    for _ in range(attempts):
+        click_button(d, "Execute")
+        old = frozenset(seen)
+        text = wait_text(d, lambda t, old=old: set(REQUEST_ID.findall(t)) - old and "execution:" in t,
+                         180.0, "the reply to Execute")  # fmt: skip
+        seen |= set(REQUEST_ID.findall(text))
+        if "execution: accepted" in text:
+            return wait_text(d, lambda t: MEASURED_ROW.search(t), 60.0, "the measured spot")
+        assert "heartbeat" in text, text  # any other refusal is a failure
+    raise AssertionError(f"Execute refused {attempts} times:\n{text}")
+
+
+@pytest.fixture
+def system_up(tmp_path: Path):  # type: ignore[no-untyped-def]
+    if chromium_paths() is None:
+        pytest.skip("chromium and chromedriver are not installed (`make sysdeps` installs them)")
+    endpoint, port = f"tcp/127.0.0.1:{free_port()}", free_port()
+    argv = [sys.executable, "-m", "planner.cli", "up", str(SCENARIO), "--console",
+            "--console-port", str(port), "--endpoint", endpoint, "--no-live",
+            "--log-dir", str(tmp_path / "logs")]  # fmt: skip
+    log = (tmp_path / "up.log").open("wb")
+    proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+    client = None
+    try:
+        client = PlanClient(endpoint=endpoint)
+        client.watch()
+        wait_for(lambda: "arm0" in client.recorder.joints, 120.0, "arm0 joint states")
+        url = f"http://127.0.0.1:{port}/"
+        wait_http(url, 120.0)
+        yield url, client, tmp_path
+    finally:
+        if client is not None:
+            client.close()
+        proc.terminate()
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def test_operator_clicks_the_board_plans_and_executes(system_up) -> None:  # type: ignore[no-untyped-def]
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+
+    url, client, tmp = system_up
+    scn = load_scenario(SCENARIO)
+    view = default_view(system_from_scenario(scn), scene_objects(scn))
+    d = open_browser()
+    try:
+        t0 = time.monotonic()
+        d.get(url)
+        rect = canvas_rect(d)
+        rows, cols = board_box(view, rect)
+
+        def cloud_drawn() -> bool:
+            return float(saturated(screenshot(d)[rows, cols]).mean()) > 0.3
+
+        wait_for(cloud_drawn, 180.0, "the cloud drawn on the board")
+        first_cloud = time.monotonic() - t0
+        img = screenshot(d)
+        (tmp / "console.png").write_bytes(d.get_screenshot_as_png())
+        assert img.std() > 20, "blank page"
+        assert float(saturated(img[rows, cols]).mean()) > 0.3  # the cloud covers the board
+        assert float(saturated(img).mean()) < 0.5  # and not the whole page
+
+        n0 = d.execute_script("return window.__ws.length;")
+        fps = render_fps(d, 5.0)
+        msgs = d.execute_script("return window.__ws.slice(arguments[0]);", n0)
+        clouds = [t for t, n in msgs if n > CLOUD_MESSAGE_BYTES]
+        cloud_rate = (
+            (len(clouds) - 1) / ((clouds[-1] - clouds[0]) / 1e3) if len(clouds) > 1 else 0.0
+        )
+
+        canvas = max(d.find_elements(By.TAG_NAME, "canvas"), key=lambda c: c.size["width"])
+        u, v = project(view.position, view.look_at, view.up, view.fov, CLICK, rect[2], rect[3])[0]
+        ActionChains(d).move_to_element_with_offset(
+            canvas, round(float(u) - rect[2] / 2), round(float(v) - rect[3] / 2)
+        ).click().perform()
+        text = wait_text(d, lambda t: TARGET_ROW.search(t), 120.0, "the clicked target listed")
+        picked = 1e-3 * np.array([float(x) for x in TARGET_ROW.search(text).groups()])  # type: ignore[union-attr]
+        # the click ray meets the board at CLICK; a pixel is ~1.5 mm there, the cloud's
+        # points lie on a ~2-4 mm grid with 1.3 mm depth noise
+        assert np.linalg.norm(picked[:2] - CLICK[:2]) < 0.008, picked
+        assert abs(picked[2] - BOARD_TOP) < 0.005, picked
+
+        wait_text(d, lambda t: "1/1 targets solved" in t, 120.0, "the preview of the click")
+        latency = re.search(r"click_to_preview (\d+) ms", page_text(d))
+        click_button(d, "Plan (preview)")
+        wait_text(d, lambda t: "1/1 targets solved" in t and "reply in" in t, 120.0, "the preview")
+
+        q_before = client.recorder.joints["arm0"][1].copy()
+        text = execute(d)
+        measured = 1e-3 * np.array([float(x) for x in MEASURED_ROW.search(text).groups()])  # type: ignore[union-attr]
+        q_after = client.recorder.joints["arm0"][1]
+        assert float(np.max(np.abs(q_after - q_before))) > 1e-3, "the arm did not move"
+        # the beam landed where the operator clicked: the picked point (within the cloud's
+        # noise of the board) and the measured spot agree
+        assert np.linalg.norm(measured - picked) < 0.004, (measured, picked)
+        assert np.linalg.norm(measured[:2] - CLICK[:2]) < 0.01, measured
+        (tmp / "console_executed.png").write_bytes(d.get_screenshot_as_png())
+        with contextlib.suppress(OSError):
+            Path("/tmp/beamrelay-console.png").write_bytes(d.get_screenshot_as_png())
+        print(
+            f"\nconsole figures: page load to first cloud {first_cloud:.2f} s; cloud frames "
+            f"received {cloud_rate:.1f}/s; render {fps:.1f} fps; click to preview "
+            f"{latency.group(1) if latency else '?'} ms"
+        )
+    finally:
+        d.quit()
