@@ -40,6 +40,8 @@ def _errors(rows: list[dict[str, Any]], key: str, loop: str) -> tuple[np.ndarray
 def _cell(e: np.ndarray, per: list[float]) -> dict[str, float]:
     ci = mean_ci(per)
     return {"mean_mm": float(np.mean(e)) if len(e) else float("nan"),
+            "median_mm": float(np.median(e)) if len(e) else float("nan"),
+            "over_5mm": int(np.sum(e > 5.0)),
             "std_mm": float(np.std(e, ddof=1)) if len(e) > 1 else float("nan"),
             "ci95_mm": ci.half_width, "n": len(e)}  # fmt: skip
 
