@@ -174,9 +174,10 @@ def test_spot_is_traced_once_per_joint_state_and_follows_new_joints() -> None:
     first = cam.true_spot_world()
     assert first is not None
     assert cam.true_spot_world() is first  # cached
-    cam.on_joint_state("arm0", q + np.array([0.0, 0.0, 0.0, 0.0, 0.01, 0.0]))
+    q2 = q + np.array([0.0, 0.0, 0.0, 0.0, 0.01, 0.0])
+    cam.on_joint_state("arm0", q2)
     moved = cam.true_spot_world()
     assert moved is not None and np.linalg.norm(moved[0] - first[0]) > 1e-3
-    assert np.allclose(moved[0], analytic_spot(cam.system, q + [0, 0, 0, 0, 0.01, 0]), atol=1e-6)
+    assert np.allclose(moved[0], analytic_spot(cam.system, q2), atol=1e-6)
     cam.gated = True
     assert cam.true_spot_world() is None  # laser off
