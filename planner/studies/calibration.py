@@ -267,7 +267,9 @@ def write(out: Path, rows: list[dict[str, Any]], trials: int, seed: int) -> dict
         "# Calibration study (paper section on calibration, Eqs. 8-10)",
         "",
         f"{trials} trials per cell, seed {seed}. Random true systems around the nominal N = 1 UR5e "
-        "setup; calibration starts from the nominal values (hand-eye: closed form).",
+        "setup; calibration starts from the nominal values (hand-eye: closed form). D435 "
+        "noise: the one model of the simulated camera (`planner.model.d435`): board corners "
+        "0.1 px with a 9 x 9 depth plane fit, laser spots 0.05 px with a 15 x 15 fit.",
         "",
         "## Noise-free data: max error of the observable parameters",
         "",
