@@ -24,7 +24,8 @@ where it is then), the last one gives the spot. It must be
 inside the image and visible from the camera (no object between), else no spot. The
 detection deprojects the spot's centroid pixel (noise ``SIGMA_PX`` = 0.05 px per axis) with
 the depth of a plane fitted to the ``SPOT_WINDOW`` x ``SPOT_WINDOW`` pixels around it (noise
-``sigma_z / SPOT_WINDOW`` along the ray): 0.2 mm at 0.87 m, the paper_n1 camera distance;
+``sigma_z / SPOT_WINDOW`` along the ray): 0.2 mm at 0.87 m, the paper_n1 camera distance
+(the one D435 model, :data:`planner.model.d435.SPOT`);
 confidence = |cos| of the angle between the beam and the surface normal (a grazing beam
 makes a long, dim spot), at least 0.05.
 """
@@ -41,21 +42,16 @@ from numpy.typing import NDArray
 from drivers.camera.moving import MovingScene
 from drivers.camera.node import SpotReading
 from planner.beam.graph import BeamModel
+from planner.model import d435
 from planner.model.scene import SceneItem
 from planner.model.system import Camera, System
 from planner.model.transforms import Array, inv_T
 
-SUBPIXEL = 0.08  # px, D435 disparity RMS
-BASELINE = 0.050  # m, D435 stereo baseline
-SIGMA_PX = 0.05  # px, noise of the spot centroid per image axis
-SPOT_WINDOW = 15  # px, side of the window whose plane fit gives the spot depth
+SIGMA_PX = d435.SPOT_PX  # px, noise of the spot centroid per image axis
+SPOT_WINDOW = d435.SPOT_WINDOW  # px, side of the window whose plane fit gives the spot depth
+depth_sigma = d435.depth_sigma
 EPS = 1e-6  # m, offset of a ray start off the surface it leaves
 F32 = NDArray[np.float32]
-
-
-def depth_sigma(z: Any, fx: float) -> Any:
-    """D435 depth RMS error (m) at depth ``z`` (m) for focal length ``fx`` (px)."""
-    return np.asarray(z) ** 2 * SUBPIXEL / (fx * BASELINE)
 
 
 def build_scene(items: list[SceneItem]) -> Any:
@@ -126,6 +122,7 @@ class SimCamera:
         self._rays = rays[ok].astype(np.float32)
         self._sigma = depth_sigma(self._z, self.camera.intrinsics.fx).astype(np.float32)
         self.camera_T_world = inv_T(self.camera.world_T_camera)
+        self._last: tuple[Array, tuple[Array, Array, Array] | None] | None = None
 
     def _swept_pixels(self, j: int) -> Any:
         """Indices of the pixel rays that meet moving object ``j``'s swept box."""
@@ -187,7 +184,16 @@ class SimCamera:
             return None
         if not all(r in self.q for r in self.robot_names):
             return None
-        tr = self.beam.trace(self.system.stack_q(self.q))
+        q = self.system.stack_q(self.q)
+        if self._last is not None and np.array_equal(self._last[0], q):
+            return self._last[1]  # the scene is static: same joints, same spot
+        hit = self._trace_spot(q)
+        self._last = (q, hit)
+        return hit
+
+    def _trace_spot(self, q: Array) -> tuple[Array, Array, Array] | None:
+        """The true beam at stacked joints ``q`` onto the scene (see :meth:`true_spot_world`)."""
+        tr = self.beam.trace(q)
         if not (np.all(tr.front > 0) and np.all(tr.ahead > 0) and np.all(tr.roi >= 0)):
             return None
         starts = [self.system.world_T_laser[:3, 3], *tr.hits]
@@ -217,20 +223,17 @@ class SimCamera:
         u, w = k.fx * p_c[0] / p_c[2] + k.cx, k.fy * p_c[1] / p_c[2] + k.cy
         if not (0 <= u < k.width and 0 <= w < k.height):
             return None
-        z = p_c[2] + depth_sigma(p_c[2], k.fx) / SPOT_WINDOW * self.rng.standard_normal()
-        du, dv = SIGMA_PX * self.rng.standard_normal(2)
-        ray = np.array([(u + du - k.cx) / k.fx, (w + dv - k.cy) / k.fy, 1.0])
+        p_noisy = d435.SPOT.with_focal(k.fx).apply(p_c, self.rng)
         confidence = max(0.05, abs(float(np.dot(v, normal))))
-        return SpotReading(ray * z, min(confidence, 1.0))
+        return SpotReading(p_noisy, min(confidence, 1.0))
 
     def markers(self, request: dict[str, Any]) -> Array:
         """Board markers in the camera frame (P x 3, m; NaN outside the image), for hand-eye
         collection. The simulated camera renders no board: the request gives the board's
         points and its true mount (``board_pose``: ``flange_T_board`` on ``robot``, the
         eye-to-hand setup), and the markers are placed from the latest joint states with the
-        truth geometry plus the D435 noise model (no occlusion check)."""
-        from planner.calibration.simulate import DepthNoise
-
+        truth geometry plus the D435 corner noise (:data:`planner.model.d435.CORNER`; no
+        occlusion check)."""
         board = np.asarray(request["board_points"], dtype=float).reshape(-1, 3)
         pose = np.asarray(request["board_pose"], dtype=float).reshape(4, 4)
         robot = str(request["robot"])
@@ -240,7 +243,7 @@ class SimCamera:
         c_T_b = self.camera_T_world @ r.world_T_base @ r.kinematics.fk(self.q[robot]) @ pose
         p = board @ c_T_b[:3, :3].T + c_T_b[:3, 3]
         k = self.camera.intrinsics
-        p = DepthNoise(focal_px=k.fx).apply(p, self.rng)
+        p = d435.CORNER.with_focal(k.fx).apply(p, self.rng)
         with np.errstate(divide="ignore", invalid="ignore"):
             u, v = k.fx * p[:, 0] / p[:, 2] + k.cx, k.fy * p[:, 1] / p[:, 2] + k.cy
         seen = (p[:, 2] > 0.1) & (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)

@@ -9,14 +9,13 @@ spot lands on the board placement. Units: metres, radians; camera = OpenCV optic
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from planner.beam.graph import BeamModel
 from planner.calibration.beam import BeamData, _min_rotation
 from planner.calibration.handeye import HandEyeData
 from planner.errors import InputError
+from planner.model.d435 import D435Noise
 from planner.model.system import Robot, System
 from planner.model.transforms import Array, axis_angle_to_matrix, inv_T, make_T, transform_points
 
@@ -24,36 +23,8 @@ PERTURB_SIGMA = np.array([0.02, 0.02, 0.02, 0.06, 0.06, 0.06])  # rad, around th
 BOARD_HALF = 0.15  # m, half side of a square spot board
 
 
-@dataclass(frozen=True)
-class DepthNoise:
-    """RealSense D435 noise: depth RMS = z^2 * subpixel / (focal_px * baseline), plus a
-    lateral pixel noise; ``outliers`` is the fraction of points displaced by 1-5 cm."""
-
-    subpixel: float = 0.08
-    baseline: float = 0.050
-    focal_px: float = 430.0
-    lateral_px: float = 0.1
-    outliers: float = 0.0
-
-    def depth_rms(self, z: Array) -> Array:
-        """Depth noise RMS (m) at depth ``z`` (m)."""
-        return z * z * self.subpixel / (self.focal_px * self.baseline)
-
-    def apply(self, p_camera: Array, rng: np.random.Generator) -> Array:
-        """Noisy copy of points ``(..., 3)`` in the camera frame (NaN rows stay NaN)."""
-        p = np.array(p_camera, dtype=float)
-        z = p[..., 2:3]
-        dz = rng.normal(size=z.shape) * self.depth_rms(z)
-        lateral = rng.normal(size=p.shape) * (z * self.lateral_px / self.focal_px)
-        lateral[..., 2] = 0.0
-        p = p * (1.0 + dz / z) + lateral
-        if self.outliers > 0:
-            flat = p.reshape(-1, 3)
-            hit = rng.random(len(flat)) < self.outliers
-            d = rng.normal(size=(int(hit.sum()), 3))
-            d *= (rng.uniform(0.01, 0.05, len(d)) / np.linalg.norm(d, axis=1))[:, None]
-            flat[hit] += d
-        return p
+DepthNoise = D435Noise
+"""The D435 noise model (:mod:`planner.model.d435`); default: one raw depth pixel, 0.1 px."""
 
 
 def board_grid(nx: int = 7, ny: int = 5, spacing: float = 0.03) -> Array:

@@ -220,7 +220,15 @@ def simulate(
     if name not in truth.robot_names:
         raise InputError(f"--robot {name!r}: scenario robots are {', '.join(truth.robot_names)}")
     rng = np.random.default_rng(seed)
-    model = sim.DepthNoise(outliers=outliers) if noise == "d435" else None
+    model = None
+    if noise == "d435":  # the D435 model of the feature measured: laser spots or board corners
+        from dataclasses import replace
+
+        from planner.model import d435
+
+        fx = truth.camera.intrinsics.fx if truth.camera is not None else d435.FOCAL_PX
+        feature = d435.SPOT if kind == "beam" else d435.CORNER
+        model = replace(feature.with_focal(fx), outliers=outliers)
     if kind == "beam":
         aim = targets_from_scenario(scn, nominal).points.mean(axis=0)
         data = sim.simulate_beam(truth, name, poses, boards, aim_world=aim, noise=model, rng=rng)

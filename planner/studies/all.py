@@ -1,10 +1,8 @@
 """``beamrelay study all -o reports``: every study at paper scale, and ``reports/index.md``.
 
-Order: ik-grid, calibration, sensitivity, mirror-sweep, coverage, tracking. Each study runs
-its ``main`` at its paper-scale ``TRIALS`` and writes into ``OUT/<name>/``. The tracking
-study takes its calibration errors from the calibration study's D435 figures (else the
-documented 1 mm / 0.1° levels). The index links the reports and records the wall time of
-each.
+Order: ik-grid, calibration, sensitivity, mirror-sweep, coverage, experiments. Each study
+runs its ``main`` at its paper-scale ``TRIALS`` and writes into ``OUT/<name>/``. The index
+links the reports and records the wall time of each.
 """
 
 from __future__ import annotations
@@ -19,10 +17,10 @@ from planner.studies import (
     calibration,
     common,
     coverage,
+    experiments,
     ik_grid,
     mirror_sweep,
     sensitivity,
-    tracking,
 )
 
 STUDIES: dict[str, Any] = {
@@ -31,21 +29,18 @@ STUDIES: dict[str, Any] = {
     "sensitivity": sensitivity,
     "mirror-sweep": mirror_sweep,
     "coverage": coverage,
-    "tracking": tracking,
+    "experiments": experiments,
 }
 """The studies in the order they run (name -> module with ``main`` and ``TRIALS``)."""
 ORDER = tuple(STUDIES)
 
 
 def run_one(
-    name: str, out: Path, seed: int, workers: int | None, scheduler: str | None, calib: Any
+    name: str, out: Path, seed: int, workers: int | None, scheduler: str | None
 ) -> dict[str, Any]:
     """Run one study at its paper scale; returns its figures."""
     mod = STUDIES[name]
-    extra: dict[str, Any] = {}
-    if name == "tracking" and calib:
-        extra["err"] = mod.CalibrationErrors.from_calibration_figures(calib)
-    return dict(mod.main(mod.TRIALS, seed, out / name, workers, scheduler, **extra))
+    return dict(mod.main(mod.TRIALS, seed, out / name, workers, scheduler))
 
 
 def main(
@@ -54,14 +49,11 @@ def main(
     """Every study at its paper scale (--trials ignored), then OUT/index.md."""
     common.out_dir(out)
     timings: dict[str, float] = {}
-    calib: dict[str, Any] | None = None
     for name in ORDER:
         typer.echo(f"== study {name}")
         t0 = time.perf_counter()
-        figures = run_one(name, out, seed, workers, sched, calib)
+        run_one(name, out, seed, workers, sched)
         timings[name] = time.perf_counter() - t0
-        if name == "calibration" and figures:
-            calib = figures
     lines = [
         "# beamrelay studies",
         "",

@@ -125,7 +125,8 @@ def run(
 
 
 def curves(rows: list[dict[str, Any]]) -> dict[str, dict[str, Array]]:
-    """Mean measured / predicted error (mm) per axis and offset."""
+    """Mean measured / predicted error (mm) per axis and offset, and the measured error's
+    standard deviation over the targets (``std``, mm; the spread band of Fig. 5)."""
     out: dict[str, dict[str, Array]] = {}
     for name in (*ROT_AXES, *POS_AXES):
         sel = [r for r in rows if r["axis"] == name]
@@ -135,6 +136,9 @@ def curves(rows: list[dict[str, Any]]) -> dict[str, dict[str, Array]]:
             "error": np.array(
                 [np.mean([r["error_mm"] for r in sel if r["offset"] == o]) for o in offs]
             ),
+            "std": np.array(
+                [np.std([r["error_mm"] for r in sel if r["offset"] == o]) for o in offs]
+            ),
             "predicted": np.array(
                 [np.mean([r["predicted_mm"] for r in sel if r["offset"] == o]) for o in offs]
             ),
@@ -143,18 +147,25 @@ def curves(rows: list[dict[str, Any]]) -> dict[str, dict[str, Array]]:
 
 
 def plot(rows: list[dict[str, Any]], mean_L: float, path: Path) -> None:
-    """Error vs offset, orientation and position, with the 2·Δθ·L lever-arm line."""
+    """Error vs offset (mean over targets, band = ± one standard deviation), orientation and
+    position, with the 2·Δθ·L lever-arm line."""
     plt = common.pyplot()
     c = curves(rows)
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.6))
+
+    def band(ax: Any, name: str) -> None:
+        x, m, sd = c[name]["offset"], c[name]["error"], c[name]["std"]
+        (line,) = ax.plot(x, m, "o-", ms=3, label=f"{name} (mean ± std)")
+        ax.fill_between(x, np.maximum(m - sd, 0.0), m + sd, color=line.get_color(), alpha=0.2)
+
     for name in ROT_AXES:
-        a1.plot(c[name]["offset"], c[name]["error"], "o-", ms=3, label=name)
+        band(a1, name)
     x = c["tilt_in"]["offset"]
     a1.plot(x, 2 * np.deg2rad(np.abs(x)) * mean_L * 1000, "k--", label=f"2·Δθ·L (L={mean_L:.2f} m)")
     a1.set_xlabel("mirror orientation offset (deg)")
-    a1.set_ylabel("mean spot error (mm)")
+    a1.set_ylabel("spot error (mm), mean ± std over targets")
     for name in POS_AXES:
-        a2.plot(c[name]["offset"], c[name]["error"], "o-", ms=3, label=name)
+        band(a2, name)
     x = c["normal"]["offset"]
     a2.plot(x, 2 * np.abs(x), "k--", label="2·Δp (sin i = 1)")
     a2.set_xlabel("mirror position offset (mm)")
@@ -195,6 +206,7 @@ def write(out: Path, nominal: Nominal, rows: list[dict[str, Any]], trials: int, 
     mean_L = float(L.mean())
     plot(rows, mean_L, common.out_dir(out) / "mirror_sweep.png")
     table = slopes(rows)
+    c = curves(rows)
     lines = [
         "# Mirror mount sweep (paper Fig. 5)",
         "",
@@ -219,6 +231,18 @@ def write(out: Path, nominal: Nominal, rows: list[dict[str, Any]], trials: int, 
         f"{table[0]['max_error_mm']:.1f} mm and 10 mm along the normal gives "
         f"{table[3]['max_error_mm']:.1f} mm: the tilt error grows with the lever arm L, the "
         "shift error does not.",
+        "",
+        "Spread over the targets (the bands of the plot, mean ± std): "
+        + ", ".join(
+            f"{name} at {off:g} {unit}: {c[name]['error'][i]:.2f} ± {c[name]['std'][i]:.2f} mm"
+            for name, off, unit in (
+                ("tilt_in", 1.0, "deg"),
+                ("tilt_across", 1.0, "deg"),
+                ("normal", 10.0, "mm"),
+            )
+            for i in [int(np.flatnonzero(c[name]["offset"] == off)[0])]
+        )
+        + ".",
         "",
     ]
     common.write_report(

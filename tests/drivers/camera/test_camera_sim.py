@@ -162,3 +162,22 @@ def _tz(z: float) -> np.ndarray:
     T = np.eye(4)
     T[2, 3] = z
     return T
+
+
+def test_spot_is_traced_once_per_joint_state_and_follows_new_joints() -> None:
+    """The scene is static: the same joints give the same true spot (traced once), other
+    joints another one, and a gated laser that is off gives none."""
+    scn = scenario()
+    cam = SimCamera(system_from_scenario(scn, truth=True), scene_objects(scn), stride=8, seed=1)
+    q = cam.system.robots[0].home
+    cam.on_joint_state("arm0", q)
+    first = cam.true_spot_world()
+    assert first is not None
+    assert cam.true_spot_world() is first  # cached
+    q2 = q + np.array([0.0, 0.0, 0.0, 0.0, 0.01, 0.0])
+    cam.on_joint_state("arm0", q2)
+    moved = cam.true_spot_world()
+    assert moved is not None and np.linalg.norm(moved[0] - first[0]) > 1e-3
+    assert np.allclose(moved[0], analytic_spot(cam.system, q2), atol=1e-6)
+    cam.gated = True
+    assert cam.true_spot_world() is None  # laser off

@@ -32,7 +32,14 @@ def test_every_command_is_registered() -> None:
     for name in ("driver", "up", "request"):
         assert name in result.output
     studies = CliRunner().invoke(app, ["study", "--help"]).output
-    for name in ("ik-grid", "calibration", "sensitivity", "mirror-sweep", "coverage", "tracking"):
+    for name in (
+        "ik-grid",
+        "calibration",
+        "sensitivity",
+        "mirror-sweep",
+        "coverage",
+        "experiments",
+    ):
         assert name in studies
     benches = CliRunner().invoke(app, ["bench", "--help"]).output
     for name in ("ik", "path", "service"):
@@ -80,7 +87,7 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
     groups = root.commands  # type: ignore[attr-defined]
     assert sorted(groups["calibrate"].commands) == ["beam", "collect", "handeye", "simulate"]
     assert sorted(groups["study"].commands) == sorted(
-        ["ik-grid", "calibration", "sensitivity", "mirror-sweep", "coverage", "tracking", "all"]
+        ["ik-grid", "calibration", "sensitivity", "mirror-sweep", "coverage", "experiments", "all"]
     )
     assert sorted(groups["bench"].commands) == [
         "ik",

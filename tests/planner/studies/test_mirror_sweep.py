@@ -39,3 +39,13 @@ def test_orientation_slope_is_two_L(rows: list[dict]) -> None:
     L = np.mean([r["beam_length_m"] for r in rows if r["axis"] == "tilt_in" and r["offset"] == 1.0])
     assert table["tilt_in"]["slope"] == pytest.approx(2 * L * np.pi / 180 * 1000, rel=1e-3)
     assert table["tilt_in"]["slope"] > 10 * table["normal"]["slope"]  # orientation dominates
+
+
+def test_curves_carry_the_spread_over_targets(rows: list[dict]) -> None:
+    """Fig. 5 bands: mean and standard deviation over the targets at each offset."""
+    c = ms.curves(rows)
+    at = [r["error_mm"] for r in rows if r["axis"] == "tilt_in" and r["offset"] == 1.0]
+    i = int(np.flatnonzero(c["tilt_in"]["offset"] == 1.0)[0])
+    assert c["tilt_in"]["error"][i] == pytest.approx(np.mean(at))
+    assert c["tilt_in"]["std"][i] == pytest.approx(np.std(at)) and c["tilt_in"]["std"][i] > 0
+    assert np.all(c["spin"]["std"] < 1e-8)

@@ -1,0 +1,149 @@
+"""The simulated cell of the experiments, in process: the sim camera driver's own classes on
+the hidden truth, the product's calibration collection and calibration code.
+
+- :class:`Cell`: one scene (the objects of one experiment, or one calibration board) seen
+  by :class:`drivers.camera.sim.SimCamera` built on the TRUE system: ``spot(q)`` puts the
+  robot at ``q`` (joint states), traces the true beam onto the true objects and returns the
+  camera's detected spot (D435 spot noise), averaged over ``frames`` frames; ``see(points)``
+  measures target features (D435 corner noise) where the true camera sees them.
+- :func:`calibrate_cell`: the paper's procedure. Hand-eye: 20 well-conditioned poses
+  planned on the nominal geometry (:func:`planner.calibration.collect.handeye_plan`), the
+  board corners measured by the sim camera (``SimCamera.markers``) at the true poses,
+  :func:`planner.calibration.handeye.calibrate_handeye`. Beam: 16 poses per board at the
+  three :data:`CALIBRATION_BOARDS` placements (:func:`planner.calibration.collect.beam_plan`),
+  each spot measured by the camera and mapped to the world with the calibrated camera pose,
+  :func:`planner.calibration.beam.calibrate_beam`. The result is the planner's calibrated
+  system (camera, laser, mirror mount).
+Units: metres, radians; camera = OpenCV optical frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from planner.model import d435
+from planner.model.scene import SceneItem
+from planner.model.system import System
+from planner.model.transforms import Array, inv_T, transform_points
+from planner.studies.experiments_setup import (
+    CALIBRATION_BOARDS,
+    NOMINAL_BOARD,
+    Truth,
+    beam_point,
+    calibration_board,
+)
+
+ROBOT = "arm0"
+FRAMES = 5  # camera frames averaged per measured spot
+HANDEYE_POSES = 20
+BEAM_POSES = 16  # per board placement
+
+
+class Cell:
+    """The true system with one scene, seen by the simulated D435 (see module docstring)."""
+
+    def __init__(self, truth: System, items: tuple[SceneItem, ...], seed: Any) -> None:
+        from drivers.camera.sim import SimCamera
+
+        self.truth = truth
+        self.camera = SimCamera(truth, list(items), stride=64, seed=seed)
+        self.rng = np.random.default_rng(seed)
+
+    def spot(self, q: Array, frames: int = FRAMES) -> Array | None:
+        """The measured spot (camera frame, m) with the arm at ``q``: the mean of the
+        ``frames`` detections, None when the camera sees no spot."""
+        self.camera.on_joint_state(ROBOT, q)
+        got = [s.p_camera for s in (self.camera.spot() for _ in range(frames)) if s is not None]
+        return np.mean(got, axis=0) if got else None
+
+    def see(self, points_world: Array, noise: d435.D435Noise | None = None) -> Array:
+        """Measured features (K x 3, camera frame, m; NaN where hidden or off the image);
+        ``noise`` defaults to the D435 corner model :data:`planner.model.d435.CORNER`."""
+        cam = self.truth.camera
+        assert cam is not None
+        k, c = cam.intrinsics, cam.world_T_camera[:3, 3]
+        to = np.asarray(points_world, dtype=float) - c
+        dist = np.linalg.norm(to, axis=1)
+        hit = _cast(self.camera.scene, c, to / dist[:, None])
+        p = transform_points(inv_T(cam.world_T_camera), points_world)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u, v = k.fx * p[:, 0] / p[:, 2] + k.cx, k.fy * p[:, 1] / p[:, 2] + k.cy
+        ok = (hit >= dist - 1e-4) & (p[:, 2] > 0.1) & (u >= 0) & (u < k.width)
+        ok &= (v >= 0) & (v < k.height)
+        out = (noise or d435.CORNER).with_focal(k.fx).apply(p, self.rng)
+        out[~ok] = np.nan
+        return out
+
+
+def _cast(scene: Any, origin: Array, dirs: Array) -> Array:
+    """Distance (m, inf = miss) along unit rays from ``origin`` to an open3d scene."""
+    import open3d as o3d
+
+    rays = np.hstack([np.broadcast_to(origin, dirs.shape), dirs]).astype(np.float32)
+    return np.asarray(scene.cast_rays(o3d.core.Tensor.from_numpy(rays))["t_hit"].numpy(), float)
+
+
+@dataclass(frozen=True)
+class Calibrated:
+    """The planner's calibrated system and the calibration's residuals (m)."""
+
+    system: System
+    handeye_residuals: Array
+    beam_residuals: Array
+    beam_spots: int
+
+
+def calibrate_handeye_cell(nominal: System, truth: Truth, rng: np.random.Generator) -> Any:
+    """Hand-eye data collected on the simulated cell and calibrated (eye to hand)."""
+    from drivers.camera.sim import SimCamera
+    from planner.calibration.collect import handeye_plan
+    from planner.calibration.handeye import HandEyeData, calibrate_handeye
+    from planner.calibration.simulate import board_grid
+
+    board = board_grid()
+    qs, _ = handeye_plan(nominal, ROBOT, "eye_to_hand", HANDEYE_POSES, board, NOMINAL_BOARD, rng)
+    cam = SimCamera(truth.system, [], stride=64, seed=int(rng.integers(2**31)))
+    request = {"board_points": board.tolist(), "board_pose": truth.flange_T_board.tolist(),
+               "robot": ROBOT}  # fmt: skip
+    pts = []
+    for q in qs:
+        cam.on_joint_state(ROBOT, q)
+        pts.append(cam.markers(request))
+    data = HandEyeData(ROBOT, "eye_to_hand", board, qs, np.array(pts))
+    return calibrate_handeye(data, nominal)
+
+
+def calibrate_beam_cell(
+    nominal: System, truth: Truth, world_T_camera: Array, rng: np.random.Generator
+) -> Any:
+    """Beam data (16 poses x 3 boards) collected on the simulated cell and calibrated."""
+    from planner.calibration.beam import BeamData, calibrate_beam
+    from planner.calibration.collect import beam_plan
+
+    qs, spots, labels = [], [], []
+    for b, z in enumerate(CALIBRATION_BOARDS):
+        plan, _ = beam_plan(nominal, ROBOT, BEAM_POSES, beam_point(z), rng)
+        cell = Cell(truth.system, (calibration_board(z),), int(rng.integers(2**31)))
+        for q in plan:
+            s = cell.spot(q)
+            if s is not None:
+                qs.append(q)
+                spots.append(transform_points(world_T_camera, s[None])[0])
+                labels.append(b)
+    data = BeamData(ROBOT, np.array(qs), np.array(spots), np.array(labels), len(spots))
+    return calibrate_beam(data, nominal)
+
+
+def calibrate_cell(nominal: System, truth: Truth, rng: np.random.Generator) -> Calibrated:
+    """The paper's calibration on the simulated cell: hand-eye, then laser + mirror."""
+    assert nominal.camera is not None
+    he = calibrate_handeye_cell(nominal, truth, rng)
+    bm = calibrate_beam_cell(nominal, truth, he.camera_pose, rng)
+    system = nominal.with_params(
+        world_T_laser=bm.world_T_laser, flange_T_mirror={ROBOT: bm.flange_T_mirror}
+    )
+    system = replace(system, camera=replace(nominal.camera, world_T_camera=he.camera_pose))
+    return Calibrated(system, he.point_residuals, bm.residuals, len(bm.residuals))

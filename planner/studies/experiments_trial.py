@@ -1,0 +1,169 @@
+"""One trial of ``study experiments``: hidden truth, calibration, plan, execute, measure.
+
+Per trial (seeded, independent of how many run and where):
+
+1. a hidden TRUE geometry (:func:`~planner.studies.experiments_setup.draw_truth` at the
+   :class:`~planner.studies.experiments_setup.Unknowns` levels); the planner starts from
+   the nominal scenario;
+2. calibration on the simulated cell (:func:`~planner.studies.experiments_cell.calibrate_cell`:
+   20 hand-eye poses; 16 poses x 3 boards for laser + mirror; D435 noise);
+3. per experiment run (:func:`~planner.studies.experiments_setup.experiments`): the camera
+   measures the targets (D435 corner noise); each target, mapped to the world with the
+   calibrated camera pose (its normal as the camera sees it, likewise), is planned with the
+   product's :class:`planner.ik.BeamIK` on the calibrated system (points from home, path
+   samples from the previous sample's joints);
+4. open loop: the arm goes to the planned joints, the true beam lands on the true object
+   and the camera measures the spot (mean of 5 frames);
+5. closed loop: from there :func:`planner.servo.servo` corrects the spot in the calibrated
+   model from the measured spots (the product's servo, default settings) and an
+   independent final measurement (5 frames) is taken where it leaves the arm;
+6. errors with the paper's metrics, in the camera frame as the camera measured both spot
+   and target (point-to-point, or closest point to the measured path); and the same
+   metrics without the camera (``true_*``: the true spot against the true target), which
+   separates the calibration's error from the measurement noise.
+
+A row per target: ``status`` ok | hidden (target not seen) | unsolved | lost (spot not seen).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from planner.model.transforms import Array, transform_points
+from planner.studies import common
+from planner.studies import experiments_setup as setup
+from planner.studies.experiments_cell import FRAMES, Calibrated, Cell, calibrate_cell
+from planner.studies.experiments_metrics import closest_point_error, point_error
+
+
+def _error(exp: setup.Experiment, k: int, spot_c: Array | None, seen_c: Array) -> float:
+    """The paper's metric for target ``k`` (m; NaN when the spot was not seen)."""
+    if spot_c is None:
+        return float("nan")
+    if exp.metric == setup.POINT:
+        return point_error(spot_c, seen_c[k])
+    stroke = next(s for s in exp.strokes if k in s)
+    return closest_point_error(spot_c, seen_c[stroke])
+
+
+def _true_error(exp: setup.Experiment, k: int, cell: Cell) -> float:
+    """The same metric without the camera: the true spot (where the arm is now) against the
+    true target or path (m; NaN without a spot)."""
+    hit = cell.camera.true_spot_world()
+    if hit is None:
+        return float("nan")
+    if exp.metric == setup.POINT:
+        return point_error(hit[0], exp.points[k])
+    stroke = next(s for s in exp.strokes if k in s)
+    return closest_point_error(hit[0], exp.points[stroke])
+
+
+class ClosedLoop:
+    """The product's servo on the calibrated model, measuring through one :class:`Cell`."""
+
+    def __init__(self, calibrated: Calibrated) -> None:
+        from planner.servo import Corrector
+
+        self.corrector = Corrector(calibrated.system)
+        assert calibrated.system.camera is not None
+        self.world_T_camera = calibrated.system.camera.world_T_camera
+
+    def run(self, cell: Cell, q0: Array, target: Array, normal: Array) -> tuple[Array, Any]:
+        """Servo from ``q0``; (joints where it left the arm, the servo's result)."""
+        from planner.servo import SpotFrame, average_frames, servo
+
+        def measure(q: Array, frames: int) -> Any:
+            cell.camera.on_joint_state("arm0", q)
+            got = [cell.camera.spot() for _ in range(frames)]
+            seen = [SpotFrame(s.p_camera, s.confidence) for s in got if s is not None]
+            return average_frames(seen, self.world_T_camera)
+
+        res = servo(measure, q0, target, normal, self.corrector)
+        return res.q, res
+
+
+def planner_targets(
+    seen_c: Array, normals_true: Array, cal: Calibrated, truth: setup.Truth
+) -> tuple[Array, Array]:
+    """The targets as the planner knows them (world, through the calibrated camera pose):
+    the measured points (K x 3, NaN rows where not seen) and the normals as the camera sees
+    them (the true ones in the true camera frame, mapped with the calibrated pose)."""
+    cam_cal, cam_true = cal.system.camera, truth.system.camera
+    assert cam_cal is not None and cam_true is not None
+    R = cam_cal.world_T_camera[:3, :3] @ cam_true.world_T_camera[:3, :3].T
+    return transform_points(cam_cal.world_T_camera, seen_c), normals_true @ R.T
+
+
+def plan_targets(metric: str, targets: Array, normals: Array, home: Array, ik: Any) -> list[Any]:
+    """The planned solution of every target (None where it was not seen): points from
+    ``home``, path samples from the previous sample's joints."""
+    q_prev = home
+    out: list[Any] = []
+    for k, (p, n) in enumerate(zip(targets, normals, strict=True)):
+        if not np.all(np.isfinite(p)):
+            out.append(None)
+            continue
+        sol = ik.solve(p, n, q_prev if metric == setup.CLOSEST and k else home)
+        out.append(sol)
+        if sol.q is not None:
+            q_prev = sol.q
+    return out
+
+
+def run_experiment(exp: setup.Experiment, cal: Calibrated, truth: setup.Truth, ik: Any,
+                   closed: ClosedLoop | None, seed: Any) -> list[dict[str, Any]]:  # fmt: skip
+    """Rows (one per target) of one experiment run (see the module docstring)."""
+    cell = Cell(truth.system, exp.items, seed)
+    seen_c = cell.see(exp.points)
+    targets, normals = planner_targets(seen_c, exp.normals, cal, truth)
+    sols = plan_targets(exp.metric, targets, normals, cal.system.home, ik)
+    rows = []
+    for k, sol in enumerate(sols):
+        row: dict[str, Any] = {"experiment": exp.name, "group": setup.group(exp.name),
+                               "target": k, "metric": exp.metric}  # fmt: skip
+        status, e_open, e_closed, iters, t_ik = "hidden", np.nan, np.nan, 0, np.nan
+        true_open, true_closed = np.nan, np.nan
+        if sol is not None:
+            status, t_ik = ("ok", sol.solve_time) if sol.q is not None else ("unsolved", np.nan)
+        if status == "ok":
+            spot = cell.spot(sol.q, FRAMES)
+            e_open, true_open = _error(exp, k, spot, seen_c), _true_error(exp, k, cell)
+            status = "ok" if spot is not None else "lost"
+            if closed is not None and spot is not None:
+                q_cl, res = closed.run(cell, sol.q, targets[k], normals[k])
+                iters = res.iterations
+                e_closed = _error(exp, k, cell.spot(q_cl, FRAMES), seen_c)
+                true_closed = _true_error(exp, k, cell)
+        row.update(status=status, open_mm=1e3 * e_open, closed_mm=1e3 * e_closed,
+                   true_open_mm=1e3 * true_open, true_closed_mm=1e3 * true_closed,
+                   servo_iterations=iters, ik_time_s=t_ik)  # fmt: skip
+        rows.append(row)
+    return rows
+
+
+def run_trial(
+    seed: int, trial: int, closed_loop: bool = True, unknowns: setup.Unknowns | None = None
+) -> dict[str, Any]:
+    """One trial: its calibration figures and every target's row (``trial`` added)."""
+    from planner.ik import BeamIK
+    from planner.planning import ik_options
+
+    rng = common.trial_rng(seed, trial)
+    nominal = setup.nominal_system()
+    truth = setup.draw_truth(nominal, setup.Unknowns() if unknowns is None else unknowns, rng)
+    cal = calibrate_cell(nominal, truth, rng)
+    ik = BeamIK(cal.system, ik_options(setup.solver_settings()))
+    closed = ClosedLoop(cal) if closed_loop else None
+    rows = []
+    for i, exp in enumerate(setup.experiments(rng)):
+        for r in run_experiment(exp, cal, truth, ik, closed, [seed, trial, i]):
+            rows.append({"trial": trial, **r})
+    return {
+        "trial": trial,
+        "handeye_residual_mm": 1e3 * float(np.mean(cal.handeye_residuals)),
+        "beam_residual_mm": 1e3 * float(np.mean(cal.beam_residuals)),
+        "beam_spots": cal.beam_spots,
+        "rows": rows,
+    }

@@ -1,0 +1,52 @@
+"""IK-grid study: the paper's Eq. 7 LM comparison row, the error map, the report."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planner.beam.graph import BeamModel
+from planner.io.scenario import load_scenario, system_from_scenario
+from planner.studies import ik_grid
+from planner.studies.lm_ik import LMIK
+
+
+@pytest.fixture(scope="module")
+def system():  # type: ignore[no-untyped-def]
+    return system_from_scenario(load_scenario(ik_grid.SCENARIO))
+
+
+def test_lm_lands_on_a_target_of_the_home_beam_without_moving(system) -> None:  # type: ignore[no-untyped-def]
+    tr = BeamModel(system).trace(system.home)
+    target = tr.hits[-1] + 0.6 * tr.dirs[-1]
+    r = LMIK(system).solve(target, system.home)
+    assert r.solved and r.error < 1e-12
+    assert np.allclose(r.q, system.home, atol=1e-9)
+
+
+def test_lm_solves_a_displaced_target_to_machine_precision(system) -> None:  # type: ignore[no-untyped-def]
+    tr = BeamModel(system).trace(system.home)
+    target = tr.hits[-1] + 0.6 * tr.dirs[-1] + np.array([0.01, -0.01, 0.0])
+    r = LMIK(system).solve(target, system.home)
+    check = BeamModel(system).trace(r.q, target)  # independent of the LM's own figure
+    assert r.solved and check.error < 1e-12 and r.error == pytest.approx(check.error, abs=1e-15)
+    assert r.evaluations < 50 and r.time > 0
+
+
+@pytest.mark.slow
+def test_study_compares_beamik_and_lm_and_draws_the_map(tmp_path: Path) -> None:
+    text = ik_grid.SCENARIO.read_text().replace("n: [10, 10, 10]", "n: [2, 2, 2]")
+    scenario = tmp_path / "small.yaml"
+    scenario.write_text(text)
+    fig = ik_grid.main(1, 0, tmp_path / "out", 1, None, scenario)
+    rows = {m["method"]: m for m in fig["methods"]}
+    assert set(rows) == {"BeamIK", "LM (paper Eq. 7)"}
+    assert rows["BeamIK"]["solved_pct"] == 100.0 and rows["BeamIK"]["error_max_mm"] < 1e-9
+    lm = rows["LM (paper Eq. 7)"]
+    assert 0.0 <= lm["solved_pct"] <= 100.0 and lm["time_mean_s"] > 0
+    assert fig["targets"] == 8
+    for f in ("report.md", "errors.png", "error_map.png", "methods.csv", "trials.csv"):
+        assert (tmp_path / "out" / f).is_file()
+    assert "LM (paper Eq. 7)" in (tmp_path / "out" / "report.md").read_text()
