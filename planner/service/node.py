@@ -24,6 +24,10 @@ watchdog, heartbeat) are :mod:`planner.service.guard`. :class:`PlannerNode`:
   given its :class:`~planner.service.heartbeat.BusAddress`, else from a thread of this
   process (which the solvers can starve for up to a second); it starts before the node
   declares ``<prefix>/alive/planner``.
+- online calibration (opt-in, :mod:`planner.service.online`): spots on ``<prefix>/camera/spot``
+  seen at rest, and ``node.online.add_sample(q, spot_world)`` calls (the servo), are refitted
+  in the background; a new version is installed between requests (:meth:`install_calibration`)
+  and plans report ``metrics.extra.calibration_version``.
 
 One worker thread plans; requests queue up behind it (bounded in count and bytes: a full
 queue gets a "busy" error). If the worker dies or stays busy on one request beyond its
@@ -66,6 +70,7 @@ from planner.service.handler import (
     request_id_of,
 )
 from planner.service.heartbeat import BusAddress, HeartbeatProcess
+from planner.service.online import OnlineCalibrator, RestSampler
 from planner.service.stream import Execution
 
 __all__ = [
@@ -98,8 +103,13 @@ class PlannerNode:
         heartbeat_rate: float | None = None,
         ack_timeout: float = ACK_TIMEOUT,
         bus: BusAddress | None = None,
+        online: OnlineCalibrator | None = None,
     ) -> None:
         self.handler = handler
+        self.online = online
+        self.calibration_version = 0
+        self._handler_lock = threading.Lock()
+        self._cal_pub: Any = None
         self.session = session
         self.keys = keys or Keys()
         self.robots = handler.system.robot_names
@@ -147,8 +157,28 @@ class PlannerNode:
         self._handles.append(s.declare_subscriber(k.stop, self._on_stop))
         self._handles.append(s.declare_subscriber(k.targets, self._on_target))
         self._handles.append(s.declare_queryable(k.plan, self._on_query))
+        if self.online is not None:
+            self._start_online(self.online)
         self._worker.start()
         return self
+
+    def _start_online(self, online: OnlineCalibrator) -> None:
+        self._cal_pub = self.session.declare_publisher(self.keys.calibration)
+        online.publish = lambda body: self._cal_pub.put(body, encoding=JSON)
+        online.on_update = self.install_calibration
+        sampler = RestSampler(online, self.robots, self.joints.get)
+        self._handles.append(
+            self.session.declare_subscriber(self.keys.camera_spot, sampler.callback)
+        )
+        online.start()
+
+    def install_calibration(self, handler: RequestHandler | None, calibration: Any) -> None:
+        """Serve later requests with ``handler`` (planned with ``calibration``, whose
+        ``version`` the plans report); a request in progress keeps its handler."""
+        if handler is None:
+            return
+        with self._handler_lock:
+            self.handler, self.calibration_version = handler, int(calibration.version)
 
     def _start_heartbeat(self) -> Heartbeat | HeartbeatProcess:
         rate = {} if self._heartbeat_rate is None else {"rate": self._heartbeat_rate}
@@ -168,6 +198,8 @@ class PlannerNode:
     def close(self) -> None:
         """Stop beating, undeclare everything, stop the worker (the session stays open)."""
         self._closing.set()
+        if self.online is not None:
+            self.online.close()
         if self.heartbeat is not None:
             self.heartbeat.stop()
         self._undeclare_token()
@@ -177,7 +209,8 @@ class PlannerNode:
         self._jobs.close()
         self._worker.join(timeout=1 if self.failed else 5)
         self.execution.close()
-        pubs = [*self._publishers.values(), self._plans, self._stop_pub, self._beat_pub]
+        pubs = [*self._publishers.values(), self._plans, self._stop_pub, self._beat_pub,
+                self._cal_pub]  # fmt: skip
         for p in pubs:
             if p is not None:
                 p.undeclare()
@@ -324,16 +357,21 @@ class PlannerNode:
             self._plans.put(body, encoding=JSON)
 
     def serve(self, payload: bytes) -> bytes:
-        """Handle one request body: validate, plan, maybe execute; the plan.json reply."""
-        req = self.handler.parse(payload)
-        targets = self.handler.targets(req)
+        """Handle one request body: validate, plan, maybe execute; the plan.json reply.
+        The handler (and so the calibration) is fixed for the whole request."""
+        with self._handler_lock:
+            handler, version = self.handler, self.calibration_version
+        req = handler.parse(payload)
+        targets = handler.targets(req)
         self.progress.targets(len(targets.points))
         start = None
         if req.execute:
             self.check_drivers()
             start = self.start_state()
-        plan = self.handler.plan_fn(targets, start, req.execute)
+        plan = handler.plan_fn(targets, start, req.execute)
         plan["id"] = req.id
+        if self.online is not None:
+            plan["metrics"].setdefault("extra", {})["calibration_version"] = version
         if req.execute:
             self.execute(plan, req.id)
         self.served += 1

@@ -1,7 +1,7 @@
 """``beamrelay study all -o reports``: every study at paper scale, and ``reports/index.md``.
 
-Order: ik-grid, calibration, sensitivity, mirror-sweep, coverage, tracking. Each study runs
-its ``main`` at its paper-scale ``TRIALS`` and writes into ``OUT/<name>/``. The tracking
+Order: ik-grid, calibration, sensitivity, mirror-sweep, coverage, tracking, online. Each
+study runs its ``main`` at its paper-scale ``TRIALS`` and writes into ``OUT/<name>/``. The tracking
 study takes its calibration errors from the calibration study's D435 figures (else the
 documented 1 mm / 0.1° levels). The index links the reports and records the wall time of
 each.
@@ -21,6 +21,7 @@ from planner.studies import (
     coverage,
     ik_grid,
     mirror_sweep,
+    online,
     sensitivity,
     tracking,
 )
@@ -32,6 +33,7 @@ STUDIES: dict[str, Any] = {
     "mirror-sweep": mirror_sweep,
     "coverage": coverage,
     "tracking": tracking,
+    "online": online,
 }
 """The studies in the order they run (name -> module with ``main`` and ``TRIALS``)."""
 ORDER = tuple(STUDIES)
