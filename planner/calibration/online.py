@@ -18,15 +18,19 @@ Steps, each of which may refuse (the calibration in force is kept, the reason is
 1. at least :func:`min_samples` samples at that many distinct configurations (a refit of 7
    unknowns from 2 equations per spot needs 4; one more keeps 3 redundant equations so that
    a bad spot shows in the residuals): ``n_unknowns // 2 + 2`` = 5 for N = 1;
-2. a robust (Cauchy, scale ``loss_scale``) fit; samples whose residual exceeds both
-   ``OUTLIER_MEDIANS`` times the median residual and ``loss_scale`` are outliers and dropped
-   (for Rayleigh-distributed 2-D residual norms, 3 medians is 3.5 sigma: 0.2 % of good spots);
+2. a least-squares fit gives the residual level, then a robust (Cauchy) fit with that
+   median residual as its scale (at least ``loss_scale``); samples whose residual exceeds
+   both ``OUTLIER_MEDIANS`` times the median residual (times ``sqrt(m / (m - p))``, the
+   in-sample shrinkage of residuals with m equations and p unknowns) and ``loss_scale`` are
+   outliers and dropped (5 medians: 3.4 sigma when the noise is mostly along one axis, as a
+   depth error seen across the beam is; 5.9 sigma for isotropic 2-D noise);
 3. a plain least-squares fit of the inliers (its covariance gives the parameter std);
-4. the guard: a ``FOLDS``-fold cross-validation gives each inlier's held-out residual (fit
-   without it); the refit is accepted only if their median is at most the median residual of
-   the calibration in force over the same samples times ``sqrt((m + p) / (m - p))`` (m = 2
-   equations per spot, p unknowns: the expected ratio of out-of-sample to in-sample RMS of
-   a linear least-squares fit, so an equally good model passes and a worse one does not).
+4. the guard: a ``FOLDS``-fold cross-validation gives each inlier's held-out residual (from
+   a fit without it); the refit is accepted only if their median is at most the median
+   residual of the calibration in force over the same samples: a new version must predict
+   spots it was not fitted to at least as well as the one in force does (which has seen
+   some of them, so the test favours keeping it); medians under ``NUMERIC_FLOOR_M`` count
+   as equal.
 
 Units: metres, radians; frames: world, flange, laser as in the scenario.
 """
@@ -55,9 +59,10 @@ from planner.errors import BeamrelayError, InputError
 from planner.model.system import System
 from planner.model.transforms import Array
 
-OUTLIER_MEDIANS = 3.0  # a residual beyond 3 medians (3.5 sigma of a Rayleigh norm) is an outlier
+OUTLIER_MEDIANS = 5.0  # residuals beyond 5 medians are outliers (3.4 sigma of 1-D noise)
 FOLDS = 5  # cross-validation folds of the guard
 DISTINCT_RAD = 1e-6  # configurations closer than this (max joint difference) count as one
+NUMERIC_FLOOR_M = 1e-12  # m: residual medians below this are rounding, all equally good
 MAX_SPOT_DISTANCE = 20.0  # m: a spot farther than this from the world origin is not a spot
 
 
@@ -92,14 +97,16 @@ def make_sample(
     the robots' position limits or a spot farther than ``MAX_SPOT_DISTANCE`` m (wrong units).
     """
     try:
-        q_arr = (
-            system.stack_q({k: np.asarray(v, dtype=float) for k, v in q.items()})
-            if isinstance(q, dict)
-            else np.asarray(q, dtype=float)
-        )
-        s = np.asarray(spot_world, dtype=float)
+        if isinstance(q, dict):
+            q_arr = system.stack_q({k: np.asarray(v, dtype=float) for k, v in q.items()})
+        else:
+            q_arr = np.asarray(q, dtype=float)
     except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"not joints and a spot: {exc}", "q") from None
+        raise InputError(f"not joint values: {exc}", "q") from None
+    try:
+        s = np.asarray(spot_world, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"not a spot: {exc}", "spot_world") from None
     if q_arr.shape != (system.nq,) or not np.all(np.isfinite(q_arr)):
         raise InputError(f"expected {system.nq} finite joint values (rad), got {q_arr.shape}", "q")
     lower = np.concatenate([r.limits.lower for r in system.robots])
@@ -141,22 +148,6 @@ class RefitResult:
     holdout_median: float = math.nan
     current_median: float = math.nan
     allowed_median: float = math.nan
-
-
-def with_mounts(
-    system: System, robot: str, world_T_laser: Array | None, flange_T_mirror: Array
-) -> System:
-    """``system`` with a new laser pose (if given) and ``robot``'s mirror mount."""
-    robots = tuple(
-        dataclasses.replace(
-            r, mirror=dataclasses.replace(r.mirror, flange_T_mirror=flange_T_mirror)
-        )
-        if r.name == robot
-        else r
-        for r in system.robots
-    )
-    laser = system.world_T_laser if world_T_laser is None else world_T_laser
-    return dataclasses.replace(system, world_T_laser=laser, robots=robots)
 
 
 def ray_distances(system: System, q: Array, spots: Array) -> Array:
@@ -209,12 +200,15 @@ def refit(
     if (distinct := _distinct(data.q)) < need:
         return _refuse(current, k, f"the {k} samples were taken at {distinct} distinct joint"
                        f" configurations; a refit needs at least {need}")  # fmt: skip
+    m, p = 2 * k, n_unknowns(nominal)
     try:
-        robust = _fit(data, current.system, "cauchy", loss_scale, starts)
+        plain = _fit(data, current.system, "none", loss_scale, starts)
+        scale = max(loss_scale, float(np.median(plain.residuals)))
+        robust = _fit(data, current.system, "cauchy", scale, starts)
     except BeamrelayError as exc:
         return _refuse(current, k, f"refit failed: {exc}")
     r = robust.residuals
-    bad = (r > OUTLIER_MEDIANS * float(np.median(r))) & (r > loss_scale)
+    bad = (r > OUTLIER_MEDIANS * math.sqrt(m / (m - p)) * float(np.median(r))) & (r > loss_scale)
     outliers = tuple(int(i) for i in np.nonzero(bad)[0])
     inl = all_idx[~bad]
     if len(inl) < need:
@@ -227,8 +221,7 @@ def refit(
     holdout = _holdout(samples, inl, current.system, nominal, loss_scale)
     q_in, s_in = data.q[inl], data.spots_world[inl]
     cur_med = float(np.median(ray_distances(current.system, q_in, s_in)))
-    m, p = 2 * len(inl), n_unknowns(nominal)
-    allowed = cur_med * math.sqrt((m + p) / (m - p))
+    allowed = max(cur_med, NUMERIC_FLOOR_M)
     figures = {"outliers": outliers, "current_median": cur_med, "allowed_median": allowed}
     if holdout is None:
         return _refuse(current, k, "a cross-validation fold is degenerate (too few varied"
@@ -241,7 +234,7 @@ def refit(
     robot = nominal.robot_names[-1]
     L, M = apply_gauge(fit.world_T_laser, fit.flange_T_mirror, nominal.world_T_laser,
                        nominal.robot(robot).mirror.flange_T_mirror)  # fmt: skip
-    system = with_mounts(current.system, robot, L, M)
+    system = current.system.with_params(L, {robot: M})
     version = current.version + 1
     result = dataclasses.replace(fit, world_T_laser=L, flange_T_mirror=M)
     doc = beam_document(result, dataset=f"online refinement, version {version}")
@@ -277,7 +270,7 @@ def _holdout(
             res = _fit(_data(nominal, samples, train), start, "none", scale, 1)
         except BeamrelayError:
             return None
-        sys_f = with_mounts(start, robot, res.world_T_laser, res.flange_T_mirror)
+        sys_f = start.with_params(res.world_T_laser, {robot: res.flange_T_mirror})
         t_idx = inl[test]
         q = np.array([samples[i].q for i in t_idx])
         s = np.array([samples[i].spot_world for i in t_idx])

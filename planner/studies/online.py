@@ -23,15 +23,17 @@ checkpoint, the fraction of refits accepted, and the calibration version reached
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from planner.calibration.online import Calibration, SpotSample, refit, with_mounts
 from planner.data import shipped_scenario
 from planner.model.system import System
 from planner.model.transforms import Array, axis_angle_to_matrix, make_T, transform_points
 from planner.studies import common
+
+if TYPE_CHECKING:
+    from planner.calibration.online import SpotSample
 
 TRIALS = 10  # the default of --trials and of `study all`
 CHECKPOINTS = (0, 5, 10, 20)
@@ -54,7 +56,7 @@ def perturbed_truth(nominal: System, rng: np.random.Generator) -> System:
     M = robot.mirror.flange_T_mirror
     M_true = M.copy()
     M_true[:3, 3] += M[:3, 2] * 1e-3 * MIRROR_MM * rng.choice([-1.0, 1.0])
-    return with_mounts(nominal, robot.name, L_true, M_true)
+    return nominal.with_params(L_true, {robot.name: M_true})
 
 
 def board_face(items: list[Any]) -> tuple[Array, Array, Array]:
@@ -99,6 +101,7 @@ class World:
 
 def trial(seed: int, trial_no: int) -> list[dict[str, Any]]:
     """One trial: a row per (checkpoint, evaluation target) with the true error (mm)."""
+    from planner.calibration.online import Calibration, SpotSample, refit
     from planner.ik import BeamIK
     from planner.io.scenario import load_scenario, system_from_scenario
 

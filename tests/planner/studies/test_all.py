@@ -29,14 +29,14 @@ def test_all_runs_each_study_at_its_scale_and_links_them(
         return SimpleNamespace(TRIALS=trials, main=main, CalibrationErrors=CalibrationErrors)
 
     trials = {"ik-grid": 7, "calibration": 100, "sensitivity": 5, "mirror-sweep": 3}
-    trials |= {"coverage": 2, "tracking": 10}
+    trials |= {"coverage": 2, "tracking": 10, "online": 4}
     monkeypatch.setattr(study_all, "STUDIES", {k: fake(k, n) for k, n in trials.items()})
     figures = study_all.main(1, 0, tmp_path, 1, None)
     assert [(c[0], c[1], c[2]) for c in calls] == [
         (name, trials[name], tmp_path / name) for name in study_all.ORDER
     ]
     assert tuple(trials) == study_all.ORDER  # every study, in this order
-    err = calls[-1][3]
+    err = next(c[3] for c in calls if c[0] == "tracking")
     assert err.camera_pos == pytest.approx(0.3e-3)
     assert err.camera_rot == pytest.approx(np.deg2rad(0.02))
     assert err.laser_pos == CalibrationErrors().laser_pos  # documented level kept
