@@ -90,7 +90,7 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
             "tracking",
             "online",
             "all",
-        ]  # fmt: skip
+        ]
     )
     assert sorted(groups["bench"].commands) == [
         "ik",
