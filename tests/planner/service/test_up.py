@@ -110,3 +110,11 @@ def test_up_on_a_locked_bus(tmp_path: Path) -> None:
         up.send_signal(signal.SIGTERM)
         out, _ = up.communicate(timeout=60)
     assert up.returncode == 0, out
+
+
+def test_child_commands_pass_the_online_calibration_file_to_the_planner_only() -> None:
+    s, out = Path("/x/s.yaml"), Path("/x/online.yaml")
+    argv = child_commands(s, ["arm0"], endpoint="e", online_calibration=out)
+    assert argv["planner"][-2:] == ["--online-calibration", str(out)]
+    assert "--online-calibration" not in argv["arm0"] + argv["camera"]
+    assert "--online-calibration" not in child_commands(s, ["arm0"], endpoint="e")["planner"]
