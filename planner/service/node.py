@@ -166,10 +166,11 @@ class PlannerNode:
         self._cal_pub = self.session.declare_publisher(self.keys.calibration)
         online.publish = lambda body: self._cal_pub.put(body, encoding=JSON)
         online.on_update = self.install_calibration
-        sampler = RestSampler(online, self.robots, self.joints.get)
-        self._handles.append(
-            self.session.declare_subscriber(self.keys.camera_spot, sampler.callback)
-        )
+        if online.rest_sampling:
+            sampler = RestSampler(online, self.robots, self.joints.get)
+            self._handles.append(
+                self.session.declare_subscriber(self.keys.camera_spot, sampler.callback)
+            )
         online.start()
 
     def install_calibration(self, handler: RequestHandler | None, calibration: Any) -> None:

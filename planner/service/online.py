@@ -120,6 +120,9 @@ class OnlineCalibrator:
         self.clock = clock
         self.loss_scale = loss_scale
         self.current = Calibration(0, nominal)
+        #: take samples from ``camera/spot`` at rest (:class:`RestSampler`); a node whose
+        #: servo calls :meth:`add_sample` itself may turn it off to avoid duplicates
+        self.rest_sampling = True
         self.last: RefitResult | None = None
         self.rejected = 0
         self.refits = 0
