@@ -38,6 +38,7 @@ if TYPE_CHECKING:
 TRIALS = 10  # the default of --trials and of `study all`
 CHECKPOINTS = (0, 5, 10, 20)
 N_EVAL = 20  # evaluation targets per checkpoint and trial
+MAX_MISSES = 200  # targets without a solution or a seen spot before a trial gives up
 LASER_DEG = 0.4  # true laser tilt vs the scenario, deg
 MIRROR_MM = 3.0  # true mirror-mount shift along its normal vs the scenario, mm
 BOARD = "board"  # the scene box the targets lie on
@@ -114,12 +115,14 @@ def trial(seed: int, trial_no: int) -> list[dict[str, Any]]:
     samples: list[SpotSample] = []
     ik, tried, accepted, rows = BeamIK(nominal), 0, 0, []
     assert nominal.camera is not None
+    misses = 0
     for checkpoint in CHECKPOINTS:
-        while len(samples) < checkpoint:
+        while len(samples) < checkpoint and misses < MAX_MISSES:
             target = world.draw(rng, 1)[0]
             sol = ik.solve(target, world.normal, q_prev)
             p_cam = None if sol.q is None else world.measure(sol.q)
             if sol.q is None or p_cam is None:
+                misses += 1
                 continue
             q_prev = sol.q
             spot = transform_points(cal.system.camera.world_T_camera, p_cam)  # type: ignore[union-attr]
@@ -132,7 +135,8 @@ def trial(seed: int, trial_no: int) -> list[dict[str, Any]]:
         for j, target in enumerate(eval_targets):
             sol = ik.solve(target, world.normal, nominal.home)
             err = np.nan if sol.q is None else 1e3 * world.true_error(sol.q, target)
-            rows.append({"trial": trial_no, "samples": checkpoint, "target": j,
+            rows.append({"trial": trial_no, "samples": checkpoint, "taken": len(samples),
+                         "target": j,
                          "version": cal.version, "error_mm": err,
                          "refits": tried, "accepted": accepted})  # fmt: skip
     return rows

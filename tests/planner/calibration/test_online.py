@@ -66,8 +66,8 @@ def nominal() -> System:
     return nominal_system()
 
 
-def test_minimum_is_three_redundant_equations(nominal: System) -> None:
-    assert n_unknowns(nominal) == 7 and min_samples(nominal) == 5
+def test_minimum_is_one_sample_per_unknown(nominal: System) -> None:
+    assert n_unknowns(nominal) == 7 and min_samples(nominal) == 7
 
 
 def test_noise_free_samples_recover_the_truth_in_the_observable_directions(nominal: System) -> None:
@@ -163,11 +163,11 @@ def test_outliers_are_dropped_and_named(nominal: System) -> None:
 
 def test_too_few_samples_are_refused(nominal: System) -> None:
     rng = np.random.default_rng(7)
-    samples = samples_of(truth_of(nominal, rng), 4, 1, rng)
+    samples = samples_of(truth_of(nominal, rng), 6, 1, rng)
     current = Calibration(0, nominal)
     res = refit(samples, current, nominal)
     assert not res.accepted and res.calibration is current
-    assert "4 samples" in res.reason and "at least 5" in res.reason
+    assert "6 samples" in res.reason and "at least 7" in res.reason
 
 
 def test_all_samples_at_one_configuration_are_refused_with_the_reason(nominal: System) -> None:
