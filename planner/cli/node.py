@@ -7,7 +7,7 @@ the planner are imported inside the commands.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -27,6 +27,14 @@ CLOSED_LOOP_SECONDS_PER_TARGET = 15.0
 #: seconds a failed planner node gets to shut down in order before the process is ended
 FATAL_EXIT_GRACE = 10.0
 
+OnlineOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--online-calibration",
+        help="Refine the calibration online from measured spots; write it to this file.",
+        dir_okay=False,
+    ),
+]
 PrefixOpt = Annotated[str, typer.Option("--prefix", help="Key-expression namespace prefix.")]
 ZENOH_CONFIG_HELP = (
     "Zenoh config file (JSON5): user/password authentication, access control, TLS, routers; "
@@ -51,8 +59,14 @@ def serve(
         bool,
         typer.Option("--connect", help="Connect to the endpoint instead of listening on it."),
     ] = False,
+    online_calibration: OnlineOpt = None,
 ) -> None:
     """Run the planner node until Ctrl-C / SIGTERM.
+
+    With --online-calibration FILE, spots the camera measures at rest refine the laser line
+    and mirror plane in the background; each accepted version is written to FILE (a
+    calibration YAML a scenario can include), published on <prefix>/calibration and used for
+    later plans. An existing FILE not written by the online refinement is never overwritten.
 
     Exits 1 if the node fails (its worker thread died or stayed busy on one request beyond
     its allowance): the heartbeat has stopped and the liveliness token is gone by then, so
@@ -66,8 +80,12 @@ def serve(
     from planner.service.node import BusAddress, PlannerNode, handler_from_scenario
 
     handler = handler_from_scenario(scenario)
+    online = None
+    if online_calibration is not None:
+        online = online_calibrator(scenario, online_calibration, handler.system)
     session = open_session(listen=not connect, endpoint=endpoint, config_file=zenoh_config)
-    node = PlannerNode(handler, session, Keys(prefix), bus=BusAddress(endpoint, zenoh_config))
+    node = PlannerNode(handler, session, Keys(prefix), bus=BusAddress(endpoint, zenoh_config),
+                       online=online)  # fmt: skip
     stop = threading.Event()
 
     def on_signal(signum: int, _frame: object) -> None:
@@ -106,6 +124,16 @@ def serve(
         raise typer.Exit(1)
 
 
+def online_calibrator(scenario: Path, out: Path, system: Any) -> Any:
+    """The node's :class:`~planner.service.online.OnlineCalibrator` writing ``out`` (InputError
+    if ``out`` is the scenario or a file the online refinement did not write)."""
+    from planner.service.handler import handler_from_scenario
+    from planner.service.online import OnlineCalibrator, check_output_file
+
+    path = check_output_file(out, scenario)
+    return OnlineCalibrator(system, path, rebuild=lambda f: handler_from_scenario(scenario, (f,)))
+
+
 def up(
     scenario: Annotated[Path, typer.Argument(help="Scenario YAML.")],
     backend: Annotated[str, typer.Option(help="Robot driver backend: sim or ur.")] = "sim",
@@ -141,6 +169,7 @@ def up(
     console_port: Annotated[
         int, typer.Option("--console-port", help="Port of the console page on 127.0.0.1.")
     ] = 8080,
+    online_calibration: OnlineOpt = None,
 ) -> None:
     """Start planner + camera + one robot driver per robot, supervised, until Ctrl-C.
 
@@ -170,6 +199,7 @@ def up(
         planner_zenoh_config=planner_zenoh_config,
         hosts=host,
         console_port=console_port if console else None,
+        online_calibration=online_calibration,
     )
 
 

@@ -94,12 +94,14 @@ class LoadedScenario:
 
 
 # --- loading ------------------------------------------------------------------------------
-def load_scenario(path: str | Path) -> LoadedScenario:
+def load_scenario(path: str | Path, extra_includes: tuple[str | Path, ...] = ()) -> LoadedScenario:
     """Read, merge ``include:`` files into, and validate a scenario file.
 
     Args:
         path: the scenario YAML; relative ``include``, ``urdf`` and ``mesh`` paths resolve
             against its folder.
+        extra_includes: calibration files applied after the scenario's own ``include:``
+            (the planner node's online calibration).
 
     Returns:
         The :class:`LoadedScenario` (validated model, origins of every key, warnings).
@@ -108,6 +110,9 @@ def load_scenario(path: str | Path) -> LoadedScenario:
     """
     shown = str(path)
     data, origins = read_yaml(path, ScenarioError)
+    if extra_includes and isinstance(data, dict):
+        own = data.get("include") or []
+        data["include"] = [*(own if isinstance(own, list) else [own]), *map(str, extra_includes)]
     return _build(data, origins, shown, Path(path).parent, check_files=True)
 
 

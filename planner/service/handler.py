@@ -197,8 +197,9 @@ def timed_trajectory(
     return None if timed is None else timed.trajectory.to_plan_dict(system)
 
 
-def handler_from_scenario(path: Any) -> RequestHandler:
-    """A :class:`RequestHandler` for a scenario file (calibration applied via ``include:``)."""
+def handler_from_scenario(path: Any, extra_includes: tuple[Any, ...] = ()) -> RequestHandler:
+    """A :class:`RequestHandler` for a scenario file (calibration applied via ``include:``;
+    ``extra_includes`` after the scenario's own, e.g. the online calibration file)."""
     from planner.io.resolved import resolved_scenario_dict
     from planner.io.scenario import (
         load_scenario,
@@ -210,7 +211,7 @@ def handler_from_scenario(path: Any) -> RequestHandler:
     from planner.safety.model import Safety
     from planner.service.closed_loop import closed_loop_config
 
-    scn = load_scenario(path)
+    scn = load_scenario(path, extra_includes)
     system = system_from_scenario(scn)
     model = scn.model
     settings = trajectory_settings(scn)

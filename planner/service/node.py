@@ -24,6 +24,10 @@ watchdog, heartbeat) are :mod:`planner.service.guard`. :class:`PlannerNode`:
   given its :class:`~planner.service.heartbeat.BusAddress`, else from a thread of this
   process (which the solvers can starve for up to a second); it starts before the node
   declares ``<prefix>/alive/planner``.
+- online calibration (opt-in, :mod:`planner.service.online`): spots on ``<prefix>/camera/spot``
+  seen at rest, and ``node.online.add_sample(q, spot_world)`` calls (the servo), are refitted
+  in the background; a new version is installed between requests (:meth:`install_calibration`)
+  and plans report ``metrics.extra.calibration_version``.
 
 One worker thread plans; requests queue up behind it (bounded in count and bytes: a full
 queue gets a "busy" error). If the worker dies or stays busy on one request beyond its
@@ -66,6 +70,7 @@ from planner.service.handler import (
     request_id_of,
 )
 from planner.service.heartbeat import BusAddress, HeartbeatProcess
+from planner.service.online import OnlineCalibrator, RestSampler
 from planner.service.spots import LaserLog, SpotBuffer
 from planner.service.stream import Execution
 
@@ -99,8 +104,13 @@ class PlannerNode:
         heartbeat_rate: float | None = None,
         ack_timeout: float = ACK_TIMEOUT,
         bus: BusAddress | None = None,
+        online: OnlineCalibrator | None = None,
     ) -> None:
         self.handler = handler
+        self.online = online
+        self.calibration_version = 0
+        self._handler_lock = threading.Lock()
+        self._cal_pub: Any = None
         self.session = session
         self.keys = keys or Keys()
         self.robots = handler.system.robot_names
@@ -155,8 +165,29 @@ class PlannerNode:
         self._handles.append(s.declare_subscriber(k.laser, self._on_laser))
         self._handles.append(s.declare_subscriber(k.targets, self._on_target))
         self._handles.append(s.declare_queryable(k.plan, self._on_query))
+        if self.online is not None:
+            self._start_online(self.online)
         self._worker.start()
         return self
+
+    def _start_online(self, online: OnlineCalibrator) -> None:
+        self._cal_pub = self.session.declare_publisher(self.keys.calibration)
+        online.publish = lambda body: self._cal_pub.put(body, encoding=JSON)
+        online.on_update = self.install_calibration
+        if online.rest_sampling:
+            sampler = RestSampler(online, self.robots, self.joints.get)
+            self._handles.append(
+                self.session.declare_subscriber(self.keys.camera_spot, sampler.callback)
+            )
+        online.start()
+
+    def install_calibration(self, handler: RequestHandler | None, calibration: Any) -> None:
+        """Serve later requests with ``handler`` (planned with ``calibration``, whose
+        ``version`` the plans report); a request in progress keeps its handler."""
+        if handler is None:
+            return
+        with self._handler_lock:
+            self.handler, self.calibration_version = handler, int(calibration.version)
 
     def _start_heartbeat(self) -> Heartbeat | HeartbeatProcess:
         rate = {} if self._heartbeat_rate is None else {"rate": self._heartbeat_rate}
@@ -177,6 +208,8 @@ class PlannerNode:
         """Stop beating, undeclare everything, stop the worker (the session stays open)."""
         self._closing.set()
         self._stop_track("the planner node closes")
+        if self.online is not None:
+            self.online.close()
         if self.heartbeat is not None:
             self.heartbeat.stop()
         self._undeclare_token()
@@ -186,7 +219,8 @@ class PlannerNode:
         self._jobs.close()
         self._worker.join(timeout=1 if self.failed else 5)
         self.execution.close()
-        pubs = [*self._publishers.values(), self._plans, self._stop_pub, self._beat_pub]
+        pubs = [*self._publishers.values(), self._plans, self._stop_pub, self._beat_pub,
+                self._cal_pub]  # fmt: skip
         for p in pubs:
             if p is not None:
                 p.undeclare()
@@ -358,25 +392,25 @@ class PlannerNode:
             self._plans.put(body, encoding=JSON)
 
     def serve(self, payload: bytes) -> bytes:
-        """Handle one request body: validate, plan, maybe execute; the plan.json reply."""
+        """Handle one request body: validate, plan, maybe execute; the plan.json reply.
+        While a ``mode: track`` request runs, every request gets a "busy tracking" error. The
+        handler (and so the calibration) is fixed for the whole request."""
         from planner.service.closed_loop import check_closed_loop
 
-        req = self.handler.parse(payload)
-        check_closed_loop(req, self.handler.system)
-        if req.closed_loop and self.handler.closed_loop is None:
-            raise InputError("this planner serves no closed_loop requests", "closed_loop")
-
-        """Handle one request body: validate, plan, maybe execute; the plan.json reply.
-        While a ``mode: track`` request runs, every request gets a "busy tracking" error."""
         if self.track is not None and self.track.active:
             raise InputError(f"planner busy tracking {self.track.id!r}: publish on "
                              f"{self.keys.stop} to end it, or wait for its duration", "body")  # fmt: skip
-        req = self.handler.parse(payload)
+        with self._handler_lock:
+            handler, version = self.handler, self.calibration_version
+        req = handler.parse(payload)
+        check_closed_loop(req, handler.system)
+        if req.closed_loop and handler.closed_loop is None:
+            raise InputError("this planner serves no closed_loop requests", "closed_loop")
         if req.mode == "track":
             from planner.service.track import start_track
 
             return encode_json(start_track(self, req))
-        targets = self.handler.targets(req)
+        targets = handler.targets(req)
         self.progress.targets(len(targets.points))
         start = None
         if req.execute:
@@ -385,11 +419,13 @@ class PlannerNode:
         elif req.trajectory:  # a preview: the trajectory execute would send, not sent
             start = self.start_state()
         timed = (req.execute and not req.closed_loop) or req.trajectory
-        plan = self.handler.plan_fn(targets, start, timed)
+        plan = handler.plan_fn(targets, start, timed)
         plan["id"] = req.id
+        if self.online is not None:
+            plan["metrics"].setdefault("extra", {})["calibration_version"] = version
         if req.execute and req.closed_loop:
             assert start is not None
-            self.execute_closed_loop(plan, targets, req, start)
+            self.execute_closed_loop(plan, targets, req, start, handler)
         elif req.execute:
             self.execute(plan, req.id)
         self.served += 1
@@ -426,13 +462,20 @@ class PlannerNode:
         self.execution.execute(plan, request_id, self.session_id)
 
     def execute_closed_loop(
-        self, plan: dict[str, Any], targets: Any, req: Any, start: dict[str, Array]
+        self,
+        plan: dict[str, Any],
+        targets: Any,
+        req: Any,
+        start: dict[str, Array],
+        handler: RequestHandler,
     ) -> None:
         """Servo every solved target on the camera's measured spot, then dwell
-        (:mod:`planner.service.closed_loop`); writes ``closed_loop`` and the verdict."""
+        (:mod:`planner.service.closed_loop`) in the calibration of ``handler`` (the one the
+        request was planned with); writes ``closed_loop`` and the verdict. With online
+        calibration, the measurement dwells at rest are its samples (the rest sampler)."""
         from planner.service.closed_loop import Motion, execute_closed_loop
 
-        config = self.handler.closed_loop
+        config = handler.closed_loop
         assert config is not None
         head = {k: plan[k] for k in ("robots", "joint_names", "scenario")}
 
@@ -444,7 +487,7 @@ class PlannerNode:
         self.stop_seen.clear()
         laser = self.laser if config.gated else None
         motion = Motion(send, self.rests_at, self.spots, self.stop_seen, self.progress.tick, laser)
-        system = self.handler.system
+        system = handler.system
         execute_closed_loop(plan, targets, req, system.stack_q(start), config, motion, system)
 
     def rests_at(self, q: Array) -> bool:

@@ -49,6 +49,7 @@ def child_commands(
     hosts: dict[str, str] | None = None,
     tracker: bool = False,
     console_port: int | None = None,
+    online_calibration: Path | None = None,
 ) -> dict[str, list[str]]:
     """argv of every child: ``planner``, ``camera`` (if any), the simulated ``tracker`` (sim
     only, when asked: the scenario has targets on a moving object), one per robot, then the
@@ -62,7 +63,8 @@ def child_commands(
         bus += ["--zenoh-config", str(zenoh_config)]
     if (planner_conf := planner_zenoh_config or zenoh_config) is not None:
         planner_bus += ["--zenoh-config", str(planner_conf)]
-    out = {"planner": [*cli, "serve", str(scenario), "--connect", *planner_bus]}
+    online = [] if online_calibration is None else ["--online-calibration", str(online_calibration)]
+    out = {"planner": [*cli, "serve", str(scenario), "--connect", *planner_bus, *online]}
     if camera:
         cam_backend = "sim" if backend == "sim" else "realsense"
         out["camera"] = [
@@ -239,6 +241,7 @@ def run_up(
     planner_zenoh_config: Path | None = None,
     hosts: list[str] | None = None,
     console_port: int | None = None,
+    online_calibration: Path | None = None,
 ) -> dict[str, int | None]:
     """Run the system until Ctrl-C / SIGTERM / ``duration`` s; the children's exit codes.
     With ``console_port`` the operator console runs as one more supervised child.
@@ -257,11 +260,16 @@ def run_up(
     endpoint = endpoint or default_endpoint()
     configs = [_child_config(c) for c in (zenoh_config, planner_zenoh_config)]
     has_camera = scn.model.system.camera is not None
+    online = None
+    if online_calibration is not None:  # checked here: a bad FILE is exit 2, not a crash loop
+        from planner.service.online import check_output_file
+
+        online = check_output_file(online_calibration, scenario)
     argv = child_commands(
         Path(scenario).resolve(), robots, backend=backend, endpoint=endpoint, prefix=prefix,
         camera=has_camera, zenoh_config=configs[0], planner_zenoh_config=configs[1],
         hosts=host_map, tracker=has_camera and has_tracked_targets(scn),
-        console_port=console_port,
+        console_port=console_port, online_calibration=online,
     )  # fmt: skip
     log_dir = Path(log_dir or tempfile.mkdtemp(prefix="beamrelay-up-"))
     session = open_session(listen=True, endpoint=endpoint, config_file=configs[0])

@@ -1,8 +1,8 @@
 """``beamrelay study all -o reports``: every study at paper scale, and ``reports/index.md``.
 
-Order: ik-grid, calibration, sensitivity, mirror-sweep, coverage, experiments. Each study
-runs its ``main`` at its paper-scale ``TRIALS`` and writes into ``OUT/<name>/``. The index
-links the reports and records the wall time of each.
+Order: ik-grid, calibration, sensitivity, mirror-sweep, coverage, experiments, online. Each
+study runs its ``main`` at its paper-scale ``TRIALS`` and writes into ``OUT/<name>/``. The
+index links the reports and records the wall time of each.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from planner.studies import (
     experiments,
     ik_grid,
     mirror_sweep,
+    online,
     sensitivity,
 )
 
@@ -30,6 +31,7 @@ STUDIES: dict[str, Any] = {
     "mirror-sweep": mirror_sweep,
     "coverage": coverage,
     "experiments": experiments,
+    "online": online,
 }
 """The studies in the order they run (name -> module with ``main`` and ``TRIALS``)."""
 ORDER = tuple(STUDIES)

@@ -41,6 +41,7 @@ def test_every_command_is_registered() -> None:
         "experiments",
     ):
         assert name in studies
+    assert "online" in studies
     benches = CliRunner().invoke(app, ["bench", "--help"]).output
     for name in ("ik", "path", "service"):
         assert name in benches
@@ -87,7 +88,16 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
     groups = root.commands  # type: ignore[attr-defined]
     assert sorted(groups["calibrate"].commands) == ["beam", "collect", "handeye", "simulate"]
     assert sorted(groups["study"].commands) == sorted(
-        ["ik-grid", "calibration", "sensitivity", "mirror-sweep", "coverage", "experiments", "all"]
+        [
+            "ik-grid",
+            "calibration",
+            "sensitivity",
+            "mirror-sweep",
+            "coverage",
+            "experiments",
+            "online",
+            "all",
+        ]
     )
     assert sorted(groups["bench"].commands) == [
         "ik",

@@ -156,3 +156,16 @@ def test_serve_exits_nonzero_when_its_worker_dies(tmp_path: Path) -> None:
     assert served.proc.returncode == 1, (out, err)
     assert "error: planner node failed: the planner worker thread stopped; exiting" in err
     assert "planner stopped after 1 requests" in out
+
+
+@pytest.mark.parametrize("command", ["serve", "up"])
+def test_online_calibration_never_overwrites_a_users_file(command: str) -> None:
+    from tests.paths import REPO
+
+    scenario, other = REPO / "scenarios" / "paper_n1.yaml", REPO / "scenarios" / "n2_relay.yaml"
+    before = other.read_bytes()
+    out = run(command, str(scenario), "--online-calibration", str(other))
+    assert out.returncode == 2, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and "refusing to overwrite" in lines[0], out.stderr
+    assert other.read_bytes() == before

@@ -119,3 +119,11 @@ def test_the_console_child_gets_its_port_and_the_bus() -> None:
     assert argv["console"] == [sys.executable, "-m", "planner.cli", "console", str(s),
                                "--port", "8123", "--endpoint", "tcp/127.0.0.1:9"]  # fmt: skip
     assert "console" not in child_commands(s, ["arm0"], endpoint="e")
+
+
+def test_child_commands_pass_the_online_calibration_file_to_the_planner_only() -> None:
+    s, out = Path("/x/s.yaml"), Path("/x/online.yaml")
+    argv = child_commands(s, ["arm0"], endpoint="e", online_calibration=out)
+    assert argv["planner"][-2:] == ["--online-calibration", str(out)]
+    assert "--online-calibration" not in argv["arm0"] + argv["camera"]
+    assert "--online-calibration" not in child_commands(s, ["arm0"], endpoint="e")["planner"]

@@ -1,0 +1,303 @@
+"""The planner node's online calibration: collect measured spots, refit in the background,
+publish, write the includable file, and swap the planner's system between requests.
+
+:class:`OnlineCalibrator` is opt-in (``beamrelay serve|up --online-calibration FILE``). It
+takes samples from two sources, both thread safe and never raising on bad input (a bad
+sample is logged, counted in :attr:`OnlineCalibrator.rejected` and dropped):
+
+- :meth:`OnlineCalibrator.add_sample` ``(q, spot_world)`` - the API for the closed-loop servo
+  and anything else that measured a spot at known joints: ``q`` is ``{robot: joints}`` (rad)
+  of every robot, ``spot_world`` the spot in the world (m);
+  :meth:`OnlineCalibrator.add_camera_spot` takes the spot in the camera's optical frame and
+  maps it through the calibrated camera pose at those joints;
+- :class:`RestSampler`, fed by the node's ``<prefix>/camera/spot`` subscription: a spot seen
+  on two consecutive frames with every robot at rest at the same joints (and confidence at
+  least ``MIN_CONFIDENCE``) is one sample, one per rest configuration.
+
+A background thread refits (:func:`planner.calibration.online.refit`) whenever samples
+arrived since the last attempt. An accepted refit is written to FILE (atomically: a
+temporary file renamed over it), the scenario is reloaded with FILE as a last ``include:``
+(the planner's handler is rebuilt from it, so the file is proven includable), the node
+swaps to the new handler *between* requests (a request in progress keeps the system it
+started with), and a :class:`~schemas.messages.CalibrationMessage` with the new ``version``
+goes out on ``<prefix>/calibration``. A refused refit keeps the calibration in force;
+:attr:`OnlineCalibrator.last` holds the reason.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from planner.calibration.online import (
+    Calibration,
+    RefitResult,
+    SpotSample,
+    make_sample,
+    refit,
+)
+from planner.errors import InputError
+from planner.model.system import System
+from planner.model.transforms import Array, transform_points
+
+log = logging.getLogger("beamrelay.online")
+
+MAX_SAMPLES = 400  # newest samples kept for refits (older ones are dropped)
+MIN_CONFIDENCE = 0.3  # spot detection confidence a rest sample needs
+REST_QD = 1e-3  # rad/s: every joint slower than this counts as at rest
+SAME_Q = 1e-5  # rad: joints closer than this (max abs) are the same configuration
+ONLINE_MARK = "online"  # report key that marks a file written by the online refinement
+
+
+def check_output_file(path: Path, scenario: Path) -> Path:
+    """FILE for ``--online-calibration``: absolute; InputError if it is the scenario or an
+    existing file the online refinement did not write (a user's calibration is never
+    overwritten)."""
+    path = Path(path).expanduser().resolve()
+    if path == Path(scenario).resolve():
+        raise InputError(f"--online-calibration {path}: that is the scenario itself")
+    if path.is_dir():
+        raise InputError(f"--online-calibration {path}: is a directory")
+    if path.exists() and not is_online_file(path):
+        raise InputError(
+            f"--online-calibration {path}: exists and was not written by the online"
+            " refinement; refusing to overwrite it (remove it or choose another file)"
+        )
+    return path
+
+
+def is_online_file(path: Path) -> bool:
+    """True when ``path`` is a calibration YAML whose report has the online mark."""
+    from ruamel.yaml import YAML, YAMLError
+
+    try:
+        doc = YAML(typ="safe", pure=True).load(Path(path).read_text())
+    except (OSError, YAMLError, UnicodeDecodeError):
+        return False
+    rep = doc.get("report") if isinstance(doc, dict) else None
+    return isinstance(rep, dict) and isinstance(rep.get(ONLINE_MARK), dict)
+
+
+def write_atomically(path: Path, document: dict[str, Any]) -> None:
+    """Write the calibration YAML to a temporary file next to ``path``, then rename it."""
+    from planner.calibration.report import write_calibration
+
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    write_calibration(tmp, document)
+    os.replace(tmp, path)
+
+
+class OnlineCalibrator:
+    """Samples in, versioned calibrations out (see the module docstring).
+
+    ``nominal`` is the scenario's system (it fixes the gauge); ``out_file`` where accepted
+    calibrations go; ``rebuild(out_file)`` returns the planner's new handler (any object);
+    ``publish(body)`` sends a JSON body on ``<prefix>/calibration``; ``on_update(handler,
+    calibration)`` installs it. ``clock`` gives message times (UNIX s).
+    """
+
+    def __init__(
+        self,
+        nominal: System,
+        out_file: Path,
+        *,
+        rebuild: Callable[[Path], Any] | None = None,
+        publish: Callable[[bytes], None] | None = None,
+        on_update: Callable[[Any, Calibration], None] | None = None,
+        clock: Callable[[], float] = time.time,
+        loss_scale: float = 1e-3,
+    ) -> None:
+        self.nominal = nominal
+        self.out_file = Path(out_file)
+        self.rebuild, self.publish, self.on_update = rebuild, publish, on_update
+        self.clock = clock
+        self.loss_scale = loss_scale
+        self.current = Calibration(0, nominal)
+        #: take samples from ``camera/spot`` at rest (:class:`RestSampler`); a node whose
+        #: servo calls :meth:`add_sample` itself may turn it off to avoid duplicates
+        self.rest_sampling = True
+        self.last: RefitResult | None = None
+        self.rejected = 0
+        self.refits = 0
+        self._samples: list[SpotSample] = []
+        self._lock = threading.Lock()
+        self._wake = threading.Condition(self._lock)
+        self._pending = False
+        self._closing = False
+        self._idle = threading.Event()
+        self._idle.set()
+        self._thread = threading.Thread(target=self._loop, name="online-calibration", daemon=True)
+
+    # --- samples (any thread) --------------------------------------------------------------
+    def add_sample(
+        self, q: Any, spot_world: Any, *, board: int = 0, t: float | None = None
+    ) -> bool:
+        """Queue one measured spot: ``q`` ``{robot: joints}`` (rad, every robot) or stacked,
+        ``spot_world`` (3,) in the world (m). False (and logged) when it is not valid."""
+        try:
+            s = make_sample(self.nominal, q, spot_world, board, self.clock() if t is None else t)
+        except InputError as exc:
+            self.rejected += 1
+            log.warning("online calibration: sample dropped (%s: %s)", exc.where, exc.reason)
+            return False
+        with self._lock:
+            self._samples.append(s)
+            del self._samples[:-MAX_SAMPLES]
+            self._pending = True
+            self._idle.clear()
+            self._wake.notify()
+        return True
+
+    def add_camera_spot(
+        self, q: Any, p_camera: Any, *, board: int = 0, t: float | None = None
+    ) -> bool:
+        """As :meth:`add_sample` with the spot in the camera optical frame (m), mapped to the
+        world with the calibrated camera pose at ``q`` (a flange camera moves with it)."""
+        try:
+            system = self.current.system
+            if system.camera is None:
+                raise InputError("camera-frame spot but the scenario has no camera", "p_camera")
+            qs = make_sample(self.nominal, q, np.zeros(3)).q
+            world_T_camera = system.world_T_camera(system.split_q(qs))
+            p = np.asarray(p_camera, dtype=float)
+            if p.shape != (3,) or not np.all(np.isfinite(p)):
+                raise InputError(f"expected a finite 3D spot (m), got shape {p.shape}", "p_camera")
+        except InputError as exc:
+            self.rejected += 1
+            log.warning("online calibration: sample dropped (%s: %s)", exc.where, exc.reason)
+            return False
+        return self.add_sample(qs, transform_points(world_T_camera, p), board=board, t=t)
+
+    @property
+    def n_samples(self) -> int:
+        with self._lock:
+            return len(self._samples)
+
+    # --- the refit thread ------------------------------------------------------------------
+    def start(self) -> OnlineCalibrator:
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        with self._lock:
+            self._closing = True
+            self._wake.notify()
+        if self._thread.is_alive():
+            self._thread.join(timeout=10)
+
+    def wait_idle(self, timeout: float) -> bool:
+        """Block until every queued sample has been through a refit attempt (tests, studies)."""
+        return self._idle.wait(timeout)
+
+    def _loop(self) -> None:
+        while True:
+            with self._lock:
+                while not self._pending and not self._closing:
+                    self._wake.wait()
+                if self._closing:
+                    return
+                self._pending = False
+                samples = list(self._samples)
+            try:
+                self.refit_now(samples)
+            except Exception:  # a bug must not end online calibration or touch the planner
+                log.exception("online calibration: refit crashed; calibration unchanged")
+            with self._lock:
+                if not self._pending:
+                    self._idle.set()
+
+    def refit_now(self, samples: list[SpotSample]) -> RefitResult:
+        """One refit attempt on ``samples``; on acceptance write, rebuild, install, publish."""
+        result = refit(samples, self.current, self.nominal, loss_scale=self.loss_scale)
+        self.refits += 1
+        self.last = result
+        if not result.accepted:
+            log.info("online calibration: refit refused (%s)", result.reason)
+            return result
+        cal = result.calibration
+        assert cal.document is not None
+        write_atomically(self.out_file, cal.document)
+        handler = self.rebuild(self.out_file) if self.rebuild is not None else None
+        self.current = cal
+        if self.on_update is not None:
+            self.on_update(handler, cal)
+        if self.publish is not None:
+            self.publish(self.message(cal))
+        log.info("online calibration: %s, written to %s", result.reason, self.out_file)
+        return result
+
+    def message(self, cal: Calibration) -> bytes:
+        """The :class:`~schemas.messages.CalibrationMessage` body of ``cal``."""
+        from planner.service.bus import encode
+        from schemas.messages import CalibrationMessage
+
+        msg = CalibrationMessage(t=self.clock(), version=cal.version, samples=cal.samples,
+                                 calibration=dict(cal.document or {}))  # fmt: skip
+        return encode(msg)
+
+
+class RestSampler:
+    """Turns ``camera/spot`` frames into samples when every robot is at rest (module docstring).
+
+    ``joints(robot)`` returns ``(receive time, q, qd)`` or None (the node's JointCache.get).
+    """
+
+    def __init__(
+        self,
+        calibrator: OnlineCalibrator,
+        robots: tuple[str, ...],
+        joints: Callable[[str], tuple[float, Array, Array] | None],
+        max_age: float = 0.1,
+    ) -> None:
+        self.calibrator, self.robots, self.joints = calibrator, robots, joints
+        self.max_age = max_age
+        self._prev: Array | None = None  # joints at the previous usable frame
+        self._taken: Array | None = None  # joints of the last sample taken
+
+    def callback(self, sample: Any) -> None:
+        """Zenoh callback of ``<prefix>/camera/spot``: any body is fine (bad ones are logged)."""
+        from planner.service.bus import MAX_PAYLOAD_BYTES, decode
+        from schemas.messages import SpotMessage
+
+        if len(sample.payload) > MAX_PAYLOAD_BYTES:
+            return
+        try:
+            msg = decode(sample.payload.to_bytes(), SpotMessage)
+        except InputError as exc:
+            log.warning("bad camera spot: %s", exc)
+            return
+        self.on_spot(msg.p_camera, msg.confidence)
+
+    def on_spot(self, p_camera: Any, confidence: float) -> bool:
+        """One detected spot (camera frame, m); True when it became a sample."""
+        q = self._rest_q()
+        if q is None or p_camera is None or not confidence >= MIN_CONFIDENCE:
+            self._prev = q
+            return False
+        same = self._prev is not None and float(np.max(np.abs(q - self._prev))) < SAME_Q
+        self._prev = q
+        if not same:
+            return False  # wait for a second frame at the same configuration
+        if self._taken is not None and float(np.max(np.abs(q - self._taken))) < SAME_Q:
+            return False  # this rest configuration has its sample already
+        self._taken = q
+        return self.calibrator.add_camera_spot(q, p_camera)
+
+    def _rest_q(self) -> Array | None:
+        now, parts = time.monotonic(), []
+        for r in self.robots:
+            entry = self.joints(r)
+            if entry is None or now - entry[0] > self.max_age:
+                return None
+            _, q, qd = entry
+            if qd.shape != q.shape or not float(np.max(np.abs(qd), initial=0.0)) < REST_QD:
+                return None
+            parts.append(q)
+        return np.concatenate(parts)

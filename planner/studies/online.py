@@ -1,0 +1,211 @@
+"""``beamrelay study online``: open-loop error of the next targets as online samples accrue.
+
+Setup: ``scenarios/paper_n1.yaml`` (N = 1 UR5e, laser, D435 looking at a board). One trial:
+
+1. the TRUE geometry is the scenario's (nominal) one with the laser turned by
+   ``LASER_DEG`` about a random axis across its beam and the mirror mount shifted by
+   ``MIRROR_MM`` along its normal (the camera pose is taken as calibrated);
+2. the planner solves targets drawn uniformly on the board's top face (with its normal)
+   with the product's :class:`planner.ik.BeamIK` on the calibration in force, open loop;
+   the simulated camera (:class:`drivers.camera.sim.SimCamera` on the true geometry, its
+   D435 spot model) measures the spot at those joints, the planner maps it to the world
+   with its camera pose, and the pair is one sample of
+   :func:`planner.calibration.online.refit`, which runs after every sample (as the node's
+   background thread does) and may refuse;
+3. after 0, 5, 10 and 20 samples the next ``N_EVAL`` targets (the same set at every
+   checkpoint) are planned open loop with the calibration in force, and their true error
+   is the distance on the board between the true beam's spot and the target.
+
+Figures: median and p95 of that error (mm) over all trials' evaluation targets per
+checkpoint, the fraction of refits accepted, and the calibration version reached.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from planner.data import shipped_scenario
+from planner.model.system import System
+from planner.model.transforms import Array, axis_angle_to_matrix, make_T, transform_points
+from planner.studies import common
+
+if TYPE_CHECKING:
+    from planner.calibration.online import SpotSample
+
+TRIALS = 10  # the default of --trials and of `study all`
+CHECKPOINTS = (0, 5, 10, 20)
+N_EVAL = 20  # evaluation targets per checkpoint and trial
+MAX_MISSES = 200  # targets without a solution or a seen spot before a trial gives up
+LASER_DEG = 0.4  # true laser tilt vs the scenario, deg
+MIRROR_MM = 3.0  # true mirror-mount shift along its normal vs the scenario, mm
+BOARD = "board"  # the scene box the targets lie on
+MARGIN = 0.3  # targets within +-(0.5 - MARGIN) of the board's width around its centre
+SCENARIO = shipped_scenario("paper_n1.yaml")
+
+
+def perturbed_truth(nominal: System, rng: np.random.Generator) -> System:
+    """The nominal system with the laser tilted by ``LASER_DEG`` about a random axis across
+    its beam and the (first) mirror mount shifted ``MIRROR_MM`` along its normal."""
+    L = nominal.world_T_laser
+    axis = np.cross(L[:3, 2], rng.normal(size=3))
+    axis *= np.deg2rad(LASER_DEG) / np.linalg.norm(axis)
+    L_true = make_T(axis_angle_to_matrix(axis) @ L[:3, :3], L[:3, 3])
+    robot = nominal.robots[0]
+    M = robot.mirror.flange_T_mirror
+    M_true = M.copy()
+    M_true[:3, 3] += M[:3, 2] * 1e-3 * MIRROR_MM * rng.choice([-1.0, 1.0])
+    return nominal.with_params(L_true, {robot.name: M_true})
+
+
+def board_face(items: list[Any]) -> tuple[Array, Array, Array]:
+    """Centre (m), unit normal and the two in-plane half extents' axes (3 x 2, m) of the
+    top face of the ``BOARD`` box, in the world."""
+    item = next(i for i in items if i.name == BOARD and i.shape == "box")
+    T, ext = item.world_T_object, item.extents
+    centre = T[:3, 3] + T[:3, 2] * ext[2] / 2
+    half = T[:3, :2] * (ext[:2] * (0.5 - MARGIN))
+    return centre, T[:3, 2], half
+
+
+class World:
+    """The simulated truth: the sim camera on the true system, and the board's face."""
+
+    def __init__(self, scn: Any, truth: System, seed: int) -> None:
+        from drivers.camera.sim import SimCamera
+        from planner.io.scenario import scene_objects
+
+        items = scene_objects(scn)
+        self.truth = truth
+        self.camera = SimCamera(truth, items, stride=32, seed=seed)
+        self.centre, self.normal, self.half = board_face(items)
+
+    def draw(self, rng: np.random.Generator, n: int) -> Array:
+        """``n`` targets on the board face (world, m)."""
+        return self.centre + rng.uniform(-1, 1, (n, 2)) @ self.half.T
+
+    def measure(self, q: Array) -> Array | None:
+        """The camera-measured spot (camera frame, m) at stacked joints ``q``, or None."""
+        for name, qr in self.truth.split_q(q).items():
+            self.camera.on_joint_state(name, qr)
+        reading = self.camera.spot()
+        return None if reading is None else reading.p_camera
+
+    def true_error(self, q: Array, target: Array) -> float:
+        """Distance (m) on the board plane between the true spot at ``q`` and ``target``."""
+        from planner.beam.graph import BeamModel
+
+        return float(BeamModel(self.truth).trace(q, target, self.normal).error)
+
+
+def trial(seed: int, trial_no: int) -> list[dict[str, Any]]:
+    """One trial: a row per (checkpoint, evaluation target) with the true error (mm)."""
+    from planner.calibration.online import Calibration, SpotSample, refit
+    from planner.ik import BeamIK
+    from planner.io.scenario import load_scenario, system_from_scenario
+
+    scn = load_scenario(SCENARIO)
+    nominal = system_from_scenario(scn)
+    rng = common.trial_rng(seed, trial_no)
+    world = World(scn, perturbed_truth(nominal, rng), seed * 1000 + trial_no)
+    eval_targets = world.draw(rng, N_EVAL)
+    cal, q_prev = Calibration(0, nominal), nominal.home
+    samples: list[SpotSample] = []
+    ik, tried, accepted, rows = BeamIK(nominal), 0, 0, []
+    assert nominal.camera is not None
+    misses = 0
+    for checkpoint in CHECKPOINTS:
+        while len(samples) < checkpoint and misses < MAX_MISSES:
+            target = world.draw(rng, 1)[0]
+            sol = ik.solve(target, world.normal, q_prev)
+            p_cam = None if sol.q is None else world.measure(sol.q)
+            if sol.q is None or p_cam is None:
+                misses += 1
+                continue
+            q_prev = sol.q
+            spot = transform_points(cal.system.camera.world_T_camera, p_cam)  # type: ignore[union-attr]
+            samples.append(SpotSample(sol.q, spot))
+            res = refit(samples, cal, nominal)
+            tried, accepted = tried + 1, accepted + int(res.accepted)
+            if res.accepted:
+                cal = res.calibration
+                ik = BeamIK(cal.system)
+        for j, target in enumerate(eval_targets):
+            sol = ik.solve(target, world.normal, nominal.home)
+            err = np.nan if sol.q is None else 1e3 * world.true_error(sol.q, target)
+            rows.append({"trial": trial_no, "samples": checkpoint, "taken": len(samples),
+                         "target": j,
+                         "version": cal.version, "error_mm": err,
+                         "refits": tried, "accepted": accepted})  # fmt: skip
+    return rows
+
+
+def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Median, p95 and max of the true error (mm) per checkpoint, over trials and targets."""
+    out = []
+    for n in CHECKPOINTS:
+        sel = [r for r in rows if r["samples"] == n]
+        e = np.array([r["error_mm"] for r in sel], dtype=float)
+        ok = e[np.isfinite(e)]
+        last = [r for r in sel if r["target"] == 0]
+        out.append({
+            "samples": n,
+            "median_mm": float(np.median(ok)) if ok.size else np.nan,
+            "p95_mm": float(np.percentile(ok, 95)) if ok.size else np.nan,
+            "max_mm": float(ok.max()) if ok.size else np.nan,
+            "unsolved": int(e.size - ok.size),
+            "version_median": float(np.median([r["version"] for r in last])),
+            "refits_accepted": f"{sum(r['accepted'] for r in last)}/{sum(r['refits'] for r in last)}",
+        })  # fmt: skip
+    return out
+
+
+def plot(summary: list[dict[str, Any]], path: Path) -> None:
+    """Median and p95 open-loop error vs samples."""
+    plt = common.pyplot()
+    fig, ax = plt.subplots(figsize=(5.5, 3.6))
+    n = [s["samples"] for s in summary]
+    ax.plot(n, [s["median_mm"] for s in summary], "o-", label="median")
+    ax.plot(n, [s["p95_mm"] for s in summary], "s--", label="p95")
+    ax.set_yscale("log")
+    ax.set_xlabel("online samples (executed targets with a measured spot)")
+    ax.set_ylabel("open-loop error of the next targets (mm)")
+    ax.set_title(f"truth off by {LASER_DEG} deg (laser), {MIRROR_MM} mm (mirror)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    common.save_figure(fig, path)
+
+
+def main(trials: int, seed: int, out: Path, workers: int | None, sched: str | None) -> dict:
+    """Open-loop error of the next targets after 0, 5, 10, 20 online calibration samples
+    (paper_n1, truth off by 0.4 deg at the laser and 3 mm at the mirror, D435 spot noise)."""
+    jobs = [(seed, t) for t in range(trials)]
+    rows = [
+        r
+        for part in common.parallel_map(trial, jobs, workers=workers, scheduler=sched)
+        for r in part
+    ]
+    summary = summarise(rows)
+    folder = common.out_dir(out)
+    plot(summary, folder / "online.png")
+    lines = [
+        "# Online calibration refinement",
+        "",
+        f"{trials} trials, seed {seed}, {N_EVAL} evaluation targets per checkpoint on the"
+        f" board; true geometry off by {LASER_DEG} deg (laser) and {MIRROR_MM} mm (mirror"
+        " mount, along its normal). Errors: true spot vs target on the board, open loop.",
+        "",
+        common.markdown_table(summary),
+        "",
+    ]
+    common.write_report(folder, lines, {"online.csv": rows, "summary.csv": summary},
+                        ("open-loop error vs samples", "online.png"))  # fmt: skip
+    for s in summary:
+        print(f"after {s['samples']:>2} samples: median {s['median_mm']:.3f} mm,"
+              f" p95 {s['p95_mm']:.3f} mm (version {s['version_median']:g})")  # fmt: skip
+    return {"study": "online", "trials": trials, "checkpoints": summary}
+
+
+command = common.study_command(main, TRIALS, Path("reports/online"))

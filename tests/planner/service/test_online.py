@@ -1,0 +1,307 @@
+"""The node's online calibration: background refits, the includable file, the published
+version, the swap between requests, the rest sampler, and bad input of every kind."""
+
+from __future__ import annotations
+
+import shutil
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from planner.beam.graph import BeamModel
+from planner.calibration.simulate import simulate_beam
+from planner.data import shipped_scenario
+from planner.errors import InputError
+from planner.io.scenario import load_scenario, system_from_scenario
+from planner.model.system import System
+from planner.model.transforms import axis_angle_to_matrix, inv_T, make_T, transform_points
+from planner.service.bus import Keys, encode, open_session
+from planner.service.client import PlanClient, make_request
+from planner.service.handler import handler_from_scenario
+from planner.service.node import PlannerNode
+from planner.service.online import (
+    OnlineCalibrator,
+    RestSampler,
+    check_output_file,
+    is_online_file,
+)
+from schemas.messages import CalibrationMessage, JointState, SpotMessage
+from tests.drivers.conftest import free_port, wait_for
+from tests.planner.raw_zenoh import Inbox, raw_session
+
+PREFIX = "onlinetest"
+AIM = np.array([-0.492, -0.55, -0.06])  # on paper_n1's board
+
+
+@pytest.fixture(scope="module")
+def scenario(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("scn")
+    return Path(shutil.copy(shipped_scenario("paper_n1.yaml"), folder / "paper_n1.yaml"))
+
+
+@pytest.fixture(scope="module")
+def nominal(scenario: Path) -> System:
+    return system_from_scenario(load_scenario(scenario))
+
+
+@pytest.fixture(scope="module")
+def truth(nominal: System) -> System:
+    """Laser tilted 0.4 deg, mirror mount 3 mm along its normal."""
+    L = nominal.world_T_laser @ make_T(axis_angle_to_matrix(np.deg2rad([0.3, -0.26, 0.0])))
+    M = nominal.robots[0].mirror.flange_T_mirror @ make_T(p=[0.0, 0.0, 0.003])
+    return nominal.with_params(L, {"arm0": M})
+
+
+def true_samples(truth: System, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Noise-free spots of the truth at ``n`` varied configurations, on 2 placements."""
+    data = simulate_beam(truth, "arm0", n // 2, 2, aim_world=AIM, rng=np.random.default_rng(seed))
+    return data.q, data.spots_world
+
+
+def test_output_file_never_overwrites_a_users_file(tmp_path: Path, scenario: Path) -> None:
+    mine = tmp_path / "calibration.yaml"
+    mine.write_text("system: {}\nreport: {kind: beam}\n")
+    with pytest.raises(InputError, match="refusing to overwrite"):
+        check_output_file(mine, scenario)
+    with pytest.raises(InputError, match="scenario itself"):
+        check_output_file(scenario, scenario)
+    with pytest.raises(InputError, match="directory"):
+        check_output_file(tmp_path, scenario)
+    fresh = check_output_file(tmp_path / "sub" / "online.yaml", scenario)
+    assert fresh.is_absolute() and not fresh.exists()
+    (tmp_path / "bin.yaml").write_bytes(b"\xff\xfe\x00")
+    assert not is_online_file(tmp_path / "bin.yaml")
+
+
+def calibrator(
+    nominal: System, scenario: Path, out: Path, **kw: Any
+) -> tuple[OnlineCalibrator, list]:
+    got: list[Any] = []
+    cal = OnlineCalibrator(
+        nominal, out, rebuild=lambda f: handler_from_scenario(scenario, (f,)),
+        publish=got.append, **kw,
+    )  # fmt: skip
+    return cal, got
+
+
+def test_refits_write_an_includable_file_and_publish_versions(
+    tmp_path: Path, scenario: Path, nominal: System, truth: System
+) -> None:
+    out = tmp_path / "online.yaml"
+    cal, bodies = calibrator(nominal, scenario, out)
+    installed: list[tuple[Any, Any]] = []
+    cal.on_update = lambda h, c: installed.append((h, c))
+    cal.start()
+    try:
+        q, spots = true_samples(truth, 12)
+        for qk, sk in zip(q, spots, strict=True):
+            assert cal.add_sample({"arm0": qk}, sk)
+        assert cal.wait_idle(120)
+    finally:
+        cal.close()
+    msgs = [CalibrationMessage.model_validate_json(b) for b in bodies]
+    versions = [m.version for m in msgs]
+    assert versions and versions == list(range(1, len(versions) + 1))
+    assert msgs[-1].version == cal.current.version and msgs[-1].samples == cal.current.samples
+    assert [c.version for _, c in installed] == versions
+    assert is_online_file(out) and check_output_file(out, scenario) == out.resolve()
+    # a scenario including the file gets exactly the calibrated values ...
+    user = scenario.parent / "with_online.yaml"
+    user.write_text(scenario.read_text() + f"include: [{out}]\n")
+    loaded = system_from_scenario(load_scenario(user))
+    np.testing.assert_allclose(loaded.world_T_laser, cal.current.system.world_T_laser, atol=1e-12)
+    M = cal.current.system.robots[0].mirror.flange_T_mirror
+    np.testing.assert_allclose(loaded.robots[0].mirror.flange_T_mirror, M, atol=1e-12)
+    assert msgs[-1].calibration["system"] == cal.current.document["system"]  # type: ignore[index]
+    # ... which predict the true spots (noise-free samples: exact in the observable directions)
+    model = BeamModel(loaded)
+    assert max(model.trace(qk, sk).error for qk, sk in zip(q, spots, strict=True)) < 1e-8
+    assert installed[-1][0].system.world_T_laser.tolist() == loaded.world_T_laser.tolist()
+
+
+BAD_SAMPLES: list[tuple[Any, Any]] = [
+    (None, None),
+    ("x", [1, 2]),
+    ([np.nan] * 6, [0.0, 0.0, 0.0]),
+    ({"arm9": [0.0] * 6}, [0.0, 0.0, 0.0]),
+    ({"arm0": [0.0] * 6}, [float("inf"), 0.0, 0.0]),
+    ({"arm0": list(range(10**5))}, [0.0, 0.0, 0.0]),
+    ({"arm0": [0.0] * 6}, [-492.0, -550.0, -60.0]),  # millimetres
+    ({"arm0": [[0.0] * 6]}, {"x": 1}),
+]
+
+
+def test_garbage_never_crashes_the_refit_thread(
+    tmp_path: Path, scenario: Path, nominal: System, truth: System
+) -> None:
+    out = tmp_path / "online.yaml"
+    crashes = {"n": 0}
+
+    def flaky(f: Path) -> Any:
+        if crashes["n"] == 0:
+            crashes["n"] += 1
+            raise RuntimeError("rebuild bug")
+        return handler_from_scenario(scenario, (f,))
+
+    cal, bodies = calibrator(nominal, scenario, out)
+    cal.rebuild = flaky
+    cal.start()
+    try:
+        for q, s in BAD_SAMPLES:
+            assert not cal.add_sample(q, s)
+            assert not cal.add_camera_spot(q, s)
+        assert cal.rejected == 2 * len(BAD_SAMPLES) and cal.n_samples == 0
+        q, spots = true_samples(truth, 10, seed=1)
+        for qk, sk in zip(q, spots, strict=True):
+            cal.add_sample(qk, sk)
+            assert cal.wait_idle(60)  # one refit per sample: the first accepted one crashes
+        assert cal._thread.is_alive()
+    finally:
+        cal.close()
+    assert crashes["n"] == 1 and cal.current.version >= 1 and bodies
+
+
+class FakeJoints:
+    def __init__(self) -> None:
+        self.entry: tuple[float, np.ndarray, np.ndarray] | None = None
+
+    def set(self, q: Any, qd: Any, age: float = 0.0) -> None:
+        self.entry = (time.monotonic() - age, np.asarray(q, float), np.asarray(qd, float))
+
+    def __call__(self, robot: str) -> tuple[float, np.ndarray, np.ndarray] | None:
+        return self.entry
+
+
+def test_rest_sampler_takes_one_sample_per_rest_configuration(nominal: System) -> None:
+    taken: list[tuple[Any, Any]] = []
+    cal = OnlineCalibrator(nominal, Path("unused.yaml"))
+    cal.add_camera_spot = lambda q, p, **_: taken.append((q, p)) or True  # type: ignore[method-assign]
+    joints = FakeJoints()
+    sampler = RestSampler(cal, ("arm0",), joints)
+    q0, p = nominal.home, [0.01, 0.02, 0.9]
+    assert not sampler.on_spot(p, 1.0)  # no joint state yet
+    joints.set(q0, [0.0, 0.3, 0, 0, 0, 0])
+    assert not sampler.on_spot(p, 1.0) and not sampler.on_spot(p, 1.0)  # moving
+    joints.set(q0, np.zeros(6))
+    assert not sampler.on_spot(p, 1.0)  # first frame at rest
+    assert sampler.on_spot(p, 1.0)  # second frame at the same joints: a sample
+    assert not sampler.on_spot(p, 1.0)  # that configuration has its sample
+    q1 = q0 + 0.01
+    joints.set(q1, np.zeros(6))
+    assert not sampler.on_spot(p, 0.1)  # a dim spot is no sample
+    assert not sampler.on_spot(None, 1.0)  # no spot seen
+    assert sampler.on_spot(p, 1.0)  # the joints were at q1 on the frame before as well
+    joints.set(q1, np.zeros(6), age=1.0)
+    assert not sampler.on_spot(p, 1.0)  # stale joint state
+    joints.set(q1, np.zeros(6))
+    assert not sampler.on_spot(p, 1.0) and not sampler.on_spot(p, 1.0)  # q1 has its sample
+    assert len(taken) == 2 and np.allclose(taken[1][0], q1)
+    joints.set(q1, [np.nan] * 6)
+    assert not sampler.on_spot(p, 1.0)
+
+
+@pytest.fixture
+def bus(scenario: Path, nominal: System, tmp_path: Path) -> Iterator[tuple[str, PlannerNode]]:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    session = open_session(listen=True, endpoint=endpoint)
+    online, _ = calibrator(nominal, scenario, tmp_path / "online.yaml")
+    node = PlannerNode(handler_from_scenario(scenario), session, Keys(PREFIX), online=online)
+    node.start()
+    yield endpoint, node
+    node.close()
+    session.close()
+
+
+def test_node_publishes_versions_and_plans_with_the_latest(
+    bus: tuple[str, PlannerNode], nominal: System, truth: System
+) -> None:
+    endpoint, node = bus
+    keys = Keys(PREFIX)
+    raw = raw_session(endpoint)
+    inbox = Inbox(raw, keys.calibration)
+    try:
+        with PlanClient(endpoint=endpoint, prefix=PREFIX) as client:
+            assert client.wait_for_node("planner", 10.0)
+            target = AIM + np.array([0.01, -0.02, 0.0])
+            before = client.request(make_request([target]))
+            assert before["metrics"]["extra"]["calibration_version"] == 0
+            # the rest sampler over the bus: joints at rest and frames of a spot
+            assert nominal.camera is not None
+            spot_w = BeamModel(truth).trace(nominal.home).spot
+            p_cam = transform_points(inv_T(nominal.camera.world_T_camera), spot_w)
+            js = JointState(t=time.time(), names=[f"j{i}" for i in range(6)],
+                            q=nominal.home.tolist(), qd=[0.0] * 6)  # fmt: skip
+            for _ in range(4):  # one sample however many frames at this rest configuration
+                raw.put(keys.joint_states("arm0"), encode(js))
+                time.sleep(0.05)
+                raw.put(
+                    keys.camera_spot,
+                    encode(SpotMessage(t=time.time(), p_camera=p_cam.tolist(), confidence=1.0)),
+                )
+                time.sleep(0.05)
+            raw.put(keys.camera_spot, b"\xff not json")
+            raw.put(keys.camera_spot, b'{"schema": "beamrelay.spot/1", "t": 1, "p_camera": [1, 2]}')
+            wait_for(
+                lambda: node.online is not None and node.online.n_samples == 1, 5.0, "a sample"
+            )
+            # the servo's API
+            q, spots = true_samples(truth, 12, seed=2)
+            assert node.online is not None
+            for qk, sk in zip(q, spots, strict=True):
+                node.online.add_sample({"arm0": qk}, sk)
+            assert node.online.wait_idle(120)
+            version = node.online.current.version
+            assert version >= 1
+
+            def latest() -> bool:
+                return any(b.get("version") == version for b in inbox.bodies())
+
+            wait_for(latest, 5.0, "the latest calibration message")
+            last = CalibrationMessage.model_validate(inbox.bodies()[-1])
+            assert last.version == node.online.current.version == node.calibration_version >= 1
+            after = client.request(make_request([target]))
+    finally:
+        inbox.close()
+        raw.close()
+    assert after["metrics"]["extra"]["calibration_version"] == last.version
+    sol = after["solutions"][0]
+    assert sol["status"] == "ok"
+    # planned with the refined model, the TRUE beam lands on the target
+    q_after = np.asarray(sol["q"]["arm0"])
+    err_after = BeamModel(truth).trace(q_after, target).error
+    q_before = np.asarray(before["solutions"][0]["q"]["arm0"])
+    err_before = BeamModel(truth).trace(q_before, target).error
+    assert err_before > 1e-3 and err_after < 1e-6
+
+
+def test_a_request_in_progress_keeps_its_calibration(nominal: System) -> None:
+    """install_calibration during serve: that request reports the version it started with."""
+    from planner.service.handler import RequestHandler, make_plan_fn
+
+    started, release = threading.Event(), threading.Event()
+    inner = make_plan_fn(nominal, {"name": "t"})
+
+    def slow(targets: Any, start: Any, traj: bool) -> dict[str, Any]:
+        started.set()
+        release.wait(10)
+        return inner(targets, start, traj)
+
+    node = PlannerNode(RequestHandler(nominal, slow), session=None,
+                       online=OnlineCalibrator(nominal, Path("unused.yaml")))  # fmt: skip
+    body = encode(make_request([AIM]))
+    out: dict[str, Any] = {}
+    t = threading.Thread(target=lambda: out.update(plan=node.serve(body)))
+    t.start()
+    assert started.wait(10)
+    node.install_calibration(RequestHandler(nominal, inner), type("C", (), {"version": 7})())
+    release.set()
+    t.join(10)
+    import json
+
+    assert json.loads(out["plan"])["metrics"]["extra"]["calibration_version"] == 0
+    assert json.loads(node.serve(body))["metrics"]["extra"]["calibration_version"] == 7
