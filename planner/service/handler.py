@@ -12,8 +12,8 @@ it over :mod:`planner.planning` and :mod:`planner.path.timing`.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -31,7 +31,21 @@ if TYPE_CHECKING:
     from planner.safety.model import Safety
     from planner.service.closed_loop import ClosedLoopConfig
 
-PlanFn = Callable[[Targets, dict[str, Array] | None, bool], dict[str, Any]]
+
+
+class PlanFn(Protocol):
+    """``plan_fn(targets, start, trajectory, dwell=None) -> plan.json dict``: ``dwell`` (s)
+    overrides the scenario's ``trajectory.dwell`` (a request's ``dwell``)."""
+
+    def __call__(
+        self,
+        targets: Targets,
+        start: dict[str, Array] | None,
+        trajectory: bool,
+        dwell: float | None = None,
+    ) -> dict[str, Any]: ...
+
+
 #: path requests are resampled every PATH_SPACING m, at most MAX_PATH_SAMPLES samples
 PATH_SPACING = defaults.PATH_SPACING_M
 MAX_PATH_SAMPLES = 2000
@@ -156,9 +170,16 @@ def make_plan_fn(
     timing = settings or TrajectorySettings()
 
     def plan_fn(
-        targets: Targets, start: dict[str, Array] | None, trajectory: bool
+        targets: Targets,
+        start: dict[str, Array] | None,
+        trajectory: bool,
+        dwell: float | None = None,
     ) -> dict[str, Any]:
         q0 = None if start is None else system.stack_q(start)
+        timing_now, scn_now = timing, scenario
+        if dwell is not None:  # the plan echoes the dwell it was timed with
+            timing_now = replace(timing, dwell=dwell)
+            scn_now = {**scenario, "trajectory": {**scenario.get("trajectory", {}), "dwell": dwell}}
         if targets.kind == "path":
             from planner.ik import IKOptions
 
@@ -171,13 +192,13 @@ def make_plan_fn(
         if trajectory:
             q_from = system.home if q0 is None else q0
             if safety is None:
-                traj = timed_trajectory(system, targets, sols, q_from, timing)
+                traj = timed_trajectory(system, targets, sols, q_from, timing_now)
             else:
-                timed, sols, _, _ = time_safely(system, targets, sols, timing, safety=safety,
+                timed, sols, _, _ = time_safely(system, targets, sols, timing_now, safety=safety,
                                                 order="given", path=None, progress=None,
                                                 q_start=q_from)  # fmt: skip
                 traj = None if timed is None else timed.trajectory.to_plan_dict(system)
-        return plan_document(system, targets, sols, scenario, traj, verify=False)
+        return plan_document(system, targets, sols, scn_now, traj, verify=False)
 
     return plan_fn
 

@@ -419,7 +419,7 @@ class PlannerNode:
         elif req.trajectory:  # a preview: the trajectory execute would send, not sent
             start = self.start_state()
         timed = (req.execute and not req.closed_loop) or req.trajectory
-        plan = handler.plan_fn(targets, start, timed)
+        plan = handler.plan_fn(targets, start, timed, dwell=req.dwell)
         plan["id"] = req.id
         if self.online is not None:
             plan["metrics"].setdefault("extra", {})["calibration_version"] = version

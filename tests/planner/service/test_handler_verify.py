@@ -39,3 +39,21 @@ def test_a_solution_rejected_by_verification_is_not_in_the_trajectory() -> None:
     assert np.min(np.max(np.abs(q - q1), axis=1)) < 1e-9  # the verified target is visited
     assert dist.min() > 0.02, f"the trajectory passes {dist.min():.4f} rad from it"
     assert plan["metrics"]["n_ok"] == 1
+
+
+def test_a_request_dwell_overrides_the_scenarios_and_the_plan_says_so(tmp_path) -> None:
+    from planner.verify.check import check_plan
+
+    loaded = load_scenario(shipped_scenario("paper_n1.yaml"))
+    system = system_from_scenario(loaded)
+    points = targets_from_scenario(loaded, system).points[[0, 1, 2]]
+    targets = Targets(points, None, kind="points")
+    scenario = resolved_scenario_dict(loaded)
+    plan_fn = make_plan_fn(system, scenario)
+    plain, dwelt = plan_fn(targets, None, True), plan_fn(targets, None, True, dwell=0.25)
+    spans = [s["t1"] - s["t0"] for s in dwelt["trajectory"]["segments"] if s["kind"] == "dwell"]
+    assert len(spans) == 3 and np.allclose(spans, 0.25, atol=1.5 / 500)  # one sample at 500 Hz
+    assert dwelt["scenario"]["trajectory"]["dwell"] == 0.25
+    assert plain["scenario"]["trajectory"]["dwell"] == scenario["trajectory"]["dwell"]
+    assert dwelt["trajectory"]["t"][-1] > plain["trajectory"]["t"][-1] + 0.7
+    assert not [f for r in check_plan(dwelt, tmp_path) for f in r.findings]

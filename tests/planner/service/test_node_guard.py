@@ -41,10 +41,10 @@ class Rig:
         self.entered = threading.Event()
         plan_fn = make_plan_fn(system, {})
 
-        def held(*args: Any) -> dict[str, Any]:
+        def held(*args: Any, **kw: Any) -> dict[str, Any]:
             self.entered.set()
             self.gate.wait(60)
-            return plan_fn(*args)
+            return plan_fn(*args, **kw)
 
         self.node = PlannerNode(RequestHandler(system, held), self.hub, Keys(PREFIX),
                                 progress=progress, bus=BusAddress(self.endpoint))  # fmt: skip
