@@ -11,7 +11,6 @@ it over :mod:`planner.planning` and :mod:`planner.path.timing`.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
