@@ -185,7 +185,8 @@ class SimCamera:
         if not all(r in self.q for r in self.robot_names):
             return None
         q = self.system.stack_q(self.q)
-        if self._last is not None and np.array_equal(self._last[0], q):
+        static = not self.world.moving  # a moving object moves the spot at fixed joints
+        if static and self._last is not None and np.array_equal(self._last[0], q):
             return self._last[1]  # the scene is static: same joints, same spot
         hit = self._trace_spot(q)
         self._last = (q, hit)

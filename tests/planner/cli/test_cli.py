@@ -106,6 +106,7 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
         "plan",
         "safety",
         "service",
+        "servo",
         "track",
     ]
 
