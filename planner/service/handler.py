@@ -31,7 +31,6 @@ if TYPE_CHECKING:
     from planner.service.closed_loop import ClosedLoopConfig
 
 
-
 class PlanFn(Protocol):
     """``plan_fn(targets, start, trajectory, dwell=None) -> plan.json dict``: ``dwell`` (s)
     overrides the scenario's ``trajectory.dwell`` (a request's ``dwell``)."""
