@@ -286,10 +286,10 @@ def test_a_request_in_progress_keeps_its_calibration(nominal: System) -> None:
     started, release = threading.Event(), threading.Event()
     inner = make_plan_fn(nominal, {"name": "t"})
 
-    def slow(targets: Any, start: Any, traj: bool) -> dict[str, Any]:
+    def slow(targets: Any, start: Any, traj: bool, dwell: float | None = None) -> dict[str, Any]:
         started.set()
         release.wait(10)
-        return inner(targets, start, traj)
+        return inner(targets, start, traj, dwell)
 
     node = PlannerNode(RequestHandler(nominal, slow), session=None,
                        online=OnlineCalibrator(nominal, Path("unused.yaml")))  # fmt: skip
