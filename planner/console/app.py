@@ -71,6 +71,9 @@ class Console:
         self.cloud_frames = 0
         self._stop = threading.Event()
         self._edit = threading.Lock()
+        self._preview_wanted = threading.Event()
+        self._previewing = threading.Lock()
+        self._clicked_at = 0.0  # perf_counter s of the last click on the cloud
 
     # lifecycle ----------------------------------------------------------------------------
     def start(self) -> Console:
@@ -217,9 +220,24 @@ class Console:
         self._edit_list(lambda t: t.add(p, normal))
         self.latency["pick"] = time.perf_counter() - t0
         if self.panel.auto_preview.value:
-            self._run(self._do_preview)
-            self.latency["click_to_preview"] = time.perf_counter() - t0
-            self._show_stats()
+            self._clicked_at = t0
+            self._auto_preview()
+
+    def _auto_preview(self) -> None:
+        """Preview the current list; clicks during a running preview coalesce into one more
+        preview after it (of the list as it is then), so the last click is always shown."""
+        self._preview_wanted.set()
+        while self._previewing.acquire(blocking=False):
+            try:
+                while self._preview_wanted.is_set():
+                    self._preview_wanted.clear()
+                    self._run(self._do_preview)
+                self.latency["click_to_preview"] = time.perf_counter() - self._clicked_at
+                self._show_stats()
+            finally:
+                self._previewing.release()
+            if not self._preview_wanted.is_set():
+                return  # else a click came in after the loop: serve it
 
     def _edit_list(self, edit: Any) -> None:
         with self._edit:
@@ -280,11 +298,23 @@ class Console:
         self.answer = answer
         self.preview = preview_of(answer.plan, self.system, self.scene)
         self._draw_preview(self.preview)
-        self._message(answer_markdown(answer, self.preview, executed))
+        if answer.sweep is not None and len(answer.sweep.marked):
+            self.server.scene.add_point_cloud("/preview/marked", answer.sweep.marked,
+                                              colors=SPOT_COLOUR, point_size=0.003)  # fmt: skip
+        self._message(answer_markdown(answer, self.preview, executed, self._faults(executed)))
         duration = self.preview.duration
         self.panel.scrub.max = max(duration, 0.01)
         self.panel.scrub.disabled = duration <= 0
         self.latency["plan_round_trip"] = answer.seconds
+
+    def _faults(self, executed: bool) -> tuple[str, ...]:
+        """``robot: fault`` of every robot whose driver reports one (after an execution)."""
+        if not executed:
+            return ()
+        status = self.live.snapshot()["status"]
+        return tuple(f"{r}: {'protective stop' if st.value.protective_stop else st.value.fault}"
+                     for r, st in sorted(status.items())
+                     if st.value.fault or st.value.protective_stop)  # fmt: skip
 
     def _draw_preview(self, pv: Preview) -> None:
         sc = self.server.scene

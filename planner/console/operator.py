@@ -3,7 +3,8 @@
 Preview = a TargetRequest with ``trajectory: true`` (the planner plans the trajectory from
 the robots' current state, as it would for ``execute``, and sends nothing); execute = the
 same request with ``execute: true`` through :meth:`planner.service.client.PlanClient.execute`
-(which waits for the motion and measures the spot of every target); stop = a
+(which waits for the motion and measures the spot of every target; for a path, the spots
+seen during the motion are compared with it: :mod:`planner.console.sweep`); stop = a
 :class:`~schemas.messages.StopMessage` on ``<prefix>/stop``. One request at a time.
 """
 
@@ -13,9 +14,10 @@ import threading
 import time
 from typing import Any, NamedTuple
 
+from planner.console.sweep import Sweep, sweep_of
 from planner.model.transforms import Array
 from planner.service.bus import JSON, encode
-from planner.service.client import PlanClient, request_summary
+from planner.service.client import PlanClient, request_summary, world_T_camera_of
 from schemas.messages import StopMessage
 
 #: seconds to wait for a plan reply
@@ -24,12 +26,14 @@ PLAN_TIMEOUT = 30.0
 
 class Answer(NamedTuple):
     """A reply: the plan dict, the summary (:func:`planner.service.client.request_summary`),
-    the round trip (s) and the measured spots (world, m; None where unseen) if executed."""
+    the round trip (s), the measured spots (world, m; None where unseen) if executed, and
+    for an executed path what the camera saw of it (None otherwise)."""
 
     plan: dict[str, Any]
     summary: dict[str, Any]
     seconds: float
     spots: list[Array | None] | None
+    sweep: Sweep | None = None
 
 
 class Operator:
@@ -54,12 +58,25 @@ class Operator:
         return Answer(plan, request_summary(plan, None), dt, None)
 
     def execute(self, req: dict[str, Any]) -> Answer:
-        """Plan and execute ``req``, wait for the motion, measure the spots."""
+        """Plan and execute ``req``, wait for the motion, measure the spots (and the marked
+        path, for a path request)."""
         with self._claim():
-            t0 = time.perf_counter()
+            t0, since = time.perf_counter(), time.monotonic()
             plan, spots = self.client.execute({**req, "execute": True}, PLAN_TIMEOUT)
             dt = time.perf_counter() - t0
-        return Answer(plan, request_summary(plan, spots), dt, spots)
+        sweep = self._sweep(plan, since) if req.get("mode") == "path" else None
+        return Answer(plan, request_summary(plan, spots), dt, spots, sweep)
+
+    def _sweep(self, plan: dict[str, Any], since: float) -> Sweep | None:
+        """The marked path of an executed ``plan`` from the spots recorded since ``since``
+        (monotonic s); None when rejected or the camera is not fixed in the world."""
+        world_T_camera = world_T_camera_of(plan)
+        if plan.get("execution") != "accepted" or world_T_camera is None:
+            return None
+        rec = self.client.recorder
+        with rec.lock:
+            seen = [(p, q) for t, p, q, _ in rec.spots if t >= since]
+        return sweep_of(plan, seen, world_T_camera)
 
     def stop(self, reason: str = "operator pressed Stop") -> None:
         """Publish ``<prefix>/stop``: every driver brakes and switches the laser off."""

@@ -10,13 +10,16 @@ from typing import Any
 
 from planner.console.operator import Answer
 from planner.console.preview import Preview
+from planner.console.sweep import Sweep
 
 #: most per-target rows shown
 MAX_ROWS = 40
 
 
-def answer_markdown(answer: Answer, pv: Preview, executed: bool) -> str:
-    """Markdown summary of one reply (see the module docstring)."""
+def answer_markdown(answer: Answer, pv: Preview, executed: bool, faults: tuple[str, ...] = ()
+                    ) -> str:  # fmt: skip
+    """Markdown summary of one reply (see the module docstring); ``faults``: what the robot
+    drivers reported wrong after the motion (a stop, a lost heartbeat), shown first."""
     s = answer.summary
     head = (f"**{pv.n_ok}/{pv.n} targets solved**, trajectory {pv.duration:.2f} s, "
             f"reply in {1e3 * answer.seconds:.0f} ms (request {s.get('id')})")  # fmt: skip
@@ -25,18 +28,31 @@ def answer_markdown(answer: Answer, pv: Preview, executed: bool) -> str:
         verdict = s.get("execution") or "not executed"
         reason = f" ({s['execution_reason']})" if s.get("execution_reason") else ""
         lines.append(f"execution: **{verdict}**{reason}")
-        if "measured_error_median" in s:
+        lines += [f"**driver: {f}**" for f in faults]
+        if "measured_error_median" in s and answer.sweep is None:
             lines.append(
                 f"measured error: median {1e3 * s['measured_error_median']:.2f} mm, "
                 f"max {1e3 * s['measured_error_max']:.2f} mm over {s['n_measured']} targets"
             )
         lines += _closed_loop(answer.plan)
+        if answer.sweep is not None:
+            lines.append(sweep_line(answer.sweep))
     for f in pv.failed[:MAX_ROWS]:
         detail = f": {f.detail}" if f.detail else ""
         lines.append(f"#{f.target} failed: **{f.reason}**{detail}")
-    if executed:
+    if executed and answer.sweep is None:  # a path's samples: the marked path says it
         lines += _measured_rows(s["targets"])
     return "  \n".join(lines)
+
+
+def sweep_line(sw: Sweep) -> str:
+    """``marked path: ...`` — the camera's view of an executed path, in mm."""
+    if not len(sw.marked):
+        return f"marked path: **no spot seen while the laser was on** ({sw.unlit} with it off)"
+    return (f"marked path: {len(sw.marked)} spots with the laser on, covering "
+            f"{1e3 * sw.covered:.1f} of {1e3 * sw.length:.1f} mm; distance to the planned path "
+            f"median {1e3 * sw.deviation_median:.2f} mm, max {1e3 * sw.deviation_max:.2f} mm; "
+            f"{sw.unlit} spots seen with the laser planned off")  # fmt: skip
 
 
 def _measured_rows(rows: list[dict[str, Any]]) -> list[str]:

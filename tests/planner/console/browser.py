@@ -121,3 +121,41 @@ def project(position: np.ndarray, look_at: np.ndarray, up: np.ndarray, fov: floa
     c = np.column_stack([rel @ x, rel @ y, rel @ z])
     f = 0.5 * height / np.tan(0.5 * fov)
     return np.column_stack([width / 2 + f * c[:, 0] / c[:, 2], height / 2 + f * c[:, 1] / c[:, 2]])
+
+
+def select_option(d: Any, label: str, value: str, timeout: float = 20.0) -> None:
+    """Choose ``value`` in the dropdown labelled ``label`` the way a user does: open it,
+    click the option; waits until the input shows it."""
+    from selenium.webdriver.common.by import By
+
+    lab = d.find_element(By.XPATH, f"//label[normalize-space()='{label}']")
+    box = d.find_element(By.ID, lab.get_attribute("for"))
+    d.execute_script("arguments[0].scrollIntoView({block: 'center'});", box)
+    box.click()
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        options = [o for o in d.find_elements(By.CSS_SELECTOR, "[role=option]")
+                   if o.is_displayed() and o.text.strip() == value]  # fmt: skip
+        if options:
+            options[0].click()
+            break
+        time.sleep(0.1)
+    else:
+        raise AssertionError(f"no option {value!r} in the {label!r} dropdown")
+    while box.get_attribute("value") != value:
+        if time.monotonic() > end:
+            raise AssertionError(f"the {label!r} dropdown shows {box.get_attribute('value')!r}")
+        time.sleep(0.1)
+
+
+def click_world_point(d: Any, view: Any, rect: tuple[float, float, float, float],
+                      p: np.ndarray) -> None:  # fmt: skip
+    """Click the canvas where the page's starting camera ``view`` sees world point ``p``."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+
+    canvas = max(d.find_elements(By.TAG_NAME, "canvas"), key=lambda c: c.size["width"])
+    u, v = project(view.position, view.look_at, view.up, view.fov, p, rect[2], rect[3])[0]
+    ActionChains(d).move_to_element_with_offset(
+        canvas, round(float(u) - rect[2] / 2), round(float(v) - rect[3] / 2)
+    ).click().perform()

@@ -1,17 +1,21 @@
 """The operator console in a real (headless) browser on the simulated system.
 
 ``beamrelay up scenarios/paper_n1.yaml --console`` runs on a private bus; headless chromium
-opens the page; the test waits for the cloud to be drawn, clicks a known point of the board
-(its pixel computed from the page's starting camera), checks the target listed with the
-board's coordinates, plans, executes, and checks on the bus that the arm moved and that the
-spot the camera measured lies at the clicked point. Figures (page load to first cloud,
-cloud frames per second received by the browser, its render rate, click-to-preview
-latency) are printed.
+opens the page. The first test waits for the cloud to be drawn, clicks a known point of the
+board (its pixel computed from the page's starting camera), checks the target listed with
+the board's coordinates, plans, executes, and checks on the bus that the arm moved and that
+the spot the camera measured lies at the clicked point. The second marks a path: the
+operator picks "polyline" in the dropdown, clicks three points of the board, previews,
+executes, and the spots the camera saw (on the test's own bus client) must sweep the clicked
+polyline at the planned speed. Figures (page load to first cloud, cloud frames per second
+received by the browser, its render rate, click-to-preview latency for a target and for the
+path) are printed.
 """
 
 from __future__ import annotations
 
 import contextlib
+import itertools
 import re
 import subprocess
 import sys
@@ -23,7 +27,12 @@ import numpy as np
 import pytest
 
 from planner.console.view import default_view
-from planner.io.scenario import load_scenario, scene_objects, system_from_scenario
+from planner.io.scenario import (
+    load_scenario,
+    scene_objects,
+    system_from_scenario,
+    trajectory_settings,
+)
 from planner.service.client import PlanClient
 from tests.drivers.conftest import free_port, wait_for
 from tests.paths import SCENARIOS
@@ -31,11 +40,13 @@ from tests.planner.console.browser import (
     canvas_rect,
     chromium_paths,
     click_button,
+    click_world_point,
     open_browser,
     page_text,
     project,
     render_fps,
     screenshot,
+    select_option,
     wait_text,
 )
 
@@ -83,25 +94,31 @@ def wait_http(url: str, timeout: float) -> None:
     wait_for(up, timeout, f"the console page at {url}")
 
 
-def execute(d: object, attempts: int = 3) -> str:
-    """Press Execute until the drivers accept (a driver refuses while the planner's
-    heartbeat is late, which a starved shared machine causes: the operator presses again);
-    the page text with the measured spot."""
+def execute(d: object, done: re.Pattern[str] = MEASURED_ROW, attempts: int = 3
+            ) -> tuple[str, float]:  # fmt: skip
+    """Press Execute until the motion runs through: a driver refuses, or brakes to a stop,
+    when the planner's heartbeat is late, which a starved shared machine causes; the page
+    then says so and the operator presses again. Returns the page text once it shows
+    ``done`` (the measured result) and when (monotonic s) the last press was made."""
     seen: set[str] = set(REQUEST_ID.findall(page_text(d)))
     for _ in range(attempts):
+        pressed = time.monotonic()
         click_button(d, "Execute")
         old = frozenset(seen)
         text = wait_text(d, lambda t, old=old: set(REQUEST_ID.findall(t)) - old and "execution:" in t,
                          180.0, "the reply to Execute")  # fmt: skip
         seen |= set(REQUEST_ID.findall(text))
         if "execution: accepted" in text:
-            return wait_text(d, lambda t: MEASURED_ROW.search(t), 60.0, "the measured spot")
-        assert "heartbeat" in text, text  # any other refusal is a failure
-    raise AssertionError(f"Execute refused {attempts} times:\n{text}")
+            text = wait_text(d, lambda t: done.search(t), 60.0, "the measured result")
+            if "driver: " not in text:
+                return text, pressed
+        assert "heartbeat" in text, text  # any other refusal or fault is a failure
+    raise AssertionError(f"Execute refused or stopped {attempts} times:\n{text}")
 
 
-@pytest.fixture
-def system_up(tmp_path: Path):  # type: ignore[no-untyped-def]
+@pytest.fixture(scope="module")
+def system_up(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+    tmp_path = tmp_path_factory.mktemp("console")
     if chromium_paths() is None:
         pytest.skip("chromium and chromedriver are not installed (`make sysdeps` installs them)")
     endpoint, port = f"tcp/127.0.0.1:{free_port()}", free_port()
@@ -180,7 +197,7 @@ def test_operator_clicks_the_board_plans_and_executes(system_up) -> None:  # typ
         wait_text(d, lambda t: "1/1 targets solved" in t and "reply in" in t, 120.0, "the preview")
 
         q_before = client.recorder.joints["arm0"][1].copy()
-        text = execute(d)
+        text, _ = execute(d)
         measured = 1e-3 * np.array([float(x) for x in MEASURED_ROW.search(text).groups()])  # type: ignore[union-attr]
         q_after = client.recorder.joints["arm0"][1]
         assert float(np.max(np.abs(q_after - q_before))) > 1e-3, "the arm did not move"
@@ -196,5 +213,88 @@ def test_operator_clicks_the_board_plans_and_executes(system_up) -> None:  # typ
             f"received {cloud_rate:.1f}/s; render {fps:.1f} fps; click to preview "
             f"{latency.group(1) if latency else '?'} ms"
         )
+    finally:
+        d.quit()
+
+
+#: the polyline the operator clicks on the board (150 mm: 152 samples at 1 mm)
+PATH_CLICKS = BOARD_CENTRE + np.array([[-0.05, -0.03, 0.0], [0.02, -0.03, 0.0], [0.03, 0.05, 0.0]])
+ROW = r"#{k}\s+(-?\d+\.\d), (-?\d+\.\d), (-?\d+\.\d) mm"
+SOLVED = re.compile(r"(\d+)/(\d+) targets solved")
+MARKED = re.compile(
+    r"marked path: (\d+) spots with the laser on, covering (\d+\.\d) of (\d+\.\d) mm; distance "
+    r"to the planned path median (\d+\.\d+) mm, max (\d+\.\d+) mm"
+)
+#: m: a spot this close to the clicked polyline is on it (cloud noise of the picks ~1-2 mm)
+ON_PATH = 0.004
+
+
+def picked_rows(text: str, n: int) -> np.ndarray:
+    """The first ``n`` targets of the page's list (world, m)."""
+    rows = [re.search(ROW.format(k=k), text) for k in range(n)]
+    assert all(rows), text
+    return 1e-3 * np.array([[float(x) for x in r.groups()] for r in rows])  # type: ignore[union-attr]
+
+
+def test_operator_marks_a_clicked_polyline_on_the_board(system_up) -> None:  # type: ignore[no-untyped-def]
+    from planner.console.sweep import polyline_distance
+
+    url, client, tmp = system_up
+    scn = load_scenario(SCENARIO)
+    view = default_view(system_from_scenario(scn), scene_objects(scn))
+    d = open_browser()
+    try:
+        d.get(url)
+        rect = canvas_rect(d)
+        rows, cols = board_box(view, rect)
+        wait_for(lambda: float(saturated(screenshot(d)[rows, cols]).mean()) > 0.3, 180.0,
+                 "the cloud drawn on the board")  # fmt: skip
+        click_button(d, "Clear all")
+        wait_text(d, lambda t: "no targets" in t, 30.0, "an empty target list")
+        select_option(d, "visit as", "polyline")
+        for k, p in enumerate(PATH_CLICKS):
+            click_world_point(d, view, rect, p)
+            wait_text(d, lambda t, k=k: re.search(ROW.format(k=k), t), 120.0, f"target #{k}")
+        picked = picked_rows(page_text(d), 3)
+        assert np.max(np.linalg.norm(picked[:, :2] - PATH_CLICKS[:, :2], axis=1)) < 0.008, picked
+        length = float(np.sum(np.linalg.norm(np.diff(picked, axis=0), axis=1)))
+
+        # the last click previews the whole path: every resampled sample solved
+        def path_previewed(t: str) -> bool:
+            m = SOLVED.search(t)
+            return bool(m) and int(m.group(2)) > 100 and "click_to_preview" in t
+
+        text = wait_text(d, path_previewed, 180.0, "the preview of the clicked path")
+        n_ok, n = map(int, SOLVED.search(text).groups())  # type: ignore[union-attr]
+        assert n_ok == n and abs(n - (round(1e3 * length) + 1)) <= 3, (n_ok, n, length)
+        latency = re.search(r"click_to_preview (\d+) ms", text)
+
+        text, since = execute(d, MARKED)
+        n_marked, covered, total, median, worst = MARKED.search(text).groups()  # type: ignore[union-attr]
+        assert int(n_marked) > 10 and float(total) == pytest.approx(1e3 * length, abs=1.0)
+        assert float(covered) > 0.9 * float(total), text
+        assert float(worst) < 2.0, text  # mm: the beam marked the planned path
+
+        # independently, on the test's own bus client: the spots the camera saw near the
+        # clicked polyline cover it, in order, at the scenario's spot speed
+        with client.recorder.lock:
+            seen = [(t, p) for t, p, _, _ in client.recorder.spots if t >= since]
+        world_T_camera = system_from_scenario(scn).world_T_camera(None)
+        times = np.array([t for t, _ in seen])
+        P = np.array([p for _, p in seen]) @ world_T_camera[:3, :3].T + world_T_camera[:3, 3]
+        dist, s = polyline_distance(picked, P)
+        on = dist < ON_PATH
+        assert s[on].max() - s[on].min() > 0.9 * length, (s[on].min(), s[on].max(), length)
+        # on each side of the corner, away from its ends, the spot moves at the spot speed
+        ends = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(picked, axis=0), axis=1))])
+        speed = trajectory_settings(scn).spot_speed
+        for a, b in itertools.pairwise(ends):
+            inside = on & (s > a + 0.005) & (s < b - 0.005)
+            slope = np.polyfit(times[inside], s[inside], 1)[0]  # m/s along the path
+            assert slope == pytest.approx(speed, rel=0.15), (a, b, slope)
+        (tmp / "console_path.png").write_bytes(d.get_screenshot_as_png())
+        print(f"\nconsole figures (path of {n} samples): click to preview "
+              f"{latency.group(1) if latency else '?'} ms; marked {n_marked} spots, covering "
+              f"{covered} of {total} mm, distance median {median} mm, max {worst} mm")  # fmt: skip
     finally:
         d.quit()
