@@ -1,9 +1,10 @@
 """Scene nodes of the console page (viser): the fixed geometry, the robots, lines, markers.
 
-Everything is drawn in the scenario's world frame (m), z up. Robots are drawn with the
-planner's collision geometry (:class:`planner.safety.geometry.SafetyWorld`: link capsules,
-mirror plate and mount), placed at the joints given to :meth:`RobotDrawing.update`; the
-meshes are sent once and only their poses move afterwards.
+Everything is drawn in the scenario's world frame (m), z up. Robots are drawn with their
+URDF's visual meshes where it has them (:mod:`planner.console.visuals`), else with the
+planner's collision geometry (:class:`planner.safety.geometry.SafetyWorld`: link capsules);
+the mirror plate and mount always with the latter. They are placed at the joints given to
+:meth:`RobotDrawing.update`; the meshes are sent once and only their poses move afterwards.
 """
 
 from __future__ import annotations
@@ -72,18 +73,22 @@ def add_fixed(server: Any, system: System, scene: list[SceneItem], keep_out: lis
 
 
 class RobotDrawing:
-    """The robots' collision geometry as viser meshes, posed by :meth:`update`."""
+    """The robots as viser meshes (see the module docstring), posed by :meth:`update`."""
 
     def __init__(self, server: Any, system: System) -> None:
         import trimesh
 
+        from planner.console.visuals import urdf_visual
         from planner.safety.geometry import PartKind, SafetyWorld
 
         self.system = system
+        self.visuals = {r.name: v for r in system.robots if (v := urdf_visual(server, r))}
         self.world = SafetyWorld(system, bare=True)
         self.nodes: list[tuple[int, Any]] = []
         for part in self.world.parts:
             if not part.on_robot:
+                continue
+            if part.kind is PartKind.LINK and system.robots[part.robot].name in self.visuals:
                 continue
             g = self.world.geometry(part.index)
             if hasattr(g, "halfLength"):
@@ -107,6 +112,8 @@ class RobotDrawing:
     def update(self, q: dict[str, Array]) -> None:
         """Pose every part at joints ``q`` (rad per robot)."""
         self.world.update(self.system.stack_q(q))
+        for name, visual in self.visuals.items():
+            visual.update(q[name])
         for index, node in self.nodes:
             T = self.world.placement(index)
             node.wxyz = wxyz(T.getRotation())

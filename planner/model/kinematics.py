@@ -172,6 +172,11 @@ class RobotKinematics:
         return Limits(lower, upper, velocity, default.acceleration, default.jerk)
 
     @property
+    def base_T_universe(self) -> Array:
+        """The model's root (the URDF's root link, Pinocchio's universe) in the ``base`` frame."""
+        return self._base_T_universe.copy()
+
+    @property
     def has_analytic_ik(self) -> bool:
         return self.analytic is not None
 
