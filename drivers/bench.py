@@ -142,18 +142,31 @@ def flood_jitter(
     }
 
 
+def peer_session(endpoint: str, settle: float = 0.5) -> Any:
+    """A plain Zenoh peer session connected to ``endpoint`` (no multicast scouting), ``settle``
+    s after opening (for the connection): the load generators' side of a bench, run in their
+    own process."""
+    import json
+    import time
+
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    session = zenoh.open(conf)
+    time.sleep(settle)
+    return session
+
+
 FLOOD = """
-import os, sys, time, zenoh, json
-from drivers.bench import flood_body
+import os, sys, time
+from drivers.bench import flood_body, peer_session
 os.nice(10)  # the load generator, not the system under test
 from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR
 endpoint, key, samples, rate, seconds = sys.argv[1], sys.argv[2], int(sys.argv[3]), float(sys.argv[4]), float(sys.argv[5])
-conf = zenoh.Config()
-conf.insert_json5("mode", '"peer"')
-conf.insert_json5("scouting/multicast/enabled", "false")
-conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-s = zenoh.open(conf)
-time.sleep(0.5)
+s = peer_session(endpoint)
 body = flood_body(samples, [q + 0.05 for q in DEFAULT_HOME], list(JOINT_NAMES_UR))
 pub = s.declare_publisher(key)
 sent, start = 0, time.monotonic()

@@ -22,19 +22,15 @@ import numpy as np
 from drivers.bench import _free_port, loop_stats, node_window
 
 SENDER = """
-import json, math, os, sys, time, zenoh
+import math, os, sys, time
 import numpy as np
+from drivers.bench import peer_session
 from planner.service.bus import Keys
 from planner.service.setpoints import SetpointStreamer
 from planner.model.system import DEFAULT_HOME
 os.nice(5)
 endpoint, prefix, seconds, garbage = sys.argv[1], sys.argv[2], float(sys.argv[3]), float(sys.argv[4])
-conf = zenoh.Config()
-conf.insert_json5("mode", '"peer"')
-conf.insert_json5("scouting/multicast/enabled", "false")
-conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-s = zenoh.open(conf)
-time.sleep(0.5)
+s = peer_session(endpoint)
 home, start = np.array(DEFAULT_HOME), time.time()
 w = 2 * math.pi * 0.5
 def ref(t):

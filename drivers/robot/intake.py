@@ -45,6 +45,7 @@ from typing import IO, Any, NamedTuple
 import numpy as np
 
 from drivers.robot.follower import Reference
+from drivers.robot.outbox import Outbox
 from drivers.robot.trajectory_check import DEFAULT_PERIOD, check_message
 from planner.model.system import Limits
 from planner.service.bus import MAX_PAYLOAD_BYTES
@@ -171,7 +172,7 @@ class TrajectoryIntake:
         self._args = (robot, tuple(names), limits, float(period))
         self._lock = threading.Lock()
         self._wake = threading.Condition(self._lock)
-        self._done: list[Verdict] = []
+        self._done: Outbox[Verdict] = Outbox(self._lock)
         self._waiting: tuple[bytes, float] | None = None
         self._busy = False
         self._closed = False
@@ -204,14 +205,14 @@ class TrajectoryIntake:
             self.n_oversized += 1
             reason = f"body: payload of {size} bytes exceeds {MAX_PAYLOAD_BYTES} bytes"
             with self._lock:
-                self._done.append(Verdict(received, None, None, None, reason))
+                self._done.items.append(Verdict(received, None, None, None, reason))
             return
         body = payload if isinstance(payload, bytes) else payload.to_bytes()
         with self._lock:
             if self._waiting is not None:
                 self.n_superseded += 1
                 reason = "body: superseded by a newer trajectory before it was checked"
-                self._done.append(Verdict(self._waiting[1], None, None, None, reason))
+                self._done.items.append(Verdict(self._waiting[1], None, None, None, reason))
             self._waiting = (body, received)
             self._wake.notify()
 
@@ -228,7 +229,7 @@ class TrajectoryIntake:
                 self._busy = True
             verdict = self._parse(body, received)
             with self._lock:
-                self._done.append(verdict)
+                self._done.items.append(verdict)
                 self._busy = False
 
     def _parse(self, body: bytes, received: float) -> Verdict:
@@ -252,12 +253,8 @@ class TrajectoryIntake:
 
     # -- consumer side (control loop) -------------------------------------------------------
     def take(self) -> list[Verdict]:
-        """The verdicts since the last call, oldest first (a pointer swap under the lock)."""
-        if not self._done:  # unlocked peek: a list's truth value is atomic
-            return []
-        with self._lock:
-            out, self._done = self._done, []
-        return out
+        """The verdicts since the last call, oldest first (:meth:`Outbox.take`)."""
+        return self._done.take()
 
     @property
     def idle(self) -> bool:

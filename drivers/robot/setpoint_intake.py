@@ -32,6 +32,7 @@ import time
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
+from drivers.robot.outbox import Outbox
 from drivers.robot.setpoint_check import STALE_AFTER, SetpointSample, check_next, parse_setpoint
 from planner.errors import InputError
 from planner.model.system import Limits
@@ -68,7 +69,7 @@ class SetpointIntake:
         self.robot, self.names, self.limits = robot, tuple(names), limits
         self.clock, self.stale_after = clock, stale_after
         self._lock = threading.Lock()
-        self._events: list[StreamEvent] = []
+        self._events: Outbox[StreamEvent] = Outbox(self._lock)
         self._stream = 0  # number of the latest stream started
         self._open: SetpointSample | None = None  # last setpoint of the open stream
         self._ended: dict[tuple[str, str | None], float] = {}  # key -> last receipt
@@ -119,7 +120,7 @@ class SetpointIntake:
             self._ended[s.key] = s.received
             self.n_ignored += 1
             return
-        if len(self._events) >= MAX_EVENTS:  # the loop is not taking: never open one it
+        if len(self._events.items) >= MAX_EVENTS:  # the loop is not taking: never open one it
             self.n_dropped += 1  # cannot know of (its setpoints are ignored for 50 ms)
             self._close(s, s.received)
             return
@@ -149,7 +150,7 @@ class SetpointIntake:
         ended[last.key] = at
 
     def _push(self, ev: StreamEvent) -> None:
-        events = self._events
+        events = self._events.items
         last = events[-1] if events else None
         if ev.kind == "next" and last is not None and last[:2] == ("next", ev.stream):
             events[-1] = ev
@@ -161,12 +162,8 @@ class SetpointIntake:
 
     # -- consumer side (control loop) -------------------------------------------------------
     def take(self) -> list[StreamEvent]:
-        """The events since the last call, oldest first (a pointer swap under the lock)."""
-        if not self._events:  # unlocked peek: a list's truth value is atomic
-            return []
-        with self._lock:
-            out, self._events = self._events, []
-        return out
+        """The events since the last call, oldest first (:meth:`Outbox.take`)."""
+        return self._events.take()
 
     def end(self, stream: int) -> None:
         """The control loop ended stream number ``stream`` (stale, stop, heartbeat loss,

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import signal
+import threading
+from typing import Any
+
 from planner.errors import InputError
 
 
@@ -15,3 +19,22 @@ def parse_xyz(text: str, option: str) -> list[float]:
     if len(v) != 3:
         raise InputError(f"{option} {text!r}: expected X,Y,Z (3 numbers), got {len(v)}")
     return v
+
+
+def stop_on_signals() -> threading.Event:
+    """An event that SIGINT (Ctrl-C) and SIGTERM set: what a command that runs until stopped
+    waits on (install from the main thread)."""
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: Any) -> None:
+        stop.set()
+
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, on_signal)
+    return stop
+
+
+def wait_until_set(stop: threading.Event, poll: float = 0.2) -> None:
+    """Block until ``stop`` is set, waking every ``poll`` s (so signal handlers run)."""
+    while not stop.wait(poll):
+        pass

@@ -7,6 +7,7 @@ from typing import Annotated
 
 import typer
 
+from planner.cli.args import stop_on_signals, wait_until_set
 from planner.cli.node import EndpointOpt, PrefixOpt, ZenohConfigOpt
 from planner.errors import InputError
 
@@ -31,9 +32,6 @@ def console(
 ) -> None:
     """Serve the operator console until Ctrl-C: live cloud, robots and beam; click targets
     on the cloud, preview, execute, stop."""
-    import signal
-    import threading
-
     from planner.console.address import check_free, check_host, check_port, is_loopback
     from planner.console.app import Console
 
@@ -49,12 +47,9 @@ def console(
     check_free(host, port)
     app = Console(scenario, host=host, port=port, endpoint=endpoint, prefix=prefix,
                   zenoh_config=zenoh_config, max_points=max_points).start()  # fmt: skip
-    stop = threading.Event()
-    for s in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(s, lambda *_: stop.set())
+    stop = stop_on_signals()
     typer.echo(f"console of {app.name} on {app.url}")
     try:
-        while not stop.wait(0.2):
-            pass
+        wait_until_set(stop)
     finally:
         app.close()

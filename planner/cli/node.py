@@ -11,7 +11,7 @@ from typing import Annotated, Any
 
 import typer
 
-from planner.cli.args import parse_xyz
+from planner.cli.args import parse_xyz, stop_on_signals, wait_until_set
 from planner.errors import BeamrelayError, InputError
 from planner.model.status import Status
 
@@ -51,9 +51,7 @@ def serve(
         Path, typer.Argument(help="Scenario YAML (calibrated values via include:).")
     ],
     endpoint: EndpointOpt = None,
-    zenoh_config: Annotated[
-        Path | None, typer.Option("--zenoh-config", help="Zenoh config file (routers, TLS, ACL).")
-    ] = None,
+    zenoh_config: ZenohConfigOpt = None,
     prefix: PrefixOpt = "beamrelay",
     connect: Annotated[
         bool,
@@ -73,7 +71,6 @@ def serve(
     robots brake and a supervisor (``beamrelay up``) restarts the planner.
     """
     import os
-    import signal
     import threading
 
     from planner.service.bus import Keys, open_session
@@ -86,10 +83,7 @@ def serve(
     session = open_session(listen=not connect, endpoint=endpoint, config_file=zenoh_config)
     node = PlannerNode(handler, session, Keys(prefix), bus=BusAddress(endpoint, zenoh_config),
                        online=online)  # fmt: skip
-    stop = threading.Event()
-
-    def on_signal(signum: int, _frame: object) -> None:
-        stop.set()
+    stop = stop_on_signals()
 
     def on_fatal(reason: str) -> None:
         typer.echo(f"error: planner node failed: {reason}; exiting", err=True)
@@ -99,8 +93,6 @@ def serve(
         last_resort.daemon = True
         last_resort.start()
 
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
     node.on_alive_change = lambda name, up: typer.echo(
         f"{'up' if up else 'DOWN'}: {name}", err=not up
     )
@@ -114,8 +106,7 @@ def serve(
     names = ", ".join(handler.system.robot_names)
     typer.echo(f"planner ready: {prefix}/plan, robots {names}, session {node.session_id}")
     try:
-        while not stop.wait(0.2):
-            pass
+        wait_until_set(stop)
     finally:
         node.close()
         session.close()

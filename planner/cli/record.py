@@ -6,14 +6,13 @@ safety rules: :mod:`drivers.record`.
 
 from __future__ import annotations
 
-import signal
-import threading
 import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 
+from planner.cli.args import stop_on_signals
 from planner.cli.node import EndpointOpt, PrefixOpt, ZenohConfigOpt
 from planner.errors import InputError
 
@@ -40,7 +39,7 @@ def record(
         raise InputError("exists (use --force to overwrite)", f"--output {output}")
     if not output.parent.is_dir():
         raise InputError("no such directory", f"--output {output}")
-    stop = _stop_event()
+    stop = stop_on_signals()
     session = open_session(listen=False, endpoint=endpoint, config_file=zenoh_config)
     tmp = output.with_suffix(".mcap.part")
     t0 = time.monotonic()
@@ -86,7 +85,7 @@ def replay(
     if not (0 <= speed <= 1000):
         raise InputError(f"must be in [0, 1000], got {speed:g}", "--speed")
     next(iter(read(recording)), None)  # a bad file is a user error before touching the bus
-    stop = _stop_event()
+    stop = stop_on_signals()
     session = open_session(listen=listen, endpoint=endpoint, config_file=zenoh_config)
     try:
         time.sleep(0.5)  # let subscribers connect before the first message
@@ -95,14 +94,3 @@ def replay(
         session.close()
     note = f", {skipped} command messages skipped (--commands to include)" if skipped else ""
     typer.echo(f"{recording}: {sent} messages replayed{note}")
-
-
-def _stop_event() -> threading.Event:
-    stop = threading.Event()
-
-    def on_signal(signum: int, frame: Any) -> None:
-        stop.set()
-
-    for s in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(s, on_signal)
-    return stop

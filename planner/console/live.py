@@ -20,7 +20,7 @@ import numpy as np
 
 from planner.errors import InputError
 from planner.model.transforms import Array
-from planner.service.bus import Keys, decode
+from planner.service.bus import Keys, decode, update_alive
 from schemas.messages import Heartbeat, JointState, LaserState, RobotStatus, SpotMessage
 
 #: a stream silent for longer than this (s) is shown as stale
@@ -125,14 +125,7 @@ class LiveState:
                 self.heartbeat = Stamped(m, self._tick("heartbeat"))
 
     def _on_alive(self, sample: Any) -> None:
-        import zenoh
-
-        node = str(sample.key_expr).rsplit("/", 1)[-1]
-        with self._lock:
-            if sample.kind == zenoh.SampleKind.PUT:
-                self.alive.add(node)
-            else:
-                self.alive.discard(node)
+        update_alive(self.alive, self._lock, sample)
 
     # readers ----------------------------------------------------------------------------
     def rate(self, name: str) -> float:

@@ -10,8 +10,10 @@ control, TLS, routers; see ``scenarios/zenoh/``).
 from __future__ import annotations
 
 import json
+import logging
 import os
 import re
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -323,3 +325,26 @@ def decode(payload: bytes, cls: type[M]) -> M:
         if exc.where:
             raise
         raise InputError(exc.reason, "body") from None
+
+
+def decode_sample(sample: Any, cls: type[M], log: logging.Logger, what: str) -> M | None:
+    """A subscriber sample's body decoded as ``cls``, or None when it does not decode (then
+    logged as ``bad <what>: <reason>``): what a callback that must never raise calls."""
+    try:
+        return decode(sample.payload.to_bytes(), cls)
+    except InputError as exc:
+        log.warning("bad %s: %s", what, exc)
+        return None
+
+
+def update_alive(alive: set[str], lock: threading.Lock, sample: Any) -> tuple[str, bool]:
+    """Apply a liveliness sample of ``<prefix>/alive/<node>`` to the set ``alive`` of nodes up
+    (under ``lock``): a PUT adds the node (its token appeared), a DELETE removes it.
+    Returns ``(node, up)``."""
+    import zenoh
+
+    node = str(sample.key_expr).rsplit("/", 1)[-1]
+    up = sample.kind == zenoh.SampleKind.PUT
+    with lock:
+        (alive.add if up else alive.discard)(node)
+    return node, up

@@ -296,3 +296,29 @@ def execute_closed_loop(plan: dict[str, Any], targets: Targets, req: Any, start:
                            "dwell": dwell, "moves": runner.moves, "targets": rows}  # fmt: skip
     plan["metrics"].setdefault("extra", {}).update(closed_loop_figures(rows))
     plan["execution"], plan["execution_reason"] = verdict, reason
+
+
+def execute_on_node(node: Any, plan: dict[str, Any], targets: Targets, req: Any,
+                    start: dict[str, Array], handler: Any) -> None:  # fmt: skip
+    """:func:`execute_closed_loop` on a :class:`planner.service.node.PlannerNode`: from
+    ``start`` (rad per robot), in the calibration of ``handler`` (the one the request was
+    planned with), moving through the node's execution, measuring with its spot buffer (and
+    laser log when the laser is gated), aborted by a stop seen on the bus. With online
+    calibration, the measurement dwells at rest are its samples (the rest sampler)."""
+    config = handler.closed_loop
+    assert config is not None
+    system = handler.system
+    head = {k: plan[k] for k in ("robots", "joint_names", "scenario")}
+
+    def send(trajectory: dict[str, Any], move_id: str) -> tuple[str, str | None]:
+        mini = head | {"trajectory": trajectory}
+        node.execution.execute(mini, move_id, node.session_id)
+        return mini["execution"], mini["execution_reason"]
+
+    def rest_at(q: Array) -> bool:
+        return bool(node.joints.rests_at(system.split_q(q)))
+
+    node.stop_seen.clear()
+    laser = node.laser if config.gated else None
+    motion = Motion(send, rest_at, node.spots, node.stop_seen, node.progress.tick, laser)
+    execute_closed_loop(plan, targets, req, system.stack_q(start), config, motion, system)

@@ -1,6 +1,7 @@
 """What the planner node knows about the robots it moves (no Zenoh here).
 
-- :class:`JointCache`: the latest ``joint_states`` per robot (receiver clock).
+- :class:`JointCache`: the latest ``joint_states`` per robot (receiver clock; its
+  :meth:`~JointCache.callback` feeds it from the bus).
 - :class:`MotionTracks`: per robot, the last trajectory its driver accepted: final joints
   (rad) and when it ends (monotonic clock, s). A driver queues a trajectory that arrives
   while another one runs if it starts where the running one ends, so the node plans from
@@ -13,8 +14,10 @@
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -22,6 +25,9 @@ import numpy as np
 
 from planner.errors import BeamrelayError
 from planner.model.transforms import Array
+from planner.service.bus import decode_sample
+
+log = logging.getLogger("beamrelay.node")
 
 #: a joint state older than this (s, receiver clock) does not count as "current"
 STATE_MAX_AGE = 0.5
@@ -77,6 +83,21 @@ class JointCache:
     def get(self, robot: str) -> tuple[float, Array, Array] | None:
         with self._lock:
             return self._q.get(robot)
+
+    def callback(self, robot: str, nq: int) -> Callable[[Any], None]:
+        """Subscriber callback of ``robot``'s ``joint_states``: a state with ``nq`` joints is
+        kept, any other body dropped (one that does not decode is logged)."""
+        from schemas.messages import JointState
+
+        def cb(sample: Any) -> None:
+            msg = decode_sample(sample, JointState, log, f"joint state from {robot}")
+            if msg is None:
+                return
+            q, qd = np.asarray(msg.q), np.asarray(msg.qd)
+            if q.shape == (nq,):
+                self.update(robot, q, qd)
+
+        return cb
 
     def current(
         self, max_age: float = STATE_MAX_AGE, robots: tuple[str, ...] | None = None
@@ -199,6 +220,21 @@ class AckBoard:
             out = {robot: self._got.get(robot) for robot in self._want}
             self._want, self._got = {}, {}
         return out
+
+
+def start_state(
+    robots: tuple[str, ...], tracks: MotionTracks, joints: JointCache
+) -> dict[str, Array]:
+    """Where each of ``robots`` will be when a trajectory sent now starts (rad): the end of
+    the trajectory it still plays (``tracks``), else its latest joint state (ExecuteError if
+    stale)."""
+    start = {}
+    for robot in robots:
+        q_end = tracks.running_end(robot)
+        if q_end is not None:
+            start[robot] = q_end
+    rest = tuple(r for r in robots if r not in start)
+    return start | (joints.current(robots=rest) if rest else {})
 
 
 def execution_verdict(acks: dict[str, Any], timeout: float) -> tuple[str, str | None]:

@@ -1,5 +1,6 @@
-"""The planner node's guards: a job queue bounded in count and bytes, the worker's progress
-watchdog, and the heartbeat thread (no Zenoh imports: the publisher is passed in).
+"""The planner node's guards: a job queue bounded in count and bytes, the worker thread that
+serves it, the worker's progress watchdog, and the heartbeat thread (no Zenoh imports: the
+publisher and the reply are passed in).
 
 The heartbeat (:class:`~schemas.messages.Heartbeat` ``{t, session, seq}``, default 100 Hz)
 is what robot drivers follow while they move: when it stops for 100 ms they brake. It stops
@@ -16,6 +17,9 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
+
+from planner.errors import BeamrelayError, InputError
+from planner.service.bus import MAX_PAYLOAD_BYTES
 
 log = logging.getLogger("beamrelay.node")
 
@@ -85,6 +89,86 @@ class JobQueue:
     def nbytes(self) -> int:
         with self._cond:
             return self._bytes
+
+
+class Worker:
+    """The one thread that serves the node's jobs in order: ``serve(payload)`` -> the reply
+    body, sent with ``respond(job, body, None)``; any Exception becomes an error reply
+    (``respond(job, None, exc)``); ``progress`` spans each job. ``on_exit()`` is called when
+    the thread ends, whether by :meth:`close` or not."""
+
+    def __init__(
+        self,
+        serve: Callable[[bytes], bytes],
+        respond: Callable[[Job, bytes | None, Exception | None], None],
+        progress: Progress,
+        on_exit: Callable[[], None],
+    ) -> None:
+        self.serve, self.respond, self.progress, self.on_exit = serve, respond, progress, on_exit
+        self.jobs = JobQueue()
+        self._thread = threading.Thread(target=self._work, name="planner-worker", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def is_alive(self) -> bool:
+        return self._thread.is_alive()
+
+    def close(self, timeout: float) -> None:
+        """Serve the jobs already queued, then end (wait at most ``timeout`` s)."""
+        self.jobs.close()
+        self._thread.join(timeout=timeout)
+
+    def take(self, kind: str, query: Any, payload: Any) -> None:
+        """Queue the body ``payload`` (Zenoh bytes, or None: empty) of a ``query`` or of a
+        sample (``kind`` ``topic``); one over ``MAX_PAYLOAD_BYTES`` is refused before it is
+        copied out of Zenoh."""
+        size = 0 if payload is None else len(payload)
+        if size > MAX_PAYLOAD_BYTES:
+            self.refuse(Job(kind, query, b""), InputError(f"body of {size} bytes exceeds the "
+                        f"limit of {MAX_PAYLOAD_BYTES} bytes (not read)", "body"))  # fmt: skip
+            return
+        self.submit(Job(kind, query, b"" if payload is None else payload.to_bytes()))
+
+    def submit(self, job: Job) -> None:
+        """Queue ``job``, or refuse it with a "busy" error when the queue is full."""
+        full = self.jobs.put(job)
+        if full is not None:
+            self.refuse(job, InputError(f"planner busy ({full}), retry later", "body"))
+
+    def refuse(self, job: Job, exc: Exception) -> None:
+        """Reply to ``job`` with the error ``exc`` (from a Zenoh callback: never raises)."""
+        try:
+            self.respond(job, None, exc)
+        except Exception:  # a vanished querier must not break the Zenoh callback
+            log.exception("could not send an error reply")
+
+    def _work(self) -> None:
+        try:
+            while (job := self.jobs.get()) is not None:
+                self._run(job)
+        finally:
+            self.on_exit()
+
+    def _run(self, job: Job) -> None:
+        """Serve one job and reply; any Exception becomes an error reply."""
+        self.progress.begin()
+        try:
+            body: bytes | None = None
+            err: Exception | None = None
+            try:
+                body = self.serve(job.payload)
+            except BeamrelayError as exc:
+                err = exc
+            except Exception as exc:  # a bug must not kill the node: report it, keep serving
+                log.exception("request failed")
+                err = exc
+            try:
+                self.respond(job, body, err)
+            except Exception:  # the querier left, the session closes: nothing to reply to
+                log.exception("could not send the reply")
+        finally:
+            self.progress.end()
 
 
 class Progress:

@@ -225,6 +225,33 @@ class HeartbeatProcess:
             self._send(TICK)
 
 
+def start_heartbeat(
+    session: Any,
+    key: str,
+    session_id: str,
+    progress: Any,
+    on_wedged: Callable[[str], None],
+    bus: BusAddress | None,
+    rate: float | None = None,
+) -> tuple[Any, Any]:
+    """The planner node's heartbeat on ``key`` (``rate`` Hz, None: the default), started:
+    from the child process when the node has its ``bus`` address, else from a thread of this
+    process (:class:`planner.service.guard.Heartbeat`) publishing through ``session``. Returns
+    it and the publisher this process declared for it (None with the child process)."""
+    from planner.service.bus import JSON
+    from planner.service.guard import Heartbeat
+
+    kw = {} if rate is None else {"rate": rate}
+    if bus is not None:
+        return HeartbeatProcess(bus, key, session_id, progress, on_wedged, **kw).start(), None
+    log.warning("heartbeat published from the planner process (no bus address given): "
+                "long solver calls can delay it")  # fmt: skip
+    pub = session.declare_publisher(key)
+    beat = Heartbeat(lambda body: pub.put(body, encoding=JSON), session_id, progress,
+                     on_wedged, **kw).start()  # fmt: skip
+    return beat, pub
+
+
 def _read_line(stream: Any, timeout: float) -> bytes | None:
     """One line from a pipe within ``timeout`` s (without the newline); None if none."""
     deadline = time.monotonic() + timeout

@@ -1,8 +1,8 @@
 """The planner node: a thin Zenoh adapter over the pure planning code.
 
 The pure side (request -> targets -> plan.json) is :mod:`planner.service.handler`; what the node
-knows of the robots is :mod:`planner.service.execution`; its guards (bounded queue, progress
-watchdog, heartbeat) are :mod:`planner.service.guard`. :class:`PlannerNode`:
+knows of the robots is :mod:`planner.service.execution`; its guards (bounded queue, the worker
+thread, progress watchdog, heartbeat) are :mod:`planner.service.guard`. :class:`PlannerNode`:
 
 - queryable ``<prefix>/plan`` replies with plan.json (``application/json``, ``id`` = the
   request's) or an :class:`~schemas.messages.ErrorReply` via ``reply_err``; subscriber
@@ -26,7 +26,7 @@ watchdog, heartbeat) are :mod:`planner.service.guard`. :class:`PlannerNode`:
   declares ``<prefix>/alive/planner``.
 - online calibration (opt-in, :mod:`planner.service.online`): spots on ``<prefix>/camera/spot``
   seen at rest, and ``node.online.add_sample(q, spot_world)`` calls (the servo), are refitted
-  in the background; a new version is installed between requests (:meth:`install_calibration`)
+  in the background (wired by :func:`planner.service.online.attach`); a new version is installed between requests (:meth:`install_calibration`)
   and plans report ``metrics.extra.calibration_version``.
 
 One worker thread plans; requests queue up behind it (bounded in count and bytes: a full
@@ -45,12 +45,10 @@ import uuid
 from collections.abc import Callable
 from typing import Any
 
-import numpy as np
-
-from planner.errors import BeamrelayError, InputError
+from planner.errors import InputError
 from planner.model.transforms import Array
 from planner.service.bodies import encode_json
-from planner.service.bus import JSON, MAX_PAYLOAD_BYTES, Keys, decode, encode
+from planner.service.bus import JSON, Keys, decode_sample, encode, update_alive
 from planner.service.execution import (
     ACK_TIMEOUT,
     HALTED_MODES,
@@ -59,9 +57,10 @@ from planner.service.execution import (
     ExecuteError,
     JointCache,
     MotionTracks,
+    start_state,
     trajectory_messages,
 )
-from planner.service.guard import QUEUE_SIZE, Heartbeat, Job, JobQueue, Progress
+from planner.service.guard import QUEUE_SIZE, Heartbeat, Job, Progress, Worker
 from planner.service.handler import (
     RequestHandler,
     error_body,
@@ -69,8 +68,8 @@ from planner.service.handler import (
     make_plan_fn,
     request_id_of,
 )
-from planner.service.heartbeat import BusAddress, HeartbeatProcess
-from planner.service.online import OnlineCalibrator, RestSampler
+from planner.service.heartbeat import BusAddress, HeartbeatProcess, start_heartbeat
+from planner.service.online import OnlineCalibrator, attach
 from planner.service.spots import LaserLog, SpotBuffer
 from planner.service.stream import Execution
 
@@ -132,11 +131,12 @@ class PlannerNode:
         self.execution = Execution(self.robots, self._publish_trajectory, self.send_stop,
                                    self.acks, self.tracks, ack_timeout)  # fmt: skip
         self._alive_lock = threading.Lock()
-        self._jobs = JobQueue()
         self._handles: list[Any] = []
         self._token: Any = None
         self._closing = threading.Event()
-        self._worker = threading.Thread(target=self._work, name="planner-worker", daemon=True)
+        # serve and respond are looked up per job: a subclass or a test may replace them
+        self._worker = Worker(lambda body: self.serve(body),
+                              lambda *a: self._respond(*a), self.progress, self._worker_stopped)  # fmt: skip
         self.on_alive_change: Callable[[str, bool], None] | None = None
         self.on_fatal: Callable[[str], None] | None = None
         self.failed: str | None = None
@@ -152,34 +152,27 @@ class PlannerNode:
         self._publishers = {r: s.declare_publisher(k.trajectory(r)) for r in self.robots}
         self._plans = s.declare_publisher(k.plans)
         self._stop_pub = s.declare_publisher(k.stop)
-        self.heartbeat = self._start_heartbeat()
+        self._start_heartbeat()
         self._token = s.liveliness().declare_token(k.alive("planner"))
         self._handles.append(
             s.liveliness().declare_subscriber(k.alive_all, self._on_alive, history=True)
         )
         for robot in self.robots:
-            self._handles.append(s.declare_subscriber(k.joint_states(robot), self._joint_cb(robot)))
+            nq = self.handler.system.robot(robot).nq
+            self._handles.append(s.declare_subscriber(k.joint_states(robot),
+                                                      self.joints.callback(robot, nq)))  # fmt: skip
             self._handles.append(s.declare_subscriber(k.status(robot), self._status_cb(robot)))
         self._handles.append(s.declare_subscriber(k.stop, self._on_stop))
-        self._handles.append(s.declare_subscriber(k.camera_spot, self._on_spot))
-        self._handles.append(s.declare_subscriber(k.laser, self._on_laser))
+        self._handles.append(s.declare_subscriber(k.camera_spot, self.spots.callback))
+        self._handles.append(s.declare_subscriber(k.laser, self.laser.callback))
         self._handles.append(s.declare_subscriber(k.targets, self._on_target))
         self._handles.append(s.declare_queryable(k.plan, self._on_query))
         if self.online is not None:
-            self._start_online(self.online)
+            self._cal_pub, handles = attach(self.online, s, k, self.robots, self.joints.get,
+                                            self.install_calibration)  # fmt: skip
+            self._handles += handles
         self._worker.start()
         return self
-
-    def _start_online(self, online: OnlineCalibrator) -> None:
-        self._cal_pub = self.session.declare_publisher(self.keys.calibration)
-        online.publish = lambda body: self._cal_pub.put(body, encoding=JSON)
-        online.on_update = self.install_calibration
-        if online.rest_sampling:
-            sampler = RestSampler(online, self.robots, self.joints.get)
-            self._handles.append(
-                self.session.declare_subscriber(self.keys.camera_spot, sampler.callback)
-            )
-        online.start()
 
     def install_calibration(self, handler: RequestHandler | None, calibration: Any) -> None:
         """Serve later requests with ``handler`` (planned with ``calibration``, whose
@@ -189,20 +182,13 @@ class PlannerNode:
         with self._handler_lock:
             self.handler, self.calibration_version = handler, int(calibration.version)
 
-    def _start_heartbeat(self) -> Heartbeat | HeartbeatProcess:
-        rate = {} if self._heartbeat_rate is None else {"rate": self._heartbeat_rate}
-
+    def _start_heartbeat(self) -> None:
         def on_wedged(reason: str) -> None:
             self._fatal(f"planner wedged: {reason}")
 
-        if self.bus is not None:
-            return HeartbeatProcess(self.bus, self.keys.heartbeat, self.session_id,
-                                    self.progress, on_wedged, **rate).start()  # fmt: skip
-        log.warning("heartbeat published from the planner process (no bus address given): "
-                    "long solver calls can delay it")  # fmt: skip
-        self._beat_pub = self.session.declare_publisher(self.keys.heartbeat)
-        return Heartbeat(lambda body: self._beat_pub.put(body, encoding=JSON), self.session_id,
-                         self.progress, on_wedged, **rate).start()  # fmt: skip
+        self.heartbeat, self._beat_pub = start_heartbeat(
+            self.session, self.keys.heartbeat, self.session_id, self.progress, on_wedged,
+            self.bus, self._heartbeat_rate)  # fmt: skip
 
     def close(self) -> None:
         """Stop beating, undeclare everything, stop the worker (the session stays open)."""
@@ -216,8 +202,7 @@ class PlannerNode:
         for h in reversed(self._handles):
             h.undeclare()
         self._handles.clear()
-        self._jobs.close()
-        self._worker.join(timeout=1 if self.failed else 5)
+        self._worker.close(timeout=1 if self.failed else 5)
         self.execution.close()
         pubs = [*self._publishers.values(), self._plans, self._stop_pub, self._beat_pub,
                 self._cal_pub]  # fmt: skip
@@ -249,41 +234,17 @@ class PlannerNode:
 
     # --- callbacks (Zenoh threads: never plan here) ------------------------------------------
     def _on_alive(self, sample: Any) -> None:
-        import zenoh
-
-        node = str(sample.key_expr).rsplit("/", 1)[-1]
-        up = sample.kind == zenoh.SampleKind.PUT
-        with self._alive_lock:
-            (self.alive.add if up else self.alive.discard)(node)
+        node, up = update_alive(self.alive, self._alive_lock, sample)
         log.info("%s %s", node, "up" if up else "DOWN")
         if self.on_alive_change is not None:
             self.on_alive_change(node, up)
-
-    def _joint_cb(self, robot: str) -> Callable[[Any], None]:
-        from schemas.messages import JointState
-
-        n = self.handler.system.robot(robot).nq
-
-        def cb(sample: Any) -> None:
-            try:
-                msg = decode(sample.payload.to_bytes(), JointState)
-            except InputError as exc:
-                log.warning("bad joint state from %s: %s", robot, exc)
-                return
-            q, qd = np.asarray(msg.q), np.asarray(msg.qd)
-            if q.shape == (n,):
-                self.joints.update(robot, q, qd)
-
-        return cb
 
     def _status_cb(self, robot: str) -> Callable[[Any], None]:
         from schemas.messages import RobotStatus
 
         def cb(sample: Any) -> None:
-            try:
-                msg = decode(sample.payload.to_bytes(), RobotStatus)
-            except InputError as exc:
-                log.warning("bad status from %s: %s", robot, exc)
+            msg = decode_sample(sample, RobotStatus, log, f"status from {robot}")
+            if msg is None:
                 return
             ack = msg.trajectory
             if ack is not None:
@@ -303,80 +264,16 @@ class PlannerNode:
         self.tracks.clear()
         self.execution.cancel(f"stop seen on {self.keys.stop}")
 
-    def _on_spot(self, sample: Any) -> None:
-        from schemas.messages import SpotMessage
-
-        try:
-            msg = decode(sample.payload.to_bytes(), SpotMessage)
-        except InputError as exc:
-            log.warning("bad spot message: %s", exc)
-            return
-        self.spots.offer(msg.t, msg.p_camera, msg.confidence)
-
-    def _on_laser(self, sample: Any) -> None:
-        from schemas.messages import LaserState
-
-        try:
-            msg = decode(sample.payload.to_bytes(), LaserState)
-        except InputError as exc:
-            log.warning("bad laser state: %s", exc)
-            return
-        self.laser.offer(msg.t, msg.on)
-
     def _on_query(self, query: Any) -> None:
-        payload = query.payload
-        size = 0 if payload is None else len(payload)
-        if size > MAX_PAYLOAD_BYTES:  # refuse before copying the body out of Zenoh
-            self._refuse(Job("query", query, b""), _oversize(size))
-            return
-        self._enqueue(Job("query", query, b"" if payload is None else payload.to_bytes()))
+        self._worker.take("query", query, query.payload)
 
     def _on_target(self, sample: Any) -> None:
-        size = len(sample.payload)
-        if size > MAX_PAYLOAD_BYTES:
-            self._refuse(Job("topic", None, b""), _oversize(size))
-            return
-        self._enqueue(Job("topic", None, sample.payload.to_bytes()))
-
-    def _enqueue(self, job: Job) -> None:
-        full = self._jobs.put(job)
-        if full is not None:
-            self._refuse(job, InputError(f"planner busy ({full}), retry later", "body"))
-
-    def _refuse(self, job: Job, exc: Exception) -> None:
-        try:
-            self._respond(job, None, exc)
-        except Exception:  # a vanished querier must not break the Zenoh callback
-            log.exception("could not send an error reply")
+        self._worker.take("topic", None, sample.payload)
 
     # --- the worker ------------------------------------------------------------------------
-    def _work(self) -> None:
-        try:
-            while (job := self._jobs.get()) is not None:
-                self._run(job)
-        finally:
-            if not self._closing.is_set():
-                self._fatal("the planner worker thread stopped")
-
-    def _run(self, job: Job) -> None:
-        """Serve one job and reply; any Exception becomes an error reply."""
-        self.progress.begin()
-        try:
-            body: bytes | None = None
-            err: Exception | None = None
-            try:
-                body = self.serve(job.payload)
-            except BeamrelayError as exc:
-                err = exc
-            except Exception as exc:  # a bug must not kill the node: report it, keep serving
-                log.exception("request failed")
-                err = exc
-            try:
-                self._respond(job, body, err)
-            except Exception:  # the querier left, the session closes: nothing to reply to
-                log.exception("could not send the reply")
-        finally:
-            self.progress.end()
+    def _worker_stopped(self) -> None:
+        if not self._closing.is_set():
+            self._fatal("the planner worker thread stopped")
 
     def _respond(self, job: Job, body: bytes | None, exc: Exception | None) -> None:
         if exc is not None:
@@ -395,7 +292,7 @@ class PlannerNode:
         """Handle one request body: validate, plan, maybe execute; the plan.json reply.
         While a ``mode: track`` request runs, every request gets a "busy tracking" error. The
         handler (and so the calibration) is fixed for the whole request."""
-        from planner.service.closed_loop import check_closed_loop
+        from planner.service.closed_loop import check_closed_loop, execute_on_node
 
         if self.track is not None and self.track.active:
             raise InputError(f"planner busy tracking {self.track.id!r}: publish on "
@@ -425,7 +322,7 @@ class PlannerNode:
             plan["metrics"].setdefault("extra", {})["calibration_version"] = version
         if req.execute and req.closed_loop:
             assert start is not None
-            self.execute_closed_loop(plan, targets, req, start, handler)
+            execute_on_node(self, plan, targets, req, start, handler)
         elif req.execute:
             self.execute(plan, req.id)
         self.served += 1
@@ -446,13 +343,7 @@ class PlannerNode:
     def start_state(self) -> dict[str, Array]:
         """Where each robot will be when a trajectory sent now starts (rad): the end of the
         trajectory it still plays, else its latest joint state (ExecuteError if stale)."""
-        start = {}
-        for robot in self.robots:
-            q_end = self.tracks.running_end(robot)
-            if q_end is not None:
-                start[robot] = q_end
-        rest = tuple(r for r in self.robots if r not in start)
-        return start | (self.joints.current(robots=rest) if rest else {})
+        return start_state(self.robots, self.tracks, self.joints)
 
     def execute(self, plan: dict[str, Any], request_id: str) -> None:
         """Send the plan's trajectories, wait for the drivers' verdicts, and write them into
@@ -460,39 +351,6 @@ class PlannerNode:
         if all(s["status"] != "ok" for s in plan["solutions"]):
             raise ExecuteError("no target could be solved, nothing to execute", [])
         self.execution.execute(plan, request_id, self.session_id)
-
-    def execute_closed_loop(
-        self,
-        plan: dict[str, Any],
-        targets: Any,
-        req: Any,
-        start: dict[str, Array],
-        handler: RequestHandler,
-    ) -> None:
-        """Servo every solved target on the camera's measured spot, then dwell
-        (:mod:`planner.service.closed_loop`) in the calibration of ``handler`` (the one the
-        request was planned with); writes ``closed_loop`` and the verdict. With online
-        calibration, the measurement dwells at rest are its samples (the rest sampler)."""
-        from planner.service.closed_loop import Motion, execute_closed_loop
-
-        config = handler.closed_loop
-        assert config is not None
-        head = {k: plan[k] for k in ("robots", "joint_names", "scenario")}
-
-        def send(trajectory: dict[str, Any], move_id: str) -> tuple[str, str | None]:
-            mini = head | {"trajectory": trajectory}
-            self.execution.execute(mini, move_id, self.session_id)
-            return mini["execution"], mini["execution_reason"]
-
-        self.stop_seen.clear()
-        laser = self.laser if config.gated else None
-        motion = Motion(send, self.rests_at, self.spots, self.stop_seen, self.progress.tick, laser)
-        system = handler.system
-        execute_closed_loop(plan, targets, req, system.stack_q(start), config, motion, system)
-
-    def rests_at(self, q: Array) -> bool:
-        """Whether every robot's fresh joint state is at rest on stacked ``q`` (rad)."""
-        return self.joints.rests_at(self.handler.system.split_q(q))
 
     def _stop_track(self, reason: str) -> None:
         if self.track is not None and self.track.active:
@@ -514,9 +372,3 @@ class PlannerNode:
 
         msg = StopMessage(t=time.time(), source="planner", reason=reason[:1000])
         self._stop_pub.put(encode(msg), encoding=JSON)
-
-
-def _oversize(size: int) -> InputError:
-    return InputError(
-        f"body of {size} bytes exceeds the limit of {MAX_PAYLOAD_BYTES} bytes (not read)", "body"
-    )

@@ -243,6 +243,32 @@ class OnlineCalibrator:
         return encode(msg)
 
 
+def attach(
+    online: OnlineCalibrator,
+    session: Any,
+    keys: Any,
+    robots: tuple[str, ...],
+    joints: Callable[[str], tuple[float, Array, Array] | None],
+    install: Callable[[Any, Calibration], None],
+) -> tuple[Any, list[Any]]:
+    """Wire ``online`` to a node's bus and start it: it publishes on ``<prefix>/calibration``
+    (the publisher returned), installs what it accepts with ``install(handler, calibration)``
+    and, with :attr:`~OnlineCalibrator.rest_sampling`, takes rest samples from
+    ``<prefix>/camera/spot`` (:class:`RestSampler` over ``joints``; the subscriber handles
+    returned)."""
+    from planner.service.bus import JSON
+
+    pub = session.declare_publisher(keys.calibration)
+    online.publish = lambda body: pub.put(body, encoding=JSON)
+    online.on_update = install
+    handles = []
+    if online.rest_sampling:
+        sampler = RestSampler(online, robots, joints)
+        handles.append(session.declare_subscriber(keys.camera_spot, sampler.callback))
+    online.start()
+    return pub, handles
+
+
 class RestSampler:
     """Turns ``camera/spot`` frames into samples when every robot is at rest (module docstring).
 
@@ -263,17 +289,14 @@ class RestSampler:
 
     def callback(self, sample: Any) -> None:
         """Zenoh callback of ``<prefix>/camera/spot``: any body is fine (bad ones are logged)."""
-        from planner.service.bus import MAX_PAYLOAD_BYTES, decode
+        from planner.service.bus import MAX_PAYLOAD_BYTES, decode_sample
         from schemas.messages import SpotMessage
 
         if len(sample.payload) > MAX_PAYLOAD_BYTES:
             return
-        try:
-            msg = decode(sample.payload.to_bytes(), SpotMessage)
-        except InputError as exc:
-            log.warning("bad camera spot: %s", exc)
-            return
-        self.on_spot(msg.p_camera, msg.confidence)
+        msg = decode_sample(sample, SpotMessage, log, "camera spot")
+        if msg is not None:
+            self.on_spot(msg.p_camera, msg.confidence)
 
     def on_spot(self, p_camera: Any, confidence: float) -> bool:
         """One detected spot (camera frame, m); True when it became a sample."""

@@ -3,19 +3,26 @@
 :class:`SpotBuffer` keeps the last ``<prefix>/camera/spot`` messages (capture time ``t``,
 UNIX s; ``p_camera`` in the camera optical frame, m, or None; ``confidence``) and hands out
 the frames captured in a time window, waiting for them: what a closed-loop measurement
-averages (:func:`planner.servo.measure.average_frames`).
+averages (:func:`planner.servo.measure.average_frames`). :class:`LaserLog` keeps the laser
+gate's on-intervals from ``<prefix>/laser``. Their ``callback`` methods are the node's
+subscriber callbacks.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
+from planner.service.bus import decode_sample
 from planner.servo.measure import SpotFrame
+
+log = logging.getLogger("beamrelay.node")
 
 #: frames kept (about 10 s at 30 Hz)
 BUFFER_FRAMES = 300
@@ -36,6 +43,14 @@ class SpotBuffer:
         with self._cond:
             self._frames.append((float(t), SpotFrame(p, float(confidence))))
             self._cond.notify_all()
+
+    def callback(self, sample: Any) -> None:
+        """Subscriber callback of ``<prefix>/camera/spot``: any body (bad ones are logged)."""
+        from schemas.messages import SpotMessage
+
+        msg = decode_sample(sample, SpotMessage, log, "spot message")
+        if msg is not None:
+            self.offer(msg.t, msg.p_camera, msg.confidence)
 
     def window(self, t0: float, t1: float) -> list[SpotFrame]:
         """Frames captured in ``[t0, t1]`` (UNIX s), oldest first."""
@@ -75,6 +90,14 @@ class LaserLog:
                 self._spans[-1][1] = float(t)
             self._on = bool(on)
             self._cond.notify_all()
+
+    def callback(self, sample: Any) -> None:
+        """Subscriber callback of ``<prefix>/laser``: any body (bad ones are logged)."""
+        from schemas.messages import LaserState
+
+        msg = decode_sample(sample, LaserState, log, "laser state")
+        if msg is not None:
+            self.offer(msg.t, msg.on)
 
     def span_after(self, t0: float) -> tuple[float, float] | None:
         """The first on-interval (t_on, t_off; t_off = inf while on) that began at or after

@@ -30,6 +30,7 @@ from planner.service.bus import (
     file_sets_endpoints,
     load_config_file,
     open_session,
+    update_alive,
 )
 from planner.service.supervisor import Supervisor
 
@@ -137,14 +138,7 @@ class Health:
         self.recover_requests: list[str] = []  # robots the operator acknowledged
 
     def _on_alive(self, sample: Any) -> None:
-        import zenoh
-
-        node = str(sample.key_expr).rsplit("/", 1)[-1]
-        with self._lock:
-            if sample.kind == zenoh.SampleKind.PUT:
-                self.alive.add(node)
-            else:
-                self.alive.discard(node)
+        update_alive(self.alive, self._lock, sample)
 
     def _tick(self, name: str) -> None:
         now = time.monotonic()

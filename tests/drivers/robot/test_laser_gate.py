@@ -15,13 +15,13 @@ import pytest
 
 from drivers.robot.follower import Reference, TrajectoryFollower
 from drivers.robot.node import RobotNode
-from drivers.robot.sim import MAX_CATCH_UP, SimRobot
+from drivers.robot.sim import MAX_CATCH_UP
 from drivers.robot.ur import URRobot
 from drivers.robot.ur_fake import FakeURController
 from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
 from planner.service.bus import Keys, open_session
 from tests.drivers.conftest import Heartbeats, raw_session, wait_for
-from tests.drivers.robot.test_robot_node import Recorder, smooth_move
+from tests.drivers.robot.test_robot_node import Cell, smooth_move
 
 HOME = np.array(DEFAULT_HOME)
 LIMITS = Limits.ur_default()
@@ -52,36 +52,13 @@ def test_reference_edges_and_follower_modes() -> None:
     )
 
 
-class GateCell:
-    """The simulated arm's driver with a gate on output 2, an outside client playing the
-    planner (plain Zenoh), recorders of the status and of ``<prefix>/laser``."""
+class GateCell(Cell):
+    """The simulated arm's driver with a gate on output 2 and an outside client playing the
+    planner (plain Zenoh) as session ``P``, recording the status and ``<prefix>/laser``."""
 
     def __init__(self, endpoint: str, keys: Keys, gate_output: int | None = 2) -> None:
-        self.keys = keys
-        self.client = raw_session(endpoint)
-        self.lasers, self.statuses = Recorder(), Recorder()
-        self._subs = [self.client.declare_subscriber(keys.laser, self.lasers),
-                      self.client.declare_subscriber(keys.status("arm0"), self.statuses)]  # fmt: skip
-        self.token = self.client.liveliness().declare_token(keys.alive("planner"))
-        self.beats = Heartbeats(self.client, keys.prefix, "P")
-        self.session = open_session(listen=False, endpoint=endpoint)
-        self.sim = SimRobot(JOINT_NAMES_UR, HOME, LIMITS)
-        self.node = RobotNode(self.session, keys, "arm0", self.sim, LIMITS,
-                              gate_output=gate_output).start()  # fmt: skip
-        wait_for(lambda: self.node.planner_alive and "P" in self.node.heartbeats, what="planner")
-
-    def send(self, body: dict[str, Any] | bytes) -> None:
-        data = body if isinstance(body, bytes) else json.dumps(body).encode()
-        self.client.put(self.keys.trajectory("arm0"), data)
-
-    def close(self) -> None:
-        self.node.stop()
-        self.session.close()
-        self.beats.stop()
-        for s in self._subs:
-            s.undeclare()
-        self.token.undeclare()
-        self.client.close()
+        super().__init__(endpoint, keys, "P", gate_output=gate_output)
+        wait_for(lambda: "P" in self.node.heartbeats, what="planner")
 
 
 @pytest.fixture

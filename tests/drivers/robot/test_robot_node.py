@@ -64,32 +64,34 @@ class Recorder:
 
 
 class Cell:
-    """A simulated arm's driver on the bus and an outside client (plain Zenoh) playing the
-    planner: liveliness token, heartbeats of session ``name``, recorders of the driver's
-    joint states and status."""
+    """A simulated arm's driver on the bus (its laser gate on ``gate_output``, if any) and an
+    outside client (plain Zenoh) playing the planner: liveliness token, heartbeats of session
+    ``name``, recorders of the driver's joint states, status and ``<prefix>/laser``."""
 
     def __init__(
         self, endpoint: str, keys: Keys, name: str = "planner-A", *, beat: bool = True,
-        require_planner: bool = True, q0: np.ndarray = HOME,
+        require_planner: bool = True, q0: np.ndarray = HOME, gate_output: int | None = None,
     ) -> None:  # fmt: skip
         self.keys, self.name = keys, name
         self.client = raw_session(endpoint)
-        self.states, self.statuses = Recorder(), Recorder()
+        self.states, self.statuses, self.lasers = Recorder(), Recorder(), Recorder()
         self._subs = [
             self.client.declare_subscriber(keys.joint_states("arm0"), self.states),
             self.client.declare_subscriber(keys.status("arm0"), self.statuses),
+            self.client.declare_subscriber(keys.laser, self.lasers),
         ]
         self.token = self.client.liveliness().declare_token(keys.alive("planner"))
         self.beats = Heartbeats(self.client, keys.prefix, name) if beat else None
         self.session = open_session(listen=False, endpoint=endpoint)
         self.sim = SimRobot(JOINT_NAMES_UR, q0, LIMITS)
-        self.node = RobotNode(
-            self.session, keys, "arm0", self.sim, LIMITS, require_planner=require_planner
-        ).start()
+        self.node = RobotNode(self.session, keys, "arm0", self.sim, LIMITS,
+                              require_planner=require_planner, gate_output=gate_output).start()  # fmt: skip
         wait_for(lambda: self.node.planner_alive and len(self.states.items) > 5, what="states")
 
-    def send(self, traj: JointTrajectory | bytes) -> None:
-        body = traj if isinstance(traj, bytes) else traj.model_dump_json().encode()
+    def send(self, traj: JointTrajectory | dict[str, Any] | bytes) -> None:
+        if isinstance(traj, JointTrajectory):
+            traj = traj.model_dump_json().encode()
+        body = traj if isinstance(traj, bytes) else json.dumps(traj).encode()
         self.client.put(self.keys.trajectory("arm0"), body)
 
     def acks(self) -> list[dict[str, Any]]:

@@ -10,6 +10,8 @@ import pytest
 
 from planner.beam.trace import mirror_poses
 from planner.ik import BeamIK, IKOptions, Solution
+from planner.ik.safe_members import BUDGET
+from planner.ik.solve import CLEARANCE_BUDGET
 from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
 from planner.model.system import System
 from planner.model.transforms import look_at, make_T
@@ -169,10 +171,24 @@ def test_arm_arm_collision_fails_with_both_arms_named(shared) -> None:  # type: 
     system, points, _ = shared
     # the bases' housings are 0.64 - 2 x 0.076 = 0.488 m apart at every configuration
     rules = Safety(system, settings=SafetySettings(clearance=0.5))
-    sol = BeamIK(system, OPTS, rules).solve(points[0])
+    ik = BeamIK(system, OPTS, rules)
+    nlp_solves = 0
+    inner = ik.nlp.solve
+
+    def counted(*args, **kw):  # type: ignore[no-untyped-def]
+        nonlocal nlp_solves
+        nlp_solves += 1
+        return inner(*args, **kw)
+
+    ik.nlp.solve = counted  # type: ignore[method-assign]
+    sol = ik.solve(points[0])
     assert sol.reason == "collision" and sol.evidence["check"] == "arm_arm"
     a, b = str(sol.evidence["a"]), str(sol.evidence["b"])
     assert {a.split("/")[0], b.split("/")[0]} == {"arm0", "arm1"}
     assert float(sol.evidence["distance_m"]) <= 0.488 + 1e-9  # type: ignore[arg-type]
     assert sol.evidence["unsafe_by_reason"] == {"collision": sol.evidence["members_unsafe"]}
-    assert sol.solve_time < 5.0  # the search gives up after its budget of rejections
+    # the work is bounded: the closed-form search gives up after its budget of rejections,
+    # then one NLP per multi-start seed (previous joints, home, the random starts) plus at
+    # most the clearance-cut budget of re-solves
+    assert sol.evidence["members_unsafe"] == BUDGET
+    assert 0 < nlp_solves <= 2 + OPTS.starts + CLEARANCE_BUDGET

@@ -5,65 +5,18 @@ request id, and the next trajectory starts where the robot will be when it begin
 from __future__ import annotations
 
 import json
-import threading
 import time
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 import pytest
 
 from planner.model.system import System
-from planner.service.bus import Keys, open_session
-from planner.service.heartbeat import BusAddress
 from planner.service.node import PlannerNode, RequestHandler, make_plan_fn
-from tests.drivers.conftest import free_port, wait_for
-from tests.planner.raw_zenoh import Inbox, ask, raw_session
+from tests.drivers.conftest import wait_for
+from tests.planner.raw_zenoh import Inbox, ask
+from tests.planner.service.fake_driver import PREFIX, REJECTION, FakeDriver, NodeRig, NodeRigFactory
 from tests.planner.service.test_node import reachable_targets, system_with_camera
-
-PREFIX = "exectest"
-REJECTION = "q[0]: starts 0.2000 rad from the current state on joint elbow (tolerance 0.01 rad)"
-
-
-class FakeDriver:
-    """A robot driver in plain zenoh: token, joint states at 100 Hz (fixed ``q``), and a
-    verdict in its status on every trajectory (``accept``, ``reject`` or ``silent``)."""
-
-    def __init__(self, session: Any, robot: str, names: list[str], q: np.ndarray) -> None:
-        self.session, self.robot, self.names, self.q = session, robot, names, q
-        self.behaviour = "accept"
-        self.trajectories: list[dict[str, Any]] = []
-        self._stop = threading.Event()
-        self._token = session.liveliness().declare_token(f"{PREFIX}/alive/{robot}")
-        self._sub = session.declare_subscriber(f"{PREFIX}/{robot}/trajectory", self._on_traj)
-        self._thread = threading.Thread(target=self._publish_states, daemon=True)
-        self._thread.start()
-
-    def _publish_states(self) -> None:
-        while not self._stop.wait(0.01):
-            body = {"schema": "beamrelay.joint_state/1", "t": time.time(), "names": self.names,
-                    "q": self.q.tolist(), "qd": [0.0] * len(self.names)}  # fmt: skip
-            self.session.put(f"{PREFIX}/{self.robot}/joint_states", json.dumps(body))
-
-    def _on_traj(self, sample: Any) -> None:
-        msg = json.loads(sample.payload.to_bytes())
-        self.trajectories.append(msg)
-        if self.behaviour == "silent":
-            return
-        self.status("following", msg["id"], self.behaviour == "accept")
-
-    def status(self, mode: str, trajectory_id: str | None, accepted: bool = True) -> None:
-        ack = {"id": trajectory_id, "accepted": accepted, "t": time.time(),
-               "reason": None if accepted else REJECTION}  # fmt: skip
-        body = {"schema": "beamrelay.status/1", "robot": self.robot, "t": time.time(),
-                "mode": mode, "trajectory": ack}  # fmt: skip
-        self.session.put(f"{PREFIX}/{self.robot}/status", json.dumps(body))
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2)
-        self._sub.undeclare()
-        self._token.undeclare()
 
 
 @pytest.fixture(scope="module")
@@ -72,26 +25,13 @@ def system() -> System:
 
 
 @pytest.fixture
-def rig(system: System) -> Iterator[tuple[PlannerNode, Any, FakeDriver]]:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    hub = open_session(listen=True, endpoint=endpoint)
-    node = PlannerNode(RequestHandler(system, make_plan_fn(system, {})), hub, Keys(PREFIX),
-                       bus=BusAddress(endpoint))  # fmt: skip
-    node.tracks.margin = 0.2
-    node.start()
-    client, fake_side = raw_session(endpoint), raw_session(endpoint)
+def rig(system: System, node_rig: NodeRigFactory) -> NodeRig:
+    def short_margin(node: PlannerNode) -> None:
+        node.tracks.margin = 0.2
+
     robot = system.robots[0]
-    fake = FakeDriver(fake_side, "arm0", list(robot.joint_names), robot.home + 0.05)
-    try:
-        wait_for(lambda: "arm0" in node.alive and node.joints.get("arm0") is not None, 20.0,
-                 "fake driver seen by the node")  # fmt: skip
-        yield node, client, fake
-    finally:
-        fake.close()
-        client.close()
-        fake_side.close()
-        node.close()
-        hub.close()
+    return node_rig(RequestHandler(system, make_plan_fn(system, {})), robot.home + 0.05,
+                    short_margin)  # fmt: skip
 
 
 def execute(client: Any, points: np.ndarray, rid: str) -> dict[str, Any]:

@@ -189,7 +189,7 @@ def test_queue_bounded_in_bytes(rig: Rig, system: System) -> None:
     body = body[:-1] + b" " * (3_900_000 - len(body)) + b"}"
     pending = [rig.client.get(f"{PREFIX}/plan", payload=body, timeout=60) for _ in range(12)]
     fits = QUEUE_BYTES // len(body)
-    wait_for(lambda: rig.node._jobs.nbytes == fits * len(body), 20.0, "queue filled")
+    wait_for(lambda: rig.node._worker.jobs.nbytes == fits * len(body), 20.0, "queue filled")
     time.sleep(0.5)
     rig.gate.set()
     answers = []
@@ -201,7 +201,7 @@ def test_queue_bounded_in_bytes(rig: Rig, system: System) -> None:
     assert sum(ok for ok, _ in answers) == fits and len(busy) == 12 - fits
     assert all("planner busy" in a["error"] and "bytes" in a["error"] for a in busy)
     assert all(a["solutions"][0]["status"] == "ok" for ok, a in answers if ok)
-    assert rig.node._jobs.nbytes == 0
+    assert rig.node._worker.jobs.nbytes == 0
 
 
 def test_job_queue_counts_and_bytes() -> None:

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -14,20 +13,18 @@ import numpy as np
 import pytest
 
 from planner.ik import BeamIK
-from planner.service.bus import Keys, open_session
-from planner.service.heartbeat import BusAddress
 from planner.service.node import PlannerNode, handler_from_scenario
 from planner.track.follow import TrackSettings
-from tests.drivers.conftest import free_port, wait_for
+from tests.drivers.conftest import wait_for
 from tests.paths import SCENARIOS
-from tests.planner.raw_zenoh import Inbox, ask, raw_session
-from tests.planner.service.test_node_execute import PREFIX, FakeDriver
+from tests.planner.raw_zenoh import Inbox, ask
+from tests.planner.service.fake_driver import PREFIX, NodeRig, NodeRigFactory
 
 P0 = [-0.492, -0.55, -0.06]
 
 
 @pytest.fixture
-def rig(tmp_path: Path) -> Iterator[tuple[PlannerNode, Any, Any]]:
+def rig(tmp_path: Path, node_rig: NodeRigFactory) -> NodeRig:
     text = (
         (SCENARIOS / "breathing.yaml")
         .read_text()
@@ -37,25 +34,13 @@ def rig(tmp_path: Path) -> Iterator[tuple[PlannerNode, Any, Any]]:
     path.write_text(text)
     handler = handler_from_scenario(path)
     q0 = BeamIK(handler.system).solve(np.array(P0), np.array([0, 0, 1.0])).q
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    hub = open_session(listen=True, endpoint=endpoint)
-    node = PlannerNode(handler, hub, Keys(PREFIX), bus=BusAddress(endpoint))
-    # 10 frame periods (333 ms) before the stale stop: the test's own process publishes the
-    # frames and parses 500 setpoints/s under the GIL of a shared, loaded machine
-    node.track_settings = TrackSettings(stale_frames=10)
-    node.start()
-    client, fake_side = raw_session(endpoint), raw_session(endpoint)
-    fake = FakeDriver(fake_side, "arm0", list(handler.system.robots[0].joint_names), q0)
-    try:
-        wait_for(lambda: "arm0" in node.alive and node.joints.get("arm0") is not None, 20.0,
-                 "fake driver seen by the node")  # fmt: skip
-        yield node, client, fake
-    finally:
-        fake.close()
-        client.close()
-        fake_side.close()
-        node.close()
-        hub.close()
+
+    def stale_after_10_frames(node: PlannerNode) -> None:
+        # 10 frame periods (333 ms) before the stale stop: the test's own process publishes
+        # the frames and parses 500 setpoints/s under the GIL of a shared, loaded machine
+        node.track_settings = TrackSettings(stale_frames=10)
+
+    return node_rig(handler, q0, stale_after_10_frames)
 
 
 def request(client: Any, rid: str, **kw: Any) -> tuple[bool, dict[str, Any]]:
