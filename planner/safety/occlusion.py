@@ -219,13 +219,16 @@ def unsafe_samples(safety: Safety, Q: Array, points: Array, normals: Array | Non
 
 
 def safer_warm_start(
-    safety: Safety, Q_nlp: Array, Q_warm: Array, ks: Any, targets: Targets
-) -> bool:
+    safety: Safety, Q_nlp: Array, Q_warm: Array, ks: Any, targets: Targets,
+    bad_nlp: int | None = None,
+) -> bool:  # fmt: skip
     """True when the path NLP's samples ``ks`` break the safety rules more often than their
-    warm start (then the warm start is kept)."""
+    warm start (then the warm start is kept); ``bad_nlp``: at how many samples ``Q_nlp``
+    breaks them, when the caller already counted (:func:`unsafe_samples` otherwise)."""
     P = targets.points[ks]
     N = None if targets.normals is None else targets.normals[ks]
-    bad_nlp = int(unsafe_samples(safety, Q_nlp, P, N).sum())
+    if bad_nlp is None:
+        bad_nlp = int(unsafe_samples(safety, Q_nlp, P, N).sum())
     return bad_nlp > 0 and bad_nlp > int(unsafe_samples(safety, Q_warm, P, N).sum())
 
 
