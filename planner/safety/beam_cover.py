@@ -26,12 +26,13 @@ import numpy.typing as npt
 import pinocchio as pin
 
 from planner.model.transforms import Array
-from planner.safety.model import Safety
+from planner.safety.model import Safety, Violation
 from planner.safety.sweep import reach_table
 
 #: m: certified margins must exceed this (covers coal's distance error, ~1e-7 m at worst
 #: for near-parallel capsules, with room to spare)
 EPS = 1e-6
+Mask = npt.NDArray[np.bool_]
 #: samples bounded per vectorised step ahead of an anchor
 CHUNK = 512
 
@@ -66,7 +67,7 @@ def pair_slack(safety: Safety, table: PairTable) -> Array:
     return d - table.required
 
 
-def covered(table: PairTable, slack: Array, q0: Array, P0: Array, Q: Array, P: Array) -> Array:
+def covered(table: PairTable, slack: Array, q0: Array, P0: Array, Q: Array, P: Array) -> Mask:
     """Which samples (joints ``Q``: M x nq rad, beam polylines ``P``: M x (N + 2) x 3 m) the
     anchor (``q0``, ``P0``, pair ``slack`` m) certifies (see the module docstring)."""
     if not len(slack):
@@ -100,3 +101,64 @@ def coverable(safety: Safety) -> bool:
     (its lens posed by the configuration) is checked at every sample instead."""
     cam = safety.system.camera
     return cam is None or cam.robot is None
+
+
+def aperture_mask(safety: Safety, P: Array) -> Mask:
+    """(M,) rows of beams ``P`` (M x (N + 2) x 3, world, m) entering the laser aperture or a
+    fixed camera's lens (the rule of :meth:`Safety.apertures_batch`, every row, widened by
+    :data:`EPS` so that rounding can only add rows)."""
+    from planner.safety.model import aperture_hits
+
+    s, system = safety.settings, safety.system
+    r = s.return_radius
+    hit = aperture_hits(P, system.world_T_laser, r, s.return_cone, 1, EPS).any(axis=1)
+    cam = system.camera
+    if cam is not None and cam.robot is None:
+        hit |= aperture_hits(P, cam.world_T_camera, r, s.lens_cone, 0, EPS).any(axis=1)
+    return np.asarray(hit, dtype=bool)
+
+
+def configs(safety: Safety, Q: npt.ArrayLike, P: npt.ArrayLike) -> list[Violation | None]:
+    """``safety.config(Q[i], P[i])`` for every row (joints M x nq rad, beam polylines
+    M x (N + 2) x 3 m), measuring with coal only the rows that conservative advancement
+    from the last clean measured row cannot certify: every arm pair (its
+    :func:`~planner.safety.sweep.pair_weights` bound) and every beam pair (module docstring)
+    keeps its distance, and the beam enters no aperture. A certified row breaks no rule, so
+    its entry is None as ``config`` would give."""
+    from planner.safety.sweep import pair_weights
+
+    Q, P = np.asarray(Q, dtype=float), np.asarray(P, dtype=float)
+    M = len(Q)
+    finite = np.all(np.isfinite(Q), axis=1) & np.all(np.isfinite(P), axis=(1, 2))
+    if not coverable(safety) or not finite.all():
+        return [safety.config(q, p) for q, p in zip(Q, P, strict=True)]
+    world, table = safety.world, pair_table(safety)
+    W = pair_weights(world)
+    arm_req = np.array([safety.required(k) for k in world.pair_kinds])
+    blocked = aperture_mask(safety, P)
+    out: list[Violation | None] = [None] * M
+    i = 0
+    while i < M:
+        out[i] = safety.config(Q[i], P[i])
+        if out[i] is not None or blocked[i]:
+            i += 1
+            continue
+        beam_slack = pair_slack(safety, table)
+        arm_slack = np.zeros(0)
+        if len(arm_req):
+            pin.computeDistances(world.geom_model, world.geom_data)
+            d = np.array([r.min_distance for r in world.geom_data.distanceResults])
+            arm_slack = d - arm_req
+        j = i + 1
+        while j < M:
+            rows = np.arange(j, min(j + CHUNK, M))
+            ok = covered(table, beam_slack, Q[i], P[i], Q[rows], P[rows]) & ~blocked[rows]
+            if len(arm_slack):
+                moved = np.abs(Q[rows] - Q[i]) @ W.T
+                ok = ok & np.all(moved < (arm_slack - EPS)[None], axis=1)
+            if not ok.all():
+                j += int(np.argmin(ok))
+                break
+            j += len(rows)
+        i = j
+    return out

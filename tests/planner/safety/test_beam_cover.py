@@ -7,6 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import pytest
 
 from planner.model.transforms import Array, make_T
 from planner.safety import sphere
@@ -26,10 +27,15 @@ class Spy(Safety):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.measured: list[Array] = []
+        self.configs: list[Array] = []
 
     def beam(self, q: Array, points: Array, *, apertures: bool = True) -> Violation | None:
         self.measured.append(np.array(q))
         return super().beam(q, points, apertures=apertures)
+
+    def config(self, q: Array, points: Array | None = None) -> Violation | None:
+        self.configs.append(np.array(q))
+        return super().config(q, points)
 
 
 def _sweep(rng: np.random.Generator, m: int = 400) -> Array:
@@ -119,3 +125,38 @@ def test_dwell_and_laser_off_samples() -> None:
     bad, n, exact = check_beam_samples(rules, t, Q, np.ones(len(Q), dtype=bool), FAR)
     assert bad is None and n == 5 and 1 <= exact <= 5
     assert check_beam_samples(rules, t, Q, np.zeros(len(Q), dtype=bool), FAR) == (None, 0, 0)
+
+
+def test_configs_equal_config_row_by_row() -> None:
+    """:func:`configs` (per-row rules with advancement) against ``Safety.config`` at every
+    row: the same rows break a rule, with the same check, and coal measured few rows."""
+    from planner.safety.beam_cover import configs
+
+    system = single()
+    rng = np.random.default_rng(0)
+    broken, measured, rows = 0, 0, 0
+    for _ in range(12):
+        Q = _sweep(rng)
+        rules = Spy(system)
+        P = _polylines(rules, Q)
+        got = configs(rules, Q, P)
+        calls = len(rules.configs)
+        ref = [rules.config(q, p) for q, p in zip(Q, P, strict=True)]
+        assert [v is None for v in got] == [v is None for v in ref]
+        assert [v.check for v in got if v] == [v.check for v in ref if v]
+        broken += sum(v is not None for v in ref)
+        clean = sum(v is None for v in ref)
+        measured, rows = measured + calls - (len(Q) - clean), rows + clean
+    assert broken > 0 and measured < rows / 4
+
+
+def test_configs_of_non_finite_rows_raise_as_config() -> None:
+    from planner.safety.beam_cover import configs
+
+    system = single()
+    Q = _sweep(np.random.default_rng(3), 5)
+    P = _polylines(Safety(system), Q)
+    P[2, 1] = np.nan
+    with pytest.raises(ValueError, match="finite"):
+        configs(Safety(system), Q, P)
+    assert configs(Safety(system), Q[:0], P[:0]) == []
