@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import typer
 
-from planner.bench import ik, marking, path, plan, safety, service, servo, track
+from planner.bench import ik, marking, path, plan, preview, safety, service, servo, track
 
 app = typer.Typer(help="Benchmarks (figures printed, not asserted).", no_args_is_help=True)
 
@@ -16,6 +16,7 @@ BENCHMARKS = {
     "marking": marking,
     "service": service,
     "plan": plan,
+    "preview": preview,
     "safety": safety,
     "servo": servo,
     "track": track,

@@ -8,6 +8,8 @@ need them) and are re-exported here.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -121,5 +123,20 @@ def plane_bases(normals: ArrayLike) -> Array:
 
 
 def plane_basis(normal: ArrayLike) -> Array:
-    """:func:`plane_bases` of one normal (3,): the 3 x 3 matrix ``[n, e1, e2]``."""
-    return np.asarray(plane_bases(np.asarray(normal, dtype=float)[None, :])[0])
+    """:func:`plane_bases` of one normal (3,): the 3 x 3 matrix ``[n, e1, e2]`` (the same
+    arithmetic on plain floats: numpy calls on 3-vectors cost ~1 µs each, and the path's
+    continuation chain asks for a basis per step)."""
+    n = np.asarray(normal, dtype=float).reshape(-1)
+    if n.shape != (3,):
+        raise ValueError(f"a plane normal has 3 components, got {n.shape}")
+    nx, ny, nz = (float(v) for v in n)
+    r = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if not 0.0 < r < math.inf:  # zero or non-finite: numpy's NaN (and warning) as before
+        return np.asarray(plane_bases(n[None, :])[0])
+    nx, ny, nz = nx / r, ny / r, nz / r
+    ax, ay, az = (1.0, 0.0, 0.0) if abs(nx) < 0.9 else (0.0, 1.0, 0.0)
+    ex, ey, ez = ny * az - nz * ay, nz * ax - nx * az, nx * ay - ny * ax  # n x a
+    r = math.sqrt(ex * ex + ey * ey + ez * ez)
+    ex, ey, ez = ex / r, ey / r, ez / r
+    fx, fy, fz = ny * ez - nz * ey, nz * ex - nx * ez, nx * ey - ny * ex  # n x e1
+    return np.array([[nx, ex, fx], [ny, ey, fy], [nz, ez, fz]])

@@ -51,9 +51,13 @@ def _polyline(ctx: PathContext, k: int, q: Array) -> Array:
 
 def unsafe_mask(safety: Safety, ctx: PathContext, ks: Indices, Q: Array) -> tuple[Array, Array]:
     """Per sample of ``ks`` at joints ``Q``: broken by any rule, and by a distance rule."""
+    from planner.safety.beam_cover import configs
+
     any_bad, dist_bad = np.zeros(len(ks), dtype=bool), np.zeros(len(ks), dtype=bool)
-    for i, k in enumerate(ks):
-        bad = safety.config(Q[i], _polyline(ctx, int(k), Q[i]))
+    if not len(ks):
+        return any_bad, dist_bad
+    P = np.array([_polyline(ctx, int(k), Q[i]) for i, k in enumerate(ks)])
+    for i, bad in enumerate(configs(safety, Q, P)):
         any_bad[i] = bad is not None
         dist_bad[i] = bad is not None and bad.check.value not in _APERTURES
     return any_bad, dist_bad

@@ -54,7 +54,7 @@ class PathOptions:
         1.0  # integral |q - q_warm|^2 ds: posture (the warm start is seeded nearest home)
     )
     acceleration_spacing: float = 1e-3  # m: finer spacing scales weight_acceleration by (ds/this)^2
-    coarse_spacing: float = 1e-3  # m: finer paths are warm-started from every m-th sample
+    coarse_spacing: float = 5e-3  # m: finer paths are warm-started from every m-th sample
     polish: bool = True  # final per-sample min-norm Gauss-Newton to machine precision
 
 
@@ -114,24 +114,36 @@ def compiled(f: ca.Function) -> ca.Function:
     """``f`` compiled to C (CasADi code generation, ``cc -O1``), cached on disk under
     ``$XDG_CACHE_HOME/beamrelay`` by a hash of the generated source; ``f`` itself when no C
     compiler works or the cache is not writable. About 4x faster per call than the SX
-    virtual machine; only for functions the NLP does not differentiate further."""
-    import hashlib
+    virtual machine; only for functions the NLP does not differentiate further. Kept in
+    memory per (function, compiler, cache directory): generating the source to hash it costs
+    ~10 ms a call, and a plan builds several path contexts."""
     import os
     import shutil
-    import subprocess
-    import tempfile
     from pathlib import Path
 
     cc = shutil.which("cc") or shutil.which("gcc")
     if cc is None:
         return f
+    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "beamrelay"
+    return _compiled(f, cc, str(cache))
+
+
+@lru_cache(maxsize=64)
+def _compiled(f: ca.Function, cc: str, cache_dir: str) -> ca.Function:
+    """:func:`compiled` with the compiler and cache directory resolved (cached in memory)."""
+    import hashlib
+    import os
+    import subprocess
+    import tempfile
+    from pathlib import Path
+
     gen = f"{f.name()}_gen"
     with tempfile.TemporaryDirectory() as tmp:
         cg = ca.CodeGenerator(gen)
         cg.add(f)
         cg.generate(tmp + os.sep)
         src = Path(tmp, gen + ".c").read_bytes()
-    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "beamrelay"
+    cache = Path(cache_dir)
     lib = cache / f"{f.name()}_{hashlib.sha256(src).hexdigest()[:16]}.so"
     if not lib.exists():
         tmp_c, tmp_lib = lib.with_suffix(f".{os.getpid()}.c"), lib.with_suffix(f".{os.getpid()}")

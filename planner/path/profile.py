@@ -8,6 +8,7 @@ speed (:func:`spot_ramp`), capped by the joints. Arc length in m, time in s, joi
 
 from __future__ import annotations
 
+from bisect import bisect_left
 from typing import NamedTuple
 
 import numpy as np
@@ -99,11 +100,12 @@ def profile(q_path: Array, arc: Array, lim: Limits, spot_speed: float, rate: flo
     inp.target_position, inp.target_velocity, inp.target_acceleration = [L], [0.0], [0.0]
     inp.max_acceleration, inp.max_jerk = [a_s], [j_s]
     S = [(0.0, 0.0, 0.0)]
+    arc_list, speed_list = [float(x) for x in arc], [float(x) for x in speed]  # bisect, min
     for _ in range(int(50 * (L / max(speed.min(), 1e-9) + 1) * rate)):
         s, v = inp.current_position[0], inp.current_velocity[0]
         brake = v * v / (2 * a_s) + v * a_s / j_s + 2 * v / rate  # stopping distance, m
-        i0, i1 = np.searchsorted(arc, [s, s + brake])
-        inp.max_velocity = [float(max(speed[max(i0 - 1, 0) : i1 + 1].min(), 1e-6))]
+        i0, i1 = bisect_left(arc_list, s), bisect_left(arc_list, s + brake)
+        inp.max_velocity = [max(min(speed_list[max(i0 - 1, 0) : i1 + 1]), 1e-6)]
         result = otg.update(inp, out)
         if result not in (Result.Working, Result.Finished):
             raise PlanError(f"Ruckig failed ({result}) timing the path at s = {s:.4f} m")

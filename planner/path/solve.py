@@ -147,20 +147,23 @@ def _weights(opts: PathOptions, ds: float) -> tuple[float, ...]:
 
 
 def _clearance(ctx: PathContext, safety: Safety, ks: Indices, Qs: Array, Q0: Array, NB: Array,
-               ds: float, closed: bool, seg: PathSegment) -> tuple[Array, PathSegment]:  # fmt: skip
+               ds: float, closed: bool, seg: PathSegment
+               ) -> tuple[Array, PathSegment, int]:  # fmt: skip
     """The run's NLP result ``Qs`` (from the warm start ``Q0``) re-solved with the clearance
     as constraints where it breaks a distance rule (:func:`planner.path.clearance.clear_run`); kept when it breaks
-    the rules at fewer samples."""
+    the rules at fewer samples. Also returns at how many samples the kept result breaks a
+    rule."""
     from planner.path.clearance import clear_run
 
     t0 = time.perf_counter()
     res = clear_run(ctx, safety, ks, Qs, Q0, NB, _weights(ctx.opts, ds), closed)
     if res.unsafe_after >= res.unsafe_before:
-        return Qs, seg
+        return Qs, seg, res.unsafe_before
     status = (f"{seg.status} +clearance ({res.status}; unsafe samples {res.unsafe_before} -> "
               f"{res.unsafe_after})")  # fmt: skip
     return res.q, seg._replace(status=status, iterations=seg.iterations + res.iterations,
-                               solve_time=seg.solve_time + time.perf_counter() - t0)  # fmt: skip
+                               solve_time=seg.solve_time + time.perf_counter() - t0
+                               ), res.unsafe_after  # fmt: skip
 
 
 def _solve_run(ctx: PathContext, ks: Indices, Q0: Array, NB: Array, ds: float, closed: bool
@@ -266,9 +269,12 @@ def plan_path(
             continue
         ks = np.arange(k0, k1)
         Qs, seg, valid = _solve_run(ctx, ks, Q[k0:k1], NB[k0:k1], ds, closed)
+        unsafe = None  # samples of Qs breaking a rule, when known
         if valid and safety is not None:
-            Qs, seg = _clearance(ctx, safety, ks, Qs, Q[k0:k1], NB[k0:k1], ds, closed, seg)
-        if valid and safety is not None and safer_warm_start(safety, Qs, Q[k0:k1], ks, targets):
+            Qs, seg, unsafe = _clearance(ctx, safety, ks, Qs, Q[k0:k1], NB[k0:k1], ds, closed,
+                                         seg)  # fmt: skip
+        if valid and safety is not None and safer_warm_start(safety, Qs, Q[k0:k1], ks, targets,
+                                                             unsafe):  # fmt: skip
             valid, seg = False, seg._replace(status=f"warm_start (NLP result unsafe: {seg.status})")
         if valid:
             Q[k0:k1] = Qs

@@ -92,9 +92,10 @@ class PathContext:
     def eval(self, k: int, q: Array, nbar: Array) -> list[Array]:
         """The step function's outputs (``path_step``: g, Jg, r, Jr, h, dir, spot) at sample
         k from joints ``q`` with target-plane normal ``nbar``."""
-        out = self.step(q=ca.DM(q), **self.geo, target=self.P[k], nbar=nbar,
-                        has_normal=float(self.has[k]), tangents=tangents(nbar))  # fmt: skip
-        return [np.asarray(out[name], dtype=float) for name in self.step.name_out()]
+        args = {**self.geo, "q": q, "target": self.P[k], "nbar": nbar,
+                "has_normal": float(self.has[k]), "tangents": tangents(nbar)}  # fmt: skip
+        out = self.step.call([args[name] for name in self.step.name_in()])
+        return [x.full() for x in out]
 
     def plane(self, k: int, q_near: Array) -> Array:
         """The target plane normal of sample k: its normal, or the reversed arriving beam."""

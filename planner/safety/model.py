@@ -304,6 +304,18 @@ def aperture_rows(
     """First row m (and its segment k >= ``first``) of beams ``P`` (M x S x 3) passing
     within ``radius`` (m) of the device origin, travelling back along its +z within
     ``cone`` (rad); None if no row does."""
+    hit = aperture_hits(P, world_T_device, radius, cone, first)
+    if not hit.any():
+        return None
+    m, k = np.argwhere(hit)[0]
+    return int(m), int(k) + first
+
+
+def aperture_hits(P: Array, world_T_device: Array, radius: float, cone: float, first: int,
+                  slack: float = 0.0) -> Array:  # fmt: skip
+    """(M, S - 1 - first) which segments k >= ``first`` of beams ``P`` (M x S x 3) pass within
+    ``radius`` (m) of the device origin, travelling back along its +z within ``cone``
+    (rad); ``slack`` widens both bounds (m, and in the cosine) to err on the hit side."""
     c = world_T_device[:3, 3]
     axis = world_T_device[:3, 2] / np.linalg.norm(world_T_device[:3, 2])
     A, B = P[:, first:-1], P[:, first + 1 :]
@@ -312,11 +324,7 @@ def aperture_rows(
     cos = -(d @ axis) / np.sqrt(L2)
     s = np.clip(((c - A) * d).sum(axis=2) / L2, 0.0, 1.0)
     dist = np.linalg.norm(A + s[:, :, None] * d - c, axis=2)
-    hit = (cos >= np.cos(cone)) & (dist <= radius)
-    if not hit.any():
-        return None
-    m, k = np.argwhere(hit)[0]
-    return int(m), int(k) + first
+    return np.asarray((cos >= np.cos(cone) - slack) & (dist <= radius + slack), dtype=bool)
 
 
 def emit_warning(message: str) -> None:

@@ -192,12 +192,22 @@ def check_path_safety(
     """Path samples whose configuration or beam breaks a safety rule (arm collision, beam
     through an arm, into a keep-out volume or back into the laser or camera) become gaps
     with the rule's reason (``collision``, ``occluded``, ``keep_out``) and evidence."""
-    gaps = {}
+    from planner.safety.beam_cover import configs
+
+    gaps: dict[int, SampleGap] = {}
     p0 = system.world_T_laser[:3, 3]
+    ks, qs, polylines = [], [], []
     for k, sol in enumerate(solutions):
         if not sol.ok or sol.q is None or sol.hits is None or sol.spot is None:
             continue
-        bad = safety.config(sol.q, np.vstack([p0, sol.hits, sol.spot]))
+        ks.append(k)
+        qs.append(np.asarray(sol.q, dtype=float))
+        polylines.append(np.vstack([p0, sol.hits, sol.spot]))
+    if not ks:
+        return split_path(solutions, path, gaps)
+    Q, P = np.array(qs), np.array(polylines)
+    for k, bad in zip(ks, configs(safety, Q, P), strict=True):
+        sol = solutions[k]
         if bad is not None:
             point = np.asarray(bad.evidence.get("point", sol.spot), dtype=float)
             gaps[k] = SampleGap(bad.reason, dict(bad.evidence), bad.text, point)
@@ -208,24 +218,32 @@ def unsafe_samples(safety: Safety, Q: Array, points: Array, normals: Array | Non
     """(K,) True where the configuration Q[k] (stacked rad) aiming at ``points[k]`` (world)
     breaks a safety rule; NaN rows are not counted."""
     from planner.beam.trace import trace_beam
+    from planner.safety.beam_cover import configs
 
     system, out = safety.system, np.zeros(len(Q), dtype=bool)
     p0 = system.world_T_laser[:3, 3]
-    for k in np.flatnonzero(np.all(np.isfinite(Q), axis=1)):
+    ks = np.flatnonzero(np.all(np.isfinite(Q), axis=1))
+    P = []
+    for k in ks:
         n = None if normals is None or not np.all(np.isfinite(normals[k])) else normals[k]
         ev = trace_beam(system, Q[k], points[k], n)
-        out[k] = safety.config(Q[k], np.vstack([p0, ev.hits, ev.spot])) is not None
+        P.append(np.vstack([p0, ev.hits, ev.spot]))
+    if len(ks):
+        out[ks] = [v is not None for v in configs(safety, Q[ks], np.array(P))]
     return out
 
 
 def safer_warm_start(
-    safety: Safety, Q_nlp: Array, Q_warm: Array, ks: Any, targets: Targets
-) -> bool:
+    safety: Safety, Q_nlp: Array, Q_warm: Array, ks: Any, targets: Targets,
+    bad_nlp: int | None = None,
+) -> bool:  # fmt: skip
     """True when the path NLP's samples ``ks`` break the safety rules more often than their
-    warm start (then the warm start is kept)."""
+    warm start (then the warm start is kept); ``bad_nlp``: at how many samples ``Q_nlp``
+    breaks them, when the caller already counted (:func:`unsafe_samples` otherwise)."""
     P = targets.points[ks]
     N = None if targets.normals is None else targets.normals[ks]
-    bad_nlp = int(unsafe_samples(safety, Q_nlp, P, N).sum())
+    if bad_nlp is None:
+        bad_nlp = int(unsafe_samples(safety, Q_nlp, P, N).sum())
     return bad_nlp > 0 and bad_nlp > int(unsafe_samples(safety, Q_warm, P, N).sum())
 
 

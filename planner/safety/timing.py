@@ -84,6 +84,8 @@ def safe_timing(
                                  getattr(traj, "laser_on", None))  # fmt: skip
         figures["safety_check_time"] = check.seconds
         figures["safety_beam_samples"] = float(check.beam_samples)
+        figures["safety_beam_measured"] = float(check.beam_exact)
+        figures["safety_beam_time"] = check.beam_seconds
         if not guard and _in_a_move(check, traj) and n < rounds - 1:
             guard = True  # re-time with every move swept and detoured where needed
             continue

@@ -104,6 +104,7 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
         "marking",
         "path",
         "plan",
+        "preview",
         "safety",
         "service",
         "servo",
