@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import shutil
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -41,6 +42,23 @@ def chromium_paths() -> tuple[str, str] | None:
     return (browser, driver) if browser and driver else None
 
 
+#: niceness of the browser: its software rendering must not starve the system under test (an
+#: operator's browser runs on its own machine or GPU)
+BROWSER_NICE = 15
+
+
+def nice_browser(browser: str) -> str:
+    """A wrapper script running ``browser`` at :data:`BROWSER_NICE` (made once per process)."""
+    import os
+    import tempfile
+
+    path = Path(tempfile.gettempdir()) / f"beamrelay-nice-chromium-{os.getpid()}"
+    if not path.exists():
+        path.write_text(f'#!/bin/sh\nexec nice -n {BROWSER_NICE} "{browser}" "$@"\n')
+        path.chmod(0o755)
+    return str(path)
+
+
 def open_browser(width: int = 1024, height: int = 700) -> Any:
     from selenium import webdriver
     from selenium.webdriver.chrome.options import Options
@@ -49,7 +67,7 @@ def open_browser(width: int = 1024, height: int = 700) -> Any:
     paths = chromium_paths()
     assert paths is not None
     opts = Options()
-    opts.binary_location = paths[0]
+    opts.binary_location = nice_browser(paths[0])
     for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
               f"--window-size={width},{height}", "--enable-unsafe-swiftshader",
               "--use-angle=swiftshader", "--ignore-gpu-blocklist"):  # fmt: skip
@@ -159,3 +177,30 @@ def click_world_point(d: Any, view: Any, rect: tuple[float, float, float, float]
     ActionChains(d).move_to_element_with_offset(
         canvas, round(float(u) - rect[2] / 2), round(float(v) - rect[3] / 2)
     ).click().perform()
+
+
+def set_input(d: Any, label: str, value: str) -> None:
+    """Type ``value`` into the text or number field labelled ``label`` (replacing its text)."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+
+    lab = d.find_element(By.XPATH, f"//label[normalize-space()='{label}']")
+    box = d.find_element(By.ID, lab.get_attribute("for"))
+    d.execute_script("arguments[0].scrollIntoView({block: 'center'});", box)
+    box.click()
+    box.send_keys(Keys.CONTROL, "a")
+    box.send_keys(Keys.DELETE)
+    box.send_keys(value)
+    box.send_keys(Keys.TAB)
+
+
+def open_folder(d: Any, title: str) -> None:
+    """Expand the GUI folder titled ``title`` (a no-op when its content is shown)."""
+    from selenium.webdriver.common.by import By
+
+    heads = [e for e in d.find_elements(By.XPATH, f"//*[normalize-space(text())='{title}']")
+             if e.is_displayed()]  # fmt: skip
+    if not heads:
+        raise AssertionError(f"no folder {title!r} on the page")
+    d.execute_script("arguments[0].scrollIntoView({block: 'center'});", heads[0])
+    heads[0].click()
