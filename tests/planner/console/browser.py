@@ -11,20 +11,29 @@ from typing import Any
 import numpy as np
 
 CHROMIUM = ("chromium", "chromium-browser", "google-chrome")
-#: records every websocket message (time ms, bytes) the page receives, from before it loads
+#: records every message batch the page receives from the server, from before it loads: (time
+#: ms, bytes of binary data in it). viser reads its websocket in a Web Worker that posts the
+#: decoded messages to the page, so the probe listens to the workers' messages.
 WS_PROBE = """
 window.__ws = [];
-const Native = window.WebSocket;
-window.WebSocket = function (...args) {
-  const ws = new Native(...args);
-  ws.addEventListener("message", (e) => {
-    const n = e.data.byteLength ?? e.data.size ?? e.data.length ?? 0;
-    window.__ws.push([performance.now(), n]);
+function __binaryBytes(x, depth) {
+  if (x == null || depth > 8) return 0;
+  if (x instanceof ArrayBuffer) return x.byteLength;
+  if (ArrayBuffer.isView(x)) return x.byteLength;
+  if (typeof x !== "object") return 0;
+  let n = 0;
+  for (const k in x) n += __binaryBytes(x[k], depth + 1);
+  return n;
+}
+const NativeWorker = window.Worker;
+window.Worker = function (...args) {
+  const w = new NativeWorker(...args);
+  w.addEventListener("message", (e) => {
+    window.__ws.push([performance.now(), __binaryBytes(e.data, 0)]);
   });
-  return ws;
+  return w;
 };
-window.WebSocket.prototype = Native.prototype;
-Object.assign(window.WebSocket, Native);
+window.Worker.prototype = NativeWorker.prototype;
 """
 RAF_FPS = """
 const done = arguments[arguments.length - 1];
@@ -141,14 +150,33 @@ def project(position: np.ndarray, look_at: np.ndarray, up: np.ndarray, fov: floa
     return np.column_stack([width / 2 + f * c[:, 0] / c[:, 2], height / 2 + f * c[:, 1] / c[:, 2]])
 
 
+def labelled(d: Any, label: str, timeout: float = 30.0) -> Any:
+    """The displayed input labelled ``label``, scrolled into view (waits while the panel is
+    still being built or re-rendered)."""
+    from selenium.common.exceptions import NoSuchElementException, StaleElementReferenceException
+    from selenium.webdriver.common.by import By
+
+    end = time.monotonic() + timeout
+    while True:
+        try:
+            lab = d.find_element(By.XPATH, f"//label[normalize-space()='{label}']")
+            box = d.find_element(By.ID, lab.get_attribute("for"))
+            if box.is_displayed():
+                d.execute_script("arguments[0].scrollIntoView({block: 'center'});", box)
+                return box
+        except (NoSuchElementException, StaleElementReferenceException):
+            pass
+        if time.monotonic() > end:
+            raise AssertionError(f"no input labelled {label!r} on the page")
+        time.sleep(0.2)
+
+
 def select_option(d: Any, label: str, value: str, timeout: float = 20.0) -> None:
     """Choose ``value`` in the dropdown labelled ``label`` the way a user does: open it,
     click the option; waits until the input shows it."""
     from selenium.webdriver.common.by import By
 
-    lab = d.find_element(By.XPATH, f"//label[normalize-space()='{label}']")
-    box = d.find_element(By.ID, lab.get_attribute("for"))
-    d.execute_script("arguments[0].scrollIntoView({block: 'center'});", box)
+    box = labelled(d, label, timeout)
     box.click()
     end = time.monotonic() + timeout
     while time.monotonic() < end:
@@ -181,12 +209,9 @@ def click_world_point(d: Any, view: Any, rect: tuple[float, float, float, float]
 
 def set_input(d: Any, label: str, value: str) -> None:
     """Type ``value`` into the text or number field labelled ``label`` (replacing its text)."""
-    from selenium.webdriver.common.by import By
     from selenium.webdriver.common.keys import Keys
 
-    lab = d.find_element(By.XPATH, f"//label[normalize-space()='{label}']")
-    box = d.find_element(By.ID, lab.get_attribute("for"))
-    d.execute_script("arguments[0].scrollIntoView({block: 'center'});", box)
+    box = labelled(d, label)
     box.click()
     box.send_keys(Keys.CONTROL, "a")
     box.send_keys(Keys.DELETE)
