@@ -33,7 +33,7 @@ from planner.service.client import PlanClient, RequestError, make_request
 from planner.service.up import child_commands
 from tests.drivers.conftest import free_port, wait_for
 
-pytestmark = pytest.mark.timeout(180)
+pytestmark = [pytest.mark.serial, pytest.mark.timeout(180)]
 
 SCENARIO = """\
 name: e2e-n1
