@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import socket
 import subprocess
 import sys
 import time
@@ -28,8 +29,10 @@ from planner.calibration.simulate import board_grid
 from planner.io.scenario import load_scenario, system_from_scenario
 from planner.model.system import Intrinsics
 from planner.model.transforms import axis_angle_to_matrix, inv_T, make_T
-from tests.drivers.conftest import free_port, raw_session
+from planner.service.bus import Keys
+from tests.drivers.conftest import free_port, raw_session, wait_for
 from tests.paths import REPO
+from tests.planner.raw_zenoh import token_exists
 
 SCENARIO = REPO / "scenarios" / "paper_n1.yaml"
 CLI = [sys.executable, "-m", "planner.cli"]
@@ -110,6 +113,12 @@ def test_charuco_corners_deprojected_with_depth() -> None:
     assert np.max(np.linalg.norm(part[ok] - truth[ok], axis=1)) < 2e-3
 
 
+def _accepts(port: int) -> bool:
+    """Whether something accepts TCP connections on the loopback ``port``."""
+    with socket.socket() as s:
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
 @pytest.fixture(scope="module")
 def sim_system() -> Any:
     ep, prefix = f"tcp/127.0.0.1:{free_port()}", "brcol"
@@ -118,13 +127,22 @@ def sim_system() -> Any:
                              stderr=subprocess.DEVNULL, env=ENV)  # fmt: skip
     camera = subprocess.Popen([*CLI, "driver", "camera", "--stride", "8", "--seed", "3", *bus],
                               stderr=subprocess.DEVNULL, env=ENV)  # fmt: skip
-    time.sleep(4.0)
-    yield ep, prefix
-    for p in (camera, robot):
-        p.terminate()
-        p.wait(30)
+    try:  # up when both drivers' liveliness tokens are on the bus (the robot hosts it)
+        wait_for(lambda: _accepts(int(ep.rsplit(":", 1)[1])), 60.0, "the robot driver listening")
+        client, keys = raw_session(ep), Keys(prefix)
+        try:
+            wait_for(lambda: all(token_exists(client, keys.alive(n)) for n in ("arm0", "camera")),
+                     60.0, "robot and camera liveliness tokens")  # fmt: skip
+        finally:
+            client.close()
+        yield ep, prefix
+    finally:
+        for p in (camera, robot):
+            p.terminate()
+            p.wait(30)
 
 
+@pytest.mark.serial
 def test_collect_handeye_on_the_simulated_system_calibrates(
     sim_system: Any, tmp_path: Path
 ) -> None:
@@ -156,6 +174,7 @@ def test_collect_handeye_on_the_simulated_system_calibrates(
     assert sd_t < 0.02 and res.converged
 
 
+@pytest.mark.serial
 def test_collect_beam_on_the_simulated_system(sim_system: Any, tmp_path: Path) -> None:
     ep, prefix = sim_system
     system = system_from_scenario(load_scenario(SCENARIO))
@@ -175,6 +194,7 @@ def test_collect_beam_on_the_simulated_system(sim_system: Any, tmp_path: Path) -
     assert np.all(np.abs(data.spots_world[:, :2] - aim[:2]) < 0.15)
 
 
+@pytest.mark.serial
 def test_collect_user_mistakes_and_a_hostile_marker_query(sim_system: Any) -> None:
     ep, prefix = sim_system
     for args in (["handeye", "-s", "nope.yaml", "-o", "x.json"],
