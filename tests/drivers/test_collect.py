@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import socket
 import subprocess
 import sys
 import time
@@ -29,10 +28,8 @@ from planner.calibration.simulate import board_grid
 from planner.io.scenario import load_scenario, system_from_scenario
 from planner.model.system import Intrinsics
 from planner.model.transforms import axis_angle_to_matrix, inv_T, make_T
-from planner.service.bus import Keys
-from tests.drivers.conftest import free_port, raw_session, wait_for
+from tests.drivers.conftest import free_port, raw_session, wait_for_nodes
 from tests.paths import REPO
-from tests.planner.raw_zenoh import token_exists
 
 SCENARIO = REPO / "scenarios" / "paper_n1.yaml"
 CLI = [sys.executable, "-m", "planner.cli"]
@@ -113,12 +110,6 @@ def test_charuco_corners_deprojected_with_depth() -> None:
     assert np.max(np.linalg.norm(part[ok] - truth[ok], axis=1)) < 2e-3
 
 
-def _accepts(port: int) -> bool:
-    """Whether something accepts TCP connections on the loopback ``port``."""
-    with socket.socket() as s:
-        return s.connect_ex(("127.0.0.1", port)) == 0
-
-
 @pytest.fixture(scope="module")
 def sim_system() -> Any:
     ep, prefix = f"tcp/127.0.0.1:{free_port()}", "brcol"
@@ -127,14 +118,8 @@ def sim_system() -> Any:
                              stderr=subprocess.DEVNULL, env=ENV)  # fmt: skip
     camera = subprocess.Popen([*CLI, "driver", "camera", "--stride", "8", "--seed", "3", *bus],
                               stderr=subprocess.DEVNULL, env=ENV)  # fmt: skip
-    try:  # up when both drivers' liveliness tokens are on the bus (the robot hosts it)
-        wait_for(lambda: _accepts(int(ep.rsplit(":", 1)[1])), 60.0, "the robot driver listening")
-        client, keys = raw_session(ep), Keys(prefix)
-        try:
-            wait_for(lambda: all(token_exists(client, keys.alive(n)) for n in ("arm0", "camera")),
-                     60.0, "robot and camera liveliness tokens")  # fmt: skip
-        finally:
-            client.close()
+    try:
+        wait_for_nodes(ep, prefix, ("arm0", "camera"))
         yield ep, prefix
     finally:
         for p in (camera, robot):
