@@ -4,6 +4,8 @@ VENV    := .venv
 BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 DEMO    := demo-out
+# pytest-xdist workers of the parallel test pass (the CI machine has 2 cores)
+TEST_WORKERS ?= 2
 
 .PHONY: demo test lint format report clean sysdeps
 
@@ -36,7 +38,12 @@ test: $(STAMP)
 	$(BIN)/ruff format --check planner schemas drivers tests examples
 	$(BIN)/mypy planner schemas drivers
 	$(BIN)/lint-imports --no-logo
-	$(BIN)/pytest
+	@status=0; \
+	echo "pytest, parallel pass: every test not marked serial, on $(TEST_WORKERS) workers"; \
+	$(BIN)/pytest -m "not serial" -n $(TEST_WORKERS) --dist worksteal || status=$$?; \
+	echo "pytest, serial pass: the timing-sensitive tests (marked serial), one at a time"; \
+	$(BIN)/pytest -m serial || status=$$?; \
+	exit $$status
 
 lint: $(STAMP)
 	$(BIN)/ruff check --fix planner schemas drivers tests examples

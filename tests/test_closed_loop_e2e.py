@@ -25,7 +25,7 @@ from planner.beam.graph import BeamModel
 from tests.drivers.conftest import wait_for
 from tests.test_e2e import PREFIX, SCENARIO, UP, Bus, board_targets
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
+pytestmark = [pytest.mark.slow, pytest.mark.serial, pytest.mark.timeout(300)]
 
 TRUTH = """\
 truth:

@@ -162,6 +162,7 @@ def truth_system(bus: Bus) -> Any:
     return system_from_scenario(load_scenario(bus.truth), truth=True)
 
 
+@pytest.mark.serial  # the whole simulated system, 1 s driver verdicts
 def test_ten_targets_executed_spot_within_a_millimetre(bus: Bus, system: Any) -> None:
     points = board_targets(10, seed=1)
     plan, spots = bus.client.execute(make_request(points, normals=np.tile(UP, (10, 1))), 20.0)
@@ -174,6 +175,7 @@ def test_ten_targets_executed_spot_within_a_millimetre(bus: Bus, system: Any) ->
     assert max(errors) < 1e-3
 
 
+@pytest.mark.serial  # the whole simulated system, 1 s driver verdicts
 def test_miscalibrated_mirror_shows_the_predicted_error(
     bus: Bus, system: Any, truth_system: Any
 ) -> None:
@@ -198,6 +200,7 @@ def test_miscalibrated_mirror_shows_the_predicted_error(
         bus.start("camera")
 
 
+@pytest.mark.serial  # the whole simulated system, 1 s driver verdicts
 def test_camera_killed_mid_run_is_reported_and_nothing_hangs(bus: Bus) -> None:
     points = board_targets(6, seed=3)
     req = make_request(points)
@@ -237,6 +240,7 @@ def test_camera_killed_mid_run_is_reported_and_nothing_hangs(bus: Bus) -> None:
     bus.start("camera")
 
 
+@pytest.mark.serial  # the whole simulated system, 1 s driver verdicts
 @pytest.mark.parametrize(
     ("body", "field"),
     [
@@ -282,6 +286,7 @@ request_dicts = st.fixed_dictionaries(
 )
 
 
+@pytest.mark.serial  # the whole simulated system, 1 s driver verdicts
 def test_random_requests_never_crash_or_hang(bus: Bus) -> None:
     counts = {"ok": 0, "err": 0}
 
@@ -310,6 +315,7 @@ def test_random_requests_never_crash_or_hang(bus: Bus) -> None:
     assert bus.procs["planner"].poll() is None
 
 
+@pytest.mark.serial  # the whole simulated system, 1 s driver verdicts
 def test_a_trajectory_over_the_body_limit_is_streamed_to_the_sim_arm(bus: Bus) -> None:
     """50 targets with a 0.4 s dwell each: a trajectory of more than 30 s, more than one
     4 MiB body; it reaches the simulated arm in chunks, played back to back without a stop,
@@ -355,6 +361,7 @@ def test_a_trajectory_over_the_body_limit_is_streamed_to_the_sim_arm(bus: Bus) -
     assert len(errors) >= 48 and errors.max() < 1e-3
 
 
+@pytest.mark.serial  # the whole simulated system, 1 s driver verdicts
 def test_request_cli_reports_the_verdict_and_measured_errors_as_json(bus: Bus) -> None:
     point = ",".join(f"{x:.4f}" for x in board_targets(1, seed=12)[0])
     argv = [*bus.argv["planner"][:3], "request", "--points", point, "--normals", "0,0,1",
@@ -374,6 +381,7 @@ def test_request_cli_reports_the_verdict_and_measured_errors_as_json(bus: Bus) -
     assert "execution: accepted" in out.stderr
 
 
+@pytest.mark.serial  # the whole simulated system, 1 s driver verdicts
 def test_planner_heartbeat_session_and_sigstop(bus: Bus) -> None:
     """The planner process beats at >= 50 Hz with one session; an executed trajectory
     carries that session and the request id; a SIGSTOPped planner falls silent at once."""
@@ -422,6 +430,7 @@ def brake_time_bound(qd: np.ndarray, qdd: np.ndarray, a_max: float, j_max: float
     return float(np.max(t))
 
 
+@pytest.mark.serial  # the whole simulated system, 1 s driver verdicts
 def test_planner_killed_sim_robot_stops_within_100ms(bus: Bus, system: Any) -> None:
     """The arm is still within 100 ms of the planner's death: the watchdog on its liveliness
     token brakes at once with the stop deceleration (drivers.robot.follower.STOP_ACCELERATION)."""

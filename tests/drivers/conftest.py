@@ -46,6 +46,33 @@ def wait_for(pred: Callable[[], bool], timeout: float = 10.0, what: str = "condi
     raise AssertionError(f"timed out waiting for {what}")
 
 
+def wait_for_nodes(
+    endpoint: str, prefix: str, nodes: tuple[str, ...], timeout: float = 60.0
+) -> None:
+    """Wait until the process hosting ``endpoint`` (a loopback TCP port) accepts connections
+    and every node in ``nodes`` has its liveliness token ``<prefix>/alive/<node>`` on the bus;
+    fail the test after ``timeout`` s for each of the two."""
+
+    def accepts() -> bool:
+        with socket.socket() as s:
+            return s.connect_ex(("127.0.0.1", int(endpoint.rsplit(":", 1)[1]))) == 0
+
+    wait_for(accepts, timeout, f"{endpoint} accepting connections")
+    client = raw_session(endpoint)
+    try:
+
+        def tokens() -> bool:
+            return all(
+                any(r.ok is not None for r in client.liveliness().get(f"{prefix}/alive/{n}",
+                                                                       timeout=1.0))
+                for n in nodes
+            )  # fmt: skip
+
+        wait_for(tokens, timeout, f"liveliness tokens of {', '.join(nodes)}")
+    finally:
+        client.close()
+
+
 def raw_session(endpoint: str) -> Any:
     """A plain Zenoh client (no project helpers): peer, connects to ``endpoint`` only."""
     import json

@@ -28,7 +28,7 @@ from planner.calibration.simulate import board_grid
 from planner.io.scenario import load_scenario, system_from_scenario
 from planner.model.system import Intrinsics
 from planner.model.transforms import axis_angle_to_matrix, inv_T, make_T
-from tests.drivers.conftest import free_port, raw_session
+from tests.drivers.conftest import free_port, raw_session, wait_for_nodes
 from tests.paths import REPO
 
 SCENARIO = REPO / "scenarios" / "paper_n1.yaml"
@@ -118,13 +118,16 @@ def sim_system() -> Any:
                              stderr=subprocess.DEVNULL, env=ENV)  # fmt: skip
     camera = subprocess.Popen([*CLI, "driver", "camera", "--stride", "8", "--seed", "3", *bus],
                               stderr=subprocess.DEVNULL, env=ENV)  # fmt: skip
-    time.sleep(4.0)
-    yield ep, prefix
-    for p in (camera, robot):
-        p.terminate()
-        p.wait(30)
+    try:
+        wait_for_nodes(ep, prefix, ("arm0", "camera"))
+        yield ep, prefix
+    finally:
+        for p in (camera, robot):
+            p.terminate()
+            p.wait(30)
 
 
+@pytest.mark.serial
 def test_collect_handeye_on_the_simulated_system_calibrates(
     sim_system: Any, tmp_path: Path
 ) -> None:
@@ -156,6 +159,7 @@ def test_collect_handeye_on_the_simulated_system_calibrates(
     assert sd_t < 0.02 and res.converged
 
 
+@pytest.mark.serial
 def test_collect_beam_on_the_simulated_system(sim_system: Any, tmp_path: Path) -> None:
     ep, prefix = sim_system
     system = system_from_scenario(load_scenario(SCENARIO))
@@ -175,6 +179,7 @@ def test_collect_beam_on_the_simulated_system(sim_system: Any, tmp_path: Path) -
     assert np.all(np.abs(data.spots_world[:, :2] - aim[:2]) < 0.15)
 
 
+@pytest.mark.serial
 def test_collect_user_mistakes_and_a_hostile_marker_query(sim_system: Any) -> None:
     ep, prefix = sim_system
     for args in (["handeye", "-s", "nope.yaml", "-o", "x.json"],

@@ -8,7 +8,6 @@ import json
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +15,7 @@ import pytest
 
 from drivers.record import Recorder, is_command, read, replay
 from planner.errors import InputError
-from tests.drivers.conftest import free_port, wait_for
+from tests.drivers.conftest import free_port, wait_for, wait_for_nodes
 from tests.paths import REPO
 
 SCENARIO = REPO / "scenarios" / "paper_n1.yaml"
@@ -24,6 +23,7 @@ CLI = [sys.executable, "-m", "planner.cli"]
 ENV = dict(os.environ, PYTHONPATH=os.getcwd())
 
 
+@pytest.mark.serial  # the joint states' 250 Hz rate is checked
 def test_record_the_simulated_system_and_replay_it(tmp_path: Path) -> None:
     prefix, ep = "brrec", f"tcp/127.0.0.1:{free_port()}"
     bus = ["--scenario", str(SCENARIO), "--endpoint", ep, "--prefix", prefix]
@@ -33,7 +33,7 @@ def test_record_the_simulated_system_and_replay_it(tmp_path: Path) -> None:
                               stderr=subprocess.DEVNULL, env=ENV)  # fmt: skip
     out = tmp_path / "session.mcap"
     try:
-        time.sleep(4.0)  # drivers up
+        wait_for_nodes(ep, prefix, ("arm0", "camera"))  # drivers up
         rec = subprocess.run([*CLI, "record", "-o", str(out), "--duration", "2.5",
                               "--endpoint", ep, "--prefix", prefix],
                              capture_output=True, env=ENV, timeout=120)  # fmt: skip

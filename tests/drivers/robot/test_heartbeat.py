@@ -10,6 +10,7 @@ import time
 from typing import Any
 
 import numpy as np
+import pytest
 
 from drivers.robot.follower import STOP_ACCELERATION, STOP_JERK
 from drivers.robot.node import HEARTBEAT_TIMEOUT, MAX_SESSIONS
@@ -18,6 +19,7 @@ from tests.drivers.conftest import Heartbeats, wait_for
 from tests.drivers.robot.test_robot_node import HOME, Cell, smooth_move, start_planner
 
 
+@pytest.mark.serial
 def test_sigstopped_planner_stops_the_arm_despite_fake_token_and_foreign_heartbeats(
     hub: Any, endpoint: str, keys: Keys
 ) -> None:

@@ -74,6 +74,7 @@ def _move(duration: float, laser_on: list[list[float]] | None, id: str) -> dict[
     return body
 
 
+@pytest.mark.serial
 def test_gate_plays_the_intervals(cell: GateCell) -> None:
     # off at start-up, commanded before the loop runs
     assert cell.sim.gate_calls[0][1] is False
@@ -103,6 +104,7 @@ def test_gate_plays_the_intervals(cell: GateCell) -> None:
     wait_for(lambda: cell.statuses.items and cell.statuses.items[-1]["laser_on"] is False)
 
 
+@pytest.mark.serial
 def test_stop_request_forces_the_gate_off(cell: GateCell) -> None:
     cell.send(_move(3.0, [[0.1, 2.9]], "long"))
     wait_for(lambda: cell.sim.gate, what="gate on")

@@ -24,6 +24,7 @@ def test_loop_stats_against_a_known_schedule() -> None:
     assert s.max_late_ms == pytest.approx(10.0)
 
 
+@pytest.mark.serial
 def test_control_period_under_a_trajectory_flood() -> None:
     """The parse stall was systematic (every checked body); an unlucky scheduling hiccup of
     the shared machine is not, so one re-measurement is allowed."""
@@ -41,6 +42,7 @@ def test_control_period_under_a_trajectory_flood() -> None:
     raise AssertionError(f"max control period under the flood {r['flood'].max_ms:.1f} ms >= 30 ms")
 
 
+@pytest.mark.serial
 def test_ur_backend_bench_on_the_simulated_controller() -> None:
     """The UR backend under a (smaller) flood: the simulated controller's RTDE watchdog
     (10 Hz) never trips, every period writes the command register, ~500 Hz kept."""

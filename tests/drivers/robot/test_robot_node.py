@@ -293,6 +293,7 @@ def start_planner(endpoint: str, keys: Keys, name: str) -> subprocess.Popen[byte
     return p
 
 
+@pytest.mark.serial
 def test_planner_killed_arm_stops_within_100_ms(hub: Any, endpoint: str, keys: Keys) -> None:
     """The liveliness token is an extra trigger: a SIGKILLed planner's token goes within
     milliseconds, before its heartbeat's 100 ms timeout."""

@@ -7,6 +7,7 @@ import pytest
 from planner.bench.track import CASES, run_case
 
 
+@pytest.mark.serial
 @pytest.mark.slow
 def test_breathing_spot_error_with_the_laser_on_is_under_a_millimetre() -> None:
     f = run_case(CASES["breathing"], seconds=3.0, seed=1)

@@ -52,7 +52,7 @@ from tests.planner.console.browser import (
     wait_text,
 )
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
+pytestmark = [pytest.mark.slow, pytest.mark.serial, pytest.mark.timeout(600)]
 
 SCENARIO = SCENARIOS / "paper_n1.yaml"
 BOARD_TOP = -0.06  # m, world z of the board's top face

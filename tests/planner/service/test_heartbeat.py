@@ -72,6 +72,7 @@ def hold_the_gil(seconds: float) -> tuple[float, float]:
         n = int(n * max(2.0, 1.3 * seconds / max(t1 - t0, 1e-4)))
 
 
+@pytest.mark.serial
 @pytest.mark.parametrize("where", ["process", "thread"])
 def test_a_planner_holding_the_gil_does_not_silence_the_process_heartbeat(where: str) -> None:
     """What the solvers do (one C call holding the GIL for up to a second): the heartbeat
@@ -242,6 +243,7 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
     s.close()
 
 
+@pytest.mark.serial
 def test_sigstop_silences_the_heartbeat_within_100ms(served: Served) -> None:
     time.sleep(0.3)
     os.kill(served.proc.pid, signal.SIGSTOP)
@@ -257,6 +259,7 @@ def test_sigstop_silences_the_heartbeat_within_100ms(served: Served) -> None:
     assert alive(served.child)  # the child waited; it did not exit
 
 
+@pytest.mark.serial
 def test_heartbeat_keeps_its_rate_while_serve_plans_a_long_path(served: Served) -> None:
     """A curve path traced back and forth (about 900 samples at 1 mm): beats at >= 50 Hz
     throughout the plan (the longest gap is printed: the machine may be loaded)."""

@@ -307,6 +307,7 @@ def test_chunk_ids_fit_the_id_length() -> None:
         assert JointTrajectory.model_validate_json(c.bodies["arm0"]).id == c.id
 
 
+@pytest.mark.serial  # real-time playback on a driver process
 def test_chunks_play_back_to_back_on_the_sim_driver(tmp_path: Path) -> None:
     """The real robot driver (``beamrelay driver robot --backend sim``, its own process as in
     production): every chunk is accepted, queued behind the one that plays and started when

@@ -8,11 +8,14 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from planner.service import supervisor as sv
 from planner.service.supervisor import Supervisor
 from tests.drivers.conftest import wait_for
 
 
+@pytest.mark.serial
 def test_restarts_crashing_child_with_backoff_and_stops(tmp_path: Path) -> None:
     crash = [sys.executable, "-c", "import sys; print('hi'); sys.exit(3)"]
     sleep = [sys.executable, "-c", "import time; time.sleep(60)"]
