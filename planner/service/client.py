@@ -90,6 +90,9 @@ class Recorder:
     joints: dict[str, tuple[float, Array, Array]] = field(default_factory=dict)
     rest_since: dict[str, float] = field(default_factory=dict)
     spots: list[tuple[float, Array, dict[str, Array], bool]] = field(default_factory=list)
+    faults: dict[str, tuple[str | None, str]] = field(default_factory=dict)
+    """robot -> (request id of its latest trajectory, fault text) while its driver reports a
+    fault or a protective stop"""
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def on_joints(self, robot: str, q: Array, qd: Array) -> None:
@@ -108,6 +111,20 @@ class Recorder:
             q = {r: v[1] for r, v in self.joints.items()}
             rest = all(now - self.rest_since.get(r, np.inf) >= SETTLE for r in self.joints)
             self.spots.append((now, p_camera, q, rest))
+
+    def on_status(self, robot: str, request: str | None, fault: str | None) -> None:
+        """A driver's status: its latest trajectory's request id and its fault (None: ok)."""
+        with self.lock:
+            if fault is None:
+                self.faults.pop(robot, None)
+            else:
+                self.faults[robot] = (request, fault)
+
+    def fault_of(self, request: str | None) -> str | None:
+        """``robot: fault`` of a driver that faulted while executing ``request``, or None."""
+        with self.lock:
+            bad = [f"{r}: {f}" for r, (rid, f) in sorted(self.faults.items()) if rid == request]
+        return "; ".join(bad) or None
 
     def moving(self) -> bool:
         with self.lock:
@@ -190,7 +207,7 @@ class PlanClient:
 
     def watch(self) -> None:
         """Record every robot's joint states and the camera spot from now on (idempotent)."""
-        from schemas.messages import JointState, SpotMessage
+        from schemas.messages import JointState, RobotStatus, SpotMessage
 
         if self._watching:
             return
@@ -212,6 +229,16 @@ class PlanClient:
             if m.p_camera is not None:
                 self.recorder.on_spot(np.asarray(m.p_camera))
 
+        def status_cb(sample: Any) -> None:
+            robot = str(sample.key_expr).split("/")[-2]
+            try:
+                m = decode(sample.payload.to_bytes(), RobotStatus)
+            except InputError:
+                return
+            fault = "protective stop" if m.protective_stop else m.fault
+            self.recorder.on_status(robot, m.trajectory.id if m.trajectory else None, fault)
+
+        self._subs.append(self.session.declare_subscriber(self.keys.status("*"), status_cb))
         self._subs.append(self.session.declare_subscriber(self.keys.joint_states("*"), joint_cb))
         self._subs.append(self.session.declare_subscriber(self.keys.camera_spot, spot_cb))
 
@@ -250,7 +277,8 @@ class PlanClient:
 
         Waits the trajectory's duration, then until every robot rests on the trajectory's
         final joints (at most ``timeout`` s more), then ``settle`` seconds more so the camera
-        sees the final target; returns at once when the drivers
+        sees the final target; stops waiting when a driver reports a fault or a protective
+        stop on this request's trajectory (a lost heartbeat, STOP); returns at once when the drivers
         rejected the trajectory (``plan["execution"]``). Spots are None where not measured
         (all of them when rejected, or when the plan's scenario has no fixed camera).
         """
@@ -266,10 +294,13 @@ class PlanClient:
         traj = plan.get("trajectory") or {}
         duration = float(traj["t"][-1]) if traj.get("t") else 0.0
         q_end = {r: np.asarray(q[-1]) for r, q in traj.get("q", {}).items()}
-        deadline = time.monotonic() + duration + timeout
-        time.sleep(duration)
-        # the arm may run late (a dwell looks like the end): wait until it rests at the end
-        while not self.recorder.rests_at(q_end) and time.monotonic() < deadline:
+        started = time.monotonic()
+        deadline = started + duration + timeout
+        # the arm may run late (a dwell looks like the end): wait until it rests at the end,
+        # or a driver reports that it stopped this trajectory (a fault, a protective stop)
+        while time.monotonic() < deadline and self.recorder.fault_of(plan.get("id")) is None:
+            if time.monotonic() - started >= duration and self.recorder.rests_at(q_end):
+                break
             time.sleep(0.02)
         time.sleep(settle)
         if world_T_camera_of(plan) is None:  # no camera (or one on a flange): not measured

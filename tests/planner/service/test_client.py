@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import threading
 import time
+from typing import Any
 
 import numpy as np
 
 from planner.model.transforms import look_at, transform_points
 from planner.service import client as cl
-from planner.service.client import Recorder, make_request, measured_spots
+from planner.service.client import PlanClient, Recorder, make_request, measured_spots
 
 
 def test_spots_are_assigned_to_the_target_the_robot_rests_on() -> None:
@@ -61,3 +63,46 @@ def test_the_client_waits_for_the_arm_to_rest_at_the_end_not_on_a_dwell() -> Non
     rec.on_joints("arm0", np.full(6, 0.3) + 0.5 * cl.AT_TARGET_Q, np.zeros(6))
     assert rec.rests_at(q_end)
     assert rec.rests_at({**q_end, "arm1": np.zeros(6)})  # arm1 never seen: arm0 at rest counts
+
+
+def test_faults_are_kept_per_robot_with_the_trajectory_they_stopped() -> None:
+    rec = Recorder()
+    assert rec.fault_of("r1") is None
+    rec.on_status("arm0", "r1", "planner heartbeat lost: silent for 108 ms")
+    rec.on_status("arm1", "r0", "stopped by console")  # an older request's fault
+    assert rec.fault_of("r1") == "arm0: planner heartbeat lost: silent for 108 ms"
+    assert rec.fault_of("r0") == "arm1: stopped by console"
+    rec.on_status("arm0", "r2", None)  # a new trajectory clears it
+    assert rec.fault_of("r1") is None
+
+
+def fake_client(plan: dict[str, Any], fault: tuple[str, str] | None) -> PlanClient:
+    """A PlanClient without a bus: ``request`` answers ``plan`` and, 0.2 s later, the driver
+    of ``fault[0]`` reports a fault on request ``fault[1]``."""
+    client = PlanClient.__new__(PlanClient)
+    client.recorder, client._watching = Recorder(), True
+
+    def request(req: dict[str, Any], timeout: float) -> dict[str, Any]:
+        if fault is not None:
+            threading.Timer(0.2, client.recorder.on_status, (fault[0], fault[1], "stop")).start()
+        return plan
+
+    client.request = request  # type: ignore[method-assign]
+    return client
+
+
+def moving_plan(duration: float) -> dict[str, Any]:
+    q = {"arm0": [[0.0] * 6, [1.0] * 6]}
+    return {"id": "r1", "execution": "accepted", "solutions": [], "scenario": {},
+            "trajectory": {"t": [0.0, duration], "q": q}}  # fmt: skip
+
+
+def test_execute_stops_waiting_when_a_driver_stops_this_trajectory() -> None:
+    # a 60 s trajectory the driver stops after 0.2 s: the client returns long before 60 s
+    t0 = time.monotonic()
+    fake_client(moving_plan(60.0), ("arm0", "r1")).execute({"points": []}, 60.0, settle=0.0)
+    assert time.monotonic() - t0 < 30.0
+    # a fault of another request does not end the wait: it lasts the whole trajectory
+    t0 = time.monotonic()
+    fake_client(moving_plan(0.6), ("arm0", "r0")).execute({"points": []}, 0.5, settle=0.0)
+    assert time.monotonic() - t0 >= 0.6  # no joint state: at rest once the duration is over
