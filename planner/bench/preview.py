@@ -20,6 +20,7 @@ from typing import Annotated, Any
 
 import typer
 
+from planner.bench.service import stats_ms
 from planner.data import shipped_scenario
 
 DEFAULT_SCENARIO = shipped_scenario("paper_n1.yaml")
@@ -29,17 +30,6 @@ CENTRE = (-0.492, -0.55, -0.06)
 CORNERS = ((-0.05, -0.03, 0.0), (0.02, -0.03, 0.0), (0.03, 0.05, 0.0))
 DEFAULT_CENTRE = ",".join(map(str, CENTRE))
 STAGES = ("path_solve", "verify", "beam_check", "timing", "document", "json_encode")
-
-
-def _stats_ms(seconds: list[float]) -> dict[str, float]:
-    import numpy as np
-
-    a = 1e3 * np.asarray(seconds)
-    return {
-        "median_ms": float(np.median(a)),
-        "p95_ms": float(np.percentile(a, 95)),
-        "max_ms": float(a.max()),
-    }
 
 
 def path_request(centre: tuple[float, ...]) -> Any:
@@ -145,11 +135,11 @@ def measure(scenario: Path, runs: int, centre: tuple[float, ...]) -> dict[str, A
             per[k].append(secs[k])
     plan = json.loads(body)
     figures = doc["_figures"]
-    total = _stats_ms(walls)
+    total = stats_ms(walls)
     return {
         "bench": "preview", "scenario": str(scenario), "samples": len(targets), "runs": runs,
-        "total": total, "total_cpu": _stats_ms(cpus),
-        "stages": {k: _stats_ms(v) for k, v in per.items()},
+        "total": total, "total_cpu": stats_ms(cpus),
+        "stages": {k: stats_ms(v) for k, v in per.items()},
         "n_ok": plan["metrics"]["n_ok"], "error_max_m": plan["metrics"]["error_max"],
         "duration_s": plan["metrics"]["duration"], "bytes": len(body),
         "beam_samples": int(figures.get("safety_beam_samples", 0)),

@@ -33,7 +33,8 @@ def _free_endpoint() -> str:
         return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
-def _stats_ms(seconds: list[float]) -> dict[str, float]:
+def stats_ms(seconds: list[float]) -> dict[str, float]:
+    """Median, p95 and max (ms) of durations in seconds."""
     import numpy as np
 
     a = 1e3 * np.asarray(seconds)
@@ -78,8 +79,8 @@ def measure_latency(
         node.close()
         hub.close()
     return {
-        "single": {**_stats_ms(single), "n": n_single, "solved": n_ok},
-        f"batch{batch}": {**_stats_ms(many), "n": n_batch},
+        "single": {**stats_ms(single), "n": n_single, "solved": n_ok},
+        f"batch{batch}": {**stats_ms(many), "n": n_batch},
     }
 
 
