@@ -153,9 +153,6 @@ def system_up(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-unty
 
 
 def test_operator_clicks_the_board_plans_and_executes(system_up) -> None:  # type: ignore[no-untyped-def]
-    from selenium.webdriver.common.action_chains import ActionChains
-    from selenium.webdriver.common.by import By
-
     url, client, tmp = system_up
     scn = load_scenario(SCENARIO)
     view = default_view(system_from_scenario(scn), scene_objects(scn))
@@ -186,11 +183,7 @@ def test_operator_clicks_the_board_plans_and_executes(system_up) -> None:  # typ
             (len(clouds) - 1) / ((clouds[-1] - clouds[0]) / 1e3) if len(clouds) > 1 else 0.0
         )
 
-        canvas = max(d.find_elements(By.TAG_NAME, "canvas"), key=lambda c: c.size["width"])
-        u, v = project(view.position, view.look_at, view.up, view.fov, CLICK, rect[2], rect[3])[0]
-        ActionChains(d).move_to_element_with_offset(
-            canvas, round(float(u) - rect[2] / 2), round(float(v) - rect[3] / 2)
-        ).click().perform()
+        click_world_point(d, view, rect, CLICK)
         text = wait_text(d, lambda t: TARGET_ROW.search(t), 120.0, "the clicked target listed")
         picked = 1e-3 * np.array([float(x) for x in TARGET_ROW.search(text).groups()])  # type: ignore[union-attr]
         # the click ray meets the board at CLICK; a pixel is ~1.5 mm there, the cloud's
