@@ -95,7 +95,9 @@ def robot(
     from planner.errors import InputError
     from planner.io.scenario import load_scenario, system_from_scenario
     from planner.service.bus import Keys, open_session
+    from planner.service.priority import priority_note, raise_priority
 
+    nice = raise_priority()  # before any thread starts: they inherit it
     scn = load_scenario(scenario)
     system = system_from_scenario(scn)
     if name not in system.robot_names:
@@ -141,7 +143,8 @@ def robot(
         require_planner=require_planner,
         gate_output=gate_output,
     )
-    _run(node, session, f"{name}: {backend.value} robot driver up (prefix {prefix})")
+    _run(node, session, f"{name}: {backend.value} robot driver up (prefix {prefix}; "
+                        f"{priority_note(nice)})")  # fmt: skip
 
 
 @app.command("camera")

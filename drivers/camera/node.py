@@ -203,11 +203,8 @@ class CameraNode(LoopNode):
             return
         frame_time = getattr(self.source, "frame_time", None)
         now = frame_time() if frame_time is not None else time.time()
-        if self.frames % self._points_every == 0:
-            pts, extra = self.source.points()
-            pts = np.ascontiguousarray(pts, dtype=np.float32)
-            meta = points_metadata(pts, now, self.frames, extra)
-            self._pub_points.put(pts.tobytes(), attachment=json.dumps(meta).encode())
+        # the spot first: a simulated camera traces it from the joints it knows now, at the
+        # frame's time, not after the (slower) cloud
         reading = self.source.spot()
         if reading is None:
             msg = SpotMessage(t=now, p_camera=None, confidence=0.0)
@@ -216,6 +213,11 @@ class CameraNode(LoopNode):
                 t=now, p_camera=reading.p_camera.tolist(), confidence=reading.confidence
             )
         self._pub_spot.put(encode(msg))
+        if self.frames % self._points_every == 0:
+            pts, extra = self.source.points()
+            pts = np.ascontiguousarray(pts, dtype=np.float32)
+            meta = points_metadata(pts, now, self.frames, extra)
+            self._pub_points.put(pts.tobytes(), attachment=json.dumps(meta).encode())
         self.frames += 1
 
 

@@ -75,7 +75,7 @@ class Operator:
             return None
         rec = self.client.recorder
         with rec.lock:
-            seen = [(p, q) for t, p, q, _ in rec.spots if t >= since]
+            seen = [(s.p_camera, s.q) for s in rec.spots if s.arrived >= since]
         return sweep_of(plan, seen, world_T_camera)
 
     def stop(self, reason: str = "operator pressed Stop") -> None:

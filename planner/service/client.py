@@ -4,10 +4,12 @@
 sends a TargetRequest to ``<prefix>/plan`` and returns the plan.json dict (or raises
 :class:`RequestError` with the node's :class:`~schemas.messages.ErrorReply`). While a
 request executes, the client records every robot's ``joint_states`` and the camera's
-``camera/spot``; a spot sample counts for target k when every robot is at rest (|qd| below
-``REST_QD`` rad/s, for ``SETTLE`` s) within ``AT_TARGET_Q`` rad of the plan's solution ``q_k``.
-The measured spot of target k is the mean of its samples, mapped to the world with the plan's
-camera pose.
+``camera/spot``. A spot is placed by its capture time ``t`` (the camera's stamp, UNIX s) on
+each robot's joint states by their stamps (the drivers and the camera share the host clock):
+it arrives later than the frame was taken, after the arm may have moved on. It counts for
+target k when every robot was at rest (|qd| below ``REST_QD`` rad/s) for the ``SETTLE`` s up
+to its capture, within ``AT_TARGET_Q`` rad of the plan's solution ``q_k``. The measured spot of
+target k is the mean of its samples, mapped to the world with the plan's camera pose.
 """
 
 from __future__ import annotations
@@ -16,9 +18,10 @@ import json
 import threading
 import time
 import uuid
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -27,11 +30,17 @@ from planner.errors import BeamrelayError, InputError
 from planner.model.transforms import Array, transform_points
 from planner.service.bus import JSON, Keys, decode, encode, open_session
 
-#: a robot within AT_TARGET_Q of q_k (rad, every joint), slower than REST_QD (rad/s) for at
-#: least SETTLE s (so the camera's frame was taken at rest too) is "at k"
+#: a robot within AT_TARGET_Q of q_k (rad, every joint), slower than REST_QD (rad/s) for the
+#: SETTLE s before a frame's capture (the joint states a simulated camera traced the frame
+#: from travel the bus too) is "at k"
 AT_TARGET_Q = 1e-4
 REST_QD = 1e-3
-SETTLE = 0.07
+SETTLE = 0.1
+#: joint states kept per robot to place spots at their capture time (8 s at 500 Hz)
+HISTORY = 4096
+#: s a spot waits for the joint states of its capture time; later it is placed on the
+#: latest ones and not counted as at rest (a robot that went silent)
+PLACE_WAIT = 0.3
 
 
 class RequestError(BeamrelayError):
@@ -83,34 +92,101 @@ def world_T_camera_of(plan: dict[str, Any]) -> Array | None:
     return np.asarray(cam["world_T_camera"]["matrix"], dtype=float)
 
 
+class Spot(NamedTuple):
+    """A camera spot as the client recorded it."""
+
+    arrived: float
+    """receiver monotonic time of its arrival (s)"""
+    p_camera: Array
+    q: dict[str, Array]
+    """every robot's joints at its capture"""
+    rest: bool
+    """every robot at rest for the SETTLE s before its capture"""
+    t: float
+    """its capture time (the camera's stamp, UNIX s)"""
+
+
 @dataclass
 class Recorder:
-    """Joint states and spots seen on the bus (receiver monotonic clock), thread safe."""
+    """Joint states and spots seen on the bus, thread safe. ``joints``: the latest state of
+    each robot (receiver monotonic time, q, qd); ``spots``: the spots placed on the joint
+    states of their capture."""
 
     joints: dict[str, tuple[float, Array, Array]] = field(default_factory=dict)
-    rest_since: dict[str, float] = field(default_factory=dict)
-    spots: list[tuple[float, Array, dict[str, Array], bool]] = field(default_factory=list)
+    history: dict[str, deque[tuple[float, Array, Array]]] = field(default_factory=dict)
+    """robot -> (stamp, UNIX s; q; qd) of its last HISTORY joint states"""
+    spots: list[Spot] = field(default_factory=list)
+    pending: deque[tuple[float, float, Array]] = field(default_factory=deque)
+    """spots (arrival, capture stamp, p_camera) waiting for the joint states of their capture"""
     faults: dict[str, tuple[str | None, str]] = field(default_factory=dict)
     """robot -> (request id of its latest trajectory, fault text) while its driver reports a
     fault or a protective stop"""
     lock: threading.Lock = field(default_factory=threading.Lock)
 
-    def on_joints(self, robot: str, q: Array, qd: Array) -> None:
+    def on_joints(self, robot: str, q: Array, qd: Array, t: float | None = None) -> None:
+        """A joint state stamped ``t`` (UNIX s; now when None)."""
         now = time.monotonic()
+        stamp = time.time() if t is None else float(t)
         with self.lock:
-            if float(np.max(np.abs(qd))) >= REST_QD:
-                self.rest_since[robot] = np.inf
-            elif self.rest_since.get(robot, np.inf) == np.inf:
-                self.rest_since[robot] = now
             self.joints[robot] = (now, q, qd)
+            h = self.history.setdefault(robot, deque(maxlen=HISTORY))
+            if h and stamp < h[-1][0]:  # a restarted driver, or a clock step: start over
+                h.clear()
+            h.append((stamp, q, qd))
+            self._place(now)
 
-    def on_spot(self, p_camera: Array) -> None:
-        """Record a spot with the joints at that moment (``at_rest``: all robots still)."""
+    def on_spot(self, p_camera: Array, t: float | None = None) -> None:
+        """A spot captured at ``t`` (UNIX s; now when None), recorded once the joint states
+        of that time are in."""
         now = time.monotonic()
+        stamp = time.time() if t is None else float(t)
         with self.lock:
-            q = {r: v[1] for r, v in self.joints.items()}
-            rest = all(now - self.rest_since.get(r, np.inf) >= SETTLE for r in self.joints)
-            self.spots.append((now, p_camera, q, rest))
+            self.pending.append((now, stamp, p_camera))
+            self._place(now)
+
+    def _place(self, now: float) -> None:
+        """Record the pending spots whose capture the joint states reach (in order)."""
+        while self.pending:
+            arrived, stamp, p = self.pending[0]
+            placed = self._joints_at(stamp, late=now - arrived > PLACE_WAIT)
+            if placed is None:
+                return
+            self.pending.popleft()
+            self.spots.append(Spot(arrived, p, *placed, stamp))
+
+    def _joints_at(self, stamp: float, late: bool) -> tuple[dict[str, Array], bool] | None:
+        """Every robot's joints at ``stamp`` and whether all rested for the SETTLE s before;
+        None while a robot's states do not reach ``stamp`` yet (unless ``late``: then its
+        latest, not at rest)."""
+        q: dict[str, Array] = {}
+        rest = True
+        for robot, h in self.history.items():
+            if not h or h[-1][0] < stamp:
+                if not late:
+                    return None
+                q[robot], rest = h[-1][1], False
+                continue
+            at: Array | None = None
+            covered = False
+            for t, qj, qdj in reversed(h):  # newest first: the window is near the end
+                if t > stamp:
+                    continue
+                if at is None:
+                    at = qj
+                if (
+                    float(np.max(np.abs(qdj))) >= REST_QD
+                    or float(np.max(np.abs(qj - at))) >= AT_TARGET_Q
+                ):
+                    rest = False
+                    break
+                if t <= stamp - SETTLE:
+                    covered = True
+                    break
+            if at is None:  # the capture precedes the kept states
+                at, rest = h[0][1], False
+            q[robot] = at
+            rest = rest and covered
+        return q, rest
 
     def on_status(self, robot: str, request: str | None, fault: str | None) -> None:
         """A driver's status: its latest trajectory's request id and its fault (None: ok)."""
@@ -125,6 +201,20 @@ class Recorder:
         with self.lock:
             bad = [f"{r}: {f}" for r, (rid, f) in sorted(self.faults.items()) if rid == request]
         return "; ".join(bad) or None
+
+    def rest_time(self, robot: str) -> float:
+        """How long (s, by its stamps) ``robot`` has rested up to its latest joint state;
+        0 while moving or unknown."""
+        with self.lock:
+            h = self.history.get(robot)
+            if not h or float(np.max(np.abs(h[-1][2]))) >= REST_QD:
+                return 0.0
+            since = h[-1][0]
+            for t, _, qd in reversed(h):
+                if float(np.max(np.abs(qd))) >= REST_QD:
+                    break
+                since = t
+            return h[-1][0] - since
 
     def moving(self) -> bool:
         with self.lock:
@@ -150,7 +240,7 @@ def measured_spots(plan: dict[str, Any], rec: Recorder, since: float) -> list[Ar
     if world_T_camera is None:
         raise InputError("the plan's scenario has no camera: spots cannot be measured")
     with rec.lock:
-        samples = [s for s in rec.spots if s[0] >= since and s[3]]
+        samples = [s for s in rec.spots if s.arrived >= since and s.rest]
     out: list[Array | None] = []
     for sol in plan["solutions"]:
         if sol["status"] != "ok":
@@ -158,9 +248,9 @@ def measured_spots(plan: dict[str, Any], rec: Recorder, since: float) -> list[Ar
             continue
         qk = {r: np.asarray(v) for r, v in sol["q"].items()}
         hits = [
-            p
-            for _, p, q, _ in samples
-            if all(r in q and float(np.max(np.abs(q[r] - qk[r]))) < AT_TARGET_Q for r in qk)
+            s.p_camera
+            for s in samples
+            if all(r in s.q and float(np.max(np.abs(s.q[r] - qk[r]))) < AT_TARGET_Q for r in qk)
         ]
         if not hits:
             out.append(None)
@@ -219,7 +309,7 @@ class PlanClient:
                 m = decode(sample.payload.to_bytes(), JointState)
             except InputError:
                 return
-            self.recorder.on_joints(robot, np.asarray(m.q), np.asarray(m.qd))
+            self.recorder.on_joints(robot, np.asarray(m.q), np.asarray(m.qd), m.t)
 
         def spot_cb(sample: Any) -> None:
             try:
@@ -227,7 +317,7 @@ class PlanClient:
             except InputError:
                 return
             if m.p_camera is not None:
-                self.recorder.on_spot(np.asarray(m.p_camera))
+                self.recorder.on_spot(np.asarray(m.p_camera), m.t)
 
         def status_cb(sample: Any) -> None:
             robot = str(sample.key_expr).split("/")[-2]

@@ -32,6 +32,7 @@ from planner.service.bus import (
     open_session,
     update_alive,
 )
+from planner.service.priority import priority_note, raised_priority
 from planner.service.supervisor import Supervisor
 
 RATE_WINDOW = 2.0  # s over which message rates are averaged
@@ -266,7 +267,8 @@ def run_up(
         console_port=console_port, online_calibration=online,
     )  # fmt: skip
     log_dir = Path(log_dir or tempfile.mkdtemp(prefix="beamrelay-up-"))
-    session = open_session(listen=True, endpoint=endpoint, config_file=configs[0])
+    with raised_priority() as nice:  # the hub routes the heartbeat: its threads first
+        session = open_session(listen=True, endpoint=endpoint, config_file=configs[0])
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     console = Console(stderr=not live)
@@ -275,6 +277,7 @@ def run_up(
     title = f"beamrelay up {scn.model.name} on {endpoint} (logs {log_dir})"
     t_end = None if duration is None else time.monotonic() + duration
     try:
+        console.log(f"bus hub {priority_note(nice)}")
         sup.start()
         view = Live(health_table(sup, health, title), console=console) if live else None
         with view or contextlib.nullcontext():

@@ -7,10 +7,17 @@ import time
 from typing import Any
 
 import numpy as np
+import pytest
 
 from planner.model.transforms import look_at, transform_points
 from planner.service import client as cl
 from planner.service.client import PlanClient, Recorder, make_request, measured_spots
+
+
+def rest_at(rec: Recorder, q: np.ndarray, t0: float, t1: float, rate: float = 500.0) -> None:
+    """Joint states of arm0 resting at ``q`` from ``t0`` to ``t1`` (stamps, s)."""
+    for t in np.arange(t0, t1, 1.0 / rate):
+        rec.on_joints("arm0", q, np.zeros(6), float(t))
 
 
 def test_spots_are_assigned_to_the_target_the_robot_rests_on() -> None:
@@ -26,22 +33,57 @@ def test_spots_are_assigned_to_the_target_the_robot_rests_on() -> None:
     }
     rec = Recorder()
     since = time.monotonic()
-    rec.on_joints("arm0", q0, np.zeros(6))
-    rec.on_spot(np.array([9.0, 9.0, 9.0]))  # at rest for less than SETTLE: ignored
-    rec.rest_since["arm0"] -= 2 * cl.SETTLE
+    t = 1000.0  # the drivers' and the camera's stamps (UNIX s)
+    rest_at(rec, q0, t, t + 1.0)
+    rec.on_spot(np.array([9.0, 9.0, 9.0]), t + 0.5 * cl.SETTLE)  # at rest for < SETTLE: ignored
     p_cam = [np.array([0.01, 0.02, 0.5]), np.array([0.03, 0.02, 0.5])]
-    for p in p_cam:
-        rec.on_spot(p)
-    rec.on_joints("arm0", q0 + 0.05, np.full(6, 0.2))  # moving: spots ignored
-    rec.on_spot(np.array([7.0, 7.0, 7.0]))
-    rec.on_joints("arm0", q1 + 0.5 * cl.AT_TARGET_Q, np.zeros(6))
-    rec.rest_since["arm0"] -= 2 * cl.SETTLE
-    rec.on_spot(np.array([0.0, 0.0, 0.4]))
+    for k, p in enumerate(p_cam):
+        rec.on_spot(p, t + 0.5 + 0.1 * k)
+    rec.on_joints("arm0", q0 + 0.05, np.full(6, 0.2), t + 1.0)  # moving: spots ignored
+    rec.on_spot(np.array([7.0, 7.0, 7.0]), t + 1.0)
+    rest_at(rec, q1 + 0.5 * cl.AT_TARGET_Q, t + 1.01, t + 2.0)
+    rec.on_spot(np.array([0.0, 0.0, 0.4]), t + 1.5)
     out = measured_spots(plan, rec, since)
     np.testing.assert_allclose(out[0], transform_points(world_T_camera, [[0.02, 0.02, 0.5]])[0])
     assert out[1] is None
     np.testing.assert_allclose(out[2], transform_points(world_T_camera, [[0.0, 0.0, 0.4]])[0])
     assert measured_spots(plan, rec, time.monotonic() + 1) == [None, None, None]
+
+
+def test_a_spot_is_placed_on_the_joints_of_its_capture_not_of_its_arrival() -> None:
+    """Frames arrive late (a loaded machine): one taken on the way to q1 that arrives while
+    the arm rests on q1 is not q1's; one taken at rest on q0 that arrives after the arm left
+    is q0's; a spot captured after the newest joint state waits for it."""
+    q0, q1 = np.zeros(6), np.full(6, 0.1)
+    rec = Recorder()
+    t = 1000.0
+    rest_at(rec, q0, t, t + 0.5)
+    for k, tk in enumerate(np.linspace(t + 0.5, t + 0.6, 11)):  # moving q0 -> q1
+        rec.on_joints("arm0", q0 + (q1 - q0) * k / 10, np.full(6, 1.0), float(tk))
+    rest_at(rec, q1, t + 0.602, t + 1.0)
+    rec.on_spot(np.array([0.0, 0.0, 0.5]), t + 0.45)  # taken at rest on q0, arrives now
+    rec.on_spot(np.array([0.0, 0.0, 0.6]), t + 0.55)  # taken on the way
+    rec.on_spot(np.array([0.0, 0.0, 0.7]), t + 0.62)  # on q1, but not settled for SETTLE
+    rec.on_spot(np.array([0.0, 0.0, 0.8]), t + 0.9)  # settled on q1
+    rec.on_spot(np.array([0.0, 0.0, 0.9]), t + 1.2)  # not reached by the joint states yet
+    placed = [(float(s.p_camera[2]), s.rest, float(s.q["arm0"][0])) for s in rec.spots]
+    assert placed == [(0.5, True, 0.0), (0.6, False, 0.05), (0.7, False, 0.1), (0.8, True, 0.1)]
+    assert len(rec.pending) == 1
+    rest_at(rec, q1, t + 1.0, t + 1.3)
+    assert rec.spots[-1].p_camera[2] == 0.9 and rec.spots[-1].rest and rec.spots[-1].t == t + 1.2
+    assert not rec.pending
+    assert rec.rest_time("arm0") == pytest.approx(1.3 - 0.602, abs=3e-3)
+
+
+def test_a_spot_captured_after_a_silent_robot_is_placed_late_and_not_at_rest() -> None:
+    rec = Recorder()
+    rest_at(rec, np.zeros(6), 1000.0, 1000.5)
+    rec.on_spot(np.array([0.0, 0.0, 0.5]), 1001.0)  # the driver went silent at 1000.5
+    assert not rec.spots
+    rec.pending[0] = (rec.pending[0][0] - 2 * cl.PLACE_WAIT, *rec.pending[0][1:])
+    rec.on_spot(np.array([0.0, 0.0, 0.6]), 1001.1)  # placed the first; this one waits
+    assert [(float(s.p_camera[2]), s.rest) for s in rec.spots] == [(0.5, False)]
+    assert len(rec.pending) == 1
 
 
 def test_make_request_matches_the_schema() -> None:
