@@ -42,7 +42,7 @@ test: $(STAMP)
 	echo "pytest, parallel pass: every test not marked serial, on $(TEST_WORKERS) workers"; \
 	$(BIN)/pytest -m "not serial" -n $(TEST_WORKERS) --dist worksteal || status=$$?; \
 	echo "pytest, serial pass: the timing-sensitive tests (marked serial), one at a time"; \
-	$(BIN)/pytest -m serial || status=$$?; \
+	$(BIN)/pytest -m serial --durations=12 || status=$$?; \
 	exit $$status
 
 lint: $(STAMP)

@@ -28,7 +28,7 @@ from planner.calibration.collect import min_jerk_move
 from planner.errors import InputError
 from planner.model.system import System
 from planner.model.transforms import Array
-from planner.service.bus import Keys, decode
+from planner.service.bus import Keys, decode, urgent
 from schemas.messages import JointState, JointTrajectory, RobotStatus, SpotMessage
 
 ARRIVE = 2e-3  # rad: the arm counts as on the pose
@@ -53,7 +53,7 @@ class BusPlanner:
                 s.declare_subscriber(keys.status(r), self._on_status(r)),
             ]
         self._handles.append(s.declare_subscriber(keys.camera_spot, self._on_spot))
-        self._pub = s.declare_publisher(keys.heartbeat)
+        self._pub = s.declare_publisher(keys.heartbeat, **urgent())
         self._beat = threading.Thread(target=self._beats, daemon=True)
         self._beat.start()
 

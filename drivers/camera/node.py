@@ -38,7 +38,7 @@ import numpy as np
 from drivers.loop_node import LoopNode
 from planner.errors import InputError
 from planner.model.transforms import Array
-from planner.service.bus import JSON, Keys, decode, encode
+from planner.service.bus import JSON, Keys, bulk, decode, encode
 from schemas.messages import JointState, SpotMessage
 from schemas.points import POINTS_SCHEMA, decode_points, points_metadata
 
@@ -103,7 +103,7 @@ class CameraNode(LoopNode):
         calls :meth:`publish_frame` itself (tests, replays)."""
         s, k = self.session, self.keys
         self._pub_spot = s.declare_publisher(k.camera_spot, encoding=JSON)
-        self._pub_points = s.declare_publisher(k.camera_points)
+        self._pub_points = s.declare_publisher(k.camera_points, **bulk())
         for robot in self.source.robot_names:
             self._handles.append(s.declare_subscriber(k.joint_states(robot), self._joints(robot)))
         if hasattr(self.source, "on_laser"):  # a source that sees the spot only when lit

@@ -16,7 +16,7 @@ from typing import Any, NamedTuple
 
 from planner.console.sweep import Sweep, sweep_of
 from planner.model.transforms import Array
-from planner.service.bus import JSON, encode
+from planner.service.bus import JSON, encode, urgent
 from planner.service.client import PlanClient, request_summary, world_T_camera_of
 from schemas.messages import StopMessage
 
@@ -81,7 +81,7 @@ class Operator:
     def stop(self, reason: str = "operator pressed Stop") -> None:
         """Publish ``<prefix>/stop``: every driver brakes and switches the laser off."""
         msg = StopMessage(t=time.time(), source="console", reason=reason)
-        self.client.session.put(self.client.keys.stop, encode(msg), encoding=JSON)
+        self.client.session.put(self.client.keys.stop, encode(msg), encoding=JSON, **urgent())
 
     def _claim(self) -> Any:
         if not self._busy.acquire(blocking=False):

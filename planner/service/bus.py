@@ -25,6 +25,24 @@ from planner.errors import InputError
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 ENDPOINT_ENV = "BEAMRELAY_ZENOH_ENDPOINT"
 JSON = "application/json"
+
+
+def urgent() -> dict[str, Any]:
+    """Publisher options of the messages safety waits on (heartbeat, stop, setpoints): Zenoh's
+    real-time priority and no batching, so a 1 MB cloud frame queued on the same link or
+    router does not delay them past the drivers' 50-100 ms deadlines."""
+    import zenoh
+
+    return {"priority": zenoh.Priority.REAL_TIME, "express": True}
+
+
+def bulk() -> dict[str, Any]:
+    """Publisher options of bulk data (camera clouds): below every other message."""
+    import zenoh
+
+    return {"priority": zenoh.Priority.DATA_LOW}
+
+
 MAX_PAYLOAD_BYTES = 4 * 1024 * 1024
 
 M = TypeVar("M", bound=BaseModel)

@@ -241,7 +241,7 @@ def start_heartbeat(
     from the child process when the node has its ``bus`` address, else from a thread of this
     process (:class:`planner.service.guard.Heartbeat`) publishing through ``session``. Returns
     it and the publisher this process declared for it (None with the child process)."""
-    from planner.service.bus import JSON
+    from planner.service.bus import JSON, urgent
     from planner.service.guard import Heartbeat
 
     kw = {} if rate is None else {"rate": rate}
@@ -249,7 +249,7 @@ def start_heartbeat(
         return HeartbeatProcess(bus, key, session_id, progress, on_wedged, **kw).start(), None
     log.warning("heartbeat published from the planner process (no bus address given): "
                 "long solver calls can delay it")  # fmt: skip
-    pub = session.declare_publisher(key)
+    pub = session.declare_publisher(key, **urgent())
     beat = Heartbeat(lambda body: pub.put(body, encoding=JSON), session_id, progress,
                      on_wedged, **kw).start()  # fmt: skip
     return beat, pub
@@ -327,7 +327,7 @@ def main(argv: list[str] | None = None) -> int:
         log.warning("heartbeat %s", priority_note(nice))
     import zenoh
 
-    from planner.service.bus import JSON, _zenoh_message
+    from planner.service.bus import JSON, _zenoh_message, urgent
 
     try:
         bus = BusAddress(args.endpoint, args.zenoh_config)
@@ -335,7 +335,7 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # zenoh's ZError, or an InputError of the config
         print(f"heartbeat: cannot open the Zenoh session: {_zenoh_message(exc)}", file=sys.stderr)
         return 2
-    pub = session.declare_publisher(args.key, encoding=JSON)
+    pub = session.declare_publisher(args.key, encoding=JSON, **urgent())
 
     def ready() -> None:
         sys.stdout.write("ready\n")

@@ -48,7 +48,7 @@ from typing import Any
 from planner.errors import InputError
 from planner.model.transforms import Array
 from planner.service.bodies import encode_json
-from planner.service.bus import JSON, Keys, decode_sample, encode, update_alive
+from planner.service.bus import JSON, Keys, decode_sample, encode, update_alive, urgent
 from planner.service.execution import (
     ACK_TIMEOUT,
     HALTED_MODES,
@@ -151,7 +151,7 @@ class PlannerNode:
         s, k = self.session, self.keys
         self._publishers = {r: s.declare_publisher(k.trajectory(r)) for r in self.robots}
         self._plans = s.declare_publisher(k.plans)
-        self._stop_pub = s.declare_publisher(k.stop)
+        self._stop_pub = s.declare_publisher(k.stop, **urgent())
         self._start_heartbeat()
         self._token = s.liveliness().declare_token(k.alive("planner"))
         self._handles.append(

@@ -44,7 +44,7 @@ import numpy as np
 
 from planner.errors import InputError
 from planner.model.transforms import Array
-from planner.service.bus import JSON, Keys
+from planner.service.bus import JSON, Keys, urgent
 from schemas import defaults
 from schemas.messages import SETPOINT_SCHEMA
 
@@ -94,7 +94,10 @@ class SetpointStreamer:
         self.robots = tuple(robots)
         self.session_id, self.request_id, self.gate_robot = session_id, request_id, gate_robot
         self.reference, self.rate, self.max_hold, self.clock = reference, rate, max_hold, clock
-        self._pubs = {r: session.declare_publisher(keys.setpoint(r), encoding=JSON) for r in robots}
+        self._pubs = {
+            r: session.declare_publisher(keys.setpoint(r), encoding=JSON, **urgent())
+            for r in robots
+        }
         self._lock = threading.Lock()
         self._update: _Update | None = None
         self._halt = threading.Event()

@@ -55,16 +55,62 @@ def chromium_paths() -> tuple[str, str] | None:
 #: niceness of the browser: its software rendering must not starve the system under test (an
 #: operator's browser runs on its own machine or GPU)
 BROWSER_NICE = 15
+#: CPUs the browser may use at most, when this process may set a cgroup CPU quota (root):
+#: rendering in software it takes every idle cycle, and a saturated 2-core virtual machine
+#: stalls even its highest-priority processes (the planner's heartbeat) for 100+ ms
+BROWSER_CPUS = 0.3
+CGROUP_CPU = (Path("/sys/fs/cgroup/cpu"), Path("/sys/fs/cgroup"))  # v1, v2
+
+
+def browser_cgroup(cpus: float = BROWSER_CPUS) -> Path | None:
+    """A cgroup (made once per process, removed at exit) whose CPU quota is ``cpus``, or
+    None when none can be made here (not root, no cpu controller)."""
+    import atexit
+    import os
+
+    period = 100_000
+    for root in CGROUP_CPU:
+        v1 = (root / "cpu.cfs_quota_us").exists()
+        if not v1 and "cpu" not in _read(root / "cgroup.subtree_control"):
+            continue
+        group = root / f"beamrelay-browser-{os.getpid()}"
+        try:
+            group.mkdir(exist_ok=True)
+            if v1:
+                (group / "cpu.cfs_period_us").write_text(str(period))
+                (group / "cpu.cfs_quota_us").write_text(str(round(cpus * period)))
+            else:
+                (group / "cpu.max").write_text(f"{round(cpus * period)} {period}")
+        except OSError:
+            continue
+        atexit.register(_rmdir, group)
+        return group
+    return None
+
+
+def _read(path: Path) -> str:
+    try:
+        return path.read_text()
+    except OSError:
+        return ""
+
+
+def _rmdir(path: Path) -> None:
+    with contextlib.suppress(OSError):
+        path.rmdir()
 
 
 def nice_browser(browser: str) -> str:
-    """A wrapper script running ``browser`` at :data:`BROWSER_NICE` (made once per process)."""
+    """A wrapper script running ``browser`` at :data:`BROWSER_NICE`, in the
+    :func:`browser_cgroup` when there is one (made once per process)."""
     import os
     import tempfile
 
     path = Path(tempfile.gettempdir()) / f"beamrelay-nice-chromium-{os.getpid()}"
     if not path.exists():
-        path.write_text(f'#!/bin/sh\nexec nice -n {BROWSER_NICE} "{browser}" "$@"\n')
+        group = browser_cgroup()
+        enter = f'echo $$ > "{group}/cgroup.procs" 2>/dev/null\n' if group else ""
+        path.write_text(f'#!/bin/sh\n{enter}exec nice -n {BROWSER_NICE} "{browser}" "$@"\n')
         path.chmod(0o755)
     return str(path)
 

@@ -95,7 +95,7 @@ def wait_http(url: str, timeout: float) -> None:
     wait_for(up, timeout, f"the console page at {url}")
 
 
-def execute(d: object, done: re.Pattern[str] = MEASURED_ROW, attempts: int = 3
+def execute(d: object, done: re.Pattern[str] = MEASURED_ROW, attempts: int = 5
             ) -> tuple[str, float]:  # fmt: skip
     """Press Execute until the motion runs through: a driver refuses, or brakes to a stop,
     when the planner's heartbeat is late, which a starved shared machine causes; the page
