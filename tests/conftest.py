@@ -32,3 +32,15 @@ def make_system(n: int, seed: int = 0) -> System:
 @pytest.fixture
 def system1() -> System:
     return make_system(1)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Start Zenoh's runtime threads at the timing priority (when root): the tests are bus
+    hubs routing heartbeats and watch 100 ms deadlines, like ``beamrelay up``'s hub. The
+    runtime is process-wide and starts with the first session: open one, raised, first."""
+    from planner.service.bus import open_session
+    from planner.service.priority import raised_priority
+    from tests.drivers.conftest import free_port
+
+    with raised_priority():
+        open_session(listen=True, endpoint=f"tcp/127.0.0.1:{free_port()}").close()

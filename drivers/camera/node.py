@@ -66,7 +66,7 @@ class CameraSource(Protocol):
     kind: str
     robot_names: tuple[str, ...]
 
-    def on_joint_state(self, robot: str, q: Array) -> None: ...
+    def on_joint_state(self, robot: str, q: Array, t: float | None = None) -> None: ...
     def grab(self) -> bool | None: ...
     def points(self) -> tuple[Any, dict[str, Any]]: ...
     def spot(self) -> SpotReading | None: ...
@@ -135,7 +135,7 @@ class CameraNode(LoopNode):
                 msg = decode(sample.payload.to_bytes(), JointState)
             except InputError:
                 return  # a malformed state is ignored; the last good one stays
-            self.source.on_joint_state(robot, np.asarray(msg.q, dtype=float))
+            self.source.on_joint_state(robot, np.asarray(msg.q, dtype=float), msg.t)
 
         return on_state
 

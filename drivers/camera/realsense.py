@@ -131,7 +131,7 @@ class RealSenseCamera:
             sensor.set_option(self.rs.option.gain, float(gain))
 
     # -- inputs from the bus ------------------------------------------------------------
-    def on_joint_state(self, robot: str, q: Array) -> None:
+    def on_joint_state(self, robot: str, q: Array, t: float | None = None) -> None:
         """Not used: the real camera sees the real beam."""
 
     def on_gate(self, on: bool, t: float) -> None:

@@ -82,6 +82,10 @@ def render_depth(scene: Any, camera: Camera, stride: int = 1) -> tuple[Array, Ar
     return hit["t_hit"].numpy().astype(float), rays_c  # t along (x/z, y/z, 1) is z
 
 
+#: s: joint states older than this do not set a frame's time (their robot went silent)
+STAMP_WINDOW = 0.5
+
+
 class SimCamera:
     """Camera source for :class:`drivers.camera.node.CameraNode` (see module docstring).
 
@@ -112,6 +116,7 @@ class SimCamera:
         self.beam = BeamModel(system)
         self.robot_names = system.robot_names
         self.q: dict[str, Array] = {}
+        self.q_stamp: dict[str, float] = {}
         self.gated = gated
         self.laser = False  # the gate's last published state (off until told otherwise)
         z, rays = render_depth(self.world.static.raycasting_scene, self.camera, stride)
@@ -152,17 +157,26 @@ class SimCamera:
         """The simulation time (s) of the current frame (set by :meth:`grab`)."""
         return self.t
 
-    def on_joint_state(self, robot: str, q: Array) -> None:
-        """Latest measured joints of one robot (rad)."""
+    def on_joint_state(self, robot: str, q: Array, t: float | None = None) -> None:
+        """Latest measured joints of one robot (rad), stamped ``t`` (UNIX s) when known."""
         self.q[robot] = np.asarray(q, dtype=float)
+        if t is not None:
+            self.q_stamp[robot] = float(t)
 
     def on_laser(self, on: bool) -> None:
         """The laser gate's state (``<prefix>/laser``)."""
         self.laser = bool(on)
 
     def grab(self) -> None:
-        """Start a frame: read its time from the clock (the scene is rendered on demand)."""
-        self.t = self.clock()
+        """Start a frame: read its time from the clock (the scene is rendered on demand).
+        The frame shows the robots at the joint states it has, which arrive over the bus a
+        little late (more on a loaded machine): it is stamped with their time, as a real
+        camera's frame is stamped when the arm was where the frame shows it (unless they
+        are older than :data:`STAMP_WINDOW`: a silent robot)."""
+        now = self.clock()
+        stamps = [self.q_stamp[r] for r in self.robot_names if r in self.q_stamp]
+        oldest = min(stamps, default=now)
+        self.t = min(now, oldest) if now - oldest < STAMP_WINDOW else now
 
     def points(self) -> tuple[F32, dict[str, Any]]:
         """One noisy cloud (M x 3 float32, camera frame) and its metadata."""

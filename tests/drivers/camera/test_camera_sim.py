@@ -181,3 +181,26 @@ def test_spot_is_traced_once_per_joint_state_and_follows_new_joints() -> None:
     assert np.allclose(moved[0], analytic_spot(cam.system, q2), atol=1e-6)
     cam.gated = True
     assert cam.true_spot_world() is None  # laser off
+
+
+def test_a_frame_is_stamped_with_the_time_of_the_joint_states_it_shows() -> None:
+    """The joint states reach the camera late; the frame shows the arm as they say, so it
+    carries their stamp (a real camera's frame is stamped when the arm was there)."""
+    from drivers.camera import sim
+
+    scn = scenario()
+    now = [1000.0]
+    cam = SimCamera(system_from_scenario(scn, truth=True), scene_objects(scn), stride=8,
+                    seed=3, clock=lambda: now[0])  # fmt: skip
+    q = cam.system.robots[0].home
+    cam.grab()
+    assert cam.frame_time() == 1000.0  # no stamp: the clock
+    cam.on_joint_state("arm0", q, 999.96)
+    cam.grab()
+    assert cam.frame_time() == 999.96  # 40 ms late states: the frame shows that moment
+    now[0] = 999.96 + sim.STAMP_WINDOW + 0.1
+    cam.grab()
+    assert cam.frame_time() == now[0]  # a silent robot: the clock again
+    cam.on_joint_state("arm0", q, now[0] + 1.0)  # a state from the future (clock skew)
+    cam.grab()
+    assert cam.frame_time() == now[0]

@@ -58,7 +58,7 @@ BROWSER_NICE = 15
 #: CPUs the browser may use at most, when this process may set a cgroup CPU quota (root):
 #: rendering in software it takes every idle cycle, and a saturated 2-core virtual machine
 #: stalls even its highest-priority processes (the planner's heartbeat) for 100+ ms
-BROWSER_CPUS = 0.3
+BROWSER_CPUS = 0.6
 CGROUP_CPU = (Path("/sys/fs/cgroup/cpu"), Path("/sys/fs/cgroup"))  # v1, v2
 
 
@@ -70,6 +70,9 @@ def browser_cgroup(cpus: float = BROWSER_CPUS) -> Path | None:
 
     period = 100_000
     for root in CGROUP_CPU:
+        for stale in root.glob("beamrelay-browser-*"):  # of test runs that were killed
+            if not (Path("/proc") / stale.name.rsplit("-", 1)[-1]).exists():
+                _rmdir(stale)
         v1 = (root / "cpu.cfs_quota_us").exists()
         if not v1 and "cpu" not in _read(root / "cgroup.subtree_control"):
             continue
