@@ -67,10 +67,10 @@ class _Update(NamedTuple):
 class SetpointStreamer:
     """Publishes setpoints for ``robots`` on ``session`` (see the module docstring).
 
-    ``session`` needs ``declare_publisher(key, encoding=...)`` (a Zenoh session);
-    ``session_id`` is the node's heartbeat session (``PlannerNode.session_id``). ``clock``
-    gives the UNIX time (s) setpoints are stamped with. Use as ``start()`` ... ``close()``
-    or as a context manager.
+    ``session`` needs ``declare_publisher(key, encoding=..., priority=..., express=...)``
+    (a Zenoh session); ``session_id`` is the node's heartbeat session
+    (``PlannerNode.session_id``). ``clock`` gives the UNIX time (s) setpoints are stamped with.
+    Use as ``start()`` ... ``close()`` or as a context manager.
     """
 
     def __init__(
