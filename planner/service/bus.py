@@ -28,7 +28,7 @@ JSON = "application/json"
 
 
 def urgent() -> dict[str, Any]:
-    """Publisher options of the messages safety waits on (heartbeat, stop, setpoints): Zenoh's
+    """Publisher options of the messages safety waits on (heartbeat, stop): Zenoh's
     real-time priority and no batching, so a 1 MB cloud frame queued on the same link or
     router does not delay them past the drivers' 50-100 ms deadlines."""
     import zenoh

@@ -44,7 +44,7 @@ import numpy as np
 
 from planner.errors import InputError
 from planner.model.transforms import Array
-from planner.service.bus import JSON, Keys, urgent
+from planner.service.bus import JSON, Keys
 from schemas import defaults
 from schemas.messages import SETPOINT_SCHEMA
 
@@ -67,8 +67,7 @@ class _Update(NamedTuple):
 class SetpointStreamer:
     """Publishes setpoints for ``robots`` on ``session`` (see the module docstring).
 
-    ``session`` needs ``declare_publisher(key, encoding=..., priority=..., express=...)``
-    (a Zenoh session); ``session_id`` is the node's heartbeat session
+    ``session`` needs ``declare_publisher(key, encoding=...)`` (a Zenoh session); ``session_id`` is the node's heartbeat session
     (``PlannerNode.session_id``). ``clock`` gives the UNIX time (s) setpoints are stamped with.
     Use as ``start()`` ... ``close()`` or as a context manager.
     """
@@ -94,10 +93,7 @@ class SetpointStreamer:
         self.robots = tuple(robots)
         self.session_id, self.request_id, self.gate_robot = session_id, request_id, gate_robot
         self.reference, self.rate, self.max_hold, self.clock = reference, rate, max_hold, clock
-        self._pubs = {
-            r: session.declare_publisher(keys.setpoint(r), encoding=JSON, **urgent())
-            for r in robots
-        }
+        self._pubs = {r: session.declare_publisher(keys.setpoint(r), encoding=JSON) for r in robots}
         self._lock = threading.Lock()
         self._update: _Update | None = None
         self._halt = threading.Event()
