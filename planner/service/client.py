@@ -161,7 +161,9 @@ class Recorder:
         q: dict[str, Array] = {}
         rest = True
         for robot, h in self.history.items():
-            if not h or h[-1][0] < stamp:
+            if not h:  # no state of this robot kept (cannot happen today: made with one)
+                continue
+            if h[-1][0] < stamp:
                 if not late:
                     return None
                 q[robot], rest = h[-1][1], False
