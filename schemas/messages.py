@@ -124,6 +124,18 @@ class JointState(StrictModel):
         return self
 
 
+def check_intervals(spans: list[list[float]], key: str, within: tuple[float, float]) -> None:
+    """FieldError unless ``spans`` ([t0, t1] s) are ordered, disjoint and inside ``within``."""
+    for k, (t0, t1) in enumerate(spans):
+        if not t0 <= t1:
+            raise FieldError((key, k), f"ends ({t1:g} s) before it starts ({t0:g} s)")
+        if k and t0 < spans[k - 1][1]:
+            raise FieldError((key, k), "intervals must be in order, not overlapping")
+        if t0 < within[0] or t1 > within[1]:
+            raise FieldError((key, k), f"[{t0:g}, {t1:g}] s is outside the "
+                             f"trajectory's [{within[0]:g}, {within[1]:g}] s")  # fmt: skip
+
+
 class JointTrajectory(StrictModel):
     """A trajectory for one robot: ``q[k]`` (rad) at ``t[k]`` (s from its start).
 
@@ -148,20 +160,22 @@ class JointTrajectory(StrictModel):
     ) = None
     """for the robot whose digital output gates the laser: the intervals ``[t0, t1]`` (s, on
     the ``t`` axis) in which the gate is on; off outside them"""
+    aim_on: (
+        Annotated[
+            list[Annotated[list[Num], exact_length(2)]], Field(max_length=MAX_LASER_INTERVALS)
+        ]
+        | None
+    ) = None
+    """likewise for the aiming (pilot) beam (``laser.aim``): the intervals in which it is on,
+    for measurements; the treatment gate stays off in them unless ``laser_on`` says so"""
 
     @model_validator(mode="after")
     def _shapes(self) -> Self:
         for k in range(1, len(self.t)):
             if self.t[k] <= self.t[k - 1]:
                 raise FieldError(("t", k), "times must increase")
-        for k, (t0, t1) in enumerate(self.laser_on or []):
-            if not t0 <= t1:
-                raise FieldError(("laser_on", k), f"ends ({t1:g} s) before it starts ({t0:g} s)")
-            if k and t0 < self.laser_on[k - 1][1]:  # type: ignore[index]
-                raise FieldError(("laser_on", k), "intervals must be in order, not overlapping")
-            if t0 < self.t[0] or t1 > self.t[-1]:
-                raise FieldError(("laser_on", k), f"[{t0:g}, {t1:g}] s is outside the "
-                                 f"trajectory's [{self.t[0]:g}, {self.t[-1]:g}] s")  # fmt: skip
+        for key in ("laser_on", "aim_on"):
+            check_intervals(getattr(self, key) or [], key, (self.t[0], self.t[-1]))
         for key in ("q", "qd", "qdd"):
             rows: list[list[float]] = getattr(self, key)
             if len(rows) != len(self.t):
@@ -233,7 +247,8 @@ class RobotStatus(StrictModel):
 
 class LaserState(StrictModel):
     """The laser gate as its robot driver last switched it (published on ``<prefix>/laser``
-    at every switch and with every status): ``on``, the digital ``output`` index, why it
+    at every switch and with every status): ``on`` (the treatment gate), ``aim`` (the aiming
+    beam; None without ``laser.aim``), the digital ``output`` index, why it
     changed, and the switching figures of the last switch: ``lag`` (s of trajectory time
     between the interval's edge and the control period that switched) and ``latency`` (s
     from the start of that period to the output command). ``t`` is UNIX time."""
@@ -242,6 +257,7 @@ class LaserState(StrictModel):
     robot: str
     t: Num
     on: StrictBool
+    aim: StrictBool | None = None
     output: NonNegInt | None = None
     reason: str | None = None
     lag: Num | None = None
@@ -281,7 +297,8 @@ class Setpoint(StrictModel):
     """One streamed joint setpoint for ``robot`` (``beamrelay/<robot>/setpoint``): positions
     ``q`` (rad) and velocities ``qd`` (rad/s) to be reached at ``t`` (UNIX s, sender's clock).
     ``session`` is the planner session (its heartbeat's); ``seq`` counts up per stream;
-    ``laser_on`` asks the gating robot's driver for the laser state with this setpoint. The
+    ``laser_on`` asks the gating robot's driver for the treatment gate with this setpoint,
+    ``aim`` for the aiming beam (measurements, tracking acquisition). The
     driver follows within its limits and stops when no setpoint arrived for 50 ms."""
 
     schema_: Literal["beamrelay.setpoint/1"] = Field(default=SETPOINT_SCHEMA, alias="schema")
@@ -293,6 +310,7 @@ class Setpoint(StrictModel):
     q: JointVector
     qd: JointVector
     laser_on: StrictBool = False
+    aim: StrictBool = False
 
     @model_validator(mode="after")
     def _lengths(self) -> Self:

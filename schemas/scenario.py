@@ -50,6 +50,8 @@ PosVec3 = Annotated[list[PosNum], exact_length(3)]
 Name = Annotated[str, Field(min_length=1)]
 MAX_LASER_POWER_W = 1000.0
 """A laser power (W) above this is no laser a lab steers with mirrors on arms."""
+MAX_BEAM_RADIUS_M = 0.02
+"""A beam radius (m) above this is a unit mistake (mm given as m)."""
 
 
 # --- system -------------------------------------------------------------------------------
@@ -60,18 +62,53 @@ class LaserGate(StrictModel):
     output: Annotated[NonNegInt, Field(le=7)] = 0
 
 
+class LaserLimits(StrictModel):
+    """Emission limits the gate's driver enforces whatever it is sent: the longest
+    continuous treatment on-time ``max_on`` (s), the energy at one spot ``max_spot_energy``
+    (J: one continuous on-interval) and in one driver session ``max_session_energy`` (J).
+    The energies need ``laser.power``."""
+
+    max_on: PosNum | None = None
+    max_spot_energy: PosNum | None = None
+    max_session_energy: PosNum | None = None
+
+
 class Laser(StrictModel):
     """The fixed laser: the beam exits at the origin of ``world_T_laser`` along its +z.
     ``power`` (W, optional) gives the plan's exposure figures; ``gate`` names the robot
-    digital output that switches it."""
+    digital output that switches the treatment beam, ``aim`` the coaxial aiming (pilot)
+    beam's output on the same robot, or ``"gate"`` when the only laser is a low-power
+    diagnostic diode (then measurements switch the gate); ``limits`` the emission limits;
+    ``beam_radius`` (m) inflates keep-out and beam-vs-arm checks."""
 
     world_T_laser: Pose
     power: Annotated[PosNum, Field(le=MAX_LASER_POWER_W)] | None = None
     gate: LaserGate | None = None
+    aim: LaserGate | Literal["gate"] | None = None
+    limits: LaserLimits = Field(default_factory=LaserLimits)
+    beam_radius: Annotated[NonNegNum, Field(le=MAX_BEAM_RADIUS_M)] = 0.0
 
     @model_validator(mode="after")
     def _plausible(self) -> Self:
         check_translation(self.world_T_laser, "world_T_laser", MAX_WORLD_M)
+        return self
+
+    @model_validator(mode="after")
+    def _aim_and_limits(self) -> Self:
+        aim, gate = self.aim, self.gate
+        if aim is not None and gate is None:
+            raise FieldError(("aim",), "needs laser.gate (the aim beam is switched by the "
+                             "gate's driver)")  # fmt: skip
+        if isinstance(aim, LaserGate) and gate is not None:
+            if aim.robot != gate.robot:
+                raise FieldError(("aim", "robot"), f"must be the gate's robot "
+                                 f"{gate.robot!r} (one driver switches both), got {aim.robot!r}")  # fmt: skip
+            if aim.output == gate.output:
+                raise FieldError(("aim", "output"), f"must differ from the gate's output "
+                                 f"{gate.output}; write aim: gate for a one-laser rig")  # fmt: skip
+        for key in ("max_spot_energy", "max_session_energy"):
+            if getattr(self.limits, key) is not None and self.power is None:
+                raise FieldError(("limits", key), "needs laser.power (W)")
         return self
 
 

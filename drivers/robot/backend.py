@@ -22,6 +22,8 @@ class Measured(NamedTuple):
     fault: str | None = None
     stale: bool = False  # the link to the arm is stale: q, qd are old, not published
     safety: str | None = None  # the controller's safety mode (normal, reduced, ...)
+    speed: float = 1.0  # the speed fraction the trajectory clock runs at (slider, pause)
+    outputs: int | None = None  # the standard digital outputs read back (bit k = output k)
 
 
 class RobotBackend(Protocol):
@@ -45,5 +47,8 @@ class RobotBackend(Protocol):
         """This period's streamed target state (see ``TrajectoryFollower.stream``)."""
 
     def brake(self, reason: str) -> None: ...
-    def set_gate(self, on: bool) -> None: ...
+    def set_output(self, output: int, on: bool) -> None:
+        """Switch standard digital output ``output`` (the laser gate or the aim beam); the
+        UR backend writes it outside the control loop, with a timeout."""
+
     def close(self) -> None: ...

@@ -60,28 +60,39 @@ LASER_EDGE = 1e-6  # s: slack on a laser interval's ends (they lie on the period
 RUCKIG_NUDGE = 1e-10
 
 
+def interval_start(spans: Array | None, t0: float, tau: float) -> float | None:
+    """The start (s after ``t0``) of the interval of ``spans`` (m x 2, absolute s) that
+    contains ``tau`` s after ``t0``, or None."""
+    if spans is None or not len(spans):
+        return None
+    rel = spans - t0
+    k = int(np.searchsorted(rel[:, 0], tau + LASER_EDGE, side="right")) - 1
+    if k >= 0 and tau <= rel[k, 1] + LASER_EDGE:
+        return float(rel[k, 0])
+    return None
+
+
 @dataclass(frozen=True)
 class Reference:
     """A joint trajectory: ``q[k], qd[k], qdd[k]`` (K x n) at ``t[k]`` s from its start;
     ``laser_on`` (m x 2, s on the same axis, or None) the intervals in which the laser gate
-    is on."""
+    is on, ``aim_on`` those of the aiming beam."""
 
     t: Array
     q: Array
     qd: Array
     qdd: Array
     laser_on: Array | None = None
+    aim_on: Array | None = None
 
     def laser_edge(self, tau: float) -> float | None:
         """The start (gate on) of the laser interval containing ``tau`` s after the first
         sample, or None when the gate is off then."""
-        if self.laser_on is None or not len(self.laser_on):
-            return None
-        rel = self.laser_on - self.t[0]
-        k = int(np.searchsorted(rel[:, 0], tau + LASER_EDGE, side="right")) - 1
-        if k >= 0 and tau <= rel[k, 1] + LASER_EDGE:
-            return float(rel[k, 0])
-        return None
+        return interval_start(self.laser_on, self.t[0], tau)
+
+    def aim_edge(self, tau: float) -> float | None:
+        """Likewise for the aiming beam's intervals."""
+        return interval_start(self.aim_on, self.t[0], tau)
 
     @property
     def duration(self) -> float:
@@ -157,6 +168,12 @@ class TrajectoryFollower:
         if self.mode != "following" or self.reference is None:
             return None
         return self.reference.laser_edge(self._tau)
+
+    def aim_edge(self) -> float | None:
+        """Likewise for the aiming beam's intervals."""
+        if self.mode != "following" or self.reference is None:
+            return None
+        return self.reference.aim_edge(self._tau)
 
     def follow(self, reference: Reference) -> None:
         """Start a new trajectory (replaces any current one, a stream too): approach its

@@ -1,24 +1,87 @@
-"""The laser gate of a robot driver: one digital output of the arm switches the laser.
+"""The laser outputs of a robot driver and their emission supervisor.
 
 :class:`LaserGate` is driven from the control loop of :class:`drivers.robot.node.RobotNode`
-once per period: on while the followed trajectory plays one of its ``laser_on`` intervals
-(:meth:`drivers.robot.follower.TrajectoryFollower.laser_edge`) or while a followed setpoint
-stream's newest setpoint has ``laser_on``, off otherwise, off on a
-backend fault, and forced off (commanded again even if already off) at start-up, in every
-safety stop and at exit. Each switch is recorded as a :class:`GateSwitch` and published as
-a :class:`schemas.messages.LaserState`. Times in s.
+once per period. It switches two digital outputs of the arm: the treatment gate
+(``laser.gate``) and the aiming (pilot) beam (``laser.aim``; with ``aim: gate`` the gate
+output itself, a rig whose only laser is a low-power diagnostic diode).
+
+- **Treatment** is wanted while the followed trajectory plays one of its ``laser_on``
+  intervals (:meth:`drivers.robot.follower.TrajectoryFollower.laser_edge`) or while a
+  followed setpoint stream's newest setpoint has ``laser_on``;
+- **aim** while it plays one of its ``aim_on`` intervals or the newest setpoint has ``aim``.
+
+Whatever it is sent, the supervisor (:class:`Emission`, the scenario's ``laser.limits``
+and ``laser.power``) keeps treatment off, and asks the node to abort the motion, when:
+
+1. the longest continuous on-time ``max_on`` (s) would be passed;
+2. the energy of one continuous on-interval (one spot) would pass ``max_spot_energy`` (J);
+3. the energy of this driver session has reached ``max_session_energy`` (J): latched until
+   the driver restarts;
+4. the speed fraction (slider, pause, reduced mode) is below 1 inside an interval: the
+   planned exposure would stretch;
+5. an arm of the beam chain is not live and following (the node's ``chain`` reason);
+6. the outputs read back (:attr:`drivers.robot.backend.Measured.outputs`) differ from what
+   was commanded, :data:`READBACK_GRACE` s after the last write: latched as a fault (every
+   output off, every later interval refused) until :meth:`LaserGate.recover` finds them
+   agreeing again.
+
+Both outputs are off on a backend fault, and forced off (commanded again even if already
+off) at start-up, in every safety stop and at exit. Each treatment switch is recorded as a
+:class:`GateSwitch`; every change of either output is published as a
+:class:`schemas.messages.LaserState` whose ``reason`` names the interval, limit or fault.
+Times in s, energies in J.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 from schemas.messages import LaserState
 
 MAX_SWITCHES = 4096  # switches remembered
 EDGE_SLACK = 1e-6  # s
+#: s after an output write in which its read-back may still show the old level (the UR
+#: backend writes outputs from a helper thread; RTDE reports them a period or two later)
+READBACK_GRACE = 0.030
+#: speed fraction below which an interval counts as slowed (the slider's float noise)
+SPEED_SLACK = 1e-3
+#: longest period (s) charged to the on-time; a longer gap is charged as this much
+MAX_CHARGE = 0.1
+
+
+@dataclass(frozen=True)
+class Emission:
+    """What the gate's driver enforces: the gate output; the aim output (None without an
+    aim beam, equal to ``gate_output`` for ``aim: gate``); ``power`` (W) and the limits of
+    ``laser.limits`` (None: no limit)."""
+
+    gate_output: int
+    aim_output: int | None = None
+    power: float | None = None
+    max_on: float | None = None
+    max_spot_energy: float | None = None
+    max_session_energy: float | None = None
+
+    @classmethod
+    def from_laser(cls, laser: Any) -> Emission:
+        """The rules of a scenario's ``system.laser`` (its ``gate`` must be set)."""
+        gate, aim, lim = laser.gate, laser.aim, laser.limits
+        aim_output = None if aim is None else gate.output if aim == "gate" else aim.output
+        return cls(gate.output, aim_output, laser.power, lim.max_on, lim.max_spot_energy,
+                   lim.max_session_energy)  # fmt: skip
+
+    def on_limit(self) -> tuple[float, str] | None:
+        """The longest continuous on-time (s) the limits allow and the limit that sets it."""
+        out: list[tuple[float, str]] = []
+        if self.max_on is not None:
+            out.append((self.max_on, f"max_on {self.max_on:g} s"))
+        if self.max_spot_energy is not None and self.power:
+            out.append((self.max_spot_energy / self.power,
+                        f"max_spot_energy {self.max_spot_energy:g} J at {self.power:g} W"))  # fmt: skip
+        return min(out) if out else None
 
 
 class GateSwitch(NamedTuple):
@@ -35,47 +98,171 @@ class GateSwitch(NamedTuple):
 
 
 class LaserGate:
-    """The gate output ``output`` of ``robot``, commanded through ``backend.set_gate`` and
-    published with ``put`` (bytes)."""
+    """The laser outputs of ``robot`` under ``rules``, commanded through
+    ``backend.set_output`` and published with ``put`` (bytes)."""
 
-    def __init__(self, robot: str, output: int, backend: Any, put: Callable[[bytes], Any]) -> None:
-        self.robot, self.output, self.backend, self._put = robot, output, backend, put
-        self.on = False
+    def __init__(self, robot: str, rules: Emission | int, backend: Any,
+                 put: Callable[[bytes], Any], clock: Callable[[], float] = time.monotonic) -> None:  # fmt: skip
+        self.rules = rules if isinstance(rules, Emission) else Emission(int(rules))
+        self.robot, self.backend, self._put, self.clock = robot, backend, put, clock
+        self.output = self.rules.gate_output
+        self.on = False  # treatment
+        self.aim = False  # aiming beam
         self.switches: list[GateSwitch] = []
-        self.period_start = time.monotonic()  # monotonic s, set by the loop every period
+        self.period_start = clock()  # monotonic s, set by the loop every period
+        self.on_time = 0.0  # s of the current continuous treatment interval
+        self.total_on = 0.0  # s of treatment this session
+        self.fault: str | None = None  # latched read-back fault
+        self.spent: str | None = None  # latched session-energy limit
+        self.reason: str | None = None  # why the outputs are as they are
+        self._bits = 0  # commanded output levels (bit k = output k)
+        self._written = -float("inf")  # monotonic s of the last write that changed a level
+        self._last: float | None = None  # monotonic s of the last update
+        self.mismatches = 0
 
-    def update(self, fault: str | None, streamed: bool = False) -> None:
-        """This period's state: on inside a laser interval of the followed trajectory, or
-        while the follower streams and ``streamed`` (the followed stream's newest setpoint
-        asks for it); off on a fault."""
+    # -- figures ----------------------------------------------------------------------------
+    @property
+    def session_energy(self) -> float | None:
+        """J emitted by the treatment beam this session (None without ``laser.power``)."""
+        return None if self.rules.power is None else self.rules.power * self.total_on
+
+    # -- the period ---------------------------------------------------------------------------
+    def update(self, m: Any, fault: str | None, streamed: bool = False, aim: bool = False,
+               chain: str | None = None) -> str | None:  # fmt: skip
+        """This period's outputs from the follower, the newest setpoint's ``streamed``
+        (laser_on) and ``aim``, the backend ``fault`` and the node's ``chain`` reason (an
+        arm of the beam chain not live). Returns why the motion must be aborted, if so."""
+        now = self.clock()
+        self._charge(now)
+        abort = self._check_readback(m, now)
         follower = self.backend.follower
-        edge = follower.laser_edge() if fault is None else None
-        stream = fault is None and streamed and follower.mode == "streaming"
-        if (edge is not None or stream) == self.on:
-            return
-        if edge is not None:
-            self._switch(True, edge, "laser_on interval")
-        elif stream:
-            self._switch(True, None, "setpoint laser_on")
-        elif follower.mode == "streaming" and fault is None:
-            self._switch(False, None, "setpoint laser off")
+        healthy = fault is None and abort is None and self.fault is None
+        streaming = follower.mode == "streaming"
+        edge = follower.laser_edge() if healthy else None
+        treat = edge is not None or (healthy and streamed and streaming)
+        aim_edge = follower.aim_edge() if healthy else None
+        want_aim = (
+            self.rules.aim_output is not None
+            and healthy
+            and (aim_edge is not None or (aim and streaming))
+        )
+        if treat:
+            block = self._blocked(m, chain)
+            if block is not None:
+                treat, abort = False, block
+        if abort is not None:
+            self.force_off(abort)
+            return abort
+        if treat == self.on and want_aim == self.aim:
+            return None
+        if treat:
+            why = "laser_on interval" if edge is not None else "setpoint laser_on"
+        elif self.on:
+            why = fault or ("setpoint laser off" if streaming else "interval ended")
+        elif want_aim:
+            why = "aim interval" if aim_edge is not None else "setpoint aim"
         else:
-            self._switch(False, self._off_edge(follower), fault or "interval ended")
+            why = fault or "aim ended"
+        off_edge = self._off_edge(follower) if self.on and not treat and not streaming else None
+        self._switch(treat, want_aim, edge if treat else off_edge, why)
+        return None
 
+    def _charge(self, now: float) -> None:
+        """Charge the time since the last update to the treatment on-time."""
+        if self._last is not None and self.on:
+            dt = min(max(now - self._last, 0.0), MAX_CHARGE)
+            self.on_time += dt
+            self.total_on += dt
+        self._last = now
+
+    def _blocked(self, m: Any, chain: str | None) -> str | None:
+        """Why treatment may not be on this period (rules 1-5 of the module docstring)."""
+        r = self.rules
+        if self.spent is not None:
+            return self.spent
+        energy = self.session_energy
+        cap = r.max_session_energy
+        if cap is not None and energy is not None and energy >= cap:
+            self.spent = (f"max_session_energy {cap:g} J reached ({energy:.4g} J emitted): "
+                          "restart the driver to treat again")  # fmt: skip
+            return self.spent
+        limit = r.on_limit()
+        period = 1.0 / max(float(getattr(self.backend, "rate", 500.0)), 1.0)
+        if limit is not None and self.on_time + period > limit[0] + EDGE_SLACK:
+            return (f"{limit[1]} reached: treatment on {self.on_time:.3f} s "
+                    f"(limit {limit[0]:.3f} s); motion aborted")  # fmt: skip
+        speed = float(getattr(m, "speed", 1.0))
+        if speed < 1.0 - SPEED_SLACK:
+            return (f"speed fraction {100 * speed:.0f} % < 100 % inside a laser interval "
+                    "(slider, pause or reduced mode): treatment off, motion aborted")  # fmt: skip
+        if chain is not None:
+            return f"beam chain not live: {chain}"
+        return None
+
+    def _check_readback(self, m: Any, now: float) -> str | None:
+        """Rule 6: the outputs read back against the commanded levels."""
+        bits = getattr(m, "outputs", None)
+        if bits is None or now - self._written < READBACK_GRACE:
+            return None
+        mask = 1 << self.rules.gate_output
+        if self.rules.aim_output is not None:
+            mask |= 1 << self.rules.aim_output
+        wrong = (int(bits) ^ self._bits) & mask
+        if not wrong:
+            return None
+        self.mismatches += 1
+        k = (wrong & -wrong).bit_length() - 1
+        reads = "high" if int(bits) >> k & 1 else "low"
+        said = "high" if self._bits >> k & 1 else "low"
+        self.fault = (f"laser output {k} reads {reads}, commanded {said} "
+                      "(read-back mismatch): laser off, motion aborted")  # fmt: skip
+        return self.fault
+
+    def recover(self, m: Any) -> str:
+        """Clear a read-back fault once the outputs read as commanded (all off)."""
+        if self.fault is None:
+            return "laser outputs: no fault"
+        bits = getattr(m, "outputs", None)
+        if bits is not None and self._check_readback(m, float("inf")) is not None:
+            return f"laser outputs still faulted: {self.fault}"
+        self.fault = None
+        self.reason = "read-back fault cleared"
+        self.publish(self.reason)
+        return "laser outputs: read-back agrees again, fault cleared"
+
+    # -- switching ----------------------------------------------------------------------------
     def force_off(self, reason: str) -> None:
-        """Command the output off now, whatever its state."""
-        self._switch(False, None, reason, force=True)
+        """Command both outputs off now, whatever their state."""
+        self._switch(False, False, None, reason, force=True)
 
-    def _switch(self, on: bool, edge: float | None, reason: str, force: bool = False) -> None:
+    def _levels(self, treat: bool, aim: bool) -> dict[int, bool]:
+        r = self.rules
+        out = {r.gate_output: treat}
+        if r.aim_output is not None:
+            out[r.aim_output] = out.get(r.aim_output, False) or aim
+        return out
+
+    def _switch(self, on: bool, aim: bool, edge: float | None, reason: str,
+                force: bool = False) -> None:  # fmt: skip
         tau = self.backend.follower.tau
-        self.backend.set_gate(on)
-        latency = time.monotonic() - self.period_start
-        changed = on != self.on
-        self.on = on
-        if changed:
+        for output, level in self._levels(on, aim).items():
+            bit = 1 << output
+            old = bool(self._bits & bit)
+            self._bits = self._bits | bit if level else self._bits & ~bit
+            if force or level != old:
+                self.backend.set_output(output, level)
+                if level != old:
+                    self._written = self.clock()
+        latency = self.clock() - self.period_start
+        changed = on != self.on or aim != self.aim
+        if on != self.on:
             lag = tau - edge if edge is not None else 0.0
             self.switches.append(GateSwitch(on, edge, tau, lag, latency, reason))
             del self.switches[:-MAX_SWITCHES]
+        if not on:
+            self.on_time = 0.0
+        self.on, self.aim = on, aim
+        self.reason = reason
         if changed or force:
             self.publish(reason)
 
@@ -92,8 +279,10 @@ class LaserGate:
     def publish(self, reason: str | None = None) -> None:
         """The current state on ``<prefix>/laser`` (with the last switch's figures)."""
         last = self.switches[-1] if self.switches else None
-        msg = LaserState(robot=self.robot, t=time.time(), on=self.on, output=self.output,
-                         reason=reason, lag=None if last is None else last.lag,
+        msg = LaserState(robot=self.robot, t=time.time(), on=self.on,
+                         aim=None if self.rules.aim_output is None else self.aim,
+                         output=self.output, reason=reason or self.reason,
+                         lag=None if last is None else last.lag,
                          latency=None if last is None else last.latency)  # fmt: skip
         from planner.service.bus import encode
 

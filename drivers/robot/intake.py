@@ -72,7 +72,7 @@ class Verdict(NamedTuple):
 def parse_in_worker(
     body: bytes, robot: str, names: tuple[str, ...], limits: Limits, period: float
 ) -> tuple[Any, ...]:
-    """Worker side: ``("ok", id, session, t, q, qd, qdd, laser_on)`` or ``("rejected", id,
+    """Worker side: ``("ok", id, session, t, q, qd, qdd, laser_on, aim_on)`` or ``("rejected", id,
     reason)``.
 
     Never raises: any error of any payload becomes a rejection (plain tuples of numpy
@@ -91,7 +91,7 @@ def parse_in_worker(
     except Exception as exc:  # hostile payloads: 5000-digit integers, 1e400, ...
         return ("rejected", msg_id, f"body: {type(exc).__name__}: {str(exc)[:MAX_REASON]}")
     r = p.reference
-    return ("ok", p.id, p.session, r.t, r.q, r.qd, r.qdd, r.laser_on)
+    return ("ok", p.id, p.session, r.t, r.q, r.qd, r.qdd, r.laser_on, r.aim_on)
 
 
 def _read_frame(stream: IO[bytes]) -> bytes | None:
@@ -244,10 +244,10 @@ class TrajectoryIntake:
                 self._worker.close()
             self._worker = None
         if res[0] == "ok":
-            _, msg_id, session, t, q, qd, qdd, laser = res
+            _, msg_id, session, t, q, qd, qdd, laser, aim = res
             t, q, qd, qdd = (np.asarray(a, dtype=float) for a in (t, q, qd, qdd))
-            gate = None if laser is None else np.asarray(laser, dtype=float)
-            ref = Reference(t, q, qd, qdd, gate)
+            gate, aim = (None if v is None else np.asarray(v, dtype=float) for v in (laser, aim))
+            ref = Reference(t, q, qd, qdd, gate, aim)
             return Verdict(received, msg_id, session, ref, None)
         return Verdict(received, res[1], None, None, res[2])
 

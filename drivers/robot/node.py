@@ -88,7 +88,7 @@ import numpy as np
 from drivers.loop_node import LoopNode
 from drivers.robot.backend import Measured, RobotBackend
 from drivers.robot.follower import REST_VELOCITY, Reference
-from drivers.robot.gate import LaserGate
+from drivers.robot.gate import Emission, LaserGate
 from drivers.robot.intake import TrajectoryIntake, Verdict
 from drivers.robot.node_streams import EXECUTING, StreamingMixin
 from drivers.robot.setpoint_intake import SetpointIntake
@@ -130,11 +130,15 @@ class RobotNode(StreamingMixin, LoopNode):
         start_tolerance: float = START_TOLERANCE,
         require_planner: bool = True,
         gate_output: int | None = None,
+        emission: Emission | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         super().__init__()
         self.clock = clock  # monotonic s: every receive time and period start
-        self.gate_output = gate_output
+        if emission is None and gate_output is not None:
+            emission = Emission(gate_output)
+        self.emission = emission  # the laser outputs' rules (None: this driver has none)
+        self.gate_output = None if emission is None else emission.gate_output
         self.gate: LaserGate | None = None  # made in start() (it publishes)
         self.session = session
         self.keys = keys
@@ -184,7 +188,8 @@ class RobotNode(StreamingMixin, LoopNode):
         self._pub_status = s.declare_publisher(k.status(self.robot), encoding=JSON)
         if self.gate_output is not None:
             pub = s.declare_publisher(k.laser, encoding=JSON)
-            self.gate = LaserGate(self.robot, self.gate_output, self.backend, pub.put)
+            assert self.emission is not None
+            self.gate = LaserGate(self.robot, self.emission, self.backend, pub.put, self.clock)
             self.gate.force_off("start-up")
         self._handles = [
             s.declare_subscriber(k.trajectory(self.robot), self._on_trajectory),
@@ -269,12 +274,17 @@ class RobotNode(StreamingMixin, LoopNode):
             self.recover_requested = False
             recover = getattr(self.backend, "recover", None)
             self.recover_log(recover() if recover else "recover: nothing to do (sim)")
+            if self.gate is not None and self.gate.fault is not None:
+                self.recover_log(self.gate.recover(self.backend.measured()))
         m = self.backend.step()
         self._track()
         if self.streams.active is not None and m.mode != "streaming":
             self._safe_stop(f"arm left the stream: {m.fault or m.mode}")
         if self.gate is not None:
-            self.gate.update(m.fault, self.streams.laser_on)
+            abort = self.gate.update(m, m.fault, self.streams.laser_on, self.streams.aim,
+                                     self._chain_fault())  # fmt: skip
+            if abort is not None:
+                self._safe_stop(abort)
         if self._tick % self._state_every == 0 and not m.stale:
             state = JointState(
                 t=time.time(), names=list(self.backend.names), q=m.q.tolist(), qd=m.qd.tolist()
@@ -320,6 +330,10 @@ class RobotNode(StreamingMixin, LoopNode):
         self._running = self._queued = None
         self.stopped_by = reason
 
+    def _chain_fault(self) -> str | None:
+        """Why an arm of the beam chain is not live and following (None: all are)."""
+        return None
+
     def _track(self) -> None:
         """Follow the backend: the queued trajectory started, or everything ended."""
         f = self.backend.follower
@@ -333,9 +347,7 @@ class RobotNode(StreamingMixin, LoopNode):
         try:
             if v.reference is None:
                 raise InputError(v.reason or "rejected", "")
-            if v.reference.laser_on is not None and self.gate_output is None:
-                raise InputError("laser_on given, but this driver switches no laser gate "
-                                 "(laser.gate names another robot, or none)", "laser_on")  # fmt: skip
+            self._check_emission(v.reference.laser_on is not None, v.reference.aim_on is not None)
             self._admissible(v.received, v.session)
             acc = Accepted(v.id, v.session, v.reference)
             if self.backend.follower.mode in EXECUTING and self._running is not None:
@@ -360,6 +372,19 @@ class RobotNode(StreamingMixin, LoopNode):
         self.rejection = self.stopped_by = None
         self.ack = TrajectoryAck(id=v.id, accepted=True, t=time.time())
 
+    def _check_emission(self, laser_on: bool, aim_on: bool) -> None:
+        """InputError when a trajectory or stream asks for a laser this driver cannot (or,
+        after a latched fault or the session's energy, may not) switch."""
+        if laser_on and self.gate is None:
+            raise InputError("laser_on given, but this driver switches no laser gate "
+                             "(laser.gate names another robot, or none)", "laser_on")  # fmt: skip
+        if aim_on and (self.emission is None or self.emission.aim_output is None):
+            raise InputError("aim_on given, but this driver switches no aiming beam "
+                             "(laser.aim names another robot, or none)", "aim_on")  # fmt: skip
+        gate = self.gate
+        if laser_on and gate is not None and (gate.fault or gate.spent):
+            raise InputError(f"the laser is locked out: {gate.fault or gate.spent}", "laser_on")
+
     def _admissible(self, received: float, session: str | None) -> None:
         """Rules 2 and 3 of the module docstring (InputError if not)."""
         stop_at = self.stop_requested_at
@@ -383,7 +408,8 @@ class RobotNode(StreamingMixin, LoopNode):
             )
 
     def _publish_status(self, m: Measured) -> None:
-        fault = m.fault or self.rejection or self.stopped_by
+        gate_fault = self.gate.fault if self.gate is not None else None
+        fault = m.fault or gate_fault or self.rejection or self.stopped_by
         if fault is None and not self.planner_alive and self.require_planner:
             fault = "no planner alive (watchdog)"
         laser = self.gate.on if self.gate is not None else None

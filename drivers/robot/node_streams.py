@@ -39,6 +39,9 @@ class StreamingMixin:
     def _admissible(self, received: float, session: str | None) -> None:
         raise NotImplementedError
 
+    def _check_emission(self, laser_on: bool, aim_on: bool) -> None:
+        raise NotImplementedError
+
     def _safe_stop(self, reason: str, rejected: str | None = None) -> None:
         raise NotImplementedError
 
@@ -74,9 +77,7 @@ class StreamingMixin:
         s = ev.sample
         assert s is not None
         try:
-            if s.laser_on and self.gate_output is None:
-                raise InputError("laser_on asked of a driver that switches no laser gate",
-                                 "laser_on")  # fmt: skip
+            self._check_emission(s.laser_on, s.aim)
             self._admissible(ev.received, s.session)
             mode = self.backend.follower.mode
             if mode in EXECUTING:
@@ -95,7 +96,7 @@ class StreamingMixin:
 
     def _end_stream(self, reason: str, braked: bool = False, rejected: bool = False) -> None:
         """Stop following the stream (laser off); the arm stays where the caller left it."""
-        if self.gate is not None and self.gate.on:
+        if self.gate is not None and (self.gate.on or self.gate.aim):
             self.gate.force_off(reason)
         stream = self.streams.end(reason, braked, rejected)
         if stream is None:

@@ -47,7 +47,7 @@ START_VELOCITY_TOLERANCE = 0.1  # rad/s: first setpoint's qd vs the commanded ve
 class SetpointSample(NamedTuple):
     """One setpoint that passed :func:`parse_setpoint`: ``received`` (monotonic s, driver),
     ``t`` (s, sender's clock), stream ``session``/``id``, ``seq``, ``q`` (rad), ``qd``
-    (rad/s), ``laser_on``; ``qdd`` (rad/s^2) the acceleration since the stream's previous
+    (rad/s), ``laser_on``, ``aim``; ``qdd`` (rad/s^2) the acceleration since the stream's previous
     setpoint (zero for a stream's first, set by :func:`check_next`)."""
 
     received: float
@@ -59,6 +59,7 @@ class SetpointSample(NamedTuple):
     qd: Array
     laser_on: bool
     qdd: Array | None = None
+    aim: bool = False
 
     @property
     def key(self) -> tuple[str, str | None]:
@@ -95,7 +96,7 @@ def parse_setpoint(
     qd = np.array(msg.qd, dtype=float)
     _check_bounds(q, qd, names, limits)
     return SetpointSample(
-        received, msg.t, msg.session, msg.seq, msg.id, q, qd, msg.laser_on
+        received, msg.t, msg.session, msg.seq, msg.id, q, qd, msg.laser_on, aim=msg.aim
     )  # fmt: skip
 
 

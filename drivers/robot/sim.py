@@ -15,7 +15,7 @@ from __future__ import annotations
 import time
 
 from drivers.robot.backend import Measured
-from drivers.robot.follower import STOP_ACCELERATION, FollowerState, Reference, TrajectoryFollower
+from drivers.robot.follower import STOP_ACCELERATION, Reference, TrajectoryFollower
 from planner.model.system import Limits
 from planner.model.transforms import Array
 from schemas import defaults
@@ -43,8 +43,9 @@ class SimRobot:
         self.follower = TrajectoryFollower(q0, limits, self.dt, stop_acceleration)
         self.realtime = realtime
         self._next = time.monotonic()
-        self.gate = False  # the simulated laser gate output
-        self.gate_calls: list[tuple[float, bool]] = []  # (monotonic s, state) per command
+        self.outputs = 0  # the simulated standard digital outputs (bit k = output k)
+        self.output_calls: list[tuple[float, int, bool]] = []  # (monotonic s, output, state)
+        self.speed = 1.0  # the simulated speed slider (tests set it)
 
     def begin_period(self) -> None:
         """Nothing to do for the model (the UR backend starts its RTDE period here)."""
@@ -55,10 +56,10 @@ class SimRobot:
         if self.realtime:
             behind = time.monotonic() - self._next
             n = int(min(max(behind // self.dt, 0) + 1, MAX_CATCH_UP))
-        state: FollowerState = self.follower.state
+        self.follower.dt = self.dt * self.speed  # the slider slows the trajectory clock
         for _ in range(n):
-            state = self.follower.step()
-        return Measured(state.q, state.qd, state.mode)
+            self.follower.step()
+        return self.measured()
 
     def end_period(self) -> None:
         """Sleep until the next period boundary (no-op when not real time)."""
@@ -73,7 +74,7 @@ class SimRobot:
 
     def measured(self) -> Measured:
         s = self.follower.state
-        return Measured(s.q, s.qd, s.mode)
+        return Measured(s.q, s.qd, s.mode, speed=self.speed, outputs=self.outputs)
 
     def command(self, reference: Reference) -> None:
         self.follower.follow(reference)
@@ -90,11 +91,29 @@ class SimRobot:
     def brake(self, reason: str) -> None:
         self.follower.brake()
 
-    def set_gate(self, on: bool) -> None:
-        """The simulated digital output that switches the laser (recorded with its time)."""
-        self.gate = bool(on)
-        self.gate_calls.append((time.monotonic(), self.gate))
-        del self.gate_calls[:-4096]
+    def set_output(self, output: int, on: bool) -> None:
+        """A simulated standard digital output (recorded with its time)."""
+        self.outputs = self.outputs | (1 << output) if on else self.outputs & ~(1 << output)
+        self.output_calls.append((time.monotonic(), output, bool(on)))
+        del self.output_calls[:-4096]
+
+    def output(self, output: int) -> bool:
+        """Whether output ``output`` is high."""
+        return bool(self.outputs >> output & 1)
+
+    @property
+    def gate(self) -> bool:
+        """Whether any output is high (the sim's outputs are its laser outputs)."""
+        return self.outputs != 0
+
+    @property
+    def gate_calls(self) -> list[tuple[float, bool]]:
+        """(monotonic s, any output high after it) per output command."""
+        out, bits = [], 0
+        for t, k, on in self.output_calls:
+            bits = bits | (1 << k) if on else bits & ~(1 << k)
+            out.append((t, bits != 0))
+        return out
 
     def close(self) -> None:
         self.follower.brake()

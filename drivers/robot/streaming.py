@@ -100,6 +100,11 @@ class StreamControl:
         """The newest setpoint's ``laser_on`` while a stream is followed, else False."""
         return self.active is not None and self.active.latest.laser_on
 
+    @property
+    def aim(self) -> bool:
+        """The newest setpoint's ``aim`` while a stream is followed, else False."""
+        return self.active is not None and self.active.latest.aim
+
     def target(self, now: float) -> tuple[Array, Array, Array]:
         """(q, qd, qdd) the arm should have at the end of this period (started at ``now``)."""
         a = self.active

@@ -183,8 +183,9 @@ def check_message(
         raise InputError(f"joint names {msg.names} differ from {list(names)}", "names")
     t, q, qd, qdd = (np.asarray(a, dtype=float) for a in (msg.t, msg.q, msg.qd, msg.qdd))
     check_samples(t, q, qd, qdd, names, limits, period)
-    laser = None if msg.laser_on is None else np.asarray(msg.laser_on, dtype=float).reshape(-1, 2)
-    return Parsed(msg.id, msg.session, Reference(t, q, qd, qdd, laser))
+    laser, aim = (None if v is None else np.asarray(v, dtype=float).reshape(-1, 2)
+                  for v in (msg.laser_on, msg.aim_on))  # fmt: skip
+    return Parsed(msg.id, msg.session, Reference(t, q, qd, qdd, laser, aim))
 
 
 def check_start(

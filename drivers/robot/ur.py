@@ -325,13 +325,19 @@ class URRobot:
 
     def set_gate(self, on: bool) -> None:
         """The laser gate: standard digital output ``gate_output`` through RTDE IO (no-op
-        without one). Every command is recorded with its monotonic time."""
-        if self.gate_output is None or self.io is None:
+        without one)."""
+        if self.gate_output is not None:
+            self.set_output(self.gate_output, on)
+
+    def set_output(self, output: int, on: bool) -> None:
+        """A standard digital output through RTDE IO (no-op without an IO link). Every
+        command is recorded with its monotonic time."""
+        if self.io is None:
             return
         import time
 
-        self.io.setStandardDigitalOut(self.gate_output, bool(on))
-        self.gate_calls.append((time.monotonic(), self.gate_output, bool(on)))
+        self.io.setStandardDigitalOut(output, bool(on))
+        self.gate_calls.append((time.monotonic(), output, bool(on)))
         del self.gate_calls[:-4096]
 
     def recover(self) -> str:

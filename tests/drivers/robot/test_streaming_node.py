@@ -245,7 +245,7 @@ def test_nan_or_garbage_in_a_stream_ends_it() -> None:
         (
             "no gate",
             {"laser_on": True},
-            "laser_on: laser_on asked of a driver that switches no laser gate",
+            "laser_on: laser_on given, but this driver switches no laser gate",
         ),
         ("no planner", {}, "body: no planner alive (watchdog): not moving"),
         ("trajectory", {}, "body: a trajectory is executing (mode approach): stream once the"),
