@@ -91,6 +91,7 @@ def robot(
     ),
 ) -> None:
     """Run a robot driver: joint_states, status, trajectories, planner heartbeat watchdog."""
+    from drivers.robot.gate import Emission
     from drivers.robot.node import RobotNode
     from planner.errors import InputError
     from planner.io.scenario import load_scenario, system_from_scenario
@@ -141,7 +142,7 @@ def robot(
         state_rate=state_rate,
         start_tolerance=start_tolerance,
         require_planner=require_planner,
-        gate_output=gate_output,
+        emission=Emission.from_laser(scn.model.system.laser) if gate_output is not None else None,
     )
     _run(node, session, f"{name}: {backend.value} robot driver up (prefix {prefix}; "
                         f"{priority_note(nice)})")  # fmt: skip

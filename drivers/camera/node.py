@@ -16,7 +16,8 @@
   source, ``board_pose`` / ``robot`` for the simulated one), the reply
   ``{"t": UNIX s, "points_camera": [[x, y, z] or null, ...]}`` (camera optical frame, m),
 - for sources that use them (the RealSense source): subscribes the laser gate state,
-  ``<prefix>/laser`` (JSON ``{"on": bool, "t": UNIX s}``) and the ``laser_on`` field of
+  ``<prefix>/laser`` (JSON ``{"on": bool, "aim": bool, "t": UNIX s}``: lit when either is
+  on) and the ``laser_on`` field of
   ``<prefix>/*/status``, and ``<prefix>/camera/predicted`` (JSON ``{"p_camera": [x, y, z],
   "t": UNIX s}``: the planner's predicted spot, camera optical frame, m).
 
@@ -146,12 +147,14 @@ class CameraNode(LoopNode):
             msg = decode(sample.payload.to_bytes(), LaserState)
         except InputError:
             return  # a malformed state is ignored; the last good one stays
-        self.source.on_laser(msg.on)  # type: ignore[attr-defined]
+        self.source.on_laser(msg.on or bool(msg.aim))  # type: ignore[attr-defined]
 
     def _on_gate(self, sample: Any) -> None:
         """Laser gate state from ``<prefix>/laser`` (``on``) or a robot status (``laser_on``)."""
         body = _small_json(sample)
         on = body.get("on", body.get("laser_on")) if body else None
+        if isinstance(on, bool) and body is not None and body.get("aim") is True:
+            on = True  # the aiming beam is lit: the camera sees its spot
         if isinstance(on, bool):
             t = body.get("t") if body else None
             stamp = float(t) if isinstance(t, int | float) and np.isfinite(t) else time.time()

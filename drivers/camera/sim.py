@@ -15,7 +15,8 @@ optical frame (x right, y down, z forward), float32; pixels that see nothing are
 
 Laser spot: only while the laser is on. With a gate (the scenario's ``laser.gate``,
 ``gated``) that is while the last :class:`schemas.messages.LaserState` on ``<prefix>/laser``
-(published by the gate robot's driver at every switch) says ``on``, off before any; without
+(published by the gate robot's driver at every switch) says ``on`` or ``aim`` (the coaxial
+aiming beam lands where the treatment beam would), off before any; without
 one the laser counts as always on. The *true* beam - the latest joint states of every robot traced with the
 ``truth:`` geometry (:class:`planner.beam.graph.BeamModel`) - must be a valid reflection chain
 (ahead, front face, inside each ROI), else no spot. Each beam segment is raycast against the

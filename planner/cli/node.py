@@ -343,7 +343,8 @@ def print_closed_loop(console: object, plan: dict) -> None:
         console.print(f"closed loop {r['id']}: {r['status']}{why}; measured error "
                       f"{mm(r.get('measured_error_before'))} -> {mm(r.get('measured_error_after'))}"
                       f", {r.get('iterations', 0)} corrections, {r.get('frames', 0)} frames, "
-                      f"{r.get('time', 0.0):.2f} s, dwell {r.get('dwell', 0.0):.2f} s",
+                      f"{r.get('time', 0.0):.2f} s, dwell {r.get('dwell', 0.0):.2f} s"
+                      f"{'' if r.get('treated', True) else ' (not treated)'}",
                       markup=False, soft_wrap=True)  # fmt: skip
     x = plan["metrics"].get("extra", {})
     console.print(f"closed loop: {x.get('closed_loop_converged', 0):.0f}/{len(cl['targets'])} "

@@ -411,7 +411,7 @@ def closed_loop_spots(plan: dict[str, Any]) -> list[Array | None]:
 
 
 CLOSED_LOOP_KEYS = ("status", "iterations", "frames", "time", "measured_error_before",
-                    "measured_error_after", "dwell", "reason", "detail")  # fmt: skip
+                    "measured_error_after", "dwell", "treated", "reason", "detail")  # fmt: skip
 
 
 def request_summary(plan: dict[str, Any], spots: list[Array | None] | None) -> dict[str, Any]:

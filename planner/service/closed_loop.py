@@ -3,21 +3,28 @@
 For each solved target, in the request's order, :class:`ClosedLoopRunner` servos the spot
 (:func:`planner.servo.servo`) with a *measurement* as its basic act: a trajectory from where
 the robots are to the commanded joints (Ruckig, timed and checked under the scenario's
-safety rules like any plan, laser off while moving), ending in a short dwell of
-:func:`measure_time` s during which the laser gate is on; once every robot rests on the
-commanded joints, the camera frames captured in that dwell are averaged (confidence-weighted,
-mapped to the world with the scenario's calibrated camera pose). The first measurement is the
-open-loop move to the planned joints; each correction step is a small move of the same kind.
-When the servo ends converged, not improving or at its iteration limit, one more trajectory
-holds the final joints with the laser on for the dwell (the request's ``dwell``, else the
-scenario's ``trajectory.dwell``); after ``not_seen``, ``refused`` or a stop, the laser stays
-off.
+safety rules like any plan, every beam off while moving), ending in a short dwell of
+:func:`measure_time` s during which the *aiming* beam (``laser.aim``) is on and the
+treatment gate off; once every robot rests on the commanded joints, the camera frames
+captured in that dwell are averaged (confidence-weighted, mapped to the world with the
+scenario's calibrated camera pose). The first measurement is the open-loop move to the
+planned joints; each correction step is a small move of the same kind.
 
-Laser safety: a measurement turns the laser on where the *uncorrected* spot lands, within
-the calibration error of the target (a few mm), for :func:`measure_time` s (0.2 s at 3
-frames); the commanded beam of every measurement passes the same keep-out and clearance rules
-as a planned dwell. A stop (``<prefix>/stop``) aborts at once: nothing more is sent (the
-drivers brake and switch the laser off themselves), remaining targets are ``aborted``.
+Aim, then treat: only when the servo ends ``converged`` - the last measured error within
+the tolerance - does one more trajectory hold the final joints with the treatment gate on
+for the dwell (the request's ``dwell``, else the scenario's ``trajectory.dwell``). A target
+that ends ``not_improving``, ``max_iterations``, ``not_seen`` or ``refused`` is reported
+and never treated (``treated: false``). The tolerance is the scenario's (the servo default);
+a request may only tighten it. A system without ``laser.aim`` serves no closed loop (``aim:
+gate`` for a rig whose only laser is a low-power diagnostic diode: its measurements then
+switch the gate output as aim).
+
+Laser safety: the treatment beam is never on away from a target measured within tolerance;
+the aiming beam of a measurement lands where the *uncorrected* spot lands, within the
+calibration error of the target (a few mm), for :func:`measure_time` s (0.2 s at 3 frames);
+the commanded beam of every measurement passes the same keep-out and clearance rules as a
+planned dwell. A stop (``<prefix>/stop``) aborts at once: nothing more is sent (the drivers
+brake and switch the laser off themselves), remaining targets are ``aborted``.
 """
 
 from __future__ import annotations
@@ -93,21 +100,37 @@ class ClosedLoopConfig:
     settings: ServoSettings
     gated: bool = False
     """a robot's digital output switches the laser (``system.laser.gate``)"""
+    aim: bool = False
+    """measurements have an aiming beam (``system.laser.aim``, or ``aim: gate``)"""
 
 
 def closed_loop_config(
-    system: System, settings: TrajectorySettings, safety: Any = None, gated: bool = False
-) -> ClosedLoopConfig:
+    system: System, settings: TrajectorySettings, safety: Any = None, gated: bool = False,
+    aim: bool = False,
+) -> ClosedLoopConfig:  # fmt: skip
     """The closed-loop configuration of a scenario's system: its safety rules on every
-    correction, its timing settings and dwell, the servo defaults, whether it is ``gated``."""
+    correction, its timing settings and dwell, the servo defaults, whether it is ``gated``
+    and has an ``aim`` beam."""
     return ClosedLoopConfig(Corrector(system, safety), make_move_fn(system, settings, safety),
-                            settings.dwell, ServoSettings(), gated)  # fmt: skip
+                            settings.dwell, ServoSettings(), gated, aim)  # fmt: skip
 
 
-def check_closed_loop(req: Any, system: System) -> None:
-    """InputError naming the field when a request's ``closed_loop`` cannot be served."""
+NO_AIM = ("closed_loop needs laser.aim: measurements use the aiming beam, never the treatment "
+          "gate (aim: gate for a rig whose only laser is a low-power diagnostic diode)")  # fmt: skip
+
+
+def check_closed_loop(req: Any, system: System, config: ClosedLoopConfig | None = None) -> None:
+    """InputError naming the field when a request's ``closed_loop`` cannot be served (with
+    ``config``: no aiming beam, or a tolerance looser than the scenario's)."""
     if not req.closed_loop:
         return
+    if config is not None and not config.aim:
+        raise InputError(NO_AIM, "closed_loop")
+    tol = getattr(req, "tolerance", None)
+    if config is not None and tol is not None and tol > config.settings.tolerance:
+        raise InputError(f"may only tighten the scenario's closed-loop tolerance "
+                         f"{1e3 * config.settings.tolerance:g} mm, got {1e3 * tol:g} mm",
+                         "tolerance")  # fmt: skip
     if not req.execute:
         raise InputError("closed_loop needs execute: true (the spot is measured on the "
                          "moving system)", "closed_loop")  # fmt: skip
@@ -145,10 +168,13 @@ class ClosedLoopRunner:
         self._target = np.zeros(3)
         self._normal: Array | None = None
 
-    def _send(self, q_to: Array, dwell: float) -> float:
-        """Send one move to ``q_to`` with ``dwell`` and wait until the robots rest there;
-        the wall-clock time (UNIX s) they did. ExecuteError on a refusal."""
+    def _send(self, q_to: Array, dwell: float, aim: bool = False) -> float:
+        """Send one move to ``q_to`` with ``dwell`` (the aiming beam on in it with ``aim``,
+        else the treatment gate) and wait until the robots rest there; the wall-clock time
+        (UNIX s) they did. ExecuteError on a refusal."""
         traj = self.config.move(self.q, q_to, dwell, self._target, self._normal)
+        if aim:
+            traj = as_aim(traj)
         self.moves += 1
         verdict, reason = self.motion.send(traj, f"{self.request_id[:200]}.cl{self.moves}")
         if verdict != "accepted":
@@ -172,7 +198,7 @@ class ClosedLoopRunner:
         those captured from the robots' arrival for the dwell."""
         t_dwell = measure_time(frames)
         t_send = time.time()
-        t_rest = self._send(q, t_dwell)
+        t_rest = self._send(q, t_dwell, aim=True)
         stop = self.motion.stop.is_set
         t0, t1 = t_rest + SETTLE, t_rest + t_dwell
         if self.motion.laser is not None:
@@ -204,9 +230,18 @@ class ClosedLoopRunner:
         res = servo(self.measure, q0, p, normal, self.config.corrector, self.settings,
                     should_stop=self.motion.stop.is_set)  # fmt: skip
         dwelt = 0.0
-        if res.status in ("converged", "not_improving", "max_iterations"):
+        if res.status == "converged":  # measured within tolerance: treat; else never
             dwelt = self.hold(dwell)
         return res, dwelt
+
+
+def as_aim(trajectory: dict[str, Any]) -> dict[str, Any]:
+    """A move's ``trajectory`` with its laser intervals given to the aiming beam
+    (``aim_on``) and the treatment gate off throughout."""
+    out = dict(trajectory)
+    out["aim_on"] = out.pop("laser_on", None) or []
+    out["laser_on"] = []
+    return out
 
 
 def run_closed_loop(runner: ClosedLoopRunner, plan: dict[str, Any], targets: Targets,
@@ -234,7 +269,7 @@ def run_closed_loop(runner: ClosedLoopRunner, plan: dict[str, Any], targets: Tar
             rows.append(row | {"status": "rejected", "reason": "execution", "detail": exc.reason})
             exc.rows = rows  # type: ignore[attr-defined]
             raise
-        rows.append(row | res.to_json() | {"dwell": dwelt,
+        rows.append(row | res.to_json() | {"dwell": dwelt, "treated": dwelt > 0,
                                            "q": runner.system.split_q(res.q)})  # fmt: skip
         for robot, q in rows[-1]["q"].items():
             rows[-1]["q"][robot] = [float(x) for x in q]

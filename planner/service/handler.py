@@ -238,7 +238,7 @@ def handler_from_scenario(path: Any, extra_includes: tuple[Any, ...] = ()) -> Re
     plan_fn = make_plan_fn(system, resolved_scenario_dict(scn), ik_options(model.solver), settings,
                            scene_model(scn), safety)  # fmt: skip
     gated = model.system.laser.gate is not None
-    closed = closed_loop_config(system, settings, safety, gated)
+    closed = closed_loop_config(system, settings, safety, gated, model.system.laser.aim is not None)
     tracker = track_ik(system, ik_options(model.solver), safety)
     return RequestHandler(system, plan_fn, closed_loop=closed, track_ik=tracker)
 

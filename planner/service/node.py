@@ -300,7 +300,7 @@ class PlannerNode:
         with self._handler_lock:
             handler, version = self.handler, self.calibration_version
         req = handler.parse(payload)
-        check_closed_loop(req, handler.system)
+        check_closed_loop(req, handler.system, handler.closed_loop)
         if req.closed_loop and handler.closed_loop is None:
             raise InputError("this planner serves no closed_loop requests", "closed_loop")
         if req.mode == "track":

@@ -73,8 +73,9 @@ class SpotBuffer:
 
 
 class LaserLog:
-    """The laser gate's on-intervals from ``<prefix>/laser`` (UNIX s, the gate driver's
-    clock), thread safe: a measurement's frames are the ones captured while it was on."""
+    """The laser's lit intervals (treatment gate or aiming beam on) from ``<prefix>/laser``
+    (UNIX s, the gate driver's clock), thread safe: a measurement's frames are the ones
+    captured while it was lit."""
 
     def __init__(self, size: int = 64) -> None:
         self._spans: deque[list[float]] = deque(maxlen=size)
@@ -96,8 +97,8 @@ class LaserLog:
         from schemas.messages import LaserState
 
         msg = decode_sample(sample, LaserState, log, "laser state")
-        if msg is not None:
-            self.offer(msg.t, msg.on)
+        if msg is not None:  # lit: the camera sees a spot (treatment or aiming beam)
+            self.offer(msg.t, msg.on or bool(msg.aim))
 
     def span_after(self, t0: float) -> tuple[float, float] | None:
         """The first on-interval (t_on, t_off; t_off = inf while on) that began at or after

@@ -167,9 +167,9 @@ def _chunk_maker(
     from schemas.messages import TRAJECTORY_SCHEMA, JointTrajectory
 
     gate = ((plan.get("scenario") or {}).get("system") or {}).get("laser", {}).get("gate") or {}
-    laser_on = [
-        (float(a), float(b)) for a, b in (plan.get("trajectory") or {}).get("laser_on") or []
-    ]
+    traj = plan.get("trajectory") or {}
+    laser_on, aim_on = ([(float(a), float(b)) for a, b in traj.get(key) or []]
+                        for key in ("laser_on", "aim_on"))  # fmt: skip
 
     def body(robot: str, cid: str | None, a: int, b: int) -> bytes:
         msg = {"schema": TRAJECTORY_SCHEMA, "robot": robot, "id": cid, "session": session,
@@ -177,6 +177,8 @@ def _chunk_maker(
                **{k: v[a:b].tolist() for k, v in rows[robot].items()}}  # fmt: skip
         if robot == gate.get("robot"):  # its digital output switches the laser
             msg["laser_on"] = _clip_intervals(laser_on, float(t[a]), float(t[b - 1]))
+            if aim_on:  # the aiming beam of a measurement (same driver, its own output)
+                msg["aim_on"] = _clip_intervals(aim_on, float(t[a]), float(t[b - 1]))
         JointTrajectory.model_validate(msg)  # the driver's contract, checked before sending
         return encode_json(msg)
 
