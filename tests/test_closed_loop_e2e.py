@@ -215,9 +215,11 @@ def test_the_treatment_gate_opens_only_within_tolerance_of_a_target(bus: Bus) ->
         worst = max(worst, max(errs))
         outside += (b - a) * np.mean(np.asarray(errs) > tol)
     converged = sum(r["status"] == "converged" for r in rows)
-    print(f"treatment: {len(treat)} intervals, {on_time:.3f} s, worst true error "
-          f"{1e3 * worst:.3f} mm, {outside:.3f} s outside {1e3 * tol:g} mm; aim: {len(aim)} "
-          f"shots for {len(points)} targets; {[(r['status'], r['iterations']) for r in rows]}")
+    print(
+        f"treatment: {len(treat)} intervals, {on_time:.3f} s, worst true error "
+        f"{1e3 * worst:.3f} mm, {outside:.3f} s outside {1e3 * tol:g} mm; aim: {len(aim)} "
+        f"shots for {len(points)} targets; {[(r['status'], r['iterations']) for r in rows]}"
+    )
     assert len(treat) == converged == sum(r["treated"] for r in rows) >= 3
     assert outside == 0.0 and worst <= tol
     # every measurement was an aim shot: at least one per servo measurement

@@ -60,7 +60,8 @@ class FakeBus:
         if self.reject_second and far:
             return "rejected", "arm0: simulated refusal"
         self.q = q_end
-        on = sum(b - a for a, b in traj.get("laser_on") or [])
+        lit = (traj.get("laser_on") or []) + (traj.get("aim_on") or [])  # either beam is seen
+        on = sum(b - a for a, b in lit)
         th = threading.Thread(target=self._frames, args=(self.q.copy(), on), daemon=True)
         th.start()
         self.threads.append(th)
@@ -90,7 +91,8 @@ class FakeBus:
                       lambda: ticks.append(time.monotonic()), self.laser)  # fmt: skip
 
 
-def _run(world: SimWorld, bus: FakeBus, k: int, dwell: float | None = 0.1) -> dict[str, Any]:
+def _run(world: SimWorld, bus: FakeBus, k: int, dwell: float | None = 0.1,
+         settings: ServoSettings | None = None) -> dict[str, Any]:  # fmt: skip
     model = world.model
     P = board_targets(k, seed=4)
     targets = Targets(P, np.tile(UP, (k, 1)))
@@ -99,8 +101,9 @@ def _run(world: SimWorld, bus: FakeBus, k: int, dwell: float | None = 0.1) -> di
     req = TargetRequest.model_validate({"schema": "beamrelay.request/1", "id": "cl", "execute": True,
                                         "closed_loop": True, "points": P.tolist(), "dwell": dwell})  # fmt: skip
     config = ClosedLoopConfig(Corrector(model), make_move_fn(model, TrajectorySettings()), 0.3,
-                              ServoSettings())  # fmt: skip
+                              settings or ServoSettings(), aim=True)  # fmt: skip
     ticks: list[float] = []
+    check_closed_loop(req, model, config)
     execute_closed_loop(plan, targets, req, model.home, config, bus.motion(ticks), model)
     for th in bus.threads:
         th.join()
@@ -126,13 +129,37 @@ def test_every_target_converges_and_the_laser_is_on_only_at_rest(
     extra = plan["metrics"]["extra"]
     assert extra["measured_error_max"] == max(r["measured_error_after"] for r in rows)
     assert extra["closed_loop_converged"] == 2.0 and len(plan["_ticks"]) >= len(bus.sent)
-    for _, traj in bus.sent:  # the laser only while every joint rests, and always at the end
+    treated = [traj for _, traj in bus.sent if traj["laser_on"]]
+    aimed = [traj for _, traj in bus.sent if traj.get("aim_on")]
+    # aim, then treat: every move is a measurement with the aiming beam, or a treatment
+    # dwell of a converged target (one per target, the last move to it)
+    assert len(treated) == 2 and len(aimed) == len(bus.sent) - 2
+    assert all(not traj["laser_on"] for traj in aimed)
+    assert all(not traj.get("aim_on") for traj in treated)
+    assert all(r["treated"] for r in rows)
+    for _, traj in bus.sent:  # either beam only while every joint rests, always at the end
         t = np.asarray(traj["t"])
-        for a, b in traj["laser_on"]:
+        spans = traj["laser_on"] or traj["aim_on"]
+        for a, b in spans:
             inside = (t >= a) & (t <= b)
             for qd in traj["qd"].values():
                 assert np.max(np.abs(np.asarray(qd)[inside])) < 1e-9
-        assert traj["laser_on"][-1][1] == pytest.approx(t[-1])
+        assert spans[-1][1] == pytest.approx(t[-1])
+
+
+@pytest.mark.parametrize("settings", [ServoSettings(max_iterations=0),
+                                      ServoSettings(tolerance=1e-7, max_iterations=2)])  # fmt: skip
+def test_a_target_that_does_not_converge_is_reported_and_never_treated(
+    world: SimWorld, settings: ServoSettings
+) -> None:
+    bus = FakeBus(world, gated=True)
+    plan = _run(world, bus, 2, dwell=0.2, settings=settings)
+    rows = plan["closed_loop"]["targets"]
+    print([(r["status"], r["measured_error_after"]) for r in rows])
+    assert all(r["status"] in ("max_iterations", "not_improving") for r in rows)
+    assert all(r["treated"] is False and r["dwell"] == 0.0 for r in rows)
+    assert not any(traj["laser_on"] for _, traj in bus.sent)  # the treatment gate never opens
+    assert all(traj["aim_on"] for _, traj in bus.sent)  # every move was a measurement
 
 
 def test_a_stop_aborts_at_once_and_nothing_more_is_sent(world: SimWorld) -> None:
@@ -174,6 +201,30 @@ def test_closed_loop_requests_that_cannot_be_served_name_the_field(
 
     with pytest.raises(InputError, match="camera"):
         check_closed_loop(_req(closed_loop=True, execute=True), replace(world.model, camera=None))
+
+
+def test_closed_loop_without_an_aiming_beam_or_with_a_looser_tolerance_is_refused(
+    world: SimWorld,
+) -> None:
+    model = world.model
+    config = ClosedLoopConfig(Corrector(model), make_move_fn(model, TrajectorySettings()), 0.3,
+                              ServoSettings(tolerance=3e-4), gated=True, aim=False)  # fmt: skip
+    req = _req(closed_loop=True, execute=True)
+    with pytest.raises(InputError, match=r"laser\.aim") as info:
+        check_closed_loop(req, model, config)
+    assert info.value.where == "closed_loop"
+    aimed = replace_config(config, aim=True)
+    check_closed_loop(req, model, aimed)
+    check_closed_loop(_req(closed_loop=True, execute=True, tolerance=1e-4), model, aimed)  # tighter
+    with pytest.raises(InputError, match=r"only tighten .* 0\.3 mm, got 2 mm") as info:
+        check_closed_loop(_req(closed_loop=True, execute=True, tolerance=2e-3), model, aimed)
+    assert info.value.where == "tolerance"
+
+
+def replace_config(config: ClosedLoopConfig, **kw: Any) -> ClosedLoopConfig:
+    from dataclasses import replace
+
+    return replace(config, **kw)
 
 
 @pytest.mark.parametrize("bad", [{"tolerance": 0.0}, {"tolerance": 0.5}, {"dwell": -1.0},

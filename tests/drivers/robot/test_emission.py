@@ -1,0 +1,189 @@
+"""The emission supervisor in the gate's driver (:mod:`drivers.robot.gate`), on a simulated
+clock: whatever trajectory it is sent, the treatment output obeys ``laser.limits``, goes off
+and aborts the motion when the speed fraction drops inside an interval, and a read-back
+mismatch is a latched fault. The aiming beam has its own output. Times are simulated."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from drivers.robot.follower import Reference
+from drivers.robot.gate import READBACK_GRACE, Emission
+from drivers.robot.intake import Verdict
+from drivers.robot.node import RobotNode
+from drivers.robot.sim import SimRobot
+from tests.drivers.robot.test_streaming_node import DT, HOME, JOINT_NAMES_UR, KEYS, LIMITS, Rig
+
+GATE, AIM = 0, 1
+
+
+class EmissionRig(Rig):
+    """:class:`Rig` with the gate's emission rules (gate on output 0, aim on output 1)."""
+
+    def __init__(self, **rules: Any) -> None:
+        super().__init__(gate=False)
+        self.sim = SimRobot(JOINT_NAMES_UR, HOME, LIMITS, realtime=False)
+        emission = Emission(GATE, rules.pop("aim_output", AIM), **rules)
+        self.node = RobotNode(self.bus, KEYS, "arm0", self.sim, LIMITS, clock=self.clock,
+                              emission=emission).attach()  # fmt: skip
+        self.bus.token(KEYS.alive("planner"))
+        self.treat: list[bool] = []
+        self.aim: list[bool] = []
+
+    def period(self, n: int = 1) -> None:
+        for _ in range(n):
+            super().period()
+            self.treat.append(self.sim.output(GATE))
+            self.aim.append(self.sim.output(AIM))
+
+    def hold(self, seconds: float, laser_on: list[list[float]] | None = None,
+             aim_on: list[list[float]] | None = None, id: str = "T") -> None:  # fmt: skip
+        """Accept a trajectory resting at HOME for ``seconds`` with the given intervals."""
+        t = np.arange(0.0, seconds + DT / 2, DT)
+        q = np.tile(HOME, (len(t), 1))
+        z = np.zeros_like(q)
+        spans = [None if v is None else np.asarray(v, dtype=float) for v in (laser_on, aim_on)]
+        ref = Reference(t, q, z, z, *spans)
+        self.node._decide(Verdict(self.clock.t, id, "S", ref, None))
+
+    def lasers(self) -> list[dict[str, Any]]:
+        return list(self.bus.published.get(KEYS.laser, []))
+
+    def on_seconds(self) -> float:
+        return DT * sum(self.treat)
+
+
+def test_a_plain_interval_is_played_whole() -> None:
+    rig = EmissionRig(power=0.05, max_on=2.0, max_spot_energy=0.5)
+    rig.period(3)
+    rig.hold(1.0, laser_on=[[0.2, 0.6]])
+    rig.period(600)
+    assert rig.node.ack is not None and rig.node.ack.accepted
+    assert rig.on_seconds() == pytest.approx(0.4, abs=2 * DT)
+    assert not rig.treat[-1] and rig.modes[-1] == "idle"
+    assert rig.node.gate is not None and rig.node.gate.total_on == pytest.approx(0.4, abs=2 * DT)
+    assert rig.node.gate.session_energy == pytest.approx(0.05 * 0.4, abs=0.05 * 2 * DT)
+
+
+@pytest.mark.parametrize(
+    "rules, limit_s, names",
+    [({"power": 0.05, "max_spot_energy": 0.02}, 0.4, "max_spot_energy 0.02 J at 0.05 W"),
+     ({"max_on": 0.25}, 0.25, "max_on 0.25 s")],
+)  # fmt: skip
+def test_a_dwell_over_a_limit_is_cut_at_the_limit_and_the_motion_aborted(
+    rules: dict[str, Any], limit_s: float, names: str
+) -> None:
+    rig = EmissionRig(**rules)
+    rig.period(3)
+    rig.hold(2.0, laser_on=[[0.1, 1.9]])  # asks for 1.8 s of treatment
+    rig.period(1200)
+    # energy = power x on-time: the output was on for the limit, to one period
+    assert rig.on_seconds() == pytest.approx(limit_s, abs=2 * DT)
+    assert rig.modes[-1] in ("stopped", "braking") and rig.node.stopped_by is not None
+    assert names in rig.node.stopped_by and "reached" in rig.node.stopped_by
+    last = rig.lasers()[-1]
+    assert last["on"] is False and names in last["reason"]
+
+
+def test_the_session_energy_is_latched_until_the_driver_restarts() -> None:
+    rig = EmissionRig(power=1.0, max_session_energy=0.5)
+    rig.period(3)
+    rig.hold(0.5, laser_on=[[0.1, 0.4]], id="a")  # 0.3 J
+    rig.period(300)
+    rig.hold(0.6, laser_on=[[0.1, 0.5]], id="b")  # 0.4 J asked: cut at 0.2 s (0.5 J)
+    rig.period(400)
+    assert rig.on_seconds() == pytest.approx(0.5, abs=2 * DT)
+    assert rig.node.gate is not None and "max_session_energy 0.5 J" in (rig.node.gate.spent or "")
+    rig.period(200)  # the arm rests after the abort
+    rig.hold(0.5, laser_on=[[0.1, 0.4]], id="c")
+    assert rig.node.ack is not None and not rig.node.ack.accepted
+    assert "locked out: max_session_energy" in (rig.node.ack.reason or "")
+    rig.hold(0.5, id="dark")  # a move without laser is still served
+    assert rig.node.ack is not None and rig.node.ack.accepted
+
+
+@pytest.mark.parametrize("speed", [0.1, 0.0])
+def test_the_speed_slider_inside_an_interval_switches_treatment_off_and_aborts(
+    speed: float,
+) -> None:
+    rig = EmissionRig()
+    rig.period(3)
+    rig.hold(1.0, laser_on=[[0.1, 0.3]])  # 0.2 s planned
+    rig.period(100)  # 0.1 s into the interval... the gate opened at 0.1 s
+    assert rig.treat[-1]
+    rig.sim.speed = speed  # the operator drags the slider (0: pause)
+    rig.period(2000)
+    # today's gate stays on while the slowed clock plays the interval (2.0 s at 10 %,
+    # for ever at 0 %): now it goes off in the period that sees the slider
+    assert rig.on_seconds() <= 0.1 + 3 * DT
+    assert not any(rig.treat[-1900:])
+    assert rig.node.stopped_by is not None
+    assert f"speed fraction {100 * speed:.0f} %" in rig.node.stopped_by
+    assert rig.lasers()[-1]["on"] is False and "speed fraction" in rig.lasers()[-1]["reason"]
+
+
+def test_a_slowed_arm_never_opens_the_gate() -> None:
+    rig = EmissionRig()
+    rig.sim.speed = 0.5
+    rig.period(3)
+    rig.hold(1.0, laser_on=[[0.1, 0.3]])
+    rig.period(1500)
+    assert not any(rig.treat) and "speed fraction 50 %" in (rig.node.stopped_by or "")
+
+
+@pytest.mark.parametrize("stuck", ["high while off", "low while on"])
+def test_a_read_back_mismatch_is_a_latched_fault(stuck: str) -> None:
+    rig = EmissionRig()
+    rig.period(3)
+    rig.hold(1.0, laser_on=[[0.2, 0.8]])
+    rig.period(50 if stuck == "high while off" else 200)  # before / inside the interval
+    bit = 1 << GATE
+    rig.sim.outputs = rig.sim.outputs | bit if stuck == "high while off" else rig.sim.outputs & ~bit
+    rig.period(1)
+    n = 1
+    while rig.node.gate is not None and rig.node.gate.fault is None and n < 100:
+        rig.period(1)
+        n += 1
+    # found in the period after the write's grace (at once when the write was long ago)
+    assert n * DT <= READBACK_GRACE + 2 * DT
+    fault = rig.node.gate.fault if rig.node.gate is not None else None
+    assert fault is not None and f"laser output {GATE} reads" in fault
+    assert rig.modes[-1] in ("braking", "stopped")
+    rig.period(20)
+    assert rig.status()["fault"] == fault
+    assert rig.lasers()[-1]["on"] is False and "read-back" in rig.lasers()[-1]["reason"]
+    rig.period(300)
+    rig.hold(1.0, laser_on=[[0.2, 0.8]], id="again")
+    assert rig.node.ack is not None and not rig.node.ack.accepted
+    assert "locked out" in (rig.node.ack.reason or "")
+
+
+def test_measurements_light_the_aim_output_only() -> None:
+    rig = EmissionRig()
+    rig.period(3)
+    rig.hold(1.0, aim_on=[[0.2, 0.5]])
+    rig.period(600)
+    assert not any(rig.treat)
+    assert DT * sum(rig.aim) == pytest.approx(0.3, abs=2 * DT)
+    states = [m for m in rig.lasers() if m["aim"]]
+    assert states and all(m["on"] is False for m in states)
+
+
+def test_aim_gate_lights_the_gate_output_for_a_measurement() -> None:
+    rig = EmissionRig(aim_output=GATE)  # aim: gate (a diagnostic diode is the only laser)
+    rig.period(3)
+    rig.hold(1.0, aim_on=[[0.2, 0.5]])
+    rig.period(600)
+    assert DT * sum(rig.treat) == pytest.approx(0.3, abs=2 * DT)  # the gate output is the diode
+    assert any(m["aim"] and not m["on"] for m in rig.lasers())
+
+
+def test_a_driver_without_an_aiming_beam_refuses_aim_on() -> None:
+    rig = EmissionRig(aim_output=None)
+    rig.period(3)
+    rig.hold(1.0, aim_on=[[0.2, 0.5]])
+    assert rig.node.ack is not None and not rig.node.ack.accepted
+    assert "switches no aiming beam" in (rig.node.ack.reason or "")
