@@ -8,8 +8,10 @@ from the measured joints, checked with the swept collision check of the scene an
 robots at their measured joints, sent as a ``JointTrajectory``; the collector waits for the
 driver's verdict and for the arm to come to rest on the pose, then asks the camera:
 ``<prefix>/camera/markers`` (hand-eye) or the median of the next ``camera/spot`` messages
-(beam). A pose whose move fails the safety check, is refused, or is not seen is skipped
-and reported. Joints in rad, points in m (camera optical frame).
+(beam). With a gated laser the spot is read under the aiming beam only: a hold trajectory
+at the gate robot's joints with an ``aim_on`` interval (:meth:`BusPlanner.aimed_spot`); the
+treatment gate never opens. A pose whose move fails the safety check, is refused, or is not
+seen is skipped and reported. Joints in rad, points in m (camera optical frame).
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from schemas.messages import JointState, JointTrajectory, RobotStatus, SpotMessa
 
 ARRIVE = 2e-3  # rad: the arm counts as on the pose
 SETTLE = 0.3  # s at rest before the camera is asked
+AIM_HOLD = 1.5  # s the aiming beam is lit for one spot reading (10 frames at 30 Hz + latency)
 
 
 class BusPlanner:
@@ -156,6 +159,29 @@ class BusPlanner:
             if len(good) >= n:
                 return np.median(np.array(good, dtype=float), axis=0)
             time.sleep(0.02)
+        return None
+
+    def aimed_spot(self, gate_robot: str, n: int = 10) -> Array | None:
+        """:meth:`spot` read while the aiming beam is lit: a hold of :data:`AIM_HOLD` s at
+        ``gate_robot``'s joints with ``aim_on`` throughout (the treatment gate stays off)."""
+        q = self.wait_joints()[gate_robot]
+        t = np.linspace(0.0, AIM_HOLD, 16)
+        rows, zeros = np.tile(q, (len(t), 1)).tolist(), np.zeros((len(t), len(q))).tolist()
+        ident = uuid.uuid4().hex[:12]
+        msg = JointTrajectory(robot=gate_robot, id=ident, session=self.name, t=t.tolist(),
+                              names=list(self.system.robot(gate_robot).joint_names), q=rows,
+                              qd=zeros, qdd=zeros, aim_on=[[0.0, AIM_HOLD]])  # fmt: skip
+        self.session.put(self.keys.trajectory(gate_robot), msg.model_dump_json(by_alias=True))
+        end = time.monotonic() + 3.0
+        while time.monotonic() < end:
+            st = self.status.get(gate_robot)
+            ack = None if st is None else st.trajectory
+            if ack is not None and ack.id == ident:
+                if not ack.accepted:
+                    raise InputError(f"{gate_robot} refused the aiming hold: {ack.reason}",
+                                     "laser.aim")  # fmt: skip
+                return self.spot(n, timeout=AIM_HOLD)
+            time.sleep(0.01)
         return None
 
     def close(self) -> None:

@@ -48,7 +48,7 @@ def _setup(scenario: Path, robot: str, poses: int, speed: float, output: Path) -
     if system.camera is None:
         raise InputError("collection needs system.camera in the scenario", str(scenario))
     scene = volumes_from_scene_items(scene_objects(scn))  # type: ignore[arg-type]
-    return system, SafetyWorld(system, scene)
+    return system, SafetyWorld(system, scene), scn.model.system.laser
 
 
 def _static_check(system: Any, world: Any, robot: str) -> Any:
@@ -88,7 +88,7 @@ def handeye(
     from planner.calibration.handeye import HandEyeData
     from planner.model.transforms import make_T
 
-    system, world = _setup(scenario, robot, poses, speed, output)
+    system, world, _ = _setup(scenario, robot, poses, speed, output)
     spec = CharucoSpec()
     board = spec.points() - np.array([spec.squares_x, spec.squares_y, 0]) * spec.square / 2
     board_pose = make_T(p=parse_xyz(board_offset, "--board-offset"))
@@ -124,15 +124,24 @@ def beam(
     from planner.calibration.collect import beam_plan
     from planner.calibration.dataset import write_json
 
-    system, world = _setup(scenario, robot, poses, speed, output)
+    system, world, laser = _setup(scenario, robot, poses, speed, output)
+    if laser.gate is not None and laser.aim is None:
+        raise InputError("beam collection reads spots under the aiming beam, never the "
+                         "treatment gate: set laser.aim (aim: gate for a diagnostic-diode-only "
+                         "rig)", "laser.aim")  # fmt: skip
     if system.robot_names.index(robot) != 0:
         raise InputError("collects for the first robot of the chain only (for now)", "--robot")
     rng = np.random.default_rng(seed)
     qs, cond = beam_plan(system, robot, poses, np.asarray(parse_xyz(aim, "--aim")), rng,
                          feasible=_static_check(system, world, robot))  # fmt: skip
     typer.echo(f"{len(qs)} poses planned; condition number of the beam Jacobian {cond:.1f}")
+    gate = laser.gate
+
+    def observe(bp: Any) -> Any:  # the spot, under the aiming beam when the laser is gated
+        return bp.spot() if gate is None else bp.aimed_spot(gate.robot)
+
     got_q, got_p, log = _run(system, world, robot, qs, speed, endpoint, prefix, zenoh_config,
-                             lambda bp: bp.spot())  # fmt: skip
+                             observe)  # fmt: skip
     doc = {"schema": "beamrelay.beam/1", "robot": robot,
            "samples": [{"q": {robot: q.tolist()}, "spot_camera": p.tolist(), "board": board}
                        for q, p in zip(got_q, got_p, strict=True)]}  # fmt: skip

@@ -15,9 +15,10 @@ the tolerance - does one more trajectory hold the final joints with the treatmen
 for the dwell (the request's ``dwell``, else the scenario's ``trajectory.dwell``). A target
 that ends ``not_improving``, ``max_iterations``, ``not_seen`` or ``refused`` is reported
 and never treated (``treated: false``). The tolerance is the scenario's (the servo default);
-a request may only tighten it. A system without ``laser.aim`` serves no closed loop (``aim:
-gate`` for a rig whose only laser is a low-power diagnostic diode: its measurements then
-switch the gate output as aim).
+a request may only tighten it. A gated system without ``laser.aim`` serves no closed loop
+(``aim: gate`` for a rig whose only laser is a low-power diagnostic diode: its measurements
+then switch the gate output as aim); an ungated one (simulation only) has its laser always
+on.
 
 Laser safety: the treatment beam is never on away from a target measured within tolerance;
 the aiming beam of a measurement lands where the *uncorrected* spot lands, within the

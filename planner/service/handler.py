@@ -237,8 +237,11 @@ def handler_from_scenario(path: Any, extra_includes: tuple[Any, ...] = ()) -> Re
     safety = Safety.from_scenario(scn, system)
     plan_fn = make_plan_fn(system, resolved_scenario_dict(scn), ik_options(model.solver), settings,
                            scene_model(scn), safety)  # fmt: skip
-    gated = model.system.laser.gate is not None
-    closed = closed_loop_config(system, settings, safety, gated, model.system.laser.aim is not None)
+    laser = model.system.laser
+    gated = laser.gate is not None
+    # ungated (simulation only: --backend ur needs a gate), the laser is always on: there is
+    # no treatment gate to keep off, so the measurements need no aiming beam of their own
+    closed = closed_loop_config(system, settings, safety, gated, laser.aim is not None or not gated)
     tracker = track_ik(system, ik_options(model.solver), safety)
     return RequestHandler(system, plan_fn, closed_loop=closed, track_ik=tracker)
 

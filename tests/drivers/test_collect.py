@@ -200,3 +200,64 @@ def test_collect_user_mistakes_and_a_hostile_marker_query(sim_system: Any) -> No
             assert replies and "error" in json.loads(replies[0].ok.payload.to_bytes())
     finally:
         client.close()
+
+
+def _gated(tmp: Path, aim: bool) -> Path:
+    """paper_n1 with its laser gated by arm0's output 0 (and the aiming beam on output 1)."""
+    text = SCENARIO.read_text()
+    head = "rpy_deg: [40, 0, 0]}\n"
+    extra = "    gate: {robot: arm0, output: 0}\n" + (
+        "    aim: {robot: arm0, output: 1}\n" if aim else ""
+    )
+    assert head in text
+    out = tmp / ("aimed.yaml" if aim else "gated.yaml")
+    out.write_text(
+        text.replace(head, head + extra, 1).replace("meshes/", str(SCENARIO.parent) + "/meshes/")
+    )
+    return out
+
+
+def test_collect_beam_with_a_gate_but_no_aiming_beam_is_refused(tmp_path: Path) -> None:
+    scn = _gated(tmp_path, aim=False)
+    r = subprocess.run([*CLI, "calibrate", "collect", "beam", "-s", str(scn), "-o",
+                        str(tmp_path / "b.json"), "--aim", "-0.49,-0.55,-0.06"],
+                       capture_output=True, env=ENV, timeout=120)  # fmt: skip
+    err = r.stderr.decode()
+    assert r.returncode == 2 and err.count("\n") == 1 and "laser.aim" in err, err
+    assert not (tmp_path / "b.json").exists()
+
+
+@pytest.mark.serial
+def test_collect_beam_reads_spots_under_the_aiming_beam_only(tmp_path: Path) -> None:
+    scn = _gated(tmp_path, aim=True)
+    ep, prefix = f"tcp/127.0.0.1:{free_port()}", "braim"
+    bus = ["--scenario", str(scn), "--endpoint", ep, "--prefix", prefix]
+    procs = [subprocess.Popen([*CLI, "driver", "robot", "--name", "arm0", "--listen", *bus],
+                              stderr=subprocess.DEVNULL, env=ENV),
+             subprocess.Popen([*CLI, "driver", "camera", "--stride", "8", "--seed", "3", *bus],
+                              stderr=subprocess.DEVNULL, env=ENV)]  # fmt: skip
+    states: list[dict[str, Any]] = []
+    try:
+        wait_for_nodes(ep, prefix, ("arm0", "camera"))
+        client = raw_session(ep)
+        sub = client.declare_subscriber(
+            f"{prefix}/laser", lambda s: states.append(json.loads(s.payload.to_bytes()))
+        )
+        out = tmp_path / "beam.json"
+        run = subprocess.run([*CLI, "calibrate", "collect", "beam", "-s", str(scn), "-o",
+                              str(out), "--aim", "-0.492,-0.55,-0.06", "--poses", "3",
+                              "--speed", "1.0", "--endpoint", ep, "--prefix", prefix],
+                             capture_output=True, env=ENV, timeout=300)  # fmt: skip
+        sub.undeclare()
+        client.close()
+    finally:
+        for p in procs:
+            p.terminate()
+            p.wait(30)
+    text = run.stdout.decode()
+    assert run.returncode == 0, text + run.stderr.decode()
+    summary = json.loads(text.strip().splitlines()[-1])
+    print(f"collected {summary['collected']}; laser states {[(m['on'], m['aim']) for m in states]}")
+    assert summary["collected"] >= 3
+    assert not any(m["on"] for m in states)  # the treatment gate never opened
+    assert sum(1 for m in states if m["aim"] and m["reason"] == "aim interval") >= 3
