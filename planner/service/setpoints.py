@@ -13,7 +13,9 @@ fresh), the request ``id`` and a ``seq`` that counts up. What it publishes comes
   update older than ``max_hold`` s is not published (the drivers then stop the arms after
   50 ms); a state at rest (``qd = 0``) is held until the next update or :meth:`close`.
 
-``laser_on`` goes to the robot that switches the laser (``gate_robot``) only; the others get
+``laser_on`` goes to the robot that switches the laser (``gate_robot``) only, and with
+``aim`` (the scenario has ``laser.aim``) so does ``aim`` while the treatment is off (the
+aiming beam shows where the beam is while a tracked target is acquired); the others get
 ``false``. Joints in rad and rad/s, times in s.
 
 What the drivers check (docs/conventions.md, "Setpoint streams"): the first setpoint within
@@ -83,6 +85,7 @@ class SetpointStreamer:
         rate: float = defaults.SERVO_RATE_HZ,
         request_id: str | None = None,
         gate_robot: str | None = None,
+        aim: bool = False,
         max_hold: float = MAX_HOLD,
         clock: Callable[[], float] = time.time,
     ) -> None:
@@ -92,6 +95,7 @@ class SetpointStreamer:
             raise InputError(f"{gate_robot!r} is not one of {list(robots)}", "gate_robot")
         self.robots = tuple(robots)
         self.session_id, self.request_id, self.gate_robot = session_id, request_id, gate_robot
+        self.aim = aim and gate_robot is not None  # the aiming beam lit while treatment is off
         self.reference, self.rate, self.max_hold, self.clock = reference, rate, max_hold, clock
         self._pubs = {r: session.declare_publisher(keys.setpoint(r), encoding=JSON) for r in robots}
         self._lock = threading.Lock()
@@ -199,7 +203,8 @@ class SetpointStreamer:
             body = {"schema": SETPOINT_SCHEMA, "robot": r, "t": t, "session": self.session_id,
                     "seq": self.seq, "id": self.request_id, "q": np.asarray(q, float).tolist(),
                     "qd": np.asarray(qd, float).tolist(),
-                    "laser_on": bool(laser_on) and r == self.gate_robot}  # fmt: skip
+                    "laser_on": bool(laser_on) and r == self.gate_robot,
+                    "aim": self.aim and not laser_on and r == self.gate_robot}  # fmt: skip
             bodies.append((r, json.dumps(body, allow_nan=False).encode()))
         for r, data in bodies:  # every robot's body was built: none is sent half
             self._pubs[r].put(data)

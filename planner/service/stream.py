@@ -238,6 +238,13 @@ class Execution:
     def execute(self, plan: dict[str, Any], request_id: str, session: str | None) -> None:
         """Send the plan's trajectory (chunked if needed), wait for the verdicts on its first
         chunks and write ``execution`` / ``execution_reason`` into ``plan``."""
+        from planner.service.emission import emission_excess
+
+        laser = ((plan.get("scenario") or {}).get("system") or {}).get("laser")
+        over = emission_excess(plan.get("trajectory") or {}, laser)
+        if over is not None:  # never sent: the gate's driver would cut it short
+            plan["execution"], plan["execution_reason"] = "rejected", f"not sent: {over}"
+            return
         chunks = split_trajectory(plan, request_id, session, self.chunk_bytes)
         traj = plan["trajectory"]
         total = float(traj["t"][-1] - traj["t"][0])

@@ -66,6 +66,7 @@ class TrackSession:
         *,
         duration: float | None = None,
         gate_robot: str | None = None,
+        aim: bool = False,
         send_stop: Callable[[str], None],
         on_end: Callable[[dict[str, Any]], None],
         clock: Callable[[], float] = time.time,
@@ -79,7 +80,7 @@ class TrackSession:
         reference: Any = self._reference  # None from it: nothing sent this period
         self._streamer = SetpointStreamer(session, keys, session_id, system.robot_names,
                                           reference=reference, request_id=request_id,
-                                          gate_robot=gate_robot, clock=clock)  # fmt: skip
+                                          gate_robot=gate_robot, aim=aim, clock=clock)  # fmt: skip
         self._sub: Any = None
         self._index: int | None = None
         self._receipts: list[float] = []  # perf_counter of frames not yet streamed
@@ -277,9 +278,11 @@ def start_track(node: Any, req: Any) -> dict[str, Any]:
     cam = None if system.camera is None else system.camera.world_T_camera
     follower = TargetFollower(handler.track_ik, q0, first, cam, settings)
     follower.warm_up(q1, normal)  # the first frame must not pay for first calls
-    gate = ((plan.get("scenario") or {}).get("system") or {}).get("laser", {}).get("gate") or {}
+    laser = ((plan.get("scenario") or {}).get("system") or {}).get("laser", {})
+    gate = laser.get("gate") or {}
     node.track = TrackSession(node.session, node.keys, node.session_id, system, follower,
                               req.id, duration=req.duration, gate_robot=gate.get("robot"),
+                              aim=laser.get("aim") is not None,
                               send_stop=node.send_stop, on_end=node.track_ended).start()  # fmt: skip
     plan["execution"] = "accepted"
     plan["tracking"] = {"stream": req.id, "duration": req.duration,

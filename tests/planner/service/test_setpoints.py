@@ -79,6 +79,22 @@ def test_reference_mode_publishes_every_robot_at_the_rate() -> None:
     assert np.median(np.diff(times)) == pytest.approx(0.002, abs=0.0005)
 
 
+def test_the_aiming_beam_is_lit_on_the_gate_robot_while_treatment_is_off() -> None:
+    s = Session()
+
+    def ref(t: float) -> tuple[dict[str, tuple[Any, Any]], bool]:  # treatment on every other 0.1 s
+        return {"arm0": (Q0, np.zeros(6)), "arm1": (Q0, np.zeros(6))}, int(t * 10) % 2 == 0
+
+    with SetpointStreamer(s, KEYS, "sess", ["arm0", "arm1"], reference=ref, gate_robot="arm1",
+                          aim=True):  # fmt: skip
+        time.sleep(0.3)
+    a0, a1 = s.bodies("arm0"), s.bodies("arm1")
+    assert not any(b["aim"] or b["laser_on"] for b in a0)
+    assert all(b["aim"] is (not b["laser_on"]) for b in a1)
+    assert any(b["aim"] for b in a1) and any(b["laser_on"] for b in a1)
+    assert all(Setpoint.model_validate(b).aim is b["aim"] for b in a1)
+
+
 def test_update_mode_moves_the_state_on_and_pauses_a_stale_moving_one() -> None:
     s = Session()
     st = SetpointStreamer(s, KEYS, "sess", ["arm0"], max_hold=0.1).start()

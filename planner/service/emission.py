@@ -1,0 +1,34 @@
+"""The plan-side check of ``laser.limits``: a trajectory whose treatment intervals would pass
+a limit is not sent (the gate's driver enforces the same limits whatever it is sent; this
+check refuses up front, with the figures, what the driver would cut short). Times in s,
+energies in J, power in W."""
+
+from __future__ import annotations
+
+from typing import Any
+
+SLACK = 1e-9  # s
+
+
+def emission_excess(trajectory: dict[str, Any], laser: dict[str, Any] | None) -> str | None:
+    """Why the ``laser_on`` intervals of a plan.json ``trajectory`` break the scenario's
+    ``laser`` limits (its resolved mapping: ``power``, ``limits``), or None."""
+    laser = laser or {}
+    limits = laser.get("limits") or {}
+    power = laser.get("power")
+    max_on, max_spot = limits.get("max_on"), limits.get("max_spot_energy")
+    max_session = limits.get("max_session_energy")
+    spans = [(float(a), float(b)) for a, b in trajectory.get("laser_on") or []]
+    for k, (a, b) in enumerate(spans):
+        on = b - a
+        if max_on is not None and on > max_on + SLACK:
+            return (f"laser_on interval {k} lasts {on:.3f} s, over laser.limits.max_on "
+                    f"{max_on:g} s")  # fmt: skip
+        if max_spot is not None and power and power * on > max_spot * (1 + 1e-9):
+            return (f"laser_on interval {k} delivers {power * on:.4g} J ({on:.3f} s at "
+                    f"{power:g} W), over laser.limits.max_spot_energy {max_spot:g} J")  # fmt: skip
+    total = sum(b - a for a, b in spans)
+    if max_session is not None and power and power * total > max_session * (1 + 1e-9):
+        return (f"the trajectory's treatment delivers {power * total:.4g} J, over "
+                f"laser.limits.max_session_energy {max_session:g} J")  # fmt: skip
+    return None
