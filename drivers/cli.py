@@ -91,6 +91,7 @@ def robot(
     ),
 ) -> None:
     """Run a robot driver: joint_states, status, trajectories, planner heartbeat watchdog."""
+    from drivers.robot.following import spot_gain
     from drivers.robot.gate import Emission
     from drivers.robot.node import RobotNode
     from planner.errors import InputError
@@ -142,7 +143,9 @@ def robot(
         state_rate=state_rate,
         start_tolerance=start_tolerance,
         require_planner=require_planner,
-        emission=Emission.from_laser(scn.model.system.laser) if gate_output is not None else None,
+        emission=None
+        if gate_output is None
+        else Emission.from_laser(scn.model.system.laser, spot_gain(system, name)),
     )
     _run(node, session, f"{name}: {backend.value} robot driver up (prefix {prefix}; "
                         f"{priority_note(nice)})")  # fmt: skip

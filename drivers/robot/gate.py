@@ -20,6 +20,10 @@ and ``laser.power``) keeps treatment off, and asks the node to abort the motion,
 4. the speed fraction (slider, pause, reduced mode) is below 1 inside an interval: the
    planned exposure would stretch;
 5. an arm of the beam chain is not live and following (the node's ``chain`` reason);
+5a. the following error ``|q_measured - q_commanded|`` (commanded: the reference
+   ``backend.following_lag`` s earlier, the controller's smoothing delay) maps through the
+   beam Jacobian's gain (:func:`drivers.robot.following.spot_gain`) to a spot error above
+   ``following_tolerance`` (m);
 6. the outputs read back (:attr:`drivers.robot.backend.Measured.outputs`) differ from what
    was commanded, :data:`READBACK_GRACE` s after the last write: latched as a fault (every
    output off, every later interval refused) until :meth:`LaserGate.recover` finds them
@@ -38,6 +42,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple
+
+import numpy as np
 
 from schemas.messages import LaserState
 
@@ -64,14 +70,19 @@ class Emission:
     max_on: float | None = None
     max_spot_energy: float | None = None
     max_session_energy: float | None = None
+    following_gain: tuple[float, ...] | None = None  # m/rad per joint (None: not checked)
+    following_tolerance: float = 1e-3  # m: largest spot error of the following error
 
     @classmethod
-    def from_laser(cls, laser: Any) -> Emission:
-        """The rules of a scenario's ``system.laser`` (its ``gate`` must be set)."""
+    def from_laser(cls, laser: Any, following_gain: Any = None,
+                   following_tolerance: float = 1e-3) -> Emission:  # fmt: skip
+        """The rules of a scenario's ``system.laser`` (its ``gate`` must be set), with the
+        gate robot's following gain (m/rad per joint) when it is checked."""
         gate, aim, lim = laser.gate, laser.aim, laser.limits
         aim_output = None if aim is None else gate.output if aim == "gate" else aim.output
+        gain = None if following_gain is None else tuple(float(g) for g in following_gain)
         return cls(gate.output, aim_output, laser.power, lim.max_on, lim.max_spot_energy,
-                   lim.max_session_energy)  # fmt: skip
+                   lim.max_session_energy, gain, following_tolerance)  # fmt: skip
 
     def on_limit(self) -> tuple[float, str] | None:
         """The longest continuous on-time (s) the limits allow and the limit that sets it."""
@@ -197,7 +208,26 @@ class LaserGate:
                     "(slider, pause or reduced mode): treatment off, motion aborted")  # fmt: skip
         if chain is not None:
             return f"beam chain not live: {chain}"
-        return None
+        return self._following(m)
+
+    def _following(self, m: Any) -> str | None:
+        """Rule 5a: the spot error of the following error, above the tolerance."""
+        gain, f = self.rules.following_gain, self.backend.follower
+        if gain is None or getattr(m, "q", None) is None:
+            return None
+        if f.mode == "following" and f.reference is not None:
+            lag = float(getattr(self.backend, "following_lag", 0.0))
+            q_cmd = f.reference.sample(max(f.tau - lag, 0.0))[0]
+        else:
+            q_cmd = f.q
+        dq = np.abs(np.asarray(m.q, dtype=float) - np.asarray(q_cmd, dtype=float))
+        err = float(np.asarray(gain) @ dq)
+        if err <= self.rules.following_tolerance:
+            return None
+        j = int(np.argmax(np.asarray(gain) * dq))
+        return (f"following error: the spot is off by up to {1e3 * err:.2f} mm (> "
+                f"{1e3 * self.rules.following_tolerance:g} mm; joint {j} "
+                f"{1e3 * dq[j]:.2f} mrad from its command): treatment off, motion aborted")  # fmt: skip
 
     def _check_readback(self, m: Any, now: float) -> str | None:
         """Rule 6: the outputs read back against the commanded levels."""

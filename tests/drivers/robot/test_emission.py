@@ -187,3 +187,61 @@ def test_a_driver_without_an_aiming_beam_refuses_aim_on() -> None:
     rig.hold(1.0, aim_on=[[0.2, 0.5]])
     assert rig.node.ack is not None and not rig.node.ack.accepted
     assert "switches no aiming beam" in (rig.node.ack.reason or "")
+
+
+class LaggingArm(SimRobot):
+    """A simulated arm whose measured joints lag its command by ``offset`` (rad)."""
+
+    offset = np.zeros(6)
+
+    def measured(self) -> Any:
+        m = super().measured()
+        return m._replace(q=m.q + self.offset)
+
+
+def test_the_spot_gain_bounds_the_spot_error_of_a_joint_error() -> None:
+    from drivers.robot.following import REACH, spot_gain
+    from planner.beam.trace import trace_beam
+    from planner.io.scenario import load_scenario, system_from_scenario
+    from tests.paths import REPO
+
+    system = system_from_scenario(load_scenario(REPO / "scenarios" / "paper_n1.yaml"))
+    gain = spot_gain(system, "arm0")
+    q0 = system.home
+    home = trace_beam(system, q0, np.zeros(3))
+    target = home.hits[-1] + 0.6 * home.dirs[-1]  # a target 0.6 m down the beam (< REACH)
+    for j in range(6):
+        dq = np.zeros(6)
+        dq[j] = 1e-3
+        moved = np.linalg.norm(trace_beam(system, q0 + dq, target).spot - target)
+        assert moved <= gain[j] * 1e-3 * 1.01, j
+    # the wrist joints tilt the mirror: 1 mrad turns the beam by 2 mrad, 1.2 mm at 0.6 m
+    assert gain.max() > 2 * 0.6 and gain.max() < 2 * REACH * 1.5 + 1.5
+
+
+@pytest.mark.parametrize("error_mm, trips", [(0.5, False), (2.0, True)])
+def test_a_following_error_above_the_tolerance_switches_treatment_off(
+    error_mm: float, trips: bool
+) -> None:
+    gain = (0.0, 0.0, 0.0, 1.0, 0.0, 0.0)  # m/rad: only wrist_1 moves the spot, 1 mm / mrad
+    rig = EmissionRig(following_gain=gain, following_tolerance=1e-3)
+    rig.sim = LaggingArm(JOINT_NAMES_UR, HOME, LIMITS, realtime=False)
+    rig.node = RobotNode(rig.bus, KEYS, "arm0", rig.sim, LIMITS, clock=rig.clock,
+                         emission=rig.node.emission).attach()  # fmt: skip
+    rig.bus.token(KEYS.alive("planner"))
+    rig.period(3)
+    rig.hold(1.0, laser_on=[[0.1, 0.6]])
+    rig.period(200)  # inside the interval
+    assert rig.treat[-1]
+    LaggingArm.offset = np.array([0, 0, 0, error_mm * 1e-3, 0, 0])
+    try:
+        rig.period(400)
+    finally:
+        LaggingArm.offset = np.zeros(6)
+    if trips:
+        assert not any(rig.treat[-399:])
+        assert "following error: the spot is off by up to 2.00 mm (> 1 mm" in (
+            rig.node.stopped_by or ""
+        )
+    else:
+        assert rig.on_seconds() == pytest.approx(0.5, abs=2 * DT) and rig.node.stopped_by is None
