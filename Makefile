@@ -7,7 +7,7 @@ DEMO    := demo-out
 # pytest-xdist workers of the parallel test pass (the CI machine has 2 cores)
 TEST_WORKERS ?= 2
 
-.PHONY: demo test lint format report clean sysdeps
+.PHONY: demo test test-system lint format report clean sysdeps
 
 $(STAMP): pyproject.toml
 	@$(MAKE) --no-print-directory sysdeps
@@ -38,12 +38,14 @@ test: $(STAMP)
 	$(BIN)/ruff format --check planner schemas drivers tests examples
 	$(BIN)/mypy planner schemas drivers
 	$(BIN)/lint-imports --no-logo
-	@status=0; \
-	echo "pytest, parallel pass: every test not marked serial, on $(TEST_WORKERS) workers"; \
-	$(BIN)/pytest -m "not serial" -n $(TEST_WORKERS) --dist worksteal || status=$$?; \
-	echo "pytest, serial pass: the timing-sensitive tests (marked serial), one at a time"; \
-	$(BIN)/pytest -m serial --durations=12 || status=$$?; \
-	exit $$status
+	@echo "pytest: every test not marked serial, on $(TEST_WORKERS) workers"
+	$(BIN)/pytest -m "not serial" -n $(TEST_WORKERS) --dist worksteal -rR --durations=25
+
+# the whole simulated system, the browser, collect and the real-time probes: the tests
+# marked serial, one at a time (they assert on wall-clock latencies or run the system)
+test-system: $(STAMP)
+	@echo "pytest: the system and timing tests (marked serial), one at a time"
+	$(BIN)/pytest -m serial -rR --durations=25
 
 lint: $(STAMP)
 	$(BIN)/ruff check --fix planner schemas drivers tests examples
