@@ -30,6 +30,7 @@ brake and switch the laser off themselves), remaining targets are ``aborted``.
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from collections.abc import Callable
@@ -45,7 +46,7 @@ from planner.model.transforms import Array
 from planner.service.execution import ExecuteError
 from planner.service.spots import LaserLog, SpotBuffer
 from planner.servo import Corrector, ServoResult, ServoSettings, average_frames, servo
-from planner.servo.measure import SpotMeasurement
+from planner.servo.measure import SpotGate, SpotMeasurement, gate_frames
 
 #: camera frame period assumed for the measurement dwell (s; the D435 / sim camera at 30 Hz)
 FRAME_PERIOD = 1.0 / 30.0
@@ -53,6 +54,14 @@ FRAME_PERIOD = 1.0 / 30.0
 SETTLE = 0.04
 #: how long (s) past a move's planned end the robots may take to rest on its final joints
 ARRIVAL_TIMEOUT = 2.0
+#: spot plausibility: least confidence of a frame that counts
+MIN_CONFIDENCE = 0.3
+#: m: a target's first spot must lie this close to the model's (the calibration error bound)
+FIRST_RADIUS = 0.06
+#: m: a later spot this close to the prediction (the model carried by the last measurement)
+NEXT_RADIUS = 0.005
+#: implausible frames in a row that stop the closed loop
+MAX_IMPLAUSIBLE = 3
 
 MoveFn = Callable[[Array, Array, float, Array, Array | None], dict[str, Any]]
 """(q_from, q_to stacked rad, dwell s, target world m, normal or None) -> plan.json
@@ -147,7 +156,8 @@ class Motion:
     ``rest_at(q)`` whether every robot rests on stacked ``q`` (rad); the spot buffer; the
     stop event; ``tick()`` reports progress to the worker's watchdog; ``laser`` the gate's
     on-intervals when a robot switches the laser (None: the laser is always on, frames count
-    from the robots' arrival)."""
+    from the robots' arrival); ``predict(p_camera, t)`` publishes the predicted spot (camera
+    frame, m; UNIX s) of each measurement for the camera's gated detector."""
 
     send: Callable[[dict[str, Any], str], tuple[str, str | None]]
     rest_at: Callable[[Array], bool]
@@ -155,6 +165,7 @@ class Motion:
     stop: threading.Event
     tick: Callable[[], None]
     laser: LaserLog | None = None
+    predict: Callable[[Array, float], None] | None = None
 
 
 class ClosedLoopRunner:
@@ -168,6 +179,9 @@ class ClosedLoopRunner:
         self.moves = 0
         self._target = np.zeros(3)
         self._normal: Array | None = None
+        self.dropped = {"low_confidence": 0, "implausible": 0}  # frames gated out
+        self._run = 0  # implausible frames in a row
+        self._bias: Array | None = None  # last measured spot - model spot, this target
 
     def _send(self, q_to: Array, dwell: float, aim: bool = False) -> float:
         """Send one move to ``q_to`` with ``dwell`` (the aiming beam on in it with ``aim``,
@@ -198,6 +212,7 @@ class ClosedLoopRunner:
         gated laser those captured while the gate was on for it (after ``SETTLE``), else
         those captured from the robots' arrival for the dwell."""
         t_dwell = measure_time(frames)
+        predicted, gate = self._prediction(q)
         t_send = time.time()
         t_rest = self._send(q, t_dwell, aim=True)
         stop = self.motion.stop.is_set
@@ -211,7 +226,45 @@ class ClosedLoopRunner:
         got = self.motion.spots.collect(t0, t1, frames, stop)
         self.motion.tick()
         assert self.system.camera is not None
-        return average_frames(got, self.system.world_T_camera(self.q))
+        world_T_camera = self.system.world_T_camera(self.q)
+        kept = self._gate(got, world_T_camera, predicted, gate)
+        m = average_frames(kept, world_T_camera)
+        if m is not None:
+            self._bias = m.spot_world - self._model_spot(q)
+        return m
+
+    def _model_spot(self, q: Array) -> Array:
+        from planner.beam.trace import trace_beam
+
+        return trace_beam(self.system, q, self._target, self._normal).spot
+
+    def _prediction(self, q: Array) -> tuple[Array, SpotGate]:
+        """Where the spot of a measurement at ``q`` should land (world, m) and the gate:
+        the model's spot, moved by the last measurement's offset from the model once the
+        target has one; published for the camera's detector."""
+        pred = self._model_spot(q)
+        radius = FIRST_RADIUS
+        if self._bias is not None:
+            pred, radius = pred + self._bias, NEXT_RADIUS
+        if self.motion.predict is not None and self.system.camera is not None:
+            camera_T_world = np.linalg.inv(self.system.world_T_camera(q))
+            self.motion.predict(camera_T_world[:3, :3] @ pred + camera_T_world[:3, 3], time.time())
+        return pred, SpotGate(MIN_CONFIDENCE, radius)
+
+    def _gate(self, got: list[Any], world_T_camera: Array, predicted: Array,
+              gate: SpotGate) -> list[Any]:  # fmt: skip
+        """The frames that pass the plausibility gate; ExecuteError after
+        :data:`MAX_IMPLAUSIBLE` implausible ones in a row."""
+        kept, weak, far = gate_frames(got, world_T_camera, predicted, gate)
+        self.dropped["low_confidence"] += weak
+        self.dropped["implausible"] += far
+        self._run = 0 if any(f.p_camera is not None for f in kept) else self._run + far
+        if self._run >= MAX_IMPLAUSIBLE:
+            raise ExecuteError(f"{self._run} implausible spots in a row (each over "
+                               f"{1e3 * gate.radius:g} mm from the predicted spot): the camera "
+                               "sees something else; closed loop stopped",
+                               list(self.system.robot_names))  # fmt: skip
+        return kept
 
     def hold(self, dwell: float) -> float:
         """The laser-on dwell (s) at the current joints; the dwell actually waited (s)."""
@@ -228,6 +281,7 @@ class ClosedLoopRunner:
                dwell: float) -> tuple[ServoResult, float]:  # fmt: skip
         """Servo target ``k`` (world, m) from its planned joints ``q0``, then dwell."""
         self._target, self._normal = np.asarray(p, dtype=float), normal
+        self._bias = None
         res = servo(self.measure, q0, p, normal, self.config.corrector, self.settings,
                     should_stop=self.motion.stop.is_set)  # fmt: skip
         dwelt = 0.0
@@ -329,7 +383,8 @@ def execute_closed_loop(plan: dict[str, Any], targets: Targets, req: Any, start:
     if motion.stop.is_set():
         reason = "closed loop aborted: a stop was seen on the bus"
     plan["closed_loop"] = {"tolerance": settings.tolerance, "frames_per_measurement": settings.frames,
-                           "dwell": dwell, "moves": runner.moves, "targets": rows}  # fmt: skip
+                           "dwell": dwell, "moves": runner.moves, "dropped": runner.dropped,
+                           "targets": rows}  # fmt: skip
     plan["metrics"].setdefault("extra", {}).update(closed_loop_figures(rows))
     plan["execution"], plan["execution_reason"] = verdict, reason
 
@@ -356,5 +411,12 @@ def execute_on_node(node: Any, plan: dict[str, Any], targets: Targets, req: Any,
 
     node.stop_seen.clear()
     laser = node.laser if config.gated else None
-    motion = Motion(send, rest_at, node.spots, node.stop_seen, node.progress.tick, laser)
+    predicted_key = f"{node.keys.prefix}/camera/predicted"
+
+    def predict(p_camera: Array, t: float) -> None:  # the camera's gated detector looks there
+        body = {"p_camera": [float(x) for x in p_camera], "t": t}
+        node.session.put(predicted_key, json.dumps(body).encode(), encoding="application/json")
+
+    motion = Motion(send, rest_at, node.spots, node.stop_seen, node.progress.tick, laser,
+                    predict)  # fmt: skip
     execute_closed_loop(plan, targets, req, system.stack_q(start), config, motion, system)

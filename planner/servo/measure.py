@@ -71,3 +71,36 @@ def average_frames(frames: Sequence[SpotFrame], world_T_camera: Array) -> SpotMe
     mean = W @ P / W.sum()
     spread = float(np.sqrt(W @ np.sum((P - mean) ** 2, axis=1) / W.sum()))
     return SpotMeasurement(mean, len(frames), len(pts), float(W.mean()), spread)
+
+
+@dataclass(frozen=True)
+class SpotGate:
+    """Which camera frames count: a confidence of at least ``min_confidence`` and a spot
+    within ``radius`` (m, world) of the predicted one."""
+
+    min_confidence: float
+    radius: float
+
+
+def gate_frames(frames: Sequence[SpotFrame], world_T_camera: Array, predicted_world: Array,
+                gate: SpotGate) -> tuple[list[SpotFrame], int, int]:  # fmt: skip
+    """The frames that pass ``gate`` (a frame without a spot passes as unseen), how many had
+    too low a confidence and how many were too far from ``predicted_world`` (m)."""
+    T = np.asarray(world_T_camera, dtype=float)
+    pred = np.asarray(predicted_world, dtype=float)
+    kept: list[SpotFrame] = []
+    weak = far = 0
+    for f in frames:
+        if f.p_camera is None:
+            kept.append(f)
+            continue
+        p = np.asarray(f.p_camera, dtype=float)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            kept.append(SpotFrame(None, 0.0))
+        elif not float(f.confidence) >= gate.min_confidence:
+            weak += 1
+        elif np.linalg.norm(T[:3, :3] @ p + T[:3, 3] - pred) > gate.radius:
+            far += 1
+        else:
+            kept.append(f)
+    return kept, weak, far

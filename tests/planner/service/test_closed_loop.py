@@ -50,6 +50,7 @@ class FakeBus:
         self.reject_second, self.stop_at = reject_second_target, stop_at
         self.threads: list[threading.Thread] = []
         self.laser = LaserLog() if gated else None
+        self.lie: Any = None  # (move number, p_camera, confidence) -> (p_camera, confidence)
 
     def send(self, traj: dict[str, Any], move_id: str) -> tuple[str, str | None]:
         self.sent.append((move_id, traj))
@@ -78,7 +79,11 @@ class FakeBus:
             time.sleep(max(0.0, t0 + i * FRAME_PERIOD - time.time()))
             f = self.world.frames(q, 1)[0]
             p = None if f.p_camera is None else f.p_camera.tolist()
-            self.spots.offer(time.time(), p, f.confidence)
+            c = f.confidence
+            if self.lie is not None and p is not None:
+                p, c = self.lie(len(self.sent), np.asarray(p), c)
+                p = p.tolist()
+            self.spots.offer(time.time(), p, c)
         if self.laser is not None:
             time.sleep(max(0.0, t0 + on - time.time()))
             self.laser.offer(time.time(), False)
@@ -313,3 +318,57 @@ def test_laser_log_spans_begin_after_a_time_and_end_on_the_off_switch() -> None:
     log.offer(12.4, False)
     assert log.wait_span(10.2, 1.0, lambda: False) == (12.0, 12.4)
     assert log.span_after(13.0) is None and log.wait_span(13.0, 5.0, lambda: True) is None
+
+
+def test_three_implausible_spots_in_a_row_stop_the_closed_loop(world: SimWorld) -> None:
+    bus = FakeBus(world, gated=True)
+    # from the second move on, every spot the camera reports lies 30 mm to the side (the true
+    # one is within a fraction of a mm of the prediction there)
+    bus.lie = lambda n, p, c: (p + np.array([0.03, 0.0, 0.0]) if n >= 2 else p, c)
+    plan = _run(world, bus, 2)
+    rows = plan["closed_loop"]["targets"]
+    assert plan["execution"] == "rejected"
+    assert "3 implausible spots in a row (each over 5 mm from the predicted spot)" in (
+        plan["execution_reason"])  # fmt: skip
+    assert rows[0]["status"] == "rejected" and rows[1]["status"] == "not_executed"
+    assert plan["closed_loop"]["dropped"]["implausible"] >= 3
+    assert not any(traj["laser_on"] for _, traj in bus.sent)  # never treated
+
+
+def test_low_confidence_frames_are_dropped_and_counted(world: SimWorld) -> None:
+    bus = FakeBus(world, gated=True)
+    k = iter(range(10_000))
+    # every other frame comes with confidence 0.1 and a spot 20 mm off: dropped, not averaged
+    bus.lie = lambda n, p, c: (p + 0.02, 0.1) if next(k) % 2 else (p, c)
+    plan = _run(world, bus, 1)
+    rows = plan["closed_loop"]["targets"]
+    print(plan["closed_loop"]["dropped"], rows[0]["status"], rows[0]["measured_error_after"])
+    assert rows[0]["status"] == "converged" and rows[0]["measured_error_after"] <= 0.3e-3
+    assert plan["closed_loop"]["dropped"]["low_confidence"] >= 1
+    assert plan["closed_loop"]["dropped"]["implausible"] == 0
+    spot = world.true_spot(bus.q)  # independent: the truth's spot where the arm was left
+    assert spot is not None and np.linalg.norm(spot - plan["_targets"][-1]) <= 0.5e-3
+
+
+def test_the_predicted_spot_is_published_for_every_measurement(world: SimWorld) -> None:
+    bus = FakeBus(world, gated=True)
+    got: list[tuple[np.ndarray, float]] = []
+    motion = bus.motion([])
+    motion.predict = lambda p, t: got.append((np.asarray(p), t))
+    model = world.model
+    P = board_targets(1, seed=4)
+    targets = Targets(P, np.tile(UP, (1, 1)))
+    plan = make_plan_fn(model, {})(targets, None, False)
+    req = TargetRequest.model_validate({"schema": "beamrelay.request/1", "id": "p", "execute": True,
+                                        "closed_loop": True, "points": P.tolist(), "dwell": 0.1})  # fmt: skip
+    config = ClosedLoopConfig(Corrector(model), make_move_fn(model, TrajectorySettings()), 0.3,
+                              ServoSettings(), aim=True)  # fmt: skip
+    execute_closed_loop(plan, targets, req, model.home, config, motion, model)
+    measurements = [t for _, t in bus.sent if t.get("aim_on")]
+    assert len(got) == len(measurements) >= 2
+    # the later predictions carry the measured offset: within a mm of the true spot there
+    cam = model.world_T_camera(model.home)
+    true = world.true_spot(bus.q)
+    assert true is not None
+    last = cam[:3, :3] @ got[-1][0] + cam[:3, 3]
+    assert np.linalg.norm(last - true) < 1e-3
