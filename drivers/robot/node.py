@@ -102,6 +102,9 @@ from planner.service.bus import JSON, Keys, decode, encode
 from schemas.messages import Heartbeat, JointState, RobotStatus, TrajectoryAck
 
 HEARTBEAT_TIMEOUT = 0.100  # s: longest planner silence before the arm brakes
+#: s: a setpoint stream this silent is late: treatment off until the next setpoint (three
+#: periods of a 500 Hz stream; the stream itself ends at 50 ms)
+LATE_SETPOINT = 0.006
 MAX_SESSIONS = 64  # heartbeat sessions remembered (oldest forgotten first)
 PERIOD_LOG = 1 << 16  # control periods whose start times are kept (2 min at 500 Hz)
 
@@ -281,8 +284,9 @@ class RobotNode(StreamingMixin, LoopNode):
         if self.streams.active is not None and m.mode != "streaming":
             self._safe_stop(f"arm left the stream: {m.fault or m.mode}")
         if self.gate is not None:
-            abort = self.gate.update(m, m.fault, self.streams.laser_on, self.streams.aim,
-                                     self._chain_fault())  # fmt: skip
+            fresh = self.streams.silent(now) <= LATE_SETPOINT  # treatment only on time
+            abort = self.gate.update(m, m.fault, self.streams.laser_on and fresh,
+                                     self.streams.aim, self._chain_fault())  # fmt: skip
             if abort is not None:
                 self._safe_stop(abort)
         if self._tick % self._state_every == 0 and not m.stale:

@@ -39,7 +39,7 @@ from planner.model.transforms import Array
 from planner.service.bus import Keys, decode
 from planner.service.setpoints import SetpointStreamer
 from planner.track.follow import TargetFollower
-from schemas.messages import TargetStream
+from schemas.messages import JointState, TargetStream
 
 log = logging.getLogger("beamrelay.track")
 
@@ -82,6 +82,8 @@ class TrackSession:
                                           reference=reference, request_id=request_id,
                                           gate_robot=gate_robot, aim=aim, clock=clock)  # fmt: skip
         self._sub: Any = None
+        self._joint_subs: list[Any] = []
+        self._measured: dict[str, Array] = {}  # robot -> its latest measured joints (rad)
         self._index: int | None = None
         self._receipts: list[float] = []  # perf_counter of frames not yet streamed
         self.latencies: list[float] = []
@@ -94,6 +96,10 @@ class TrackSession:
     # --- lifecycle -------------------------------------------------------------------------
     def start(self) -> TrackSession:
         self._sub = self.session.declare_subscriber(self.keys.target_stream, self._on_sample)
+        self._joint_subs = [
+            self.session.declare_subscriber(self.keys.joint_states(r), self._on_joints(r))
+            for r in self.system.robot_names
+        ]
         self._streamer.start()
         threading.Thread(target=self._finish, name="track-end", daemon=True).start()
         return self
@@ -123,6 +129,26 @@ class TrackSession:
             self.stop(f"{robot} ended the stream ({s.state}): {s.reason}")
         if msg.protective_stop or msg.mode == "fault":
             self.stop(f"{robot} is {msg.mode}: {msg.fault or 'protective stop'}")
+
+    # --- measured joints ----------------------------------------------------------------------
+    def _on_joints(self, robot: str) -> Callable[[Any], None]:
+        """The follower's laser rule counts the measured arm's spot gap from its command."""
+
+        def cb(sample: Any) -> None:
+            try:
+                msg = decode(sample.payload.to_bytes(), JointState)
+            except InputError:
+                return
+            q = np.asarray(msg.q, dtype=float)
+            if len(q) != self.system.robot(robot).nq or not np.all(np.isfinite(q)):
+                return
+            self._measured[robot] = q
+            if len(self._measured) == len(self.system.robot_names):
+                stacked = np.concatenate([self._measured[r] for r in self.system.robot_names])
+                with self._lock:
+                    self.follower.on_joint_state(stacked, float(msg.t))
+
+        return cb
 
     # --- target stream ---------------------------------------------------------------------
     def _on_sample(self, sample: Any) -> None:
@@ -175,6 +201,12 @@ class TrackSession:
             sp = self.follower.setpoint(t)
             receipts, self._receipts = self._receipts, []
         if sp is None:
+            if self.follower.unsafe:  # a setpoint broke a safety rule: every arm stops now
+                if not self._final_sent:
+                    self._final_sent = True
+                    self.send_stop(f"tracking {self.id}: {self.follower.stopped}")
+                self._ended.set()
+                return None
             if self.follower.stopped is not None:
                 self._ended.set()
                 return self._final(t)
@@ -212,6 +244,8 @@ class TrackSession:
         self._streamer.close()
         if self._sub is not None:
             self._sub.undeclare()
+        for s in self._joint_subs:
+            s.undeclare()
         reason = self.follower.stopped or "stopped"
         if not reason.startswith("duration"):
             self.send_stop(f"tracking {self.id!r} ended: {reason}")

@@ -19,6 +19,14 @@ setpoints never break a limit. The laser is on only while ``confidence`` x the p
 RMS error plus the commanded-vs-reached gap (the beam Jacobian times the limiter's lag and
 the measured arm's lag behind the command) is under ``tolerance``, and the stream is fresh.
 
+Every setpoint is checked, before it is sent, under the same rules as a planned sample
+(the IK's :class:`~planner.safety.model.Safety`: arm-arm, arm-self, arm-scene, and the beam
+at the predicted target against every arm part and keep-out volume); consecutive setpoints
+are at most one period of the velocity limit apart (pi rad/s x 2 ms = 6 mrad). A setpoint
+that breaks a rule is not sent: the follower stops as *unsafe*
+(:attr:`TargetFollower.unsafe`), and the session publishes a stop. The limiter also caps the
+spot's speed on the target plane at ``max_spot_speed`` (m/s, through the spot Jacobian).
+
 The follower *stops* (laser off, no more setpoints; :attr:`TargetFollower.stopped` says
 why) when no frame came for ``stale_frames`` frame periods, when a predicted target has no
 safe solution (unreachable, outside the ROI, joint limits, a safety rule) or leaves the
@@ -60,6 +68,7 @@ class TrackSettings:
     max_excursion: float = 0.1  # m, around the first estimate
     max_jump: float = 0.2  # rad, largest joint change of one frame's solution
     pull: float = 4.0 / defaults.SERVO_RATE_HZ  # s, limiter time constant
+    max_spot_speed: float = 0.2  # m/s, the spot's speed on the target plane (a face's motion)
 
     @property
     def stale_after(self) -> float:
@@ -118,6 +127,8 @@ class TargetFollower:
         self.segment: _Segment | None = None
         self.frame_seen: float | None = None  # ``now`` of the last frame
         self.stopped: str | None = None
+        self.unsafe = False  # stopped because a setpoint broke a safety rule
+        self.checked = 0  # setpoints checked against the safety rules
         self.arm_gap = 0.0  # m, spot offset of the measured arm from the command
         self._J: Array | None = None  # spot Jacobian (m/rad), reused near where it was taken
         self._J_at = self.q
@@ -185,6 +196,30 @@ class TargetFollower:
             cols.append((trace_beam(self.ik.system, q + dq, target, normal).spot - s0) / h)
         return np.column_stack(cols)
 
+    def _spot_speed_cap(self, qd: Array, cap: float) -> Array:
+        """``qd`` (inside the acceleration box around ``self.qd``) scaled down to a spot speed
+        ``|J qd|`` of at most ``cap`` (m/s), then kept inside the box; the direction stays
+        the limiter's, so the spot still heads for the reference."""
+        assert self.segment is not None
+        v = float(np.linalg.norm(self.segment.J @ qd))
+        if v <= cap:
+            return qd
+        step = self._amax / self.settings.rate
+        return np.asarray(np.clip(qd * (cap / v), self.qd - step, self.qd + step))
+
+    def _violation(self, q: Array) -> str | None:
+        """Why a setpoint at stacked ``q`` (rad) breaks a safety rule, with the beam at the
+        predicted target; None when it breaks none (or there are no rules)."""
+        safety = getattr(self.ik, "safety", None)
+        if safety is None or self.segment is None:
+            return None
+        system = self.ik.system
+        tr = trace_beam(system, q, self.segment.target_b, self.segment.normal)
+        P = np.vstack([system.world_T_laser[:3, 3], tr.hits, tr.spot])
+        self.checked += 1
+        bad = safety.config(q, P)
+        return None if bad is None else f"{bad.reason}: {bad.text}"
+
     def on_joint_state(self, q_measured: Array, t: float) -> None:
         """The arm's measured joints (stacked, rad) at ``t`` (s): its spot gap from the
         command then (m) counts in the predicted error."""
@@ -221,7 +256,13 @@ class TargetFollower:
         qd = qd_ref + behind / max(st.pull, dt)
         qd = np.clip(qd, -self._vmax, self._vmax)
         qd = np.clip(qd, self.qd - self._amax * dt, self.qd + self._amax * dt)
+        qd = self._spot_speed_cap(qd, st.max_spot_speed)
         q = np.clip(self.q + qd * dt, self._lower, self._upper)
+        unsafe = self._violation(q)
+        if unsafe is not None:
+            self.stop(f"setpoint at t={t:.3f} s not sent: {unsafe}")
+            self.unsafe = True
+            return None
         self.qd = (q - self.q) / dt
         self.q, self.t_last = q, t
         lag = float(np.linalg.norm(self.segment.J @ (q - q_ref)))

@@ -74,6 +74,9 @@ def test_track_follows_ignores_garbage_refuses_others_and_stops_when_stale(rig) 
         k += 1
         time.sleep(1 / 30)
     assert node.track.active, node.track.summary
+    # the follower hears the measured arm: the fake driver's arm stays at q0 while the
+    # command follows the 2 mm sine, so the laser rule sees a gap (was always 0)
+    assert node.track.follower.arm_gap > 0.0
     busy_ok, busy = request(client, "other")
     assert not busy_ok and "busy tracking 'phantom'" in busy["error"]
     live = setpoints.bodies()

@@ -142,3 +142,40 @@ def test_noisy_prediction_keeps_the_laser_off_when_over_tolerance(ik: BeamIK) ->
     R = (2e-3) ** 2 * np.eye(3)
     run = drive(f, lambda t: P0 + 2e-3 * rng.standard_normal(3), 1.0, R=R)
     assert not any(sp[3] for _, sp in run if sp is not None)
+
+
+def test_a_setpoint_that_would_sweep_the_beam_through_a_keep_out_is_not_sent(ik: BeamIK) -> None:
+    """The frame solutions on both sides of a small keep-out sphere are safe, the setpoints
+    between them would sweep the spot through it: the first unsafe setpoint is not sent, the
+    follower stops as unsafe. Independent check: every setpoint that was sent, traced with
+    the numpy beam, keeps the spot out of the sphere."""
+    from planner.model.transforms import make_T
+    from planner.safety.shapes import sphere
+
+    centre = P0 + np.array([0.010, 0.0, 0.0])
+    eye = sphere("eye", 0.003, make_T(p=centre))
+    guarded = BeamIK(ik.system, ik.options, Safety(ik.system, keep_out=[eye]))
+    f = follower(guarded)
+    out = drive(f, lambda t: P0 + (np.array([0.02, 0, 0]) if t >= 0.2 else 0.0), 0.6)
+    sent = [sp for _, sp in out if sp is not None]
+    assert f.unsafe and f.stopped is not None and "not sent: keep_out" in f.stopped, f.stopped
+    assert f.checked >= len(sent) > 50
+    for _, q, _, _ in sent:
+        spot = trace_beam(ik.system, q, P0, N).spot
+        assert np.linalg.norm(spot - centre) > 0.003
+    assert f.setpoint(0.7) is None
+
+
+def test_the_spot_speed_is_capped(ik: BeamIK) -> None:
+    """A 30 mm step of the target: the setpoints move the spot at most ``max_spot_speed``
+    (measured with the numpy beam on the target plane, independent of the limiter's
+    Jacobian)."""
+    f = follower(ik, max_spot_speed=0.05)
+    out = drive(f, lambda t: P0 + (np.array([0.03, 0, 0]) if t >= 0.1 else 0.0), 1.2)
+    spots = np.array([trace_beam(ik.system, sp[1], P0, N).spot for _, sp in out if sp is not None])
+    speed = np.linalg.norm(np.diff(spots, axis=0), axis=1) / DT
+    print(
+        f"spot speed max {speed.max():.4f} m/s; final {1e3 * np.linalg.norm(spots[-1] - P0 - [0.03, 0, 0]):.2f} mm off"
+    )
+    assert speed.max() <= 0.05 * 1.05
+    assert np.linalg.norm(spots[-1] - (P0 + np.array([0.03, 0, 0]))) < 1e-3  # it still gets there
