@@ -51,6 +51,20 @@ log = logging.getLogger("beamrelay.online")
 
 MAX_SAMPLES = 400  # newest samples kept for refits (older ones are dropped)
 MIN_CONFIDENCE = 0.3  # spot detection confidence a rest sample needs
+#: m: a spot farther than this from the current model's beam is not the beam (a reflection,
+#: another light, a lying camera): the calibration error it could come from is far smaller
+MAX_RAY_DISTANCE = 0.06
+
+
+def ray_distance(system: Any, q: Array, p: Array) -> float:
+    """Distance (m) of the world point ``p`` from the last ray of the beam ``system``
+    models at stacked ``q`` (rad); inf when that beam is no valid reflection chain."""
+    from planner.beam.trace import trace_beam
+
+    tr = trace_beam(system, np.asarray(q, dtype=float), np.asarray(p, dtype=float))
+    return float(tr.error) if tr.target_ahead > 0 else float("inf")
+
+
 REST_QD = 1e-3  # rad/s: every joint slower than this counts as at rest
 SAME_Q = 1e-5  # rad: joints closer than this (max abs) are the same configuration
 ONLINE_MARK = "online"  # report key that marks a file written by the online refinement
@@ -125,6 +139,7 @@ class OnlineCalibrator:
         self.rest_sampling = True
         self.last: RefitResult | None = None
         self.rejected = 0
+        self.implausible = 0  # camera spots dropped: too far from the modelled beam
         self.refits = 0
         self._samples: list[SpotSample] = []
         self._lock = threading.Lock()
@@ -173,7 +188,14 @@ class OnlineCalibrator:
             self.rejected += 1
             log.warning("online calibration: sample dropped (%s: %s)", exc.where, exc.reason)
             return False
-        return self.add_sample(qs, transform_points(world_T_camera, p), board=board, t=t)
+        spot = transform_points(world_T_camera, p)
+        off = ray_distance(system, qs, spot)
+        if off > MAX_RAY_DISTANCE:  # not the beam the current model points there
+            self.implausible += 1
+            log.warning("online calibration: implausible spot dropped (%.1f mm from the "
+                        "modelled beam, limit %.0f mm)", 1e3 * off, 1e3 * MAX_RAY_DISTANCE)  # fmt: skip
+            return False
+        return self.add_sample(qs, spot, board=board, t=t)
 
     @property
     def n_samples(self) -> int:

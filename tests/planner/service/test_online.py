@@ -155,7 +155,7 @@ def test_garbage_never_crashes_the_refit_thread(
         for q, s in BAD_SAMPLES:
             assert not cal.add_sample(q, s)
             assert not cal.add_camera_spot(q, s)
-        assert cal.rejected == 2 * len(BAD_SAMPLES) and cal.n_samples == 0
+        assert cal.rejected + cal.implausible == 2 * len(BAD_SAMPLES) and cal.n_samples == 0
         q, spots = true_samples(truth, 10, seed=1)
         for qk, sk in zip(q, spots, strict=True):
             cal.add_sample(qk, sk)
@@ -305,3 +305,23 @@ def test_a_request_in_progress_keeps_its_calibration(nominal: System) -> None:
 
     assert json.loads(out["plan"])["metrics"]["extra"]["calibration_version"] == 0
     assert json.loads(node.serve(body))["metrics"]["extra"]["calibration_version"] == 7
+
+
+def test_a_camera_spot_far_from_the_modelled_beam_is_dropped_and_counted(
+    tmp_path: Path, scenario: Path, nominal: System, truth: System
+) -> None:
+    """The truth's spots (a few mm from the nominal beam) are taken; the same spots moved
+    100 mm sideways (a reflection, another light) are dropped as implausible."""
+    from planner.service.online import MAX_RAY_DISTANCE, ray_distance
+
+    cal, _ = calibrator(nominal, scenario, tmp_path / "online.yaml")
+    q, spots = true_samples(truth, 4, seed=2)
+    assert nominal.camera is not None
+    camera_T_world = np.linalg.inv(nominal.camera.world_T_camera)
+    for qk, sk in zip(q, spots, strict=True):
+        assert ray_distance(nominal, qk, sk) < 0.01  # a real spot: mm from the model's beam
+        far = sk + np.array([0.1, 0.0, 0.0])
+        assert ray_distance(nominal, qk, far) > MAX_RAY_DISTANCE
+        assert not cal.add_camera_spot(qk, camera_T_world[:3, :3] @ far + camera_T_world[:3, 3])
+        assert cal.add_camera_spot(qk, camera_T_world[:3, :3] @ sk + camera_T_world[:3, 3])
+    assert cal.implausible == len(q) and cal.n_samples == len(q)
