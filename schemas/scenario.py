@@ -407,9 +407,13 @@ class KeepOutObject(StrictModel):
     one of ``sphere`` (radius), ``box`` (full extents [x, y, z], centred) or ``mesh`` (a
     closed triangle mesh, taken as its convex hull; path relative to the scenario, times
     ``scale``), in the frame ``world_T_object`` (m). A target inside one fails as
-    ``keep_out``."""
+    ``keep_out``. ``attached_to`` names the tracked object (a scene object, or the stream id
+    of a ``mode: track`` request) it moves with: while that object is tracked the volume is
+    moved by the tracked point's displacement from the request's point (its pose here is
+    the one it has when the object is where the request's point says)."""
 
     name: Name
+    attached_to: Name | None = None
     sphere: PosNum | None = None
     box: PosVec3 | None = None
     mesh: Name | None = None

@@ -43,7 +43,8 @@ def _model_key(
     return {"model": name}
 
 
-def _system_dict(system: System, model: SystemModel, scn: LoadedScenario) -> dict[str, Any]:
+def _system_dict(system: System, model: SystemModel, scn: LoadedScenario,
+                 truth: bool = False) -> dict[str, Any]:  # fmt: skip
     robots = []
     for r, rm in zip(system.robots, model.robots, strict=True):
         kind = _model_key(rm.model, rm.urdf, r.kinematics.source, scn)
@@ -58,9 +59,9 @@ def _system_dict(system: System, model: SystemModel, scn: LoadedScenario) -> dic
             | {"home": r.home.tolist(), "limits": limits, "mirror": mirror}
         )
     laser = {"world_T_laser": _pose(system.world_T_laser)}
-    laser |= model.laser.model_dump(
-        include={"power", "gate", "aim", "limits", "beam_radius"}, exclude_none=True
-    )
+    if not truth:  # the truth is geometry only (``truth.system.laser``: its pose)
+        keys = {"power", "gate", "aim", "limits", "beam_radius"}
+        laser |= model.laser.model_dump(include=keys, exclude_none=True)
     out: dict[str, Any] = {"laser": laser, "robots": robots}
     if system.camera is not None:
         k = system.camera.intrinsics
@@ -110,7 +111,10 @@ def resolved_scenario_dict(scn: LoadedScenario) -> dict[str, Any]:
         "trajectory": m.trajectory.model_dump(),
         "include": [],
     }
+    for item, obj in zip(out["keep_out"], m.keep_out, strict=True):
+        if obj.attached_to is not None:
+            item["attached_to"] = obj.attached_to
     if scn.truth_system is not None:
         truth = system_from_scenario(scn, truth=True)
-        out["truth"] = {"system": _system_dict(truth, scn.truth_system, scn)}
+        out["truth"] = {"system": _system_dict(truth, scn.truth_system, scn, truth=True)}
     return out

@@ -256,6 +256,23 @@ class Safety:
             return self.arms(q)
         return self.configuration(q, points) or self.geometry(points)
 
+    def move_keep_out(self, world_T_objects: dict[str, Array]) -> None:
+        """Place keep-out volumes (by name) at new poses (4 x 4, world, m): volumes attached
+        to a moving object (``keep_out[].attached_to``) follow it. Unknown names are
+        ignored; every later check sees the new poses."""
+        world, pairs = self.world, self.beam_pairs
+        for j, part in enumerate(pairs.parts):
+            name = part.name.removeprefix("keep_out/")
+            T = world_T_objects.get(name)
+            if part.kind is not PartKind.KEEP_OUT or T is None:
+                continue
+            M = pin.SE3(np.asarray(T, dtype=float)[:3, :3], np.asarray(T, dtype=float)[:3, 3])
+            world.geom_model.geometryObjects[part.index].placement = M
+            world.geom_data.oMg[part.index] = M
+            pairs.model.geometryObjects[j].placement = M
+            pairs.data.oMg[j] = M
+        world._placements = None  # the cached world poses are stale now
+
     def target(self, p: Array) -> Violation | None:
         """The target point ``p`` (world, m) inside a keep-out volume: the deepest one."""
         if not self.keep_out:

@@ -242,6 +242,8 @@ class TrackSession:
         self._ended.wait()
         time.sleep(0.01)  # let the streamer send the final laser-off setpoint
         self._streamer.close()
+        with self._lock:
+            self.follower.release()
         if self._sub is not None:
             self._sub.undeclare()
         for s in self._joint_subs:
@@ -310,7 +312,10 @@ def start_track(node: Any, req: Any) -> dict[str, Any]:
                            f"{settings.max_jump:g} rad): execute a request to it first",
                            list(system.robot_names))  # fmt: skip
     cam = None if system.camera is None else system.camera.world_T_camera
-    follower = TargetFollower(handler.track_ik, q0, first, cam, settings)
+    attached = {o["name"]: np.asarray(o["world_T_object"]["matrix"], dtype=float)
+                for o in (plan.get("scenario") or {}).get("keep_out") or []
+                if o.get("attached_to") == req.id}  # fmt: skip
+    follower = TargetFollower(handler.track_ik, q0, first, cam, settings, attached=attached)
     follower.warm_up(q1, normal)  # the first frame must not pay for first calls
     laser = ((plan.get("scenario") or {}).get("system") or {}).get("laser", {})
     gate = laser.get("gate") or {}

@@ -27,6 +27,10 @@ that breaks a rule is not sent: the follower stops as *unsafe*
 (:attr:`TargetFollower.unsafe`), and the session publishes a stop. The limiter also caps the
 spot's speed on the target plane at ``max_spot_speed`` (m/s, through the spot Jacobian).
 
+Keep-out volumes attached to the target (``keep_out[].attached_to``, :attr:`attached`) move
+with it: before each frame's solves they are placed at their scenario pose moved by the
+predicted target's displacement from the first estimate, so the eyes move with the face.
+
 The follower *stops* (laser off, no more setpoints; :attr:`TargetFollower.stopped` says
 why) when no frame came for ``stale_frames`` frame periods, when a predicted target has no
 safe solution (unreachable, outside the ROI, joint limits, a safety rule) or leaves the
@@ -115,6 +119,9 @@ class TargetFollower:
     settings: TrackSettings = field(default_factory=TrackSettings)
     noise: MarkerNoise = field(default_factory=MarkerNoise)
     predictor: KalmanCV | ConstantVelocity = field(default_factory=KalmanCV)
+    attached: dict[str, Array] = field(default_factory=dict)
+    """keep-out volumes that move with this target: name -> pose (4 x 4, world, m) with the
+    target at ``first``"""
 
     def __post_init__(self) -> None:
         s = self.ik.system
@@ -130,6 +137,7 @@ class TargetFollower:
         self.unsafe = False  # stopped because a setpoint broke a safety rule
         self.checked = 0  # setpoints checked against the safety rules
         self.arm_gap = 0.0  # m, spot offset of the measured arm from the command
+        self.keep_out_shift = np.zeros(3)  # m, how far the attached volumes were moved
         self._J: Array | None = None  # spot Jacobian (m/rad), reused near where it was taken
         self._J_at = self.q
 
@@ -159,6 +167,7 @@ class TargetFollower:
                 return self._halt(f"target {1e3 * away:.1f} mm from its first estimate "
                                   f"(limit {1e3 * st.max_excursion:.0f} mm)", t0)  # fmt: skip
         q_from = self.q if self.segment is None else self.segment.q_ref(t_a)[0]
+        self._move_attached(pa.p)
         sol_a = self.ik.solve(pa.p, n, q_from)
         sol_b = self.ik.solve(pb.p, n, sol_a.q) if sol_a.ok else sol_a
         if not (sol_a.ok and sol_b.ok) or sol_a.q is None or sol_b.q is None:
@@ -173,7 +182,28 @@ class TargetFollower:
             self._J, self._J_at = self._jacobian(sol_a.q, pa.p, n), sol_a.q
         J = self._J
         self.segment = _Segment(t_a, sol_a.q, t_b, sol_b.q, pb.sigma, J, n, pb.p)
+        self._move_attached(pb.p)
         return FrameOutcome(pa, time.perf_counter() - t0, None)
+
+    def _move_attached(self, p: Array) -> None:
+        """Place the keep-out volumes attached to this target (:attr:`attached`: name ->
+        their pose with the target at :attr:`first`) moved by ``p - first``."""
+        safety = getattr(self.ik, "safety", None)
+        if not self.attached or safety is None:
+            return
+        d = np.asarray(p, dtype=float) - self.first
+        moved = {}
+        for name, T in self.attached.items():
+            M = np.array(T, dtype=float)
+            M[:3, 3] += d
+            moved[name] = M
+        safety.move_keep_out(moved)
+        self.keep_out_shift = d
+
+    def release(self) -> None:
+        """Put the attached keep-out volumes back at their scenario poses (the IK's safety
+        rules are shared with later plans)."""
+        self._move_attached(self.first)
 
     def warm_up(self, q: Array, normal: Array | None) -> None:
         """Run the per-frame computations once at ``q`` (rad) on the first estimate, so the

@@ -179,3 +179,44 @@ def test_the_spot_speed_is_capped(ik: BeamIK) -> None:
     )
     assert speed.max() <= 0.05 * 1.05
     assert np.linalg.norm(spots[-1] - (P0 + np.array([0.03, 0, 0]))) < 1e-3  # it still gets there
+
+
+def _eye_beside(ik: BeamIK, attached: bool) -> tuple[TargetFollower, Any, np.ndarray]:
+    from planner.model.transforms import make_T
+    from planner.safety.shapes import sphere
+
+    offset = np.array([0.0, 0.006, 0.0])  # the eye 6 mm beside the target, radius 3 mm
+    eye = sphere("eye", 0.003, make_T(p=P0 + offset))
+    guarded = BeamIK(ik.system, ik.options, Safety(ik.system, keep_out=[eye]))
+    q0 = guarded.solve(P0, N).q
+    assert q0 is not None
+    poses = {"eye": make_T(p=P0 + offset)} if attached else {}
+    return TargetFollower(guarded, q0, P0, None, TrackSettings(), attached=poses), guarded, offset
+
+
+def test_an_attached_keep_out_moves_with_the_face(ik: BeamIK) -> None:
+    """The face (target and eye) moves 12 mm across, through where the eye was: attached,
+    the eye moves along and the spot follows the target; every sent setpoint, traced with
+    the numpy beam, stays out of the eye where the face put it (an independent check)."""
+    f, guarded, offset = _eye_beside(ik, attached=True)
+    move = np.array([0.0, 0.012, 0.0])
+    out = drive(f, lambda t: P0 + move * min(t / 0.4, 1.0), 1.0)
+    assert f.stopped is None, f.stopped
+    np.testing.assert_allclose(f.keep_out_shift, move, atol=1e-3)
+    for now, sp in out:
+        if sp is None:
+            continue
+        eye_now = P0 + offset + move * min(now / 0.4, 1.0)
+        tr = trace_beam(ik.system, sp[1], P0 + move * min(now / 0.4, 1.0), N)
+        a, b = tr.hits[-1], tr.spot  # the last segment: mirror to spot
+        s = np.clip((eye_now - a) @ (b - a) / ((b - a) @ (b - a)), 0.0, 1.0)
+        assert np.linalg.norm(a + s * (b - a) - eye_now) > 0.003
+    f.release()  # the shared rules are the scenario's again
+    assert guarded.safety is not None and guarded.safety.target(P0 + offset) is not None
+
+
+def test_an_unattached_keep_out_stays_where_the_scenario_put_it(ik: BeamIK) -> None:
+    f, _, _ = _eye_beside(ik, attached=False)
+    move = np.array([0.0, 0.012, 0.0])
+    drive(f, lambda t: P0 + move * min(t / 0.4, 1.0), 1.0)
+    assert f.stopped is not None and "keep_out" in f.stopped  # the target ran into the eye
