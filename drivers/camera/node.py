@@ -152,6 +152,10 @@ class CameraNode(LoopNode):
     def _on_gate(self, sample: Any) -> None:
         """Laser gate state from ``<prefix>/laser`` (``on``) or a robot status (``laser_on``)."""
         body = _small_json(sample)
+        if body is not None and "on" in body:
+            self._laser_states = True
+        elif getattr(self, "_laser_states", False):
+            return  # a status's laser_on is the treatment gate only: the LaserState says more
         on = body.get("on", body.get("laser_on")) if body else None
         if isinstance(on, bool) and body is not None and body.get("aim") is True:
             on = True  # the aiming beam is lit: the camera sees its spot

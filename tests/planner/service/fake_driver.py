@@ -24,6 +24,7 @@ class FakeDriver:
     def __init__(self, session: Any, robot: str, names: list[str], q: np.ndarray) -> None:
         self.session, self.robot, self.names, self.q = session, robot, names, q
         self.behaviour = "accept"
+        self.arrive = False  # an accepted trajectory puts the arm on its last sample at once
         self.trajectories: list[dict[str, Any]] = []
         self._stop = threading.Event()
         self._token = session.liveliness().declare_token(f"{PREFIX}/alive/{robot}")
@@ -43,6 +44,8 @@ class FakeDriver:
         if self.behaviour == "silent":
             return
         self.status("following", msg["id"], self.behaviour == "accept")
+        if self.arrive and self.behaviour == "accept":
+            self.q = np.asarray(msg["q"][-1], dtype=float)
 
     def status(self, mode: str, trajectory_id: str | None, accepted: bool = True) -> None:
         ack = {"id": trajectory_id, "accepted": accepted, "t": time.time(),

@@ -120,3 +120,42 @@ def test_stop_ends_tracking_and_track_needs_execute(rig) -> None:
     client.put(f"{PREFIX}/stop", b"{}")
     wait_for(lambda: not node.track.active, 2.0, "the session to end on stop")
     assert "stop seen" in node.track.summary["ended"]
+
+
+def test_the_first_move_to_a_tracked_target_is_a_planned_trajectory(
+    tmp_path: Path, node_rig: NodeRigFactory
+) -> None:
+    """The arm rests 0.1 rad from the first estimate's solution: the planner sends a planned
+    approach (laser off) and streams only once the arm rests there, from there."""
+    text = (SCENARIOS / "breathing.yaml").read_text().replace(
+        "rpy_deg: [40, 0, 0]}", "rpy_deg: [40, 0, 0]}\n    gate: {robot: arm0, output: 0}")  # fmt: skip
+    path = tmp_path / "breathing_gated.yaml"
+    path.write_text(text)
+    handler = handler_from_scenario(path)
+    q1 = BeamIK(handler.system).solve(np.array(P0), np.array([0, 0, 1.0])).q
+    assert q1 is not None
+    q0 = q1 + np.array([0.0, 0.0, 0.0, 0.1, 0.0, 0.0])
+    node, client, fake = node_rig(handler, q0)
+    fake.arrive = True
+    setpoints = Inbox(client, f"{PREFIX}/arm0/setpoint")
+    ok, reply = request(client, "far", mode="track", execute=True, duration=0.5)
+    assert ok and reply["execution"] == "accepted", reply
+    approach = [t for t in fake.trajectories if t["id"].endswith(".approach")]
+    assert len(approach) == 1 and not approach[0].get("laser_on")
+    np.testing.assert_allclose(approach[0]["q"][0], q0, atol=1e-9)
+    from planner.beam.trace import trace_beam
+
+    q_end = np.asarray(approach[0]["q"][-1])  # the move ends on the target (numpy beam)
+    assert trace_beam(handler.system, q_end, np.array(P0), np.array([0, 0, 1.0])).error < 1e-4
+    client.put(f"{PREFIX}/targets/stream", frame("far", list(P0)))
+    wait_for(lambda: len(setpoints.bodies()) > 5, 3.0, "setpoints")
+    first = setpoints.bodies()[0]
+    assert np.max(np.abs(np.asarray(first["q"]) - q_end)) < 0.01  # streamed from there
+    wait_for(lambda: not node.track.active, 5.0, "the track session to end")
+
+
+def test_a_track_request_may_only_tighten_the_laser_on_tolerance(rig: NodeRig) -> None:
+    _, client, _ = rig
+    ok, reply = request(client, "loose", mode="track", execute=True, tolerance=0.02)
+    assert not ok and reply["field"] == "tolerance"
+    assert "may only tighten the tracking laser-on tolerance 1 mm, got 20 mm" in reply["error"]
