@@ -54,8 +54,9 @@ EDGE_SLACK = 1e-6  # s
 READBACK_GRACE = 0.030
 #: speed fraction below which an interval counts as slowed (the slider's float noise)
 SPEED_SLACK = 1e-3
-#: longest period (s) charged to the on-time; a longer gap is charged as this much
-MAX_CHARGE = 0.1
+#: s the gate output must stay dark before the on-time and spot-energy accumulators restart
+#: (a dwell split into short intervals is one exposure)
+COOL_DOWN = 0.5  # the planner's check (planner.service.emission) counts the same way
 
 
 @dataclass(frozen=True)
@@ -127,7 +128,9 @@ class LaserGate:
         self.spent: str | None = None  # latched session-energy limit
         self.reason: str | None = None  # why the outputs are as they are
         self._bits = 0  # commanded output levels (bit k = output k)
-        self._written = -float("inf")  # monotonic s of the last write that changed a level
+        self._written: dict[int, float] = {}  # output -> monotonic s of its last level change
+        self._confirmed: dict[int, bool] = {}  # output -> its last level change was read back
+        self.dark = 0.0  # s the gate output has been off
         self._last: float | None = None  # monotonic s of the last update
         self.mismatches = 0
 
@@ -138,16 +141,26 @@ class LaserGate:
         return None if self.rules.power is None else self.rules.power * self.total_on
 
     # -- the period ---------------------------------------------------------------------------
+    @property
+    def _aim_is_gate(self) -> bool:
+        """``aim: gate``: the aiming beam is the gate output itself (a diagnostic diode)."""
+        return self.rules.aim_output == self.rules.gate_output
+
     def update(self, m: Any, fault: str | None, streamed: bool = False, aim: bool = False,
-               chain: str | None = None) -> str | None:  # fmt: skip
+               chain: str | None = None, late: str | None = None) -> str | None:  # fmt: skip
         """This period's outputs from the follower, the newest setpoint's ``streamed``
-        (laser_on) and ``aim``, the backend ``fault`` and the node's ``chain`` reason (an
-        arm of the beam chain not live). Returns why the motion must be aborted, if so."""
+        (laser_on) and ``aim``, the backend ``fault``, the node's ``chain`` reason (an arm of
+        the beam chain not live) and ``late`` (why a streamed laser_on is not honoured: a
+        late setpoint). Returns why the motion must be aborted, if so."""
         now = self.clock()
         self._charge(now)
-        abort = self._check_readback(m, now)
+        latched = self.fault
+        self._check_readback(m, now)
+        if self.fault is not None and latched is None:  # latched now: abort once
+            self.force_off(self.fault)
+            return self.fault
         follower = self.backend.follower
-        healthy = fault is None and abort is None and self.fault is None
+        healthy = fault is None and self.fault is None
         streaming = follower.mode == "streaming"
         edge = follower.laser_edge() if healthy else None
         treat = edge is not None or (healthy and streamed and streaming)
@@ -157,19 +170,26 @@ class LaserGate:
             and healthy
             and (aim_edge is not None or (aim and streaming))
         )
-        if treat:
-            block = self._blocked(m, chain)
-            if block is not None:
-                treat, abort = False, block
+        abort = None
+        for lit in ("treat", "aim"):  # the gate output is held to every limit, aim or not
+            if treat if lit == "treat" else want_aim and self._aim_is_gate:
+                block = self._blocked(m, chain)
+                if block is not None:
+                    treat, want_aim, abort = False, False, block
         if abort is not None:
             self.force_off(abort)
             return abort
+        gate_wanted = treat or (want_aim and self._aim_is_gate)
+        gate_dark = not self.on and not (self.aim and self._aim_is_gate)
+        if gate_wanted and gate_dark and not self._confirmed_off(self.rules.gate_output):
+            treat = False  # on again only once the last off is read back
+            want_aim = want_aim and not self._aim_is_gate
         if treat == self.on and want_aim == self.aim:
             return None
         if treat:
             why = "laser_on interval" if edge is not None else "setpoint laser_on"
         elif self.on:
-            why = fault or ("setpoint laser off" if streaming else "interval ended")
+            why = fault or (late or "setpoint laser off" if streaming else "interval ended")
         elif want_aim:
             why = "aim interval" if aim_edge is not None else "setpoint aim"
         else:
@@ -179,26 +199,36 @@ class LaserGate:
         return None
 
     def _charge(self, now: float) -> None:
-        """Charge the time since the last update to the treatment on-time."""
-        if self._last is not None and self.on:
-            dt = min(max(now - self._last, 0.0), MAX_CHARGE)
-            self.on_time += dt
-            self.total_on += dt
+        """Charge the time since the last update to the gate output's on-time (treatment,
+        and the aim too when it is the gate output): the whole elapsed time, so a stalled
+        loop is charged what it emitted. The accumulators restart after :data:`COOL_DOWN` s
+        dark, so splitting one dwell into short intervals does not reset them."""
+        if self._last is not None:
+            dt = max(now - self._last, 0.0)
+            if self.on or (self.aim and self._aim_is_gate):
+                self.on_time += dt
+                self.total_on += dt
+                self.dark = 0.0
+            else:
+                self.dark += dt
+                if self.dark >= COOL_DOWN:
+                    self.on_time = 0.0
         self._last = now
 
     def _blocked(self, m: Any, chain: str | None) -> str | None:
-        """Why treatment may not be on this period (rules 1-5 of the module docstring)."""
+        """Why the gate output may not be on this period (rules 1-5 of the module docstring)."""
         r = self.rules
         if self.spent is not None:
             return self.spent
         energy = self.session_energy
         cap = r.max_session_energy
-        if cap is not None and energy is not None and energy >= cap:
+        period = 1.0 / max(float(getattr(self.backend, "rate", 500.0)), 1.0)
+        if (cap is not None and energy is not None and r.power is not None
+                and energy + r.power * period > cap * (1 + 1e-9)):  # fmt: skip
             self.spent = (f"max_session_energy {cap:g} J reached ({energy:.4g} J emitted): "
                           "restart the driver to treat again")  # fmt: skip
             return self.spent
         limit = r.on_limit()
-        period = 1.0 / max(float(getattr(self.backend, "rate", 500.0)), 1.0)
         if limit is not None and self.on_time + period > limit[0] + EDGE_SLACK:
             return (f"{limit[1]} reached: treatment on {self.on_time:.3f} s "
                     f"(limit {limit[0]:.3f} s); motion aborted")  # fmt: skip
@@ -229,31 +259,48 @@ class LaserGate:
                 f"{1e3 * self.rules.following_tolerance:g} mm; joint {j} "
                 f"{1e3 * dq[j]:.2f} mrad from its command): treatment off, motion aborted")  # fmt: skip
 
-    def _check_readback(self, m: Any, now: float) -> str | None:
-        """Rule 6: the outputs read back against the commanded levels."""
+    def _mask(self) -> list[int]:
+        outs = [self.rules.gate_output]
+        if self.rules.aim_output is not None and self.rules.aim_output not in outs:
+            outs.append(self.rules.aim_output)
+        return outs
+
+    def _mismatch(self, m: Any, now: float) -> str | None:
+        """Rule 6 for the outputs read back in ``m``: each output must read its commanded
+        level, except within :data:`READBACK_GRACE` s of its own last write (then either
+        level), which also marks whether its last write is confirmed."""
         bits = getattr(m, "outputs", None)
-        if bits is None or now - self._written < READBACK_GRACE:
-            return None
-        mask = 1 << self.rules.gate_output
-        if self.rules.aim_output is not None:
-            mask |= 1 << self.rules.aim_output
-        wrong = (int(bits) ^ self._bits) & mask
-        if not wrong:
-            return None
-        self.mismatches += 1
-        k = (wrong & -wrong).bit_length() - 1
-        reads = "high" if int(bits) >> k & 1 else "low"
-        said = "high" if self._bits >> k & 1 else "low"
-        self.fault = (f"laser output {k} reads {reads}, commanded {said} "
-                      "(read-back mismatch): laser off, motion aborted")  # fmt: skip
-        return self.fault
+        for k in self._mask():
+            if bits is None:  # a backend that cannot read back: nothing to confirm
+                self._confirmed[k] = True
+                continue
+            said, reads = bool(self._bits >> k & 1), bool(int(bits) >> k & 1)
+            if said == reads:
+                self._confirmed[k] = True
+            elif now - self._written.get(k, -float("inf")) >= READBACK_GRACE:
+                return (f"laser output {k} reads {'high' if reads else 'low'}, commanded "
+                        f"{'high' if said else 'low'} (read-back mismatch): laser off, "
+                        "motion aborted")  # fmt: skip
+        return None
+
+    def _check_readback(self, m: Any, now: float) -> None:
+        """Latch a read-back mismatch as :attr:`fault`."""
+        wrong = self._mismatch(m, now)
+        if wrong is not None and self.fault is None:
+            self.mismatches += 1
+            self.fault = wrong
+
+    def _confirmed_off(self, k: int) -> bool:
+        """Whether output ``k``'s last write was read back (an output may switch on again
+        only once its previous off is confirmed: a stuck-high output toggled faster than
+        the grace would otherwise never be seen)."""
+        return self._confirmed.get(k, True)
 
     def recover(self, m: Any) -> str:
         """Clear a read-back fault once the outputs read as commanded (all off)."""
         if self.fault is None:
             return "laser outputs: no fault"
-        bits = getattr(m, "outputs", None)
-        if bits is not None and self._check_readback(m, float("inf")) is not None:
+        if self._mismatch(m, float("inf")) is not None:
             return f"laser outputs still faulted: {self.fault}"
         self.fault = None
         self.reason = "read-back fault cleared"
@@ -282,15 +329,14 @@ class LaserGate:
             if force or level != old:
                 self.backend.set_output(output, level)
                 if level != old:
-                    self._written = self.clock()
+                    self._written[output] = self.clock()
+                    self._confirmed[output] = False
         latency = self.clock() - self.period_start
         changed = on != self.on or aim != self.aim
         if on != self.on:
             lag = tau - edge if edge is not None else 0.0
             self.switches.append(GateSwitch(on, edge, tau, lag, latency, reason))
             del self.switches[:-MAX_SWITCHES]
-        if not on:
-            self.on_time = 0.0
         self.on, self.aim = on, aim
         self.reason = reason
         if changed or force:

@@ -284,9 +284,11 @@ class RobotNode(StreamingMixin, LoopNode):
         if self.streams.active is not None and m.mode != "streaming":
             self._safe_stop(f"arm left the stream: {m.fault or m.mode}")
         if self.gate is not None:
-            fresh = self.streams.silent(now) <= LATE_SETPOINT  # treatment only on time
+            silent = self.streams.silent(now)
+            fresh = silent <= LATE_SETPOINT  # treatment only on time
+            late = None if fresh else f"late setpoint: none for {1e3 * silent:.0f} ms"
             abort = self.gate.update(m, m.fault, self.streams.laser_on and fresh,
-                                     self.streams.aim, self._chain_fault())  # fmt: skip
+                                     self.streams.aim, self._chain_fault(), late)  # fmt: skip
             if abort is not None:
                 self._safe_stop(abort)
         if self._tick % self._state_every == 0 and not m.stale:
@@ -388,6 +390,9 @@ class RobotNode(StreamingMixin, LoopNode):
         gate = self.gate
         if laser_on and gate is not None and (gate.fault or gate.spent):
             raise InputError(f"the laser is locked out: {gate.fault or gate.spent}", "laser_on")
+        aim_is_gate = self.emission is not None and self.emission.aim_output == self.gate_output
+        if aim_on and aim_is_gate and gate is not None and (gate.fault or gate.spent):
+            raise InputError(f"the laser is locked out: {gate.fault or gate.spent}", "aim_on")
 
     def _admissible(self, received: float, session: str | None) -> None:
         """Rules 2 and 3 of the module docstring (InputError if not)."""

@@ -414,7 +414,7 @@ def execute_on_node(node: Any, plan: dict[str, Any], targets: Targets, req: Any,
     predicted_key = f"{node.keys.prefix}/camera/predicted"
 
     def predict(p_camera: Array, t: float) -> None:  # the camera's gated detector looks there
-        body = {"p_camera": [float(x) for x in p_camera], "t": t}
+        body = {"schema": "beamrelay.predicted/1", "p_camera": [float(x) for x in p_camera], "t": t}
         node.session.put(predicted_key, json.dumps(body).encode(), encoding="application/json")
 
     motion = Motion(send, rest_at, node.spots, node.stop_seen, node.progress.tick, laser,

@@ -245,3 +245,58 @@ def test_a_following_error_above_the_tolerance_switches_treatment_off(
         )
     else:
         assert rig.on_seconds() == pytest.approx(0.5, abs=2 * DT) and rig.node.stopped_by is None
+
+
+class StuckHigh(SimRobot):
+    """A simulated arm whose gate output is welded high once it was switched on."""
+
+    def set_output(self, output: int, on: bool) -> None:
+        super().set_output(output, on or (output == GATE and self.output(GATE)))
+
+
+def test_a_stuck_high_output_toggled_faster_than_the_grace_is_found() -> None:
+    """20 ms on / 20 ms off intervals (shorter than the read-back grace) on a welded output:
+    the gate may open again only once its last off is read back, so the weld is found
+    within the grace of the first off."""
+    rig = EmissionRig()
+    rig.sim = StuckHigh(JOINT_NAMES_UR, HOME, LIMITS, realtime=False)
+    rig.node = RobotNode(rig.bus, KEYS, "arm0", rig.sim, LIMITS, clock=rig.clock,
+                         emission=rig.node.emission).attach()  # fmt: skip
+    rig.bus.token(KEYS.alive("planner"))
+    rig.period(3)
+    spans = [[0.1 + 0.04 * k, 0.12 + 0.04 * k] for k in range(30)]
+    rig.hold(1.5, laser_on=spans)
+    rig.period(int(0.14 / DT))  # the first interval's off at 0.12 s, then 20 ms of grace
+    n = 0
+    while rig.node.gate is not None and rig.node.gate.fault is None and n < 200:
+        rig.period(1)
+        n += 1
+    first_off = 0.12 + 3 * DT  # + the periods before the trajectory started
+    found = 0.14 + 3 * DT + n * DT - first_off
+    print(f"weld found {1e3 * found:.0f} ms after the first commanded off")
+    assert rig.node.gate is not None and rig.node.gate.fault is not None
+    assert "laser output 0 reads high, commanded low" in rig.node.gate.fault
+    assert found <= READBACK_GRACE + 4 * DT  # the grace, plus the periods of the edge
+    assert rig.modes[-1] in ("braking", "stopped")
+
+
+def test_a_dwell_split_into_short_intervals_is_one_exposure() -> None:
+    """20 intervals of 0.19 s with 4 ms gaps at one spot: max_on 0.25 s counts them as one."""
+    rig = EmissionRig(max_on=0.25)
+    rig.period(3)
+    spans = [[0.1 + 0.194 * k, 0.29 + 0.194 * k] for k in range(20)]
+    rig.hold(4.2, laser_on=spans)
+    rig.period(2200)
+    assert rig.on_seconds() == pytest.approx(0.25, abs=3 * DT)
+    assert "max_on 0.25 s reached" in (rig.node.stopped_by or "")
+
+
+def test_aim_gate_is_held_to_the_limits_too() -> None:
+    """aim: gate: the diode lit for a measurement is the gate output; max_on cuts it, and the
+    speed rule holds."""
+    rig = EmissionRig(aim_output=GATE, max_on=0.25)
+    rig.period(3)
+    rig.hold(2.0, aim_on=[[0.1, 1.9]])
+    rig.period(1200)
+    assert rig.on_seconds() == pytest.approx(0.25, abs=3 * DT)
+    assert "max_on 0.25 s reached" in (rig.node.stopped_by or "")

@@ -17,9 +17,10 @@ LASER = {"power": 0.05, "limits": {"max_on": 2.0, "max_spot_energy": 0.05,
 @pytest.mark.parametrize(
     "spans, text",
     [([[0.0, 0.9]], None),  # 0.045 J, 0.9 s
-     ([[0.0, 1.2]], "interval 0 delivers 0.06 J (1.200 s at 0.05 W), over laser.limits.max_spot_energy 0.05 J"),
-     ([[0.0, 0.9], [1.0, 1.9], [2.0, 2.9]], "delivers 0.135 J, over laser.limits.max_session_energy 0.12 J"),
-     ([[1.0, 1.5], [2.0, 4.5]], "interval 1 lasts 2.500 s, over laser.limits.max_on 2 s")],
+     ([[0.0, 1.2]], "t = 0.000 s delivers 0.06 J (1.200 s at 0.05 W), over laser.limits.max_spot_energy 0.05 J"),
+     ([[0.0, 0.9], [1.5, 2.4], [3.0, 3.9]], "delivers 0.135 J, over laser.limits.max_session_energy 0.12 J"),
+     ([[0.0, 0.6], [0.7, 1.3]], "from t = 0.000 s delivers 0.06 J (1.200 s"),  # one exposure
+     ([[1.0, 1.5], [2.0, 4.5]], "from t = 2.000 s lasts 2.500 s, over laser.limits.max_on 2 s")],
 )  # fmt: skip
 def test_intervals_are_checked_against_each_limit(
     spans: list[list[float]], text: str | None
@@ -48,4 +49,4 @@ def test_execution_refuses_a_trajectory_over_a_limit_without_sending_it() -> Non
             "trajectory": {"t": [0.0, 2.0], "laser_on": [[0.5, 1.9]]}}  # fmt: skip
     ex.execute(plan, "r1", "S")
     assert plan["execution"] == "rejected" and not sent
-    assert "not sent: laser_on interval 0 delivers 0.07 J" in plan["execution_reason"]
+    assert "not sent: the exposure from t = 0.500 s delivers 0.07 J" in plan["execution_reason"]
