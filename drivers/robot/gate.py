@@ -20,7 +20,7 @@ and ``laser.power``) keeps treatment off, and asks the node to abort the motion,
 4. the speed fraction (slider, pause, reduced mode) is below 1 inside an interval: the
    planned exposure would stretch;
 5. an arm of the beam chain is not live and following (the node's ``chain`` reason);
-5a. the following error ``|q_measured - q_commanded|`` (commanded: the reference
+5a. the following error ``|q_measured - q_commanded|`` (commanded: the follower's command
    ``backend.following_lag`` s earlier, the controller's smoothing delay) maps through the
    beam Jacobian's gain (:func:`drivers.robot.following.spot_gain`) to a spot error above
    ``following_tolerance`` (m);
@@ -39,6 +39,7 @@ Times in s, energies in J.
 from __future__ import annotations
 
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -54,6 +55,8 @@ EDGE_SLACK = 1e-6  # s
 READBACK_GRACE = 0.030
 #: speed fraction below which an interval counts as slowed (the slider's float noise)
 SPEED_SLACK = 1e-3
+#: periods of commanded joints kept for the following check (0.4 s at 500 Hz)
+COMMAND_HISTORY = 200
 #: s the gate output must stay dark before the on-time and spot-energy accumulators restart
 #: (a dwell split into short intervals is one exposure)
 COOL_DOWN = 0.5  # the planner's check (planner.service.emission) counts the same way
@@ -131,6 +134,7 @@ class LaserGate:
         self._written: dict[int, float] = {}  # output -> monotonic s of its last level change
         self._confirmed: dict[int, bool] = {}  # output -> its last level change was read back
         self.dark = 0.0  # s the gate output has been off
+        self._commands: deque[tuple[float, Any]] = deque(maxlen=COMMAND_HISTORY)
         self._last: float | None = None  # monotonic s of the last update
         self.mismatches = 0
 
@@ -154,6 +158,7 @@ class LaserGate:
         late setpoint). Returns why the motion must be aborted, if so."""
         now = self.clock()
         self._charge(now)
+        self._commands.append((now, np.array(self.backend.follower.q, dtype=float)))
         latched = self.fault
         self._check_readback(m, now)
         if self.fault is not None and latched is None:  # latched now: abort once
@@ -242,14 +247,14 @@ class LaserGate:
 
     def _following(self, m: Any) -> str | None:
         """Rule 5a: the spot error of the following error, above the tolerance."""
-        gain, f = self.rules.following_gain, self.backend.follower
-        if gain is None or getattr(m, "q", None) is None:
+        gain = self.rules.following_gain
+        if gain is None or getattr(m, "q", None) is None or not self._commands:
             return None
-        if f.mode == "following" and f.reference is not None:
-            lag = float(getattr(self.backend, "following_lag", 0.0))
-            q_cmd = f.reference.sample(max(f.tau - lag, 0.0))[0]
-        else:
-            q_cmd = f.q
+        # the command the arm should have reached by now: ``following_lag`` s ago (the
+        # controller's smoothing delay; 0 for the sim)
+        lag = float(getattr(self.backend, "following_lag", 0.0))
+        due = self.clock() - lag
+        q_cmd = next((q for t, q in reversed(self._commands) if t <= due), self._commands[0][1])
         dq = np.abs(np.asarray(m.q, dtype=float) - np.asarray(q_cmd, dtype=float))
         err = float(np.asarray(gain) @ dq)
         if err <= self.rules.following_tolerance:

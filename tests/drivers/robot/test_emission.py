@@ -300,3 +300,48 @@ def test_aim_gate_is_held_to_the_limits_too() -> None:
     rig.period(1200)
     assert rig.on_seconds() == pytest.approx(0.25, abs=3 * DT)
     assert "max_on 0.25 s reached" in (rig.node.stopped_by or "")
+
+
+class DelayedArm(SimRobot):
+    """A simulated arm that reaches its command ``delay`` periods late (a servoJ lookahead)."""
+
+    delay = 25
+    following_lag = 0.0
+
+    def __init__(self, *a: Any, **kw: Any) -> None:
+        super().__init__(*a, **kw)
+        self.history: list[np.ndarray] = []
+
+    def measured(self) -> Any:
+        m = super().measured()
+        self.history.append(m.q.copy())
+        return m._replace(q=self.history[max(len(self.history) - 1 - self.delay, 0)])
+
+
+@pytest.mark.parametrize("lag, trips", [(0.0, True), (0.05, False)])
+def test_the_following_check_allows_for_the_controllers_known_lag(lag: float, trips: bool) -> None:
+    """A sweep at 0.2 rad/s on an arm 50 ms behind its command: 10 mrad of lag, 10 mm of
+    spot at 1 mm/mrad. Compared with the command 50 ms earlier (the backend's known lag) it
+    is on track; compared with the current command it is not."""
+    rig = EmissionRig(following_gain=(0.0, 0.0, 0.0, 1.0, 0.0, 0.0), following_tolerance=1e-3)
+    rig.sim = DelayedArm(JOINT_NAMES_UR, HOME, LIMITS, realtime=False)
+    rig.sim.following_lag = lag
+    rig.node = RobotNode(rig.bus, KEYS, "arm0", rig.sim, LIMITS, clock=rig.clock,
+                         emission=rig.node.emission).attach()  # fmt: skip
+    rig.bus.token(KEYS.alive("planner"))
+    rig.period(30)
+    t = np.arange(0.0, 1.0 + DT / 2, DT)
+    s = np.clip((t - 0.1) / 0.8, 0, 1)  # a smooth ramp of wrist_1 by 0.1 rad
+    smooth = s * s * (3 - 2 * s)
+    q = np.tile(HOME, (len(t), 1))
+    q[:, 3] += 0.1 * smooth
+    qd = np.gradient(q, DT, axis=0)
+    qdd = np.gradient(qd, DT, axis=0)
+    rig.node._decide(
+        Verdict(rig.clock.t, "sweep", "S", Reference(t, q, qd, qdd, np.array([[0.3, 0.7]])), None)
+    )
+    rig.period(700)
+    if trips:
+        assert rig.on_seconds() < 0.05 and "following error" in (rig.node.stopped_by or "")
+    else:
+        assert rig.on_seconds() == pytest.approx(0.4, abs=3 * DT) and rig.node.stopped_by is None
