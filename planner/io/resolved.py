@@ -58,7 +58,7 @@ def _system_dict(system: System, model: SystemModel, scn: LoadedScenario) -> dic
             | {"home": r.home.tolist(), "limits": limits, "mirror": mirror}
         )
     laser = {"world_T_laser": _pose(system.world_T_laser)}
-    laser |= model.laser.model_dump(include={"power", "gate", "beam_radius"}, exclude_none=True)
+    laser |= model.laser.model_dump(include={"power", "gate"}, exclude_none=True)
     out: dict[str, Any] = {"laser": laser, "robots": robots}
     if system.camera is not None:
         k = system.camera.intrinsics
@@ -108,6 +108,7 @@ def resolved_scenario_dict(scn: LoadedScenario) -> dict[str, Any]:
         "trajectory": m.trajectory.model_dump(),
         "include": [],
     }
+    out["system"]["laser"]["beam_radius"] = m.system.laser.beam_radius  # the safety margin
     if scn.truth_system is not None:
         truth = system_from_scenario(scn, truth=True)
         out["truth"] = {"system": _system_dict(truth, scn.truth_system, scn)}
