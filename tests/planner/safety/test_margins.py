@@ -18,7 +18,6 @@ import numpy as np
 import pytest
 from ruamel.yaml import YAML
 
-from planner.calibration.report import spot_rms
 from planner.ik import BeamIK, IKOptions
 from planner.io.resolved import resolved_scenario_dict
 from planner.io.scenario import load_scenario, system_from_scenario
@@ -26,7 +25,6 @@ from planner.model.system import System
 from planner.model.transforms import make_T
 from planner.safety import sphere
 from planner.safety.model import Safety, SafetySettings
-from schemas.calibration import report_spot_uncertainty
 from tests.paths import REPO
 
 OPTS = IKOptions(max_incidence=np.radians(80))
@@ -133,6 +131,9 @@ def test_the_scenario_margin_comes_from_beam_radius_and_the_included_calibration
 
 
 def test_beam_calibration_reports_its_rms_spot_residual() -> None:
+    from planner.calibration.report import spot_rms
+    from schemas.calibration import report_spot_uncertainty
+
     r = np.array([0.001, 0.002, np.nan, 0.003])
     assert spot_rms(r) == pytest.approx(np.sqrt((1 + 4 + 9) / 3) * 1e-3)
     assert report_spot_uncertainty({"kind": "beam", "spot_uncertainty": 0.0007}) == 0.0007
