@@ -7,6 +7,7 @@ frame).
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any, Literal, Self
 
 from pydantic import Field, model_validator
@@ -120,6 +121,24 @@ class BeamDataset(StrictModel):
             if self.robot not in s.q:
                 raise FieldError(("samples", i, "q"), f"has no joints for robot {self.robot!r}")
         return self
+
+
+def report_spot_uncertainty(report: Any) -> float:
+    """The spot uncertainty (m) a calibration ``report`` gives: its ``spot_uncertainty``,
+    else for a beam calibration the RMS of its spot residuals (from ``residuals.mean`` and
+    ``residuals.std``: sqrt(mean^2 + std^2)), else 0 (a hand-eye result reports none)."""
+    if not isinstance(report, dict):
+        return 0.0
+    value = report.get("spot_uncertainty")
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        return max(float(value), 0.0)
+    res = report.get("residuals")
+    if report.get("kind") != "beam" or not isinstance(res, dict):
+        return 0.0
+    mean, std = res.get("mean"), res.get("std")
+    if not all(isinstance(x, int | float) and math.isfinite(x) for x in (mean, std)):
+        return 0.0
+    return math.hypot(float(mean), float(std))  # type: ignore[arg-type]
 
 
 class CalibrationFile(StrictModel):

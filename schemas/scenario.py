@@ -446,20 +446,34 @@ class KeepOutObject(StrictModel):
 #: m: the largest clearance accepted (a larger value is almost surely millimetres)
 MAX_CLEARANCE = 0.5
 
+#: keep-out and beam-vs-arm volumes grow by beam_radius + this x the spot uncertainty
+UNCERTAINTY_K = 3.0
+
+
+def safety_margin(beam_radius: float, spot_uncertainty: float) -> float:
+    """m by which keep-out volumes and arm parts are inflated for the beam checks:
+    ``beam_radius`` + :data:`UNCERTAINTY_K` x ``spot_uncertainty`` (both m)."""
+    return float(beam_radius) + UNCERTAINTY_K * float(spot_uncertainty)
+
 
 class Safety(StrictModel):
     """Hard safety margins. ``clearance`` (m): the least distance arm-arm, arm-scene and
     beam-arm; ``return_cone_deg``: a reflected beam passing within ``return_radius`` (m) of
     the laser exit (or the camera centre) travelling back within this angle of the laser
-    axis (the camera's optical axis) counts as entering the laser aperture (the lens)."""
+    axis (the camera's optical axis) counts as entering the laser aperture (the lens).
+    ``spot_uncertainty`` (m): the spot uncertainty of the calibration, filled in from the
+    included calibration's ``report.spot_uncertainty`` (the largest of the file's own value
+    and every include's; resolved plans echo it); keep-out and beam-vs-arm volumes are
+    inflated by ``laser.beam_radius`` + :data:`UNCERTAINTY_K` x this."""
 
     clearance: NonNegNum = 0.01
     return_cone_deg: Annotated[PosNum, Field(le=90)] = 10.0
     return_radius: PosNum = 0.01
+    spot_uncertainty: NonNegNum = 0.0
 
     @model_validator(mode="after")
     def _plausible(self) -> Self:
-        for key in ("clearance", "return_radius"):
+        for key in ("clearance", "return_radius", "spot_uncertainty"):
             value = getattr(self, key)
             if value > MAX_CLEARANCE:
                 raise FieldError(

@@ -33,6 +33,14 @@ def residual_stats(norms: Array) -> dict[str, float | int]:
     }
 
 
+def spot_rms(norms: Array) -> float:
+    """RMS (m) of spot residual norms (NaN ignored): the beam calibration's reported spot
+    uncertainty (``report.spot_uncertainty``; safety margins use 3 x it)."""
+    x = np.asarray(norms, dtype=float)
+    x = x[np.isfinite(x)]
+    return float(np.sqrt(np.mean(x**2))) if x.size else 0.0
+
+
 def pose_dict(T: Array) -> dict[str, list[float]]:
     """A pose as ``{xyz, quat}`` (quat ``[x, y, z, w]``) at full float precision."""
     return {
@@ -117,6 +125,7 @@ def beam_document(result: BeamResult, dataset: str = "") -> dict[str, Any]:
         "dataset": dataset,
         "calibrated": calibrated,
         "residuals": residual_stats(result.residuals) | {"per_sample": _vec(result.residuals)},
+        "spot_uncertainty": spot_rms(result.residuals),
         "std": {k: float(v) for k, v in result.std.items()},
         "std_units": "rx/ry in rad, t* in m; laser in laser axes, mirror in mirror axes",
         "unobservable": list(result.unobservable),

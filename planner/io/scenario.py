@@ -34,7 +34,7 @@ from planner.model.system import (
     Targets,
 )
 from planner.model.transforms import Array, transform_points
-from schemas.calibration import CalibrationFile
+from schemas.calibration import CalibrationFile, report_spot_uncertainty
 from schemas.common import FieldError
 from schemas.located import Loc, Origins, merge_partial, rebase_origins, validate, where
 from schemas.scenario import Camera as CameraModel
@@ -168,6 +168,11 @@ def _apply_include(
         raise ScenarioError(f"include file not found: {inc_shown}", place)
     inc, inc_origins = read_yaml(path, ScenarioError, shown=inc_shown)
     validate(CalibrationFile, inc, origins=inc_origins, source=inc_shown, error_cls=ScenarioError)
+    u = report_spot_uncertainty(inc.get("report")) if isinstance(inc, dict) else 0.0
+    safety = data.setdefault("safety", {}) if u > 0 else None
+    if isinstance(safety, dict) and u > float(safety.get("spot_uncertainty") or 0.0):
+        safety["spot_uncertainty"] = u  # the safety margin grows by 3 x it (SPEC section 4)
+        origins[("safety", "spot_uncertainty")] = (inc_shown, 0)
     if isinstance(inc, dict) and inc.get("system"):
         over = {"system": inc["system"]}
         merge_partial(

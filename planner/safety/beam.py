@@ -91,9 +91,14 @@ def _as_points(points: Array) -> Array:
 
 
 def beam_arm(
-    world: SafetyWorld, q: Array, points: Array, clearance: float = DEFAULT_CLEARANCE
+    world: SafetyWorld,
+    q: Array,
+    points: Array,
+    clearance: float = DEFAULT_CLEARANCE,
+    margin: float = 0.0,
 ) -> list[Clearance]:
-    """Every beam segment against every part of every robot at stacked joints ``q`` (rad)."""
+    """Every beam segment against every part of every robot at stacked joints ``q`` (rad);
+    every part inflated by ``margin`` (m)."""
     P = _as_points(points)
     world.update(q)
     n = world.system.n_robots
@@ -116,7 +121,7 @@ def beam_arm(
                     f"beam[{k}]",
                     part.name,
                     d,
-                    0.0 if own else clearance,
+                    (0.0 if own else clearance) + margin,
                     pa,
                     pb,
                     nrm,

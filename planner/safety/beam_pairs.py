@@ -8,7 +8,8 @@ keep-out volumes (the same coal shapes) and the N + 1 beam segments (coal capsul
 against every robot part, except a segment that starts or ends on a robot's mirror against
 that mirror plate (the beam touches it by construction); such a segment must only not touch
 that robot's other parts, every other part keeps the clearance; every segment against every
-keep-out volume must not enter it. Each pair's security margin is its required distance, so
+keep-out volume must not enter it; every required distance grows by the safety margin
+(beam radius + 3 x the calibration's spot uncertainty). Each pair's security margin is its required distance, so
 ``computeCollisions`` answers "any violation?" in C++; distances (the evidence) are computed
 only for the pairs it flags. World frame, metres.
 """
@@ -30,9 +31,11 @@ def _se3(T: Array) -> pin.SE3:
 class BeamPairs:
     """Beam segments vs arm parts and keep-out volumes of ``world`` (module docstring);
     ``clearance`` (m) is the distance every part keeps from a segment that does not touch
-    its own robot's mirror."""
+    its own robot's mirror; ``margin`` (m) inflates every part and keep-out volume (beam
+    radius + 3 x the calibration's spot uncertainty): a segment keeps ``margin`` from a
+    keep-out volume and from its own robot's parts, ``clearance + margin`` from the others."""
 
-    def __init__(self, world: SafetyWorld, clearance: float) -> None:
+    def __init__(self, world: SafetyWorld, clearance: float, margin: float = 0.0) -> None:
         import coal
 
         self.world = world
@@ -53,12 +56,12 @@ class BeamPairs:
         for k, seg in enumerate(self.segments):
             for j, p in enumerate(src):
                 if p.kind is PartKind.KEEP_OUT:
-                    self._pair(gm, Check.BEAM_KEEP_OUT, k, seg, j, 0.0)
+                    self._pair(gm, Check.BEAM_KEEP_OUT, k, seg, j, margin)
                     continue
                 own = p.robot in (k - 1, k)
                 if own and p.kind is PartKind.MIRROR:
                     continue
-                self._pair(gm, Check.BEAM_ARM, k, seg, j, 0.0 if own else clearance)
+                self._pair(gm, Check.BEAM_ARM, k, seg, j, (0.0 if own else clearance) + margin)
         self.model = gm
         self.data = pin.GeometryData(gm)
         for req, (_, _, _, required) in zip(self.data.collisionRequests, self.pair_info,
@@ -110,6 +113,6 @@ class BeamPairs:
         return self._records(hit)
 
     def keep_out_violations(self) -> list[Clearance]:
-        """The segment - keep-out pairs below 0 (after :meth:`place`; arm parts ignored)."""
+        """The segment - keep-out pairs below their margin (after :meth:`place`; arm parts ignored)."""
         hit = [i for i in self.keep_pairs if pin.computeCollision(self.model, self.data, i)]
         return self._records(hit)

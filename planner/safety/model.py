@@ -37,6 +37,7 @@ from planner.safety.beam_pairs import BeamPairs
 from planner.safety.checks import CHECK_OF_PAIR, DEFAULT_CLEARANCE, Check, Clearance, pair_record
 from planner.safety.geometry import PairKind, PartKind, SafetyWorld
 from planner.safety.shapes import Volume, volumes_from_scene_items
+from schemas.scenario import safety_margin
 
 if TYPE_CHECKING:
     from planner.io.scenario import LoadedScenario
@@ -47,23 +48,28 @@ class SafetySettings:
     """``clearance`` (m) arm-arm, arm-scene, beam-arm; a reflected segment within
     ``return_radius`` (m) of the laser exit travelling back within ``return_cone`` (rad) of
     its axis enters the aperture; the same radius within ``lens_cone`` (rad) of the camera's
-    optical axis enters the lens."""
+    optical axis enters the lens. ``margin`` (m) inflates every keep-out volume and arm part
+    for the beam checks: ``laser.beam_radius`` + 3 x the calibration's spot uncertainty
+    (:func:`schemas.scenario.safety_margin`)."""
 
     clearance: float = DEFAULT_CLEARANCE
     return_cone: float = float(np.radians(10.0))
     return_radius: float = 0.01
     lens_cone: float = float(np.radians(45.0))
+    margin: float = 0.0
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any] | None) -> SafetySettings:
+    def from_dict(cls, d: dict[str, Any] | None, beam_radius: float = 0.0) -> SafetySettings:
         """From a scenario's ``safety`` mapping (``clearance``, ``return_cone_deg``,
-        ``return_radius``); missing keys take the defaults."""
+        ``return_radius``, ``spot_uncertainty``) and ``laser.beam_radius`` (m); missing keys
+        take the defaults."""
         d = d or {}
         base = cls()
         return cls(
             clearance=float(d.get("clearance", base.clearance)),
             return_cone=float(np.radians(d.get("return_cone_deg") or np.degrees(base.return_cone))),
             return_radius=float(d.get("return_radius", base.return_radius)),
+            margin=safety_margin(beam_radius, float(d.get("spot_uncertainty") or 0.0)),
         )
 
 
@@ -142,7 +148,8 @@ class Safety:
         ``safety`` settings, for ``system`` (its resolved model)."""
         from planner.io.scenario import keep_out_objects, scene_objects
 
-        settings = SafetySettings.from_dict(scn.model.safety.model_dump())
+        m = scn.model
+        settings = SafetySettings.from_dict(m.safety.model_dump(), m.system.laser.beam_radius)
         scene = volumes_from_scene_items(scene_objects(scn))
         return cls(system, scene, volumes_from_scene_items(keep_out_objects(scn)), settings)
 
@@ -160,7 +167,7 @@ class Safety:
     @cached_property
     def beam_pairs(self) -> BeamPairs:
         """The beam segments against the arm parts and keep-out volumes."""
-        return BeamPairs(self.world, self.settings.clearance)
+        return BeamPairs(self.world, self.settings.clearance, self.settings.margin)
 
     def required(self, kind: PairKind) -> float:
         """Required distance (m) of a collision pair kind (arm-self parts must not touch)."""

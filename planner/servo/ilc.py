@@ -109,11 +109,13 @@ def ilc_update(
     marc, merr = marc[ok][order], merr[ok][order]
     E = np.column_stack([np.interp(arc, marc, merr[:, j]) for j in range(3)])
     dq = np.empty_like(Q)
+    J = []
     for k in range(len(Q)):
         n = None if normals is None else normals[k]
         plane_normal = corrector.model.plane_normal(Q[k], P[k], n)
         sj = corrector.model.evaluate(Q[k], P[k], plane_normal)
         Jp = sj.plane_jacobian
+        J.append(sj.jacobian)
         A = Jp @ Jp.T + s.damping**2 * np.eye(2)
         dq[k] = -s.gain * Jp.T @ np.linalg.solve(A, sj.axes.T @ E[k])
     dq = lowpass_along_arc(arc, dq, s.smoothing)
@@ -122,7 +124,8 @@ def ilc_update(
     Qn = Q + dq
     failures = []
     for k in range(len(Q)):
-        bad = corrector.check(Qn[k], P[k], None if normals is None else normals[k])
+        expected = P[k] + E[k] + J[k] @ dq[k]  # the measured spot + J dq, not the model's
+        bad = corrector.check(Qn[k], P[k], None if normals is None else normals[k], expected)
         if bad is not None:
             failures.append((k, bad))
     return IlcUpdate(Qn, dq, E, failures)

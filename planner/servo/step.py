@@ -11,7 +11,9 @@ A step whose largest joint change exceeds ``max_step`` (rad) is scaled down to i
 configuration must keep every joint within its position limits, the model's beam a valid
 chain on the target (:mod:`planner.model.validity`) and, with safety rules, pass them
 (:class:`planner.safety.Safety`); a step that breaks a rule is refused with the reason and
-its evidence.
+its evidence. The safety rules see the beam ending at the spot the step is expected to
+reach, ``measured spot + J dq`` (world, m; J = d spot / dq of the model at ``q``), not the
+model's spot: the model is off by the calibration error, the measurement is not.
 """
 
 from __future__ import annotations
@@ -114,9 +116,13 @@ class Corrector:
         self.settings = settings or ServoSettings()
         self.model = SpotModel(system)
 
-    def check(self, q: Array, target: Array, normal: Array | None) -> Failure | None:
+    def check(
+        self, q: Array, target: Array, normal: Array | None, spot: Array | None = None
+    ) -> Failure | None:
         """Why stacked joints ``q`` (rad) may not be commanded for ``target`` (world, m; its
-        unit ``normal`` or None): joint limits, the model's beam chain, the safety rules."""
+        unit ``normal`` or None): joint limits, the model's beam chain, the safety rules,
+        these with the beam ending at ``spot`` (world, m: the expected real spot) when given,
+        else at the model's spot."""
         if not np.all(np.isfinite(q)):
             return Failure(Reason.SOLVER_FAILED, "non-finite joint step")
         bad = limit_failure(self.system, q)
@@ -132,7 +138,8 @@ class Corrector:
         if not ahead_ok(tr.ahead).all():
             return Failure(Reason.UNREACHABLE, f"a mirror behind the beam ({tr.ahead.min():.4f} m)")
         if self.safety is not None:
-            P = np.vstack([self.system.world_T_laser[:3, 3], tr.hits, tr.spot])
+            end = tr.spot if spot is None else np.asarray(spot, dtype=float)
+            P = np.vstack([self.system.world_T_laser[:3, 3], tr.hits, end])
             v = self.safety.config(q, P)
             if v is not None:
                 return Failure(Reason(v.reason), v.text)
@@ -143,7 +150,8 @@ class Corrector:
     ) -> Step:
         """The correction of a measured ``error`` (spot - target, world, m) at stacked joints
         ``q`` (rad) for ``target`` (world, m) with its unit ``normal`` (or None); the error is
-        taken in the plane with ``plane_normal`` (:meth:`SpotModel.plane_normal`)."""
+        taken in the plane with ``plane_normal`` (:meth:`SpotModel.plane_normal`). The new
+        joints are checked with the beam ending at ``target + error + J dq``."""
         s = self.settings
         q = np.asarray(q, dtype=float)
         sj = self.model.evaluate(q, target, plane_normal)
@@ -155,7 +163,9 @@ class Corrector:
         if big > s.max_step:
             dq *= s.max_step / big
         q_new = q + dq
-        failure = self.check(q_new, np.asarray(target, dtype=float), normal)
+        target = np.asarray(target, dtype=float)
+        expected = target + np.asarray(error, dtype=float) + sj.jacobian @ dq  # measured + J dq
+        failure = self.check(q_new, target, normal, expected)
         if failure is not None:
             return Step(q, dq, failure, e2)
         return Step(q_new, dq, None, e2)

@@ -9,7 +9,11 @@ arm part but the mirror it reflects off (that robot's other parts must only not 
 touched), never enters a keep-out volume, and does not travel back into the laser aperture
 or the camera lens (within ``safety.return_radius`` m and ``return_cone_deg`` of their
 axes; the lens within :data:`LENS_CONE_DEG`). A solved target inside a keep-out volume is a
-violation. Only UR5e arms are modelled (a URDF arm is reported as not checked); a scene
+violation. Keep-out volumes and arm parts are inflated for the beam by the margin
+``laser.beam_radius`` + :data:`UNCERTAINTY_K` x ``safety.spot_uncertainty`` (the included
+calibration's, echoed in the plan; SPEC section 4), computed here from the echo (a mesh
+volume's planes move out by it: at its edges that is a little more than the margin).
+Only UR5e arms are modelled (a URDF arm is reported as not checked); a scene
 mesh is not re-checked (warning); a cylinder is checked against bounds of its true
 distance, and only a sure violation counts. World frame, metres.
 """
@@ -42,6 +46,8 @@ if TYPE_CHECKING:
 
 #: deg: the camera lens cone (the planner's ``SafetySettings.lens_cone``)
 LENS_CONE_DEG = 45.0
+#: the SPEC's factor on the calibration's spot uncertainty in the safety margin
+UNCERTAINTY_K = 3.0
 #: m: numerical allowance between this geometry and the planner's (coal, GJK 1e-12 m)
 SLACK = 1e-6
 #: configurations measured at once
@@ -76,6 +82,7 @@ class Setup:
     cone: float
     radius: float
     unchecked: list[str]
+    margin: float = 0.0
 
     @classmethod
     def from_plan(cls, plan: dict[str, Any], base_dir: Path) -> Setup:
@@ -101,7 +108,9 @@ class Setup:
         return cls(robots, pose_matrix(sys_["laser"]["world_T_laser"]), camera, scene, keep,
                    float(safety.get("clearance", 0.01)),
                    float(np.radians(safety.get("return_cone_deg", 10.0))),
-                   float(safety.get("return_radius", 0.01)), unchecked)  # fmt: skip
+                   float(safety.get("return_radius", 0.01)), unchecked,
+                   float(sys_["laser"].get("beam_radius") or 0.0)
+                   + UNCERTAINTY_K * float(safety.get("spot_uncertainty") or 0.0))  # fmt: skip
 
     def shapes(self, Q: dict[str, Array]) -> list[list[Shape]]:
         """Per robot (UR5e only; [] for the others) its shapes at joint rows Q[name]."""
@@ -218,21 +227,30 @@ def beam_hits(setup: Setup, Q: dict[str, Array], P: Array) -> list[Hit]:
             for part in parts:
                 if own and part.name == "mirror":
                     continue
-                bound = 0.0 if own else c
+                bound = (0.0 if own else c) + setup.margin
                 d = near_distances(seg, part, bound + SLACK)
                 what = f"beam {label} - {setup.robots[i]['name']}/{part.name}"
                 _collect(hits, d, bound, "beam_arm", what, "occluded")
+        e = setup.margin
         for v in setup.keep:
             inside: Any
+            depth: Any = np.zeros(len(P))  # distance (m) from the volume, where measured
             if v.kind == "sphere":
-                inside = bd.point_segment(v.A, seg.A, seg.B) < v.r - SLACK
+                depth = bd.point_segment(v.A, seg.A, seg.B) - v.r
+                inside = depth < e - SLACK
+            elif v.kind == "box" and e > SLACK:
+                depth = bd.segment_box(seg.A, seg.B, v.T, v.ext)
+                inside = depth < e - SLACK
             elif v.kind == "box":
                 inside = bd.segment_box(seg.A, seg.B, v.T, np.maximum(v.ext - 2 * SLACK, 0)) == 0
             else:
-                inside = bd.segment_hull_meets(seg.A, seg.B, v.planes, SLACK)
+                inside = bd.segment_hull_meets(seg.A, seg.B, v.planes, SLACK - e)
+            what = f"beam {label} enters keep_out/{v.name}"
+            if e > 0:
+                what += f" inflated by {e * 1e3:.2f} mm"
             for m in np.flatnonzero(inside):
-                hits.append(Hit(int(m), "beam_keep_out", f"beam {label} enters keep_out/{v.name}",
-                                0.0, 0.0, "keep_out"))  # fmt: skip
+                hits.append(Hit(int(m), "beam_keep_out", what, float(np.broadcast_to(
+                    depth, (len(P),))[m]), e, "keep_out"))  # fmt: skip
     back, dist = _aperture(P, setup.laser, setup.radius, setup.cone, 1)
     for m in np.flatnonzero(back):
         hits.append(Hit(int(m), "laser_return", "beam returns into the laser aperture",
@@ -316,7 +334,8 @@ def check_safety(ctx: PlanContext) -> CheckResult:
     for m, h in sorted(_worst_per_row(found).items()):
         res.findings.append(Finding("safety", int(ctx.ids[m]), _text(h), h.value, h.bound,
                                     Reason(h.reason)))  # fmt: skip
-    res.figures = {"keep_out_volumes": float(len(setup.keep)), "clearance_m": setup.clearance}
+    res.figures = {"keep_out_volumes": float(len(setup.keep)), "clearance_m": setup.clearance,
+                   "margin_m": setup.margin}  # fmt: skip
     return res
 
 

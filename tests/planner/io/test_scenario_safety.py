@@ -65,7 +65,8 @@ def test_defaults_without_the_keys(tmp_path: Path) -> None:
     assert scn.model.keep_out == [] and scn.model.safety.clearance == 0.01
     resolved = resolved_scenario_dict(scn)
     assert resolved["keep_out"] == []
-    assert resolved["safety"] == {"clearance": 0.01, "return_cone_deg": 10.0, "return_radius": 0.01}
+    assert resolved["safety"] == {"clearance": 0.01, "return_cone_deg": 10.0,
+                                  "return_radius": 0.01, "spot_uncertainty": 0.0}  # fmt: skip
 
 
 def test_resolved_round_trip(tmp_path: Path) -> None:

@@ -209,3 +209,43 @@ def test_near_the_noise_floor_the_loop_keeps_correcting_until_its_iteration_limi
     assert r.frames == 1 + 3 * 3 and not np.array_equal(r.q, q0)
     with pytest.raises(ValueError, match="noise_floor"):
         ServoSettings(noise_floor=0.5)
+
+
+def test_a_correction_is_checked_at_the_measured_spot_plus_j_dq_not_the_model_spot(
+    world: SimWorld, plans: list[Any]
+) -> None:
+    """A keep-out sphere on the beam the step will really produce (ending at the measured
+    spot + J dq, which the truth confirms) but clear of the model's beam (its spot is off by
+    the calibration error): the step is refused as keep_out."""
+    from planner.model.transforms import make_T
+    from planner.safety import sphere
+    from planner.safety.model import Safety
+
+    p, q0 = plans[0]
+    measured = world.true_spot(q0)  # noiseless: what the camera sees, up to its noise
+    assert measured is not None
+    plain = Corrector(world.model)
+    pn = plain.model.plane_normal(q0, p, UP)
+    free = plain.step(q0, p, UP, pn, measured - p)
+    assert free.ok
+    expected = measured + plain.model.evaluate(q0, p, pn).jacobian @ free.dq
+    real = world.true_spot(free.q)
+    assert real is not None and np.linalg.norm(real - expected) < 0.3e-3  # linear: it is real
+    tr = trace_beam(world.model, free.q, p, UP)
+    hit, model_spot = tr.hits[-1], tr.spot
+    assert np.linalg.norm(model_spot - expected) > 3e-3  # the model is a few mm off
+    c = expected + 0.01 * (hit - expected) / np.linalg.norm(hit - expected)
+    r = 0.002
+
+    def dist(a: np.ndarray, b: np.ndarray) -> float:  # plain numpy point-segment distance
+        s = np.clip((c - a) @ (b - a) / ((b - a) @ (b - a)), 0, 1)
+        return float(np.linalg.norm(c - (a + s * (b - a))))
+
+    assert dist(hit, expected) < r < dist(hit, model_spot)  # in the real beam, not the model's
+    assert np.linalg.norm(c - p) > r  # the target itself is outside the volume
+    guarded = Corrector(
+        world.model, Safety(world.model, keep_out=(sphere("mole", r, make_T(p=c)),))
+    )
+    st = guarded.step(q0, p, UP, pn, measured - p)
+    assert not st.ok and st.failure is not None and st.failure.reason is Reason.KEEP_OUT
+    assert "keep_out/mole" in st.failure.detail and np.array_equal(st.q, q0)

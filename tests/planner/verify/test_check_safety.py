@@ -183,3 +183,54 @@ def test_shared_space_moves_are_detoured(shared: Doc) -> None:
     assert any("arm_arm" in f.message for f in _findings(plain_doc, "trajectory safety"))
     assert shared["metrics"]["extra"]["safety_detours"] >= 1
     assert shared["metrics"]["n_ok"] == 25 and not _findings(shared, "trajectory safety")
+
+
+def _near_miss(face: Doc, gap: float = 0.0004, r: float = 0.003) -> tuple[Doc, dict[str, Any]]:
+    """A copy of ``face`` with a keep-out sphere ``gap`` m beside a solved target's beam
+    arm0->target (perpendicular to it at its middle), and that solution."""
+    doc, sol = copy.deepcopy(face), _solved(face)
+    hit, p = np.asarray(sol["hits"][0]["p"]), np.asarray(doc["targets"][sol["target"]]["p"])
+    d = (p - hit) / np.linalg.norm(p - hit)
+    u = np.cross(d, [0.0, 0.0, 1.0])
+    u /= np.linalg.norm(u)
+    c = (hit + p) / 2 + (r + gap) * u
+    doc["scenario"]["keep_out"].append({"name": "brow", "sphere": r,
+                                        "world_T_object": {"xyz": c.tolist()}})  # fmt: skip
+    # plain numpy: the solved beam (last mirror hit -> spot) passes `gap` from the sphere
+    spot = np.asarray(sol["spot"])
+    s = np.clip((c - hit) @ (spot - hit) / np.sum((spot - hit) ** 2), 0, 1)
+    assert np.linalg.norm(c - (hit + s * (spot - hit))) - r == pytest.approx(gap, abs=1e-6)
+    return doc, sol
+
+
+def _brow(doc: Doc, name: str, target: int | None = None) -> list[Any]:
+    return [f for f in _findings(doc, name) if "keep_out/brow" in f.message
+            and (target is None or f.target == target)]  # fmt: skip
+
+
+def test_a_beam_inside_the_inflated_keep_out_is_flagged(face: Doc) -> None:
+    doc, sol = _near_miss(face)
+    assert not _brow(doc, "safety") and not _brow(doc, "trajectory safety")  # margin 0
+    wide = copy.deepcopy(doc)
+    wide["scenario"]["system"]["laser"]["beam_radius"] = 0.0005
+    found = _brow(wide, "safety", sol["target"])
+    assert found and found[0].reason == "keep_out" and "inflated by 0.50 mm" in found[0].message
+    assert found[0].value == pytest.approx(0.0004, abs=1e-6) and found[0].bound == 0.0005
+    assert _brow(wide, "trajectory safety")  # the dwell on that target has the laser on
+    unsure = copy.deepcopy(doc)  # the included calibration's spot uncertainty, echoed
+    unsure["scenario"]["safety"]["spot_uncertainty"] = 0.0002
+    found = _brow(unsure, "safety", sol["target"])
+    assert found and found[0].bound == pytest.approx(0.0006)
+    unsure["scenario"]["safety"]["spot_uncertainty"] = 0.0001  # margin 0.3 mm < 0.4 mm
+    assert not _brow(unsure, "safety")
+
+
+def test_cli_check_flags_a_plan_inside_the_inflated_keep_out(face: Doc, tmp_path: Path) -> None:
+    doc, _ = _near_miss(face)
+    doc["scenario"]["system"]["laser"]["beam_radius"] = 0.0005
+    path = tmp_path / "plan.json"
+    path.write_text(json.dumps(doc))
+    out = subprocess.run([sys.executable, "-m", "planner.cli", "check", str(path)],
+                         capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert out.returncode == 1, out.stdout + out.stderr
+    assert "keep_out/brow" in out.stdout and "Traceback" not in out.stderr
