@@ -142,6 +142,7 @@ def robot(
         start_tolerance=start_tolerance,
         require_planner=require_planner,
         gate_output=gate_output,
+        chain=tuple(system.robot_names) if gate_output is not None else (),
     )
     _run(node, session, f"{name}: {backend.value} robot driver up (prefix {prefix}; "
                         f"{priority_note(nice)})")  # fmt: skip
