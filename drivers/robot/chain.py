@@ -11,8 +11,12 @@ says, every control period, why the chain is not live (None: it is):
 
 - its token is gone (a killed driver: Zenoh drops it within a few ms) or never seen;
 - no joint state for :data:`STATE_TIMEOUT` (a hung driver or a cut link);
-- its status is protective-stopped, names a controller fault, or its mode is not one
-  that plays a motion (:data:`LIVE_MODES`: braking, stopped, idle, fault all count).
+- its status is protective-stopped, or braking, stopped or faulted;
+- its status is in another mode than those that play a motion (:data:`LIVE_MODES`; idle)
+  while it already answered this arm's request (it finished, or refused it), or for more
+  than :data:`START_GRACE` after this arm started playing (its verdict on the same request
+  may come a little later than this arm's: a laser interval at the very start of a
+  trajectory must not race it).
 """
 
 from __future__ import annotations
@@ -24,12 +28,17 @@ from typing import Any
 import numpy as np
 
 from planner.service.bus import decode
+from planner.service.execution import base_id
 from schemas.messages import RobotStatus
 
 #: longest silence (s, receive clock) of a chain arm's joint states (250 Hz: 12 missed)
 STATE_TIMEOUT = 0.050
 #: status modes of a chain arm that plays a trajectory or a setpoint stream
 LIVE_MODES = frozenset({"approach", "following", "settle", "streaming"})
+#: status modes of a chain arm that has stopped
+HALTED_MODES = frozenset({"braking", "stopped", "fault"})
+#: longest time (s) a chain arm may still be idle once this arm plays a request
+START_GRACE = 0.100
 
 
 class ChainWatch:
@@ -68,8 +77,12 @@ class ChainWatch:
         return cb
 
     # -- the control loop -------------------------------------------------------------------
-    def fault(self, now: float | None = None) -> str | None:
-        """Why a chain arm is not live and following (None: all are); ``now`` monotonic s."""
+    def fault(
+        self, now: float | None = None, request: str | None = None, since: float | None = None
+    ) -> str | None:
+        """Why a chain arm is not live and following (None: all are); ``now`` monotonic s,
+        ``request`` the id (chunk suffix removed) this arm plays since ``since`` (monotonic
+        s; None: this arm plays nothing)."""
         now = self.clock() if now is None else now
         for robot in self.robots:
             if not self.alive[robot]:
@@ -83,7 +96,12 @@ class ChainWatch:
                 return f"{robot}: no status heard"
             if status.protective_stop:
                 return f"{robot} is protective-stopped"
-            if status.mode not in LIVE_MODES:
+            if status.mode in LIVE_MODES:
+                continue
+            ack = status.trajectory
+            answered = ack is not None and request is not None and base_id(ack.id) == request
+            late = since is None or now - since > START_GRACE
+            if status.mode in HALTED_MODES or answered or late:
                 why = f" ({status.fault})" if status.fault else ""
                 return f"{robot} is {status.mode}{why}, not following"
         return None

@@ -104,6 +104,7 @@ from drivers.robot.ur_link import RateLimitedLog, parse_recover, recover_key
 from planner.errors import InputError
 from planner.model.system import Limits
 from planner.service.bus import JSON, Keys, decode, encode, urgent
+from planner.service.execution import base_id
 from schemas.messages import Heartbeat, JointState, RobotStatus, StopMessage, TrajectoryAck
 
 HEARTBEAT_TIMEOUT = 0.100  # s: longest planner silence before the arm brakes
@@ -147,6 +148,7 @@ class RobotNode(StreamingMixin, LoopNode):
         self.gate_output = None if emission is None else emission.gate_output
         self.gate: LaserGate | None = None  # made in start() (it publishes)
         self.chain = ChainWatch(tuple(r for r in chain if r != robot), clock)
+        self._playing_since: float | None = None  # monotonic s: this arm plays since
         self.session = session
         self.keys = keys
         self.robot = robot
@@ -350,7 +352,15 @@ class RobotNode(StreamingMixin, LoopNode):
 
     def _chain_fault(self) -> str | None:
         """Why an arm of the beam chain is not live and following (None: all are)."""
-        return self.chain.fault(self.clock()) if self.chain.robots else None
+        if not self.chain.robots:
+            return None
+        now, playing = self.clock(), self.backend.follower.mode in (*EXECUTING, "streaming")
+        if not playing:
+            self._playing_since = None
+        elif self._playing_since is None:
+            self._playing_since = now
+        running = self._running.id if self._running is not None else None
+        return self.chain.fault(now, base_id(running), self._playing_since)
 
     def _stop_all(self, reason: str) -> None:
         """Publish ``<prefix>/stop``: every arm brakes (the beam left the chain)."""

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from drivers.robot.chain import STATE_TIMEOUT, ChainWatch
+from drivers.robot.chain import START_GRACE, STATE_TIMEOUT, ChainWatch
 from drivers.robot.node import RobotNode
 from tests.drivers.robot.fake_bus import FakeBus, SimClock
 from tests.drivers.robot.test_streaming_node import DT, KEYS, LIMITS, Rig, wave
@@ -106,6 +106,28 @@ def test_a_failing_chain_arm_switches_treatment_off_and_stops_every_arm(failure:
     assert len(stops) == 1 and stops[0]["source"] == "arm0" and says in stops[0]["reason"]
     assert rig.modes[3 + off] in ("braking", "stopped")
     assert says in rig.status()["fault"]
+
+
+@pytest.mark.parametrize("idle_for", [0.04, 0.3])
+def test_a_chain_arm_may_start_a_little_after_this_one(idle_for: float) -> None:
+    """Laser from the first setpoint on; arm1 still idle for ``idle_for`` s (its verdict
+    comes later): within :data:`START_GRACE` nothing happens, later treatment goes off."""
+    rig = ChainRig()
+    rig.arm1["mode"] = "idle"
+    rig.period(3)
+    for k in range(round(0.5 / DT)):
+        if k == round(idle_for / DT):
+            rig.arm1["mode"] = "streaming"
+        q, qd = wave(k * DT)
+        rig.send(q, qd, True)
+        rig.period()
+    gate = np.array(rig.gate[3:])
+    if idle_for < START_GRACE:
+        assert gate[1:].all() and KEYS.stop not in rig.bus.published
+    else:
+        off = 1 + int(np.argmin(gate[1:]))
+        assert abs(off * DT - START_GRACE) <= 2 * DT and not gate[off:].any()
+        assert "arm1 is idle" in rig.bus.published[KEYS.stop][0]["reason"]
 
 
 def test_an_arm_never_seen_blocks_the_interval() -> None:
