@@ -146,6 +146,7 @@ def robot(
         emission=None
         if gate_output is None
         else Emission.from_laser(scn.model.system.laser, spot_gain(system, name)),
+        chain=tuple(system.robot_names) if gate_output is not None else (),
     )
     _run(node, session, f"{name}: {backend.value} robot driver up (prefix {prefix}; "
                         f"{priority_note(nice)})")  # fmt: skip

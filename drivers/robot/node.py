@@ -23,7 +23,11 @@ Bus (``<prefix>`` = the namespace, ``beamrelay`` by default):
   ``<prefix>/stop``, declares ``<prefix>/alive/<robot>`` and watches ``<prefix>/alive/planner``;
 - with a laser gate (``gate_output``: this robot's digital output switches the laser):
   publishes ``<prefix>/laser`` (:class:`schemas.messages.LaserState`) at every switch and
-  with every status; the status carries ``laser_on``.
+  with every status; the status carries ``laser_on``;
+- with ``chain`` (the other robots of the beam chain, on the gate's driver): subscribes their
+  ``status``, ``joint_states`` and ``<prefix>/alive/<robot>`` (:mod:`drivers.robot.chain`);
+  a laser interval played while one of them is not live and following switches treatment
+  off, safety-stops this arm and publishes ``<prefix>/stop`` so every arm stops.
 
 Laser gate: switched in the control loop, in the period that plays the trajectory's
 ``laser_on`` intervals (:meth:`drivers.robot.follower.Reference.laser_edge`) or while a
@@ -87,6 +91,7 @@ import numpy as np
 
 from drivers.loop_node import LoopNode
 from drivers.robot.backend import Measured, RobotBackend
+from drivers.robot.chain import ChainWatch
 from drivers.robot.follower import REST_VELOCITY, Reference
 from drivers.robot.gate import Emission, LaserGate
 from drivers.robot.intake import TrajectoryIntake, Verdict
@@ -98,8 +103,9 @@ from drivers.robot.trajectory_check import check_trajectory as check_trajectory
 from drivers.robot.ur_link import RateLimitedLog, parse_recover, recover_key
 from planner.errors import InputError
 from planner.model.system import Limits
-from planner.service.bus import JSON, Keys, decode, encode
-from schemas.messages import Heartbeat, JointState, RobotStatus, TrajectoryAck
+from planner.service.bus import JSON, Keys, decode, encode, urgent
+from planner.service.execution import base_id
+from schemas.messages import Heartbeat, JointState, RobotStatus, StopMessage, TrajectoryAck
 
 HEARTBEAT_TIMEOUT = 0.100  # s: longest planner silence before the arm brakes
 #: s: a setpoint stream this silent is late: treatment off until the next setpoint (three
@@ -134,6 +140,7 @@ class RobotNode(StreamingMixin, LoopNode):
         require_planner: bool = True,
         gate_output: int | None = None,
         emission: Emission | None = None,
+        chain: tuple[str, ...] = (),
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         super().__init__()
@@ -143,6 +150,8 @@ class RobotNode(StreamingMixin, LoopNode):
         self.emission = emission  # the laser outputs' rules (None: this driver has none)
         self.gate_output = None if emission is None else emission.gate_output
         self.gate: LaserGate | None = None  # made in start() (it publishes)
+        self.chain = ChainWatch(tuple(r for r in chain if r != robot), clock)
+        self._playing_since: float | None = None  # monotonic s: this arm plays since
         self.session = session
         self.keys = keys
         self.robot = robot
@@ -173,7 +182,8 @@ class RobotNode(StreamingMixin, LoopNode):
         self._handled_stop: float | None = None
         self.recover_requested = False
         self.recover_log = RateLimitedLog(robot)
-        self._tick, self._last_mode = 0, ""
+        self._tick = 0
+        self._last_mode: tuple[str, bool, bool] = ("", False, False)
 
     # -- lifecycle ---------------------------------------------------------------------
     def start(self) -> RobotNode:
@@ -203,6 +213,13 @@ class RobotNode(StreamingMixin, LoopNode):
             s.declare_subscriber(recover_key(k.prefix, self.robot), self._on_recover),
             s.liveliness().declare_token(k.alive(self.robot)),
         ]
+        self._pub_stop = s.declare_publisher(k.stop, **urgent()) if self.chain.robots else None
+        for r in self.chain.robots:
+            self._handles += [
+                s.declare_subscriber(k.status(r), self.chain.on_status(r)),
+                s.declare_subscriber(k.joint_states(r), self.chain.on_state(r)),
+                s.liveliness().declare_subscriber(k.alive(r), self.chain.on_alive(r), history=True),
+            ]
         return self
 
     def _close(self) -> None:
@@ -287,18 +304,22 @@ class RobotNode(StreamingMixin, LoopNode):
             silent = self.streams.silent(now)
             fresh = silent <= LATE_SETPOINT  # treatment only on time
             late = None if fresh else f"late setpoint: none for {1e3 * silent:.0f} ms"
+            chain = self._chain_fault()
             abort = self.gate.update(m, m.fault, self.streams.laser_on and fresh,
-                                     self.streams.aim, self._chain_fault(), late)  # fmt: skip
+                                     self.streams.aim, chain, late)  # fmt: skip
             if abort is not None:
                 self._safe_stop(abort)
+                if chain is not None and abort.endswith(chain):
+                    self._stop_all(abort)
         if self._tick % self._state_every == 0 and not m.stale:
             state = JointState(
                 t=time.time(), names=list(self.backend.names), q=m.q.tolist(), qd=m.qd.tolist()
             )
             self._pub_state.put(encode(state))
-        if m.mode != self._last_mode or self._tick % self._status_every == 0:
+        mode = (m.mode, m.protective_stop, m.fault is not None)  # a change: published at once
+        if mode != self._last_mode or self._tick % self._status_every == 0:
             self._publish_status(m)
-            self._last_mode = m.mode
+            self._last_mode = mode
         self._tick += 1
         self.backend.end_period()
 
@@ -338,7 +359,21 @@ class RobotNode(StreamingMixin, LoopNode):
 
     def _chain_fault(self) -> str | None:
         """Why an arm of the beam chain is not live and following (None: all are)."""
-        return None
+        if not self.chain.robots:
+            return None
+        now, playing = self.clock(), self.backend.follower.mode in (*EXECUTING, "streaming")
+        if not playing:
+            self._playing_since = None
+        elif self._playing_since is None:
+            self._playing_since = now
+        running = self._running.id if self._running is not None else None
+        return self.chain.fault(now, base_id(running), self._playing_since)
+
+    def _stop_all(self, reason: str) -> None:
+        """Publish ``<prefix>/stop``: every arm brakes (the beam left the chain)."""
+        if self._pub_stop is not None:
+            msg = StopMessage(t=time.time(), source=self.robot, reason=reason[:1000])
+            self._pub_stop.put(encode(msg), encoding=JSON)
 
     def _track(self) -> None:
         """Follow the backend: the queued trajectory started, or everything ended."""

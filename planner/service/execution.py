@@ -172,14 +172,17 @@ class MotionTracks:
             return None
         return track.q_end
 
-    def halted(self, robot: str, trajectory_id: str | None) -> None:
+    def halted(self, robot: str, trajectory_id: str | None) -> bool:
         """The robot stopped (braking, protective stop, fault) while its status names the
         trajectory ``trajectory_id`` (None: no trajectory; a chunk id counts for its
-        request): forget where it was going."""
+        request): forget where it was going. True if that trajectory may still have been
+        running (the robots move only together: the caller stops them all)."""
         with self._lock:
             track = self._tracks.get(robot)
-            if track is not None and base_id(trajectory_id) in (None, track.id):
-                del self._tracks[robot]
+            if track is None or base_id(trajectory_id) not in (None, track.id):
+                return False
+            del self._tracks[robot]
+            return track.end + self.margin > time.monotonic()
 
     def clear(self) -> None:
         """Forget every trajectory (a stop was sent on the bus)."""

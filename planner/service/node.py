@@ -18,7 +18,9 @@ thread, progress watchdog, heartbeat) are :mod:`planner.service.guard`. :class:`
   ``execution: accepted | rejected`` with ``execution_reason``. It refuses while a robot
   driver's liveliness token ``<prefix>/alive/<robot>`` is missing or a streamed trajectory
   still has chunks to send. If some robots accepted and others did not, it publishes
-  ``<prefix>/stop`` (a partial multi-robot motion would misdirect the beam).
+  ``<prefix>/stop`` (a partial multi-robot motion would misdirect the beam). Likewise when a
+  robot halts (braking, stopped, fault, protective stop) or its token goes while its
+  trajectory may still run: every robot stops.
 - the heartbeat ``<prefix>/heartbeat`` (``session`` = :attr:`session_id`, random per node,
   100 Hz) comes from a child process (:mod:`planner.service.heartbeat`) when the node is
   given its :class:`~planner.service.heartbeat.BusAddress`, else from a thread of this
@@ -236,6 +238,8 @@ class PlannerNode:
     def _on_alive(self, sample: Any) -> None:
         node, up = update_alive(self.alive, self._alive_lock, sample)
         log.info("%s %s", node, "up" if up else "DOWN")
+        if not up and node in self.robots and self.tracks.running_end(node) is not None:
+            self._halt_all(f"{node}'s liveliness token is gone during an execution")
         if self.on_alive_change is not None:
             self.on_alive_change(node, up)
 
@@ -252,11 +256,23 @@ class PlannerNode:
             if self.track is not None:
                 self.track.on_status(robot, msg)
             if msg.mode in HALTED_MODES or msg.protective_stop:
-                self.tracks.halted(robot, None if ack is None else ack.id)
+                why = "protective-stopped" if msg.protective_stop else msg.mode
+                if self.tracks.halted(robot, None if ack is None else ack.id):
+                    self._halt_all(f"{robot} is {why} during an execution: {msg.fault or why}")
                 if ack is not None:
-                    self.execution.cancel(f"{robot} is {msg.mode}", ack.id)
+                    self.execution.cancel(f"{robot} is {why}", ack.id)
 
         return cb
+
+    def _halt_all(self, reason: str) -> None:
+        """One robot halted (or vanished) mid-execution: stop them all (the beam chain)."""
+        log.warning("stopping every robot: %s", reason)
+        self.tracks.clear()
+        self.execution.cancel(reason)
+        try:
+            self.send_stop(reason)
+        except Exception:  # the session may be closing
+            log.exception("could not publish the stop")
 
     def _on_stop(self, _sample: Any) -> None:
         self.stop_seen.set()

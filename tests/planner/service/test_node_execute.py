@@ -131,3 +131,52 @@ def test_an_old_status_does_not_forget_a_newer_trajectory(
     fake.status("stopped", "an-older-one")  # a status still naming a previous trajectory
     time.sleep(0.3)
     assert node.tracks.running_end("arm0") is not None
+
+
+class _Gone:
+    def undeclare(self) -> None:
+        pass
+
+
+@pytest.mark.parametrize("halt", ["braking", "fault", "protective stop", "token gone"])
+def test_a_robot_halting_mid_execution_stops_every_robot(
+    system: System, rig: tuple[PlannerNode, Any, FakeDriver], halt: str
+) -> None:
+    node, client, fake = rig
+    stops = Inbox(client, f"{PREFIX}/stop")
+    execute(client, reachable_targets(system, 1, seed=61), "x1")
+    t0 = time.monotonic()
+    if halt == "token gone":
+        fake._token.undeclare()
+        fake._token = _Gone()
+    elif halt == "protective stop":
+        body = {"schema": "beamrelay.status/1", "robot": "arm0", "t": time.time(),
+                "mode": "following", "protective_stop": True,
+                "trajectory": {"id": "x1", "accepted": True, "t": time.time()}}  # fmt: skip
+        client.put(f"{PREFIX}/arm0/status", json.dumps(body))
+    else:
+        fake.status(halt, "x1")
+    wait_for(lambda: bool(stops.bodies()), 5.0, "stop published")
+    waited = stops.times()[0] - t0
+    stop = stops.bodies()[0]
+    print(f"{halt}: stop published {1e3 * waited:.1f} ms after it")
+    assert stop["source"] == "planner" and "arm0" in stop["reason"]
+    assert "during an execution" in stop["reason"]
+    assert node.tracks.running_end("arm0") is None
+    time.sleep(0.2)
+    assert len(stops.bodies()) == 1  # the other robots' braking statuses add no stop
+
+
+def test_a_halt_after_the_motion_or_of_an_older_trajectory_stops_nothing(
+    system: System, rig: tuple[PlannerNode, Any, FakeDriver]
+) -> None:
+    node, client, fake = rig
+    stops = Inbox(client, f"{PREFIX}/stop")
+    execute(client, reachable_targets(system, 1, seed=71), "y1")
+    fake.status("stopped", "an-older-one")
+    time.sleep(0.3)
+    assert node.tracks.running_end("arm0") is not None and stops.bodies() == []
+    wait_for(lambda: node.tracks.running_end("arm0") is None, 30.0, "the motion over")
+    fake.status("braking", "y1")
+    time.sleep(0.3)
+    assert stops.bodies() == []
