@@ -230,8 +230,9 @@ def zenoh_config(
     are taken from its folder); the host listens on the endpoint in the file's mode (peer or
     router) and every other process connects to it as a Zenoh *client*, which accepts no
     connections: on a bus with authentication every link is then one the host accepted and
-    authenticated; such a client waits ``connect_timeout`` s (None: as long as it takes) for
-    the host when the session opens, then reconnects by itself. A file that names its own
+    authenticated, and the file's access list is switched off in the client (only the host
+    can tell who sent what); such a client waits ``connect_timeout`` s (None: as long as it
+    takes) for the host when the session opens, then reconnects by itself. A file that names its own
     listen or connect endpoints is used as it is.
     """
     import zenoh
@@ -266,6 +267,9 @@ def zenoh_config(
         conf.insert_json5("listen/endpoints", json.dumps(_gossip_listener(endpoint)))
     else:
         conf.insert_json5("mode", '"client"')
+        # a client accepts no links, and on the one it opens no user name is known: its
+        # access list could only cut it off (default deny); the host enforces the file's
+        conf.insert_json5("access_control/enabled", "false")
         wait_ms = -1 if connect_timeout is None else max(1, round(1e3 * connect_timeout))
         conf.insert_json5("connect/timeout_ms", str(wait_ms))
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
