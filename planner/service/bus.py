@@ -164,6 +164,19 @@ def check_endpoint(text: str, option: str = "--endpoint") -> str:
     return text.strip()
 
 
+def is_local_endpoint(endpoint: str) -> bool:
+    """True if only this machine can reach ``endpoint``: an IP endpoint on a loopback
+    address (``127.x.x.x``, ``localhost``, ``[::1]``) or a local link (Unix socket, pipe,
+    serial line)."""
+    m = _ENDPOINT.match(endpoint.strip())
+    if m is None:
+        return False
+    if m["proto"].lower() not in IP_PROTOCOLS:
+        return m["proto"].lower() in ("unixsock-stream", "unixpipe", "serial")
+    hp = _HOST_PORT.match(m["addr"])
+    return hp is not None and _LOOPBACK.match(hp["host"]) is not None
+
+
 def _gossip_listener(endpoint: str) -> list[str]:
     """Where a connecting process listens so that gossip can connect peers directly: a
     random port of the hub's protocol, on loopback when the hub is on loopback."""
@@ -254,6 +267,12 @@ def zenoh_config(
                 )
             return conf
     endpoint = check_endpoint(endpoint or default_endpoint(), f"${ENDPOINT_ENV}")
+    if config_file is None and not is_local_endpoint(endpoint):
+        raise InputError(
+            f"endpoint {endpoint} is not on loopback: a bus other machines can reach needs "
+            "authentication and access control, give --zenoh-config FILE (see "
+            "scenarios/zenoh/README.md)"
+        )
     if listen:
         if config_file is not None and json.loads(conf.get_json("mode")) == "client":
             raise InputError(
