@@ -192,3 +192,39 @@ def test_role_files_folder_must_be_complete(tmp_path: Path) -> None:
         (tmp_path / f"{role}.json5").write_text("{}")
     with pytest.raises(InputError, match=r"no tracker\.json5"):
         role_files(tmp_path)
+
+
+def test_real_robot_driver_hosting_with_its_role_file(opened: list[Any], tmp_path: Path) -> None:
+    """``beamrelay driver robot --listen --zenoh-config roles/driver.json5`` hosts the bus: a
+    trajectory body from every identity but the planner's never reaches it, the planner's
+    does (the driver rejects it as malformed and says so in its status)."""
+    import json
+    import subprocess
+    import sys
+
+    endpoint = free_endpoint()
+    cmd = [
+        sys.executable, "-m", "planner.cli", "driver", "robot", "--name", "arm0", "--scenario",
+        str(REPO / "scenarios" / "paper_n1.yaml"), "--listen", "--endpoint", endpoint,
+        "--zenoh-config", str(FOLDER / "driver.json5"),
+    ]  # fmt: skip
+    log = (tmp_path / "driver.log").open("w")
+    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=tmp_path)
+    try:
+        watcher = join(opened, "console", endpoint)
+        faults: list[str] = []
+        watcher.declare_subscriber(
+            "beamrelay/arm0/status",
+            lambda s: faults.append(str(json.loads(s.payload.to_bytes()).get("fault"))),
+        )
+        assert wait_for(lambda: bool(faults), 30.0), (tmp_path / "driver.log").read_text()
+        for role in ("driver", "camera", "tracker", "console"):
+            join(opened, role, endpoint).put("beamrelay/arm0/trajectory", b"{}")
+        time.sleep(1.0)
+        assert not any("rejected" in f for f in faults)
+        join(opened, "planner", endpoint).put("beamrelay/arm0/trajectory", b"{}")
+        assert wait_for(lambda: any("trajectory rejected" in f for f in faults))
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        log.close()
