@@ -147,6 +147,16 @@ def up(
             dir_okay=False,
         ),
     ] = None,
+    zenoh_roles: Annotated[
+        Path | None,
+        typer.Option(
+            "--zenoh-roles",
+            help="Folder of Zenoh config files, one per role (planner, driver, camera, "
+            "tracker, console .json5, e.g. scenarios/zenoh/roles): each child joins with its "
+            "role's identity, up itself with the console's. Replaces --zenoh-config.",
+            file_okay=False,
+        ),
+    ] = None,
     host: Annotated[
         list[str] | None,
         typer.Option(
@@ -191,6 +201,7 @@ def up(
         hosts=host,
         console_port=console_port if console else None,
         online_calibration=online_calibration,
+        zenoh_roles=zenoh_roles,
     )
 
 

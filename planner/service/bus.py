@@ -164,6 +164,19 @@ def check_endpoint(text: str, option: str = "--endpoint") -> str:
     return text.strip()
 
 
+def is_local_endpoint(endpoint: str) -> bool:
+    """True if only this machine can reach ``endpoint``: an IP endpoint on a loopback
+    address (``127.x.x.x``, ``localhost``, ``[::1]``) or a local link (Unix socket, pipe,
+    serial line)."""
+    m = _ENDPOINT.match(endpoint.strip())
+    if m is None:
+        return False
+    if m["proto"].lower() not in IP_PROTOCOLS:
+        return m["proto"].lower() in ("unixsock-stream", "unixpipe", "serial")
+    hp = _HOST_PORT.match(m["addr"])
+    return hp is not None and _LOOPBACK.match(hp["host"]) is not None
+
+
 def _gossip_listener(endpoint: str) -> list[str]:
     """Where a connecting process listens so that gossip can connect peers directly: a
     random port of the hub's protocol, on loopback when the hub is on loopback."""
@@ -230,8 +243,9 @@ def zenoh_config(
     are taken from its folder); the host listens on the endpoint in the file's mode (peer or
     router) and every other process connects to it as a Zenoh *client*, which accepts no
     connections: on a bus with authentication every link is then one the host accepted and
-    authenticated; such a client waits ``connect_timeout`` s (None: as long as it takes) for
-    the host when the session opens, then reconnects by itself. A file that names its own
+    authenticated, and the file's access list is switched off in the client (only the host
+    can tell who sent what); such a client waits ``connect_timeout`` s (None: as long as it
+    takes) for the host when the session opens, then reconnects by itself. A file that names its own
     listen or connect endpoints is used as it is.
     """
     import zenoh
@@ -253,6 +267,12 @@ def zenoh_config(
                 )
             return conf
     endpoint = check_endpoint(endpoint or default_endpoint(), f"${ENDPOINT_ENV}")
+    if config_file is None and not is_local_endpoint(endpoint):
+        raise InputError(
+            f"endpoint {endpoint} is not on loopback: a bus other machines can reach needs "
+            "authentication and access control, give --zenoh-config FILE (see "
+            "scenarios/zenoh/README.md)"
+        )
     if listen:
         if config_file is not None and json.loads(conf.get_json("mode")) == "client":
             raise InputError(
@@ -266,6 +286,9 @@ def zenoh_config(
         conf.insert_json5("listen/endpoints", json.dumps(_gossip_listener(endpoint)))
     else:
         conf.insert_json5("mode", '"client"')
+        # a client accepts no links, and on the one it opens no user name is known: its
+        # access list could only cut it off (default deny); the host enforces the file's
+        conf.insert_json5("access_control/enabled", "false")
         wait_ms = -1 if connect_timeout is None else max(1, round(1e3 * connect_timeout))
         conf.insert_json5("connect/timeout_ms", str(wait_ms))
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))

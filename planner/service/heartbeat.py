@@ -97,6 +97,7 @@ def child_config(bus: BusAddress, connect_timeout: float = CONNECT_TIMEOUT) -> A
                 connect.append(f"{m['proto']}/{host}:{hp['port']}")
         conf.insert_json5("connect/endpoints", json.dumps(connect))
     conf.insert_json5("mode", '"client"')
+    conf.insert_json5("access_control/enabled", "false")  # a client's own link: see bus.py
     conf.insert_json5("listen/endpoints", "[]")
     conf.insert_json5("connect/timeout_ms", str(round(1e3 * connect_timeout)))
     return conf

@@ -52,12 +52,15 @@ def child_commands(
     tracker: bool = False,
     console_port: int | None = None,
     online_calibration: Path | None = None,
+    role_configs: dict[str, Path] | None = None,
 ) -> dict[str, list[str]]:
     """argv of every child: ``planner``, ``camera`` (if any), the simulated ``tracker`` (sim
     only, when asked: the scenario has targets on a moving object), one per robot, then the
     operator ``console`` on ``console_port`` (loopback) if given. Every child gets
     ``zenoh_config`` except the planner, which gets ``planner_zenoh_config`` if given (its
-    own identity on a bus with access control)."""
+    own identity on a bus with access control). ``role_configs`` (see :func:`role_files`)
+    instead gives each child the file of its role: ``planner``, ``camera``, ``tracker``,
+    ``driver`` (every robot), ``console``."""
     cli = [sys.executable, "-m", "planner.cli"]
     bus = ["--endpoint", endpoint, *(["--prefix", prefix] if prefix != "beamrelay" else [])]
     planner_bus = list(bus)
@@ -65,23 +68,44 @@ def child_commands(
         bus += ["--zenoh-config", str(zenoh_config)]
     if (planner_conf := planner_zenoh_config or zenoh_config) is not None:
         planner_bus += ["--zenoh-config", str(planner_conf)]
+
+    def role_bus(role: str) -> list[str]:
+        if role_configs is None:
+            return planner_bus if role == "planner" else bus
+        return [*bus, "--zenoh-config", str(role_configs[role])]
+
     online = [] if online_calibration is None else ["--online-calibration", str(online_calibration)]
-    out = {"planner": [*cli, "serve", str(scenario), "--connect", *planner_bus, *online]}
+    out = {"planner": [*cli, "serve", str(scenario), "--connect", *role_bus("planner"), *online]}
     if camera:
         cam_backend = "sim" if backend == "sim" else "realsense"
         out["camera"] = [
-            *cli, "driver", "camera", "--backend", cam_backend, "--scenario", str(scenario), *bus
+            *cli, "driver", "camera", "--backend", cam_backend, "--scenario", str(scenario),
+            *role_bus("camera"),
         ]  # fmt: skip
     if tracker and backend == "sim":
-        out["tracker"] = [*cli, "driver", "tracker", "--scenario", str(scenario), *bus]
+        out["tracker"] = [
+            *cli,
+            "driver",
+            "tracker",
+            "--scenario",
+            str(scenario),
+            *role_bus("tracker"),
+        ]
     for r in robots:
         host = ["--host", hosts[r]] if hosts and r in hosts else []
         out[r] = [
             *cli, "driver", "robot", "--name", r, "--backend", backend, *host, "--scenario",
-            str(scenario), *bus,
+            str(scenario), *role_bus("driver"),
         ]  # fmt: skip
     if console_port is not None:
-        out["console"] = [*cli, "console", str(scenario), "--port", str(console_port), *bus]
+        out["console"] = [
+            *cli,
+            "console",
+            str(scenario),
+            "--port",
+            str(console_port),
+            *role_bus("console"),
+        ]
     return out
 
 
@@ -223,6 +247,19 @@ def _child_config(path: Path | None) -> Path | None:
     return path.resolve()
 
 
+#: the role files of a folder given to ``up --zenoh-roles`` (scenarios/zenoh/roles/)
+ROLES = ("planner", "driver", "camera", "tracker", "console")
+
+
+def role_files(folder: Path) -> dict[str, Path]:
+    """``FOLDER/<role>.json5`` of every role in :data:`ROLES`, checked as for ``up``."""
+    files = {r: Path(folder) / f"{r}.json5" for r in ROLES}
+    for path in files.values():
+        if not path.is_file():
+            raise InputError(f"--zenoh-roles {folder}: no {path.name} in it ({', '.join(ROLES)})")
+    return {r: p for r, p in ((r, _child_config(p)) for r, p in files.items()) if p is not None}
+
+
 def run_up(
     scenario: Path,
     *,
@@ -237,12 +274,15 @@ def run_up(
     hosts: list[str] | None = None,
     console_port: int | None = None,
     online_calibration: Path | None = None,
+    zenoh_roles: Path | None = None,
 ) -> dict[str, int | None]:
     """Run the system until Ctrl-C / SIGTERM / ``duration`` s; the children's exit codes.
     With ``console_port`` the operator console runs as one more supervised child.
 
     ``zenoh_config`` is used by ``up`` itself and passed on to every child,
     ``planner_zenoh_config`` (default ``zenoh_config``) to the planner child only.
+    ``zenoh_roles``, a folder of role files (:func:`role_files`), instead gives every child
+    the file of its role and ``up`` itself the console's.
     """
     from rich.console import Console
     from rich.live import Live
@@ -254,6 +294,15 @@ def run_up(
     host_map = parse_hosts(hosts or [], robots, backend)
     endpoint = endpoint or default_endpoint()
     configs = [_child_config(c) for c in (zenoh_config, planner_zenoh_config)]
+    roles = None
+    if zenoh_roles is not None:
+        if zenoh_config is not None or planner_zenoh_config is not None:
+            raise InputError(
+                "--zenoh-roles gives every process its file: leave out --zenoh-config and "
+                "--planner-zenoh-config"
+            )
+        roles = role_files(zenoh_roles)
+        configs = [roles["console"], None]
     has_camera = scn.model.system.camera is not None
     online = None
     if online_calibration is not None:  # checked here: a bad FILE is exit 2, not a crash loop
@@ -264,7 +313,7 @@ def run_up(
         Path(scenario).resolve(), robots, backend=backend, endpoint=endpoint, prefix=prefix,
         camera=has_camera, zenoh_config=configs[0], planner_zenoh_config=configs[1],
         hosts=host_map, tracker=has_camera and has_tracked_targets(scn),
-        console_port=console_port, online_calibration=online,
+        console_port=console_port, online_calibration=online, role_configs=roles,
     )  # fmt: skip
     log_dir = Path(log_dir or tempfile.mkdtemp(prefix="beamrelay-up-"))
     with raised_priority() as nice:  # the hub routes the heartbeat: its threads first

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from planner.errors import InputError
-from planner.service.bus import check_endpoint, open_session, zenoh_config
+from planner.service.bus import check_endpoint, is_local_endpoint, open_session, zenoh_config
 from tests.paths import REPO
 
 ROOT = REPO
@@ -104,7 +104,8 @@ def test_good_endpoints_pass(endpoint: str) -> None:
 
 def test_protocol_missing_from_this_build_is_one_line() -> None:
     proc = run("driver", "robot", "--name", "arm0", "--scenario", SCENARIO, "--listen",
-               "--endpoint", "vsock/1:2")  # fmt: skip
+               "--endpoint", "vsock/1:2", "--zenoh-config",
+               str(ROOT / "scenarios" / "zenoh" / "auth.json5"))  # fmt: skip
     assert_one_line(proc, "vsock/1:2", "cannot open the Zenoh session")
 
 
@@ -145,3 +146,41 @@ def test_up_refuses_a_file_with_its_own_endpoints(tmp_path: Path) -> None:
     own.write_text("{ mode: 'peer', listen: { endpoints: ['tcp/127.0.0.1:0'] } }")
     proc = run("up", SCENARIO, "--zenoh-config", str(own), "--duration", "1", "--no-live")
     assert_one_line(proc, "own.json5", "--endpoint")
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["serve", SCENARIO],
+        ["driver", "robot", "--name", "arm0", "--scenario", SCENARIO, "--listen"],
+        ["driver", "camera", "--scenario", SCENARIO],
+        ["request", "--points", "0,0,0"],
+    ],
+    ids=["serve", "driver robot", "driver camera", "request"],
+)
+@pytest.mark.parametrize("endpoint", ["tcp/0.0.0.0:7447", "tcp/192.168.1.10:7447", "vsock/1:2"])
+def test_a_bus_beyond_loopback_needs_a_config_file(command: list[str], endpoint: str) -> None:
+    assert_one_line(run(*command, "--endpoint", endpoint), endpoint, "not on loopback",
+                    "--zenoh-config")  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("endpoint", "local"),
+    [
+        ("tcp/127.0.0.1:7447", True),
+        ("tcp/127.0.1.1:7447", True),
+        ("tls/localhost:7447", True),
+        ("udp/[::1]:7447", True),
+        ("unixsock-stream//tmp/beamrelay.sock", True),
+        ("tcp/0.0.0.0:7447", False),
+        ("tcp/[::]:7447", False),
+        ("tcp/lab-pc:7447", False),
+        ("quic/example.org:443", False),
+        ("vsock/1:2", False),
+    ],
+)
+def test_which_endpoints_are_local(endpoint: str, local: bool) -> None:
+    assert is_local_endpoint(endpoint) is local
+    if not local:
+        with pytest.raises(InputError, match="--zenoh-config"):
+            zenoh_config(listen=True, endpoint=endpoint)

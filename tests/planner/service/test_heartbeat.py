@@ -319,13 +319,16 @@ def test_child_config_is_a_client_of_the_planners_bus(tmp_path: Path) -> None:
     # with the file's credentials (the planner's identity)
     (tmp_path / "host.json5").write_text(
         '{mode: "peer", listen: {endpoints: ["tcp/0.0.0.0:7998"]}, transport: {auth: '
-        '{usrpwd: {user: "planner", password: "pw"}}}}'
+        '{usrpwd: {user: "planner", password: "pw"}}}, '
+        'access_control: {enabled: true, default_permission: "deny"}}'
     )
     conf = child_config(BusAddress(None, tmp_path / "host.json5"))
     assert get(conf, "mode") == "client"
     assert get(conf, "connect/endpoints") == ["tcp/127.0.0.1:7998"]
     assert get(conf, "listen/endpoints") == []
     assert get(conf, "transport/auth/usrpwd/user") == "planner"
+    # only the host can apply an access list: in a client, default deny would cut it off
+    assert get(conf, "access_control/enabled") is False
 
 
 def test_a_heartbeat_process_that_cannot_reach_the_bus_fails_the_start() -> None:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import pytest
+
 from planner.service.up import child_commands
 from tests.paths import REPO
 
@@ -48,10 +50,28 @@ def test_child_commands_pass_the_zenoh_configs_on() -> None:
     )
 
 
-def test_up_on_a_locked_bus(tmp_path: Path) -> None:
+def test_child_commands_give_each_role_its_file() -> None:
+    s = Path("/x/s.yaml")
+    roles = {
+        r: Path(f"/z/{r}.json5") for r in ("planner", "driver", "camera", "tracker", "console")
+    }
+    argv = child_commands(s, ["arm0", "arm1"], endpoint="e", tracker=True, console_port=8123,
+                          role_configs=roles)  # fmt: skip
+    conf = {name: a[a.index("--zenoh-config") + 1] for name, a in argv.items()}
+    assert conf == {
+        "planner": "/z/planner.json5", "camera": "/z/camera.json5", "tracker": "/z/tracker.json5",
+        "arm0": "/z/driver.json5", "arm1": "/z/driver.json5", "console": "/z/console.json5",
+    }  # fmt: skip
+    assert all(a.count("--zenoh-config") == 1 for a in argv.values())
+
+
+@pytest.mark.parametrize("files", ["node+planner", "roles"])
+def test_up_on_a_locked_bus(tmp_path: Path, files: str) -> None:
     """``up`` with the shipped access-control examples: every child joins with its own
     identity (the planner's liveliness token is only accepted from the planner identity),
-    and ``request --zenoh-config`` gets a plan; a client without credentials gets nothing."""
+    and ``request --zenoh-config`` gets a plan; a client without credentials gets nothing.
+    ``node+planner``: one identity for the planner, one for the rest; ``roles``: ``up
+    --zenoh-roles``, one identity per role, the request with the console's."""
     import json
     import signal
     import socket
@@ -66,18 +86,26 @@ def test_up_on_a_locked_bus(tmp_path: Path) -> None:
         sock.bind(("127.0.0.1", 0))
         endpoint = f"tcp/127.0.0.1:{sock.getsockname()[1]}"
     cli = [sys.executable, "-m", "planner.cli"]
+    if files == "roles":
+        up_files = ["--zenoh-roles", str(examples / "roles")]
+        client_file = examples / "roles" / "console.json5"
+    else:
+        up_files = ["--zenoh-config", str(examples / "acl-node.json5"),
+                    "--planner-zenoh-config", str(examples / "acl-planner.json5")]  # fmt: skip
+        client_file = examples / "acl-node.json5"
     up = subprocess.Popen(
         [*cli, "up", str(root / "scenarios" / "paper_n1.yaml"), "--endpoint", endpoint,
          "--no-live", "--duration", "120", "--log-dir", str(tmp_path),
-         "--zenoh-config", str(examples / "acl-node.json5"),
-         "--planner-zenoh-config", str(examples / "acl-planner.json5")],
+         *up_files],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
     try:
-        conf = zenoh.Config.from_file(str(examples / "acl-node.json5"))
+        conf = zenoh.Config.from_file(str(client_file))
         conf.insert_json5(
-            "transport/auth/usrpwd/dictionary_file", json.dumps(str(examples / "credentials.txt"))
+            "transport/auth/usrpwd/dictionary_file",
+            json.dumps(str(client_file.parent / "credentials.txt")),
         )
+        conf.insert_json5("access_control/enabled", "false")  # a client's own link: see bus.py
         conf.insert_json5("mode", '"client"')
         conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
         conf.insert_json5("connect/timeout_ms", "30000")
@@ -94,7 +122,7 @@ def test_up_on_a_locked_bus(tmp_path: Path) -> None:
             assert {"planner", "arm0"} <= alive, (alive, list(tmp_path.glob("*")))
         req = subprocess.run(
             [*cli, "request", "--points", "-0.54,-0.57,-0.06", "--endpoint", endpoint,
-             "--zenoh-config", str(examples / "acl-node.json5"), "--timeout", "60"],
+             "--zenoh-config", str(client_file), "--timeout", "60"],
             capture_output=True, text=True, timeout=120,
         )  # fmt: skip
         assert req.returncode in (0, 1), req.stderr
