@@ -91,6 +91,7 @@ def robot(
     ),
 ) -> None:
     """Run a robot driver: joint_states, status, trajectories, planner heartbeat watchdog."""
+    from drivers.robot.gate import Emission
     from drivers.robot.node import RobotNode
     from planner.errors import InputError
     from planner.io.scenario import load_scenario, system_from_scenario
@@ -107,8 +108,10 @@ def robot(
     if state_rate < 100:
         raise InputError(f"must be >= 100 Hz, got {state_rate:g}", "--state-rate")
     r = system.robot(name)
-    gate = scn.model.system.laser.gate
-    gate_output = gate.output if gate is not None and gate.robot == name else None
+    laser = scn.model.system.laser
+    gate = laser.gate
+    emission = Emission.from_laser(laser) if gate is not None and gate.robot == name else None
+    gate_output = None if emission is None else emission.gate_output
     backend_obj: Any
     if backend == RobotBackendName.sim:
         from drivers.robot.sim import SimRobot
@@ -117,6 +120,13 @@ def robot(
     else:
         from drivers.robot.ur import URRobot
 
+        if gate is None:
+            raise InputError("the ur backend needs a laser gate (a laser is never "
+                             "'always on' on real hardware)", "laser.gate")  # fmt: skip
+        if not require_planner:
+            raise InputError(
+                "the ur backend always requires a live planner", "--no-require-planner"
+            )
         if not host:
             raise InputError("the ur backend needs the controller's address", "--host")
         backend_obj = URRobot(
@@ -130,6 +140,7 @@ def robot(
             gain=gain,
             watchdog_hz=watchdog_hz,
             gate_output=gate_output,
+            aim_output=None if emission is None else emission.aim_output,
         )
     session = open_session(listen=listen, endpoint=endpoint, config_file=zenoh_config)
     node = RobotNode(
@@ -141,7 +152,7 @@ def robot(
         state_rate=state_rate,
         start_tolerance=start_tolerance,
         require_planner=require_planner,
-        gate_output=gate_output,
+        emission=emission,
     )
     _run(node, session, f"{name}: {backend.value} robot driver up (prefix {prefix}; "
                         f"{priority_note(nice)})")  # fmt: skip
