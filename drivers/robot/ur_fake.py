@@ -44,6 +44,7 @@ Joints in rad, rad/s; times in s.
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import json
 import re
@@ -382,7 +383,7 @@ def serve(controller: FakeURController, port: int = 0) -> tuple[int, threading.E
 
     def client(conn: socket.socket) -> None:
         f = conn.makefile("rwb")
-        with conn, f:
+        with conn, f, contextlib.suppress(OSError):  # the driver died: its socket with it
             for line in f:
                 name, args = json.loads(line)
                 if name == "snapshot":
