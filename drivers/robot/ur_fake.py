@@ -212,6 +212,11 @@ class FakeURController:
             self.qd[:] = 0.0
         return True
 
+    def stopScript(self) -> None:
+        """ur_rtde's stopScript: the control script stops (runstate outputs drop)."""
+        self.calls.append("stopScript")
+        self.stop_program()
+
     def sendCustomScriptFunction(self, name: str, script: str) -> bool:
         """Run a script function; only its runstate calls have an effect here."""
         self.calls.append("sendCustomScriptFunction")
