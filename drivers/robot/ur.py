@@ -296,6 +296,7 @@ class URRobot:
         if self.fault is not None:
             return
         self.lasers_off()
+        self._io_step(q)  # the off write starts now, before servoStop
         self.follower.reset(q)
         self.holding = False
         if self.servoing and not self.stale and self.control.isConnected():
