@@ -74,7 +74,9 @@ def robot(
     ),
     gain: float = typer.Option(300.0, "--gain", help="servoJ gain [100, 2000]."),
     watchdog_hz: float = typer.Option(
-        10.0, "--rtde-watchdog", help="RTDE watchdog minimum rate, Hz."
+        25.0,
+        "--rtde-watchdog",
+        help="RTDE watchdog minimum rate, Hz (25: a dead driver's laser is off in < 100 ms).",
     ),
     start_tolerance: float = typer.Option(
         0.01, "--start-tolerance", help="Largest start offset accepted, rad."
@@ -109,8 +111,11 @@ def robot(
     if state_rate < 100:
         raise InputError(f"must be >= 100 Hz, got {state_rate:g}", "--state-rate")
     r = system.robot(name)
-    gate = scn.model.system.laser.gate
-    gate_output = gate.output if gate is not None and gate.robot == name else None
+    laser = scn.model.system.laser
+    gate = laser.gate
+    emission = (Emission.from_laser(laser, spot_gain(system, name))
+                if gate is not None and gate.robot == name else None)  # fmt: skip
+    gate_output = None if emission is None else emission.gate_output
     backend_obj: Any
     if backend == RobotBackendName.sim:
         from drivers.robot.sim import SimRobot
@@ -119,6 +124,13 @@ def robot(
     else:
         from drivers.robot.ur import URRobot
 
+        if gate is None:
+            raise InputError("the ur backend needs a laser gate (a laser is never "
+                             "'always on' on real hardware)", "laser.gate")  # fmt: skip
+        if not require_planner:
+            raise InputError(
+                "the ur backend always requires a live planner", "--no-require-planner"
+            )
         if not host:
             raise InputError("the ur backend needs the controller's address", "--host")
         backend_obj = URRobot(
@@ -132,6 +144,7 @@ def robot(
             gain=gain,
             watchdog_hz=watchdog_hz,
             gate_output=gate_output,
+            aim_output=None if emission is None else emission.aim_output,
         )
     session = open_session(listen=listen, endpoint=endpoint, config_file=zenoh_config)
     node = RobotNode(
@@ -143,9 +156,7 @@ def robot(
         state_rate=state_rate,
         start_tolerance=start_tolerance,
         require_planner=require_planner,
-        emission=None
-        if gate_output is None
-        else Emission.from_laser(scn.model.system.laser, spot_gain(system, name)),
+        emission=emission,
         chain=tuple(system.robot_names) if gate_output is not None else (),
     )
     _run(node, session, f"{name}: {backend.value} robot driver up (prefix {prefix}; "

@@ -20,7 +20,15 @@ Opt-in steps (they move the arm or switch outputs; the operator asks for each):
   :data:`WIGGLE_TRACKING` and comes to rest on the start;
 - ``gate``: with the laser *disconnected*, the gate output is switched on and off through
   ``rtde_io``; the output bits read back over RTDE must follow, latency reported;
-- ``spot``: frames with the gate off, then on; the gated detector must find one spot.
+- ``runstate`` (with ``--gate-test``): every laser output set to go low at program stop,
+  switched on, the control script stopped: the bit must read back low (the laser off when
+  the driver dies);
+- ``spot``: frames with the aim output off, then on (never the treatment gate; the scenario
+  must have ``laser.aim``); the gated detector must find one spot.
+
+Every laser output goes off at the end, also on Ctrl-C or an error; the gate and spot tests
+are skipped after a failed read-only check. :data:`WIRING_CHECKLIST` is printed: the wiring
+RTDE cannot see.
 
 Every step takes the interfaces as arguments, so the tests run them on the simulated
 controller (:mod:`drivers.robot.ur_fake`) and rendered frames.
@@ -233,3 +241,50 @@ def spot_test(grab: Callable[[], Any], set_gate: Callable[[bool], None], frames:
                      "laser connected and aimed into the view? exposure too high (saturation)?")  # fmt: skip
     return Check("spot", "pass", f"spot at ({found.u:.1f}, {found.v:.1f}) px, confidence "
                  f"{found.confidence:.2f}, {found.pixels} px")  # fmt: skip
+
+
+def runstate_test(control: Any, receive: Any, io: Any, outputs: list[int],
+                  timeout: float = 1.0) -> Check:  # fmt: skip
+    """Off at program stop, on the controller (laser *unpowered*!): configure each laser
+    output to go low when the program stops (``set_runstate_standard_digital_output_to_value
+    (n, 1)``, as the driver does), switch it on, stop the control script and read the bit
+    back: it must be low without any write; the script is re-uploaded after."""
+    script = "".join(f"  set_runstate_standard_digital_output_to_value({n}, 1)\n" for n in outputs)
+    if control.sendCustomScriptFunction("beamrelay_laser_runstate", script) is False:
+        return Check("runstate", "fail", "the controller refused the runstate script",
+                     "PolyScope 5.x in Remote Control? the outputs free (no installation I/O action)?")  # fmt: skip
+    mask = sum(1 << n for n in outputs)
+    for n in outputs:
+        io.setStandardDigitalOut(n, True)
+    t0 = time.monotonic()
+    while int(receive.getActualDigitalOutputBits()) & mask != mask:
+        if time.monotonic() - t0 > timeout:
+            return Check("runstate", "fail", f"outputs {outputs} did not read back on",
+                         "check the output numbers")  # fmt: skip
+        time.sleep(0.001)
+    control.stopScript()
+    t0 = time.monotonic()
+    while int(receive.getActualDigitalOutputBits()) & mask:
+        if time.monotonic() - t0 > timeout:
+            for n in outputs:
+                io.setStandardDigitalOut(n, False)
+            control.reuploadScript()
+            return Check("runstate", "fail", f"outputs {outputs} stayed on {timeout:g} s after "
+                         "the program stopped", "the laser would stay on when the driver dies: "
+                         "check the I/O setup of the installation")  # fmt: skip
+        time.sleep(0.001)
+    lat = time.monotonic() - t0
+    control.reuploadScript()
+    return Check("runstate", "pass", f"outputs {outputs} dropped {1e3 * lat:.0f} ms after the "
+                 "control script stopped (low when not running)")  # fmt: skip
+
+
+#: the wiring RTDE cannot see: the operator confirms each before the laser is powered
+WIRING_CHECKLIST = (
+    "laser remote interlock wired through a UR *safety* output (not a standard one): "
+    "opens on e-stop and protective stop",
+    "e-stop buttons cut the laser's interlock, tested with the laser unpowered",
+    "treatment footswitch (dead-man) in series with the gate output, tested",
+    "gate and aim outputs wired to the laser's TTL gate / pilot inputs, nothing else on them",
+    "beam dump / shutter closed by default, eye protection for the wavelength in the room",
+)

@@ -37,10 +37,23 @@ Calls that wait for the controller's answer (``servoStop``, ``setWatchdog``, ``r
 ``disconnect``) never run in the control loop: :class:`drivers.robot.ur_link.AsyncCall`.
 Every check and watchdog of :mod:`drivers.robot.node` applies unchanged; a safety stop calls
 :meth:`URRobot.brake` (a jerk-limited stop of the command through ``servoJ``).
-The laser gate (``gate_output``) is the controller's standard digital output of that index,
-set through ``RTDEIOInterface.setStandardDigitalOut`` by :meth:`URRobot.set_gate` (the node
-decides when); it goes off on entering a fault and at exit. How to run it on a real arm:
-``drivers/README.md``.
+The laser outputs (``gate_output``, the treatment gate, and ``aim_output``, the aiming beam)
+are standard digital outputs of the controller, written through
+``RTDEIOInterface.setStandardDigitalOut`` by :meth:`URRobot.set_output` (the node decides
+when). The write runs in a helper thread (:class:`drivers.robot.ur_link.AsyncCall`), never
+in the control loop; one that does not return within :data:`IO_TIMEOUT` is a fault. Every
+period reads them back (``getActualDigitalOutputBits``, :attr:`Measured.outputs`) with the
+speed fraction (:attr:`Measured.speed`). All laser outputs go off on entering a fault and at
+exit.
+
+**Off when the driver dies.** At start-up every laser output is configured, through
+``sendCustomScriptFunction``, with the URScript call
+``set_runstate_standard_digital_output_to_value(n, 1)`` ("set signal to False when program is
+not running"): the controller itself drops the output when the control script stops. With
+the RTDE watchdog (the script stops when not kicked for ``1/watchdog_hz`` s) a SIGKILLed or
+hung driver turns the laser off within ``1/watchdog_hz`` s plus a cycle. An RTDE socket error
+(ur_rtde raises RuntimeError) is a fault; nothing reconnects inside the loop (the operator's
+recover does, in a helper thread). How to run it on a real arm: ``drivers/README.md``.
 """
 
 from __future__ import annotations
@@ -64,6 +77,9 @@ SPEED_FLOOR = 0.05  # speed slider below which new trajectories are refused
 ARRIVE_TOLERANCE = 1e-4  # rad: the held final target counts as reached (every joint)
 HOLD_STALL = 1.0  # s (at 100 % speed) without progress toward the held target: give up
 CALL_TIMEOUT = 1.0  # s: longest wait for servoStop / disconnect
+IO_TIMEOUT = 0.050  # s: longest wait for setStandardDigitalOut (a longer one is a fault)
+RUNSTATE_TIMEOUT = 10.0  # s: sendCustomScriptFunction at start-up (re-uploads the script)
+RUNSTATE_LOW_WHEN_STOPPED = 1  # URScript runstate: "False when program is not running"
 RECOVER_TIMEOUT = 15.0  # s: reuploadScript + setWatchdog
 RT_PRIORITY = 80  # SCHED_FIFO priority of ur_rtde's receive/control threads (--realtime)
 LOOP_PRIORITY = 70  # SCHED_FIFO priority of the control loop (below ur_rtde's, as it advises)
@@ -95,6 +111,7 @@ class URRobot:
         control: Any = None,
         receive: Any = None,
         gate_output: int | None = None,
+        aim_output: int | None = None,
         io: Any = None,
     ) -> None:
         if not LOOKAHEAD_RANGE[0] <= lookahead_time <= LOOKAHEAD_RANGE[1]:
@@ -108,6 +125,9 @@ class URRobot:
         self.rate = float(rate)
         self.dt = 1.0 / self.rate
         self.lookahead_time = lookahead_time
+        # the arm reaches a servoJ command about one lookahead later: the emission
+        # supervisor's following check compares the measured joints with that command
+        self.following_lag = lookahead_time
         self.gain = gain
         self.watchdog_hz = watchdog_hz
         self.realtime = realtime
@@ -116,9 +136,14 @@ class URRobot:
         self.control = control
         self.receive = receive
         self.gate_output = gate_output
-        if gate_output is not None and io is None:
+        #: every laser output (treatment gate, aim): off on fault, at close, at program stop
+        self.laser_outputs = tuple(sorted({o for o in (gate_output, aim_output) if o is not None}))
+        if self.laser_outputs and io is None:
             io = _connect_io(host)
         self.io = io
+        self.io_call = AsyncCall()  # setStandardDigitalOut, out of the control loop
+        self._io_want: dict[int, bool] = {}  # output -> level still to write
+        self._outputs: int | None = None
         self.gate_calls: list[tuple[float, int, bool]] = []  # (monotonic s, output, state)
         q0 = np.asarray(self.receive.getActualQ(), dtype=float)
         self.follower = TrajectoryFollower(q0, limits, self.dt, stop_acceleration)
@@ -139,6 +164,30 @@ class URRobot:
         self._armed = False  # the RTDE watchdog is armed in the first period, not before:
         # the node may take seconds to start its loop, and nothing would feed it meanwhile
         self._last = Measured(q0.copy(), np.zeros(len(self.names)), "idle")
+        self.runstate = self._configure_runstate()
+
+    def _configure_runstate(self) -> dict[int, int]:
+        """Every laser output set to go low when the control script stops (URScript
+        ``set_runstate_standard_digital_output_to_value(n, 1)``); InputError when the
+        controller does not confirm within RUNSTATE_TIMEOUT. What was configured."""
+        if not self.laser_outputs:
+            return {}
+        script = "".join(
+            f"  set_runstate_standard_digital_output_to_value({n}, {RUNSTATE_LOW_WHEN_STOPPED})\n"
+            for n in self.laser_outputs
+        )
+        call = AsyncCall()
+        call.start("runstate", lambda: self.control.sendCustomScriptFunction(
+            "beamrelay_laser_runstate", script), RUNSTATE_TIMEOUT)  # fmt: skip
+        done = call.wait(RUNSTATE_TIMEOUT + 0.1)
+        if done is None or not done[1]:
+            why = "no answer" if done is None else done[2]
+            raise InputError(
+                f"cannot set outputs {list(self.laser_outputs)} to go low at program stop "
+                f"(set_runstate_standard_digital_output_to_value): {why}",
+                "laser.gate",
+            )
+        return {n: RUNSTATE_LOW_WHEN_STOPPED for n in self.laser_outputs}
 
     # -- period ---------------------------------------------------------------------------
     def begin_period(self) -> None:
@@ -153,10 +202,14 @@ class URRobot:
             self._ts_at = time.monotonic()  # staleness counts from the first period
             self.call.start("setWatchdog", lambda: self.control.setWatchdog(self.watchdog_hz),
                             CALL_TIMEOUT)  # fmt: skip
-        q = np.asarray(self.receive.getActualQ(), dtype=float)
-        qd = np.asarray(self.receive.getActualQd(), dtype=float)
-        self._read_state()
+        try:
+            q = np.asarray(self.receive.getActualQ(), dtype=float)
+            qd = np.asarray(self.receive.getActualQd(), dtype=float)
+            self._read_state()
+        except RuntimeError as exc:  # a socket error: a fault, no reconnect in the loop
+            return self._link_error(exc)
         self._finish_call(q)
+        self._io_step(q)
         blocking = self._blocking_condition()
         if blocking is None and not self.control.isProgramRunning() and not self.call.busy:
             blocking = (
@@ -165,15 +218,44 @@ class URRobot:
         if blocking is not None:
             self._enter_fault(blocking, q)
         wrote = False
-        if self.fault is None and not self.call.busy:
-            wrote = self._servo(q)
-        if not wrote and self._may_kick():
-            self.control.kickWatchdog()
+        try:
+            if self.fault is None and not self.call.busy:
+                wrote = self._servo(q)
+            if not wrote and self._may_kick():
+                self.control.kickWatchdog()
+        except RuntimeError as exc:
+            return self._link_error(exc)
         mode = "fault" if self.fault else ("settle" if self.holding else self.follower.mode)
-        self._last = Measured(
-            q, qd, mode, self.protective_stop, self.status_text(), self.stale, self.safety
-        )
+        self._last = Measured(q, qd, mode, self.protective_stop, self.status_text(), self.stale,
+                              self.safety, self.speed, self._outputs)  # fmt: skip
         return self._last
+
+    def _link_error(self, exc: Exception) -> Measured:
+        """An RTDE call raised (socket error): latch a fault, keep the last state, no
+        reconnect here (the operator's recover runs in a helper thread)."""
+        self.stale = True
+        q = self._last.q
+        self._enter_fault(f"RTDE link error: {exc}", q)
+        self._last = Measured(q, np.zeros(len(self.names)), "fault", self.protective_stop,
+                              self.status_text(), True, self.safety, self.speed, None)  # fmt: skip
+        return self._last
+
+    def _io_step(self, q: np.ndarray) -> None:
+        """Collect the last output write; start the next one (outside the loop)."""
+        done = self.io_call.poll()
+        if done is not None and not done[1]:
+            hung = self.io_call.stuck
+            self._enter_fault(f"setStandardDigitalOut did not return within "
+                              f"{1e3 * IO_TIMEOUT:.0f} ms" if hung
+                              else f"setStandardDigitalOut failed: {done[2]}", q)  # fmt: skip
+        if self._io_want and not self.io_call.busy and not self.io_call.stuck:
+            want, self._io_want = dict(self._io_want), {}
+            io = self.io
+
+            def write() -> bool:
+                return all(io.setStandardDigitalOut(n, on) is not False for n, on in want.items())
+
+            self.io_call.start("setStandardDigitalOut", write, IO_TIMEOUT)
 
     def end_period(self) -> None:
         self.control.waitPeriod(self._t0)
@@ -188,6 +270,8 @@ class URRobot:
         self.safety = safety_name(mode)
         self.protective_stop = bool(self.receive.isProtectiveStopped()) or mode == 3
         self._safety_mode = mode
+        bits = self.receive.getActualDigitalOutputBits()
+        self._outputs = None if bits is None or self.stale else int(bits) & 0xFF
 
     def _blocking_condition(self) -> str | None:
         """What stops motion now and must be gone before a recover (None: nothing)."""
@@ -204,15 +288,18 @@ class URRobot:
             return "protective stop"
         if self.call.stuck:
             return "an RTDE call did not return: controller link hung"
+        if self.io_call.stuck:
+            return f"setStandardDigitalOut did not return within {1e3 * IO_TIMEOUT:.0f} ms"
         return None
 
     def _enter_fault(self, reason: str, q: np.ndarray) -> None:
-        """Latch the first cause (later causes show as "now: ..." in the status); the laser
-        gate goes off first, on every fault."""
+        """Latch the first cause (later causes show as "now: ..." in the status); every
+        laser output goes off first, on every fault."""
         self.log(f"fault: {reason}", key=reason.split(":")[0])  # once per cause every 5 s
         if self.fault is not None:
             return
-        self.set_gate(False)
+        self.lasers_off()
+        self._io_step(q)  # the off write starts now, before servoStop
         self.follower.reset(q)
         self.holding = False
         if self.servoing and not self.stale and self.control.isConnected():
@@ -323,6 +410,11 @@ class URRobot:
         self.holding = False
         self.follower.brake()
 
+    def lasers_off(self) -> None:
+        """Every laser output (gate and aim) off."""
+        for n in self.laser_outputs:
+            self.set_output(n, False)
+
     def set_gate(self, on: bool) -> None:
         """The laser gate: standard digital output ``gate_output`` through RTDE IO (no-op
         without one)."""
@@ -330,13 +422,12 @@ class URRobot:
             self.set_output(self.gate_output, on)
 
     def set_output(self, output: int, on: bool) -> None:
-        """A standard digital output through RTDE IO (no-op without an IO link). Every
-        command is recorded with its monotonic time."""
+        """A standard digital output through RTDE IO (no-op without an IO link): queued, and
+        written by the next period from a helper thread (IO_TIMEOUT). Every command is
+        recorded with its monotonic time."""
         if self.io is None:
             return
-        import time
-
-        self.io.setStandardDigitalOut(output, bool(on))
+        self._io_want[int(output)] = bool(on)
         self.gate_calls.append((time.monotonic(), output, bool(on)))
         del self.gate_calls[:-4096]
 
@@ -383,7 +474,9 @@ class URRobot:
     def close(self) -> None:
         """Ctrl-C / exit: laser off, stop servoing and disconnect, each waiting at most
         CALL_TIMEOUT."""
-        self.set_gate(False)
+        self.lasers_off()
+        self._io_step(self._last.q)
+        self.io_call.wait(CALL_TIMEOUT)
         self.call.wait(CALL_TIMEOUT)
         if self.servoing and self.call.start("servoStop", self.control.servoStop, CALL_TIMEOUT):
             self.call.wait(CALL_TIMEOUT + 0.1)
@@ -398,6 +491,9 @@ def _connect(host: str, rate: float, rt_priority: int = 0) -> tuple[Any, Any]:
     from rtde_control import RTDEControlInterface
     from rtde_receive import RTDEReceiveInterface
 
+    if host.startswith(FAKE_SCHEME):  # the simulated controller of another process (tests)
+        link = _fake_link(host)
+        return link, link
     try:
         receive = RTDEReceiveInterface(host, rate, [], False, False, rt_priority)
         control = RTDEControlInterface(
@@ -410,6 +506,8 @@ def _connect(host: str, rate: float, rt_priority: int = 0) -> tuple[Any, Any]:
 
 def _connect_io(host: str) -> Any:
     """The RTDE IO interface that drives the laser gate output (InputError when unreachable)."""
+    if host.startswith(FAKE_SCHEME):
+        return _fake_link(host)
     from rtde_io import RTDEIOInterface
 
     try:
@@ -418,6 +516,18 @@ def _connect_io(host: str) -> Any:
         raise InputError(
             f"cannot open RTDE IO on the UR controller: {exc}", f"--host {host}"
         ) from exc
+
+
+FAKE_SCHEME = "ur-fake:"  # --host ur-fake:<port>: drivers.robot.ur_fake.serve on loopback
+
+
+def _fake_link(host: str) -> Any:
+    from drivers.robot.ur_fake import FakeURLink
+
+    try:
+        return FakeURLink(int(host[len(FAKE_SCHEME) :]))
+    except (OSError, ValueError) as exc:
+        raise InputError(f"cannot reach the simulated controller: {exc}", f"--host {host}") from exc
 
 
 def set_realtime(priority: int) -> str:

@@ -24,6 +24,16 @@ both). What it models, per 2 ms controller cycle (one cycle per ``waitPeriod`` c
   operator does on the pendant) but the script stays stopped until ``reuploadScript``.
   ``safety_mode`` follows (1 normal, 2 reduced, 3 protective stop, 5 safeguard stop, 7 robot
   emergency stop).
+- **Runstate outputs.** ``sendCustomScriptFunction`` runs the
+  ``set_runstate_standard_digital_output_to_value(n, state)`` calls of its script (other
+  script lines are ignored); an output with state 1 ("False when program is not running") or
+  3 drops at once when the control script stops: watchdog trip, protective or emergency
+  stop, :meth:`stop_program`. ``output_log`` records every change of the output bits with
+  its monotonic time.
+- **Another process.** :func:`serve` runs a controller (cycling by itself, real-time paced)
+  behind a loopback TCP port; :class:`FakeURLink` is the three RTDE interfaces of a driver
+  process on it (``beamrelay robot --backend ur --host ur-fake:<port>``), so a test can
+  SIGKILL the driver and watch the controller.
 - **Link loss.** With ``link_alive = False`` the receive side freezes (timestamp, joints:
   ur_rtde returns the last package received) and the calls that wait for the controller
   (``servoStop``, ``setWatchdog``, ``reuploadScript``, ``disconnect``) block until the link
@@ -34,7 +44,11 @@ Joints in rad, rad/s; times in s.
 
 from __future__ import annotations
 
+import contextlib
 import datetime
+import json
+import re
+import socket
 import threading
 import time
 from typing import Any
@@ -45,6 +59,10 @@ from planner.model.transforms import Array
 
 CMD_NONE, CMD_SERVOJ, CMD_SERVO_STOP, CMD_SET_WATCHDOG = 0, 11, 16, 35
 CYCLE = 0.002  # s, e-Series controller cycle
+RUNSTATE_CALL = re.compile(
+    r"set_runstate_standard_digital_output_to_value\(\s*(\d+)\s*,\s*(\d+)\s*\)"
+)
+LOW_WHEN_STOPPED = (1, 3)  # runstates whose output is False while the program is stopped
 
 
 class FakeURController:
@@ -79,6 +97,8 @@ class FakeURController:
         self.reuploads = 0
         self.outputs = 0  # standard digital output bits, as read back over RTDE
         self._outputs_pending = 0
+        self.runstate: dict[int, int] = {}  # output -> URScript runstate (0: preserve)
+        self.output_log: list[tuple[float, int]] = [(time.monotonic(), 0)]  # (s, bits)
         self._writes: list[int] = []
         self._target: Array | None = None
         self._servo_args: tuple[float, float] = (CYCLE, 0.1)  # (t, lookahead)
@@ -118,9 +138,30 @@ class FakeURController:
     def _stop_program(self, mode: int) -> None:
         with self._lock:
             self.safety_mode = mode
-            self.running = False
-            self._target = None
+            self._program_stopped()
             self.qd[:] = 0.0
+
+    def stop_program(self) -> None:
+        """The control script stops (stop on the pendant, dashboard ``stop``)."""
+        with self._lock:
+            self._program_stopped()
+
+    def _program_stopped(self) -> None:
+        """The script stops (lock held): the runstate outputs drop at once."""
+        self.running = False
+        self._target = None
+        low = 0
+        for n, state in self.runstate.items():
+            if state in LOW_WHEN_STOPPED:
+                low |= 1 << n
+        self._outputs_pending &= ~low
+        self._set_outputs(self.outputs & ~low)
+
+    def _set_outputs(self, bits: int) -> None:
+        if bits != self.outputs:
+            self.outputs = bits
+            self.output_log.append((time.monotonic(), bits))
+            del self.output_log[:-4096]
 
     def servo_reads(self) -> list[int]:
         """The register value the script read in every cycle so far."""
@@ -169,6 +210,21 @@ class FakeURController:
         with self._lock:
             self._target = None
             self.qd[:] = 0.0
+        return True
+
+    def stopScript(self) -> None:
+        """ur_rtde's stopScript: the control script stops (runstate outputs drop)."""
+        self.calls.append("stopScript")
+        self.stop_program()
+
+    def sendCustomScriptFunction(self, name: str, script: str) -> bool:
+        """Run a script function; only its runstate calls have an effect here."""
+        self.calls.append("sendCustomScriptFunction")
+        if not self._wait_link():
+            return False
+        with self._lock:
+            for n, state in RUNSTATE_CALL.findall(script):
+                self.runstate[int(n)] = int(state)
         return True
 
     def reuploadScript(self) -> bool:
@@ -260,7 +316,7 @@ class FakeURController:
             if not self.link_alive:
                 return
             self.timestamp += CYCLE
-            self.outputs = self._outputs_pending
+            self._set_outputs(self._outputs_pending)
             if read == CMD_SERVOJ and writes and self.running:
                 self._target, self._servo_args = self._pending
             self._move()
@@ -269,9 +325,8 @@ class FakeURController:
                 time.monotonic() - self._last_write if self.realtime else self._idle_cycles * CYCLE
             )
             if self.running and wd > 0 and gap > 1.0 / wd:
-                self.running = False
                 self.watchdog_trips += 1
-                self._target = None
+                self._program_stopped()
 
     def _move(self) -> None:
         q_old = self.q.copy()
@@ -311,3 +366,98 @@ class FakeDashboard:
 
     def isInRemoteControl(self) -> bool:
         return self.controller.remote_control
+
+
+#: what a FakeURLink reads once per period (receive side) and caches until the next
+SNAPSHOT = ("getActualQ", "getActualQd", "getTimestamp", "getSpeedScalingCombined",
+            "getSafetyMode", "isProtectiveStopped", "isEmergencyStopped",
+            "getActualDigitalOutputBits", "isProgramRunning", "isConnected")  # fmt: skip
+
+
+def serve(controller: FakeURController, port: int = 0) -> tuple[int, threading.Event]:
+    """Run ``controller`` behind a loopback TCP port (one JSON call per line, answer per
+    line) and cycle it every 2 ms in a thread; the port and an event that stops both."""
+    halt = threading.Event()
+    srv = socket.create_server(("127.0.0.1", port))
+    srv.settimeout(0.1)
+    controller.realtime = True
+
+    def clock() -> None:
+        while not halt.is_set():
+            controller.waitPeriod()
+
+    def client(conn: socket.socket) -> None:
+        f = conn.makefile("rwb")
+        with conn, f, contextlib.suppress(OSError):  # the driver died: its socket with it
+            for line in f:
+                name, args = json.loads(line)
+                if name == "snapshot":
+                    out: Any = {k: getattr(controller, k)() for k in SNAPSHOT}
+                else:
+                    out = getattr(controller, name)(*args)
+                f.write(json.dumps(out).encode() + b"\n")
+                f.flush()
+
+    def accept() -> None:
+        with srv:
+            while not halt.is_set():
+                try:
+                    conn, _ = srv.accept()
+                except TimeoutError:
+                    continue
+                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                threading.Thread(target=client, args=(conn,), daemon=True).start()
+
+    for fn in (clock, accept):
+        threading.Thread(target=fn, daemon=True).start()
+    return int(srv.getsockname()[1]), halt
+
+
+class FakeURLink:
+    """RTDE control, receive and IO of a driver process on a controller run by :func:`serve`:
+    one ``snapshot`` call per period (``initPeriod``) feeds the receive getters; commands are
+    calls; ``waitPeriod`` paces the loop at 2 ms (the controller cycles by itself). A
+    broken socket raises RuntimeError, as ur_rtde does."""
+
+    def __init__(self, port: int) -> None:
+        self._sock = socket.create_connection(("127.0.0.1", port), timeout=2.0)
+        self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._file = self._sock.makefile("rwb")
+        self._lock = threading.Lock()
+        self._snap: dict[str, Any] = self._call("snapshot")
+        self._next = time.monotonic()
+
+    def _call(self, name: str, *args: Any) -> Any:
+        with self._lock:
+            try:
+                self._file.write(json.dumps([name, list(args)]).encode() + b"\n")
+                self._file.flush()
+                line = self._file.readline()
+            except OSError as exc:
+                raise RuntimeError(f"RTDE socket: {exc}") from exc
+        if not line:
+            raise RuntimeError("RTDE socket closed by the controller")
+        return json.loads(line)
+
+    def __getattr__(self, name: str) -> Any:
+        if name in SNAPSHOT:
+            return lambda: self._snap[name]
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return lambda *args: self._call(name, *args)
+
+    def initPeriod(self) -> datetime.timedelta:
+        self._snap = self._call("snapshot")
+        return datetime.timedelta(seconds=time.monotonic())
+
+    def waitPeriod(self, t0: Any = None) -> None:
+        self._next += CYCLE
+        delay = self._next - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        else:
+            self._next = time.monotonic()
+
+    def disconnect(self) -> None:
+        with self._lock:
+            self._sock.close()

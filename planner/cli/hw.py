@@ -9,6 +9,7 @@ check passed, 1 when one failed. Steps and their fixes: :mod:`drivers.hwcheck`.
 from __future__ import annotations
 
 import contextlib
+from pathlib import Path
 from typing import Annotated, Any
 
 import typer
@@ -33,9 +34,13 @@ def check(
     ] = False,
     spot_test: Annotated[
         bool,
-        typer.Option("--spot-test", help="Opt-in: laser on/off through the gate, find the spot."),
+        typer.Option("--spot-test", help="Opt-in: aim beam on/off (laser.aim), find the spot."),
     ] = False,
     gate_output: Annotated[int, typer.Option(help="Standard digital output of the gate.")] = 0,
+    scenario: Annotated[
+        Path | None,
+        typer.Option("--scenario", "-s", help="Scenario: the laser.gate and laser.aim outputs."),
+    ] = None,
     simulate: Annotated[
         bool, typer.Option("--simulate", help="Run against the simulated controller.")
     ] = False,
@@ -47,6 +52,19 @@ def check(
         raise InputError("give the controller's address (or --simulate)", "--host")
     if not 0 <= gate_output <= 7:
         raise InputError(f"must be in [0, 7], got {gate_output}", "--gate-output")
+    aim_output = None
+    if scenario is not None:
+        from planner.io.scenario import load_scenario
+
+        laser = load_scenario(scenario).model.system.laser
+        if laser.gate is not None:
+            gate_output = laser.gate.output
+        if laser.aim is not None:
+            aim_output = gate_output if laser.aim == "gate" else laser.aim.output
+    if spot_test and aim_output is None:
+        raise InputError("the spot test runs on the aiming beam only: the scenario (--scenario) "
+                         "needs laser.aim", "laser.aim")  # fmt: skip
+    outputs = sorted({gate_output} | ({aim_output} if aim_output is not None else set()))
     rig: Any = _SimRig() if simulate else _RealRig(str(host))
     results: list[hwcheck.Check] = []
 
@@ -61,17 +79,37 @@ def check(
             report(hwcheck.wiggle(robot, lambda n: _periods(robot, n)))
         elif wiggle:
             report(_skipped("wiggle"))
-        if gate_test:
+        read_only_ok = all(c.status != "fail" for c in results)
+        if gate_test and read_only_ok:
             report(hwcheck.gate_test(rig.io(), rig.receive, gate_output))
-        if spot_test:
-            report(hwcheck.spot_test(rig.grab, lambda on: rig.set_gate(gate_output, on)))
+            report(hwcheck.runstate_test(rig.control, rig.receive, rig.io(), outputs))
+        elif gate_test:
+            report(_skipped("gate"))
+        if spot_test and read_only_ok and aim_output is not None:
+            aim = aim_output
+            report(hwcheck.spot_test(rig.grab, lambda on: rig.set_gate(aim, on)))
+        elif spot_test:
+            report(_skipped("spot"))
     finally:
+        _all_off(rig, outputs)
         rig.close()
+    typer.echo("wiring RTDE cannot see (check each by hand before powering the laser):")
+    for item in hwcheck.WIRING_CHECKLIST:
+        typer.echo(f"  [ ] {item}")
     failed = [c.name for c in results if c.status == "fail"]
     typer.echo(f"{len(results) - len(failed)}/{len(results)} ok" +
                (f"; failed: {', '.join(failed)}" if failed else ""))  # fmt: skip
     if failed:
         raise typer.Exit(1)
+
+
+def _all_off(rig: Any, outputs: list[int]) -> None:
+    """Every laser output off (also after Ctrl-C or an error); a failure is printed."""
+    for n in outputs:
+        try:
+            rig.io().setStandardDigitalOut(n, False)
+        except Exception as exc:  # the link may be the reason we are here
+            typer.echo(f"WARNING: could not switch output {n} off: {exc}", err=True)
 
 
 def _skipped(name: str) -> Any:

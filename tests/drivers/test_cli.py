@@ -25,8 +25,10 @@ SCENARIO = REPO / "scenarios" / "paper_n1.yaml"
 CLI = [sys.executable, "-m", "planner.cli", "driver"]
 
 
-def run(args: list[str], endpoint: str, prefix: str) -> subprocess.Popen[bytes]:
-    bus = ["--scenario", str(SCENARIO), "--endpoint", endpoint, "--prefix", prefix]
+def run(
+    args: list[str], endpoint: str, prefix: str, scenario: Path = SCENARIO
+) -> subprocess.Popen[bytes]:
+    bus = ["--scenario", str(scenario), "--endpoint", endpoint, "--prefix", prefix]
     env = dict(os.environ, PYTHONPATH=os.getcwd())
     return subprocess.Popen([*CLI, *args, *bus], stderr=subprocess.PIPE, env=env)
 
@@ -103,12 +105,31 @@ def test_robot_and_camera_drivers_publish_and_stop_on_sigterm(
 def test_user_mistakes_exit_2_with_one_line(endpoint: str) -> None:
     cases = [
         (["robot", "--name", "arm7"], "unknown robot 'arm7'"),
-        (["robot", "--name", "arm0", "--backend", "ur"], "--host"),
+        # paper_n1 has no laser.gate: the real arm refuses to run an "always on" laser
+        (["robot", "--name", "arm0", "--backend", "ur", "--host", "10.0.0.9"], "laser.gate"),
+        (["robot", "--name", "arm0", "--backend", "ur", "@gated"], "--host"),
+        (
+            [
+                "robot",
+                "--name",
+                "arm0",
+                "--backend",
+                "ur",
+                "--host",
+                "10.0.0.9",
+                "--no-require-planner",
+                "@gated",
+            ],
+            "--no-require-planner",
+        ),
         (["robot", "--name", "arm0", "--state-rate", "50"], "--state-rate"),
         (["camera", "--stride", "0"], "--stride"),
     ]
     for args, needle in cases:
-        proc = run(args, endpoint, "brbad")
+        gated = "@gated" in args
+        args = [a for a in args if a != "@gated"]
+        scenario = REPO / "scenarios" / "s_curve.yaml" if gated else SCENARIO
+        proc = run(args, endpoint, "brbad", scenario)
         _, err = proc.communicate(timeout=60)
         lines = err.decode().strip().splitlines()
         assert proc.returncode == 2, err

@@ -6,6 +6,7 @@ import os
 import socket
 import subprocess
 import sys
+from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
@@ -14,23 +15,130 @@ import numpy as np
 from drivers import hwcheck
 from drivers.robot.ur import URRobot
 from drivers.robot.ur_fake import FakeDashboard, FakeURController
+from planner.cli.hw import _SimRig
 from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
 from tests.drivers.conftest import free_port
+from tests.paths import REPO
+
+SimRig = _SimRig  # bound before any monkeypatch of the module
 
 CLI = [sys.executable, "-m", "planner.cli", "hw", "check"]
 ENV = dict(os.environ, PYTHONPATH=os.getcwd())
 
 
-def test_simulated_system_passes_every_step() -> None:
-    out = subprocess.run([*CLI, "--simulate", "--wiggle", "--gate-test", "--spot-test"],
+def aimed_scenario(tmp_path: Path, aim: str = "{robot: arm0, output: 4}") -> Path:
+    """s_curve (laser.gate: arm0 output 0) with an aiming beam on output 4."""
+    text = (REPO / "scenarios" / "s_curve.yaml").read_text()
+    gate = "    gate: {robot: arm0, output: 0}\n"
+    assert gate in text
+    out = tmp_path / "aimed.yaml"
+    out.write_text(text.replace(gate, gate + f"    aim: {aim}\n"))
+    return out
+
+
+def test_simulated_system_passes_every_step(tmp_path: Path) -> None:
+    out = subprocess.run([*CLI, "--simulate", "--wiggle", "--gate-test", "--spot-test",
+                          "--scenario", str(aimed_scenario(tmp_path))],
                          capture_output=True, env=ENV, timeout=120)  # fmt: skip
     lines = out.stdout.decode().splitlines()
     assert out.returncode == 0, out.stdout + out.stderr
-    marks = [ln.split("]")[0] + "]" for ln in lines[:-1]]
-    assert marks == ["[PASS]"] * 4 + ["[SKIP]"] + ["[PASS]"] * 3
-    assert [ln.split(":")[0].split("] ")[1] for ln in lines[:-1]] == [
-        "network", "dashboard", "rtde", "registers", "camera", "wiggle", "gate", "spot"]  # fmt: skip
-    assert lines[-1] == "8/8 ok"
+    checks = [ln for ln in lines if ln.startswith("[")]
+    marks = [ln.split("]")[0] + "]" for ln in checks]
+    assert marks == ["[PASS]"] * 4 + ["[SKIP]"] + ["[PASS]"] * 4
+    assert [ln.split(":")[0].split("] ")[1] for ln in checks] == [
+        "network", "dashboard", "rtde", "registers", "camera", "wiggle", "gate", "runstate",
+        "spot"]  # fmt: skip
+    assert "outputs [0, 4] dropped" in checks[7]
+    wiring = lines.index("wiring RTDE cannot see (check each by hand before powering the laser):")
+    assert lines[wiring + 1 : -1] == [f"  [ ] {w}" for w in hwcheck.WIRING_CHECKLIST]
+    assert any("safety* output" in w for w in hwcheck.WIRING_CHECKLIST)
+    assert lines[-1] == "9/9 ok"
+
+
+def test_spot_test_refuses_without_an_aiming_beam(tmp_path: Path) -> None:
+    for extra in ([], ["--scenario", str(REPO / "scenarios" / "s_curve.yaml")]):
+        out = subprocess.run([*CLI, "--simulate", "--spot-test", *extra], capture_output=True,
+                             env=ENV, timeout=60)  # fmt: skip
+        err = out.stderr.decode().strip().splitlines()
+        assert out.returncode == 2 and len(err) == 1 and "laser.aim" in err[0], err
+
+
+def make_rig(read_only_fail: bool = False, grab_raises: BaseException | None = None) -> Any:
+    """The simulated rig of ``hw check --simulate`` whose network check fails or whose
+    grab() raises once an output is on; it records every output switch."""
+
+    class Rig(SimRig):
+        def __init__(self) -> None:
+            super().__init__()
+            self.gate_calls: list[tuple[int, bool]] = []
+
+        def ports(self) -> Any:
+            return hwcheck.Check("network", "fail" if read_only_fail else "pass", "test rig")
+
+        def set_gate(self, output: int, on: bool) -> None:
+            self.gate_calls.append((output, on))
+            super().set_gate(output, on)
+
+        def grab(self) -> Any:
+            if grab_raises is not None and any(on for _, on in self.gate_calls):
+                raise grab_raises
+            return super().grab()
+
+    return Rig()
+
+
+def run_check(monkeypatch: Any, rig: Any, tmp_path: Path, *args: str) -> Any:
+    from typer.testing import CliRunner
+
+    from planner.cli import hw
+
+    monkeypatch.setattr(hw, "_SimRig", lambda: rig)
+    return CliRunner().invoke(hw.app, ["--simulate", "--no-camera", "--scenario",
+                                       str(aimed_scenario(tmp_path)), *args])  # fmt: skip
+
+
+def test_every_laser_output_off_when_grab_raises_or_on_ctrl_c(
+    monkeypatch: Any, tmp_path: Path
+) -> None:
+    for exc in (RuntimeError("frame timeout"), KeyboardInterrupt()):
+        rig = make_rig(grab_raises=exc)
+        fake = rig.fake
+        run_check(monkeypatch, rig, tmp_path, "--spot-test")
+        assert (4, True) in rig.gate_calls  # the aim output was on when grab() raised
+        assert all(n == 4 for n, _ in rig.gate_calls)  # never the treatment gate (0)
+        fake.cycle()
+        assert fake.outputs == 0, exc
+
+
+def test_gate_and_spot_tests_skipped_after_a_failed_read_only_check(
+    monkeypatch: Any, tmp_path: Path
+) -> None:
+    rig = make_rig(read_only_fail=True)
+    fake = rig.fake
+    out = run_check(monkeypatch, rig, tmp_path, "--gate-test", "--spot-test")
+    assert out.exit_code == 1
+    assert "[SKIP] gate: a read-only check failed" in out.stdout
+    assert "[SKIP] spot: a read-only check failed" in out.stdout
+    assert rig.gate_calls == [] and "setStandardDigitalOut" not in fake.calls
+
+
+def test_runstate_check_fails_when_the_output_stays_on_at_program_stop() -> None:
+    fake = FakeURController(np.array(DEFAULT_HOME))
+    fake.sendCustomScriptFunction = lambda name, script: True  # type: ignore[method-assign]
+    import threading
+
+    halt = threading.Event()
+    clock = threading.Thread(target=lambda: [fake.cycle() or halt.wait(0.002)
+                                             for _ in iter(halt.is_set, True)])  # fmt: skip
+    clock.start()
+    try:
+        c = hwcheck.runstate_test(fake, fake, fake, [0], timeout=0.05)
+    finally:
+        halt.set()
+        clock.join()
+    assert c.status == "fail" and "stayed on" in c.detail
+    fake.cycle()
+    assert fake.outputs == 0 and fake.running  # switched off, script re-uploaded
 
 
 def test_user_mistakes() -> None:

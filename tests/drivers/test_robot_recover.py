@@ -106,7 +106,7 @@ def test_up_ur_does_not_restart_a_dead_driver_without_recover(tmp_path: Path) ->
     from tests.drivers.conftest import free_port
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    scenario = REPO / "scenarios" / "paper_n1.yaml"
+    scenario = REPO / "scenarios" / "s_curve.yaml"  # the ur backend needs laser.gate
     env = dict(os.environ, PYTHONPATH=os.getcwd())
     up = subprocess.Popen(
         [*CLI, "up", str(scenario), "--backend", "ur", "--host", "arm0=127.0.0.1",

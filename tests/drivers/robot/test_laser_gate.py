@@ -195,6 +195,11 @@ def _ur(
 def test_ur_gate_output_switches_and_goes_off_on_a_fault_and_at_exit() -> None:
     robot, fake, io, order = _ur()
     robot.set_gate(True)
+    assert io == []  # queued: written by the next period, from a helper thread
+    robot.begin_period()
+    robot.step()
+    robot.end_period()
+    robot.io_call.wait(1.0)
     assert [(o, s) for _, o, s in io] == [(3, True)] and robot.gate_calls[0][1:] == (3, True)
     m = smooth_move(HOME, DQ, 0.5)
     robot.command(Reference(*(np.asarray(a, dtype=float) for a in (m.t, m.q, m.qd, m.qdd))))
@@ -230,7 +235,8 @@ def test_ur_node_gate_forced_off_on_a_stop(hub: Any, endpoint: str, keys: Keys) 
     session = open_session(listen=False, endpoint=endpoint)
     node = RobotNode(session, keys, "arm0", robot, LIMITS, gate_output=1).start()
     try:
-        assert io and io[0][1:] == (1, False)  # start-up: off
+        wait_for(lambda: bool(io), what="start-up write")
+        assert io[0][1:] == (1, False)  # start-up: off
         wait_for(lambda: node.planner_alive and "P" in node.heartbeats, what="planner")
         client.put(keys.trajectory("arm0"), json.dumps(_move(2.0, [[0.1, 1.9]], "m")).encode())
         wait_for(lambda: io[-1][2] is True, what="gate on")
