@@ -79,6 +79,7 @@ with the stop deceleration of :mod:`drivers.robot.follower`, drop the queued tra
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -99,10 +100,12 @@ from drivers.robot.ur_link import RateLimitedLog, parse_recover, recover_key
 from planner.errors import InputError
 from planner.model.system import Limits
 from planner.service.bus import JSON, Keys, decode, encode
+from planner.service.priority import Priority, raise_priority
 from schemas.messages import Heartbeat, JointState, RobotStatus, TrajectoryAck
 
 HEARTBEAT_TIMEOUT = 0.100  # s: longest planner silence before the arm brakes
 MAX_SESSIONS = 64  # heartbeat sessions remembered (oldest forgotten first)
+RT_IDLE = 0.0002  # s a real-time control loop sleeps after a period that did not sleep
 PERIOD_LOG = 1 << 16  # control periods whose start times are kept (2 min at 500 Hz)
 
 
@@ -132,8 +135,11 @@ class RobotNode(StreamingMixin, LoopNode):
         gate_output: int | None = None,
         emission: Emission | None = None,
         clock: Callable[[], float] = time.monotonic,
+        realtime: bool = False,
     ) -> None:
         super().__init__()
+        self.realtime = realtime  # the control loop thread asks for SCHED_FIFO
+        self.loop_priority: Priority | None = None  # what it obtained (None: not asked)
         self.clock = clock  # monotonic s: every receive time and period start
         if emission is None and gate_output is not None:
             emission = Emission(gate_output)
@@ -253,8 +259,19 @@ class RobotNode(StreamingMixin, LoopNode):
 
     # -- control loop --------------------------------------------------------------------
     def _loop(self) -> None:
+        """Periods until stopped. With ``realtime`` the thread runs under SCHED_FIFO where
+        permitted (what it starts later begins normal); a period that overran its ``dt``
+        (the backend did not sleep) then sleeps :data:`RT_IDLE` s, so a late loop never holds
+        a core."""
+        dt = 1.0 / self.backend.rate
+        if self.realtime:
+            self.loop_priority = raise_priority(reset_on_fork=True)
+            print(f"{self.robot}: control loop {self.loop_priority.note}", file=sys.stderr)
         while not self._stop.is_set():
+            t0 = time.monotonic()
             self.period()
+            if self.realtime and time.monotonic() - t0 >= dt:
+                time.sleep(RT_IDLE)
 
     def period(self) -> None:
         """One control period: stop triggers, verdicts, streams, one backend step, gate,
