@@ -99,9 +99,8 @@ def robot(
     from planner.errors import InputError
     from planner.io.scenario import load_scenario, system_from_scenario
     from planner.service.bus import Keys, open_session
-    from planner.service.priority import priority_note, raise_priority
+    from planner.service.priority import raised_priority
 
-    nice = raise_priority()  # before any thread starts: they inherit it
     scn = load_scenario(scenario)
     system = system_from_scenario(scn)
     if name not in system.robot_names:
@@ -146,7 +145,8 @@ def robot(
             gate_output=gate_output,
             aim_output=None if emission is None else emission.aim_output,
         )
-    session = open_session(listen=listen, endpoint=endpoint, config_file=zenoh_config)
+    with raised_priority() as got:  # Zenoh's threads receive the heartbeat: they inherit it
+        session = open_session(listen=listen, endpoint=endpoint, config_file=zenoh_config)
     node = RobotNode(
         session,
         Keys(prefix),
@@ -158,9 +158,10 @@ def robot(
         require_planner=require_planner,
         emission=emission,
         chain=tuple(system.robot_names) if gate_output is not None else (),
+        realtime=True,
     )
     _run(node, session, f"{name}: {backend.value} robot driver up (prefix {prefix}; "
-                        f"{priority_note(nice)})")  # fmt: skip
+                        f"bus {got.note})")  # fmt: skip
 
 
 @app.command("camera")

@@ -83,6 +83,7 @@ with the stop deceleration of :mod:`drivers.robot.follower`, drop the queued tra
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -105,6 +106,7 @@ from planner.errors import InputError
 from planner.model.system import Limits
 from planner.service.bus import JSON, Keys, decode, encode, urgent
 from planner.service.execution import base_id
+from planner.service.priority import Priority, raise_priority
 from schemas.messages import Heartbeat, JointState, RobotStatus, StopMessage, TrajectoryAck
 
 HEARTBEAT_TIMEOUT = 0.100  # s: longest planner silence before the arm brakes
@@ -112,6 +114,7 @@ HEARTBEAT_TIMEOUT = 0.100  # s: longest planner silence before the arm brakes
 #: periods of a 500 Hz stream; the stream itself ends at 50 ms)
 LATE_SETPOINT = 0.006
 MAX_SESSIONS = 64  # heartbeat sessions remembered (oldest forgotten first)
+RT_IDLE = 0.0002  # s a real-time control loop sleeps after a period that did not sleep
 PERIOD_LOG = 1 << 16  # control periods whose start times are kept (2 min at 500 Hz)
 
 
@@ -142,8 +145,11 @@ class RobotNode(StreamingMixin, LoopNode):
         emission: Emission | None = None,
         chain: tuple[str, ...] = (),
         clock: Callable[[], float] = time.monotonic,
+        realtime: bool = False,
     ) -> None:
         super().__init__()
+        self.realtime = realtime  # the control loop thread asks for SCHED_FIFO
+        self.loop_priority: Priority | None = None  # what it obtained (None: not asked)
         self.clock = clock  # monotonic s: every receive time and period start
         if emission is None and gate_output is not None:
             emission = Emission(gate_output)
@@ -273,8 +279,19 @@ class RobotNode(StreamingMixin, LoopNode):
 
     # -- control loop --------------------------------------------------------------------
     def _loop(self) -> None:
+        """Periods until stopped. With ``realtime`` the thread runs under SCHED_FIFO where
+        permitted (what it starts later begins normal); a period that overran its ``dt``
+        (the backend did not sleep) then sleeps :data:`RT_IDLE` s, so a late loop never holds
+        a core."""
+        dt = 1.0 / self.backend.rate
+        if self.realtime:
+            self.loop_priority = raise_priority(reset_on_fork=True)
+            print(f"{self.robot}: control loop {self.loop_priority.note}", file=sys.stderr)
         while not self._stop.is_set():
+            t0 = time.monotonic()
             self.period()
+            if self.realtime and time.monotonic() - t0 >= dt:
+                time.sleep(RT_IDLE)
 
     def period(self) -> None:
         """One control period: stop triggers, verdicts, streams, one backend step, gate,

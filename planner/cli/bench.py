@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import typer
 
-from planner.bench import ik, marking, path, plan, preview, safety, service, servo, track
+from planner.bench import brakes, ik, marking, path, plan, preview, safety, service, servo, track
 
 app = typer.Typer(help="Benchmarks (figures printed, not asserted).", no_args_is_help=True)
 
@@ -20,6 +20,7 @@ BENCHMARKS = {
     "safety": safety,
     "servo": servo,
     "track": track,
+    "brakes": brakes,
 }
 """Command name -> benchmark module (its ``command`` is the sub-command)."""
 

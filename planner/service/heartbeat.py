@@ -22,9 +22,10 @@ The child opens its own Zenoh session (a Zenoh session cannot be shared across p
 as a *client* of the bus endpoint with the planner's config file, hence with the planner's
 identity where access control applies; the host routes its samples. It is started with
 ``python -m planner.service.heartbeat`` (no fork of the planner, no re-import of the
-parent's main module) and prints ``ready`` after its first beat. It asks for a higher CPU
-priority (:func:`planner.service.priority.raise_priority`) so that a loaded machine does not
-delay its beats.
+parent's main module) and prints ``ready`` after its first beat. The whole process (its
+beat loop sleeps every period, Zenoh's threads wait for I/O) runs at real-time priority
+where permitted (:func:`planner.service.priority.raise_priority`) so that a loaded machine
+does not delay its beats.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ from pathlib import Path
 from typing import Any
 
 from planner.errors import BeamrelayError
-from planner.service.priority import priority_note, raise_priority
+from planner.service.priority import Policy, raise_priority
 
 log = logging.getLogger("beamrelay.node")
 
@@ -323,9 +324,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--zenoh-config", type=Path)
     args = ap.parse_args(argv)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the planner, which stops us
-    nice = raise_priority()  # before the session's threads start: they inherit it
-    if nice is None:
-        log.warning("heartbeat %s", priority_note(nice))
+    got = raise_priority()  # before the session's threads start: they inherit it
+    if got.policy is not Policy.FIFO:
+        log.warning("heartbeat %s", got.note)
     import zenoh
 
     from planner.service.bus import JSON, _zenoh_message, urgent

@@ -1,54 +1,121 @@
-"""Best-effort CPU priority for the processes whose timing keeps the arm safe.
+"""Real-time CPU priority for the threads whose timing keeps the arm safe.
 
 A robot driver brakes when the planner's heartbeat is silent for 100 ms, and its control
 loop must run every period. On a loaded machine (a browser rendering in software, a
-solver) the scheduler may leave either waiting for longer than that: the arm then stops
-although nothing failed. The robot drivers and the heartbeat process therefore ask for a
-lower nice value (more CPU under load) when they start, before they start threads (on
-Linux the nice value is per thread and new threads inherit it). Raising priority needs root
-or CAP_SYS_NICE; without it they run as they are, and say so.
+solver, a test suite) the normal scheduler may leave either waiting longer than that: the
+arm then stops although nothing failed, and a lower nice value does not prevent it. The
+heartbeat path (the heartbeat process, the Zenoh threads of ``up``'s hub and of each robot
+driver) and the drivers' control loops therefore ask for ``SCHED_FIFO`` at
+:data:`RT_PRIORITY`, per thread: the threads that compute (solvers, parsers, the camera)
+stay normal. Every such thread sleeps each period, so it cannot starve the machine.
+
+``SCHED_FIFO`` needs root, ``CAP_SYS_NICE`` or an rtprio limit: ``ulimit -r 15``, or a line
+``<user> - rtprio 15`` in ``/etc/security/limits.d/beamrelay.conf`` (then log in again).
+Without it the thread asks for nice :data:`TIMING_NICE`, and without that runs as it was;
+:attr:`Priority.note` says which, and what to set. ``BEAMRELAY_NO_RT=1`` in the environment
+skips ``SCHED_FIFO`` (nice only), to measure what it buys (``beamrelay bench brakes``).
+
+On Linux scheduling policy and nice value are per thread; new threads inherit them.
 """
 
 from __future__ import annotations
 
 import contextlib
+import enum
 import os
+import resource
 from collections.abc import Iterator
+from dataclasses import dataclass
 
-#: the nice value the timing-critical processes ask for (0 is the default, -20 the highest)
+#: the SCHED_FIFO priority asked for (1-99; ur_rtde's threads run at 70-80 on a real arm)
+RT_PRIORITY = 15
+#: the nice value asked for when SCHED_FIFO is not permitted (0 default, -20 highest)
 TIMING_NICE = -10
+#: set to 1 to skip SCHED_FIFO (nice only)
+NO_RT_ENV = "BEAMRELAY_NO_RT"
 
 
-def raise_priority(nice: int = TIMING_NICE) -> int | None:
-    """Lower the calling thread's (at start: the process's) nice value to ``nice``; the
-    value it runs at then, or None when that was not permitted (it runs as it was)."""
+class Policy(enum.Enum):
+    FIFO = "SCHED_FIFO"
+    NICE = "nice"
+    UNCHANGED = "unchanged"
+
+
+@dataclass(frozen=True)
+class Priority:
+    """What a thread obtained: ``level`` is the FIFO priority (FIFO) or the nice value;
+    ``why`` says why SCHED_FIFO was not obtained (empty when it was)."""
+
+    policy: Policy
+    level: int
+    why: str = ""
+
+    @property
+    def note(self) -> str:
+        """One log line: what was obtained and, when not real time, what to set."""
+        if self.policy is Policy.FIFO:
+            return f"priority: SCHED_FIFO {self.level} (real time)"
+        got = f"nice {self.level}" if self.policy is Policy.NICE else "normal (nice not raised)"
+        return f"priority: {got}, not real time: {self.why}; late heartbeats may brake a loaded machine"
+
+
+def rtprio_limit() -> int:
+    """The soft RLIMIT_RTPRIO (the highest SCHED_FIFO priority allowed without CAP_SYS_NICE)."""
+    soft = resource.getrlimit(resource.RLIMIT_RTPRIO)[0]
+    return 99 if soft == resource.RLIM_INFINITY else int(soft)
+
+
+def _try_fifo(priority: int, reset_on_fork: bool) -> tuple[int | None, str]:
+    """SCHED_FIFO for the calling thread at ``priority`` (or the rtprio limit, if lower
+    but not 0): the priority obtained, or None and why not."""
+    if os.environ.get(NO_RT_ENV, "") not in ("", "0"):
+        return None, f"SCHED_FIFO skipped ({NO_RT_ENV} is set)"
+    flags = os.SCHED_RESET_ON_FORK if reset_on_fork else 0
+    limit = rtprio_limit()
+    for p in dict.fromkeys((priority, min(priority, limit))):
+        if p < 1:
+            continue
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO | flags, os.sched_param(p))
+            return p, ""
+        except OSError:  # PermissionError: neither CAP_SYS_NICE nor a high enough limit
+            continue
+    return None, (
+        f"SCHED_FIFO not permitted (RLIMIT_RTPRIO {limit}, needs {priority}: run as root, "
+        f"or `ulimit -r {priority}`, or '<user> - rtprio {priority}' in /etc/security/limits.d/)"
+    )
+
+
+def raise_priority(
+    priority: int = RT_PRIORITY, nice: int = TIMING_NICE, *, reset_on_fork: bool = False
+) -> Priority:
+    """SCHED_FIFO at ``priority`` for the calling thread, else nice ``nice``, else as it
+    was. ``reset_on_fork``: processes (and threads) it starts later begin normal again;
+    without it new threads inherit the priority (how a Zenoh runtime is raised)."""
+    got, why = _try_fifo(priority, reset_on_fork)
+    if got is not None:
+        return Priority(Policy.FIFO, got)
     try:
         current = os.getpriority(os.PRIO_PROCESS, 0)
-        if current <= nice:
-            return current
-        os.setpriority(os.PRIO_PROCESS, 0, nice)
-        return nice
-    except (OSError, AttributeError):  # not permitted; no setpriority on this platform
-        return None
-
-
-def priority_note(nice: int | None) -> str:
-    """One log line on the outcome of :func:`raise_priority`."""
-    if nice is None:
-        return "priority: not raised (needs root or CAP_SYS_NICE); late heartbeats may brake a loaded machine"
-    return f"priority: nice {nice}"
+        if current > nice:
+            os.setpriority(os.PRIO_PROCESS, 0, nice)
+            current = nice
+        return Priority(Policy.NICE, current, why)
+    except OSError:  # not permitted
+        return Priority(Policy.UNCHANGED, os.getpriority(os.PRIO_PROCESS, 0), why)
 
 
 @contextlib.contextmanager
-def raised_priority(nice: int = TIMING_NICE) -> Iterator[int | None]:
-    """:func:`raise_priority` for the threads started inside (a Zenoh session's routing
-    threads), the calling thread back at its nice value after (the children it spawns later
-    do not inherit the raise)."""
+def raised_priority(priority: int = RT_PRIORITY, nice: int = TIMING_NICE) -> Iterator[Priority]:
+    """:func:`raise_priority` for the threads started inside (a Zenoh session's runtime
+    threads), the calling thread back at its policy and nice value after (the processes
+    and threads it starts later do not inherit the raise)."""
+    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
     before = os.getpriority(os.PRIO_PROCESS, 0)
-    got = raise_priority(nice)
     try:
-        yield got
+        yield raise_priority(priority, nice)
     finally:
-        if got is not None and got != before:
-            with contextlib.suppress(OSError):
-                os.setpriority(os.PRIO_PROCESS, 0, before)
+        with contextlib.suppress(OSError):
+            os.sched_setscheduler(0, policy, param)
+        with contextlib.suppress(OSError):
+            os.setpriority(os.PRIO_PROCESS, 0, before)

@@ -32,7 +32,7 @@ from planner.service.bus import (
     open_session,
     update_alive,
 )
-from planner.service.priority import priority_note, raised_priority
+from planner.service.priority import raised_priority
 from planner.service.supervisor import Supervisor
 
 RATE_WINDOW = 2.0  # s over which message rates are averaged
@@ -316,7 +316,7 @@ def run_up(
         console_port=console_port, online_calibration=online, role_configs=roles,
     )  # fmt: skip
     log_dir = Path(log_dir or tempfile.mkdtemp(prefix="beamrelay-up-"))
-    with raised_priority() as nice:  # the hub routes the heartbeat: its threads first
+    with raised_priority() as got:  # the hub routes the heartbeat: its threads first
         session = open_session(listen=True, endpoint=endpoint, config_file=configs[0])
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -326,7 +326,7 @@ def run_up(
     title = f"beamrelay up {scn.model.name} on {endpoint} (logs {log_dir})"
     t_end = None if duration is None else time.monotonic() + duration
     try:
-        console.log(f"bus hub {priority_note(nice)}")
+        console.log(f"bus hub {got.note}")
         sup.start()
         view = Live(health_table(sup, health, title), console=console) if live else None
         with view or contextlib.nullcontext():
