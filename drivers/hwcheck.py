@@ -226,6 +226,37 @@ def gate_test(io: Any, receive: Any, output: int, timeout: float = 1.0) -> Check
     return Check("gate", "pass" if ok else "fail", detail, "the RTDE link is slow or loaded")
 
 
+#: m: how far along the aim beam the keep-out check of the spot test looks
+SPOT_REACH = 2.0
+
+
+def aim_keep_out(scn: Any, q: Any) -> Check | None:
+    """The aim beam at the arm's measured joints ``q`` (rad) against the scenario's keep-out
+    volumes (inflated by its margin), out to :data:`SPOT_REACH` m past the last mirror: a
+    failed Check when it enters one (the spot test must not light it), else None."""
+    import numpy as np
+
+    from planner.beam.trace import trace_beam
+    from planner.io.scenario import system_from_scenario
+    from planner.safety.model import Safety
+
+    system = system_from_scenario(scn)
+    if system.n_robots != 1:
+        return Check("spot", "fail", f"the spot test reads one arm's joints; the scenario "
+                     f"chains {system.n_robots}", "run it on a one-arm scenario of this cell")  # fmt: skip
+    q = np.asarray(q, dtype=float)
+    tr = trace_beam(system, q, np.zeros(3))
+    end = tr.hits[-1] + SPOT_REACH * tr.dirs[-1]
+    tr = trace_beam(system, q, end)
+    P = np.vstack([system.world_T_laser[:3, 3], tr.hits, tr.spot])
+    bad = Safety.from_scenario(scn, system).geometry(P)
+    if bad is None:
+        return None
+    return Check("spot", "fail", f"not lit: the aim beam at the arm's joints would enter a "
+                 f"keep-out volume ({bad.text})", "move the arm so the beam points away from "
+                 "every keep-out volume")  # fmt: skip
+
+
 def spot_test(grab: Callable[[], Any], set_gate: Callable[[bool], None], frames: int = 3) -> Check:
     """Frames with the gate off, then on: the gated detector must find the spot."""
     from drivers.camera.spot import detect_gated_spot

@@ -53,10 +53,12 @@ def check(
     if not 0 <= gate_output <= 7:
         raise InputError(f"must be in [0, 7], got {gate_output}", "--gate-output")
     aim_output = None
+    scn: Any = None
     if scenario is not None:
         from planner.io.scenario import load_scenario
 
-        laser = load_scenario(scenario).model.system.laser
+        scn = load_scenario(scenario)
+        laser = scn.model.system.laser
         if laser.gate is not None:
             gate_output = laser.gate.output
         if laser.aim is not None:
@@ -87,7 +89,11 @@ def check(
             report(_skipped("gate"))
         if spot_test and read_only_ok and aim_output is not None:
             aim = aim_output
-            report(hwcheck.spot_test(rig.grab, lambda on: rig.set_gate(aim, on)))
+            unsafe = hwcheck.aim_keep_out(scn, rig.receive.getActualQ())
+            if unsafe is not None:
+                report(unsafe)
+            else:
+                report(hwcheck.spot_test(rig.grab, lambda on: rig.set_gate(aim, on)))
         elif spot_test:
             report(_skipped("spot"))
     finally:

@@ -240,3 +240,39 @@ def test_wiggle_fails_on_a_protective_stop() -> None:
 
     c = hwcheck.wiggle(robot, periods)
     assert c.status == "fail" and "protective stop" in c.detail
+
+
+def test_the_spot_test_does_not_light_an_aim_beam_that_would_enter_a_keep_out(
+    monkeypatch: Any, tmp_path: Path
+) -> None:
+    """A keep-out sphere on the aim beam at the arm's joints: the spot test fails without
+    switching the aim output on."""
+    import numpy as np
+
+    from planner.beam.trace import trace_beam
+    from planner.io.scenario import load_scenario, system_from_scenario
+    from planner.model.system import DEFAULT_HOME
+
+    path = aimed_scenario(tmp_path)
+    system = system_from_scenario(load_scenario(path))
+    tr = trace_beam(system, np.array(DEFAULT_HOME), np.zeros(3))
+    eye = tr.hits[-1] + 0.3 * tr.dirs[-1]  # 0.3 m down the beam from the mirror
+    text = path.read_text()
+    extra = f"\nkeep_out:\n  - {{name: eye, sphere: 0.01, world_T_object: {{xyz: {eye.round(4).tolist()}}}}}\n"
+    path.write_text(text + extra if "keep_out:" not in text else text)
+    assert "keep_out:" in path.read_text()
+    rig = make_rig()
+    from typer.testing import CliRunner
+
+    from planner.cli import hw
+
+    monkeypatch.setattr(hw, "_SimRig", lambda: rig)
+    out = CliRunner().invoke(hw.app, ["--simulate", "--no-camera", "--scenario", str(path),
+                                      "--spot-test"])  # fmt: skip
+    assert out.exit_code == 1, out.output
+    assert (
+        "[FAIL] spot: not lit: the aim beam at the arm's joints would enter a keep-out"
+        in out.output
+    )
+    assert "keep_out/eye" in out.output
+    assert (4, True) not in rig.gate_calls  # the aim output never went on
