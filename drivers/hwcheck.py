@@ -239,6 +239,7 @@ def aim_keep_out(scn: Any, q: Any) -> Check | None:
     from planner.beam.trace import trace_beam
     from planner.io.scenario import system_from_scenario
     from planner.safety.model import Safety
+    from planner.safety.occlusion import beam_points
 
     system = system_from_scenario(scn)
     if system.n_robots != 1:
@@ -248,8 +249,7 @@ def aim_keep_out(scn: Any, q: Any) -> Check | None:
     tr = trace_beam(system, q, np.zeros(3))
     end = tr.hits[-1] + SPOT_REACH * tr.dirs[-1]
     tr = trace_beam(system, q, end)
-    P = np.vstack([system.world_T_laser[:3, 3], tr.hits, tr.spot])
-    bad = Safety.from_scenario(scn, system).geometry(P)
+    bad = Safety.from_scenario(scn, system).geometry(beam_points(system, tr.hits, tr.spot))
     if bad is None:
         return None
     return Check("spot", "fail", f"not lit: the aim beam at the arm's joints would enter a "

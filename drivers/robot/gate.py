@@ -175,16 +175,12 @@ class LaserGate:
             and healthy
             and (aim_edge is not None or (aim and streaming))
         )
-        abort = None
-        for lit in ("treat", "aim"):  # the gate output is held to every limit, aim or not
-            if treat if lit == "treat" else want_aim and self._aim_is_gate:
-                block = self._blocked(m, chain)
-                if block is not None:
-                    treat, want_aim, abort = False, False, block
-        if abort is not None:
-            self.force_off(abort)
-            return abort
         gate_wanted = treat or (want_aim and self._aim_is_gate)
+        if gate_wanted:  # the gate output is held to every limit, lit for aim or not
+            abort = self._blocked(m, chain)
+            if abort is not None:
+                self.force_off(abort)
+                return abort
         gate_dark = not self.on and not (self.aim and self._aim_is_gate)
         if gate_wanted and gate_dark and not self._confirmed_off(self.rules.gate_output):
             treat = False  # on again only once the last off is read back

@@ -65,6 +65,17 @@ RUNSTATE_CALL = re.compile(
 LOW_WHEN_STOPPED = (1, 3)  # runstates whose output is False while the program is stopped
 
 
+def pace(next_cycle: float) -> float:
+    """Sleep until one controller cycle after ``next_cycle`` (monotonic s); the start of the
+    next cycle (now, when already late)."""
+    next_cycle += CYCLE
+    delay = next_cycle - time.monotonic()
+    if delay > 0:
+        time.sleep(delay)
+        return next_cycle
+    return time.monotonic()
+
+
 class FakeURController:
     """Both RTDE interfaces of a simulated UR e-Series controller (see the module docstring)."""
 
@@ -246,12 +257,7 @@ class FakeURController:
         """End of the driver's period: the controller runs one cycle."""
         self.cycle()
         if self.realtime:
-            self._next += CYCLE
-            delay = self._next - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            else:
-                self._next = time.monotonic()
+            self._next = pace(self._next)
 
     def isConnected(self) -> bool:
         return self.connected
@@ -451,12 +457,7 @@ class FakeURLink:
         return datetime.timedelta(seconds=time.monotonic())
 
     def waitPeriod(self, t0: Any = None) -> None:
-        self._next += CYCLE
-        delay = self._next - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
-        else:
-            self._next = time.monotonic()
+        self._next = pace(self._next)
 
     def disconnect(self) -> None:
         with self._lock:

@@ -49,6 +49,7 @@ import numpy as np
 from planner.beam.trace import trace_beam
 from planner.ik import BeamIK
 from planner.model.transforms import Array
+from planner.safety.occlusion import beam_points
 from planner.track.noise import MarkerNoise
 from planner.track.predict import ConstantVelocity, KalmanCV, Prediction
 from schemas import defaults
@@ -245,9 +246,8 @@ class TargetFollower:
             return None
         system = self.ik.system
         tr = trace_beam(system, q, self.segment.target_b, self.segment.normal)
-        P = np.vstack([system.world_T_laser[:3, 3], tr.hits, tr.spot])
         self.checked += 1
-        bad = safety.config(q, P)
+        bad = safety.config(q, beam_points(system, tr.hits, tr.spot))
         return None if bad is None else f"{bad.reason}: {bad.text}"
 
     def on_joint_state(self, q_measured: Array, t: float) -> None:
