@@ -16,6 +16,7 @@ import subprocess
 import threading
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -48,12 +49,11 @@ GATED = SCENARIO.replace(
 )
 
 
-@pytest.fixture(scope="module")
-def bus(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Bus]:
-    assert GATED != SCENARIO
-    b = Bus(tmp_path_factory.mktemp("closed_loop"))
-    b.scenario.write_text(GATED)
-    b.truth.write_text(GATED + TRUTH)
+def gated_cell(tmp: Path, scenario: str, truth: str) -> Iterator[Bus]:
+    """Planner, camera (tracing ``scenario + truth``) and arm0 on a private bus."""
+    b = Bus(tmp)
+    b.scenario.write_text(scenario)
+    b.truth.write_text(scenario + truth)
     try:
         b.start("planner")
         b.start("camera", b.truth)
@@ -62,6 +62,12 @@ def bus(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Bus]:
         yield b
     finally:
         b.close()
+
+
+@pytest.fixture(scope="module")
+def bus(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Bus]:
+    assert GATED != SCENARIO
+    yield from gated_cell(tmp_path_factory.mktemp("closed_loop"), GATED, TRUTH)
 
 
 def _cli(bus: Bus, *args: str) -> subprocess.CompletedProcess[str]:
@@ -183,6 +189,22 @@ class LaserTape:
         for s in self._subs:
             s.undeclare()
 
+    def treatment(self, t0: float, truth: BeamModel, points: np.ndarray, normal: np.ndarray,
+                  tol: float) -> tuple[float, float, float]:  # fmt: skip
+        """Over the treatment intervals after ``t0``: the on-time (s), the worst true error
+        (m: the truth's beam at each recorded joint state, to the nearest target) and the
+        on-time with the true error over ``tol`` (s)."""
+        worst, on_time, outside = 0.0, 0.0, 0.0
+        for a, b in self.spans("on", t0):
+            on_time += b - a
+            qs = [q for t, q in self.joints if a <= t <= b]
+            assert qs, "no joint state inside a treatment interval"
+            errs = [min(np.linalg.norm(truth.trace(q, p, normal).spot - p) for p in points)
+                    for q in qs]  # fmt: skip
+            worst = max(worst, max(errs))
+            outside += (b - a) * float(np.mean(np.asarray(errs) > tol))
+        return on_time, worst, outside
+
 
 def test_the_treatment_gate_opens_only_within_tolerance_of_a_target(bus: Bus) -> None:
     """Aim, then treat: measurements light the aiming beam only; the treatment gate opens
@@ -206,14 +228,7 @@ def test_the_treatment_gate_opens_only_within_tolerance_of_a_target(bus: Bus) ->
     treat, aim = tape.spans("on", t0), tape.spans("aim", t0)
     rows = [t["closed_loop"] for t in doc["targets"]]
     tol = 0.3e-3  # the scenario's (servo default) tolerance: the request did not tighten it
-    worst, on_time, outside = 0.0, 0.0, 0.0
-    for a, b in treat:
-        on_time += b - a
-        qs = [q for t, q in tape.joints if a <= t <= b]
-        assert qs, "no joint state inside a treatment interval"
-        errs = [min(np.linalg.norm(truth.trace(q, p, UP).spot - p) for p in points) for q in qs]
-        worst = max(worst, max(errs))
-        outside += (b - a) * np.mean(np.asarray(errs) > tol)
+    on_time, worst, outside = tape.treatment(t0, truth, points, UP, tol)
     converged = sum(r["status"] == "converged" for r in rows)
     print(
         f"treatment: {len(treat)} intervals, {on_time:.3f} s, worst true error "

@@ -19,8 +19,7 @@ import numpy as np
 import pytest
 
 from planner.beam.graph import BeamModel
-from tests.drivers.conftest import wait_for
-from tests.test_closed_loop_e2e import GATED, LaserTape, _cli
+from tests.test_closed_loop_e2e import GATED, LaserTape, _cli, gated_cell
 from tests.test_e2e import Bus
 
 pytestmark = [pytest.mark.slow, pytest.mark.serial, pytest.mark.timeout(400)]
@@ -56,17 +55,7 @@ def tilted_targets(k: int, seed: int) -> np.ndarray:
 @pytest.fixture(scope="module")
 def bus(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Bus]:
     assert TILTED != GATED
-    b = Bus(tmp_path_factory.mktemp("tilted"))
-    b.scenario.write_text(TILTED)
-    b.truth.write_text(TILTED + TRUTH)
-    try:
-        b.start("planner")
-        b.start("camera", b.truth)
-        b.start("arm0")
-        wait_for(lambda: b.client.recorder.joints.get("arm0") is not None, 10.0, "joint states")
-        yield b
-    finally:
-        b.close()
+    yield from gated_cell(tmp_path_factory.mktemp("tilted"), TILTED, TRUTH)
 
 
 def test_the_treatment_beam_lands_within_tolerance_under_a_real_miscalibration(bus: Bus) -> None:
@@ -95,15 +84,7 @@ def test_the_treatment_beam_lands_within_tolerance_under_a_real_miscalibration(b
                  for p in points]  # fmt: skip
     treat, aim = tape.spans("on", t0), tape.spans("aim", t0)
     tol = 0.3e-3
-    worst, on_time, outside = 0.0, 0.0, 0.0
-    for a, b in treat:
-        on_time += b - a
-        qs = [q for t, q in tape.joints if a <= t <= b]
-        assert qs, "no joint state inside a treatment interval"
-        errs = [min(np.linalg.norm(truth.trace(q, p, NORMAL).spot - p) for p in points)
-                for q in qs]  # fmt: skip
-        worst = max(worst, max(errs))
-        outside += (b - a) * float(np.mean(np.asarray(errs) > tol))
+    on_time, worst, outside = tape.treatment(t0, truth, points, NORMAL, tol)
     print(f"open loop (truth at the planned joints): {[round(1e3 * e, 1) for e in open_loop]} mm")
     print(
         f"closed loop: {[(r['status'], r['iterations'], r['time'], r['measured_error_after']) for r in rows]}"
