@@ -72,8 +72,14 @@ with the stop deceleration of :mod:`drivers.robot.follower`, drop the queued tra
 - heartbeat: while the arm executes a trajectory or follows a stream with
   ``require_planner``, the sessions of the running and the queued trajectory and of the
   stream must each have sent a heartbeat within
-  :data:`HEARTBEAT_TIMEOUT` (0.1 s), checked every period against the monotonic time the
-  callback stored; heartbeats of other sessions do not count;
+  :data:`HEARTBEAT_TIMEOUT` (0.1 s), checked every period; heartbeats of other sessions do
+  not count. Beats are queued by Zenoh's own (Rust) threads in a ring of
+  :data:`HEARTBEAT_RING` without Python's GIL and taken by the control loop at the start of
+  every period, each heard at that period's start: a Python thread of this process that
+  holds the GIL while the machine is busy can delay the loop, but no beat that reached the
+  process counts as missing once the loop runs (a Python callback would wait for the GIL
+  behind the loop and the beat would look late: a false brake). A flood of beats beyond the
+  ring drops the oldest, so a real beat can be pushed out: the arm then brakes (fail-safe);
 - the planner's liveliness token disappearing (an extra trigger: it comes 2-9 ms after the
   planner process dies, but a hung planner keeps it for the ~9 s Zenoh lease);
 - any sample on ``<prefix>/stop``, whatever its body: brake, and refuse every trajectory
@@ -114,6 +120,9 @@ HEARTBEAT_TIMEOUT = 0.100  # s: longest planner silence before the arm brakes
 #: periods of a 500 Hz stream; the stream itself ends at 50 ms)
 LATE_SETPOINT = 0.006
 MAX_SESSIONS = 64  # heartbeat sessions remembered (oldest forgotten first)
+#: heartbeats queued between two periods (at 100 Hz per planner: 2.5 s of one planner's
+#: beats; beyond it the oldest are dropped, never blocking Zenoh's receive thread)
+HEARTBEAT_RING = 256
 RT_IDLE = 0.0002  # s a real-time control loop sleeps after a period that did not sleep
 PERIOD_LOG = 1 << 16  # control periods whose start times are kept (2 min at 500 Hz)
 
@@ -171,6 +180,7 @@ class RobotNode(StreamingMixin, LoopNode):
         self.setpoints = SetpointIntake(robot, backend.names, limits, clock=clock)
         self.streams = StreamControl(limits, 1.0 / backend.rate)
         self.heartbeats: dict[str, float] = {}  # session -> monotonic time of its last beat
+        self._beats: Any = None  # the heartbeat subscriber's ring (made in attach)
         self.planner_alive = False
         self.planner_lost_at: float | None = None  # UNIX time the planner's token went away
         self.stop_requested_at: float | None = None  # monotonic time of the last stop sample
@@ -202,7 +212,10 @@ class RobotNode(StreamingMixin, LoopNode):
     def attach(self) -> RobotNode:
         """Declare publishers, subscribers and the token (no thread: tests then drive
         :meth:`period` themselves)."""
+        import zenoh
+
         s, k = self.session, self.keys
+        self._beats = s.declare_subscriber(k.heartbeat, zenoh.handlers.RingChannel(HEARTBEAT_RING))
         self._pub_state = s.declare_publisher(k.joint_states(self.robot), encoding=JSON)
         self._pub_status = s.declare_publisher(k.status(self.robot), encoding=JSON)
         if self.gate_output is not None:
@@ -213,7 +226,7 @@ class RobotNode(StreamingMixin, LoopNode):
         self._handles = [
             s.declare_subscriber(k.trajectory(self.robot), self._on_trajectory),
             s.declare_subscriber(k.setpoint(self.robot), self._on_setpoint),
-            s.declare_subscriber(k.heartbeat, self._on_heartbeat),
+            self._beats,
             s.declare_subscriber(k.stop, self._on_stop),
             s.liveliness().declare_subscriber(k.alive("planner"), self._on_planner, history=True),
             s.declare_subscriber(recover_key(k.prefix, self.robot), self._on_recover),
@@ -245,8 +258,15 @@ class RobotNode(StreamingMixin, LoopNode):
             self.planner_lost_at = time.time()
             self._triggers.append("planner liveliness lost")
 
-    def _on_heartbeat(self, sample: Any) -> None:
-        now = self.clock()
+    def _take_heartbeats(self, now: float) -> None:
+        """Every beat queued since the last period, heard at ``now`` (the period's start)."""
+        for _ in range(HEARTBEAT_RING if self._beats is not None else 0):
+            sample = self._beats.try_recv()
+            if sample is None:
+                return
+            self._on_heartbeat(sample, now)
+
+    def _on_heartbeat(self, sample: Any, now: float) -> None:
         try:
             if len(sample.payload) > 4096:
                 raise InputError("heartbeat body over 4096 bytes", "body")
@@ -342,6 +362,7 @@ class RobotNode(StreamingMixin, LoopNode):
 
     def _watch(self, now: float) -> None:
         """Stop triggers, once per period: stop requests, token loss, silent heartbeats."""
+        self._take_heartbeats(now)
         stop_at = self.stop_requested_at
         if stop_at is not None and stop_at != self._handled_stop:
             self._handled_stop = stop_at

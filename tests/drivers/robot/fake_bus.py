@@ -45,6 +45,22 @@ class _Handle:
         self.undeclare = undeclare
 
 
+class _Ring:
+    """A subscriber declared with a Zenoh channel handler (``RingChannel``): samples wait in
+    a queue of the handler's capacity (the oldest dropped) until :meth:`try_recv`."""
+
+    def __init__(self, capacity: int = 256) -> None:
+        import collections
+
+        self.queue: collections.deque[_Sample] = collections.deque(maxlen=capacity)
+
+    def try_recv(self) -> _Sample | None:
+        return self.queue.popleft() if self.queue else None
+
+    def undeclare(self) -> None:
+        pass
+
+
 class _Publisher:
     def __init__(self, bus: FakeBus, key: str) -> None:
         self.bus, self.key = bus, key
@@ -79,9 +95,15 @@ class FakeBus:
     def declare_publisher(self, key: str, **_: Any) -> _Publisher:
         return _Publisher(self, key)
 
-    def declare_subscriber(self, key: str, cb: Callable[[Any], None]) -> Any:
-        self.subscribers[key] = cb
-        return _Handle()
+    def declare_subscriber(self, key: str, handler: Any) -> Any:
+        """A callback subscriber (delivered in :meth:`put`'s thread) or, for a Zenoh channel
+        handler, a ring the node takes samples from."""
+        if callable(handler):
+            self.subscribers[key] = handler
+            return _Handle()
+        ring = _Ring()
+        self.subscribers[key] = ring.queue.append
+        return ring
 
     def liveliness(self) -> _Liveliness:
         return _Liveliness(self)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import signal
+import sys
 import time
 from typing import Any
 
@@ -13,10 +14,12 @@ import numpy as np
 import pytest
 
 from drivers.robot.follower import STOP_ACCELERATION, STOP_JERK
-from drivers.robot.node import HEARTBEAT_TIMEOUT, MAX_SESSIONS
-from planner.service.bus import Keys
+from drivers.robot.node import HEARTBEAT_TIMEOUT, MAX_SESSIONS, PERIOD_LOG, RobotNode
+from drivers.robot.sim import SimRobot
+from planner.model.system import JOINT_NAMES_UR
+from planner.service.bus import Keys, open_session
 from tests.drivers.conftest import Heartbeats, wait_for
-from tests.drivers.robot.test_robot_node import HOME, Cell, smooth_move, start_planner
+from tests.drivers.robot.test_robot_node import HOME, LIMITS, Cell, smooth_move, start_planner
 
 
 @pytest.mark.serial
@@ -130,3 +133,39 @@ def test_without_require_planner_no_session_or_heartbeat_is_needed(
         np.testing.assert_allclose(cell.q(), HOME + dq, atol=1e-9)
     finally:
         cell.close()
+
+
+def test_beats_that_arrive_while_the_gil_is_held_count_when_the_loop_runs(
+    hub: Any, endpoint: str, keys: Keys
+) -> None:
+    """A Python thread of the driver's process that holds the GIL (a busy machine leaves it
+    descheduled) delays every Python callback. Beats that reached the process meanwhile must
+    count at the control loop's next period (Zenoh queues them without the GIL), not look as
+    old as the stall: a callback would run after the loop and the arm would brake for a
+    planner that never went silent."""
+    planner = start_planner(endpoint, keys, "P")
+    session = open_session(listen=False, endpoint=endpoint)
+    node = RobotNode(session, keys, "arm0", SimRobot(JOINT_NAMES_UR, HOME, LIMITS), LIMITS).attach()
+
+    def heard() -> bool:
+        node.period()
+        return "P" in node.heartbeats
+
+    try:
+        wait_for(heard, what="planner heartbeats")
+        switch = sys.getswitchinterval()
+        sys.setswitchinterval(10.0)  # no other thread of this process runs Python meanwhile
+        try:
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 0.5:  # holds the GIL: 100 Hz beats keep arriving
+                pass
+            node.period()
+        finally:
+            sys.setswitchinterval(switch)
+        start = node.period_starts[(node.n_periods - 1) % PERIOD_LOG]
+        assert start - t0 >= 0.5
+        assert node.heartbeats["P"] == start  # heard at that period, not 500 ms ago
+    finally:
+        planner.kill()
+        planner.wait()
+        session.close()
