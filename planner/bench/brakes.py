@@ -6,7 +6,9 @@ hub; a private loopback port and prefix), optionally ``--load N`` CPU-burning pr
 ``--batch`` per request, one request after the other for ``--minutes`` minutes. Counted:
 
 - false brakes: executions a driver stopped with "planner heartbeat lost" (nothing failed:
-  the planner is alive, the heartbeat was late);
+  the planner is alive, the heartbeat was late), from the execution's fault or, when the
+  planner's own stop of every robot came first and the fault names it, from the planner's
+  log (it names the braking arm's reason);
 - other faults and rejected executions;
 - heartbeat gaps over 50 and 100 ms as received by the bench's own session (a client of the
   hub, its Zenoh threads raised like a driver's), with the largest gap;
@@ -163,6 +165,16 @@ def execute_for(scenario: Path, endpoint: str, seconds: float, batch: int) -> di
             "heartbeat_sent": gap_figures(sent, sent[0] if sent else 0.0, float("inf"))}  # fmt: skip
 
 
+def reclassify(fig: dict[str, Any], planner_log: Path) -> None:
+    """Count as false brakes the executions the planner stopped because a driver braked for
+    a late heartbeat (their fault then reads "stop requested"), from the planner's log."""
+    text = planner_log.read_text(errors="replace") if planner_log.is_file() else ""
+    logged = sum(BRAKE in ln and "stopping every robot" in ln for ln in text.splitlines())
+    extra = min(max(0, logged - fig["false_brakes"]), fig["other_faults"])
+    fig["false_brakes"] += extra
+    fig["other_faults"] -= extra
+
+
 def command(
     minutes: Annotated[float, typer.Option(help="Continuous execution time (min).")] = 10.0,
     load: Annotated[int, typer.Option(help="CPU-burning processes beside the system.")] = 0,
@@ -200,6 +212,7 @@ def command(
     banners = [f"{f.stem}: {ln.strip()}" for f in sorted(log_dir.glob("*.log"))
                for ln in f.read_text(errors="replace").splitlines() if "priority:" in ln]  # fmt: skip
     fig.update(minutes=minutes, load=load, rt=rt, log_dir=str(log_dir), priority=banners)
+    reclassify(fig, log_dir / "planner.log")
     hb = fig["heartbeat"]
     per10 = fig["false_brakes"] * 600.0 / fig["seconds"]
     console.print(
