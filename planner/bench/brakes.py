@@ -112,8 +112,11 @@ def warm_up(client: Any, points: Any, timeout: float = 60.0) -> None:
             time.sleep(0.5)
 
 
-def execute_for(scenario: Path, endpoint: str, seconds: float, batch: int) -> dict[str, Any]:
-    """Execute the scenario's targets, ``batch`` per request, for ``seconds`` s; counts."""
+def execute_for(
+    scenario: Path, endpoint: str, seconds: float, batch: int, dwell: float
+) -> dict[str, Any]:
+    """Execute the scenario's targets, ``batch`` per request, each held ``dwell`` s (the
+    arm executes, and watches the heartbeat, for most of the run), for ``seconds`` s."""
     from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
     from planner.service.client import PlanClient, make_request
     from planner.service.priority import raised_priority
@@ -146,7 +149,8 @@ def execute_for(scenario: Path, endpoint: str, seconds: float, batch: int) -> di
                 next_load += 10.0
             sel = points[[(k + i) % len(points) for i in range(batch)]]
             k += batch
-            plan, _ = client.execute(make_request(sel, execute=True), timeout=30.0, settle=0.0)
+            req = make_request(sel, execute=True, dwell=dwell)
+            plan, _ = client.execute(req, timeout=30.0 + batch * dwell, settle=0.0)
             if plan.get("execution") != "accepted":
                 counts["rejected"] += 1
                 faults.append(f"rejected: {plan.get('execution_reason')}")
@@ -182,6 +186,7 @@ def command(
         bool, typer.Option("--rt/--no-rt", help="Real-time priority (SCHED_FIFO) if permitted.")
     ] = True,
     batch: Annotated[int, typer.Option(help="Targets per executed request.")] = 4,
+    dwell: Annotated[float, typer.Option(help="Hold on each target (s): time executing.")] = 2.0,
     scenario: Annotated[Path, typer.Option(help="Scenario whose system and targets are used.")] = (
         DEFAULT_SCENARIO
     ),
@@ -202,13 +207,15 @@ def command(
         raise InputError(f"--load must be in [0, {MAX_LOAD}], got {load}")
     if batch < 1:
         raise InputError(f"--batch must be >= 1, got {batch}")
+    if not 0 <= dwell <= 10:
+        raise InputError(f"--dwell must be in [0, 10] s, got {dwell:g}")
     console = Console(stderr=as_json)
     log_dir = Path(tempfile.mkdtemp(prefix="beamrelay-bench-brakes-"))
     seconds = 60.0 * minutes
     with simulated_system(scenario, _free_endpoint(), log_dir, rt) as up:
         endpoint = up.args[up.args.index("--endpoint") + 1]
         with cpu_load(load, seconds + 180.0), console.status(f"executing for {minutes:g} min..."):
-            fig = execute_for(scenario, endpoint, seconds, batch)
+            fig = execute_for(scenario, endpoint, seconds, batch, dwell)
     banners = [f"{f.stem}: {ln.strip()}" for f in sorted(log_dir.glob("*.log"))
                for ln in f.read_text(errors="replace").splitlines() if "priority:" in ln]  # fmt: skip
     fig.update(minutes=minutes, load=load, rt=rt, log_dir=str(log_dir), priority=banners)
@@ -217,7 +224,7 @@ def command(
     per10 = fig["false_brakes"] * 600.0 / fig["seconds"]
     console.print(
         f"{fig['executions']} executions in {fig['seconds']:.0f} s ({fig['moving_s']:.0f} s "
-        f"moving), load {fig['load1_min']:.1f}-{fig['load1_mean']:.1f} (min-mean), "
+        f"executing), load {fig['load1_min']:.1f}-{fig['load1_mean']:.1f} (min-mean), "
         f"{'SCHED_FIFO' if rt else 'no SCHED_FIFO'}, {load} burners"
     )
     console.print(
