@@ -251,9 +251,11 @@ class Execution:
         moving: set[str] = set()
         begin = time.monotonic()
         verdict, reason = "accepted", None
+        silent: set[str] = set()  # robots that did not answer: they may still accept
         for k, chunk in enumerate(chunks[:2]):
             acks, timeout = self.send(chunk)
             moving |= {r for r, a in acks.items() if a is not None and a.accepted}
+            silent |= {r for r, a in acks.items() if a is None}
             verdict, reason = execution_verdict(acks, timeout)
             if k == 0:
                 for robot in moving:
@@ -264,6 +266,9 @@ class Execution:
                 break
         if verdict == "rejected" and moving:
             reason = f"{reason}; stopped {', '.join(sorted(moving))}: the robots move only together"
+            self.send_stop(f"request {request_id}: {reason}")
+        elif verdict == "rejected" and silent:  # a late acceptance must not move the arm
+            reason = f"{reason}; stop sent, so a late acceptance does not move"
             self.send_stop(f"request {request_id}: {reason}")
         elif len(chunks) > 1:
             with self._lock:

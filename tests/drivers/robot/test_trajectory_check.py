@@ -168,3 +168,22 @@ def test_hostile_bodies_become_rejections_naming_the_field(body: bytes, field: s
     res = parse_in_worker(body, "arm0", NAMES, LIMITS, 0.002)
     assert res[0] == "rejected"
     assert res[2].startswith(f"{field}:"), res[2]
+
+
+def test_the_parse_worker_runs_above_ordinary_work_where_permitted() -> None:
+    """A verdict must not wait behind a busy machine's ordinary processes (nice 0): the
+    worker asks WORKER_NICE (root, as in CI, may; else it keeps the driver's value)."""
+    import os
+
+    from drivers.robot.intake import WORKER_NICE, TrajectoryIntake
+
+    intake = TrajectoryIntake("arm0", JOINT_NAMES_UR, Limits.ur_default()).start()
+    try:
+        assert intake._worker is not None
+        got = os.getpriority(os.PRIO_PROCESS, intake._worker.proc.pid)
+        mine = os.getpriority(os.PRIO_PROCESS, 0)
+        permitted = os.geteuid() == 0
+        assert got == (WORKER_NICE if permitted else mine)
+        assert WORKER_NICE < 0
+    finally:
+        intake.close()

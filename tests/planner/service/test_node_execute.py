@@ -94,15 +94,26 @@ def test_rejected_reply_names_the_robot_and_the_driver_reason(
 def test_silent_driver_is_a_rejection_after_the_timeout(
     system: System, rig: tuple[PlannerNode, Any, FakeDriver]
 ) -> None:
+    """A driver too busy to answer in time may still accept later: the reply says rejected,
+    so a stop goes out with it and the driver refuses the trajectory it is still parsing."""
     _, client, fake = rig
     fake.behaviour = "silent"
+    stops: list[bytes] = []
+    sub = client.declare_subscriber(f"{PREFIX}/stop", lambda s: stops.append(s.payload.to_bytes()))
     t0 = time.monotonic()
     plan = execute(client, reachable_targets(system, 1, seed=31), "s1")
     waited = time.monotonic() - t0
     assert plan["execution"] == "rejected" and plan["id"] == "s1"
-    assert plan["execution_reason"] == "no answer from arm0 within 1 s"
+    assert plan["execution_reason"] == (
+        "no answer from arm0 within 1 s; stop sent, so a late acceptance does not move"
+    )
     assert waited >= 1.0
     assert len(fake.trajectories) == 1 and fake.trajectories[0]["id"] == "s1"
+    deadline = time.monotonic() + 5.0
+    while not stops and time.monotonic() < deadline:
+        time.sleep(0.01)
+    sub.undeclare()
+    assert len(stops) == 1 and b"request s1" in stops[0]
 
 
 @pytest.mark.parametrize("halt", ["stop message", "braking status", "stop garbage"])
