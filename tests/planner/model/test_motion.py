@@ -84,7 +84,7 @@ def test_a_turning_object_is_raycast_where_its_motion_puts_it() -> None:
     R, d = m.rotation(t), m.offset(t)
     rng = np.random.default_rng(1)
     ends = rng.uniform(-0.15, 0.15, (200, 3)) * [1, 0.3, 0.1]
-    O = ends + [0, 0, 1.0]
+    O = ends + np.array([0, 0, 1.0])
     V = np.tile([0.0, 0.0, -1.0], (len(O), 1))
     hits = scene.cast(O, V, t)
     # numpy: the ray in the box's frame at t, slab test
