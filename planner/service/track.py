@@ -7,8 +7,10 @@
   :class:`~schemas.messages.TargetStream`, or one for another ``id`` is counted and
   ignored (the node keeps serving); camera-frame points are mapped to the world with the
   calibrated camera pose. The tracked point is the stream's point nearest the request's
-  first point (chosen on the first frame, then fixed by index). Each frame is handled in
-  the subscriber's callback: prediction and IK, under the follower's lock;
+  first point (chosen on the first frame, then fixed by index); so are the follower's
+  markers (the request's points, when keep-out volumes are attached to the stream: their
+  rigid motion moves them). Each frame is handled in the subscriber's callback: prediction
+  and IK, under the follower's lock;
 - streams setpoints at 500 Hz through :class:`planner.service.setpoints.SetpointStreamer`
   (the follower's limited reference, ``laser_on`` to the gate robot);
 - ends on the request's ``duration``, :meth:`stop` (``<prefix>/stop``, a halted robot, the
@@ -91,6 +93,7 @@ class TrackSession:
         self._joint_subs: list[Any] = []
         self._measured: dict[str, Array] = {}  # robot -> its latest measured joints (rad)
         self._index: int | None = None
+        self._marker_index: Array | None = None  # the stream's points matched to the markers
         self._receipts: list[float] = []  # perf_counter of frames not yet streamed
         self.latencies: list[float] = []
         self.frames = self.ignored = self.lit = self.sent = 0
@@ -179,14 +182,16 @@ class TrackSession:
             normals = None if normals is None else normals @ T[:3, :3].T
         with self._lock:
             if self._index is None:
-                d = np.linalg.norm(points - self.follower.first, axis=1)
-                self._index = int(np.argmin(d))
+                self._index = int(nearest(points, self.follower.first[None])[0])
+                if self.follower.markers is not None:
+                    self._marker_index = nearest(points, self.follower.markers)
             if self._index >= len(points):
                 self.ignored += 1
                 return
-            k = self._index
+            k, m = self._index, self._marker_index
+            markers = None if m is None or m.max() >= len(points) else points[m]
             out = self.follower.on_frame(msg.t, points[k], None if normals is None else normals[k],
-                                         self.clock())  # fmt: skip
+                                         self.clock(), markers=markers)  # fmt: skip
             self.frames += 1
             if out.stopped is None:
                 self._receipts.append(received)
@@ -276,6 +281,12 @@ class TrackSession:
                 **figures}  # fmt: skip
 
 
+def nearest(points: Array, to: Array) -> Array:
+    """Index of the point of ``points`` (K x 3) nearest each of ``to`` (M x 3)."""
+    d = np.linalg.norm(points[None, :, :] - np.asarray(to)[:, None, :], axis=2)
+    return np.asarray(np.argmin(d, axis=1))
+
+
 def approach(node: Any, handler: Any, plan: dict[str, Any], q0: Array, q1: Array,
              first: Array, normal: Array | None, request_id: str) -> Array:  # fmt: skip
     """Move from stacked ``q0`` to the first estimate's solution ``q1`` (rad) with a planned
@@ -313,7 +324,7 @@ def start_track(node: Any, req: Any) -> dict[str, Any]:
     ExecuteError) name the field."""
     from planner.model.system import Targets
     from planner.service.execution import ExecuteError
-    from planner.track.follow import TrackSettings
+    from planner.track.follow import MIN_MARKERS, TrackSettings
 
     if not req.execute:
         raise InputError("mode track moves the robots: it needs execute: true", "execute")
@@ -353,7 +364,9 @@ def start_track(node: Any, req: Any) -> dict[str, Any]:
     attached = {o["name"]: np.asarray(o["world_T_object"]["matrix"], dtype=float)
                 for o in (plan.get("scenario") or {}).get("keep_out") or []
                 if o.get("attached_to") == req.id}  # fmt: skip
-    follower = TargetFollower(handler.track_ik, q0, first, cam, settings, attached=attached)
+    markers = targets.points if attached and len(targets.points) >= MIN_MARKERS else None
+    follower = TargetFollower(handler.track_ik, q0, first, cam, settings, attached=attached,
+                              markers=markers)  # fmt: skip
     follower.warm_up(q1, normal)  # the first frame must not pay for first calls
     laser = ((plan.get("scenario") or {}).get("system") or {}).get("laser", {})
     gate = laser.get("gate") or {}

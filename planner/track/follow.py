@@ -21,15 +21,22 @@ the measured arm's lag behind the command) is under ``tolerance``, and the strea
 
 Every setpoint is checked, before it is sent, under the same rules as a planned sample
 (the IK's :class:`~planner.safety.model.Safety`: arm-arm, arm-self, arm-scene, and the beam
-at the predicted target against every arm part and keep-out volume); consecutive setpoints
-are at most one period of the velocity limit apart (pi rad/s x 2 ms = 6 mrad). A setpoint
-that breaks a rule is not sent: the follower stops as *unsafe*
-(:attr:`TargetFollower.unsafe`), and the session publishes a stop. The limiter also caps the
-spot's speed on the target plane at ``max_spot_speed`` (m/s, through the spot Jacobian).
+at the predicted target against every arm part and keep-out volume), and so is the sweep
+from the last setpoint to it: the joints on the line between them are checked at steps of at
+most :data:`SWEEP_JOINT_STEP` rad (any joint) and :data:`SWEEP_SPOT_STEP` m of spot motion
+on the target plane (through the spot Jacobian), so a volume the beam would sweep through
+between two setpoints is found unless it is thinner than that step. A setpoint that breaks
+a rule is not sent: the follower stops as *unsafe* (:attr:`TargetFollower.unsafe`), and the
+session publishes a stop. The limiter also caps the spot's speed on the target plane at
+``max_spot_speed`` (m/s, through the spot Jacobian).
 
 Keep-out volumes attached to the target (``keep_out[].attached_to``, :attr:`attached`) move
-with it: before each frame's solves they are placed at their scenario pose moved by the
-predicted target's displacement from the first estimate, so the eyes move with the face.
+with it: before each frame's solves they are placed at their scenario pose moved as the
+tracked object moved. With :attr:`markers` (3 or more of the object's points at rest) and a
+frame carrying the same points, that is the object's rigid motion (a least-squares fit,
+turns included) from rest to the frame, advanced by the tracked point's predicted
+displacement since the frame; otherwise the predicted target's displacement from the first
+estimate (translation only), so the eyes move, and turn, with the face.
 
 The follower *stops* (laser off, no more setpoints; :attr:`TargetFollower.stopped` says
 why) when no frame came for ``stale_frames`` frame periods, when a predicted target has no
@@ -47,6 +54,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planner.beam.trace import trace_beam
+from planner.calibration.handeye import fit_rigid
 from planner.ik import BeamIK
 from planner.model.transforms import Array
 from planner.safety.occlusion import beam_points
@@ -58,6 +66,12 @@ from schemas import defaults
 TRACK_TOLERANCE = 1e-3
 #: rad: the spot Jacobian is taken again when the joints moved this far from where it was
 JACOBIAN_REUSE = 0.01
+#: rad: largest joint step between two configurations checked on the sweep between setpoints
+SWEEP_JOINT_STEP = 1e-3
+#: m: largest spot step (target plane) between two configurations checked on that sweep
+SWEEP_SPOT_STEP = 2e-4
+#: fewest markers whose rigid motion moves the attached volumes
+MIN_MARKERS = 3
 
 
 @dataclass(frozen=True)
@@ -123,6 +137,9 @@ class TargetFollower:
     attached: dict[str, Array] = field(default_factory=dict)
     """keep-out volumes that move with this target: name -> pose (4 x 4, world, m) with the
     target at ``first``"""
+    markers: Array | None = None
+    """the tracked object's points at rest (K x 3, world, m; K >= 3), matched by index to a
+    frame's ``markers``: their rigid motion moves :attr:`attached`"""
 
     def __post_init__(self) -> None:
         s = self.ik.system
@@ -139,14 +156,18 @@ class TargetFollower:
         self.checked = 0  # setpoints checked against the safety rules
         self.arm_gap = 0.0  # m, spot offset of the measured arm from the command
         self.keep_out_shift = np.zeros(3)  # m, how far the attached volumes were moved
+        self.object_T_rest = np.eye(4)  # the attached volumes' last move (world, m)
+        self._fit: tuple[Array, Array] | None = None  # the markers' rigid fit, tracked point
         self._J: Array | None = None  # spot Jacobian (m/rad), reused near where it was taken
         self._J_at = self.q
 
     # --- frames ----------------------------------------------------------------------------
     def on_frame(
-        self, t: float, point: Array, normal: Array | None, now: float, R: Array | None = None
-    ) -> FrameOutcome:
-        """A tracker frame: ``point`` (m, world) captured at ``t`` (s), received at ``now``."""
+        self, t: float, point: Array, normal: Array | None, now: float, R: Array | None = None,
+        markers: Array | None = None,
+    ) -> FrameOutcome:  # fmt: skip
+        """A tracker frame: ``point`` (m, world) captured at ``t`` (s), received at ``now``;
+        ``markers``: the frame's points matched to :attr:`markers` (K x 3, world, m)."""
         t0 = time.perf_counter()
         if self.stopped is not None:
             return FrameOutcome(None, 0.0, self.stopped)
@@ -157,6 +178,7 @@ class TargetFollower:
             R = self.noise.covariance_world(p, self.world_T_camera)
         self.predictor.update(t, p, R)
         self.frame_seen = now
+        self._fit_markers(markers, p)
         st = self.settings
         t_a = now + st.lead
         t_b = t_a + 1.0 / st.frame_rate
@@ -186,25 +208,44 @@ class TargetFollower:
         self._move_attached(pb.p)
         return FrameOutcome(pa, time.perf_counter() - t0, None)
 
+    def _fit_markers(self, markers: Array | None, p: Array) -> None:
+        """The object's rigid motion from rest to this frame, from the matched markers."""
+        if markers is None or self.markers is None or len(self.markers) < MIN_MARKERS:
+            return
+        seen = np.asarray(markers, dtype=float)
+        if seen.shape != self.markers.shape or not np.all(np.isfinite(seen)):
+            return
+        self._fit = fit_rigid(self.markers, seen), p
+
     def _move_attached(self, p: Array) -> None:
         """Place the keep-out volumes attached to this target (:attr:`attached`: name ->
-        their pose with the target at :attr:`first`) moved by ``p - first``."""
-        safety = getattr(self.ik, "safety", None)
-        if not self.attached or safety is None:
+        their pose with the target at :attr:`first`) for the predicted target ``p``: the
+        markers' rigid motion moved on by ``p`` minus the measured point, or else translated
+        by ``p - first``."""
+        if not self.attached:
             return
-        d = np.asarray(p, dtype=float) - self.first
-        moved = {}
-        for name, T in self.attached.items():
-            M = np.array(T, dtype=float)
-            M[:3, 3] += d
-            moved[name] = M
-        safety.move_keep_out(moved)
-        self.keep_out_shift = d
+        D = np.eye(4)
+        if self._fit is None:
+            D[:3, 3] = np.asarray(p, dtype=float) - self.first
+        else:
+            fit, measured = self._fit
+            D[:] = fit
+            D[:3, 3] += np.asarray(p, dtype=float) - measured
+        self._place(D)
+
+    def _place(self, D: Array) -> None:
+        safety = getattr(self.ik, "safety", None)
+        if safety is None:
+            return
+        safety.move_keep_out({name: D @ T for name, T in self.attached.items()})
+        self.object_T_rest = D
+        self.keep_out_shift = D[:3, :3] @ self.first + D[:3, 3] - self.first
 
     def release(self) -> None:
         """Put the attached keep-out volumes back at their scenario poses (the IK's safety
         rules are shared with later plans)."""
-        self._move_attached(self.first)
+        if self.attached:
+            self._place(np.eye(4))
 
     def warm_up(self, q: Array, normal: Array | None) -> None:
         """Run the per-frame computations once at ``q`` (rad) on the first estimate, so the
@@ -238,12 +279,32 @@ class TargetFollower:
         step = self._amax / self.settings.rate
         return np.asarray(np.clip(qd * (cap / v), self.qd - step, self.qd + step))
 
+    def sweep_steps(self, q_from: Array, q_to: Array) -> int:
+        """How many equal steps the line from ``q_from`` to ``q_to`` (rad) is checked in: at
+        most :data:`SWEEP_JOINT_STEP` per joint and :data:`SWEEP_SPOT_STEP` of spot motion."""
+        dq = np.asarray(q_to, dtype=float) - np.asarray(q_from, dtype=float)
+        n = float(np.abs(dq).max()) / SWEEP_JOINT_STEP
+        if self.segment is not None:
+            n = max(n, float(np.linalg.norm(self.segment.J @ dq)) / SWEEP_SPOT_STEP)
+        return max(1, int(np.ceil(n)))
+
     def _violation(self, q: Array) -> str | None:
-        """Why a setpoint at stacked ``q`` (rad) breaks a safety rule, with the beam at the
-        predicted target; None when it breaks none (or there are no rules)."""
+        """Why a setpoint at stacked ``q`` (rad), or the sweep to it from the last one
+        (:attr:`q`), breaks a safety rule, with the beam at the predicted target; None when
+        neither breaks any (or there are no rules)."""
         safety = getattr(self.ik, "safety", None)
         if safety is None or self.segment is None:
             return None
+        n = self.sweep_steps(self.q, q)
+        for k in range(1, n + 1):
+            bad = self._config_violation(self.q + (q - self.q) * (k / n))
+            if bad is not None:
+                return bad if k == n else f"{bad} (on the sweep, {k}/{n} of the way)"
+        return None
+
+    def _config_violation(self, q: Array) -> str | None:
+        safety = self.ik.safety
+        assert safety is not None and self.segment is not None
         system = self.ik.system
         tr = trace_beam(system, q, self.segment.target_b, self.segment.normal)
         self.checked += 1
