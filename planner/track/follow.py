@@ -268,15 +268,15 @@ class TargetFollower:
             cols.append((trace_beam(self.ik.system, q + dq, target, normal).spot - s0) / h)
         return np.column_stack(cols)
 
-    def _spot_speed_cap(self, qd: Array, cap: float) -> Array:
-        """``qd`` (inside the acceleration box around ``self.qd``) scaled down to a spot speed
-        ``|J qd|`` of at most ``cap`` (m/s), then kept inside the box; the direction stays
-        the limiter's, so the spot still heads for the reference."""
+    def _spot_speed_cap(self, qd: Array, cap: float, dt: float) -> Array:
+        """``qd`` (inside the acceleration box of ``dt`` s around ``self.qd``) scaled down to
+        a spot speed ``|J qd|`` of at most ``cap`` (m/s), then kept inside the box; the
+        direction stays the limiter's, so the spot still heads for the reference."""
         assert self.segment is not None
         v = float(np.linalg.norm(self.segment.J @ qd))
         if v <= cap:
             return qd
-        step = self._amax / self.settings.rate
+        step = self._amax * dt
         return np.asarray(np.clip(qd * (cap / v), self.qd - step, self.qd + step))
 
     def sweep_steps(self, q_from: Array, q_to: Array) -> int:
@@ -347,7 +347,7 @@ class TargetFollower:
         qd = qd_ref + behind / max(st.pull, dt)
         qd = np.clip(qd, -self._vmax, self._vmax)
         qd = np.clip(qd, self.qd - self._amax * dt, self.qd + self._amax * dt)
-        qd = self._spot_speed_cap(qd, st.max_spot_speed)
+        qd = self._spot_speed_cap(qd, st.max_spot_speed, dt)
         q = np.clip(self.q + qd * dt, self._lower, self._upper)
         unsafe = self._violation(q)
         if unsafe is not None:

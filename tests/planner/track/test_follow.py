@@ -300,3 +300,26 @@ def test_the_sweep_between_two_safe_setpoints_is_checked(ik: BeamIK) -> None:
     f.q = qa.copy()
     bad = f._violation(qb)
     assert bad is not None and "keep_out" in bad and "on the sweep" in bad, bad
+
+
+def test_capped_setpoints_at_uneven_intervals_stay_within_the_acceleration_limit(
+    ik: BeamIK,
+) -> None:
+    """A loaded sender's setpoints come 2.8 ms then 1.2 ms apart while the spot-speed cap
+    holds a 30 mm step back: every velocity change between consecutive setpoints is within
+    the acceleration limit over their own interval (as the driver checks it)."""
+    f = follower(ik, max_spot_speed=0.05)
+    sent, now, k, next_frame = [], 0.0, 0, 0.0
+    while now < 0.6:
+        if now + 1e-12 >= next_frame:
+            f.on_frame(now, P0 + (np.array([0.03, 0, 0]) if now >= 0.1 else 0.0), N, now, R_SMALL)
+            next_frame += FRAME
+        if (sp := f.setpoint(now)) is not None:
+            sent.append(sp)
+        now += 2.8e-3 if k % 2 else 1.2e-3
+        k += 1
+    t = np.array([sp[0] for sp in sent])
+    qd = np.array([sp[2] for sp in sent])
+    a_max = ik.system.limits.acceleration
+    rate = np.abs(np.diff(qd, axis=0)) / np.diff(t)[:, None]
+    assert (rate <= a_max * (1 + 1e-6)).all(), (rate / a_max).max()
