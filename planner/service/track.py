@@ -10,7 +10,9 @@
   first point (chosen on the first frame, then fixed by index); so are the follower's
   markers (the request's points, when keep-out volumes are attached to the stream: their
   rigid motion moves them). Each frame is handled in the subscriber's callback: prediction
-  and IK, under the follower's lock;
+  and IK outside the follower's lock (the setpoints are checked under a twin of the IK's
+  safety rules), then the new reference committed under it, so a slow solve never holds
+  up a setpoint;
 - streams setpoints at 500 Hz through :class:`planner.service.setpoints.SetpointStreamer`
   (the follower's limited reference, ``laser_on`` to the gate robot);
 - ends on the request's ``duration``, :meth:`stop` (``<prefix>/stop``, a halted robot, the
@@ -82,7 +84,8 @@ class TrackSession:
         self.session, self.keys, self.system = session, keys, system
         self.follower, self.id = follower, request_id
         self.duration, self.send_stop, self.on_end, self.clock = duration, send_stop, on_end, clock
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the follower's setpoint state
+        self._frame_lock = threading.Lock()  # one frame solved at a time
         self._ended = threading.Event()
         self._done = threading.Event()
         reference: Any = self._reference  # None from it: nothing sent this period
@@ -180,21 +183,25 @@ class TrackSession:
             T = self.system.camera.world_T_camera
             points = points @ T[:3, :3].T + T[:3, 3]
             normals = None if normals is None else normals @ T[:3, :3].T
-        with self._lock:
-            if self._index is None:
-                self._index = int(nearest(points, self.follower.first[None])[0])
-                if self.follower.markers is not None:
-                    self._marker_index = nearest(points, self.follower.markers)
-            if self._index >= len(points):
-                self.ignored += 1
-                return
-            k, m = self._index, self._marker_index
-            markers = None if m is None or m.max() >= len(points) else points[m]
-            out = self.follower.on_frame(msg.t, points[k], None if normals is None else normals[k],
-                                         self.clock(), markers=markers)  # fmt: skip
-            self.frames += 1
-            if out.stopped is None:
-                self._receipts.append(received)
+        if self._index is None:
+            self._index = int(nearest(points, self.follower.first[None])[0])
+            if self.follower.markers is not None:
+                self._marker_index = nearest(points, self.follower.markers)
+        if self._index >= len(points):
+            self.ignored += 1
+            return
+        k, m = self._index, self._marker_index
+        markers = None if m is None or m.max() >= len(points) else points[m]
+        with self._frame_lock:  # frames in order, one at a time; setpoints go on meanwhile
+            out, segment = self.follower.solve_frame(
+                msg.t, points[k], None if normals is None else normals[k], self.clock(),
+                markers=markers)  # fmt: skip
+            with self._lock:
+                if segment is not None:
+                    self.follower.commit(segment)
+                self.frames += 1
+                if out.stopped is None:
+                    self._receipts.append(received)
         if out.stopped is not None:
             self._ended.set()
 
@@ -253,7 +260,7 @@ class TrackSession:
         self._ended.wait()
         time.sleep(0.01)  # let the streamer send the final laser-off setpoint
         self._streamer.close()
-        with self._lock:
+        with self._frame_lock, self._lock:  # no frame's solve moves the volumes after this
             self.follower.release()
         if self._sub is not None:
             self._sub.undeclare()
@@ -365,8 +372,10 @@ def start_track(node: Any, req: Any) -> dict[str, Any]:
                 for o in (plan.get("scenario") or {}).get("keep_out") or []
                 if o.get("attached_to") == req.id}  # fmt: skip
     markers = targets.points if attached and len(targets.points) >= MIN_MARKERS else None
+    rules = handler.track_ik.safety
     follower = TargetFollower(handler.track_ik, q0, first, cam, settings, attached=attached,
-                              markers=markers)  # fmt: skip
+                              markers=markers,
+                              check=None if rules is None else rules.twin())  # fmt: skip
     follower.warm_up(q1, normal)  # the first frame must not pay for first calls
     laser = ((plan.get("scenario") or {}).get("system") or {}).get("laser", {})
     gate = laser.get("gate") or {}

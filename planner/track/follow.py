@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -106,7 +107,9 @@ class FrameOutcome:
 
 
 @dataclass
-class _Segment:
+class FrameSegment:
+    """A frame's reference: the line through (t_a, q_a) and (t_b, q_b) (s, rad)."""
+
     t_a: float
     q_a: Array
     t_b: float
@@ -115,6 +118,7 @@ class _Segment:
     J: Array  # 3 x nq spot Jacobian at q_a (m/rad)
     normal: Array | None
     target_b: Array
+    object_T_rest: Array = field(default_factory=lambda: np.eye(4))  # attached volumes' move
 
     def q_ref(self, t: float) -> tuple[Array, Array]:
         qd = (self.q_b - self.q_a) / (self.t_b - self.t_a)
@@ -140,8 +144,13 @@ class TargetFollower:
     markers: Array | None = None
     """the tracked object's points at rest (K x 3, world, m; K >= 3), matched by index to a
     frame's ``markers``: their rigid motion moves :attr:`attached`"""
+    check: Any = None
+    """the rules every setpoint is checked under (:class:`~planner.safety.model.Safety`;
+    default: the IK's own)"""
 
     def __post_init__(self) -> None:
+        if self.check is None:
+            self.check = getattr(self.ik, "safety", None)
         s = self.ik.system
         lim = s.limits
         self._vmax, self._amax = lim.velocity, lim.acceleration
@@ -149,14 +158,14 @@ class TargetFollower:
         self.q = np.asarray(self.q0, dtype=float).copy()  # the limiter's output
         self.qd = np.zeros_like(self.q)
         self.t_last: float | None = None  # the last setpoint's time
-        self.segment: _Segment | None = None
+        self.segment: FrameSegment | None = None
         self.frame_seen: float | None = None  # ``now`` of the last frame
         self.stopped: str | None = None
         self.unsafe = False  # stopped because a setpoint broke a safety rule
         self.checked = 0  # setpoints checked against the safety rules
         self.arm_gap = 0.0  # m, spot offset of the measured arm from the command
         self.keep_out_shift = np.zeros(3)  # m, how far the attached volumes were moved
-        self.object_T_rest = np.eye(4)  # the attached volumes' last move (world, m)
+        self.object_T_rest = np.eye(4)  # the attached volumes' move for the setpoints
         self._fit: tuple[Array, Array] | None = None  # the markers' rigid fit, tracked point
         self._J: Array | None = None  # spot Jacobian (m/rad), reused near where it was taken
         self._J_at = self.q
@@ -167,10 +176,24 @@ class TargetFollower:
         markers: Array | None = None,
     ) -> FrameOutcome:  # fmt: skip
         """A tracker frame: ``point`` (m, world) captured at ``t`` (s), received at ``now``;
-        ``markers``: the frame's points matched to :attr:`markers` (K x 3, world, m)."""
+        ``markers``: the frame's points matched to :attr:`markers` (K x 3, world, m).
+        :meth:`solve_frame` then :meth:`commit`, in one go."""
+        out, segment = self.solve_frame(t, point, normal, now, R, markers)
+        if segment is not None:
+            self.commit(segment)
+        return out
+
+    def solve_frame(
+        self, t: float, point: Array, normal: Array | None, now: float, R: Array | None = None,
+        markers: Array | None = None,
+    ) -> tuple[FrameOutcome, FrameSegment | None]:  # fmt: skip
+        """The prediction and solves of a frame (see :meth:`on_frame`), without touching
+        what the setpoints read: the reference to :meth:`commit` (None: stopped). Run it on
+        the frames' thread while another sends setpoints only when :attr:`check` is not the
+        IK's own rules (a twin of them)."""
         t0 = time.perf_counter()
         if self.stopped is not None:
-            return FrameOutcome(None, 0.0, self.stopped)
+            return FrameOutcome(None, 0.0, self.stopped), None
         p = np.asarray(point, dtype=float)
         if R is None:
             if self.world_T_camera is None:
@@ -189,8 +212,9 @@ class TargetFollower:
             if away > st.max_excursion:
                 return self._halt(f"target {1e3 * away:.1f} mm from its first estimate "
                                   f"(limit {1e3 * st.max_excursion:.0f} mm)", t0)  # fmt: skip
-        q_from = self.q if self.segment is None else self.segment.q_ref(t_a)[0]
-        self._move_attached(pa.p)
+        segment = self.segment
+        q_from = self.q if segment is None else segment.q_ref(t_a)[0]
+        self._place(getattr(self.ik, "safety", None), self._attached_move(pa.p))
         sol_a = self.ik.solve(pa.p, n, q_from)
         sol_b = self.ik.solve(pb.p, n, sol_a.q) if sol_a.ok else sol_a
         if not (sol_a.ok and sol_b.ok) or sol_a.q is None or sol_b.q is None:
@@ -203,10 +227,21 @@ class TargetFollower:
                               f" rad from the command (limit {st.max_jump:g} rad)", t0)  # fmt: skip
         if self._J is None or np.abs(sol_a.q - self._J_at).max() > JACOBIAN_REUSE:
             self._J, self._J_at = self._jacobian(sol_a.q, pa.p, n), sol_a.q
-        J = self._J
-        self.segment = _Segment(t_a, sol_a.q, t_b, sol_b.q, pb.sigma, J, n, pb.p)
-        self._move_attached(pb.p)
-        return FrameOutcome(pa, time.perf_counter() - t0, None)
+        seg = FrameSegment(t_a, sol_a.q, t_b, sol_b.q, pb.sigma, self._J, n, pb.p)
+        seg.object_T_rest = self._attached_move(pb.p)
+        return FrameOutcome(pa, time.perf_counter() - t0, None), seg
+
+    def commit(self, segment: FrameSegment) -> None:
+        """Make a solved frame's reference the one the setpoints follow, and place the
+        attached volumes of :attr:`check` for it (quick: hold the setpoints' lock)."""
+        if self.stopped is not None:
+            return
+        self.segment = segment
+        if self.attached:
+            self._place(self.check, segment.object_T_rest)
+            self.object_T_rest = segment.object_T_rest
+            D = segment.object_T_rest
+            self.keep_out_shift = D[:3, :3] @ self.first + D[:3, 3] - self.first
 
     def _fit_markers(self, markers: Array | None, p: Array) -> None:
         """The object's rigid motion from rest to this frame, from the matched markers."""
@@ -217,13 +252,10 @@ class TargetFollower:
             return
         self._fit = fit_rigid(self.markers, seen), p
 
-    def _move_attached(self, p: Array) -> None:
-        """Place the keep-out volumes attached to this target (:attr:`attached`: name ->
-        their pose with the target at :attr:`first`) for the predicted target ``p``: the
-        markers' rigid motion moved on by ``p`` minus the measured point, or else translated
-        by ``p - first``."""
-        if not self.attached:
-            return
+    def _attached_move(self, p: Array) -> Array:
+        """How the attached volumes move (4 x 4, world) from rest for the predicted target
+        ``p``: the markers' rigid motion moved on by ``p`` minus the measured point, or else
+        translated by ``p - first``."""
         D = np.eye(4)
         if self._fit is None:
             D[:3, 3] = np.asarray(p, dtype=float) - self.first
@@ -231,31 +263,32 @@ class TargetFollower:
             fit, measured = self._fit
             D[:] = fit
             D[:3, 3] += np.asarray(p, dtype=float) - measured
-        self._place(D)
+        return D
 
-    def _place(self, D: Array) -> None:
-        safety = getattr(self.ik, "safety", None)
-        if safety is None:
-            return
-        safety.move_keep_out({name: D @ T for name, T in self.attached.items()})
-        self.object_T_rest = D
-        self.keep_out_shift = D[:3, :3] @ self.first + D[:3, 3] - self.first
+    def _place(self, safety: Any, D: Array) -> None:
+        """Place the attached volumes of ``safety`` (:attr:`attached`: name -> their pose
+        with the target at :attr:`first`) moved by ``D``."""
+        if self.attached and safety is not None:
+            safety.move_keep_out({name: D @ T for name, T in self.attached.items()})
 
     def release(self) -> None:
         """Put the attached keep-out volumes back at their scenario poses (the IK's safety
         rules are shared with later plans)."""
-        if self.attached:
-            self._place(np.eye(4))
+        for safety in {id(x): x for x in (getattr(self.ik, "safety", None), self.check)}.values():
+            self._place(safety, np.eye(4))
 
     def warm_up(self, q: Array, normal: Array | None) -> None:
         """Run the per-frame computations once at ``q`` (rad) on the first estimate, so the
         first frame does not pay for first calls (caches, lazily built models)."""
         self.ik.solve(self.first, normal, q)
         self._J, self._J_at = self._jacobian(q, self.first, normal), np.asarray(q, dtype=float)
+        if self.check is not None:  # its collision world is built on first use
+            tr = trace_beam(self.ik.system, q, self.first, normal)
+            self.check.config(q, beam_points(self.ik.system, tr.hits, tr.spot))
 
-    def _halt(self, reason: str, t0: float) -> FrameOutcome:
+    def _halt(self, reason: str, t0: float) -> tuple[FrameOutcome, None]:
         self.stop(reason)
-        return FrameOutcome(None, time.perf_counter() - t0, reason)
+        return FrameOutcome(None, time.perf_counter() - t0, reason), None
 
     def _jacobian(self, q: Array, target: Array, normal: Array | None) -> Array:
         """Spot on the target plane w.r.t. q (3 x nq, m/rad), forward differences."""
@@ -292,8 +325,7 @@ class TargetFollower:
         """Why a setpoint at stacked ``q`` (rad), or the sweep to it from the last one
         (:attr:`q`), breaks a safety rule, with the beam at the predicted target; None when
         neither breaks any (or there are no rules)."""
-        safety = getattr(self.ik, "safety", None)
-        if safety is None or self.segment is None:
+        if self.check is None or self.segment is None:
             return None
         n = self.sweep_steps(self.q, q)
         for k in range(1, n + 1):
@@ -303,12 +335,11 @@ class TargetFollower:
         return None
 
     def _config_violation(self, q: Array) -> str | None:
-        safety = self.ik.safety
-        assert safety is not None and self.segment is not None
+        assert self.segment is not None
         system = self.ik.system
         tr = trace_beam(system, q, self.segment.target_b, self.segment.normal)
         self.checked += 1
-        bad = safety.config(q, beam_points(system, tr.hits, tr.spot))
+        bad = self.check.config(q, beam_points(system, tr.hits, tr.spot))
         return None if bad is None else f"{bad.reason}: {bad.text}"
 
     def on_joint_state(self, q_measured: Array, t: float) -> None:
