@@ -39,6 +39,9 @@ import numpy as np
 from planner.model.transforms import Array
 
 
+PREDICTION_TTL = 1.0  # s a predicted spot stays valid
+
+
 @dataclass(frozen=True)
 class SpotParams:
     """Detection thresholds (intensities in 0..255 units of the signal image, sizes in px)."""
