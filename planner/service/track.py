@@ -8,11 +8,13 @@
   ignored (the node keeps serving); camera-frame points are mapped to the world with the
   calibrated camera pose. The tracked point is the stream's point nearest the request's
   first point (chosen on the first frame, then fixed by index); so are the follower's
-  markers (the request's points, when keep-out volumes are attached to the stream: their
-  rigid motion moves them). Each frame is handled in the subscriber's callback: prediction
-  and IK outside the follower's lock (the setpoints are checked under a twin of the IK's
-  safety rules), then the new reference committed under it, so a slow solve never holds
-  up a setpoint;
+  markers (the request's other points, at least 3, when keep-out volumes are attached to
+  the stream: their rigid motion moves them). The subscriber's callback only keeps the
+  newest frame; a thread of its own (nice -10 where permitted) solves it: prediction and IK
+  outside the follower's lock (the setpoints are checked under a twin of the IK's safety
+  rules), then the new reference committed under it, so a slow solve never holds up a
+  setpoint, and a frame that a newer one replaced before it was solved is skipped
+  (counted);
 - streams setpoints at 500 Hz through :class:`planner.service.setpoints.SetpointStreamer`
   (the follower's limited reference, ``laser_on`` to the gate robot);
 - ends on the request's ``duration``, :meth:`stop` (``<prefix>/stop``, a halted robot, the
@@ -27,9 +29,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -41,6 +45,7 @@ from planner.errors import InputError
 from planner.model.system import System
 from planner.model.transforms import Array
 from planner.service.bus import Keys, decode
+from planner.service.priority import TIMING_NICE
 from planner.service.setpoints import SetpointStreamer
 from planner.track.follow import TargetFollower
 from schemas.messages import JointState, TargetStream
@@ -86,6 +91,10 @@ class TrackSession:
         self.duration, self.send_stop, self.on_end, self.clock = duration, send_stop, on_end, clock
         self._lock = threading.Lock()  # the follower's setpoint state
         self._frame_lock = threading.Lock()  # one frame solved at a time
+        self._slot_lock = threading.Lock()
+        self._slot: tuple[float, float, Array, Array | None] | None = None  # the newest frame
+        self._frame_ready = threading.Event()
+        self.skipped = 0  # frames replaced by a newer one before they were solved
         self._ended = threading.Event()
         self._done = threading.Event()
         reference: Any = self._reference  # None from it: nothing sent this period
@@ -113,6 +122,7 @@ class TrackSession:
             for r in self.system.robot_names
         ]
         self._streamer.start()
+        threading.Thread(target=self._solve_frames, name="track-frames", daemon=True).start()
         threading.Thread(target=self._finish, name="track-end", daemon=True).start()
         return self
 
@@ -190,11 +200,32 @@ class TrackSession:
         if self._index >= len(points):
             self.ignored += 1
             return
+        with self._slot_lock:  # the newest frame replaces one not yet solved
+            self.skipped += self._slot is not None
+            self._slot = (received, float(msg.t), points, normals)
+        self._frame_ready.set()
+
+    def _solve_frames(self) -> None:
+        """The frames' thread: solves the newest frame (nice :data:`TIMING_NICE` where
+        permitted: a late solve lets the stream go stale), commits it under the lock."""
+        with contextlib.suppress(OSError):
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), TIMING_NICE)
+        while not self._ended.is_set():
+            if not self._frame_ready.wait(0.05):
+                continue
+            with self._slot_lock:
+                slot, self._slot = self._slot, None
+                self._frame_ready.clear()
+            if slot is not None:
+                self._solve(*slot)
+
+    def _solve(self, received: float, t: float, points: Array, normals: Array | None) -> None:
+        assert self._index is not None
         k, m = self._index, self._marker_index
         markers = None if m is None or m.max() >= len(points) else points[m]
-        with self._frame_lock:  # frames in order, one at a time; setpoints go on meanwhile
+        with self._frame_lock:  # setpoints go on meanwhile
             out, segment = self.follower.solve_frame(
-                msg.t, points[k], None if normals is None else normals[k], self.clock(),
+                t, points[k], None if normals is None else normals[k], self.clock(),
                 markers=markers)  # fmt: skip
             with self._lock:
                 if segment is not None:
@@ -282,7 +313,7 @@ class TrackSession:
                        "latency_p99": float(np.percentile(lat, 99)),
                        "latency_max": float(lat.max())}  # fmt: skip
         return {"schema": TRACK_SCHEMA, "id": self.id, "ended": reason, "frames": self.frames,
-                "ignored": self.ignored, "setpoints": self.sent,
+                "ignored": self.ignored, "skipped": self.skipped, "setpoints": self.sent,
                 "laser_on_fraction": self.lit / self.sent if self.sent else 0.0,
                 "duration": self.clock() - self.t_start, "streamer_error": self._streamer.error,
                 **figures}  # fmt: skip
@@ -371,7 +402,8 @@ def start_track(node: Any, req: Any) -> dict[str, Any]:
     attached = {o["name"]: np.asarray(o["world_T_object"]["matrix"], dtype=float)
                 for o in (plan.get("scenario") or {}).get("keep_out") or []
                 if o.get("attached_to") == req.id}  # fmt: skip
-    markers = targets.points if attached and len(targets.points) >= MIN_MARKERS else None
+    rest = targets.points[1:]  # the object's markers: the request's points after the target
+    markers = rest if attached and len(rest) >= MIN_MARKERS else None
     rules = handler.track_ik.safety
     follower = TargetFollower(handler.track_ik, q0, first, cam, settings, attached=attached,
                               markers=markers,

@@ -34,8 +34,9 @@ Keep-out volumes attached to the target (``keep_out[].attached_to``, :attr:`atta
 with it: before each frame's solves they are placed at their scenario pose moved as the
 tracked object moved. With :attr:`markers` (3 or more of the object's points at rest) and a
 frame carrying the same points, that is the object's rigid motion (a least-squares fit,
-turns included) from rest to the frame, advanced by the tracked point's predicted
-displacement since the frame; otherwise the predicted target's displacement from the first
+turns included) from rest to the frame, advanced by the markers' centroid's predicted
+displacement since the frame (a Kalman filter of its own: the target sliding on the object
+does not drag the volumes); otherwise the predicted target's displacement from the first
 estimate (translation only), so the eyes move, and turn, with the face.
 
 The follower *stops* (laser off, no more setpoints; :attr:`TargetFollower.stopped` says
@@ -166,7 +167,8 @@ class TargetFollower:
         self.arm_gap = 0.0  # m, spot offset of the measured arm from the command
         self.keep_out_shift = np.zeros(3)  # m, how far the attached volumes were moved
         self.object_T_rest = np.eye(4)  # the attached volumes' move for the setpoints
-        self._fit: tuple[Array, Array] | None = None  # the markers' rigid fit, tracked point
+        self._fit: tuple[Array, Array] | None = None  # the markers' rigid fit, their centroid
+        self._centroid = KalmanCV()  # the markers' centroid (world, m)
         self._J: Array | None = None  # spot Jacobian (m/rad), reused near where it was taken
         self._J_at = self.q
 
@@ -201,7 +203,7 @@ class TargetFollower:
             R = self.noise.covariance_world(p, self.world_T_camera)
         self.predictor.update(t, p, R)
         self.frame_seen = now
-        self._fit_markers(markers, p)
+        self._fit_markers(t, markers, R)
         st = self.settings
         t_a = now + st.lead
         t_b = t_a + 1.0 / st.frame_rate
@@ -214,7 +216,7 @@ class TargetFollower:
                                   f"(limit {1e3 * st.max_excursion:.0f} mm)", t0)  # fmt: skip
         segment = self.segment
         q_from = self.q if segment is None else segment.q_ref(t_a)[0]
-        self._place(getattr(self.ik, "safety", None), self._attached_move(pa.p))
+        self._place(getattr(self.ik, "safety", None), self._attached_move(pa.p, t_a))
         sol_a = self.ik.solve(pa.p, n, q_from)
         sol_b = self.ik.solve(pb.p, n, sol_a.q) if sol_a.ok else sol_a
         if not (sol_a.ok and sol_b.ok) or sol_a.q is None or sol_b.q is None:
@@ -228,7 +230,7 @@ class TargetFollower:
         if self._J is None or np.abs(sol_a.q - self._J_at).max() > JACOBIAN_REUSE:
             self._J, self._J_at = self._jacobian(sol_a.q, pa.p, n), sol_a.q
         seg = FrameSegment(t_a, sol_a.q, t_b, sol_b.q, pb.sigma, self._J, n, pb.p)
-        seg.object_T_rest = self._attached_move(pb.p)
+        seg.object_T_rest = self._attached_move(pb.p, t_b)
         return FrameOutcome(pa, time.perf_counter() - t0, None), seg
 
     def commit(self, segment: FrameSegment) -> None:
@@ -243,26 +245,29 @@ class TargetFollower:
             D = segment.object_T_rest
             self.keep_out_shift = D[:3, :3] @ self.first + D[:3, 3] - self.first
 
-    def _fit_markers(self, markers: Array | None, p: Array) -> None:
-        """The object's rigid motion from rest to this frame, from the matched markers."""
+    def _fit_markers(self, t: float, markers: Array | None, R: Array) -> None:
+        """The object's rigid motion from rest to the frame captured at ``t`` (s), from the
+        matched markers (``R``: one point's measurement covariance, m^2)."""
         if markers is None or self.markers is None or len(self.markers) < MIN_MARKERS:
             return
         seen = np.asarray(markers, dtype=float)
         if seen.shape != self.markers.shape or not np.all(np.isfinite(seen)):
             return
-        self._fit = fit_rigid(self.markers, seen), p
+        centroid = seen.mean(axis=0)
+        self._centroid.update(t, centroid, np.asarray(R) / len(seen))
+        self._fit = fit_rigid(self.markers, seen), centroid
 
-    def _attached_move(self, p: Array) -> Array:
-        """How the attached volumes move (4 x 4, world) from rest for the predicted target
-        ``p``: the markers' rigid motion moved on by ``p`` minus the measured point, or else
-        translated by ``p - first``."""
+    def _attached_move(self, p: Array, t: float) -> Array:
+        """How the attached volumes move (4 x 4, world) from rest at time ``t`` (s): the
+        markers' rigid motion moved on by their centroid's predicted displacement, or else
+        translated by ``p - first`` (``p``: the predicted target then)."""
         D = np.eye(4)
         if self._fit is None:
             D[:3, 3] = np.asarray(p, dtype=float) - self.first
         else:
-            fit, measured = self._fit
+            fit, centroid = self._fit
             D[:] = fit
-            D[:3, 3] += np.asarray(p, dtype=float) - measured
+            D[:3, 3] += self._centroid.predict(t).p - centroid
         return D
 
     def _place(self, safety: Any, D: Array) -> None:
