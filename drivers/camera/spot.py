@@ -38,7 +38,6 @@ import numpy as np
 
 from planner.model.transforms import Array
 
-
 PREDICTION_TTL = 1.0  # s a predicted spot stays valid
 
 

@@ -223,7 +223,7 @@ def test_the_spot_is_searched_near_the_predicted_spot_while_the_prediction_is_fr
     def px(p: np.ndarray) -> np.ndarray:
         return np.array([k.fx * p[0] / p[2] + k.cx, k.fy * p[1] / p[2] + k.cy])
 
-    near, far = truth + [0.03, 0, 0], truth + [0.2, 0, 0]
+    near, far = truth + np.array([0.03, 0, 0]), truth + np.array([0.2, 0, 0])
     assert np.linalg.norm(px(near) - px(truth)) < 60 < np.linalg.norm(px(far) - px(truth))
     cam.on_predicted(near, now[0])
     assert cam.spot() is not None
