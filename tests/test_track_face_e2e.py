@@ -45,7 +45,7 @@ DH_ALPHA = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
 #: m: a capsule of this radius around each segment of the DH chain holds the UR5e's link
 #: (the real links: <= 0.075 m radius, shoulder/elbow offsets <= 0.138 m along the chain)
 ARM_RADIUS = 0.2
-TRACK_SECONDS = 6.0
+TRACK_SECONDS = 5.0
 
 
 # --- the independent numpy geometry -------------------------------------------------------
@@ -222,17 +222,19 @@ def check_all(face: Face, setpoints: list[dict[str, Any]], joints: list[dict[str
 LOAD_ENDS = ("stale", "late")
 
 
-@pytest.mark.serial  # the whole simulated system, ~35 s
+@pytest.mark.serial  # the whole simulated system, ~30 s (more when runs are retried)
 def test_tracking_a_breathing_turning_face_keeps_the_beam_out_of_its_eyes(cell: Cell) -> None:
-    """Up to 3 runs until one tracks for its whole duration (a loaded machine may stall the
+    """Up to 4 runs until one tracks for its whole duration (a loaded machine may stall the
     stream: the system then stops, which is safe, and the run is retried); every setpoint
     and joint state of every run is checked."""
+    if cell.procs["tracker"].poll() is not None:  # the attack test ran first
+        cell.start("tracker")
     doc = yaml.safe_load(SCENARIO.read_text())
     face = Face(doc)
     setpoints: list[dict[str, Any]] = []
     joints: list[dict[str, Any]] = []
     ends = []
-    for _ in range(3):
+    for _ in range(4):
         n_sp, n_js, n_plans = (
             len(cell.setpoints.items),
             len(cell.joints.items),
