@@ -30,7 +30,7 @@ import pytest
 import yaml
 
 from planner.service.up import child_commands
-from tests.drivers.conftest import free_port, wait_for
+from tests.drivers.conftest import free_port, stop_processes, wait_for
 from tests.paths import SCENARIOS
 from tests.planner.raw_zenoh import Inbox, ask, raw_session, token_exists
 
@@ -166,15 +166,7 @@ class Cell:
         return (self.tmp / f"{name}.log").read_text(errors="replace")
 
     def close(self) -> None:
-        for p in self.procs.values():
-            if p.poll() is None:
-                p.terminate()
-        for p in self.procs.values():
-            try:
-                p.wait(5)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        stop_processes(self.procs.values())
         for box in (self.setpoints, self.joints, self.laser, self.stops, self.plans):
             box.close()
         self.raw.close()
