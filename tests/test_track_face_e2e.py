@@ -138,9 +138,11 @@ class Face:
 class Cell:
     def __init__(self, tmp: Path) -> None:
         from planner.service.bus import open_session
+        from planner.service.priority import raised_priority
 
         self.tmp, self.endpoint = tmp, f"tcp/127.0.0.1:{free_port()}"
-        self.hub = open_session(listen=True, endpoint=self.endpoint)
+        with raised_priority():  # the hub routes the setpoints, as up's does
+            self.hub = open_session(listen=True, endpoint=self.endpoint)
         self.argv = child_commands(SCENARIO, ["arm0"], endpoint=self.endpoint, prefix=PREFIX,
                                    camera=False, tracker=True)  # fmt: skip
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
