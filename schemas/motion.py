@@ -5,7 +5,10 @@ Two kinds, every length in metres, time in seconds:
 - ``{kind: sine, axis: [x, y, z], amplitude: A, frequency: f}``: offset
   ``A sin(2 pi f t) * axis / |axis|`` (breathing: 5 mm at 0.25 Hz);
 - ``{kind: linear, velocity: [vx, vy, vz], duration: T}``: offset ``v t`` for ``T`` s, then
-  back at ``-v`` for ``T`` s, and so on (a triangle wave of period ``2 T``).
+  back at ``-v`` for ``T`` s, and so on (a triangle wave of period ``2 T``);
+- either kind may also turn: ``turn: {axis: [x, y, z], amplitude_deg: a, frequency: f}``
+  rotates the object about ``axis`` (world) through its own origin by ``a sin(2 pi f t)``
+  degrees (a head turning side to side), on top of the translation.
 
 Keys of the other kind are errors; implausible values name the likely unit mistake.
 """
@@ -27,7 +30,29 @@ MAX_FREQUENCY_HZ = 20.0
 MAX_VELOCITY_MPS = 2.0
 #: s: the longest linear leg
 MAX_DURATION_S = 3600.0
+#: deg: the largest turn amplitude accepted (beyond: radians would be small, so degrees?)
+MAX_TURN_DEG = 90.0
 _KEYS = {"sine": ("axis", "amplitude", "frequency"), "linear": ("velocity", "duration")}
+
+
+class Turn(StrictModel):
+    """A sinusoidal turn about a world ``axis`` through the object's origin (degrees, Hz)."""
+
+    axis: Vec3
+    amplitude_deg: PosNum
+    frequency: PosNum
+
+    @model_validator(mode="after")
+    def _plausible(self) -> Self:
+        if math.hypot(*self.axis) < 1e-9:
+            raise FieldError(("axis",), "is zero: give the axis of the turn")
+        if self.amplitude_deg > MAX_TURN_DEG:
+            raise FieldError(("amplitude_deg",),
+                             f"{self.amplitude_deg:g} deg is above {MAX_TURN_DEG:g} deg")  # fmt: skip
+        if self.frequency > MAX_FREQUENCY_HZ:
+            raise FieldError(("frequency",), f"{self.frequency:g} Hz is above "
+                             f"{MAX_FREQUENCY_HZ:g} Hz: did you give rad/s? (Hz)")  # fmt: skip
+        return self
 
 
 class Motion(StrictModel):
@@ -39,6 +64,7 @@ class Motion(StrictModel):
     frequency: PosNum | None = None
     velocity: Vec3 | None = None
     duration: PosNum | None = None
+    turn: Turn | None = None
 
     @model_validator(mode="after")
     def _keys_of_kind(self) -> Self:

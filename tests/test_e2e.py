@@ -31,7 +31,7 @@ from planner.beam.graph import BeamModel
 from planner.service.bus import Keys, open_session
 from planner.service.client import PlanClient, RequestError, make_request
 from planner.service.up import child_commands
-from tests.drivers.conftest import free_port, wait_for
+from tests.drivers.conftest import free_port, stop_processes, wait_for
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -122,15 +122,7 @@ class Bus:
         return (self.tmp / f"{name}.log").read_text(errors="replace")
 
     def close(self) -> None:
-        for p in self.procs.values():
-            if p.poll() is None:
-                p.terminate()
-        for p in self.procs.values():
-            try:
-                p.wait(5)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        stop_processes(self.procs.values())
         self.client.close()
         self._tok.undeclare()
         self.hub.close()

@@ -1,8 +1,9 @@
 """The simulated world's scene at time t: static objects plus objects that move (``motion:``).
 
 Every object with a motion is a :class:`planner.model.scene.SceneModel` of its own, built at
-its rest pose (``world_T_object``); a ray (o, v) meets the object translated by ``d(t)``
-where the ray (o - d(t), v) meets it at rest, so moving it costs no rebuild, only a cast
+its rest pose (``world_T_object``, origin ``c``); a ray (o, v) meets the object turned by
+``R(t)`` about ``c`` and translated by ``d(t)`` where the ray (R^T (o - c - d) + c, R^T v)
+meets it at rest (the normal there turned by R), so moving it costs no rebuild, only a cast
 per object. Static objects share one model. World frame, metres, seconds (``t`` on the
 simulation clock, see :mod:`planner.model.motion`).
 """
@@ -60,12 +61,22 @@ class MovingScene:
         )
         normal = hits.normal.copy()
         for j, model in enumerate(self.moving):
-            h = model.cast(P - self.motion(j).offset(t), V)
+            R = self.motion(j).rotation(t)
+            h = model.cast(*self._at_rest(j, P, V, t))
             closer = h.t < best_t
             best_t = np.where(closer, h.t, best_t)
             obj = np.where(closer, self.moving_index[j], obj)
-            normal = np.where(closer[:, None], h.normal, normal)
+            normal = np.where(closer[:, None], h.normal @ R.T, normal)
         return RayHits(best_t, obj, normal)
+
+    def _at_rest(self, j: int, origins: Array, directions: Array, t: float) -> tuple[Array, Array]:
+        """Rays (world) against moving object ``j`` at time ``t`` as rays against it at rest."""
+        m = self.motion(j)
+        c = self.items[self.moving_index[j]].world_T_object[:3, 3]
+        R = m.rotation(t)
+        P = np.asarray(origins, dtype=float).reshape(-1, 3)
+        V = np.asarray(directions, dtype=float).reshape(-1, 3)
+        return (P - c - m.offset(t)) @ R + c, V @ R
 
     def swept_box(self, j: int) -> SceneItem:
         """A box holding moving object ``j`` at every time (its bounds over the motion)."""
@@ -73,6 +84,10 @@ class MovingScene:
         mesh = object_mesh(dataclasses.replace(item, motion=None))
         lo, hi = np.asarray(mesh.get_min_bound()), np.asarray(mesh.get_max_bound())
         m = self.motion(j)
+        if m.turns:  # every turn of the object lies in the ball around its origin
+            c = item.world_T_object[:3, 3]
+            r = float(np.linalg.norm(np.asarray(mesh.vertices) - c, axis=1).max())
+            lo, hi = c - r, c + r
         ends = [m.direction * m.amplitude, -m.direction * m.amplitude]
         if m.kind == "linear":
             ends = [np.zeros(3), m.direction * m.duration]
@@ -84,4 +99,4 @@ class MovingScene:
 
     def object_cast(self, j: int, origins: Array, directions: Array, t: float) -> Array:
         """``t_hit`` (inf = miss) of each ray against moving object ``j`` alone at time t."""
-        return self.moving[j].cast(np.asarray(origins) - self.motion(j).offset(t), directions).t
+        return self.moving[j].cast(*self._at_rest(j, origins, directions, t)).t

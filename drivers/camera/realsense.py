@@ -42,6 +42,7 @@ import numpy as np
 from drivers.camera.node import SpotReading
 from drivers.camera.rs_recording import DEPTH_UNIT as DEPTH_UNIT
 from drivers.camera.rs_recording import write_recording as write_recording
+from drivers.camera.spot import PREDICTION_TTL as PREDICTION_TTL
 from drivers.camera.spot import GateHistory, SpotParams, detect_gated_spot, project
 from planner.errors import InputError
 from planner.model.system import Intrinsics
@@ -51,7 +52,6 @@ RED_MIN = 60  # minimum redness R - max(G, B) of a spot pixel (0..255), ungated 
 RED_FRACTION = 0.5  # blob = pixels above this fraction of the peak redness
 SPOT_WINDOW = 15  # px, window whose median depth is the spot depth
 HISTORY = 8  # frames kept for the gated difference
-PREDICTION_TTL = 1.0  # s a predicted spot stays valid
 
 
 class CameraLostError(RuntimeError):

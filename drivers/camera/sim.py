@@ -28,7 +28,11 @@ the depth of a plane fitted to the ``SPOT_WINDOW`` x ``SPOT_WINDOW`` pixels arou
 ``sigma_z / SPOT_WINDOW`` along the ray): 0.2 mm at 0.87 m, the paper_n1 camera distance
 (the one D435 model, :data:`planner.model.d435.SPOT`);
 confidence = |cos| of the angle between the beam and the surface normal (a grazing beam
-makes a long, dim spot), at least 0.05.
+makes a long, dim spot), at least 0.05. Like the RealSense driver's gated detector, it looks
+for the spot only within :attr:`SpotParams.radius <drivers.camera.spot.SpotParams.radius>`
+px of the planner's predicted spot (``<prefix>/camera/predicted``, :meth:`SimCamera.on_predicted`)
+while that prediction is fresh (:data:`drivers.camera.spot.PREDICTION_TTL`); a spot outside
+the window is not detected (counted in :attr:`SimCamera.outside_window`).
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ from numpy.typing import NDArray
 
 from drivers.camera.moving import MovingScene
 from drivers.camera.node import SpotReading
+from drivers.camera.spot import PREDICTION_TTL, SpotParams, project
 from planner.beam.graph import BeamModel
 from planner.model import d435
 from planner.model.scene import SceneItem
@@ -129,6 +134,24 @@ class SimCamera:
         self._sigma = depth_sigma(self._z, self.camera.intrinsics.fx).astype(np.float32)
         self.camera_T_world = inv_T(self.camera.world_T_camera)
         self._last: tuple[Array, tuple[Array, Array, Array] | None] | None = None
+        self._predicted: tuple[Array, float] | None = None  # camera frame m, UNIX s
+        self.window_px = SpotParams().radius
+        self.outside_window = 0  # spots not detected: outside the predicted spot's window
+
+    def on_predicted(self, p_camera: Array, t: float) -> None:
+        """The planner's predicted spot (camera optical frame, m) at UNIX time ``t``."""
+        self._predicted = (np.asarray(p_camera, dtype=float), float(t))
+
+    def _in_window(self, u: float, v: float) -> bool:
+        """Whether pixel (u, v) is inside the detector's search window (the whole image
+        without a fresh prediction)."""
+        if self._predicted is None or self.clock() - self._predicted[1] > PREDICTION_TTL:
+            return True
+        p, k = self._predicted[0], self.camera.intrinsics
+        if p[2] <= 0:
+            return True
+        pu, pv = project(p, k.fx, k.fy, k.cx, k.cy)
+        return bool(np.hypot(u - pu, v - pv) <= self.window_px)
 
     def _swept_pixels(self, j: int) -> Any:
         """Indices of the pixel rays that meet moving object ``j``'s swept box."""
@@ -238,6 +261,9 @@ class SimCamera:
             return None
         u, w = k.fx * p_c[0] / p_c[2] + k.cx, k.fy * p_c[1] / p_c[2] + k.cy
         if not (0 <= u < k.width and 0 <= w < k.height):
+            return None
+        if not self._in_window(u, w):
+            self.outside_window += 1
             return None
         p_noisy = d435.SPOT.with_focal(k.fx).apply(p_c, self.rng)
         confidence = max(0.05, abs(float(np.dot(v, normal))))

@@ -38,6 +38,8 @@ import numpy as np
 
 from planner.model.transforms import Array
 
+PREDICTION_TTL = 1.0  # s a predicted spot stays valid
+
 
 @dataclass(frozen=True)
 class SpotParams:

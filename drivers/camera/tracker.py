@@ -6,8 +6,8 @@ object, ``id`` = the object's name. At time ``t`` (the simulation clock,
 :mod:`planner.model.motion`) each point is where the motion puts it, seen through the
 marker noise of the simulated camera's spot model (:class:`planner.track.noise.MarkerNoise`
 with :data:`drivers.camera.sim.SIGMA_PX` and :data:`drivers.camera.sim.SPOT_WINDOW`) from
-the *true* camera pose; normals (when the scenario gives them) are unchanged (the motions
-translate). No occlusion test: a marker is always seen.
+the *true* camera pose; normals (when the scenario gives them) turn with the object. No
+occlusion test: a marker is always seen.
 
 :class:`TrackerNode` publishes :class:`schemas.messages.TargetStream` on
 ``<prefix>/targets/stream`` (liveliness token ``<prefix>/alive/tracker``) at ``rate`` (30 Hz, the camera's), each message ``latency`` s
@@ -84,7 +84,12 @@ class SimTracker:
     def true_points(self, obj: TrackedObject, t: float) -> Array:
         """The object's targets at ``t`` (s), world, m."""
         assert obj.item.motion is not None
-        return obj.points + obj.item.motion.offset(t)
+        return obj.item.motion.move_points(obj.points, obj.item.world_T_object[:3, 3], t)
+
+    def true_normals(self, obj: TrackedObject, t: float) -> Array | None:
+        """The object's target normals at ``t`` (s), world (None without normals)."""
+        assert obj.item.motion is not None
+        return None if obj.normals is None else obj.normals @ obj.item.motion.rotation(t).T
 
     def measure(self, t: float) -> list[TargetStream]:
         """One message per tracked object for a frame captured at ``t`` (s)."""
@@ -95,7 +100,8 @@ class SimTracker:
                 R @ self.noise.sample_camera(R.T @ (p - c), self.rng) + c
                 for p in self.true_points(obj, t)
             ]
-            normals = None if obj.normals is None else obj.normals.tolist()
+            n = self.true_normals(obj, t)
+            normals = None if n is None else n.tolist()
             out.append(TargetStream(t=t, id=obj.item.name, points=[s.tolist() for s in seen],
                                     normals=normals))  # fmt: skip
         return out

@@ -11,9 +11,14 @@ traces the true beam at the arm's joints onto the phantom where its motion puts 
 error = |true spot - true target| every 5th control period (100 Hz), over the periods with the laser
 on (and over all, for comparison). Cases: (a) ``linear``: the phantom moves in its plane at
 20 mm/s for 2.5 s, then back; (b) ``breathing``: the scenario's own sine, 5 mm at 0.25 Hz
-along its normal. The latency is wall time from a frame's receipt to its first setpoint:
-the follower's processing (prediction, two IK solves, the beam Jacobian) plus the wait for
-the next control period. Figures are printed, not asserted.
+along its normal; (c) ``face``: ``scenarios/face_tracking.yaml``, a head that breathes and
+turns with keep-out eyes attached to it, the target 6.4 mm from an eye, the eyes moved by
+the four markers' rigid motion. The latency is wall time from a frame's receipt to its first
+setpoint: the follower's processing (prediction, two IK solves, the beam Jacobian) plus the
+wait for the next control period. The safety check of each setpoint (the configuration and
+the sweep from the last one, :meth:`~planner.track.follow.TargetFollower.setpoint`) is timed
+on its own: configurations checked per second of checking (CPU), and the latency it adds
+to each setpoint (wall and CPU time, p50 and p99). Figures are printed, not asserted.
 """
 
 from __future__ import annotations
@@ -30,17 +35,40 @@ from planner.model.motion import ObjectMotion
 
 #: the true spot is traced every SPOT_EVERY control periods (100 Hz)
 SPOT_EVERY = 5
-CASES = {
-    "linear": ObjectMotion.linear([0.02, 0.0, 0.0], 2.5),
-    "breathing": None,  # the scenario's own motion
+CASES: dict[str, tuple[str, ObjectMotion | None]] = {
+    "linear": ("breathing.yaml", ObjectMotion.linear([0.02, 0.0, 0.0], 2.5)),
+    "breathing": ("breathing.yaml", None),  # the scenario's own motion
+    "face": ("face_tracking.yaml", None),
 }
 
 
+def timed_follower(*args: Any, **kw: Any) -> Any:
+    """A :class:`~planner.track.follow.TargetFollower` that times each setpoint's safety
+    check (s, in ``check_times``)."""
+    from planner.track.follow import TargetFollower
+
+    class Timed(TargetFollower):
+        check_times: list[tuple[float, float]]
+
+        def _violation(self, q: Any) -> str | None:
+            t0, c0 = time.perf_counter(), time.thread_time()
+            try:
+                return super()._violation(q)
+            finally:
+                self.check_times.append((time.perf_counter() - t0, time.thread_time() - c0))
+
+    f = Timed(*args, **kw)
+    f.check_times = []
+    return f
+
+
 def run_case(
-    motion: ObjectMotion | None, seconds: float, seed: int, latency: float = 0.02
-) -> dict[str, Any]:
-    """Simulate ``seconds`` s of tracking the breathing scenario's first moving target (its
-    motion replaced by ``motion`` when given); figures in m and s."""
+    motion: ObjectMotion | None, seconds: float, seed: int, latency: float = 0.02,
+    scenario: str = "breathing.yaml",
+) -> dict[str, Any]:  # fmt: skip
+    """Simulate ``seconds`` s of tracking the first target of a shipped ``scenario`` on its
+    moving object (the motion replaced by ``motion`` when given); with keep-out volumes
+    attached to the object, its other targets are the markers; figures in m and s."""
     from drivers.camera.sim import SimCamera
     from drivers.camera.tracker import SimTracker, tracked_objects
     from planner.data import shipped_scenario
@@ -49,9 +77,9 @@ def run_case(
     from planner.io.scenario import targets_from_scenario as targets_of
     from planner.planning import ik_options
     from planner.safety.model import Safety
-    from planner.track.follow import TargetFollower, TrackSettings
+    from planner.track.follow import TrackSettings
 
-    scn = load_scenario(shipped_scenario("breathing.yaml"))
+    scn = load_scenario(shipped_scenario(scenario))
     system = system_from_scenario(scn)
     items = scene_objects(scn)
     if motion is not None:
@@ -61,10 +89,13 @@ def run_case(
     assert system.camera is not None
     clock = [0.0]
     cam = SimCamera(system_from_scenario(scn, truth=True), items, seed=seed, clock=lambda: clock[0])
-    one = dataclasses.replace(
-        obj, points=obj.points[:1], normals=None if obj.normals is None else obj.normals[:1]
-    )
-    tracker = SimTracker([one],
+    attached = {o.name: o.world_T_object.matrix() for o in scn.model.keep_out
+                if o.attached_to == obj.item.name}  # fmt: skip
+    if not attached:
+        obj = dataclasses.replace(
+            obj, points=obj.points[:1], normals=None if obj.normals is None else obj.normals[:1]
+        )
+    tracker = SimTracker([obj],
                          system.camera.world_T_camera, system.camera.intrinsics.fx, seed)  # fmt: skip
     ik = BeamIK(system, ik_options(scn.model.solver), Safety.from_scenario(scn, system))
     first = obj.points[0]
@@ -72,7 +103,9 @@ def run_case(
     q0 = ik.solve(first, normal).q
     assert q0 is not None
     settings = TrackSettings()
-    follower = TargetFollower(ik, q0, first, system.camera.world_T_camera, settings)
+    markers = obj.points[1:] if attached else None
+    follower = timed_follower(ik, q0, first, system.camera.world_T_camera, settings,
+                              attached=attached, markers=markers)  # fmt: skip
     return _simulate(follower, tracker, cam, clock, system, seconds, latency)
 
 
@@ -99,7 +132,9 @@ def _simulate(
             r, msg = pending.pop(0)
             t0, c0 = time.perf_counter(), time.thread_time()
             normal = None if msg.normals is None else np.asarray(msg.normals[0])
-            follower.on_frame(msg.t, np.asarray(msg.points[0]), normal, r)
+            points = np.asarray(msg.points)
+            markers = points[1:] if follower.markers is not None else None
+            follower.on_frame(msg.t, points[0], normal, r, markers=markers)
             busy = time.perf_counter() - t0
             proc.append(busy)
             cpu.append(time.thread_time() - c0)
@@ -140,6 +175,7 @@ def _figures(
         "processing_p99_s": float(np.percentile(proc, 99)),
         "latency_p50_s": float(np.percentile(latency, 50)),
         "latency_p99_s": float(np.percentile(latency, 99)),
+        **_check_figures(follower),
     }
     for name, sel in (("laser_on", on), ("all", np.ones_like(on))):
         x = e[sel.astype(bool) & np.isfinite(e)]
@@ -147,6 +183,21 @@ def _figures(
         out[f"p95_{name}_m"] = float(np.percentile(x, 95)) if len(x) else None
         out[f"max_{name}_m"] = float(x.max()) if len(x) else None
     return out
+
+
+def _check_figures(follower: Any) -> dict[str, float]:
+    """Setpoint safety checks: configurations checked per second of checking (CPU), the
+    wall time each setpoint's check took (s, p50 / p99) and its CPU time (p50 / p99)."""
+    times = np.asarray(follower.check_times).reshape(-1, 2)
+    if not len(times):
+        return {}
+    wall, cpu = times[:, 0], times[:, 1]
+    return {"checked": int(follower.checked),
+            "checks_per_cpu_s": float(follower.checked / max(cpu.sum(), 1e-9)),
+            "check_p50_s": float(np.percentile(wall, 50)),
+            "check_p99_s": float(np.percentile(wall, 99)),
+            "check_cpu_p50_s": float(np.percentile(cpu, 50)),
+            "check_cpu_p99_s": float(np.percentile(cpu, 99))}  # fmt: skip
 
 
 def command(
@@ -161,9 +212,11 @@ def command(
         bool, typer.Option("--json", help="One JSON object on the last line.")
     ] = False,
 ) -> None:
-    """Spot error on a moving target (linear 20 mm/s, breathing 5 mm at 0.25 Hz) and the
-    frame -> setpoint latency, simulated in-process."""
-    figures = {name: run_case(m, seconds, seed, latency) for name, m in CASES.items()}
+    """Spot error on a moving target (linear 20 mm/s, breathing 5 mm at 0.25 Hz, a turning
+    face with keep-out eyes), the frame -> setpoint latency and the setpoint checks' cost,
+    simulated in-process."""
+    figures = {name: run_case(m, seconds, seed, latency, scenario)
+               for name, (scenario, m) in CASES.items()}  # fmt: skip
     for name, f in figures.items():
         mm = {k: (None if v is None else 1e3 * v) for k, v in f.items() if k.endswith("_m")}
         typer.echo(
@@ -172,7 +225,10 @@ def command(
             f" {mm['max_all_m']:.3f} mm); laser on {100 * f['laser_on_fraction']:.1f} %;"
             f" frame -> setpoint p50 {1e3 * f['latency_p50_s']:.2f} ms,"
             f" p99 {1e3 * f['latency_p99_s']:.2f} ms (processing p99"
-            f" {1e3 * f['processing_p99_s']:.2f} ms, CPU p50 {1e3 * f['cpu_p50_s']:.2f} ms)"
+            f" {1e3 * f['processing_p99_s']:.2f} ms, CPU p50 {1e3 * f['cpu_p50_s']:.2f} ms);"
+            f" setpoint checks {f['checks_per_cpu_s']:.0f}/s of CPU, added per setpoint p50"
+            f" {1e3 * f['check_p50_s']:.3f} ms, p99 {1e3 * f['check_p99_s']:.3f} ms"
+            f" (CPU p50 {1e3 * f['check_cpu_p50_s']:.3f} ms, p99 {1e3 * f['check_cpu_p99_s']:.3f} ms)"
         )
     if as_json:
         typer.echo(json.dumps(figures))

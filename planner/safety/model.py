@@ -142,6 +142,10 @@ class Safety:
         self.settings = settings or SafetySettings()
         self.labels = segment_names(system)
 
+    def twin(self) -> Safety:
+        """The same rules with a collision world of their own (another thread's checks)."""
+        return Safety(self.system, self.scene, self.keep_out, self.settings)
+
     @classmethod
     def from_scenario(cls, scn: LoadedScenario, system: System) -> Safety:
         """The rules of a loaded scenario: its ``scene`` objects, ``keep_out`` volumes and

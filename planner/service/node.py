@@ -320,7 +320,7 @@ class PlannerNode:
         if req.closed_loop and handler.closed_loop is None:
             raise InputError("this planner serves no closed_loop requests", "closed_loop")
         if req.mode == "track":
-            from planner.service.track import start_track
+            from planner.service.track_start import start_track
 
             return encode_json(start_track(self, req))
         targets = handler.targets(req)

@@ -5,9 +5,10 @@ loop must run every period. On a loaded machine (a browser rendering in software
 solver, a test suite) the normal scheduler may leave either waiting longer than that: the
 arm then stops although nothing failed, and a lower nice value does not prevent it. The
 heartbeat path (the heartbeat process, the Zenoh threads of ``up``'s hub and of each robot
-driver) and the drivers' control loops therefore ask for ``SCHED_FIFO`` at
-:data:`RT_PRIORITY`, per thread: the threads that compute (solvers, parsers, the camera)
-stay normal. Every such thread sleeps each period, so it cannot starve the machine.
+driver), the drivers' control loops and the planner's setpoint streamer therefore ask
+for ``SCHED_FIFO`` at :data:`RT_PRIORITY`, per thread: the threads that compute (solvers,
+parsers, the camera) stay normal, except that tracking's frame solver (30 Hz, a few ms
+each) asks for nice :data:`TIMING_NICE` (a late solve lets the target stream go stale). Every such thread sleeps each period, so it cannot starve the machine.
 
 ``SCHED_FIFO`` needs root, ``CAP_SYS_NICE`` or an rtprio limit: ``ulimit -r 15``, or a line
 ``<user> - rtprio 15`` in ``/etc/security/limits.d/beamrelay.conf`` (then log in again).

@@ -18,6 +18,12 @@ fresh), the request ``id`` and a ``seq`` that counts up. What it publishes comes
 aiming beam shows where the beam is while a tracked target is acquired); the others get
 ``false``. Joints in rad and rad/s, times in s.
 
+The streaming thread asks for ``SCHED_FIFO`` (:func:`planner.service.priority.raise_priority`,
+nice as the fallback) like the other threads whose timing keeps the arm safe: a driver
+switches treatment off at the first late setpoint and stops the arm 50 ms into a silent
+stream, and a loaded machine's normal scheduler may leave the thread waiting that long. It
+sleeps every period (its work per period is one reference call and the bodies).
+
 What the drivers check (docs/conventions.md, "Setpoint streams"): the first setpoint within
 0.01 rad and 0.1 rad/s of the arm's state; consecutive setpoints within the velocity limit
 (``|q_k - q_k-1| / (t_k - t_k-1)``, so a position step of more than ``v_max / rate``,
@@ -102,6 +108,7 @@ class SetpointStreamer:
         self._update: _Update | None = None
         self._halt = threading.Event()
         self._thread = threading.Thread(target=self._run, name="setpoint-streamer", daemon=True)
+        self.priority: Any = None  # the streaming thread's (planner.service.priority.Priority)
         self.seq = 0  # setpoints sent so far per robot (the next seq)
         self.error: str | None = None
         self.late_max = 0.0  # s: the largest lateness of a period behind its schedule
@@ -161,6 +168,9 @@ class SetpointStreamer:
 
     # -- thread ------------------------------------------------------------------------------
     def _run(self) -> None:
+        from planner.service.priority import raise_priority
+
+        self.priority = raise_priority(reset_on_fork=True)
         period = 1.0 / self.rate
         due = time.monotonic()
         while not self._halt.is_set():

@@ -7,8 +7,14 @@
   :class:`~schemas.messages.TargetStream`, or one for another ``id`` is counted and
   ignored (the node keeps serving); camera-frame points are mapped to the world with the
   calibrated camera pose. The tracked point is the stream's point nearest the request's
-  first point (chosen on the first frame, then fixed by index). Each frame is handled in
-  the subscriber's callback: prediction and IK, under the follower's lock;
+  first point (chosen on the first frame, then fixed by index); so are the follower's
+  markers (the request's other points, at least 3, when keep-out volumes are attached to
+  the stream: their rigid motion moves them). The subscriber's callback only keeps the
+  newest frame; a thread of its own (nice -10 where permitted) solves it: prediction and IK
+  outside the follower's lock (the setpoints are checked under a twin of the IK's safety
+  rules), then the new reference committed under it, so a slow solve never holds up a
+  setpoint, and a frame that a newer one replaced before it was solved is skipped
+  (counted);
 - streams setpoints at 500 Hz through :class:`planner.service.setpoints.SetpointStreamer`
   (the follower's limited reference, ``laser_on`` to the gate robot);
 - ends on the request's ``duration``, :meth:`stop` (``<prefix>/stop``, a halted robot, the
@@ -23,9 +29,10 @@
 
 from __future__ import annotations
 
-import dataclasses
+import contextlib
 import json
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -37,6 +44,7 @@ from planner.errors import InputError
 from planner.model.system import System
 from planner.model.transforms import Array
 from planner.service.bus import Keys, decode
+from planner.service.priority import TIMING_NICE
 from planner.service.setpoints import SetpointStreamer
 from planner.track.follow import TargetFollower
 from schemas.messages import JointState, TargetStream
@@ -48,14 +56,6 @@ MAX_STREAM_BYTES = 64 * 1024
 #: s: the session stops when no frame of its stream came this long after its start
 FIRST_FRAME_TIMEOUT = 1.0
 TRACK_SCHEMA = "beamrelay.track/1"
-#: rad/s: a track request starts only while every joint is slower than this
-REST_SPEED = 0.01
-#: rad: farther than this from the first estimate's solution, the arm goes there with a
-#: planned trajectory before the stream starts (the stream's first setpoint must lie within
-#: 0.01 rad of the arm)
-APPROACH_GAP = 0.005
-#: s past the approach's planned end the robots may take to rest on its last sample
-APPROACH_TIMEOUT = 2.0
 
 
 class TrackSession:
@@ -80,7 +80,12 @@ class TrackSession:
         self.session, self.keys, self.system = session, keys, system
         self.follower, self.id = follower, request_id
         self.duration, self.send_stop, self.on_end, self.clock = duration, send_stop, on_end, clock
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the follower's setpoint state
+        self._frame_lock = threading.Lock()  # one frame solved at a time
+        self._slot_lock = threading.Lock()
+        self._slot: tuple[float, float, Array, Array | None] | None = None  # the newest frame
+        self._frame_ready = threading.Event()
+        self.skipped = 0  # frames replaced by a newer one before they were solved
         self._ended = threading.Event()
         self._done = threading.Event()
         reference: Any = self._reference  # None from it: nothing sent this period
@@ -91,6 +96,7 @@ class TrackSession:
         self._joint_subs: list[Any] = []
         self._measured: dict[str, Array] = {}  # robot -> its latest measured joints (rad)
         self._index: int | None = None
+        self._marker_index: Array | None = None  # the stream's points matched to the markers
         self._receipts: list[float] = []  # perf_counter of frames not yet streamed
         self.latencies: list[float] = []
         self.frames = self.ignored = self.lit = self.sent = 0
@@ -107,6 +113,7 @@ class TrackSession:
             for r in self.system.robot_names
         ]
         self._streamer.start()
+        threading.Thread(target=self._solve_frames, name="track-frames", daemon=True).start()
         threading.Thread(target=self._finish, name="track-end", daemon=True).start()
         return self
 
@@ -177,19 +184,46 @@ class TrackSession:
             T = self.system.camera.world_T_camera
             points = points @ T[:3, :3].T + T[:3, 3]
             normals = None if normals is None else normals @ T[:3, :3].T
-        with self._lock:
-            if self._index is None:
-                d = np.linalg.norm(points - self.follower.first, axis=1)
-                self._index = int(np.argmin(d))
-            if self._index >= len(points):
-                self.ignored += 1
-                return
-            k = self._index
-            out = self.follower.on_frame(msg.t, points[k], None if normals is None else normals[k],
-                                         self.clock())  # fmt: skip
-            self.frames += 1
-            if out.stopped is None:
-                self._receipts.append(received)
+        if self._index is None:
+            self._index = int(nearest(points, self.follower.first[None])[0])
+            if self.follower.markers is not None:
+                self._marker_index = nearest(points, self.follower.markers)
+        if self._index >= len(points):
+            self.ignored += 1
+            return
+        with self._slot_lock:  # the newest frame replaces one not yet solved
+            self.skipped += self._slot is not None
+            self._slot = (received, float(msg.t), points, normals)
+        self._frame_ready.set()
+
+    def _solve_frames(self) -> None:
+        """The frames' thread: solves the newest frame (nice :data:`TIMING_NICE` where
+        permitted: a late solve lets the stream go stale), commits it under the lock."""
+        with contextlib.suppress(OSError):
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), TIMING_NICE)
+        while not self._ended.is_set():
+            if not self._frame_ready.wait(0.05):
+                continue
+            with self._slot_lock:
+                slot, self._slot = self._slot, None
+                self._frame_ready.clear()
+            if slot is not None:
+                self._solve(*slot)
+
+    def _solve(self, received: float, t: float, points: Array, normals: Array | None) -> None:
+        assert self._index is not None
+        k, m = self._index, self._marker_index
+        markers = None if m is None or m.max() >= len(points) else points[m]
+        with self._frame_lock:  # setpoints go on meanwhile
+            out, segment = self.follower.solve_frame(
+                t, points[k], None if normals is None else normals[k], self.clock(),
+                markers=markers)  # fmt: skip
+            with self._lock:
+                if segment is not None:
+                    self.follower.commit(segment)
+                self.frames += 1
+                if out.stopped is None:
+                    self._receipts.append(received)
         if out.stopped is not None:
             self._ended.set()
 
@@ -248,7 +282,7 @@ class TrackSession:
         self._ended.wait()
         time.sleep(0.01)  # let the streamer send the final laser-off setpoint
         self._streamer.close()
-        with self._lock:
+        with self._frame_lock, self._lock:  # no frame's solve moves the volumes after this
             self.follower.release()
         if self._sub is not None:
             self._sub.undeclare()
@@ -270,98 +304,13 @@ class TrackSession:
                        "latency_p99": float(np.percentile(lat, 99)),
                        "latency_max": float(lat.max())}  # fmt: skip
         return {"schema": TRACK_SCHEMA, "id": self.id, "ended": reason, "frames": self.frames,
-                "ignored": self.ignored, "setpoints": self.sent,
+                "ignored": self.ignored, "skipped": self.skipped, "setpoints": self.sent,
                 "laser_on_fraction": self.lit / self.sent if self.sent else 0.0,
                 "duration": self.clock() - self.t_start, "streamer_error": self._streamer.error,
                 **figures}  # fmt: skip
 
 
-def approach(node: Any, handler: Any, plan: dict[str, Any], q0: Array, q1: Array,
-             first: Array, normal: Array | None, request_id: str) -> Array:  # fmt: skip
-    """Move from stacked ``q0`` to the first estimate's solution ``q1`` (rad) with a planned
-    trajectory (timed and checked under the safety rules like any plan, laser off) and wait
-    until every robot rests there; the measured joints then. ExecuteError when no safe move
-    exists, a driver refuses it or the robots do not arrive."""
-    from planner.service.execution import ExecuteError
-
-    system = handler.system
-    if handler.closed_loop is None:
-        raise ExecuteError("no planned approach to the tracked target (this planner has no "
-                           "move planner): execute a request to it first", list(system.robot_names))  # fmt: skip
-    traj = handler.closed_loop.move(q0, q1, 0.0, first, normal)
-    traj["laser_on"] = []
-    mini = {k: plan[k] for k in ("robots", "joint_names", "scenario")} | {"trajectory": traj}
-    node.execution.execute(mini, f"{request_id[:200]}.approach", node.session_id)
-    if mini["execution"] != "accepted":
-        raise ExecuteError(f"approach to the tracked target refused: {mini['execution_reason']}",
-                           list(system.robot_names))  # fmt: skip
-    deadline = time.monotonic() + float(traj["t"][-1]) + APPROACH_TIMEOUT
-    q_end = {r: np.asarray(traj["q"][r][-1], dtype=float) for r in system.robot_names}
-    while not node.joints.rests_at(q_end):
-        if time.monotonic() > deadline:
-            raise ExecuteError(f"the robots did not reach the tracked target's first estimate "
-                               f"within {APPROACH_TIMEOUT:g} s of the approach's end",
-                               list(system.robot_names))  # fmt: skip
-        time.sleep(0.005)
-    return system.stack_q(node.joints.current())
-
-
-def start_track(node: Any, req: Any) -> dict[str, Any]:
-    """Start following the target stream of a validated ``mode: track`` request on a
-    :class:`planner.service.node.PlannerNode`; returns the reply document (the plan of the
-    first estimate, ``execution: accepted``, ``tracking``). Errors (InputError /
-    ExecuteError) name the field."""
-    from planner.model.system import Targets
-    from planner.service.execution import ExecuteError
-    from planner.track.follow import TrackSettings
-
-    if not req.execute:
-        raise InputError("mode track moves the robots: it needs execute: true", "execute")
-    handler, system = node.handler, node.handler.system
-    if handler.track_ik is None:
-        raise InputError("this planner has no tracking IK (no closed form for its arms)", "mode")
-    node.check_drivers()
-    start = node.joints.current()
-    for robot in system.robot_names:
-        entry = node.joints.get(robot)
-        speed = 0.0 if entry is None else float(np.abs(entry[2]).max())
-        if speed > REST_SPEED:
-            raise ExecuteError(f"{robot} moves at {speed:.3f} rad/s: track once it rests",
-                               [robot])  # fmt: skip
-    targets = handler.targets(req)
-    first = targets.points[0]
-    normal = None if targets.normals is None else targets.normals[0]
-    one = Targets(first[None], None if normal is None else normal[None], kind="points")
-    plan = handler.plan_fn(one, start, False)
-    plan["id"] = req.id
-    sol = plan["solutions"][0]
-    if sol["status"] != "ok":
-        raise ExecuteError(f"the target's first estimate is not reachable: {sol['reason']}",
-                           list(system.robot_names))  # fmt: skip
-    q0 = system.stack_q(start)
-    q1 = system.stack_q({r: np.asarray(q) for r, q in sol["q"].items()})
-    base = node.track_settings or TrackSettings()
-    if req.tolerance is not None and req.tolerance > base.tolerance:
-        raise InputError(f"may only tighten the tracking laser-on tolerance "
-                         f"{1e3 * base.tolerance:g} mm, got {1e3 * req.tolerance:g} mm",
-                         "tolerance")  # fmt: skip
-    settings = dataclasses.replace(base, tolerance=req.tolerance or base.tolerance)
-    gap = float(np.abs(q1 - q0).max())
-    if gap > APPROACH_GAP:  # the first move is a planned, checked trajectory, not a stream
-        q0 = approach(node, handler, plan, q0, q1, first, normal, req.id)
-    cam = None if system.camera is None else system.camera.world_T_camera
-    attached = {o["name"]: np.asarray(o["world_T_object"]["matrix"], dtype=float)
-                for o in (plan.get("scenario") or {}).get("keep_out") or []
-                if o.get("attached_to") == req.id}  # fmt: skip
-    follower = TargetFollower(handler.track_ik, q0, first, cam, settings, attached=attached)
-    follower.warm_up(q1, normal)  # the first frame must not pay for first calls
-    laser = ((plan.get("scenario") or {}).get("system") or {}).get("laser", {})
-    gate = laser.get("gate") or {}
-    node.track = TrackSession(node.session, node.keys, node.session_id, system, follower,
-                              req.id, duration=req.duration, gate_robot=gate.get("robot"),
-                              aim=laser.get("aim") is not None,
-                              send_stop=node.send_stop, on_end=node.track_ended).start()  # fmt: skip
-    plan["execution"] = "accepted"
-    plan["tracking"] = {"stream": req.id, "duration": req.duration,
-                        "tolerance": settings.tolerance, "rate": settings.rate}  # fmt: skip
-    return plan
+def nearest(points: Array, to: Array) -> Array:
+    """Index of the point of ``points`` (K x 3) nearest each of ``to`` (M x 3)."""
+    d = np.linalg.norm(points[None, :, :] - np.asarray(to)[:, None, :], axis=2)
+    return np.asarray(np.argmin(d, axis=1))

@@ -21,15 +21,23 @@ the measured arm's lag behind the command) is under ``tolerance``, and the strea
 
 Every setpoint is checked, before it is sent, under the same rules as a planned sample
 (the IK's :class:`~planner.safety.model.Safety`: arm-arm, arm-self, arm-scene, and the beam
-at the predicted target against every arm part and keep-out volume); consecutive setpoints
-are at most one period of the velocity limit apart (pi rad/s x 2 ms = 6 mrad). A setpoint
-that breaks a rule is not sent: the follower stops as *unsafe*
-(:attr:`TargetFollower.unsafe`), and the session publishes a stop. The limiter also caps the
-spot's speed on the target plane at ``max_spot_speed`` (m/s, through the spot Jacobian).
+at the predicted target against every arm part and keep-out volume), and so is the sweep
+from the last setpoint to it: the joints on the line between them are checked at steps of at
+most :data:`SWEEP_JOINT_STEP` rad (any joint) and :data:`SWEEP_SPOT_STEP` m of spot motion
+on the target plane (through the spot Jacobian), so a volume the beam would sweep through
+between two setpoints is found unless it is thinner than that step. A setpoint that breaks
+a rule is not sent: the follower stops as *unsafe* (:attr:`TargetFollower.unsafe`), and the
+session publishes a stop. The limiter also caps the spot's speed on the target plane at
+``max_spot_speed`` (m/s, through the spot Jacobian).
 
 Keep-out volumes attached to the target (``keep_out[].attached_to``, :attr:`attached`) move
-with it: before each frame's solves they are placed at their scenario pose moved by the
-predicted target's displacement from the first estimate, so the eyes move with the face.
+with it: before each frame's solves they are placed at their scenario pose moved as the
+tracked object moved. With :attr:`markers` (3 or more of the object's points at rest) and a
+frame carrying the same points, that is the object's rigid motion (a least-squares fit,
+turns included) from rest to the frame, advanced by the markers' centroid's predicted
+displacement since the frame (a Kalman filter of its own: the target sliding on the object
+does not drag the volumes); otherwise the predicted target's displacement from the first
+estimate (translation only), so the eyes move, and turn, with the face.
 
 The follower *stops* (laser off, no more setpoints; :attr:`TargetFollower.stopped` says
 why) when no frame came for ``stale_frames`` frame periods, when a predicted target has no
@@ -43,10 +51,12 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from planner.beam.trace import trace_beam
+from planner.calibration.handeye import fit_rigid
 from planner.ik import BeamIK
 from planner.model.transforms import Array
 from planner.safety.occlusion import beam_points
@@ -58,6 +68,12 @@ from schemas import defaults
 TRACK_TOLERANCE = 1e-3
 #: rad: the spot Jacobian is taken again when the joints moved this far from where it was
 JACOBIAN_REUSE = 0.01
+#: rad: largest joint step between two configurations checked on the sweep between setpoints
+SWEEP_JOINT_STEP = 1e-3
+#: m: largest spot step (target plane) between two configurations checked on that sweep
+SWEEP_SPOT_STEP = 2e-4
+#: fewest markers whose rigid motion moves the attached volumes
+MIN_MARKERS = 3
 
 
 @dataclass(frozen=True)
@@ -92,7 +108,9 @@ class FrameOutcome:
 
 
 @dataclass
-class _Segment:
+class FrameSegment:
+    """A frame's reference: the line through (t_a, q_a) and (t_b, q_b) (s, rad)."""
+
     t_a: float
     q_a: Array
     t_b: float
@@ -101,6 +119,7 @@ class _Segment:
     J: Array  # 3 x nq spot Jacobian at q_a (m/rad)
     normal: Array | None
     target_b: Array
+    object_T_rest: Array = field(default_factory=lambda: np.eye(4))  # attached volumes' move
 
     def q_ref(self, t: float) -> tuple[Array, Array]:
         qd = (self.q_b - self.q_a) / (self.t_b - self.t_a)
@@ -123,8 +142,16 @@ class TargetFollower:
     attached: dict[str, Array] = field(default_factory=dict)
     """keep-out volumes that move with this target: name -> pose (4 x 4, world, m) with the
     target at ``first``"""
+    markers: Array | None = None
+    """the tracked object's points at rest (K x 3, world, m; K >= 3), matched by index to a
+    frame's ``markers``: their rigid motion moves :attr:`attached`"""
+    check: Any = None
+    """the rules every setpoint is checked under (:class:`~planner.safety.model.Safety`;
+    default: the IK's own)"""
 
     def __post_init__(self) -> None:
+        if self.check is None:
+            self.check = getattr(self.ik, "safety", None)
         s = self.ik.system
         lim = s.limits
         self._vmax, self._amax = lim.velocity, lim.acceleration
@@ -132,24 +159,43 @@ class TargetFollower:
         self.q = np.asarray(self.q0, dtype=float).copy()  # the limiter's output
         self.qd = np.zeros_like(self.q)
         self.t_last: float | None = None  # the last setpoint's time
-        self.segment: _Segment | None = None
+        self.segment: FrameSegment | None = None
         self.frame_seen: float | None = None  # ``now`` of the last frame
         self.stopped: str | None = None
         self.unsafe = False  # stopped because a setpoint broke a safety rule
         self.checked = 0  # setpoints checked against the safety rules
         self.arm_gap = 0.0  # m, spot offset of the measured arm from the command
         self.keep_out_shift = np.zeros(3)  # m, how far the attached volumes were moved
+        self.object_T_rest = np.eye(4)  # the attached volumes' move for the setpoints
+        self._fit: tuple[Array, Array] | None = None  # the markers' rigid fit, their centroid
+        self._centroid = KalmanCV()  # the markers' centroid (world, m)
         self._J: Array | None = None  # spot Jacobian (m/rad), reused near where it was taken
         self._J_at = self.q
 
     # --- frames ----------------------------------------------------------------------------
     def on_frame(
-        self, t: float, point: Array, normal: Array | None, now: float, R: Array | None = None
-    ) -> FrameOutcome:
-        """A tracker frame: ``point`` (m, world) captured at ``t`` (s), received at ``now``."""
+        self, t: float, point: Array, normal: Array | None, now: float, R: Array | None = None,
+        markers: Array | None = None,
+    ) -> FrameOutcome:  # fmt: skip
+        """A tracker frame: ``point`` (m, world) captured at ``t`` (s), received at ``now``;
+        ``markers``: the frame's points matched to :attr:`markers` (K x 3, world, m).
+        :meth:`solve_frame` then :meth:`commit`, in one go."""
+        out, segment = self.solve_frame(t, point, normal, now, R, markers)
+        if segment is not None:
+            self.commit(segment)
+        return out
+
+    def solve_frame(
+        self, t: float, point: Array, normal: Array | None, now: float, R: Array | None = None,
+        markers: Array | None = None,
+    ) -> tuple[FrameOutcome, FrameSegment | None]:  # fmt: skip
+        """The prediction and solves of a frame (see :meth:`on_frame`), without touching
+        what the setpoints read: the reference to :meth:`commit` (None: stopped). Run it on
+        the frames' thread while another sends setpoints only when :attr:`check` is not the
+        IK's own rules (a twin of them)."""
         t0 = time.perf_counter()
         if self.stopped is not None:
-            return FrameOutcome(None, 0.0, self.stopped)
+            return FrameOutcome(None, 0.0, self.stopped), None
         p = np.asarray(point, dtype=float)
         if R is None:
             if self.world_T_camera is None:
@@ -157,6 +203,7 @@ class TargetFollower:
             R = self.noise.covariance_world(p, self.world_T_camera)
         self.predictor.update(t, p, R)
         self.frame_seen = now
+        self._fit_markers(t, markers, R)
         st = self.settings
         t_a = now + st.lead
         t_b = t_a + 1.0 / st.frame_rate
@@ -167,8 +214,9 @@ class TargetFollower:
             if away > st.max_excursion:
                 return self._halt(f"target {1e3 * away:.1f} mm from its first estimate "
                                   f"(limit {1e3 * st.max_excursion:.0f} mm)", t0)  # fmt: skip
-        q_from = self.q if self.segment is None else self.segment.q_ref(t_a)[0]
-        self._move_attached(pa.p)
+        segment = self.segment
+        q_from = self.q if segment is None else segment.q_ref(t_a)[0]
+        self._place(getattr(self.ik, "safety", None), self._attached_move(pa.p, t_a))
         sol_a = self.ik.solve(pa.p, n, q_from)
         sol_b = self.ik.solve(pb.p, n, sol_a.q) if sol_a.ok else sol_a
         if not (sol_a.ok and sol_b.ok) or sol_a.q is None or sol_b.q is None:
@@ -181,40 +229,71 @@ class TargetFollower:
                               f" rad from the command (limit {st.max_jump:g} rad)", t0)  # fmt: skip
         if self._J is None or np.abs(sol_a.q - self._J_at).max() > JACOBIAN_REUSE:
             self._J, self._J_at = self._jacobian(sol_a.q, pa.p, n), sol_a.q
-        J = self._J
-        self.segment = _Segment(t_a, sol_a.q, t_b, sol_b.q, pb.sigma, J, n, pb.p)
-        self._move_attached(pb.p)
-        return FrameOutcome(pa, time.perf_counter() - t0, None)
+        seg = FrameSegment(t_a, sol_a.q, t_b, sol_b.q, pb.sigma, self._J, n, pb.p)
+        seg.object_T_rest = self._attached_move(pb.p, t_b)
+        return FrameOutcome(pa, time.perf_counter() - t0, None), seg
 
-    def _move_attached(self, p: Array) -> None:
-        """Place the keep-out volumes attached to this target (:attr:`attached`: name ->
-        their pose with the target at :attr:`first`) moved by ``p - first``."""
-        safety = getattr(self.ik, "safety", None)
-        if not self.attached or safety is None:
+    def commit(self, segment: FrameSegment) -> None:
+        """Make a solved frame's reference the one the setpoints follow, and place the
+        attached volumes of :attr:`check` for it (quick: hold the setpoints' lock)."""
+        if self.stopped is not None:
             return
-        d = np.asarray(p, dtype=float) - self.first
-        moved = {}
-        for name, T in self.attached.items():
-            M = np.array(T, dtype=float)
-            M[:3, 3] += d
-            moved[name] = M
-        safety.move_keep_out(moved)
-        self.keep_out_shift = d
+        self.segment = segment
+        if self.attached:
+            self._place(self.check, segment.object_T_rest)
+            self.object_T_rest = segment.object_T_rest
+            D = segment.object_T_rest
+            self.keep_out_shift = D[:3, :3] @ self.first + D[:3, 3] - self.first
+
+    def _fit_markers(self, t: float, markers: Array | None, R: Array) -> None:
+        """The object's rigid motion from rest to the frame captured at ``t`` (s), from the
+        matched markers (``R``: one point's measurement covariance, m^2)."""
+        if markers is None or self.markers is None or len(self.markers) < MIN_MARKERS:
+            return
+        seen = np.asarray(markers, dtype=float)
+        if seen.shape != self.markers.shape or not np.all(np.isfinite(seen)):
+            return
+        centroid = seen.mean(axis=0)
+        self._centroid.update(t, centroid, np.asarray(R) / len(seen))
+        self._fit = fit_rigid(self.markers, seen), centroid
+
+    def _attached_move(self, p: Array, t: float) -> Array:
+        """How the attached volumes move (4 x 4, world) from rest at time ``t`` (s): the
+        markers' rigid motion moved on by their centroid's predicted displacement, or else
+        translated by ``p - first`` (``p``: the predicted target then)."""
+        D = np.eye(4)
+        if self._fit is None:
+            D[:3, 3] = np.asarray(p, dtype=float) - self.first
+        else:
+            fit, centroid = self._fit
+            D[:] = fit
+            D[:3, 3] += self._centroid.predict(t).p - centroid
+        return D
+
+    def _place(self, safety: Any, D: Array) -> None:
+        """Place the attached volumes of ``safety`` (:attr:`attached`: name -> their pose
+        with the target at :attr:`first`) moved by ``D``."""
+        if self.attached and safety is not None:
+            safety.move_keep_out({name: D @ T for name, T in self.attached.items()})
 
     def release(self) -> None:
         """Put the attached keep-out volumes back at their scenario poses (the IK's safety
         rules are shared with later plans)."""
-        self._move_attached(self.first)
+        for safety in {id(x): x for x in (getattr(self.ik, "safety", None), self.check)}.values():
+            self._place(safety, np.eye(4))
 
     def warm_up(self, q: Array, normal: Array | None) -> None:
         """Run the per-frame computations once at ``q`` (rad) on the first estimate, so the
         first frame does not pay for first calls (caches, lazily built models)."""
         self.ik.solve(self.first, normal, q)
         self._J, self._J_at = self._jacobian(q, self.first, normal), np.asarray(q, dtype=float)
+        if self.check is not None:  # its collision world is built on first use
+            tr = trace_beam(self.ik.system, q, self.first, normal)
+            self.check.config(q, beam_points(self.ik.system, tr.hits, tr.spot))
 
-    def _halt(self, reason: str, t0: float) -> FrameOutcome:
+    def _halt(self, reason: str, t0: float) -> tuple[FrameOutcome, None]:
         self.stop(reason)
-        return FrameOutcome(None, time.perf_counter() - t0, reason)
+        return FrameOutcome(None, time.perf_counter() - t0, reason), None
 
     def _jacobian(self, q: Array, target: Array, normal: Array | None) -> Array:
         """Spot on the target plane w.r.t. q (3 x nq, m/rad), forward differences."""
@@ -227,27 +306,45 @@ class TargetFollower:
             cols.append((trace_beam(self.ik.system, q + dq, target, normal).spot - s0) / h)
         return np.column_stack(cols)
 
-    def _spot_speed_cap(self, qd: Array, cap: float) -> Array:
-        """``qd`` (inside the acceleration box around ``self.qd``) scaled down to a spot speed
-        ``|J qd|`` of at most ``cap`` (m/s), then kept inside the box; the direction stays
-        the limiter's, so the spot still heads for the reference."""
+    def _spot_speed_cap(self, qd: Array, cap: float, dt: float) -> Array:
+        """``qd`` (inside the acceleration box of ``dt`` s around ``self.qd``) scaled down to
+        a spot speed ``|J qd|`` of at most ``cap`` (m/s), then kept inside the box; the
+        direction stays the limiter's, so the spot still heads for the reference."""
         assert self.segment is not None
         v = float(np.linalg.norm(self.segment.J @ qd))
         if v <= cap:
             return qd
-        step = self._amax / self.settings.rate
+        step = self._amax * dt
         return np.asarray(np.clip(qd * (cap / v), self.qd - step, self.qd + step))
 
+    def sweep_steps(self, q_from: Array, q_to: Array) -> int:
+        """How many equal steps the line from ``q_from`` to ``q_to`` (rad) is checked in: at
+        most :data:`SWEEP_JOINT_STEP` per joint and :data:`SWEEP_SPOT_STEP` of spot motion."""
+        dq = np.asarray(q_to, dtype=float) - np.asarray(q_from, dtype=float)
+        n = float(np.abs(dq).max()) / SWEEP_JOINT_STEP
+        if self.segment is not None:
+            n = max(n, float(np.linalg.norm(self.segment.J @ dq)) / SWEEP_SPOT_STEP)
+        return max(1, int(np.ceil(n)))
+
     def _violation(self, q: Array) -> str | None:
-        """Why a setpoint at stacked ``q`` (rad) breaks a safety rule, with the beam at the
-        predicted target; None when it breaks none (or there are no rules)."""
-        safety = getattr(self.ik, "safety", None)
-        if safety is None or self.segment is None:
+        """Why a setpoint at stacked ``q`` (rad), or the sweep to it from the last one
+        (:attr:`q`), breaks a safety rule, with the beam at the predicted target; None when
+        neither breaks any (or there are no rules)."""
+        if self.check is None or self.segment is None:
             return None
+        n = self.sweep_steps(self.q, q)
+        for k in range(1, n + 1):
+            bad = self._config_violation(self.q + (q - self.q) * (k / n))
+            if bad is not None:
+                return bad if k == n else f"{bad} (on the sweep, {k}/{n} of the way)"
+        return None
+
+    def _config_violation(self, q: Array) -> str | None:
+        assert self.segment is not None
         system = self.ik.system
         tr = trace_beam(system, q, self.segment.target_b, self.segment.normal)
         self.checked += 1
-        bad = safety.config(q, beam_points(system, tr.hits, tr.spot))
+        bad = self.check.config(q, beam_points(system, tr.hits, tr.spot))
         return None if bad is None else f"{bad.reason}: {bad.text}"
 
     def on_joint_state(self, q_measured: Array, t: float) -> None:
@@ -286,7 +383,7 @@ class TargetFollower:
         qd = qd_ref + behind / max(st.pull, dt)
         qd = np.clip(qd, -self._vmax, self._vmax)
         qd = np.clip(qd, self.qd - self._amax * dt, self.qd + self._amax * dt)
-        qd = self._spot_speed_cap(qd, st.max_spot_speed)
+        qd = self._spot_speed_cap(qd, st.max_spot_speed, dt)
         q = np.clip(self.q + qd * dt, self._lower, self._upper)
         unsafe = self._violation(q)
         if unsafe is not None:

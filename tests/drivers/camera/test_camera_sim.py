@@ -204,3 +204,30 @@ def test_a_frame_is_stamped_with_the_time_of_the_joint_states_it_shows() -> None
     cam.on_joint_state("arm0", q, now[0] + 1.0)  # a state from the future (clock skew)
     cam.grab()
     assert cam.frame_time() == now[0]
+
+
+def test_the_spot_is_searched_near_the_predicted_spot_while_the_prediction_is_fresh() -> None:
+    """A prediction 30 mm off (about 15 px at 0.87 m) still finds the spot, one 200 mm off
+    (far outside the 60 px window, pinhole projection in numpy) does not, and once the
+    prediction is older than its 1 s lifetime the whole image is searched again."""
+    scn = scenario()
+    now = [100.0]
+    cam = SimCamera(system_from_scenario(scn, truth=True), scene_objects(scn), stride=4, seed=3,
+                    clock=lambda: now[0])  # fmt: skip
+    q = cam.system.robots[0].home
+    cam.on_joint_state("arm0", q)
+    cam.grab()
+    truth = (inv_T(cam.camera.world_T_camera) @ np.append(analytic_spot(cam.system, q), 1.0))[:3]
+    k = cam.camera.intrinsics
+
+    def px(p: np.ndarray) -> np.ndarray:
+        return np.array([k.fx * p[0] / p[2] + k.cx, k.fy * p[1] / p[2] + k.cy])
+
+    near, far = truth + np.array([0.03, 0, 0]), truth + np.array([0.2, 0, 0])
+    assert np.linalg.norm(px(near) - px(truth)) < 60 < np.linalg.norm(px(far) - px(truth))
+    cam.on_predicted(near, now[0])
+    assert cam.spot() is not None
+    cam.on_predicted(far, now[0])
+    assert cam.spot() is None and cam.outside_window == 1
+    now[0] += 1.01  # the prediction is stale: the whole image again
+    assert cam.spot() is not None

@@ -220,3 +220,106 @@ def test_an_unattached_keep_out_stays_where_the_scenario_put_it(ik: BeamIK) -> N
     move = np.array([0.0, 0.012, 0.0])
     drive(f, lambda t: P0 + move * min(t / 0.4, 1.0), 1.0)
     assert f.stopped is not None and "keep_out" in f.stopped  # the target ran into the eye
+
+
+def test_an_attached_keep_out_turns_with_a_turning_face(ik: BeamIK) -> None:
+    """The face turns 15 deg about a vertical axis 30 mm behind the target: with the face's
+    markers the eye is placed where the turn puts it (within 0.05 mm of the closed form,
+    numpy rotation), not merely shifted with the target (4 mm off, the old behaviour); every
+    sent setpoint's beam (numpy trace) stays out of the eye where the face put it then."""
+    from planner.model.transforms import make_T
+    from planner.safety.shapes import sphere
+
+    pivot = P0 + np.array([0.0, -0.03, 0.0])
+    eye_rest = P0 + np.array([0.015, 0.006, 0.0])
+    markers = P0 + np.array([[0, 0, 0], [0.02, 0, 0], [-0.02, 0, 0], [0, 0.02, 0], [0, -0.02, 0]])
+    guarded = BeamIK(
+        ik.system,
+        ik.options,
+        Safety(ik.system, keep_out=[sphere("eye", 0.003, make_T(p=eye_rest))]),
+    )
+    q0 = guarded.solve(P0, N).q
+    assert q0 is not None
+    f = TargetFollower(guarded, q0, P0, None, TrackSettings(), attached={"eye": make_T(p=eye_rest)},
+                       markers=markers)  # fmt: skip
+
+    def turned(x: np.ndarray, t: float) -> np.ndarray:
+        a = np.radians(15) * min(t / 0.5, 1.0)
+        Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+        return (x - pivot) @ Rz.T + pivot
+
+    next_frame, sent = 0.0, []
+    for k in range(round(1.0 / DT)):
+        now = k * DT
+        if now + 1e-12 >= next_frame:
+            f.on_frame(now, turned(P0, now), N, now, R_SMALL, markers=turned(markers, now))
+            next_frame += FRAME
+        sp = f.setpoint(now)
+        if sp is not None:
+            sent.append(sp)
+    assert f.stopped is None, f.stopped
+    placed = f.object_T_rest[:3, :3] @ eye_rest + f.object_T_rest[:3, 3]
+    truth = turned(eye_rest, 1.0)
+    assert np.linalg.norm(placed - truth) < 5e-5
+    shifted = eye_rest + turned(P0, 1.0) - P0  # translation only
+    assert np.linalg.norm(shifted - truth) > 3.5e-3
+    assert guarded.safety is not None and guarded.safety.target(truth) is not None
+    for t, q, _, _ in sent:
+        tr = trace_beam(ik.system, q, turned(P0, t), N)
+        a, b = tr.hits[-1], tr.spot
+        s = np.clip((turned(eye_rest, t) - a) @ (b - a) / ((b - a) @ (b - a)), 0.0, 1.0)
+        assert np.linalg.norm(a + s * (b - a) - turned(eye_rest, t)) > 0.003
+    f.release()
+    assert guarded.safety.target(eye_rest) is not None
+
+
+def test_the_sweep_between_two_safe_setpoints_is_checked(ik: BeamIK) -> None:
+    """Setpoints aiming 4 mm apart on the board, each beam 2 mm clear of a 0.8 mm keep-out
+    sphere that the beam to the midpoint crosses: each end is safe, the sweep between them
+    is not, and it is found."""
+    from planner.model.transforms import make_T
+    from planner.safety.shapes import sphere
+
+    pa, pb = P0, P0 + np.array([0.004, 0.0, 0.0])
+    mid = (pa + pb) / 2
+    q_mid = ik.solve(mid, N).q
+    assert q_mid is not None
+    back = trace_beam(ik.system, q_mid, mid, N).hits[-1] - mid  # towards the mirror
+    centre = mid + 0.002 * back / np.linalg.norm(back)
+    guarded = BeamIK(
+        ik.system, ik.options, Safety(ik.system, keep_out=[sphere("eye", 8e-4, make_T(p=centre))])
+    )
+    qa, qb = guarded.solve(pa, N).q, guarded.solve(pb, N).q
+    assert qa is not None and qb is not None  # both ends are safe on their own
+    f = TargetFollower(guarded, qa, pa, None, TrackSettings())
+    f.on_frame(0.0, pa, N, 0.0, R_SMALL)
+    n = f.sweep_steps(qa, qb)
+    assert n >= max(np.abs(qb - qa).max() / 1e-3, 20)  # 4 mm of spot in 0.2 mm steps
+    f.q = qb.copy()
+    assert f._violation(qb) is None  # the end alone (no sweep) is safe
+    f.q = qa.copy()
+    bad = f._violation(qb)
+    assert bad is not None and "keep_out" in bad and "on the sweep" in bad, bad
+
+
+def test_capped_setpoints_at_uneven_intervals_stay_within_the_acceleration_limit(
+    ik: BeamIK,
+) -> None:
+    """A loaded sender's setpoints come 2.8 ms then 1.2 ms apart while the spot-speed cap
+    holds a 30 mm step back: every velocity change between consecutive setpoints is within
+    the acceleration limit over their own interval (as the driver checks it)."""
+    f = follower(ik, max_spot_speed=0.05)
+    sent, now, k, next_frame = [], 0.0, 0, 0.0
+    while now < 0.6:
+        if now + 1e-12 >= next_frame:
+            f.on_frame(now, P0 + (np.array([0.03, 0, 0]) if now >= 0.1 else 0.0), N, now, R_SMALL)
+            next_frame += FRAME
+        if (sp := f.setpoint(now)) is not None:
+            sent.append(sp)
+        now += 2.8e-3 if k % 2 else 1.2e-3
+        k += 1
+    t = np.array([sp[0] for sp in sent])
+    qd = np.array([sp[2] for sp in sent])
+    a_max = ik.system.limits.acceleration
+    rate = np.abs(np.diff(qd, axis=0)) / np.diff(t)[:, None]
+    assert (rate <= a_max * (1 + 1e-6)).all(), (rate / a_max).max()
