@@ -15,8 +15,9 @@ Bus (``<prefix>`` = the namespace, ``beamrelay`` by default):
 - subscribes ``<prefix>/<robot>/trajectory``: bodies are parsed and checked in a worker
   process (:mod:`drivers.robot.intake`, checks in :mod:`drivers.robot.trajectory_check`); the loop picks
   up ready verdicts without waiting;
-- subscribes ``<prefix>/<robot>/setpoint`` (:class:`schemas.messages.Setpoint`): parsed and
-  checked in the Zenoh callback (:mod:`drivers.robot.setpoint_intake`), followed by the
+- subscribes ``<prefix>/<robot>/setpoint`` (:class:`schemas.messages.Setpoint`): queued by
+  Zenoh's threads without the GIL (like the heartbeats, below), parsed and checked at the
+  start of the next period (:mod:`drivers.robot.setpoint_intake`), followed by the
   loop (:mod:`drivers.robot.streaming`, rules below); the status's ``stream``
   (:class:`schemas.messages.StreamAck`) says which stream is followed or why it ended;
 - subscribes ``<prefix>/heartbeat`` (:class:`schemas.messages.Heartbeat`) and
@@ -123,6 +124,10 @@ MAX_SESSIONS = 64  # heartbeat sessions remembered (oldest forgotten first)
 #: heartbeats queued between two periods (at 100 Hz per planner: 2.5 s of one planner's
 #: beats; beyond it the oldest are dropped, never blocking Zenoh's receive thread)
 HEARTBEAT_RING = 256
+#: setpoints queued between two periods (0.5 s of a 500 Hz stream), of which the loop parses
+#: at most SETPOINTS_PER_PERIOD per period (a flood cannot stretch a period; the rest wait)
+SETPOINT_RING = 256
+SETPOINTS_PER_PERIOD = 16
 RT_IDLE = 0.0002  # s a real-time control loop sleeps after a period that did not sleep
 PERIOD_LOG = 1 << 16  # control periods whose start times are kept (2 min at 500 Hz)
 
@@ -181,6 +186,7 @@ class RobotNode(StreamingMixin, LoopNode):
         self.streams = StreamControl(limits, 1.0 / backend.rate)
         self.heartbeats: dict[str, float] = {}  # session -> monotonic time of its last beat
         self._beats: Any = None  # the heartbeat subscriber's ring (made in attach)
+        self._setpoint_ring: Any = None  # the setpoint subscriber's ring (made in attach)
         self.planner_alive = False
         self.planner_lost_at: float | None = None  # UNIX time the planner's token went away
         self.stop_requested_at: float | None = None  # monotonic time of the last stop sample
@@ -216,6 +222,9 @@ class RobotNode(StreamingMixin, LoopNode):
 
         s, k = self.session, self.keys
         self._beats = s.declare_subscriber(k.heartbeat, zenoh.handlers.RingChannel(HEARTBEAT_RING))
+        self._setpoint_ring = s.declare_subscriber(
+            k.setpoint(self.robot), zenoh.handlers.RingChannel(SETPOINT_RING)
+        )
         self._pub_state = s.declare_publisher(k.joint_states(self.robot), encoding=JSON)
         self._pub_status = s.declare_publisher(k.status(self.robot), encoding=JSON)
         if self.gate_output is not None:
@@ -225,7 +234,7 @@ class RobotNode(StreamingMixin, LoopNode):
             self.gate.force_off("start-up")
         self._handles = [
             s.declare_subscriber(k.trajectory(self.robot), self._on_trajectory),
-            s.declare_subscriber(k.setpoint(self.robot), self._on_setpoint),
+            self._setpoint_ring,
             self._beats,
             s.declare_subscriber(k.stop, self._on_stop),
             s.liveliness().declare_subscriber(k.alive("planner"), self._on_planner, history=True),
@@ -285,8 +294,14 @@ class RobotNode(StreamingMixin, LoopNode):
     def _on_trajectory(self, sample: Any) -> None:
         self.intake.submit(sample.payload)
 
-    def _on_setpoint(self, sample: Any) -> None:
-        self.setpoints.submit(sample.payload)
+    def _take_setpoints(self) -> None:
+        """Setpoints queued since the last period (at most :data:`SETPOINTS_PER_PERIOD`),
+        parsed and checked here, received at this period's start."""
+        for _ in range(SETPOINTS_PER_PERIOD if self._setpoint_ring is not None else 0):
+            sample = self._setpoint_ring.try_recv()
+            if sample is None:
+                return
+            self.setpoints.submit(sample.payload)
 
     def _on_recover(self, sample: Any) -> None:
         """The operator's acknowledgement after a fault (``beamrelay robot recover``)."""
@@ -326,6 +341,7 @@ class RobotNode(StreamingMixin, LoopNode):
         for verdict in self.intake.take():
             self._decide(verdict)
             self._publish_status(self.backend.measured())
+        self._take_setpoints()
         self._follow_streams(now)
         if self.recover_requested:
             self.recover_requested = False

@@ -1,7 +1,8 @@
 """Setpoint intake: the Zenoh callback side of a robot driver's setpoint streams.
 
-Every sample on ``<prefix>/<robot>/setpoint`` goes through :meth:`SetpointIntake.submit` in
-the Zenoh callback thread: parsed and checked at once (:mod:`drivers.robot.setpoint_check`,
+Every sample on ``<prefix>/<robot>/setpoint`` goes through :meth:`SetpointIntake.submit`
+(the robot node calls it from its control loop for the samples Zenoh queued since the
+last period): parsed and checked at once (:mod:`drivers.robot.setpoint_check`,
 tens of microseconds; nothing waits for it), then classified into *streams*, in arrival order:
 
 - a stream is identified by its (``session``, ``id``); its setpoints must continue each other
