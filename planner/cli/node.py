@@ -80,7 +80,13 @@ def serve(
     online = None
     if online_calibration is not None:
         online = online_calibrator(scenario, online_calibration, handler.system)
-    session = open_session(listen=not connect, endpoint=endpoint, config_file=zenoh_config)
+    from planner.service.priority import raised_priority
+
+    # its Zenoh threads send the setpoints and stops: real time like a driver's (requests
+    # are handed to the worker thread at once; the callbacks only decode small messages)
+    with raised_priority() as got:
+        session = open_session(listen=not connect, endpoint=endpoint, config_file=zenoh_config)
+    typer.echo(f"planner bus {got.note}", err=True)
     node = PlannerNode(handler, session, Keys(prefix), bus=BusAddress(endpoint, zenoh_config),
                        online=online)  # fmt: skip
     stop = stop_on_signals()

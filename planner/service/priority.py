@@ -4,11 +4,15 @@ A robot driver brakes when the planner's heartbeat is silent for 100 ms, and its
 loop must run every period. On a loaded machine (a browser rendering in software, a
 solver, a test suite) the normal scheduler may leave either waiting longer than that: the
 arm then stops although nothing failed, and a lower nice value does not prevent it. The
-heartbeat path (the heartbeat process, the Zenoh threads of ``up``'s hub and of each robot
-driver), the drivers' control loops and the planner's setpoint streamer therefore ask
+heartbeat path (the heartbeat process, the Zenoh threads of ``up``'s hub, of each robot
+driver and of the planner node, which send its setpoints and stops), the drivers' control
+loops and the planner's setpoint streamer therefore ask
 for ``SCHED_FIFO`` at :data:`RT_PRIORITY`, per thread: the threads that compute (solvers,
 parsers, the camera) stay normal, except that tracking's frame solver (30 Hz, a few ms
-each) asks for nice :data:`TIMING_NICE` (a late solve lets the target stream go stale). Every such thread sleeps each period, so it cannot starve the machine.
+each) asks for nice :data:`TIMING_NICE` (a late solve lets the target stream go stale).
+Every such thread sleeps each period, so it cannot starve the machine. A Python callback
+on a raised Zenoh thread still needs the GIL: the drivers therefore take heartbeats and
+setpoints from Zenoh's own queues in the control loop instead of in callbacks.
 
 ``SCHED_FIFO`` needs root, ``CAP_SYS_NICE`` or an rtprio limit: ``ulimit -r 15``, or a line
 ``<user> - rtprio 15`` in ``/etc/security/limits.d/beamrelay.conf`` (then log in again).
