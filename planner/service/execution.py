@@ -32,7 +32,7 @@ log = logging.getLogger("beamrelay.node")
 #: a joint state older than this (s, receiver clock) does not count as "current"
 STATE_MAX_AGE = 0.5
 #: how long (s) the node waits for every driver's verdict on an executed trajectory
-ACK_TIMEOUT = 1.0
+ACK_TIMEOUT = 2.0
 #: time (s) added to a trajectory's duration for the driver's approach and settle phases
 TRACK_MARGIN = 1.0
 #: a robot within AT_Q rad (every joint) of a commanded configuration, slower than REST_QD
