@@ -165,8 +165,18 @@ def test_follows_trajectory_acks_with_the_request_id(cell: Cell) -> None:
     assert {"idle", "following"} <= modes
     mid = [s for s in cell.states.items if np.allclose(s["q"], HOME + dq / 2, atol=2e-3)]
     assert mid, "joint states never passed the trajectory midpoint"
-    dt = np.diff([s["t"] for s in cell.states.items])
-    assert np.median(dt) < 0.010  # >= 100 Hz (nominal 250 Hz)
+
+
+@pytest.mark.serial
+def test_joint_states_at_250_hz(cell: Cell) -> None:
+    """A real-time probe: the driver publishes joint states every 4 ms (SPEC: >= 100 Hz)."""
+    n0 = len(cell.states.items)
+    time.sleep(1.0)
+    dt = np.diff([s["t"] for s in cell.states.items[n0:]])
+    print(f"joint states: median gap {1e3 * np.median(dt):.2f} ms, p99 "
+          f"{1e3 * np.percentile(dt, 99):.2f} ms, max {1e3 * dt.max():.2f} ms (period 4 ms)")  # fmt: skip
+    assert np.median(dt) == pytest.approx(1 / 250.0, rel=0.1)
+    assert len(dt) >= 0.9 * 250 - 1 and np.percentile(dt, 99) < 0.010  # SPEC: >= 100 Hz
 
 
 def test_position_jump_is_refused_and_the_arm_never_moves(cell: Cell) -> None:
