@@ -528,6 +528,7 @@ def children_of(pid: int) -> dict[int, str]:
     return out
 
 
+@pytest.mark.serial  # the whole simulated system (the back-off itself: test_supervisor.py)
 def test_up_restarts_a_crashed_driver_and_stops_cleanly(tmp_path: Path) -> None:
     scenario = tmp_path / "scenario.yaml"
     scenario.write_text(SCENARIO)
