@@ -147,3 +147,35 @@ def test_trajectories_need_a_fresh_heartbeat_of_their_session() -> None:
     np.testing.assert_array_equal(rig2.sim.follower.q, HOME)  # nothing moved
     beat(rig2)
     assert send(rig2, ref, "fresh", "S")["accepted"]
+
+
+def test_queue_one_trajectory_behind_the_running_one() -> None:
+    """While A runs: C (starts at the arm's start, not A's end) is refused; B and then B2
+    (both start at A's last sample) are queued, B2 replaces B and runs when A ends."""
+    rig = Rig(gate=False)
+    rig.period(5)
+
+    def move(q0: np.ndarray, dq: np.ndarray, duration: float) -> Reference:
+        m = smooth_move(q0, dq, duration)
+        return Reference(np.asarray(m.t), np.asarray(m.q), np.asarray(m.qd), np.asarray(m.qdd))
+
+    dq = np.array([0.2, 0, 0, 0, 0, 0.15])
+    assert send(rig, move(HOME, dq, 1.5), "A")["accepted"]
+    rig.period(10)
+    assert rig.modes[-1] == "following"
+    c = send(rig, move(HOME, dq, 1.0), "C")
+    assert not c["accepted"] and c["reason"] == (
+        "q[0]: starts 0.2000 rad from the running trajectory's last sample on joint "
+        "shoulder_pan (tolerance 0.01 rad)"
+    )
+    end_a = HOME + dq
+    assert send(rig, move(end_a + 0.005, np.full(6, 0.05), 0.5), "B")["accepted"]
+    b2 = np.array([0, 0.1, -0.1, 0, 0, 0])
+    assert send(rig, move(end_a, b2, 0.5), "B2")["accepted"]
+    assert rig.sim.follower.mode == "following"  # A still runs
+    rig.period(round(2.5 / DT))
+    assert rig.modes[-1] == "idle" and rig.node.n_accepted == 3
+    np.testing.assert_allclose(rig.sim.follower.q, end_a + b2, atol=1e-9)
+    qs = np.array(rig.q)
+    assert np.min(np.abs(qs - end_a).max(axis=1)) < 1e-9  # played A's last sample, then B2
+    assert np.all(qs[:, 3] == HOME[3])  # B (which moves joint 3) never ran
