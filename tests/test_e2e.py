@@ -167,6 +167,50 @@ def test_ten_targets_executed_spot_within_a_millimetre(bus: Bus, system: Any) ->
     assert max(errors) < 1e-3
 
 
+@pytest.mark.serial  # the whole simulated system, real-time play of a 3 s path
+def test_a_path_is_marked_at_spot_speed_measured_from_the_joint_states(
+    bus: Bus, system: Any
+) -> None:
+    """SPEC section 5: on the path, the spot moves at ``spot_speed`` within 2 %. Measured
+    from the driver's joint states (its own stamps), the spot traced at each one with the
+    scenario's geometry (the simulated world's) onto the board; the marked part is where
+    it lies on the path, clear of its two ends (run-in and run-out lie on its extension)."""
+    from planner.beam.trace import trace_beam
+
+    spot_speed = 0.02  # m/s: the scenario's trajectory.spot_speed
+    a, b = np.array([-0.55, -0.575, BOARD_Z]), np.array([-0.49, -0.575, BOARD_Z])
+    points = a + np.linspace(0.0, 1.0, 13)[:, None] * (b - a)  # 6 cm, 5 mm apart
+    states: list[tuple[float, np.ndarray]] = []
+    sub = bus.hub.declare_subscriber(bus.keys.joint_states("arm0"), lambda smp: states.append(
+        (json.loads(smp.payload.to_bytes())["t"], np.asarray(json.loads(smp.payload.to_bytes())["q"]))))  # fmt: skip
+    try:
+        req = make_request(points, normals=np.tile(UP, (len(points), 1)), path=True)
+        plan, _ = bus.client.execute(req, 30.0)
+    finally:
+        sub.undeclare()
+    assert plan["execution"] == "accepted", (plan["execution"], plan["execution_reason"])
+    t = np.array([s[0] for s in states])
+    spots = np.array([trace_beam(system, q, a, UP).spot for _, q in states])
+    u = (b - a) / np.linalg.norm(b - a)
+    along = (spots - a) @ u  # m along the path from its first point
+    off = np.linalg.norm((spots - a) - np.outer(along, u), axis=1)  # m from the path's line
+    margin = 0.005  # m clear of each end
+    marked = (along > margin) & (along < np.linalg.norm(b - a) - margin) & (off < 5e-4)
+    assert marked.sum() > 0.8 * 250 * (0.06 - 2 * margin) / spot_speed  # 250 Hz states
+    tm, sm = t[marked], along[marked]
+    assert np.all(np.diff(tm) > 0) and np.all(np.diff(sm) > 0)  # one pass, forward
+    slope = np.polyfit(tm - tm[0], sm, 1)[0]  # m/s, a least-squares fit over the marked part
+    windows = [(sm[(tm >= w) & (tm < w + 0.25)], tm[(tm >= w) & (tm < w + 0.25)])
+               for w in np.arange(tm[0], tm[-1] - 0.25, 0.25)]  # fmt: skip
+    speeds = np.array([np.polyfit(wt - wt[0], ws, 1)[0] for ws, wt in windows if len(ws) > 10])
+    print(f"spot speed over the marked {1e3 * (sm[-1] - sm[0]):.0f} mm: {1e3 * slope:.3f} mm/s "
+          f"(spot_speed {1e3 * spot_speed:.0f} mm/s); 0.25 s windows "
+          f"{1e3 * speeds.min():.3f}-{1e3 * speeds.max():.3f} mm/s; largest distance from "
+          f"the path {1e6 * off[marked].max():.1f} um")  # fmt: skip
+    assert slope == pytest.approx(spot_speed, rel=0.02)
+    assert np.all(np.abs(speeds / spot_speed - 1) < 0.02)
+
+
 @pytest.mark.serial  # the whole simulated system, 1 s driver verdicts
 def test_miscalibrated_mirror_shows_the_predicted_error(
     bus: Bus, system: Any, truth_system: Any
@@ -520,6 +564,7 @@ def children_of(pid: int) -> dict[int, str]:
     return out
 
 
+@pytest.mark.serial  # the whole simulated system (the back-off itself: test_supervisor.py)
 def test_up_restarts_a_crashed_driver_and_stops_cleanly(tmp_path: Path) -> None:
     scenario = tmp_path / "scenario.yaml"
     scenario.write_text(SCENARIO)

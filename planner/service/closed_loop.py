@@ -62,6 +62,8 @@ FIRST_RADIUS = 0.06
 NEXT_RADIUS = 0.005
 #: implausible frames in a row that stop the closed loop
 MAX_IMPLAUSIBLE = 3
+#: s between checks that the robots rest on a move's end / that a dwell is over
+REST_POLL, HOLD_POLL = 0.004, 0.05
 
 MoveFn = Callable[[Array, Array, float, Array, Array | None], dict[str, Any]]
 """(q_from, q_to stacked rad, dwell s, target world m, normal or None) -> plan.json
@@ -157,7 +159,9 @@ class Motion:
     stop event; ``tick()`` reports progress to the worker's watchdog; ``laser`` the gate's
     on-intervals when a robot switches the laser (None: the laser is always on, frames count
     from the robots' arrival); ``predict(p_camera, t)`` publishes the predicted spot (camera
-    frame, m; UNIX s) of each measurement for the camera's gated detector."""
+    frame, m; UNIX s) of each measurement for the camera's gated detector. ``clock`` (UNIX
+    s, the clock of the frames and the laser's intervals) times every wait, and
+    ``wait(s)`` waits at most ``s`` s, True once stopped (None: the stop event's wait)."""
 
     send: Callable[[dict[str, Any], str], tuple[str, str | None]]
     rest_at: Callable[[Array], bool]
@@ -166,6 +170,12 @@ class Motion:
     tick: Callable[[], None]
     laser: LaserLog | None = None
     predict: Callable[[Array, float], None] | None = None
+    clock: Callable[[], float] = time.time
+    wait: Callable[[float], bool] | None = None
+
+    def pause(self, seconds: float) -> bool:
+        """Wait ``seconds`` s (or until a stop); whether a stop came."""
+        return self.stop.wait(seconds) if self.wait is None else self.wait(seconds)
 
 
 class ClosedLoopRunner:
@@ -195,17 +205,18 @@ class ClosedLoopRunner:
         if verdict != "accepted":
             raise ExecuteError(reason or "rejected", list(self.system.robot_names))
         self.q = np.asarray(q_to, dtype=float)
-        deadline = time.monotonic() + float(traj["t"][-1]) - dwell + ARRIVAL_TIMEOUT
+        clock = self.motion.clock
+        deadline = clock() + float(traj["t"][-1]) - dwell + ARRIVAL_TIMEOUT
         while not self.motion.stop.is_set():
             self.motion.tick()
             if self.motion.rest_at(self.q):
-                return time.time()
-            if time.monotonic() > deadline:
+                return clock()
+            if clock() > deadline:
                 raise ExecuteError(f"the robots did not come to rest on the commanded joints "
                                    f"within {ARRIVAL_TIMEOUT:g} s of the move's end",
                                    list(self.system.robot_names))  # fmt: skip
-            time.sleep(0.004)
-        return time.time()
+            self.motion.pause(REST_POLL)
+        return clock()
 
     def measure(self, q: Array, frames: int) -> SpotMeasurement | None:
         """Move to stacked ``q`` (rad) with a measurement dwell, average its frames: with a
@@ -213,17 +224,19 @@ class ClosedLoopRunner:
         those captured from the robots' arrival for the dwell."""
         t_dwell = measure_time(frames)
         predicted, gate = self._prediction(q)
-        t_send = time.time()
+        mo = self.motion
+        t_send = mo.clock()
         t_rest = self._send(q, t_dwell, aim=True)
-        stop = self.motion.stop.is_set
+        stop = mo.stop.is_set
         t0, t1 = t_rest + SETTLE, t_rest + t_dwell
-        if self.motion.laser is not None:
-            span = self.motion.laser.wait_span(t_send, t_dwell + ARRIVAL_TIMEOUT, stop)
+        if mo.laser is not None:
+            span = mo.laser.wait_span(t_send, t_dwell + ARRIVAL_TIMEOUT, stop, clock=mo.clock,
+                                      wait=mo.wait)  # fmt: skip
             if span is None:  # the gate never switched on for this measurement
-                self.motion.tick()
+                mo.tick()
                 return None
             t0, t1 = span[0] + SETTLE, span[1]
-        got = self.motion.spots.collect(t0, t1, frames, stop)
+        got = mo.spots.collect(t0, t1, frames, stop, clock=mo.clock, wait=mo.wait)
         self.motion.tick()
         assert self.system.camera is not None
         world_T_camera = self.system.world_T_camera(self.q)
@@ -248,7 +261,8 @@ class ClosedLoopRunner:
             pred, radius = pred + self._bias, NEXT_RADIUS
         if self.motion.predict is not None and self.system.camera is not None:
             camera_T_world = np.linalg.inv(self.system.world_T_camera(q))
-            self.motion.predict(camera_T_world[:3, :3] @ pred + camera_T_world[:3, 3], time.time())
+            p_camera = camera_T_world[:3, :3] @ pred + camera_T_world[:3, 3]
+            self.motion.predict(p_camera, self.motion.clock())
         return pred, SpotGate(MIN_CONFIDENCE, radius)
 
     def _gate(self, got: list[Any], world_T_camera: Array, predicted: Array,
@@ -267,15 +281,18 @@ class ClosedLoopRunner:
         return kept
 
     def hold(self, dwell: float) -> float:
-        """The laser-on dwell (s) at the current joints; the dwell actually waited (s)."""
+        """The laser-on dwell (s) at the current joints, counted from the robots' rest on
+        the motion's clock; the dwell actually waited (s: less after a stop)."""
         if dwell <= 0:
             return 0.0
+        clock = self.motion.clock
         t0 = self._send(self.q, dwell)
-        while not self.motion.stop.wait(0.05):
+        end = t0 + dwell
+        while (now := clock()) < end:
+            if self.motion.pause(min(HOLD_POLL, end - now)):
+                return min(clock() - t0, dwell)
             self.motion.tick()
-            if time.time() - t0 >= dwell:
-                return dwell
-        return time.time() - t0
+        return dwell
 
     def target(self, k: int, q0: Array, p: Array, normal: Array | None,
                dwell: float) -> tuple[ServoResult, float]:  # fmt: skip

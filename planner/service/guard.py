@@ -173,11 +173,15 @@ class Worker:
 
 class Progress:
     """The worker's progress watchdog: when the current job started and its allowance (s,
-    monotonic clock)."""
+    on ``clock``, monotonic)."""
 
     def __init__(
-        self, timeout: float = WORKER_TIMEOUT, per_target: float = WORKER_TIMEOUT_PER_TARGET
+        self,
+        timeout: float = WORKER_TIMEOUT,
+        per_target: float = WORKER_TIMEOUT_PER_TARGET,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
+        self.clock = clock
         self.timeout = timeout
         self.per_target = per_target
         self._since: float | None = None
@@ -186,7 +190,7 @@ class Progress:
 
     def begin(self) -> None:
         with self._lock:
-            self._since, self._allowance = time.monotonic(), self.timeout
+            self._since, self._allowance = self.clock(), self.timeout
 
     def targets(self, n: int) -> None:
         """The current job plans ``n`` targets: extend its allowance accordingly."""
@@ -199,7 +203,7 @@ class Progress:
         ticking for the allowance still is)."""
         with self._lock:
             if self._since is not None:
-                self._since = time.monotonic()
+                self._since = self.clock()
 
     def end(self) -> None:
         with self._lock:
@@ -211,7 +215,7 @@ class Progress:
             since, allowance = self._since, self._allowance
         if since is None:
             return None
-        busy = time.monotonic() - since
+        busy = self.clock() - since
         if busy <= allowance:
             return None
         return f"worker busy on one request for {busy:.1f} s (allowed {allowance:.1f} s)"
@@ -220,7 +224,8 @@ class Progress:
 class Heartbeat:
     """Publishes ``{t, session, seq}`` at ``rate`` Hz from its own thread until stopped, or
     until ``progress`` reports a wedged worker: then it stops beating and calls
-    ``on_wedged(reason)`` once."""
+    ``on_wedged(reason)`` once. Beats are scheduled on ``clock`` (monotonic s) and the thread
+    waits with ``wait(s)`` (True: stop now; default: the stop event's wait)."""
 
     def __init__(
         self,
@@ -229,14 +234,18 @@ class Heartbeat:
         progress: Progress,
         on_wedged: Callable[[str], None],
         rate: float = HEARTBEAT_RATE,
+        clock: Callable[[], float] = time.monotonic,
+        wait: Callable[[float], bool] | None = None,
     ) -> None:
         self.put = put
+        self.clock = clock
         self.session_id = session_id
         self.progress = progress
         self.on_wedged = on_wedged
         self.period = 1.0 / rate
         self.seq = 0
         self._stop = threading.Event()
+        self.wait = self._stop.wait if wait is None else wait
         self._thread = threading.Thread(target=self._run, name="planner-heartbeat", daemon=True)
 
     def start(self) -> Heartbeat:
@@ -253,7 +262,7 @@ class Heartbeat:
         from planner.service.bus import encode
         from schemas.messages import Heartbeat as HeartbeatMessage
 
-        next_t = time.monotonic()
+        next_t = self.clock()
         while not self._stop.is_set():
             reason = self.progress.overdue()
             if reason is not None:
@@ -268,7 +277,8 @@ class Heartbeat:
                 return
             self.seq += 1
             next_t += self.period
-            now = time.monotonic()
+            now = self.clock()
             if next_t < now - self.period:
                 next_t = now  # fell behind (a loaded machine): do not burst to catch up
-            self._stop.wait(max(0.0, next_t - now))
+            if self.wait(max(0.0, next_t - now)):
+                return

@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import fcntl
+import functools
 import json
 import logging
 import os
@@ -246,14 +247,14 @@ def start_heartbeat(
     from planner.service.bus import JSON, urgent
     from planner.service.guard import Heartbeat
 
-    kw = {} if rate is None else {"rate": rate}
+    hz = HEARTBEAT_RATE if rate is None else rate
     if bus is not None:
-        return HeartbeatProcess(bus, key, session_id, progress, on_wedged, **kw).start(), None
+        return HeartbeatProcess(bus, key, session_id, progress, on_wedged, hz).start(), None
     log.warning("heartbeat published from the planner process (no bus address given): "
                 "long solver calls can delay it")  # fmt: skip
     pub = session.declare_publisher(key, **urgent())
     beat = Heartbeat(lambda body: pub.put(body, encoding=JSON), session_id, progress,
-                     on_wedged, **kw).start()  # fmt: skip
+                     on_wedged, hz).start()  # fmt: skip
     return beat, pub
 
 
@@ -282,26 +283,34 @@ def beat_loop(
     stall: float,
     stdin_fd: int,
     on_first: Callable[[], None],
+    *,
+    clock: Callable[[], float] = time.monotonic,
+    read: Callable[[float], bytes | None] | None = None,
+    state: Callable[[int], str | None] = process_state,
 ) -> str:
-    """Publish beats at ``rate`` Hz while the parent runs and ticks; return why it ended."""
+    """Publish beats at ``rate`` Hz while the parent runs and ticks; return why it ended.
+    Beats are scheduled on ``clock`` (monotonic s); ``read(timeout)`` waits at most
+    ``timeout`` s for the parent's bytes (None: none came; b"": the pipe closed; default:
+    ``stdin_fd``); ``state(pid)`` is the parent's process state letter."""
+    read = read or functools.partial(_read_ready, stdin_fd)
     period = 1.0 / rate
-    seq, last_tick = 0, time.monotonic()
+    seq, last_tick = 0, clock()
     next_t = last_tick
     while True:
-        if select.select([stdin_fd], [], [], max(0.0, next_t - time.monotonic()))[0]:
-            data = os.read(stdin_fd, 4096)
+        data = read(max(0.0, next_t - clock()))
+        if data is not None:
             if not data:
                 return "the parent closed the pipe (exited)"
             if STOP in data:
                 return "stopped by the parent"
-            last_tick = time.monotonic()
-        now = time.monotonic()
+            last_tick = clock()
+        now = clock()
         if now < next_t:
             continue
         next_t = max(next_t + period, now - period)  # behind: do not burst to catch up
         if os.getppid() != parent:
             return "the parent died"
-        if process_state(parent) in ("T", "t") or now - last_tick > stall:
+        if state(parent) in ("T", "t") or now - last_tick > stall:
             continue  # stopped or unresponsive parent: silence, until it runs again
         body = {"schema": "beamrelay.heartbeat/1", "t": time.time(), "session": session_id,
                 "seq": seq}  # fmt: skip
@@ -309,6 +318,13 @@ def beat_loop(
         if seq == 0:
             on_first()
         seq += 1
+
+
+def _read_ready(fd: int, timeout: float) -> bytes | None:
+    """What ``fd`` holds once readable within ``timeout`` s (b"" at its end), else None."""
+    if not select.select([fd], [], [], timeout)[0]:
+        return None
+    return os.read(fd, 4096)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -59,17 +59,18 @@ class SpotBuffer:
 
     def collect(
         self, t0: float, t1: float, n: int, stop: Callable[[], bool],
-        latency: float = LATENCY, poll: float = 0.01,
+        latency: float = LATENCY, poll: float = 0.01, *,
+        clock: Callable[[], float] = time.time, wait: Callable[[float], object] | None = None,
     ) -> list[SpotFrame]:  # fmt: skip
-        """Wait until ``n`` frames captured in ``[t0, t1]`` (UNIX s) are in, the wall clock
-        passes ``t1`` plus ``latency`` (s, for the last frames' delivery), or ``stop()``;
-        the frames of the window (at most ``n``, oldest first)."""
+        """Wait until ``n`` frames captured in ``[t0, t1]`` (UNIX s) are in, ``clock`` (UNIX
+        s) passes ``t1`` plus ``latency`` (s, for the last frames' delivery), or ``stop()``;
+        the frames of the window (at most ``n``, oldest first). ``wait(s)`` waits between
+        looks (None: until the next frame, at most ``poll`` s)."""
         while True:
             got = self.window(t0, t1)
-            if len(got) >= n or stop() or time.time() > t1 + latency:
+            if len(got) >= n or stop() or clock() > t1 + latency:
                 return got[:n]
-            with self._cond:
-                self._cond.wait(poll)
+            _pause(self._cond, poll, wait)
 
 
 class LaserLog:
@@ -110,16 +111,28 @@ class LaserLog:
         return None
 
     def wait_span(
-        self, t0: float, timeout: float, stop: Callable[[], bool], poll: float = 0.01
-    ) -> tuple[float, float] | None:
-        """Wait (at most ``timeout`` s, or until ``stop()``) for the first on-interval that
-        began at or after ``t0`` to end; it, or None when none began or it did not end."""
-        deadline = time.monotonic() + timeout
+        self, t0: float, timeout: float, stop: Callable[[], bool], poll: float = 0.01, *,
+        clock: Callable[[], float] = time.monotonic,
+        wait: Callable[[float], object] | None = None,
+    ) -> tuple[float, float] | None:  # fmt: skip
+        """Wait (at most ``timeout`` s on ``clock``, or until ``stop()``) for the first
+        on-interval that began at or after ``t0`` to end; it, or None when none began or it
+        did not end. ``wait(s)`` waits between looks (None: until the next switch, at most
+        ``poll`` s)."""
+        deadline = clock() + timeout
         while True:
             span = self.span_after(t0)
             if span is not None and np.isfinite(span[1]):
                 return span
-            if stop() or time.monotonic() > deadline:
+            if stop() or clock() > deadline:
                 return None
-            with self._cond:
-                self._cond.wait(poll)
+            _pause(self._cond, poll, wait)
+
+
+def _pause(cond: threading.Condition, poll: float, wait: Callable[[float], object] | None) -> None:
+    """``wait(poll)``, or (None) until ``cond`` is notified, at most ``poll`` s."""
+    if wait is not None:
+        wait(poll)
+        return
+    with cond:
+        cond.wait(poll)

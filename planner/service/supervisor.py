@@ -5,7 +5,8 @@ then stops the children in order) and, on Linux, gets SIGTERM if the supervisor 
 goes to ``<log_dir>/<name>.log``. A child that exits while the supervisor runs is restarted
 after ``RESTART_DELAY`` seconds (doubling for each quick crash, at most ``MAX_DELAY``),
 except children marked ``manual`` (drivers of real hardware): they stay down until
-:meth:`Supervisor.restart` (the operator's acknowledgement).
+:meth:`Supervisor.restart` (the operator's acknowledgement). Every time is read from the
+supervisor's ``clock`` (monotonic s; tests pass a fake one and step it).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -59,16 +61,23 @@ class Child:
     def running(self) -> bool:
         return self.proc is not None and self.proc.poll() is None
 
-    def uptime(self) -> float:
-        return time.monotonic() - self.started if self.running else 0.0
+    def uptime(self, now: float) -> float:
+        """Seconds it has run at ``now`` (monotonic s); 0 when it is not running."""
+        return now - self.started if self.running else 0.0
 
 
 class Supervisor:
-    """Start children, restart the ones that exit, stop them all on :meth:`stop`."""
+    """Start children, restart the ones that exit, stop them all on :meth:`stop`.
+    ``clock``: monotonic s, the time of every start and back-off."""
 
     def __init__(
-        self, children: dict[str, list[str]], log_dir: Path, manual: tuple[str, ...] = ()
+        self,
+        children: dict[str, list[str]],
+        log_dir: Path,
+        manual: tuple[str, ...] = (),
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
+        self.clock = clock
         self.children = {
             name: Child(name, argv, manual=name in manual) for name, argv in children.items()
         }
@@ -87,7 +96,7 @@ class Supervisor:
             start_new_session=True,
             preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None,
         )
-        child.started = time.monotonic()
+        child.started = self.clock()
 
     def start(self) -> None:
         for child in self.children.values():
@@ -96,7 +105,7 @@ class Supervisor:
     def poll(self) -> list[str]:
         """Restart children that exited (after their back-off); the names restarted now."""
         restarted = []
-        now = time.monotonic()
+        now = self.clock()
         for child in self.children.values():
             if self.stopping or child.proc is None or child.running:
                 continue
@@ -124,6 +133,10 @@ class Supervisor:
         child.restarts += 1
         self._spawn(child)
         return True
+
+    def uptime(self, name: str) -> float:
+        """Seconds child ``name`` has run (0 when it is not running)."""
+        return self.children[name].uptime(self.clock())
 
     def kill(self, name: str, sig: int = signal.SIGKILL) -> None:
         """Send ``sig`` to one child (tests and fault drills)."""

@@ -229,7 +229,7 @@ def health_table(sup: Supervisor, health: Health, title: str) -> Any:
         alive = "[green]yes[/]" if name in health.alive else "[red]no[/]"
         rate = "" if name == "planner" else f"{health.rate(name):.0f}"
         table.add_row(
-            name, str(c.pid or "-"), state, alive, rate, str(c.restarts), f"{c.uptime():.0f}"
+            name, str(c.pid or "-"), state, alive, rate, str(c.restarts), f"{sup.uptime(name):.0f}"
         )
     return table
 

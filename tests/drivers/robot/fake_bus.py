@@ -12,15 +12,9 @@ import json
 from collections.abc import Callable
 from typing import Any
 
+from tests.fake_clock import FakeClock as SimClock
 
-class SimClock:
-    """A settable monotonic clock (s)."""
-
-    def __init__(self, t: float = 1000.0) -> None:
-        self.t = t
-
-    def __call__(self) -> float:
-        return self.t
+__all__ = ["FakeBus", "SimClock"]
 
 
 class _Payload:

@@ -1,6 +1,7 @@
 """The planner heartbeat, driver side: a hung planner whose token lingers (and a fake second
-token, and another session's heartbeats) cannot keep the arm moving; trajectories need a
-fresh heartbeat of their own session."""
+token, and another session's heartbeats) cannot keep the arm moving (a real-time probe on
+the bus); bench work needs none. The watchdog's rules on a simulated clock are in
+test_watchdog.py."""
 
 from __future__ import annotations
 
@@ -14,11 +15,11 @@ import numpy as np
 import pytest
 
 from drivers.robot.follower import STOP_ACCELERATION, STOP_JERK
-from drivers.robot.node import HEARTBEAT_TIMEOUT, MAX_SESSIONS, PERIOD_LOG, RobotNode
+from drivers.robot.node import HEARTBEAT_TIMEOUT, PERIOD_LOG, RobotNode
 from drivers.robot.sim import SimRobot
 from planner.model.system import JOINT_NAMES_UR
 from planner.service.bus import Keys, open_session
-from tests.drivers.conftest import Heartbeats, wait_for
+from tests.drivers.conftest import wait_for
 from tests.drivers.robot.test_robot_node import HOME, LIMITS, Cell, smooth_move, start_planner
 
 
@@ -67,50 +68,6 @@ def test_sigstopped_planner_stops_the_arm_despite_fake_token_and_foreign_heartbe
         planner.kill()
         planner.wait()
         sub.undeclare()
-        cell.close()
-
-
-def test_trajectories_need_a_fresh_heartbeat_of_their_session(
-    hub: Any, endpoint: str, keys: Keys
-) -> None:
-    cell = Cell(endpoint, keys, "P2")
-    garbage = cell.client.declare_publisher(keys.heartbeat)
-    try:
-        wait_for(lambda: "P2" in cell.node.heartbeats, what="heartbeats")
-        cell.send(smooth_move(HOME, np.full(6, 0.01), 0.3, id="none"))
-        assert cell.ack("none")["reason"] == (
-            "session: no planner session given (a planner must send it)"
-        )
-        cell.send(smooth_move(HOME, np.full(6, 0.01), 0.3, id="ghost", session="ghost"))
-        assert cell.ack("ghost")["reason"] == (
-            "session: no heartbeat from planner session ghost within 100 ms (last: never)"
-        )
-        # heartbeats that do not parse, or name the session in the wrong field, do not count
-        for body in (b"ghost", b'{"session":"ghost"}', b'{"schema":"beamrelay.heartbeat/1",'
-                     b'"t":1,"session":"ghost","seq":-1}', b"\xff" * 5000):  # fmt: skip
-            garbage.put(body)
-        wait_for(lambda: cell.node.n_bad_heartbeats >= 4, what="bad heartbeats counted")
-        for n in range(200):  # a flood of made-up sessions: remembered ones stay bounded
-            garbage.put(json.dumps({"schema": "beamrelay.heartbeat/1", "t": 1.0,
-                                    "session": f"fake{n}", "seq": 0}))  # fmt: skip
-        wait_for(lambda: "fake199" in cell.node.heartbeats, what="fake sessions")
-        assert len(cell.node.heartbeats) == MAX_SESSIONS
-        cell.send(smooth_move(HOME, np.full(6, 0.01), 0.3, id="ghost2", session="ghost"))
-        assert "last: never" in cell.ack("ghost2")["reason"]
-        assert cell.beats is not None
-        cell.beats.stop()
-        time.sleep(0.2)
-        cell.send(smooth_move(HOME, np.full(6, 0.01), 0.3, id="stale", session="P2"))
-        reason = cell.ack("stale")["reason"]
-        assert reason.startswith("session: no heartbeat from planner session P2 within 100 ms")
-        assert int(reason.rsplit("last: ", 1)[1].split()[0]) >= 200
-        np.testing.assert_allclose(cell.q(), HOME, atol=0)  # nothing moved
-        beats = cell.beats = Heartbeats(cell.client, keys.prefix, "P2")
-        wait_for(lambda: len(beats.sent) > 3, what="heartbeats again")
-        cell.send(smooth_move(HOME, np.full(6, 0.01), 0.3, id="fresh", session="P2"))
-        assert cell.ack("fresh")["accepted"]
-    finally:
-        garbage.undeclare()
         cell.close()
 
 

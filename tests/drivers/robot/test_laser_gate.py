@@ -112,21 +112,15 @@ def test_stop_request_forces_the_gate_off(cell: GateCell) -> None:
     cell.client.put(cell.keys.stop, b"anything")
     wait_for(lambda: not cell.sim.gate, timeout=2.0, what="gate off")
     t_off = next(t for t, s in reversed(cell.sim.gate_calls) if not s)
+    print(
+        f"stop sent to gate off: {1e3 * (t_off - sent):.1f} ms (the next period on a "
+        "simulated clock: test_watchdog.py)"
+    )
     assert t_off - sent < 0.3  # forced off in the period that handles the stop
     last = cell.node.gate.switches[-1]  # type: ignore[union-attr]
     assert not last.on and last.reason.startswith("stop requested")
     time.sleep(0.2)  # braking, then stopped: it stays off
     assert not cell.sim.gate and cell.sim.measured().mode in ("braking", "stopped")
-
-
-def test_heartbeat_loss_forces_the_gate_off(cell: GateCell) -> None:
-    cell.send(_move(3.0, [[0.1, 2.9]], "long"))
-    wait_for(lambda: cell.sim.gate, what="gate on")
-    last_beat = cell.beats.stop()
-    wait_for(lambda: not cell.sim.gate, timeout=2.0, what="gate off")
-    last = cell.node.gate.switches[-1]  # type: ignore[union-attr]
-    assert last.reason.startswith("planner heartbeat lost")
-    assert time.time() - last_beat < 1.0
 
 
 @pytest.mark.parametrize(

@@ -165,8 +165,18 @@ def test_follows_trajectory_acks_with_the_request_id(cell: Cell) -> None:
     assert {"idle", "following"} <= modes
     mid = [s for s in cell.states.items if np.allclose(s["q"], HOME + dq / 2, atol=2e-3)]
     assert mid, "joint states never passed the trajectory midpoint"
-    dt = np.diff([s["t"] for s in cell.states.items])
-    assert np.median(dt) < 0.010  # >= 100 Hz (nominal 250 Hz)
+
+
+@pytest.mark.serial
+def test_joint_states_at_250_hz(cell: Cell) -> None:
+    """A real-time probe: the driver publishes joint states every 4 ms (SPEC: >= 100 Hz)."""
+    n0 = len(cell.states.items)
+    time.sleep(1.0)
+    dt = np.diff([s["t"] for s in cell.states.items[n0:]])
+    print(f"joint states: median gap {1e3 * np.median(dt):.2f} ms, p99 "
+          f"{1e3 * np.percentile(dt, 99):.2f} ms, max {1e3 * dt.max():.2f} ms (period 4 ms)")  # fmt: skip
+    assert np.median(dt) == pytest.approx(1 / 250.0, rel=0.1)
+    assert len(dt) >= 0.9 * 250 - 1 and np.percentile(dt, 99) < 0.010  # SPEC: >= 100 Hz
 
 
 def test_position_jump_is_refused_and_the_arm_never_moves(cell: Cell) -> None:
@@ -206,36 +216,8 @@ def test_hostile_and_oversized_bodies_are_refused_and_the_driver_keeps_serving(
     assert cell.ack("after")["accepted"]
 
 
-def test_queue_one_trajectory_behind_the_running_one(cell: Cell) -> None:
-    """While A runs: C (starts at the arm's start, not A's end) is refused; B and then B2
-    (both start at A's last sample) are queued, B2 replaces B and runs when A ends."""
-    dq = np.array([0.2, 0, 0, 0, 0, 0.15])
-    a = smooth_move(HOME, dq, 1.5, id="A", session=cell.name)
-    cell.send(a)
-    assert cell.ack("A")["accepted"]
-    wait_for(lambda: cell.sim.measured().mode == "following", what="A running")
-    cell.send(smooth_move(HOME, dq, 1.0, id="C", session=cell.name))
-    c = cell.ack("C")
-    assert not c["accepted"]
-    assert c["reason"] == (
-        "q[0]: starts 0.2000 rad from the running trajectory's last sample on joint "
-        "shoulder_pan (tolerance 0.01 rad)"
-    )
-    end_a = HOME + dq
-    cell.send(smooth_move(end_a + 0.005, np.full(6, 0.05), 0.5, id="B", session=cell.name))
-    assert cell.ack("B")["accepted"]
-    b2 = np.array([0, 0.1, -0.1, 0, 0, 0])
-    cell.send(smooth_move(end_a, b2, 0.5, id="B2", session=cell.name))
-    assert cell.ack("B2")["accepted"]
-    assert cell.sim.measured().mode == "following"  # A still runs
-    wait_for(lambda: cell.node.n_accepted == 3 and cell.at_rest() and cell.sim.measured().mode == "idle",
-             timeout=15)  # fmt: skip
-    np.testing.assert_allclose(cell.q(), end_a + b2, atol=1e-9)
-    qs = np.array([s["q"] for s in cell.states.items])
-    assert np.min(np.abs(qs - end_a).max(axis=1)) < 2e-3  # passed A's end on the way
-    assert np.all(qs[:, 3] == HOME[3])  # B (which moves joint 3) never ran
-
-
+@pytest.mark.serial  # a real-time probe: stop request to rest < 300 ms (the stop's rules
+# on a simulated clock: test_watchdog.py)
 def test_stop_brakes_refuses_earlier_trajectories_then_accepts_a_new_one(cell: Cell) -> None:
     # 8500 samples (3.5 MB): still being parsed when the stop arrives right after it
     late = smooth_move(HOME, np.full(6, 0.01), 17.0, id="late", session=cell.name)

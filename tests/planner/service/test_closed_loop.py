@@ -18,6 +18,7 @@ from planner.model.system import Targets
 from planner.service.closed_loop import (
     FRAME_PERIOD,
     ClosedLoopConfig,
+    ClosedLoopRunner,
     Motion,
     check_closed_loop,
     execute_closed_loop,
@@ -28,6 +29,7 @@ from planner.service.handler import make_plan_fn
 from planner.service.spots import LaserLog, SpotBuffer
 from planner.servo import Corrector, ServoSettings
 from schemas.messages import TargetRequest
+from tests.fake_clock import FakeClock, Timeline
 
 
 @pytest.fixture(scope="module")
@@ -35,65 +37,79 @@ def world() -> SimWorld:
     return SimWorld(seed=13)
 
 
+#: s: the driver's approach: the laser switches on this long after the ack
+GATE_DELAY = 0.05
+
+
 class FakeBus:
     """Plays each trajectory at once (the arm jumps to its end) and streams the simulated
     camera's frames at 30 Hz while its laser-on interval lasts (a gated laser: no frames
-    otherwise); a trajectory sent during another's dwell waits for it (the driver queues)."""
+    otherwise), all as events on a simulated clock (:class:`Timeline`, UNIX s) that the
+    runner's waits move on; a trajectory sent during another's dwell waits for it (the
+    driver queues)."""
 
     def __init__(self, world: SimWorld, *, reject_second_target: bool = False,
-                 stop_at: int | None = None, gated: bool = False) -> None:  # fmt: skip
+                 stop_at: int | None = None, gated: bool = False,
+                 stop_after: float | None = None) -> None:  # fmt: skip
         self.world = world
         self.q = world.model.home
         self.sent: list[tuple[str, dict[str, Any]]] = []
+        self.sent_at: list[float] = []  # simulated time of each send
         self.spots = SpotBuffer()
         self.stop = threading.Event()
+        self.clock = Timeline(1.7e9, self.stop.is_set)
         self.reject_second, self.stop_at = reject_second_target, stop_at
-        self.threads: list[threading.Thread] = []
+        self.stop_after = stop_after  # s after the (first) send: the operator stops
         self.laser = LaserLog() if gated else None
         self.lie: Any = None  # (move number, p_camera, confidence) -> (p_camera, confidence)
 
     def send(self, traj: dict[str, Any], move_id: str) -> tuple[str, str | None]:
+        self.clock.run_all()  # the previous move's dwell plays out first
         self.sent.append((move_id, traj))
-        for th in self.threads:
-            th.join()
+        self.sent_at.append(self.clock())
         q_end = self.world.model.stack_q({r: q[-1] for r, q in traj["q"].items()})
         far = len(self.sent) > 1 and np.max(np.abs(q_end - self.q)) > 0.01  # a new target
         if self.reject_second and far:
             return "rejected", "arm0: simulated refusal"
         self.q = q_end
         lit = (traj.get("laser_on") or []) + (traj.get("aim_on") or [])  # either beam is seen
-        on = sum(b - a for a, b in lit)
-        th = threading.Thread(target=self._frames, args=(self.q.copy(), on), daemon=True)
-        th.start()
-        self.threads.append(th)
+        self._frames(self.q.copy(), sum(b - a for a, b in lit))
         if self.stop_at is not None and len(self.sent) >= self.stop_at:
             self.stop.set()
+        if self.stop_after is not None and len(self.sent) == 1:
+            self.clock.at(self.clock() + self.stop_after, self.stop.set)
         return "accepted", None
 
     def _frames(self, q: np.ndarray, on: float) -> None:
-        time.sleep(0.05)  # the driver's approach: the gate opens a little after the ack
-        t0 = time.time()
+        t0 = self.clock() + GATE_DELAY
         if self.laser is not None:
-            self.laser.offer(t0, True)
+            self.clock.at(t0, lambda: self.laser and self.laser.offer(t0, True))
         for i in range(int(on / FRAME_PERIOD) + 1):
-            time.sleep(max(0.0, t0 + i * FRAME_PERIOD - time.time()))
-            f = self.world.frames(q, 1)[0]
-            p = None if f.p_camera is None else f.p_camera.tolist()
-            c = f.confidence
-            if self.lie is not None and p is not None:
-                p, c = self.lie(len(self.sent), np.asarray(p), c)
-                p = p.tolist()
-            self.spots.offer(time.time(), p, c)
+            self.clock.at(t0 + i * FRAME_PERIOD, lambda: self._frame(q))
         if self.laser is not None:
-            time.sleep(max(0.0, t0 + on - time.time()))
-            self.laser.offer(time.time(), False)
+            self.clock.at(t0 + on, lambda: self.laser and self.laser.offer(t0 + on, False))
+
+    def _frame(self, q: np.ndarray) -> None:
+        f = self.world.frames(q, 1)[0]
+        p = None if f.p_camera is None else f.p_camera.tolist()
+        c = f.confidence
+        if self.lie is not None and p is not None:
+            p, c = self.lie(len(self.sent), np.asarray(p), c)
+            p = p.tolist()
+        self.spots.offer(self.clock(), p, c)
 
     def rest_at(self, q: np.ndarray) -> bool:
         return bool(np.allclose(self.q, q, atol=1e-12))
 
     def motion(self, ticks: list[float]) -> Motion:
         return Motion(self.send, self.rest_at, self.spots, self.stop,
-                      lambda: ticks.append(time.monotonic()), self.laser)  # fmt: skip
+                      lambda: ticks.append(self.clock()), self.laser, clock=self.clock,
+                      wait=self.clock.wait)  # fmt: skip
+
+
+def config_of(world: SimWorld, settings: ServoSettings | None = None) -> ClosedLoopConfig:
+    return ClosedLoopConfig(Corrector(world.model), make_move_fn(world.model, TrajectorySettings()),
+                            0.3, settings or ServoSettings(), aim=True)  # fmt: skip
 
 
 def _run(world: SimWorld, bus: FakeBus, k: int, dwell: float | None = 0.1,
@@ -105,13 +121,11 @@ def _run(world: SimWorld, bus: FakeBus, k: int, dwell: float | None = 0.1,
     plan.setdefault("scenario", {})
     req = TargetRequest.model_validate({"schema": "beamrelay.request/1", "id": "cl", "execute": True,
                                         "closed_loop": True, "points": P.tolist(), "dwell": dwell})  # fmt: skip
-    config = ClosedLoopConfig(Corrector(model), make_move_fn(model, TrajectorySettings()), 0.3,
-                              settings or ServoSettings(), aim=True)  # fmt: skip
+    config = config_of(world, settings)
     ticks: list[float] = []
     check_closed_loop(req, model, config)
     execute_closed_loop(plan, targets, req, model.home, config, bus.motion(ticks), model)
-    for th in bus.threads:
-        th.join()
+    bus.clock.run_all()
     plan["_ticks"] = ticks
     plan["_targets"] = P
     return plan
@@ -128,7 +142,7 @@ def test_every_target_converges_and_the_laser_is_on_only_at_rest(
     assert [r["status"] for r in rows] == ["converged", "converged"]
     assert all(r["measured_error_before"] > 3e-3 for r in rows)
     assert all(r["measured_error_after"] <= 0.3e-3 and r["frames"] <= 10 for r in rows)
-    assert all(r["dwell"] == pytest.approx(0.1, abs=0.05) for r in rows)
+    assert all(r["dwell"] == 0.1 for r in rows)
     spot = world.true_spot(bus.q)  # independent: the truth's spot where the arm was left
     assert spot is not None and np.linalg.norm(spot - plan["_targets"][-1]) <= 0.5e-3
     extra = plan["metrics"]["extra"]
@@ -245,29 +259,54 @@ def test_bad_closed_loop_fields_are_refused_by_the_schema(bad: dict[str, Any]) -
 
 
 def test_a_ticking_job_is_not_wedged_but_a_silent_one_is() -> None:
-    p = Progress(timeout=0.2, per_target=0.0)
+    clock = FakeClock()
+    p = Progress(timeout=0.2, per_target=0.0, clock=clock)
     p.begin()
     for _ in range(8):
-        time.sleep(0.05)
+        clock.advance(0.15)
         p.tick()
         assert p.overdue() is None
-    time.sleep(0.3)
-    assert "busy on one request" in (p.overdue() or "")
+    clock.advance(0.2 - 1e-6)
+    assert p.overdue() is None
+    clock.advance(2e-6)
+    assert "busy on one request for 0.2 s (allowed 0.2 s)" in (p.overdue() or "")
     p.end()
     p.tick()  # no job: nothing to extend
     assert p.overdue() is None
 
 
 def test_spot_buffer_collects_the_window_and_honours_stop() -> None:
+    clock = Timeline(1.7e9)
     buf = SpotBuffer()
-    t = time.time()
+    t = clock()
     for i in range(5):
         buf.offer(t + 0.01 * i, [0.0, 0.0, 1.0 + i], 0.5)
-    got = buf.collect(t + 0.015, t + 0.035, 5, lambda: False, latency=0.0)
+    got = buf.collect(t + 0.015, t + 0.035, 5, lambda: False, latency=0.0, clock=clock,
+                      wait=clock.wait)  # fmt: skip
     assert [f.p_camera[2] for f in got if f.p_camera is not None] == [3.0, 4.0]
-    t0 = time.monotonic()
-    assert buf.collect(t + 10, t + 20, 3, lambda: True) == []
-    assert time.monotonic() - t0 < 0.5
+    assert clock() - t == pytest.approx(0.04, abs=1e-6)  # waited past t1 + latency, no more
+    t = clock()
+    assert buf.collect(t + 10, t + 20, 3, lambda: True, clock=clock, wait=clock.wait) == []
+    assert clock() == t  # a stop: at once
+    for i in range(3):  # frames arriving while it waits: done at the third
+        clock.at(t + 0.1 * (i + 1), lambda i=i: buf.offer(t + 0.1 * (i + 1), [0, 0, 9.0], 0.5))
+    got = buf.collect(t + 0.05, t + 10, 3, lambda: False, clock=clock, wait=clock.wait)
+    assert [f.p_camera[2] for f in got if f.p_camera is not None] == [9.0] * 3
+    assert t + 0.3 <= clock() <= t + 0.31 + 1e-6  # the first look after the third (10 ms polls)
+
+
+@pytest.mark.parametrize(("stop_after", "dwelt"), [(None, 0.25), (0.03, 0.03)])
+def test_hold_dwells_exactly_from_the_rest_and_a_stop_cuts_it(
+    world: SimWorld, stop_after: float | None, dwelt: float
+) -> None:
+    bus = FakeBus(world, stop_after=stop_after)
+    runner = ClosedLoopRunner(world.model, config_of(world), bus.motion([]), "h", ServoSettings())
+    t0 = bus.clock()
+    assert runner.hold(0.25) == pytest.approx(dwelt, abs=1e-6)
+    assert bus.clock() - t0 == pytest.approx(dwelt, abs=1e-6)  # the robots rest at once
+    ((_, traj),) = bus.sent
+    assert traj["laser_on"] and not traj.get("aim_on")  # the treatment gate
+    assert sum(b - a for a, b in traj["laser_on"]) == pytest.approx(0.25, abs=1e-9)
 
 
 def test_joint_cache_rests_at_only_when_fresh_still_and_on_the_joints() -> None:
@@ -312,12 +351,15 @@ def test_laser_log_spans_begin_after_a_time_and_end_on_the_off_switch() -> None:
     log.offer(11.0, False)
     log.offer(12.0, True)
     assert log.span_after(9.0) == (10.0, 11.0) and log.span_after(10.2) == (12.0, float("inf"))
-    t0 = time.monotonic()
-    assert log.wait_span(10.2, 0.1, lambda: False) is None  # still on after the timeout
-    assert 0.09 < time.monotonic() - t0 < 1.0
-    log.offer(12.4, False)
-    assert log.wait_span(10.2, 1.0, lambda: False) == (12.0, 12.4)
-    assert log.span_after(13.0) is None and log.wait_span(13.0, 5.0, lambda: True) is None
+    clock = Timeline(100.0)
+    wait = {"clock": clock, "wait": clock.wait}
+    assert log.wait_span(10.2, 0.1, lambda: False, **wait) is None  # still on after the timeout
+    assert 100.1 <= clock() <= 100.1 + 0.01 + 1e-9  # the first look past 0.1 s (10 ms polls)
+    clock.at(100.5, lambda: log.offer(12.4, False))
+    assert log.wait_span(10.2, 1.0, lambda: False, **wait) == (12.0, 12.4)
+    assert clock() == pytest.approx(100.5, abs=1e-9)
+    assert log.span_after(13.0) is None and log.wait_span(13.0, 5.0, lambda: True, **wait) is None
+    assert clock() == pytest.approx(100.5, abs=1e-9)
 
 
 def test_three_implausible_spots_in_a_row_stop_the_closed_loop(world: SimWorld) -> None:

@@ -13,9 +13,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+from drivers.robot.node import HEARTBEAT_TIMEOUT
 from planner.model.system import System
 from planner.service.bus import MAX_PAYLOAD_BYTES, Keys, open_session
-from planner.service.guard import QUEUE_BYTES, Job, JobQueue, Progress
+from planner.service.guard import HEARTBEAT_RATE, QUEUE_BYTES, Job, JobQueue, Progress
 from planner.service.heartbeat import BusAddress
 from planner.service.node import PlannerNode, RequestHandler, make_plan_fn
 from tests.drivers.conftest import free_port, wait_for
@@ -84,7 +85,10 @@ def silence_after(beats: Inbox, since: float) -> float | None:
     return None
 
 
+@pytest.mark.serial
 def test_heartbeat_at_100_hz_with_one_session_and_consecutive_seq(rig: Rig) -> None:
+    """A real-time probe (the beat schedule itself is tested on a fake clock in
+    test_guard.py): the node's heartbeat process, received over the bus."""
     n0 = len(rig.beats.bodies())
     time.sleep(2.0)
     items = rig.beats.items[n0:]
@@ -93,7 +97,8 @@ def test_heartbeat_at_100_hz_with_one_session_and_consecutive_seq(rig: Rig) -> N
     gaps = np.diff([t for t, _ in items])
     print(f"heartbeat {rate:.1f} Hz, gap median {1e3 * np.median(gaps):.1f} ms, "
           f"max {1e3 * gaps.max():.1f} ms")  # fmt: skip
-    assert rate >= 50.0
+    assert rate >= 0.9 * HEARTBEAT_RATE  # 100 Hz nominal; SPEC: >= 50 Hz
+    assert gaps.max() < HEARTBEAT_TIMEOUT  # the drivers brake at 100 ms
     assert {b["session"] for b in bodies} == {rig.node.session_id}
     assert len(rig.node.session_id) == 32
     seqs = [b["seq"] for b in bodies]
@@ -139,26 +144,13 @@ def test_wedged_worker_stops_heartbeat_and_token(system: System) -> None:
         wait_for(lambda: bool(rig.fatal), 10.0, "on_fatal")
         last = rig.beats.times()[-1]
         assert rig.fatal[0].startswith("planner wedged: worker busy on one request for")
+        # when it stops is tested on a fake clock (test_guard.py); here: that it stays silent
         print(f"wedge: last heartbeat {last - t0:.2f} s after the request (allowance 0.5 s)")
-        assert last - t0 < 0.5 + 2.0  # generous: a loaded machine
         time.sleep(0.5)
         assert rig.beats.times()[-1] == last
         assert not token_exists(rig.client, f"{PREFIX}/alive/planner")
     finally:
         rig.close()
-
-
-def test_progress_allowance_grows_with_targets() -> None:
-    p = Progress(timeout=0.2, per_target=0.1)
-    assert p.overdue() is None
-    p.begin()
-    p.targets(3)
-    time.sleep(0.3)
-    assert p.overdue() is None  # 0.2 + 3 * 0.1 s allowed
-    time.sleep(0.3)
-    assert "allowed 0.5 s" in (p.overdue() or "")
-    p.end()
-    assert p.overdue() is None
 
 
 def test_oversize_body_refused_unread_and_node_keeps_serving(rig: Rig, system: System) -> None:

@@ -12,9 +12,11 @@ from typing import Any
 import numpy as np
 import pytest
 
+from drivers.robot.setpoint_check import STALE_AFTER
 from planner.ik import BeamIK
 from planner.service.node import PlannerNode, handler_from_scenario
 from planner.track.follow import TrackSettings
+from schemas.defaults import SERVO_RATE_HZ
 from tests.drivers.conftest import wait_for
 from tests.paths import SCENARIOS
 from tests.planner.raw_zenoh import Inbox, ask
@@ -55,6 +57,7 @@ def frame(rid: str, p: list[float]) -> bytes:
                        "points": [p], "normals": [[0, 0, 1]]}).encode()  # fmt: skip
 
 
+@pytest.mark.serial  # a real-time probe: 30 Hz frames in, 500 Hz setpoints out, for 1 s
 def test_track_follows_ignores_garbage_refuses_others_and_stops_when_stale(rig) -> None:
     node, client, _ = rig
     setpoints = Inbox(client, f"{PREFIX}/arm0/setpoint")
@@ -80,7 +83,15 @@ def test_track_follows_ignores_garbage_refuses_others_and_stops_when_stale(rig) 
     busy_ok, busy = request(client, "other")
     assert not busy_ok and "busy tracking 'phantom'" in busy["error"]
     live = setpoints.bodies()
-    assert len(live) > 50  # 500 Hz for ~1 s on an idle machine; the count is no timing test
+    stamps = np.array([b["t"] for b in live])  # the streamer's own clock (UNIX s)
+    gaps = np.diff(stamps)
+    rate = (len(stamps) - 1) / (stamps[-1] - stamps[0])
+    print(f"setpoints: {len(live)} at {rate:.0f} Hz (nominal {SERVO_RATE_HZ:.0f}), longest gap "
+          f"{1e3 * gaps.max():.1f} ms")  # fmt: skip
+    # measured under a load average of 20 on 2 cores: 174-407 Hz, gaps 32-236 ms; the bound is
+    # what a driver needs (a quiet machine), not what a loaded one gives
+    assert rate >= 0.8 * SERVO_RATE_HZ
+    assert gaps.max() < STALE_AFTER  # a driver would end the stream at this gap
     assert all(b["session"] == node.session_id and b["id"] == "phantom" for b in live)
     assert any(b["laser_on"] for b in live)
     # frames stop: stale after 10 frame periods -> laser off, stream ends, stop sent

@@ -103,6 +103,16 @@ def test_stale_stream_stops_after_three_frame_periods(ik: BeamIK) -> None:
     assert f.setpoint(1.0) is None
 
 
+def test_staleness_stops_exactly_at_its_limit(ik: BeamIK) -> None:
+    f = follower(ik)
+    f.on_frame(0.0, P0, N, 0.0, R_SMALL)  # received at 0 s
+    limit = f.settings.stale_after
+    assert limit == 3 * FRAME  # three frame periods of a 30 Hz stream
+    assert f.setpoint(limit - 1e-9) is not None and f.check_stale(limit) is None
+    assert f.setpoint(limit + 1e-9) is None
+    assert f.stopped == "target stream stale: no frame for 100 ms (limit 100 ms)"
+
+
 def test_target_leaving_the_region_stops(ik: BeamIK) -> None:
     f = follower(ik, max_excursion=0.05)
     drive(f, lambda t: P0 + (np.array([0.0, 0.06, 0]) if t >= 0.2 else 0.0), 0.5)
