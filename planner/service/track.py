@@ -6,7 +6,9 @@
 - subscribes ``<prefix>/targets/stream``: a body over 64 KiB, one that is not a valid
   :class:`~schemas.messages.TargetStream`, or one for another ``id`` is counted and
   ignored (the node keeps serving); camera-frame points are mapped to the world with the
-  calibrated camera pose. The tracked point is the stream's point nearest the request's
+  calibrated camera pose at the arms' latest measured joints (as requests are:
+  :func:`planner.service.handler.camera_to_world`), and the first estimate lands on the
+  surface that carries it (:mod:`planner.safety.landing`). The tracked point is the stream's point nearest the request's
   first point (chosen on the first frame, then fixed by index). Each frame is handled in
   the subscriber's callback: prediction and IK, under the follower's lock;
 - streams setpoints at 500 Hz through :class:`planner.service.setpoints.SetpointStreamer`
@@ -37,6 +39,7 @@ from planner.errors import InputError
 from planner.model.system import System
 from planner.model.transforms import Array
 from planner.service.bus import Keys, decode
+from planner.service.handler import camera_to_world
 from planner.service.setpoints import SetpointStreamer
 from planner.track.follow import TargetFollower
 from schemas.messages import JointState, TargetStream
@@ -174,9 +177,7 @@ class TrackSession:
             if self.system.camera is None:
                 self.ignored += 1
                 return
-            T = self.system.camera.world_T_camera
-            points = points @ T[:3, :3].T + T[:3, 3]
-            normals = None if normals is None else normals @ T[:3, :3].T
+            points, normals = camera_to_world(self.system, points, normals, dict(self._measured))
         with self._lock:
             if self._index is None:
                 d = np.linalg.norm(points - self.follower.first, axis=1)
@@ -328,10 +329,11 @@ def start_track(node: Any, req: Any) -> dict[str, Any]:
         if speed > REST_SPEED:
             raise ExecuteError(f"{robot} moves at {speed:.3f} rad/s: track once it rests",
                                [robot])  # fmt: skip
-    targets = handler.targets(req)
+    targets = handler.targets(req, start)
     first = targets.points[0]
     normal = None if targets.normals is None else targets.normals[0]
-    one = Targets(first[None], None if normal is None else normal[None], kind="points")
+    one = Targets(first[None], None if normal is None else normal[None], kind="points",
+                  surface_tolerance=targets.surface_tolerance)  # fmt: skip
     plan = handler.plan_fn(one, start, False)
     plan["id"] = req.id
     sol = plan["solutions"][0]
