@@ -44,7 +44,7 @@ def test_the_tolerance_is_at_least_the_stated_minimum() -> None:
 @pytest.mark.parametrize("dz", [-0.006, 0.006])
 def test_a_target_off_its_board_lands_where_its_beam_meets_the_board(dz: float) -> None:
     system = sy.n1()
-    requested = TOP + [0.0, 0.0, dz]
+    requested = TOP + np.array([0.0, 0.0, dz])
     exact = Targets(requested[None], UP[None])
     scene = SceneModel([BOARD])
     [before] = plan_points(system, exact, IKOptions(), scene=scene)
@@ -76,7 +76,7 @@ def test_another_object_in_front_still_occludes_the_target() -> None:
     """A slab 10 mm over the whole board: the target 4 mm inside the board is carried by
     the board (nearer), every beam to it crosses the slab first."""
     system = sy.n1()
-    slab = box("slab", TOP + [0, 0, 0.06], [0.6, 0.6, 0.1])
+    slab = box("slab", TOP + np.array([0, 0, 0.06]), [0.6, 0.6, 0.1])
     scene = SceneModel([BOARD, slab])
     target = Targets((TOP - [0, 0, 0.004])[None], UP[None], surface_tolerance=0.015)
     sols = plan_points(system, target, IKOptions())
