@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from planner.model.transforms import axis_angle_to_matrix, inv_T, make_T
+from planner.verify.numpy_beam import ur5e_dh_fk
 from tests.test_closed_loop_e2e import LaserTape, gated_cell
 from tests.test_closed_loop_tilted_e2e import CENTRE, NORMAL, TILTED, TRUTH, tilted_targets
 from tests.test_e2e import Bus
@@ -31,11 +32,6 @@ SHIFT = 0.006 * np.array([0.6, 0.0, -0.8])  # m, camera frame
 CAMERA_ERROR = make_T(axis_angle_to_matrix(np.deg2rad(1.0) * AXIS), SHIFT)  # camera frame
 TOP = CENTRE + 0.005 * NORMAL  # a point of the true (and modelled) board's top face
 TOL = 0.3e-3  # m: the scenario's closed-loop tolerance (the servo default)
-
-# UR5e standard DH (SPEC section 2)
-DH_D = [0.1625, 0.0, 0.0, 0.1333, 0.0997, 0.0996]
-DH_A = [0.0, -0.425, -0.3922, 0.0, 0.0, 0.0]
-DH_ALPHA = [np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0]
 
 
 def true_camera_pose() -> np.ndarray:
@@ -53,21 +49,12 @@ def truth_text() -> str:
     return TRUTH + f"    camera:\n      world_T_camera: {{matrix: [{rows}]}}\n"
 
 
-def flange(q: np.ndarray) -> np.ndarray:
-    """UR5e base_T_flange from the DH table (plain numpy)."""
-    T = np.eye(4)
-    for d, a, al, th in zip(DH_D, DH_A, DH_ALPHA, q, strict=True):
-        ct, st, ca, sa = np.cos(th), np.sin(th), np.cos(al), np.sin(al)
-        T = T @ np.array([[ct, -st * ca, st * sa, a * ct], [st, ct * ca, -ct * sa, a * st],
-                          [0, sa, ca, d], [0, 0, 0, 1]])  # fmt: skip
-    return T
-
-
 def true_spot(truth: Any, q: np.ndarray) -> np.ndarray:
     """The truth's beam at arm0's joints ``q`` onto the board's top plane: laser ray, one
-    reflection off the true mirror plane, the plane intersection (plain numpy)."""
+    reflection off the true mirror plane, the plane intersection (plain numpy; the flange
+    from the checker's own DH chain, which shares no code with the planner's model)."""
     robot = truth.robots[0]
-    mirror = robot.world_T_base @ flange(q) @ robot.mirror.flange_T_mirror
+    mirror = robot.world_T_base @ ur5e_dh_fk(q) @ robot.mirror.flange_T_mirror
     c, n = mirror[:3, 3], mirror[:3, 2]
     p, v = truth.world_T_laser[:3, 3], truth.world_T_laser[:3, 2]
     v = v / np.linalg.norm(v)
@@ -89,9 +76,6 @@ def test_camera_frame_targets_land_on_the_board_and_the_closed_loop_reaches_what
 
     truth = system_from_scenario(load_scenario(bus.truth), truth=True)
     model = system_from_scenario(load_scenario(bus.scenario))
-    assert model.robots[0].kinematics is not None
-    q_check = np.array([0.1, -1.2, 1.4, -1.7, -1.5, 0.3])  # the DH table is the model's
-    np.testing.assert_allclose(flange(q_check), model.robots[0].kinematics.fk(q_check), atol=1e-9)
     camera_T_world = inv_T(true_camera_pose())
     points = tilted_targets(3, seed=11)  # true board points
     p_cam = points @ camera_T_world[:3, :3].T + camera_T_world[:3, 3]  # as the camera sees them
