@@ -50,7 +50,24 @@ def plan_points(
     (``q_start``, default home, at first). ``progress(k)`` is called after target k. With a
     ``scene``, beams that cross it are re-solved or fail as ``occluded``
     (:func:`planner.safety.occlusion.check_points`). With ``safety`` rules every solution
-    passes them, or the target fails with their reason (:class:`planner.ik.BeamIK`)."""
+    passes them, or the target fails with their reason (:class:`planner.ik.BeamIK`).
+    Targets with a ``surface_tolerance`` are solved on the surface they land on
+    (:func:`plan_landed_points` gives those targets)."""
+    return plan_landed_points(system, targets, options, q_start, progress, scene, safety)[1]
+
+
+def plan_landed_points(
+    system: System,
+    targets: Targets,
+    options: IKOptions | None = None,
+    q_start: Array | None = None,
+    progress: Progress | None = None,
+    scene: SceneModel | None = None,
+    safety: Safety | None = None,
+) -> tuple[Targets, list[Solution]]:
+    """:func:`plan_points` and the targets it solved: those with a ``surface_tolerance``
+    moved onto the scene surface their beam lands on
+    (:func:`planner.safety.landing.land_on_surfaces`) before the occlusion check."""
     ik = BeamIK(system, options, safety)
     q_prev = system.home if q_start is None else np.asarray(q_start, dtype=float)
     out = []
@@ -62,10 +79,13 @@ def plan_points(
         if progress is not None:
             progress(k)
     if scene is not None and not scene.empty:
+        from planner.safety.landing import land_on_surfaces
         from planner.safety.occlusion import check_points
 
+        if targets.surface_tolerance > 0:
+            targets, out = land_on_surfaces(ik, scene, targets, out)
         out = check_points(ik, scene, targets, out)
-    return out
+    return targets, out
 
 
 def solve_path(
@@ -136,6 +156,8 @@ def solution_json(system: System, k: int, sol: Solution) -> dict[str, Any]:
             {"robot": r.name, "p": sol.hits[i].tolist(), "uv": sol.uv[i].tolist()}
             for i, r in enumerate(system.robots)
         ]
+    if "surface" in sol.evidence:  # a camera-frame target landed on its surface
+        d["surface"] = sol.evidence["surface"]
     d["solve_time"] = float(sol.solve_time)
     d["iterations"] = int(sol.iterations)
     return d

@@ -57,3 +57,10 @@ SERVO_MAX_ITERATIONS = 6
 """Correction steps per closed-loop target at most."""
 SERVO_MAX_STEP_RAD = 0.02
 """Largest change of any joint in one closed-loop correction step, rad."""
+
+# --- camera-frame targets -------------------------------------------------------------------
+SURFACE_TOLERANCE_M = 0.015
+"""Least distance a camera-frame target may lie from the scene surface that carries it, m:
+mapped through the calibrated camera pose it is off by the camera's calibration error; the
+plan lands it on that surface (the tolerance grows to 3 x the calibration's spot uncertainty
+when that is larger)."""

@@ -53,9 +53,21 @@ class Hit(StrictModel):
     uv: Vec2
 
 
+class SurfaceLanding(StrictModel):
+    """A camera-frame target planned onto the scene surface its beam meets near it: the
+    scene ``object``, the ``requested`` point (world, m: the camera's point through the
+    calibrated camera pose; the target's ``p`` is where it landed) and ``offset_m``, signed
+    along the beam (m; < 0: the surface lies before the requested point)."""
+
+    object: str
+    requested: Vec3
+    offset_m: Num
+
+
 class Solution(StrictModel):
     """The IK result for one target. ``error`` is the spot error (m), ``incidence`` the angle
-    between the arriving beam and the target normal (rad, only with a normal)."""
+    between the arriving beam and the target normal (rad, only with a normal); ``surface``
+    where a camera-frame target landed (:class:`SurfaceLanding`)."""
 
     target: NonNegInt
     status: Status
@@ -67,6 +79,7 @@ class Solution(StrictModel):
     hits: list[Hit] = Field(default_factory=list)
     solve_time: NonNegNum = 0.0
     iterations: NonNegInt = 0
+    surface: SurfaceLanding | None = None
 
     @model_validator(mode="after")
     def _reason(self) -> Self:

@@ -29,9 +29,14 @@ BOARD_Z = -0.06  # m: the board's top face in paper_n1 (world)
 UP = np.array([0.0, 0.0, 1.0])
 
 
-def perturbed_scenario(laser_deg: float = LASER_DEG, mount_m: float = MOUNT_M) -> LoadedScenario:
+def perturbed_scenario(
+    laser_deg: float = LASER_DEG, mount_m: float = MOUNT_M, camera_error: Array | None = None
+) -> LoadedScenario:
     """``paper_n1`` with a ``truth:`` laser tilted ``laser_deg`` (deg) about x and mirror
-    mount moved ``mount_m`` (m) along the flange z axis."""
+    mount moved ``mount_m`` (m) along the flange z axis; with ``camera_error`` (4 x 4, in the
+    calibrated camera's frame) the true camera is at ``world_T_camera @ camera_error``."""
+    from planner.io.scenario import load_scenario
+
     path = shipped_scenario("paper_n1.yaml")
     data: dict[str, Any] = yaml.safe_load(path.read_text())
     laser = dict(data["system"]["laser"]["world_T_laser"])
@@ -42,7 +47,23 @@ def perturbed_scenario(laser_deg: float = LASER_DEG, mount_m: float = MOUNT_M) -
     data["truth"] = {"system": {"laser": {"world_T_laser": laser},
                                 "robots": [{"name": robot["name"],
                                             "mirror": {"flange_T_mirror": mount}}]}}  # fmt: skip
+    if camera_error is not None:
+        model = resolve(load_scenario(path))
+        assert model.camera is not None
+        true_pose = model.camera.world_T_camera @ np.asarray(camera_error, dtype=float)
+        data["truth"]["system"]["camera"] = {"world_T_camera": {"matrix": true_pose.tolist()}}
     return scenario_from_dict(data, source=f"{path} (perturbed truth)", base_dir=path.parent)
+
+
+def camera_error(mm: float, deg: float, seed: int) -> Array:
+    """A camera pose error (4 x 4, camera frame): ``mm`` millimetres along, and ``deg``
+    degrees about (through the camera centre), unit directions drawn with ``seed``."""
+    from planner.model.transforms import axis_angle_to_matrix, make_T
+
+    rng = np.random.default_rng(seed)
+    d, axis = rng.normal(size=3), rng.normal(size=3)
+    d, axis = d / np.linalg.norm(d), axis / np.linalg.norm(axis)
+    return make_T(axis_angle_to_matrix(np.deg2rad(deg) * axis), 1e-3 * mm * d)
 
 
 def board_targets(k: int, seed: int) -> Array:

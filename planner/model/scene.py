@@ -157,6 +157,20 @@ class SceneModel:
         normal = np.where(miss[:, None], 0.0, ans["primitive_normals"].numpy().astype(float))
         return RayHits(t, np.where(miss, -1, gid), normal)
 
+    def closest(self, points: Array) -> tuple[Array, Array]:
+        """Distance (m) from each point (K x 3, world) to the nearest object surface and that
+        object's index into :attr:`names` (inf and -1 in an empty scene)."""
+        P = np.asarray(points, dtype=float).reshape(-1, 3)
+        if self.empty or len(P) == 0:
+            return np.full(len(P), np.inf), np.full(len(P), -1)
+        import open3d as o3d
+
+        ans = self.raycasting_scene.compute_closest_points(
+            o3d.core.Tensor.from_numpy(P.astype(np.float32))
+        )
+        near = ans["points"].numpy().astype(float)
+        return np.linalg.norm(near - P, axis=1), ans["geometry_ids"].numpy().astype(np.int64)
+
     def segment_distances(
         self,
         p0: Array,

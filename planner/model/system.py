@@ -182,6 +182,9 @@ class Targets:
     kind: str = "points"  # points | grid | path
     closed: bool = False
     meta: dict[str, object] = field(default_factory=dict)
+    surface_tolerance: float = 0.0
+    """m: how far a target may lie from the scene surface that carries it and still be
+    planned onto it (:mod:`planner.safety.landing`; camera-frame point targets); 0: exact"""
 
     def __len__(self) -> int:
         return len(self.points)

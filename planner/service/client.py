@@ -411,25 +411,28 @@ def closed_loop_spots(plan: dict[str, Any]) -> list[Array | None]:
 
 
 CLOSED_LOOP_KEYS = ("status", "iterations", "frames", "time", "measured_error_before",
-                    "measured_error_after", "dwell", "treated", "reason", "detail")  # fmt: skip
+                    "measured_error_after", "dwell", "treated", "reason", "detail",
+                    "measured_error_camera", "measured_spot_camera", "target_camera")  # fmt: skip
 
 
 def request_summary(plan: dict[str, Any], spots: list[Array | None] | None) -> dict[str, Any]:
     """The figures of one answered request, as plain JSON data: ``id``, ``execution`` and
     ``execution_reason`` (None when not executed), ``n_ok``, ``n_targets``, per target its
-    status, reason, planned error and measured error (m; None when not seen), and over the
-    measured targets ``measured_error_median`` / ``measured_error_max`` (m)."""
+    status, reason, planned error and measured error (m; None when not seen; from the
+    requested point of a camera-frame target that landed on its surface, which the camera
+    saw), and over the measured targets ``measured_error_median`` / ``measured_error_max`` (m)."""
     rows, measured = [], []
     servo_rows = (plan.get("closed_loop") or {}).get("targets")
     for k, (tgt, sol) in enumerate(zip(plan["targets"], plan["solutions"], strict=True)):
         spot = None if spots is None else spots[k]
-        err = None if spot is None else float(np.linalg.norm(spot - np.asarray(tgt["p"])))
+        aim = (sol.get("surface") or {}).get("requested", tgt["p"])  # the camera's point
+        err = None if spot is None else float(np.linalg.norm(spot - np.asarray(aim)))
         if err is not None:
             measured.append(err)
         rows.append({"id": tgt["id"], "p": tgt["p"], "status": sol["status"],
                      "reason": sol.get("reason"), "planned_error": _finite(sol.get("error")),
                      "measured_spot": None if spot is None else np.asarray(spot).tolist(),
-                     "measured_error": err})  # fmt: skip
+                     "measured_error": err, "surface": sol.get("surface")})  # fmt: skip
         if servo_rows is not None and k < len(servo_rows):
             rows[-1]["closed_loop"] = {key: servo_rows[k].get(key) for key in CLOSED_LOOP_KEYS}
     out: dict[str, Any] = {

@@ -375,6 +375,25 @@ def closed_loop_figures(rows: list[dict[str, Any]]) -> dict[str, float]:
     return out
 
 
+def in_camera_frame(rows: list[dict[str, Any]], targets_camera: Array,
+                    world_T_camera: Array) -> None:  # fmt: skip
+    """Add to each row of a camera-frame request its target and last measured spot as the
+    camera sees them (``target_camera``, ``measured_spot_camera``, m, optical frame) and
+    ``measured_error_camera`` (m). ``world_T_camera`` is the calibrated camera pose the
+    request's points were mapped to the world with (at the request's start joints); a fixed
+    camera's spots were mapped with the same one, so its extrinsic error drops out of the
+    difference the servo drove to zero."""
+    camera_T_world = np.linalg.inv(world_T_camera)
+    for row, p_c in zip(rows, targets_camera, strict=False):
+        row["target_camera"] = [float(x) for x in p_c]
+        spot = row.get("measured_spot")
+        if spot is None:
+            continue
+        s_c = camera_T_world[:3, :3] @ np.asarray(spot, dtype=float) + camera_T_world[:3, 3]
+        row["measured_spot_camera"] = [float(x) for x in s_c]
+        row["measured_error_camera"] = float(np.linalg.norm(s_c - p_c))
+
+
 def execute_closed_loop(plan: dict[str, Any], targets: Targets, req: Any, start: Array,
                         config: ClosedLoopConfig, motion: Motion, system: System) -> None:  # fmt: skip
     """Run a closed-loop request's targets from stacked ``start`` (rad) and write the reply's
@@ -399,9 +418,11 @@ def execute_closed_loop(plan: dict[str, Any], targets: Targets, req: Any, start:
         verdict, reason = "rejected", f"target {k}: {exc.reason}"
     if motion.stop.is_set():
         reason = "closed loop aborted: a stop was seen on the bus"
+    if req.frame == "camera":
+        in_camera_frame(rows, np.asarray(req.points, dtype=float), system.world_T_camera(start))
     plan["closed_loop"] = {"tolerance": settings.tolerance, "frames_per_measurement": settings.frames,
                            "dwell": dwell, "moves": runner.moves, "dropped": runner.dropped,
-                           "targets": rows}  # fmt: skip
+                           "frame": req.frame, "targets": rows}  # fmt: skip
     plan["metrics"].setdefault("extra", {}).update(closed_loop_figures(rows))
     plan["execution"], plan["execution_reason"] = verdict, reason
 

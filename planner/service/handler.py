@@ -11,7 +11,7 @@ it over :mod:`planner.planning` and :mod:`planner.path.timing`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -20,6 +20,7 @@ from planner.errors import BeamrelayError, InputError
 from planner.model.settings import TrajectorySettings
 from planner.model.system import System, Targets
 from planner.model.transforms import Array, transform_points
+from planner.safety.landing import surface_tolerance
 from planner.service.bodies import safe_text
 from planner.service.bus import decode, encode
 from planner.service.execution import ExecuteError
@@ -154,13 +155,14 @@ def make_plan_fn(
     are re-verified (:func:`~planner.planning.verify_solutions`: the checks of ``beamrelay
     check`` on the resolved ``scenario``) *before* the trajectory is timed, so a rejected
     one is never part of it. ``scene`` (a :class:`~planner.model.scene.SceneModel`) makes
-    beams that cross it fail as ``occluded``; ``safety`` (:class:`~planner.safety.model.Safety`)
+    beams that cross it fail as ``occluded`` (camera-frame point targets land on the surface
+    that carries them first: the plan's ``targets`` are the landed points); ``safety`` (:class:`~planner.safety.model.Safety`)
     applies the collision, keep-out and clearance rules to the solutions and the trajectory.
     """
     from planner.planning import (
         plan_document,
+        plan_landed_points,
         plan_path_targets,
-        plan_points,
         time_safely,
         verify_solutions,
     )
@@ -183,7 +185,8 @@ def make_plan_fn(
 
             sols = plan_path_targets(system, targets, options or IKOptions(), q0, scene, safety)
         else:
-            sols = plan_points(system, targets, options, q0, scene=scene, safety=safety)
+            targets, sols = plan_landed_points(system, targets, options, q0, scene=scene,
+                                               safety=safety)  # fmt: skip
         if "system" in scenario:  # re-verified before timing: a rejected one is not visited
             sols = verify_solutions(system, scenario, targets, sols)
         traj = None
@@ -243,7 +246,10 @@ def handler_from_scenario(path: Any, extra_includes: tuple[Any, ...] = ()) -> Re
     # no treatment gate to keep off, so the measurements need no aiming beam of their own
     closed = closed_loop_config(system, settings, safety, gated, laser.aim is not None or not gated)
     tracker = track_ik(system, ik_options(model.solver), safety)
-    return RequestHandler(system, plan_fn, closed_loop=closed, track_ik=tracker)
+    tol = surface_tolerance(float(model.safety.spot_uncertainty))
+    return RequestHandler(
+        system, plan_fn, closed_loop=closed, track_ik=tracker, surface_tolerance=tol
+    )
 
 
 def track_ik(system: System, options: Any, safety: Safety | None) -> Any:
@@ -253,6 +259,19 @@ def track_ik(system: System, options: Any, safety: Safety | None) -> Any:
 
     ik = BeamIK(system, options, safety)
     return ik if ik.closed_form is not None else None
+
+
+def camera_to_world(
+    system: System, points: Array, normals: Array | None, q: Any = None
+) -> tuple[Array, Array | None]:
+    """Camera-frame points and normals (m, optical frame) in the world through the
+    calibrated camera pose at joints ``q`` (:meth:`System.world_T_camera`); InputError
+    naming ``frame`` without a camera."""
+    if system.camera is None:
+        raise InputError("frame is camera but the scenario has no camera", "frame")
+    world_T_camera = system.world_T_camera(q)
+    points = transform_points(world_T_camera, points)
+    return points, None if normals is None else normals @ world_T_camera[:3, :3].T
 
 
 @dataclass
@@ -265,20 +284,21 @@ class RequestHandler:
     closed_loop: ClosedLoopConfig | None = None
     """closed-loop execution (:mod:`planner.service.closed_loop`); None: refused"""
     track_ik: Any = None  # a BeamIK for ``mode: track`` (None: tracking refused)
+    surface_tolerance: float = field(default_factory=surface_tolerance)
+    """m: how far a camera-frame point target may lie from the surface that carries it
+    (:mod:`planner.safety.landing`)"""
 
-    def targets(self, req: Any) -> Targets:
-        """World-frame targets of a validated TargetRequest (points in metres)."""
+    def targets(self, req: Any, start: dict[str, Array] | None = None) -> Targets:
+        """World-frame targets of a validated TargetRequest (points in metres); camera-frame
+        points through the calibrated camera pose at ``start`` (rad per robot; None: home,
+        which only an eye-in-hand camera's pose depends on)."""
         points = np.asarray(req.points, dtype=float).reshape(-1, 3)
         normals = None if req.normals is None else np.asarray(req.normals, dtype=float)
         if req.frame == "camera":
-            if self.system.camera is None:
-                raise InputError("frame is camera but the scenario has no camera", "frame")
-            world_T_camera = self.system.camera.world_T_camera
-            points = transform_points(world_T_camera, points)
-            if normals is not None:
-                normals = normals @ world_T_camera[:3, :3].T
+            points, normals = camera_to_world(self.system, points, normals, start)
         if req.mode != "path":
-            return Targets(points, normals, kind="points")
+            tol = self.surface_tolerance if req.frame == "camera" else 0.0
+            return Targets(points, normals, kind="points", surface_tolerance=tol)
         from planner.io.strokes import mark_path
 
         length = float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)))

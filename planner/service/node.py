@@ -323,14 +323,14 @@ class PlannerNode:
             from planner.service.track_start import start_track
 
             return encode_json(start_track(self, req))
-        targets = handler.targets(req)
-        self.progress.targets(len(targets.points))
         start = None
         if req.execute:
             self.check_drivers()
             start = self.start_state()
         elif req.trajectory:  # a preview: the trajectory execute would send, not sent
             start = self.start_state()
+        targets = handler.targets(req, start)
+        self.progress.targets(len(targets.points))
         timed = (req.execute and not req.closed_loop) or req.trajectory
         plan = handler.plan_fn(targets, start, timed, dwell=req.dwell)
         plan["id"] = req.id

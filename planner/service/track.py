@@ -6,7 +6,9 @@
 - subscribes ``<prefix>/targets/stream``: a body over 64 KiB, one that is not a valid
   :class:`~schemas.messages.TargetStream`, or one for another ``id`` is counted and
   ignored (the node keeps serving); camera-frame points are mapped to the world with the
-  calibrated camera pose. The tracked point is the stream's point nearest the request's
+  calibrated camera pose at the arms' latest measured joints (as requests are:
+  :func:`planner.service.handler.camera_to_world`), and the first estimate lands on the
+  surface that carries it (:mod:`planner.safety.landing`). The tracked point is the stream's point nearest the request's
   first point (chosen on the first frame, then fixed by index); so are the follower's
   markers (the request's other points, at least 3, when keep-out volumes are attached to
   the stream: their rigid motion moves them). The subscriber's callback only keeps the
@@ -44,6 +46,7 @@ from planner.errors import InputError
 from planner.model.system import System
 from planner.model.transforms import Array
 from planner.service.bus import Keys, decode
+from planner.service.handler import camera_to_world
 from planner.service.priority import TIMING_NICE
 from planner.service.setpoints import SetpointStreamer
 from planner.track.follow import TargetFollower
@@ -181,9 +184,7 @@ class TrackSession:
             if self.system.camera is None:
                 self.ignored += 1
                 return
-            T = self.system.camera.world_T_camera
-            points = points @ T[:3, :3].T + T[:3, 3]
-            normals = None if normals is None else normals @ T[:3, :3].T
+            points, normals = camera_to_world(self.system, points, normals, dict(self._measured))
         if self._index is None:
             self._index = int(nearest(points, self.follower.first[None])[0])
             if self.follower.markers is not None:

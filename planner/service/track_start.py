@@ -76,10 +76,11 @@ def start_track(node: Any, req: Any) -> dict[str, Any]:
         if speed > REST_SPEED:
             raise ExecuteError(f"{robot} moves at {speed:.3f} rad/s: track once it rests",
                                [robot])  # fmt: skip
-    targets = handler.targets(req)
+    targets = handler.targets(req, start)
     first = targets.points[0]
     normal = None if targets.normals is None else targets.normals[0]
-    one = Targets(first[None], None if normal is None else normal[None], kind="points")
+    one = Targets(first[None], None if normal is None else normal[None], kind="points",
+                  surface_tolerance=targets.surface_tolerance)  # fmt: skip
     plan = handler.plan_fn(one, start, False)
     plan["id"] = req.id
     sol = plan["solutions"][0]

@@ -73,6 +73,22 @@ def test_camera_frame_targets_use_the_camera_at_home(scn) -> None:
     assert np.allclose(targets_from_scenario(scn, system).points[0], expected, atol=1e-12)
 
 
+def test_camera_frame_requests_use_the_camera_at_the_start_joints(scn) -> None:
+    from planner.service.handler import RequestHandler
+    from schemas.messages import TargetRequest
+
+    system = system_from_scenario(scn)
+    q1 = np.array([0.3, -1.2, 1.1, -1.4, -1.6, 0.2])
+    req = TargetRequest.model_validate({"schema": "beamrelay.request/1", "id": "c",
+                                        "frame": "camera", "points": [[0.01, 0.02, 0.4]]})  # fmt: skip
+    handler = RequestHandler(system, plan_fn=None)  # type: ignore[arg-type]
+    world_T_camera = WORLD_T_BASE1 @ ur5e_dh_fk(q1) @ FLANGE_T_CAMERA
+    expected = world_T_camera[:3, :3] @ [0.01, 0.02, 0.4] + world_T_camera[:3, 3]
+    got = handler.targets(req, {"arm0": system.robot("arm0").home, "arm1": q1})
+    assert np.allclose(got.points[0], expected, atol=1e-12)
+    assert got.surface_tolerance == 0.015  # camera-frame points may land on their surface
+
+
 def test_resolved_dict_keeps_the_flange_mount(scn) -> None:
     resolved = resolved_scenario_dict(scn)
     cam = resolved["system"]["camera"]
