@@ -39,13 +39,13 @@ test: $(STAMP)
 	$(BIN)/mypy planner schemas drivers
 	$(BIN)/lint-imports --no-logo
 	@echo "pytest: every test not marked serial, on $(TEST_WORKERS) workers"
-	$(BIN)/pytest -m "not serial" -n $(TEST_WORKERS) --dist worksteal -rR --durations=25
+	$(BIN)/pytest -m "not serial" -n $(TEST_WORKERS) --dist worksteal -raR --durations=25
 
 # the whole simulated system, the browser, collect and the real-time probes: the tests
 # marked serial, one at a time (they assert on wall-clock latencies or run the system)
 test-system: $(STAMP)
 	@echo "pytest: the system and timing tests (marked serial), one at a time"
-	$(BIN)/pytest -m serial -rR --durations=25
+	$(BIN)/pytest -m serial -raR --durations=25
 
 lint: $(STAMP)
 	$(BIN)/ruff check --fix planner schemas drivers tests examples
