@@ -6,6 +6,9 @@ STAMP   := $(VENV)/.installed
 DEMO    := demo-out
 # pytest-xdist workers of the parallel test pass (the CI machine has 2 cores)
 TEST_WORKERS ?= 2
+# mypy's incremental cache beside the compiled CasADi functions (planner.path.nlp.compiled):
+# reused by every clone on this machine when present, rebuilt when absent or stale
+CACHE   ?= $(or $(XDG_CACHE_HOME),$(HOME)/.cache)/beamrelay
 
 .PHONY: demo test test-system lint format report clean sysdeps
 
@@ -36,7 +39,7 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/ruff check planner schemas drivers tests examples
 	$(BIN)/ruff format --check planner schemas drivers tests examples
-	$(BIN)/mypy planner schemas drivers
+	$(BIN)/mypy --cache-dir $(CACHE)/mypy planner schemas drivers
 	$(BIN)/lint-imports --no-logo
 	@echo "pytest: every test not marked serial, on $(TEST_WORKERS) workers"
 	$(BIN)/pytest -m "not serial" -n $(TEST_WORKERS) --dist worksteal -raR --durations=25
