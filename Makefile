@@ -45,10 +45,11 @@ test: $(STAMP)
 	$(BIN)/pytest -m "not serial" -n $(TEST_WORKERS) --dist worksteal -raR --durations=25
 
 # the whole simulated system, the browser, collect and the real-time probes: the tests
-# marked serial, one at a time (they assert on wall-clock latencies or run the system)
+# marked serial, one at a time (they assert on wall-clock latencies or run the system);
+# -rP: the figures the probes measured are printed for passed tests too
 test-system: $(STAMP)
 	@echo "pytest: the system and timing tests (marked serial), one at a time"
-	$(BIN)/pytest -m serial -raR --durations=25
+	$(BIN)/pytest -m serial -raRP --durations=25
 
 lint: $(STAMP)
 	$(BIN)/ruff check --fix planner schemas drivers tests examples
