@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import contextlib
 import io
+import logging
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -29,11 +31,30 @@ class Ran:
     stderr: str
 
 
+@contextlib.contextmanager
+def _unconfigured_logging() -> Iterator[None]:
+    """The root logger without handlers, as in a fresh interpreter: a warning then reaches
+    standard error through logging's last-resort handler (pytest's capture handlers would
+    take it instead)."""
+    root = logging.getLogger()
+    handlers = root.handlers[:]
+    root.handlers.clear()
+    try:
+        yield
+    finally:
+        root.handlers[:] = handlers
+
+
 def beamrelay(*args: str | Path, cwd: Path = REPO) -> Ran:
     """``beamrelay ARGS...`` run in-process from ``cwd`` (the repository by default)."""
     out, err = io.StringIO(), io.StringIO()
     status = 0
-    with contextlib.chdir(cwd), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+    with (
+        contextlib.chdir(cwd),
+        contextlib.redirect_stdout(out),
+        contextlib.redirect_stderr(err),
+        _unconfigured_logging(),
+    ):
         try:
             main([str(a) for a in args])
         except SystemExit as exc:
