@@ -110,21 +110,10 @@ def test_charuco_corners_deprojected_with_depth() -> None:
     assert np.max(np.linalg.norm(part[ok] - truth[ok], axis=1)) < 2e-3
 
 
-@pytest.fixture(scope="module")
-def sim_system() -> Any:
-    ep, prefix = f"tcp/127.0.0.1:{free_port()}", "brcol"
-    bus = ["--scenario", str(SCENARIO), "--endpoint", ep, "--prefix", prefix]
-    robot = subprocess.Popen([*CLI, "driver", "robot", "--name", "arm0", "--listen", *bus],
-                             stderr=subprocess.DEVNULL, env=ENV)  # fmt: skip
-    camera = subprocess.Popen([*CLI, "driver", "camera", "--stride", "8", "--seed", "3", *bus],
-                              stderr=subprocess.DEVNULL, env=ENV)  # fmt: skip
-    try:
-        wait_for_nodes(ep, prefix, ("arm0", "camera"))
-        yield ep, prefix
-    finally:
-        for p in (camera, robot):
-            p.terminate()
-            p.wait(30)
+@pytest.fixture
+def sim_system(sim_drivers: tuple[str, str]) -> tuple[str, str]:
+    """The driver package's shared simulated cell (tests/drivers/conftest.py)."""
+    return sim_drivers
 
 
 @pytest.mark.serial
