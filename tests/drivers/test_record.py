@@ -15,6 +15,7 @@ import pytest
 
 from drivers.record import Recorder, is_command, read, replay
 from planner.errors import InputError
+from tests import cli_run
 from tests.drivers.conftest import free_port, wait_for
 from tests.paths import REPO
 
@@ -144,7 +145,5 @@ def test_record_and_replay_user_mistakes(tmp_path: Path) -> None:
         ["recrod", "-o", "x.mcap"],
     ]
     for args in cases:
-        out = subprocess.run([*CLI, *args], capture_output=True, env=ENV, timeout=60)
-        assert out.returncode == 2, (args, out.stderr)
-        assert out.stderr.decode().count("\n") == 1 and b"Traceback" not in out.stderr, args
+        cli_run.assert_usage_error(cli_run.beamrelay(*args))
     assert exist.read_bytes() == b""  # never lost data
