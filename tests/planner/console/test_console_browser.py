@@ -1,17 +1,15 @@
 """The operator console in a real (headless) browser on the simulated system.
 
-``beamrelay up scenarios/paper_n1.yaml --console`` runs on a private bus; one headless
-chromium opens the page once and both tests drive that page (the module's fixtures: one
-system, one browser, one wait for the first cloud). The first test checks the cloud drawn
-on the board, clicks a known point of the board (its pixel computed from the page's
-starting camera), checks the target listed with the board's coordinates, plans, executes,
-and checks on the bus that the arm moved and that the spot the camera measured lies at the
-clicked point. The second clears the list and marks a path: the operator picks "polyline"
-in the dropdown, clicks three points of the board, previews, executes, and the spots the
-camera saw (on the test's own bus client) must sweep the clicked polyline from one end to
-the other, in order. Figures (page load to first cloud, cloud frames per second received by
-the browser, its render rate, click-to-preview latency for a target and for the path, the
-Execute presses a late heartbeat refused) are printed.
+``beamrelay up scenarios/paper_n1.yaml --console`` runs on a private bus; headless chromium
+opens the page. The first test waits for the cloud to be drawn, clicks a known point of the
+board (its pixel computed from the page's starting camera), checks the target listed with
+the board's coordinates, plans, executes, and checks on the bus that the arm moved and that
+the spot the camera measured lies at the clicked point. The second marks a path: the
+operator picks "polyline" in the dropdown, clicks three points of the board, previews,
+executes, and the spots the camera saw (on the test's own bus client) must sweep the clicked
+polyline from one end to the other, in order. Figures (page load to first cloud, cloud frames per second
+received by the browser, its render rate, click-to-preview latency for a target and for the
+path) are printed, and every Execute press a late planner heartbeat stopped.
 """
 
 from __future__ import annotations
@@ -22,10 +20,7 @@ import subprocess
 import sys
 import time
 import urllib.request
-from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -98,7 +93,7 @@ def wait_http(url: str, timeout: float) -> None:
     wait_for(up, timeout, f"the console page at {url}")
 
 
-def execute(d: object, done: re.Pattern[str] = MEASURED_ROW, attempts: int = 3
+def execute(d: object, done: re.Pattern[str] = MEASURED_ROW, attempts: int = 5
             ) -> tuple[str, float]:  # fmt: skip
     """Press Execute until the motion runs through: a driver refuses, or brakes to a stop,
     when the planner's heartbeat is late, which a starved shared machine causes; the page
@@ -159,22 +154,8 @@ def system_up(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-unty
             proc.wait()
 
 
-@dataclass(frozen=True)
-class Page:
-    """The console page open in the module's one browser, its cloud drawn on the board."""
-
-    driver: Any
-    view: Any  # the page's starting camera (planner.console.view.View)
-    rect: tuple[float, float, float, float]  # the canvas on the screenshot (px)
-    board: tuple[slice, slice]  # rows and columns of the screenshot inside the board
-    first_cloud_s: float  # from the page load to the cloud drawn on the board
-
-
-@pytest.fixture(scope="module")
-def page(system_up) -> Iterator[Page]:  # type: ignore[no-untyped-def]
-    """One chromium for both tests: the page loaded once and its first cloud waited for
-    once (software rendering on a shared 2-core machine makes that the costly part)."""
-    url, _, _ = system_up
+def test_operator_clicks_the_board_plans_and_executes(system_up) -> None:  # type: ignore[no-untyped-def]
+    url, client, tmp = system_up
     scn = load_scenario(SCENARIO)
     view = default_view(system_from_scenario(scn), scene_objects(scn))
     d = open_browser()
@@ -184,59 +165,58 @@ def page(system_up) -> Iterator[Page]:  # type: ignore[no-untyped-def]
         calm(d)
         rect = canvas_rect(d)
         rows, cols = board_box(view, rect)
-        wait_for(lambda: float(saturated(screenshot(d)[rows, cols]).mean()) > 0.3, 180.0,
-                 "the cloud drawn on the board")  # fmt: skip
-        yield Page(d, view, rect, (rows, cols), time.monotonic() - t0)
+
+        def cloud_drawn() -> bool:
+            return float(saturated(screenshot(d)[rows, cols]).mean()) > 0.3
+
+        wait_for(cloud_drawn, 180.0, "the cloud drawn on the board")
+        first_cloud = time.monotonic() - t0
+        img = screenshot(d)
+        (tmp / "console.png").write_bytes(d.get_screenshot_as_png())
+        assert img.std() > 20, "blank page"
+        assert float(saturated(img[rows, cols]).mean()) > 0.3  # the cloud covers the board
+        assert float(saturated(img).mean()) < 0.5  # and not the whole page
+
+        n0 = d.execute_script("return window.__ws.length;")
+        fps = render_fps(d, 5.0)
+        msgs = d.execute_script("return window.__ws.slice(arguments[0]);", n0)
+        clouds = [t for t, n in msgs if n > CLOUD_MESSAGE_BYTES]
+        cloud_rate = (
+            (len(clouds) - 1) / ((clouds[-1] - clouds[0]) / 1e3) if len(clouds) > 1 else 0.0
+        )
+
+        click_world_point(d, view, rect, CLICK)
+        text = wait_text(d, lambda t: TARGET_ROW.search(t), 120.0, "the clicked target listed")
+        picked = 1e-3 * np.array([float(x) for x in TARGET_ROW.search(text).groups()])  # type: ignore[union-attr]
+        # the click ray meets the board at CLICK; a pixel is ~1.5 mm there, the cloud's
+        # points lie on a ~2-4 mm grid with 1.3 mm depth noise
+        assert np.linalg.norm(picked[:2] - CLICK[:2]) < 0.008, picked
+        assert abs(picked[2] - BOARD_TOP) < 0.005, picked
+
+        wait_text(d, lambda t: "1/1 targets solved" in t, 120.0, "the preview of the click")
+        latency = re.search(r"click_to_preview (\d+) ms", page_text(d))
+        click_button(d, "Plan (preview)")
+        wait_text(d, lambda t: "1/1 targets solved" in t and "reply in" in t, 120.0, "the preview")
+
+        q_before = client.recorder.joints["arm0"][1].copy()
+        text, _ = execute(d)
+        measured = 1e-3 * np.array([float(x) for x in MEASURED_ROW.search(text).groups()])  # type: ignore[union-attr]
+        q_after = client.recorder.joints["arm0"][1]
+        assert float(np.max(np.abs(q_after - q_before))) > 1e-3, "the arm did not move"
+        # the beam landed where the operator clicked: the picked point (within the cloud's
+        # noise of the board) and the measured spot agree
+        assert np.linalg.norm(measured - picked) < 0.004, (measured, picked)
+        assert np.linalg.norm(measured[:2] - CLICK[:2]) < 0.01, measured
+        (tmp / "console_executed.png").write_bytes(d.get_screenshot_as_png())
+        with contextlib.suppress(OSError):
+            Path("/tmp/beamrelay-console.png").write_bytes(d.get_screenshot_as_png())
+        print(
+            f"\nconsole figures: page load to first cloud {first_cloud:.2f} s; cloud frames "
+            f"received {cloud_rate:.1f}/s; render {fps:.1f} fps; click to preview "
+            f"{latency.group(1) if latency else '?'} ms"
+        )
     finally:
         d.quit()
-
-
-def test_operator_clicks_the_board_plans_and_executes(system_up, page: Page) -> None:  # type: ignore[no-untyped-def]
-    _, client, tmp = system_up
-    d, view, rect = page.driver, page.view, page.rect
-    rows, cols = page.board
-    img = screenshot(d)
-    (tmp / "console.png").write_bytes(d.get_screenshot_as_png())
-    assert img.std() > 20, "blank page"
-    assert float(saturated(img[rows, cols]).mean()) > 0.3  # the cloud covers the board
-    assert float(saturated(img).mean()) < 0.5  # and not the whole page
-
-    n0 = d.execute_script("return window.__ws.length;")
-    fps = render_fps(d, 5.0)
-    msgs = d.execute_script("return window.__ws.slice(arguments[0]);", n0)
-    clouds = [t for t, n in msgs if n > CLOUD_MESSAGE_BYTES]
-    cloud_rate = (len(clouds) - 1) / ((clouds[-1] - clouds[0]) / 1e3) if len(clouds) > 1 else 0.0
-
-    click_world_point(d, view, rect, CLICK)
-    text = wait_text(d, lambda t: TARGET_ROW.search(t), 120.0, "the clicked target listed")
-    picked = 1e-3 * np.array([float(x) for x in TARGET_ROW.search(text).groups()])  # type: ignore[union-attr]
-    # the click ray meets the board at CLICK; a pixel is ~1.5 mm there, the cloud's
-    # points lie on a ~2-4 mm grid with 1.3 mm depth noise
-    assert np.linalg.norm(picked[:2] - CLICK[:2]) < 0.008, picked
-    assert abs(picked[2] - BOARD_TOP) < 0.005, picked
-
-    wait_text(d, lambda t: "1/1 targets solved" in t, 120.0, "the preview of the click")
-    latency = re.search(r"click_to_preview (\d+) ms", page_text(d))
-    click_button(d, "Plan (preview)")
-    wait_text(d, lambda t: "1/1 targets solved" in t and "reply in" in t, 120.0, "the preview")
-
-    q_before = client.recorder.joints["arm0"][1].copy()
-    text, _ = execute(d)
-    measured = 1e-3 * np.array([float(x) for x in MEASURED_ROW.search(text).groups()])  # type: ignore[union-attr]
-    q_after = client.recorder.joints["arm0"][1]
-    assert float(np.max(np.abs(q_after - q_before))) > 1e-3, "the arm did not move"
-    # the beam landed where the operator clicked: the picked point (within the cloud's
-    # noise of the board) and the measured spot agree
-    assert np.linalg.norm(measured - picked) < 0.004, (measured, picked)
-    assert np.linalg.norm(measured[:2] - CLICK[:2]) < 0.01, measured
-    (tmp / "console_executed.png").write_bytes(d.get_screenshot_as_png())
-    with contextlib.suppress(OSError):
-        Path("/tmp/beamrelay-console.png").write_bytes(d.get_screenshot_as_png())
-    print(
-        f"\nconsole figures: page load to first cloud {page.first_cloud_s:.2f} s; cloud frames "
-        f"received {cloud_rate:.1f}/s; render {fps:.1f} fps; click to preview "
-        f"{latency.group(1) if latency else '?'} ms"
-    )
 
 
 #: the polyline the operator clicks on the board (150 mm: 152 samples at 1 mm)
@@ -258,66 +238,76 @@ def picked_rows(text: str, n: int) -> np.ndarray:
     return 1e-3 * np.array([[float(x) for x in r.groups()] for r in rows])  # type: ignore[union-attr]
 
 
-def test_operator_marks_a_clicked_polyline_on_the_board(system_up, page: Page) -> None:  # type: ignore[no-untyped-def]
+def test_operator_marks_a_clicked_polyline_on_the_board(system_up) -> None:  # type: ignore[no-untyped-def]
     from planner.console.sweep import polyline_distance
 
-    _, client, tmp = system_up
+    url, client, tmp = system_up
     scn = load_scenario(SCENARIO)
-    d, view, rect = page.driver, page.view, page.rect
-    click_button(d, "Clear all")
-    wait_text(d, lambda t: "no targets" in t, 30.0, "an empty target list")
-    select_option(d, "visit as", "polyline")
-    for k, p in enumerate(PATH_CLICKS):
-        click_world_point(d, view, rect, p)
-        wait_text(d, lambda t, k=k: re.search(ROW.format(k=k), t), 120.0, f"target #{k}")
-    picked = picked_rows(page_text(d), 3)
-    assert np.max(np.linalg.norm(picked[:, :2] - PATH_CLICKS[:, :2], axis=1)) < 0.008, picked
-    length = float(np.sum(np.linalg.norm(np.diff(picked, axis=0), axis=1)))
+    view = default_view(system_from_scenario(scn), scene_objects(scn))
+    d = open_browser()
+    try:
+        d.get(url)
+        calm(d)
+        rect = canvas_rect(d)
+        rows, cols = board_box(view, rect)
+        wait_for(lambda: float(saturated(screenshot(d)[rows, cols]).mean()) > 0.3, 180.0,
+                 "the cloud drawn on the board")  # fmt: skip
+        click_button(d, "Clear all")
+        wait_text(d, lambda t: "no targets" in t, 30.0, "an empty target list")
+        select_option(d, "visit as", "polyline")
+        for k, p in enumerate(PATH_CLICKS):
+            click_world_point(d, view, rect, p)
+            wait_text(d, lambda t, k=k: re.search(ROW.format(k=k), t), 120.0, f"target #{k}")
+        picked = picked_rows(page_text(d), 3)
+        assert np.max(np.linalg.norm(picked[:, :2] - PATH_CLICKS[:, :2], axis=1)) < 0.008, picked
+        length = float(np.sum(np.linalg.norm(np.diff(picked, axis=0), axis=1)))
 
-    # the last click previews the whole path: every resampled sample solved
-    def path_previewed(t: str) -> bool:
-        m = SOLVED.search(t)
-        return bool(m) and int(m.group(2)) > 100 and "click_to_preview" in t
+        # the last click previews the whole path: every resampled sample solved
+        def path_previewed(t: str) -> bool:
+            m = SOLVED.search(t)
+            return bool(m) and int(m.group(2)) > 100 and "click_to_preview" in t
 
-    text = wait_text(d, path_previewed, 180.0, "the preview of the clicked path")
-    n_ok, n = map(int, SOLVED.search(text).groups())  # type: ignore[union-attr]
-    assert n_ok == n and abs(n - (round(1e3 * length) + 1)) <= 3, (n_ok, n, length)
-    latency = re.search(r"click_to_preview (\d+) ms", text)
+        text = wait_text(d, path_previewed, 180.0, "the preview of the clicked path")
+        n_ok, n = map(int, SOLVED.search(text).groups())  # type: ignore[union-attr]
+        assert n_ok == n and abs(n - (round(1e3 * length) + 1)) <= 3, (n_ok, n, length)
+        latency = re.search(r"click_to_preview (\d+) ms", text)
 
-    text, since = execute(d, MARKED)
-    n_marked, covered, total, median, worst = MARKED.search(text).groups()  # type: ignore[union-attr]
-    assert int(n_marked) > 10 and float(total) == pytest.approx(1e3 * length, abs=1.0)
-    assert float(covered) > 0.9 * float(total), text
-    assert float(worst) < 2.0, text  # mm: the beam marked the planned path
+        text, since = execute(d, MARKED)
+        n_marked, covered, total, median, worst = MARKED.search(text).groups()  # type: ignore[union-attr]
+        assert int(n_marked) > 10 and float(total) == pytest.approx(1e3 * length, abs=1.0)
+        assert float(covered) > 0.9 * float(total), text
+        assert float(worst) < 2.0, text  # mm: the beam marked the planned path
 
-    # independently, on the test's own bus client: the spots the camera saw near the
-    # clicked polyline cover it, in order
-    with client.recorder.lock:
-        seen = [(sp.t, sp.p_camera) for sp in client.recorder.spots if sp.arrived >= since]
-    world_T_camera = system_from_scenario(scn).world_T_camera(None)
-    times = np.array([t for t, _ in seen])  # capture stamps (s)
-    P = np.array([p for _, p in seen]) @ world_T_camera[:3, :3].T + world_T_camera[:3, 3]
-    dist, s = polyline_distance(picked, P)
-    on = dist < ON_PATH
-    assert s[on].max() - s[on].min() > 0.9 * length, (s[on].min(), s[on].max(), length)
-    # the sweep (the planner may run the path either way): from the last visit of the
-    # end the arm did not stop at, to the first arrival at the end it stopped at (the
-    # approach before it may cross the path)
-    idx = np.flatnonzero(on)
-    stop_end = s[idx[-1]] > 0.5 * length
-    near_stop = on & ((s > length - 0.002) if stop_end else (s < 0.002))
-    near_other = on & ((s < 0.002) if stop_end else (s > length - 0.002))
-    assert near_other.any() and near_stop.any(), "the spot did not visit both ends"
-    i_start = int(np.flatnonzero(near_other)[-1])
-    i_end = int(np.flatnonzero(near_stop & (np.arange(len(s)) > i_start))[0])
-    sweep = on & (np.arange(len(s)) >= i_start) & (np.arange(len(s)) <= i_end)
-    # in order: along the sweep the spot advances steadily from one end to the other
-    # (its speed is not checked: the simulated camera's frame times drift by up to a
-    # second on a loaded 2-core machine, which made 20 mm/s read as 30-35 mm/s)
-    along = s[sweep][np.argsort(times[sweep], kind="stable")]  # arc length, in time order
-    rho = np.corrcoef(np.argsort(np.argsort(along)), np.arange(along.size))[0, 1]
-    assert abs(rho) > 0.95 and np.ptp(s[sweep]) > 0.9 * length, (rho, np.ptp(s[sweep]))
-    (tmp / "console_path.png").write_bytes(d.get_screenshot_as_png())
-    print(f"\nconsole figures (path of {n} samples): click to preview "
-          f"{latency.group(1) if latency else '?'} ms; marked {n_marked} spots, covering "
-          f"{covered} of {total} mm, distance median {median} mm, max {worst} mm")  # fmt: skip
+        # independently, on the test's own bus client: the spots the camera saw near the
+        # clicked polyline cover it, in order
+        with client.recorder.lock:
+            seen = [(sp.t, sp.p_camera) for sp in client.recorder.spots if sp.arrived >= since]
+        world_T_camera = system_from_scenario(scn).world_T_camera(None)
+        times = np.array([t for t, _ in seen])  # capture stamps (s)
+        P = np.array([p for _, p in seen]) @ world_T_camera[:3, :3].T + world_T_camera[:3, 3]
+        dist, s = polyline_distance(picked, P)
+        on = dist < ON_PATH
+        assert s[on].max() - s[on].min() > 0.9 * length, (s[on].min(), s[on].max(), length)
+        # the sweep (the planner may run the path either way): from the last visit of the
+        # end the arm did not stop at, to the first arrival at the end it stopped at (the
+        # approach before it may cross the path)
+        idx = np.flatnonzero(on)
+        stop_end = s[idx[-1]] > 0.5 * length
+        near_stop = on & ((s > length - 0.002) if stop_end else (s < 0.002))
+        near_other = on & ((s < 0.002) if stop_end else (s > length - 0.002))
+        assert near_other.any() and near_stop.any(), "the spot did not visit both ends"
+        i_start = int(np.flatnonzero(near_other)[-1])
+        i_end = int(np.flatnonzero(near_stop & (np.arange(len(s)) > i_start))[0])
+        sweep = on & (np.arange(len(s)) >= i_start) & (np.arange(len(s)) <= i_end)
+        # in order: along the sweep the spot advances steadily from one end to the other
+        # (its speed is not checked: the simulated camera's frame times drift by up to a
+        # second on a loaded 2-core machine, which made 20 mm/s read as 30-35 mm/s)
+        along = s[sweep][np.argsort(times[sweep], kind="stable")]  # arc length, in time order
+        rho = np.corrcoef(np.argsort(np.argsort(along)), np.arange(along.size))[0, 1]
+        assert abs(rho) > 0.95 and np.ptp(s[sweep]) > 0.9 * length, (rho, np.ptp(s[sweep]))
+        (tmp / "console_path.png").write_bytes(d.get_screenshot_as_png())
+        print(f"\nconsole figures (path of {n} samples): click to preview "
+              f"{latency.group(1) if latency else '?'} ms; marked {n_marked} spots, covering "
+              f"{covered} of {total} mm, distance median {median} mm, max {worst} mm")  # fmt: skip
+    finally:
+        d.quit()
