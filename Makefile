@@ -6,6 +6,9 @@ STAMP   := $(VENV)/.installed
 DEMO    := demo-out
 # pytest-xdist workers of the parallel test pass (the CI machine has 2 cores)
 TEST_WORKERS ?= 2
+# mypy's incremental cache beside the compiled CasADi functions (planner.path.nlp.compiled):
+# reused by every clone on this machine when present, rebuilt when absent or stale
+CACHE   ?= $(or $(XDG_CACHE_HOME),$(HOME)/.cache)/beamrelay
 
 .PHONY: demo test test-system lint format report clean sysdeps
 
@@ -36,16 +39,17 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/ruff check planner schemas drivers tests examples
 	$(BIN)/ruff format --check planner schemas drivers tests examples
-	$(BIN)/mypy planner schemas drivers
+	$(BIN)/mypy --cache-dir $(CACHE)/mypy planner schemas drivers
 	$(BIN)/lint-imports --no-logo
 	@echo "pytest: every test not marked serial, on $(TEST_WORKERS) workers"
-	$(BIN)/pytest -m "not serial" -n $(TEST_WORKERS) --dist worksteal -rR --durations=25
+	$(BIN)/pytest -m "not serial" -n $(TEST_WORKERS) --dist worksteal -raR --durations=25
 
 # the whole simulated system, the browser, collect and the real-time probes: the tests
-# marked serial, one at a time (they assert on wall-clock latencies or run the system)
+# marked serial, one at a time (they assert on wall-clock latencies or run the system);
+# -rP: the figures the probes measured are printed for passed tests too
 test-system: $(STAMP)
 	@echo "pytest: the system and timing tests (marked serial), one at a time"
-	$(BIN)/pytest -m serial -rR --durations=25
+	$(BIN)/pytest -m serial -raRP --durations=25
 
 lint: $(STAMP)
 	$(BIN)/ruff check --fix planner schemas drivers tests examples

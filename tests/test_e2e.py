@@ -427,6 +427,7 @@ def test_request_cli_reports_the_verdict_and_measured_errors_as_json(bus: Bus) -
 
 
 @pytest.mark.serial  # the whole simulated system, 1 s driver verdicts
+@pytest.mark.flaky(reruns=1)  # real time on a shared machine; -rR lists a rerun
 def test_planner_heartbeat_session_and_sigstop(bus: Bus) -> None:
     """The planner process beats at >= 50 Hz with one session; an executed trajectory
     carries that session and the request id; a SIGSTOPped planner falls silent at once."""
@@ -476,6 +477,7 @@ def brake_time_bound(qd: np.ndarray, qdd: np.ndarray, a_max: float, j_max: float
 
 
 @pytest.mark.serial  # the whole simulated system, 1 s driver verdicts
+@pytest.mark.flaky(reruns=1)  # real time on a shared machine; -rR lists a rerun
 def test_planner_killed_sim_robot_stops_within_100ms(bus: Bus, system: Any) -> None:
     """The arm is still within 100 ms of the planner's death: the watchdog on its liveliness
     token brakes at once with the stop deceleration (drivers.robot.follower.STOP_ACCELERATION)."""

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
@@ -11,6 +13,7 @@ from typing import Any
 import pytest
 
 from planner.service.bus import Keys, open_session
+from tests.paths import SCENARIOS
 
 
 def free_port() -> int:
@@ -132,3 +135,27 @@ class Heartbeats:
         self._halt.set()
         self._thread.join(5.0)
         return self.sent[-1]
+
+
+@pytest.fixture(scope="package")
+def sim_drivers() -> Iterator[tuple[str, str]]:
+    """One simulated cell for the driver package's system tests that only read it or move
+    the arm and leave it at rest (collect, record): ``beamrelay driver robot --listen`` and
+    ``driver camera`` on ``scenarios/paper_n1.yaml``; yields (endpoint, prefix). Started on
+    first use, stopped after the package's last test (not kept through the other packages'
+    real-time probes). A test that changes the cell (another scenario, a kill) starts its own."""
+    ep, prefix = f"tcp/127.0.0.1:{free_port()}", "brsim"
+    cli = [sys.executable, "-m", "planner.cli", "driver"]
+    bus = ["--scenario", str(SCENARIOS / "paper_n1.yaml"), "--endpoint", ep, "--prefix", prefix]
+    env = dict(os.environ, PYTHONPATH=os.getcwd())
+    robot = subprocess.Popen([*cli, "robot", "--name", "arm0", "--listen", *bus],
+                             stderr=subprocess.DEVNULL, env=env)  # fmt: skip
+    camera = subprocess.Popen([*cli, "camera", "--stride", "8", "--seed", "3", *bus],
+                              stderr=subprocess.DEVNULL, env=env)  # fmt: skip
+    try:
+        wait_for_nodes(ep, prefix, ("arm0", "camera"))
+        yield ep, prefix
+    finally:
+        for p in (camera, robot):
+            p.terminate()
+            p.wait(30)

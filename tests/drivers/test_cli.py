@@ -17,6 +17,7 @@ from planner.io.scenario import load_scenario, system_from_scenario
 from planner.model.transforms import inv_T
 from planner.service.bus import Keys, decode
 from schemas.messages import JointState, SpotMessage
+from tests import cli_run
 from tests.drivers.camera.test_camera_sim import analytic_spot
 from tests.drivers.conftest import wait_for
 from tests.paths import REPO
@@ -129,11 +130,8 @@ def test_user_mistakes_exit_2_with_one_line(endpoint: str) -> None:
         gated = "@gated" in args
         args = [a for a in args if a != "@gated"]
         scenario = REPO / "scenarios" / "s_curve.yaml" if gated else SCENARIO
-        proc = run(args, endpoint, "brbad", scenario)
-        _, err = proc.communicate(timeout=60)
-        lines = err.decode().strip().splitlines()
-        assert proc.returncode == 2, err
-        assert len(lines) == 1 and needle in lines[0], lines
+        bus = ["--scenario", scenario, "--endpoint", endpoint, "--prefix", "brbad"]
+        cli_run.assert_usage_error(cli_run.beamrelay("driver", *args, *bus), needle)
 
 
 def test_help_texts_name_the_real_recording_format_and_no_spec_sections() -> None:
@@ -149,12 +147,9 @@ def test_help_texts_name_the_real_recording_format_and_no_spec_sections() -> Non
 
 
 def test_bench_refuses_bad_values_with_one_line() -> None:
-    env = dict(os.environ, PYTHONPATH=os.getcwd())
     for args, needle in [(["--samples", "1"], "--samples"), (["--samples", "20000"], "--samples"),
                          (["--rate", "0"], "--rate"), (["--seconds", "-1"], "--seconds")]:  # fmt: skip
-        out = subprocess.run([*CLI, "bench", *args], capture_output=True, env=env, timeout=60)
-        lines = out.stderr.decode().strip().splitlines()
-        assert out.returncode == 2 and len(lines) == 1 and needle in lines[0], lines
+        cli_run.assert_usage_error(cli_run.beamrelay("driver", "bench", *args), needle)
 
 
 def child_pids(pid: int) -> set[int]:

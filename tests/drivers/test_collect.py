@@ -28,6 +28,7 @@ from planner.calibration.simulate import board_grid
 from planner.io.scenario import load_scenario, system_from_scenario
 from planner.model.system import Intrinsics
 from planner.model.transforms import axis_angle_to_matrix, inv_T, make_T
+from tests import cli_run
 from tests.drivers.conftest import free_port, raw_session, wait_for_nodes
 from tests.paths import REPO
 
@@ -110,21 +111,10 @@ def test_charuco_corners_deprojected_with_depth() -> None:
     assert np.max(np.linalg.norm(part[ok] - truth[ok], axis=1)) < 2e-3
 
 
-@pytest.fixture(scope="module")
-def sim_system() -> Any:
-    ep, prefix = f"tcp/127.0.0.1:{free_port()}", "brcol"
-    bus = ["--scenario", str(SCENARIO), "--endpoint", ep, "--prefix", prefix]
-    robot = subprocess.Popen([*CLI, "driver", "robot", "--name", "arm0", "--listen", *bus],
-                             stderr=subprocess.DEVNULL, env=ENV)  # fmt: skip
-    camera = subprocess.Popen([*CLI, "driver", "camera", "--stride", "8", "--seed", "3", *bus],
-                              stderr=subprocess.DEVNULL, env=ENV)  # fmt: skip
-    try:
-        wait_for_nodes(ep, prefix, ("arm0", "camera"))
-        yield ep, prefix
-    finally:
-        for p in (camera, robot):
-            p.terminate()
-            p.wait(30)
+@pytest.fixture
+def sim_system(sim_drivers: tuple[str, str]) -> tuple[str, str]:
+    """The driver package's shared simulated cell (tests/drivers/conftest.py)."""
+    return sim_drivers
 
 
 @pytest.mark.serial
@@ -187,9 +177,7 @@ def test_collect_user_mistakes_and_a_hostile_marker_query(sim_system: Any) -> No
                  ["handeye", "-s", str(SCENARIO), "-o", "x.txt"],
                  ["handeye", "-s", str(SCENARIO), "-o", "x.json", "--robot", "arm9"],
                  ["beam", "-s", str(SCENARIO), "-o", "x.json", "--aim", "1,2"]):  # fmt: skip
-        r = subprocess.run([*CLI, "calibrate", "collect", *args], capture_output=True, env=ENV,
-                           timeout=120)  # fmt: skip
-        assert r.returncode == 2 and r.stderr.decode().count("\n") == 1, args
+        cli_run.assert_usage_error(cli_run.beamrelay("calibrate", "collect", *args))
     client = raw_session(ep)
     try:
         end = time.monotonic() + 10.0  # let the client discover the camera peer
@@ -219,11 +207,9 @@ def _gated(tmp: Path, aim: bool) -> Path:
 
 def test_collect_beam_with_a_gate_but_no_aiming_beam_is_refused(tmp_path: Path) -> None:
     scn = _gated(tmp_path, aim=False)
-    r = subprocess.run([*CLI, "calibrate", "collect", "beam", "-s", str(scn), "-o",
-                        str(tmp_path / "b.json"), "--aim", "-0.49,-0.55,-0.06"],
-                       capture_output=True, env=ENV, timeout=120)  # fmt: skip
-    err = r.stderr.decode()
-    assert r.returncode == 2 and err.count("\n") == 1 and "laser.aim" in err, err
+    r = cli_run.beamrelay("calibrate", "collect", "beam", "-s", scn, "-o", tmp_path / "b.json",
+                          "--aim", "-0.49,-0.55,-0.06")  # fmt: skip
+    cli_run.assert_usage_error(r, "laser.aim")
     assert not (tmp_path / "b.json").exists()
 
 

@@ -17,6 +17,7 @@ from drivers.robot.ur import URRobot
 from drivers.robot.ur_fake import FakeDashboard, FakeURController
 from planner.cli.hw import _SimRig
 from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
+from tests import cli_run
 from tests.drivers.conftest import free_port
 from tests.paths import REPO
 
@@ -57,10 +58,8 @@ def test_simulated_system_passes_every_step(tmp_path: Path) -> None:
 
 def test_spot_test_refuses_without_an_aiming_beam(tmp_path: Path) -> None:
     for extra in ([], ["--scenario", str(REPO / "scenarios" / "s_curve.yaml")]):
-        out = subprocess.run([*CLI, "--simulate", "--spot-test", *extra], capture_output=True,
-                             env=ENV, timeout=60)  # fmt: skip
-        err = out.stderr.decode().strip().splitlines()
-        assert out.returncode == 2 and len(err) == 1 and "laser.aim" in err[0], err
+        out = cli_run.beamrelay("hw", "check", "--simulate", "--spot-test", *extra)
+        cli_run.assert_usage_error(out, "laser.aim")
 
 
 def make_rig(read_only_fail: bool = False, grab_raises: BaseException | None = None) -> Any:
@@ -143,8 +142,7 @@ def test_runstate_check_fails_when_the_output_stays_on_at_program_stop() -> None
 
 def test_user_mistakes() -> None:
     for args in ([], ["--gate-output", "9", "--simulate"], ["--simulte"]):
-        out = subprocess.run([*CLI, *args], capture_output=True, env=ENV, timeout=60)
-        assert out.returncode == 2 and out.stderr.decode().count("\n") == 1, args
+        cli_run.assert_usage_error(cli_run.beamrelay("hw", "check", *args))
 
 
 def test_unreachable_controller_fails_the_network_check() -> None:

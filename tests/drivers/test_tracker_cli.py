@@ -17,6 +17,7 @@ from planner.io.scenario import load_scenario
 from planner.service.bus import Keys, decode
 from planner.service.up import child_commands, has_tracked_targets
 from schemas.messages import TargetStream
+from tests import cli_run
 from tests.drivers.conftest import wait_for
 from tests.paths import SCENARIOS
 
@@ -58,11 +59,8 @@ def test_tracker_mistakes_exit_2_with_one_line(endpoint: str) -> None:
         (["--rate", "0"], "--rate", BREATHING),
         ([], "no targets.points lie on a scene object with a motion", SCENARIOS / "paper_n1.yaml"),
     ]:
-        proc = run(args, endpoint, "trbad", scenario)
-        _, err = proc.communicate(timeout=60)
-        lines = err.decode().strip().splitlines()
-        assert proc.returncode == 2, err
-        assert len(lines) == 1 and needle in lines[0], lines
+        bus = ["--scenario", scenario, "--endpoint", endpoint, "--prefix", "trbad"]
+        cli_run.assert_usage_error(cli_run.beamrelay("driver", "tracker", *args, *bus), needle)
 
 
 def test_up_starts_the_tracker_only_for_tracked_moving_targets() -> None:

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import logging
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from planner.errors import InputError
 from planner.io.validate import validate_file
+from tests.cli_run import assert_usage_error, beamrelay
 from tests.paths import REPO
 
 ROOT = REPO
@@ -152,40 +151,28 @@ def test_suspicious_values_warn_with_location(
     assert words in lines[0]
 
 
-def _cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "planner.cli", *args], capture_output=True, text=True, timeout=300
-    )
-
-
 def test_degrees_as_radians_stops_plan_with_exit_2(tmp_path: Path) -> None:
     """The shipped scenario with ``rpy: [40, 0, 0]`` used to plan 1000/1000 targets."""
     text = (ROOT / "scenarios/paper_n1.yaml").read_text()
     assert "rpy_deg: [40, 0, 0]" in text
     path = tmp_path / "deg.yaml"
     path.write_text(text.replace("rpy_deg: [40, 0, 0]", "rpy: [40, 0, 0]"))
-    proc = _cli("plan", str(path), "-o", str(tmp_path / "plan.json"))
-    assert proc.returncode == 2, proc.stderr
-    err = proc.stderr.strip()
-    assert len(err.splitlines()) == 1 and "Traceback" not in err
-    assert f"{path}:22 system.laser.world_T_laser.rpy[0]: 40 rad is beyond 2 pi" in err
+    proc = beamrelay("plan", path, "-o", tmp_path / "plan.json")
+    assert_usage_error(proc, f"{path}:22 system.laser.world_T_laser.rpy[0]: 40 rad is beyond 2 pi")
     assert not (tmp_path / "plan.json").exists()
 
 
 def test_unit_mistakes_in_validate_exit_2_one_line(tmp_path: Path) -> None:
     path = tmp_path / "x.yaml"
     path.write_text(VALID.replace("size: [0.075, 0.075]", "size: [75, 75]"))
-    proc = _cli("validate", str(path))
-    assert proc.returncode == 2
-    err = proc.stderr.strip()
-    assert len(err.splitlines()) == 1 and "Traceback" not in err
-    assert f"{path}:11 system.robots[0].mirror.size[0]: 75 m" in err and "millimetres" in err
+    proc = beamrelay("validate", path)
+    assert_usage_error(proc, f"{path}:11 system.robots[0].mirror.size[0]: 75 m", "millimetres")
 
 
 def test_warning_is_one_stderr_line_and_exit_0(tmp_path: Path) -> None:
     path = tmp_path / "x.yaml"
     path.write_text(VALID.replace("rpy_deg: [0, -90, 0]", "rpy_deg: [0, -1.5708, 0]"))
-    proc = _cli("validate", str(path))
+    proc = beamrelay("validate", path)
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr.strip().splitlines() == [
         f"warning: {path}:4 system.laser.world_T_laser.rpy_deg: [0.0, -1.5708, 0.0] looks like"

@@ -18,6 +18,7 @@ from drivers.camera.realsense import CameraLostError, RealSenseCamera, write_rec
 from planner.model.system import Intrinsics
 from planner.service.bus import Keys, decode, open_session
 from schemas.messages import SpotMessage
+from tests import cli_run
 from tests.drivers.conftest import wait_for
 from tests.paths import REPO
 
@@ -98,11 +99,10 @@ def test_depth_only_camera_process_exits_nonzero(tmp_path: Path, endpoint: str) 
 
 
 def test_bad_frame_timeout_is_a_user_error(endpoint: str) -> None:
-    cmd = [sys.executable, "-m", "planner.cli", "driver", "camera", "--backend", "realsense",
-           "--frame-timeout", "nan", "--scenario", str(REPO / "scenarios" / "paper_n1.yaml"),
-           "--endpoint", endpoint]  # fmt: skip
-    out = subprocess.run(cmd, capture_output=True, timeout=60)
-    assert out.returncode == 2 and out.stderr.decode().count("\n") == 1
+    out = cli_run.beamrelay("driver", "camera", "--backend", "realsense", "--frame-timeout", "nan",
+                            "--scenario", REPO / "scenarios" / "paper_n1.yaml",
+                            "--endpoint", endpoint)  # fmt: skip
+    cli_run.assert_usage_error(out, "--frame-timeout")
 
 
 def test_gated_spot_and_frame_times_through_the_sdk(

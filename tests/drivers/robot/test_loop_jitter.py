@@ -25,24 +25,26 @@ def test_loop_stats_against_a_known_schedule() -> None:
 
 
 @pytest.mark.serial
+@pytest.mark.flaky(reruns=1)  # real time on a shared machine; a rerun is listed by -rR
 def test_control_period_under_a_trajectory_flood() -> None:
-    """The parse stall was systematic (every checked body); an unlucky scheduling hiccup of
-    the shared machine is not, so one re-measurement is allowed."""
-    for _attempt in range(2):
-        r = flood_jitter(seconds=5.0, samples=8900, rate=10.0, quiet=2.0)
-        print(f"quiet: {r['quiet'].line()}")
-        print(f"flood ({r['sent']} x {r['bytes'] / 1e6:.2f} MB, {r['checked']} checked, "
-              f"{r['superseded']} superseded): {r['flood'].line()}")  # fmt: skip
-        assert r["sent"] >= 45 and r["bytes"] > 3_000_000
-        assert r["checked"] >= 3  # the flood really was parsed and checked
-        assert r["checked"] + r["superseded"] == r["sent"]  # every body got its verdict
-        assert r["flood"].periods > 2000  # ~500 Hz kept
-        if r["flood"].max_ms < 30.0:
-            return
-    raise AssertionError(f"max control period under the flood {r['flood'].max_ms:.1f} ms >= 30 ms")
+    """One measurement: the parse stall was systematic (every checked body), so a single
+    flood shows it; an unlucky scheduling hiccup of the shared machine gets the one rerun
+    of the marker, listed in the log, not a silent second try here."""
+    r = flood_jitter(seconds=5.0, samples=8900, rate=10.0, quiet=2.0)
+    print(f"quiet: {r['quiet'].line()}")
+    print(f"flood ({r['sent']} x {r['bytes'] / 1e6:.2f} MB, {r['checked']} checked, "
+          f"{r['superseded']} superseded): {r['flood'].line()}")  # fmt: skip
+    assert r["sent"] >= 45 and r["bytes"] > 3_000_000
+    assert r["checked"] >= 3  # the flood really was parsed and checked
+    assert r["checked"] + r["superseded"] == r["sent"]  # every body got its verdict
+    assert r["flood"].periods > 2000  # ~500 Hz kept
+    assert r["flood"].max_ms < 30.0, (
+        f"max control period under the flood {r['flood'].max_ms:.1f} ms"
+    )
 
 
 @pytest.mark.serial
+@pytest.mark.flaky(reruns=1)  # real time on a shared machine
 def test_ur_backend_bench_on_the_simulated_controller() -> None:
     """The UR backend under a (smaller) flood: the simulated controller's RTDE watchdog
     (10 Hz) never trips, every period writes the command register, ~500 Hz kept."""

@@ -9,6 +9,7 @@ import sys
 import pytest
 from typer.testing import CliRunner
 
+from tests import cli_run
 from tests.paths import REPO
 
 ROOT = REPO
@@ -56,12 +57,7 @@ def test_every_command_is_registered() -> None:
     ],
 )
 def test_missing_files_exit_2_with_one_line(args: list[str], words: str) -> None:
-    proc = subprocess.run(
-        [sys.executable, "-m", "planner.cli", *args], capture_output=True, text=True
-    )
-    assert proc.returncode == 2
-    assert words in proc.stderr and "Traceback" not in proc.stderr
-    assert len(proc.stderr.strip().splitlines()) == 1
+    cli_run.assert_usage_error(cli_run.beamrelay(*args), words)
 
 
 def test_invalid_trace_is_exit_1() -> None:

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from tests import cli_run
 from tests.drivers.conftest import free_port, wait_for
 
 
@@ -39,10 +40,7 @@ def run(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
     ],
 )
 def test_user_mistakes_exit_2_with_one_line(args: list[str], words: str) -> None:
-    out = run(*args)
-    assert out.returncode == 2, out.stderr
-    lines = out.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: ") and words in lines[0], out.stderr
+    cli_run.assert_usage_error(cli_run.beamrelay(*args), words)
 
 
 def test_request_without_planner_fails_in_time() -> None:
@@ -164,8 +162,6 @@ def test_online_calibration_never_overwrites_a_users_file(command: str) -> None:
 
     scenario, other = REPO / "scenarios" / "paper_n1.yaml", REPO / "scenarios" / "n2_relay.yaml"
     before = other.read_bytes()
-    out = run(command, str(scenario), "--online-calibration", str(other))
-    assert out.returncode == 2, out.stderr
-    lines = out.stderr.strip().splitlines()
-    assert len(lines) == 1 and "refusing to overwrite" in lines[0], out.stderr
+    out = cli_run.beamrelay(command, scenario, "--online-calibration", other)
+    cli_run.assert_usage_error(out, "refusing to overwrite")
     assert other.read_bytes() == before

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from planner.cli import main
+from tests import cli_run
 from tests.planner.test_planning import CURVE, SCENARIO, write_scenario
 from tests.planner.verify.test_check import ramp_trajectory
 
@@ -175,19 +176,18 @@ def test_plan_and_check_print_lengths_in_mm(written_plan: Path) -> None:
 
 def test_unsupported_plot_extension_is_refused_before_planning(tmp_path: Path) -> None:
     out = tmp_path / "plan.json"
-    done = beamrelay("plan", write_scenario(tmp_path), "-o", out, "--plot", tmp_path / "x.xyz")
-    assert done.returncode == 2
-    lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1 and "--plot" in lines[0] and ".png" in lines[0], done.stderr
+    done = cli_run.beamrelay("plan", write_scenario(tmp_path), "-o", out, "--plot",
+                             tmp_path / "x.xyz")  # fmt: skip
+    cli_run.assert_usage_error(done, "--plot", ".png")
     assert not out.exists()  # refused up front: nothing planned, nothing written
-    done = beamrelay("plan", write_scenario(tmp_path), "-o", out, "--plot",
-                     tmp_path / "missing" / "x.png")  # fmt: skip
-    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1
+    done = cli_run.beamrelay("plan", write_scenario(tmp_path), "-o", out, "--plot",
+                             tmp_path / "missing" / "x.png")  # fmt: skip
+    cli_run.assert_usage_error(done)
     assert not out.exists()
 
 
 def test_help_texts_cite_no_spec_sections() -> None:
     for cmd in ("plan", "check"):
-        done = beamrelay(cmd, "--help")
+        done = cli_run.beamrelay(cmd, "--help")
         assert done.returncode == 0
         assert "SPEC" not in done.stdout and "section" not in done.stdout.lower()

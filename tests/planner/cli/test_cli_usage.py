@@ -1,6 +1,7 @@
-"""Usage errors of every command, as a user meets them: a subprocess per call; one line on
-stderr, exit status 2, never a traceback. The command tree is walked, so a new command is
-covered without touching this file."""
+"""Usage errors of every command: one line on stderr, exit status 2, never a traceback. The
+command tree is walked, so a new command is covered without touching this file. The errors
+run in-process through ``planner.cli.main`` (``tests.cli_run``); what only a real process
+shows (no-args help, ``--version``, a typo, a closed stdout, ``plan | head``) runs as one."""
 
 from __future__ import annotations
 
@@ -17,30 +18,19 @@ import pytest
 import typer.main
 
 from planner.cli import app
+from tests.cli_run import assert_usage_error, beamrelay
 from tests.paths import REPO
 
-ROOT = REPO
-BUS_OPTIONS = "--endpoint", "--zenoh-config"
 
-
-def run(*args: str, **kw: Any) -> subprocess.CompletedProcess[str]:
+def run(*args: str) -> subprocess.CompletedProcess[str]:
+    """``beamrelay ARGS...`` in a fresh interpreter, as a user's shell starts it."""
     return subprocess.run(
         [sys.executable, "-m", "planner.cli", *args],
         capture_output=True,
         text=True,
         timeout=120,
-        cwd=kw.pop("cwd", ROOT),
-        **kw,
+        cwd=REPO,
     )
-
-
-def assert_usage_error(proc: subprocess.CompletedProcess[str], *words: str) -> None:
-    lines = proc.stderr.strip().splitlines()
-    assert proc.returncode == 2, proc.stderr
-    assert "Traceback" not in proc.stderr and len(lines) == 1, proc.stderr
-    assert lines[0].startswith("error: "), lines
-    for w in words:
-        assert w in lines[0], (w, lines[0])
 
 
 def walk(cmd: Any, path: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], Any]]:
@@ -88,12 +78,12 @@ def test_tree_is_complete() -> None:
 def test_group_unknown_command(path: tuple[str, ...], cmd: Any) -> None:
     first = sorted(cmd.commands)[0]
     typo = first[:-1] + ("x" if first[-1] != "x" else "y")
-    assert_usage_error(run(*path, typo), "No such command", repr(typo))
+    assert_usage_error(beamrelay(*path, typo), "No such command", repr(typo))
 
 
 @pytest.mark.parametrize(("path", "cmd"), TREE, ids=ids(TREE))
 def test_unknown_option(path: tuple[str, ...], cmd: Any) -> None:
-    assert_usage_error(run(*path, "--bogus"), "--bogus", "--help")
+    assert_usage_error(beamrelay(*path, "--bogus"), "--bogus", "--help")
 
 
 REQUIRED = [(p, c) for p, c in LEAVES if any(q.required for q in c.params)]
@@ -101,21 +91,17 @@ REQUIRED = [(p, c) for p, c in LEAVES if any(q.required for q in c.params)]
 
 @pytest.mark.parametrize(("path", "cmd"), REQUIRED, ids=ids(REQUIRED))
 def test_missing_argument(path: tuple[str, ...], cmd: Any) -> None:
-    assert_usage_error(run(*path), "Missing")
+    assert_usage_error(beamrelay(*path), "Missing")
 
 
 TYPED = [(p, c, o) for p, c in LEAVES for o in options(c) if value_kind(o) is not None]
-# one typed option per command (a subprocess each costs a third of a second)
-FIRST_TYPED = list({p: (p, c, o) for p, c, o in reversed(TYPED)}.values())
 
 
 @pytest.mark.parametrize(
-    ("path", "cmd", "opt"),
-    FIRST_TYPED,
-    ids=[f"{' '.join(p)} {o.opts[-1]}" for p, _, o in FIRST_TYPED],
+    ("path", "cmd", "opt"), TYPED, ids=[f"{' '.join(p)} {o.opts[-1]}" for p, _, o in TYPED]
 )
 def test_bad_value(path: tuple[str, ...], cmd: Any, opt: Any) -> None:
-    assert_usage_error(run(*path, opt.opts[-1], "twelve"), opt.opts[-1])
+    assert_usage_error(beamrelay(*path, opt.opts[-1], "twelve"), opt.opts[-1])
 
 
 RANGED = [(p, c, o) for p, c, o in TYPED if getattr(o, "min", None) is not None]
@@ -125,7 +111,7 @@ RANGED = [(p, c, o) for p, c, o in TYPED if getattr(o, "min", None) is not None]
     ("path", "cmd", "opt"), RANGED, ids=[f"{' '.join(p)} {o.opts[-1]}" for p, _, o in RANGED]
 )
 def test_below_minimum(path: tuple[str, ...], cmd: Any, opt: Any) -> None:
-    assert_usage_error(run(*path, opt.opts[-1], str(opt.min - 1)), opt.opts[-1])
+    assert_usage_error(beamrelay(*path, opt.opts[-1], str(opt.min - 1)), opt.opts[-1])
 
 
 @pytest.mark.parametrize(
@@ -143,7 +129,7 @@ def test_below_minimum(path: tuple[str, ...], cmd: Any, opt: Any) -> None:
     ],
 )
 def test_out_of_range_counts_and_times(args: list[str], named: str, tmp_path: Path) -> None:
-    assert_usage_error(run(*[a.replace("{tmp}", str(tmp_path)) for a in args]), named)
+    assert_usage_error(beamrelay(*[a.replace("{tmp}", str(tmp_path)) for a in args]), named)
 
 
 def test_no_arguments_prints_help() -> None:
@@ -153,7 +139,7 @@ def test_no_arguments_prints_help() -> None:
 
 
 def test_version() -> None:
-    version = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
+    version = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["version"]
     proc = run("--version")
     assert proc.returncode == 0 and proc.stdout.strip() == f"beamrelay {version}", proc
 
@@ -174,7 +160,7 @@ def test_closed_stdout_is_not_an_error(args: list[str]) -> None:
         stdout=write,
         stderr=subprocess.PIPE,
         text=True,
-        cwd=ROOT,
+        cwd=REPO,
         timeout=120,
     )
     os.close(write)
@@ -187,7 +173,7 @@ def test_plan_into_head(tmp_path: Path) -> None:
         "| head -c 1 >/dev/null; echo status=${PIPESTATUS[0]}"
     )
     proc = subprocess.run(
-        ["bash", "-c", shell], capture_output=True, text=True, cwd=ROOT, timeout=300
+        ["bash", "-c", shell], capture_output=True, text=True, cwd=REPO, timeout=300
     )
     assert "status=0" in proc.stdout and "Traceback" not in proc.stderr, proc.stderr
     assert (tmp_path / "p.json").is_file()

@@ -4,21 +4,15 @@ listen address checks."""
 from __future__ import annotations
 
 import socket
-import subprocess
-import sys
 
 import pytest
 
 from planner.console.address import check_free, check_host, check_port, is_loopback
 from planner.errors import InputError
+from tests import cli_run
 from tests.paths import SCENARIOS
 
 N1 = str(SCENARIOS / "paper_n1.yaml")
-
-
-def run(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "planner.cli", *args], capture_output=True,
-                          text=True, timeout=180)  # fmt: skip
 
 
 def busy_port() -> tuple[socket.socket, int]:
@@ -40,20 +34,16 @@ def busy_port() -> tuple[socket.socket, int]:
     ],
 )
 def test_user_mistakes_exit_2_with_one_line(args: list[str], words: str) -> None:
-    out = run(*args)
-    assert out.returncode == 2, out.stderr
-    lines = out.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: ") and words in lines[0], out.stderr
+    cli_run.assert_usage_error(cli_run.beamrelay(*args), words)
 
 
 def test_a_busy_port_is_named() -> None:
     sock, port = busy_port()
     with sock:
-        out = run("console", N1, "--port", str(port))
-        assert out.returncode == 2
-        assert f"--port {port}: cannot listen on 127.0.0.1:{port}" in out.stderr
-        out = run("up", N1, "--console", "--console-port", str(port))
-        assert out.returncode == 2 and f"--console-port {port}" in out.stderr
+        out = cli_run.beamrelay("console", N1, "--port", str(port))
+        cli_run.assert_usage_error(out, f"--port {port}: cannot listen on 127.0.0.1:{port}")
+        out = cli_run.beamrelay("up", N1, "--console", "--console-port", str(port))
+        cli_run.assert_usage_error(out, f"--console-port {port}")
 
 
 def test_address_checks() -> None:

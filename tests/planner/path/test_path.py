@@ -212,12 +212,13 @@ def test_fine_closed_path_coarse_to_fine(curve):
 
 
 def test_compiled_functions_match_the_sx_originals(tmp_path, monkeypatch):
-    """The C-compiled per-sample Hessian gives the SX virtual machine's numbers; without a
-    compiler the original function is used."""
+    """The C-compiled per-sample Hessian gives the SX virtual machine's numbers; a library
+    already in the cache is loaded without compiling again; without a compiler the original
+    function is used."""
     import casadi as ca
 
     from planner.model.kinematics import RobotKinematics
-    from planner.path.nlp import compiled, sample_hessian
+    from planner.path.nlp import _compiled, compiled, sample_hessian
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     f = sample_hessian((RobotKinematics.ur5e(),))
@@ -226,6 +227,10 @@ def test_compiled_functions_match_the_sx_originals(tmp_path, monkeypatch):
     rng = np.random.default_rng(2)
     args = [rng.normal(size=f.size_in(i)) for i in range(f.n_in())]
     np.testing.assert_allclose(np.asarray(fc(*args)), np.asarray(f(*args)), rtol=1e-12, atol=1e-12)
+    assert isinstance(fc, ca.Function)
+    # a later run finds the library on disk and loads it without the compiler
+    _compiled.cache_clear()
+    monkeypatch.setattr("subprocess.run", lambda *a, **k: pytest.fail("recompiled"))
+    assert compiled(f) is not f
     monkeypatch.setattr("shutil.which", lambda name: None)
     assert compiled(f) is f
-    assert isinstance(fc, ca.Function)

@@ -141,10 +141,14 @@ def test_planned_path_with_an_eye_checks_clean(tmp_path, curve) -> None:  # type
     assert results["trajectory safety"].figures["laser_on_samples"] > 100
 
 
-def test_unsafe_path_nlp_result_falls_back_to_its_warm_start(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    """Three arms relay the beam to a square: the path NLP alone converges to arm2 poses
-    whose last beam runs through arm2's own base; with the rules the run keeps its (safe)
-    warm start, every sample solved and clear by the numpy geometry."""
+def test_unsafe_path_nlp_result_falls_back_to_its_warm_start(tmp_path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """Three arms relay the beam to a square. A run whose NLP result breaks the rules at
+    more samples than its warm start keeps the warm start: the clearance step here reports
+    every NLP sample of the run unsafe (what the path NLP without its posture term found,
+    arm2's last beam through its own base; the NLP alone now finds a safe result, so a
+    check conditioned on it never ran), and the run keeps its (safe) warm start, every
+    sample solved and clear by the numpy geometry."""
+    import planner.path.solve as path_solve
     from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
     from planner.planning import ik_options, solve_path
     from tests.planner.verify.test_plan_check_agreement import N3_SQUARE
@@ -153,18 +157,21 @@ def test_unsafe_path_nlp_result_falls_back_to_its_warm_start(tmp_path) -> None: 
     scn = load_scenario(tmp_path / "n3.yaml")
     system = system_from_scenario(scn)
     targets = targets_from_scenario(scn, system)
-    options = ik_options(scn.model.solver)
-    plain, _ = solve_path(system, targets, options)
     s = setup(system)
+    clearance, reported = path_solve._clearance, []
 
-    def unsafe(sols) -> int:  # type: ignore[no-untyped-def]
-        n = 0
-        for sol in sols:
-            beam = np.vstack([system.world_T_laser[:3, 3], sol.hits, sol.spot])
-            n += bool(hits(s, system, sol.q, beam))
-        return n
+    def every_sample_unsafe(ctx, safety, ks, *rest):  # type: ignore[no-untyped-def]
+        q, seg, _ = clearance(ctx, safety, ks, *rest)
+        reported.append(len(ks))
+        return q, seg, len(ks)
 
-    sols, path = solve_path(system, targets, options, safety=Safety.from_scenario(scn, system))
-    assert all(sol.ok for sol in sols) and unsafe(sols) == 0
-    if unsafe(plain):  # without the posture term every NLP sample beamed through arm2
-        assert path.segments[0].status.startswith("warm_start (NLP result unsafe")
+    monkeypatch.setattr(path_solve, "_clearance", every_sample_unsafe)
+    sols, path = solve_path(system, targets, ik_options(scn.model.solver),
+                            safety=Safety.from_scenario(scn, system))  # fmt: skip
+    assert reported, "no run of the path NLP reached the safety rules"
+    runs = [seg for seg in path.segments if seg.k1 - seg.k0 >= 2]
+    assert len(runs) == len(reported) and sum(reported) == sum(g.k1 - g.k0 for g in runs)
+    assert all(seg.status.startswith("warm_start (NLP result unsafe") for seg in runs), runs
+    assert all(sol.ok for sol in sols)
+    beams = [np.vstack([system.world_T_laser[:3, 3], sol.hits, sol.spot]) for sol in sols]
+    assert not any(hits(s, system, sol.q, beam) for sol, beam in zip(sols, beams, strict=True))

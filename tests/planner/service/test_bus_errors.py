@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import socket
-import subprocess
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -12,6 +10,7 @@ import pytest
 
 from planner.errors import InputError
 from planner.service.bus import check_endpoint, is_local_endpoint, open_session, zenoh_config
+from tests import cli_run
 from tests.paths import REPO
 
 ROOT = REPO
@@ -28,22 +27,7 @@ def busy_port() -> Iterator[int]:
         yield int(s.getsockname()[1])
 
 
-def run(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "planner.cli", *args],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        cwd=ROOT,
-    )
-
-
-def assert_one_line(proc: subprocess.CompletedProcess[str], *words: str) -> None:
-    lines = proc.stderr.strip().splitlines()
-    assert proc.returncode == 2 and len(lines) == 1, proc.stderr
-    assert "Traceback" not in proc.stderr
-    for w in words:
-        assert w in lines[0], (w, lines[0])
+run, assert_one_line = cli_run.beamrelay, cli_run.assert_usage_error
 
 
 @pytest.mark.parametrize(
@@ -76,14 +60,9 @@ def test_bad_endpoint(endpoint: str, words: list[str]) -> None:
                         "--endpoint", endpoint), endpoint, *words)  # fmt: skip
 
 
-def test_bad_endpoint_from_the_environment() -> None:
-    proc = subprocess.run(
-        [sys.executable, "-m", "planner.cli", "request", "--points", "0,0,0"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env={**__import__("os").environ, "BEAMRELAY_ZENOH_ENDPOINT": "localhost:7447"},
-    )
+def test_bad_endpoint_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("BEAMRELAY_ZENOH_ENDPOINT", "localhost:7447")
+    proc = run("request", "--points", "0,0,0")
     assert_one_line(proc, "BEAMRELAY_ZENOH_ENDPOINT", "localhost:7447")
 
 

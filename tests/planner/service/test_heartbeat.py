@@ -82,6 +82,7 @@ def hold_the_gil(seconds: float) -> tuple[float, float]:
 
 
 @pytest.mark.serial
+@pytest.mark.flaky(reruns=1)  # real time on a shared machine; -rR lists a rerun
 @pytest.mark.parametrize("where", ["process", "thread"])
 def test_a_planner_holding_the_gil_does_not_silence_the_process_heartbeat(where: str) -> None:
     """What the solvers do (one C call holding the GIL for up to a second): the heartbeat
@@ -266,6 +267,7 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
 
 
 @pytest.mark.serial
+@pytest.mark.flaky(reruns=1)  # real time on a shared machine; -rR lists a rerun
 def test_sigstop_silences_the_heartbeat_within_100ms(served: Served) -> None:
     time.sleep(0.3)
     os.kill(served.proc.pid, signal.SIGSTOP)
@@ -282,6 +284,7 @@ def test_sigstop_silences_the_heartbeat_within_100ms(served: Served) -> None:
 
 
 @pytest.mark.serial
+@pytest.mark.flaky(reruns=1)  # real time on a shared machine; -rR lists a rerun
 def test_heartbeat_keeps_its_rate_while_serve_plans_a_long_path(served: Served) -> None:
     """A curve path traced back and forth (about 900 samples at 1 mm): beats at 100 Hz
     throughout the plan (within 10 %), no gap the drivers would brake for (a real-time

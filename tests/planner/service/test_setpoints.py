@@ -163,6 +163,7 @@ def test_bad_input_names_the_field() -> None:
 
 
 @pytest.mark.serial  # a 50 ms stale-stream deadline
+@pytest.mark.flaky(reruns=1)  # real time on a shared machine; -rR lists a rerun
 @pytest.mark.slow
 def test_the_sim_driver_process_follows_a_streamed_sine(tmp_path: Path) -> None:
     """``beamrelay driver robot --backend sim`` as its own process; this test plays the

@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import copy
 import json
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +19,7 @@ from planner.planning import run_scenario
 from planner.verify.check import check_plan
 from planner.verify.numpy_beam import pose_matrix, ur5e_dh_fk
 from planner.verify.safety_shapes import arm_shapes
+from tests import cli_run
 from tests.paths import REPO
 
 Doc = dict[str, Any]
@@ -154,8 +153,7 @@ def test_cli_check_exits_1_on_an_edited_plan(face: Doc, tmp_path: Path) -> None:
                                         "world_T_object": {"xyz": doc["targets"][sol["target"]]["p"]}})  # fmt: skip
     path = tmp_path / "plan.json"
     path.write_text(json.dumps(doc))
-    out = subprocess.run([sys.executable, "-m", "planner.cli", "check", str(path)],
-                         capture_output=True, text=True, timeout=300)  # fmt: skip
+    out = cli_run.beamrelay("check", path)
     assert out.returncode == 1, out.stdout + out.stderr
     assert "keep_out/mole" in out.stdout and "Traceback" not in out.stderr
 
@@ -230,7 +228,6 @@ def test_cli_check_flags_a_plan_inside_the_inflated_keep_out(face: Doc, tmp_path
     doc["scenario"]["system"]["laser"]["beam_radius"] = 0.0005
     path = tmp_path / "plan.json"
     path.write_text(json.dumps(doc))
-    out = subprocess.run([sys.executable, "-m", "planner.cli", "check", str(path)],
-                         capture_output=True, text=True, timeout=300)  # fmt: skip
+    out = cli_run.beamrelay("check", path)
     assert out.returncode == 1, out.stdout + out.stderr
     assert "keep_out/brow" in out.stdout and "Traceback" not in out.stderr

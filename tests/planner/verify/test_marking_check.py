@@ -15,6 +15,7 @@ import pytest
 
 from planner.model.settings import TrajectorySettings
 from planner.planning import PlanOutcome, plan_json, run_scenario, time_solutions
+from tests import cli_run
 
 # The curve_path layout; an L of two 10 mm edges on the board (a 90 deg corner: two strokes).
 L_PATH = """\
@@ -141,10 +142,7 @@ def test_missing_and_malformed_laser_on(outcome: PlanOutcome, tmp_path: Path) ->
         doc["trajectory"]["laser_on"] = bad
         f = tmp_path / "bad.json"
         f.write_text(json.dumps(doc))
-        out = beamrelay("check", f)
-        assert out.returncode == 2, (bad, out.stdout, out.stderr)
-        assert "laser_on" in out.stderr and "Traceback" not in out.stderr
-        assert len(out.stderr.strip().splitlines()) == 1
+        cli_run.assert_usage_error(cli_run.beamrelay("check", f), "laser_on")
 
 
 def test_tampered_exposure_is_a_violation(outcome: PlanOutcome, tmp_path: Path) -> None:
