@@ -324,7 +324,7 @@ def run_closed_loop(runner: ClosedLoopRunner, plan: dict[str, Any], targets: Tar
     runner.q = np.asarray(start, dtype=float)
     rows: list[dict[str, Any]] = []
     for k, sol in enumerate(plan["solutions"]):
-        row: dict[str, Any] = {"id": plan["targets"][k]["id"], "dwell": 0.0}
+        row: dict[str, Any] = {"id": plan["targets"][k]["id"], "dwell": 0.0, "treated": False}
         if runner.motion.stop.is_set():
             rows.append(row | {"status": "aborted"})
             continue

@@ -188,6 +188,7 @@ def test_a_stop_aborts_at_once_and_nothing_more_is_sent(world: SimWorld) -> None
     assert len(bus.sent) == 2
     assert [r["status"] for r in rows] == ["aborted"] * 3
     assert "stop" in plan["execution_reason"] and rows[0]["dwell"] == 0.0
+    assert [r["treated"] for r in rows] == [False] * 3  # every row says so, not only treated ones
 
 
 def test_a_rejected_move_ends_the_run_naming_the_target(world: SimWorld) -> None:
