@@ -276,9 +276,9 @@ def time_solutions(
     from planner.path.marking import mark_runs, marking_trajectory
 
     arc = path.arc if path is not None else arc_length(targets.points)
-    speed, tol = settings.spot_speed, settings.path_tolerance
-    pieces = mark_runs(system, targets, Q, arc, speed, skywriting=skywriting)
-    traj = marking_trajectory(system, pieces, q0, speed, rate, tol, move=move)
+    speed = settings.spot_speed
+    pieces = mark_runs(system, targets, Q, arc, speed, skywriting=skywriting, rate=rate)
+    traj = marking_trajectory(system, pieces, q0, speed, rate, move=move)
     figures = {"path_time": traj.span("path"), "path_length": float(arc[-1]),
                "path_deviation_max": path_deviation(system, targets, traj),
                "slowdowns": float(len(traj.slowdowns)),
