@@ -283,6 +283,9 @@ def time_solutions(
                "path_deviation_max": path_deviation(system, targets, traj),
                "slowdowns": float(len(traj.slowdowns)),
                "approach_time": traj.span("approach")}  # fmt: skip
+    for key in ("sharp_corners", "blended_corners", "blend_deviation", "vertex_gap"):
+        if key in targets.meta:  # how far the targets (blend arcs) are from the polyline, m
+            figures[key] = float(targets.meta[key])  # type: ignore[arg-type]
     return Timed(traj, None, figures | limit_ratios(system, traj) | posture(system, Q))
 
 

@@ -6,7 +6,19 @@ from __future__ import annotations
 
 import typer
 
-from planner.bench import brakes, ik, marking, path, plan, preview, safety, service, servo, track
+from planner.bench import (
+    brakes,
+    corners,
+    ik,
+    marking,
+    path,
+    plan,
+    preview,
+    safety,
+    service,
+    servo,
+    track,
+)
 
 app = typer.Typer(help="Benchmarks (figures printed, not asserted).", no_args_is_help=True)
 
@@ -14,6 +26,7 @@ BENCHMARKS = {
     "ik": ik,
     "path": path,
     "marking": marking,
+    "corners": corners,
     "service": service,
     "plan": plan,
     "preview": preview,

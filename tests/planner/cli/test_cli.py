@@ -101,6 +101,7 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
     )
     assert sorted(groups["bench"].commands) == [
         "brakes",
+        "corners",
         "ik",
         "marking",
         "path",
