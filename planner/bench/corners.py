@@ -156,53 +156,68 @@ def plan_polyline(line: Polyline, base: dict[str, Any], workdir: Path, name: str
     return plan, sum(len(r.findings) for r in check_plan(plan, workdir))
 
 
-def sweep(n: int, seed: int, workdir: Path) -> dict[str, Any]:
-    """Plan ``n`` random polylines (seed ``seed``) and collect the worst figures."""
+def run_one(k: int, seed: int, workdir: Path) -> dict[str, Any]:
+    """Plan and measure polyline ``k`` of the sweep with seed ``seed`` (its own generator,
+    so sweeps split over processes give the same polylines)."""
     import yaml
 
     from planner.data import shipped_scenario
     from planner.errors import PlanError
 
     base = yaml.safe_load(shipped_scenario("s_curve.yaml").read_text())
-    rng = np.random.default_rng(seed)
-    worst: dict[str, Any] = {"polylines": n, "seed": seed, "failed": [], "check_findings": 0,
-                             "marks": 0, "marks_in_slowdown": 0, "n_ok_disagrees": 0,
-                             "end_ratio_min": 1.0, "end_ratio_max": 1.0,
-                             "end_ratio_min_in_slowdown": None, "target_distance_max_m": 0.0,
-                             "vertex_gap_max_m": 0.0}  # fmt: skip
+    line = random_polyline(np.random.default_rng([seed, k]))
+    try:
+        plan, findings = plan_polyline(line, base, workdir, f"corners{k}")
+    except PlanError as exc:  # nothing to measure: counted as failed, with the reason
+        return {"k": k, "error": str(exc)}
+    m = measure(plan)
+    return {"k": k, "findings": findings, "n_ok_agrees": m.n_ok_agrees,
+            "start_end": m.start_end.tolist(), "in_slowdown": m.in_slowdown.tolist(),
+            "target_distance_max": m.target_distance_max, "vertex_gap_max": m.vertex_gap_max}  # fmt: skip
+
+
+def _worst(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The worst figures over the polylines' rows (:func:`run_one`)."""
+    done = [r for r in rows if "error" not in r]
+    ratios = [np.asarray(r["start_end"]).reshape(-1, 2) for r in done]
+    slow = [np.asarray(r["in_slowdown"], dtype=bool).reshape(-1, 2) for r in done]
+    free = np.concatenate([x[~s] for x, s in zip(ratios, slow, strict=True)] + [np.ones(1)])
+    held = np.concatenate([x[s] for x, s in zip(ratios, slow, strict=True)] + [np.ones(0)])
+    return {
+        "failed": [r["k"] for r in rows if "error" in r or r["findings"] or not r["n_ok_agrees"]],
+        "errors": [f"{r['k']}: {r['error']}" for r in rows if "error" in r],
+        "check_findings": sum(r.get("findings", 0) for r in done),
+        "n_ok_disagrees": sum(not r["n_ok_agrees"] for r in done),
+        "marks": sum(len(x) for x in ratios),
+        "marks_in_slowdown": int(sum(s.any(axis=1).sum() for s in slow)),
+        "end_ratio_min": float(free.min()),
+        "end_ratio_max": float(free.max()),
+        "end_ratio_min_in_slowdown": float(held.min()) if len(held) else None,
+        "target_distance_max_m": max((r["target_distance_max"] for r in done), default=0.0),
+        "vertex_gap_max_m": max((r["vertex_gap_max"] for r in done), default=0.0),
+    }
+
+
+def sweep(n: int, seed: int, workdir: Path, workers: int = 1) -> dict[str, Any]:
+    """Plan ``n`` random polylines (seed ``seed``) on ``workers`` processes and collect the
+    worst figures; each polyline's row goes to standard error as it is done."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    import sys
+
     t0 = time.perf_counter()
-    for k in range(n):
-        line = random_polyline(rng)
-        try:
-            plan, findings = plan_polyline(line, base, workdir, f"corners{k}")
-        except PlanError as exc:  # nothing to measure: counted as failed, with the reason
-            worst["failed"].append(k)
-            worst.setdefault("errors", []).append(f"{k}: {exc}")
-            continue
-        m = measure(plan)
-        if findings or not m.n_ok_agrees:
-            worst["failed"].append(k)
-        worst["check_findings"] += findings
-        worst["n_ok_disagrees"] += int(not m.n_ok_agrees)
-        free = m.start_end[~m.in_slowdown]
-        worst["marks"] += len(m.start_end)
-        worst["marks_in_slowdown"] += int(m.in_slowdown.any(axis=1).sum())
-        if len(free):
-            worst["end_ratio_min"] = min(worst["end_ratio_min"], float(free.min()))
-            worst["end_ratio_max"] = max(worst["end_ratio_max"], float(free.max()))
-        if m.in_slowdown.any():
-            low = float(m.start_end[m.in_slowdown].min())
-            prev = worst["end_ratio_min_in_slowdown"]
-            worst["end_ratio_min_in_slowdown"] = low if prev is None else min(prev, low)
-        worst["target_distance_max_m"] = max(worst["target_distance_max_m"], m.target_distance_max)
-        worst["vertex_gap_max_m"] = max(worst["vertex_gap_max_m"], m.vertex_gap_max)
-    worst["seconds"] = time.perf_counter() - t0
-    return worst
+    rows: list[dict[str, Any]] = []
+    with ProcessPoolExecutor(workers) as pool:
+        for row in pool.map(run_one, range(n), [seed] * n, [workdir] * n):
+            rows.append(row)
+            print(json.dumps(row), file=sys.stderr, flush=True)  # progress: one row a polyline
+    return {"polylines": n, "seed": seed, **_worst(rows), "seconds": time.perf_counter() - t0}
 
 
 def command(
     polylines: Annotated[int, typer.Option(min=1, help="Random polylines to plan.")] = 200,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    workers: Annotated[int, typer.Option(min=1, help="Processes planning in parallel.")] = 1,
     as_json: Annotated[bool, typer.Option("--json", help="Figures as JSON (last line).")] = False,
 ) -> None:
     """Random polylines with turns around corner_deg: worst mark-start/end speed ratio and
@@ -213,7 +228,7 @@ def command(
     from rich.table import Table
 
     with tempfile.TemporaryDirectory() as tmp:
-        w = sweep(polylines, seed, Path(tmp))
+        w = sweep(polylines, seed, Path(tmp), workers)
     table = Table(title=f"corners: {polylines} random polylines (seed {seed})")
     table.add_column("figure")
     table.add_column("value")
