@@ -201,9 +201,8 @@ def _worst(rows: list[dict[str, Any]]) -> dict[str, Any]:
 def sweep(n: int, seed: int, workdir: Path, workers: int = 1) -> dict[str, Any]:
     """Plan ``n`` random polylines (seed ``seed``) on ``workers`` processes and collect the
     worst figures; each polyline's row goes to standard error as it is done."""
-    from concurrent.futures import ProcessPoolExecutor
-
     import sys
+    from concurrent.futures import ProcessPoolExecutor
 
     t0 = time.perf_counter()
     rows: list[dict[str, Any]] = []
