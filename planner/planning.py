@@ -298,13 +298,16 @@ def time_solutions(
     from planner.path.marking import mark_runs, marking_trajectory
 
     arc = path.arc if path is not None else arc_length(targets.points)
-    speed, tol = settings.spot_speed, settings.path_tolerance
-    pieces = mark_runs(system, targets, Q, arc, speed, skywriting=skywriting)
-    traj = marking_trajectory(system, pieces, q0, speed, rate, tol, move=move)
+    speed = settings.spot_speed
+    pieces = mark_runs(system, targets, Q, arc, speed, skywriting=skywriting, rate=rate)
+    traj = marking_trajectory(system, pieces, q0, speed, rate, move=move)
     figures = {"path_time": traj.span("path"), "path_length": float(arc[-1]),
                "path_deviation_max": path_deviation(system, targets, traj),
                "slowdowns": float(len(traj.slowdowns)),
                "approach_time": traj.span("approach")}  # fmt: skip
+    for key in ("sharp_corners", "blended_corners", "blend_deviation", "vertex_gap"):
+        if key in targets.meta:  # how far the targets (blend arcs) are from the polyline, m
+            figures[key] = float(targets.meta[key])  # type: ignore[arg-type]
     return Timed(traj, None, figures | limit_ratios(system, traj) | posture(system, Q))
 
 

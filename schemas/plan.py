@@ -112,14 +112,16 @@ class Segment(StrictModel):
 class Slowdown(StrictModel):
     """Where the marked spot runs slower than the spot speed because a joint limit binds:
     arc length ``s0``..``s1`` (m) along the path, trajectory time ``t0``..``t1`` (s), the
-    binding ``limit``, the joint (``robot``, index ``joint``; -1 and null when the spot
-    acceleration ramp did not fit) and the slowest speed reached (m/s)."""
+    binding ``limit`` (``position``: a joint position limit, ``reach``: the spot's line
+    leaves the workspace, where a run-in or run-out could not be laid long enough), the
+    joint (``robot``, index ``joint``; -1 and null when no one joint is named) and the
+    slowest speed reached (m/s)."""
 
     s0: Num
     s1: Num
     t0: Num
     t1: Num
-    limit: Literal["spot", "velocity", "acceleration", "jerk"]
+    limit: Literal["spot", "velocity", "acceleration", "jerk", "position", "reach"]
     robot: str | None = None
     joint: int = -1
     speed: NonNegNum

@@ -9,6 +9,7 @@ import typer
 from planner.bench import (
     brakes,
     camera,
+    corners,
     ik,
     marking,
     path,
@@ -26,6 +27,7 @@ BENCHMARKS = {
     "ik": ik,
     "path": path,
     "marking": marking,
+    "corners": corners,
     "service": service,
     "plan": plan,
     "preview": preview,

@@ -182,7 +182,8 @@ def _slowdowns(outcome: Any) -> Any:
     for col in ("arc length (mm)", "limit", "joint", "spot speed (mm/s)"):
         table.add_column(col)
     for s in outcome.timed.trajectory.slowdowns:
-        table.add_row(f"{1e3 * s.s0:.1f} - {1e3 * s.s1:.1f}", s.limit, names[s.joint],
+        table.add_row(f"{1e3 * s.s0:.1f} - {1e3 * s.s1:.1f}", s.limit,
+                      names[s.joint] if s.joint >= 0 else "-",
                       f"{1e3 * s.speed:.2f}")  # fmt: skip
     return table
 

@@ -316,9 +316,7 @@ def targets_from_scenario(scn: LoadedScenario, system: System) -> Targets:
         except ValueError as exc:
             raise ScenarioError(str(exc), scn.where(("targets", "path"))) from None
         points, normals = marked.points, marked.normals
-        meta |= {"spacing": path.spacing, "vertices": len(path.points),
-                 "strokes": marked.strokes, "sample_spacing": marked.spacing,
-                 "sharp_corners": marked.sharp, "blended_corners": marked.blended}  # fmt: skip
+        meta |= {"spacing": path.spacing, "vertices": len(path.points)} | marked.meta()
     points = transform_points(world_T_frame, points)
     if normals is not None:
         normals = normals @ world_T_frame[:3, :3].T

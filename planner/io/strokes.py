@@ -9,10 +9,14 @@ tolerance of the vertex, so the spot can sweep them at constant speed without le
 polyline. ``smooth`` reads the points as samples of a smooth curve instead: a cubic spline
 through them (chord-length parameter; periodic when closed), one stroke.
 
-Every stroke is sampled at one uniform spacing (at most the requested ``spacing``, finer
-where a blend arc or the curve bends so that the chord between two samples stays within
-:data:`CHORD_SHARE` of the tolerance of the curve). Consecutive strokes share their vertex
-sample; a closed path's last stroke ends on sample 0. Coordinates in the polyline's own
+Every stroke is sampled at one spacing (at most the requested ``spacing``, finer where a
+blend arc or the curve bends so that the chord between two samples stays within
+:data:`CHORD_SHARE` of the tolerance of the curve), uniform between its knots: its end
+vertices and the midpoint of every blend arc (the arc's point nearest its vertex), so every
+vertex of the polyline has a sample: exactly at the stroke ends, within
+:data:`BLEND_SHARE` of the tolerance of the polyline at a blended vertex
+(``MarkedPath.vertex_gap`` is the largest distance of a vertex from its sample).
+Consecutive strokes share their vertex sample; a closed path's last stroke ends on sample 0. Coordinates in the polyline's own
 frame (any rigid frame), metres; angles in degrees only where the name says so.
 """
 
@@ -39,7 +43,9 @@ class MarkedPath:
     ``strokes``: sample index sequences marked in one go, in order (consecutive strokes
     share their vertex sample; a closed path's last stroke ends on index 0). ``spacing`` (m)
     is the largest distance between consecutive samples of a stroke; ``sharp`` the corners
-    marked sharp, ``blended`` the vertices swept through a blend arc."""
+    marked sharp, ``blended`` the vertices swept through a blend arc; ``blend_deviation``
+    (m) the largest distance of a blend arc from the polyline and ``vertex_gap`` (m) the
+    largest distance of a vertex from its sample (0 without blend arcs)."""
 
     points: Array
     normals: Array | None
@@ -47,6 +53,14 @@ class MarkedPath:
     spacing: float
     sharp: int
     blended: int
+    blend_deviation: float = 0.0
+    vertex_gap: float = 0.0
+
+    def meta(self) -> dict[str, object]:
+        """The ``Targets.meta`` entries of a marked path (the plan reports the figures)."""
+        return {"strokes": self.strokes, "sample_spacing": self.spacing,
+                "sharp_corners": self.sharp, "blended_corners": self.blended,
+                "blend_deviation": self.blend_deviation, "vertex_gap": self.vertex_gap}  # fmt: skip
 
 
 def turn_angles(vertices: Array, closed: bool = False) -> Array:
@@ -81,6 +95,7 @@ class _Stroke:
         start, s_poly = V[0], float(u[0])
         self.min_radius = np.inf
         self.blended = 0
+        self.deviation, self.gap = 0.0, 0.0  # m: arc from the polyline, vertex from its arc
         for i in range(1, len(V) - 1):
             theta = float(np.arccos(np.clip(U[i - 1] @ U[i], -1.0, 1.0)))
             if theta <= _TINY_TURN:
@@ -100,6 +115,8 @@ class _Stroke:
                            (float(u[i]) - d, float(u[i]) + d)))  # fmt: skip
             self.min_radius = min(self.min_radius, r)
             self.blended += 1
+            self.deviation = max(self.deviation, r * (1 - np.cos(theta / 2)))
+            self.gap = max(self.gap, r * (1 / np.cos(theta / 2) - 1))
             start, s_poly = t2, float(u[i]) + d
         pieces.append(("line", float(np.linalg.norm(V[-1] - start)), (start, U[-1]),
                        (s_poly, float(u[-1]))))  # fmt: skip
@@ -110,6 +127,20 @@ class _Stroke:
     @property
     def length(self) -> float:
         return float(self.edges[-1])
+
+    def knots(self) -> Array:
+        """Arc lengths (m) that are samples: 0, every blend arc's midpoint, the length."""
+        mids = [self.edges[j] + 0.5 * p[1] for j, p in enumerate(self.pieces) if p[0] == "arc"]
+        return np.array([0.0, *mids, self.length])
+
+    def sample(self, n: int) -> Array:
+        """Arc lengths (m) of about ``n`` intervals: each knot interval cut uniformly, no
+        interval longer than length / n."""
+        k = self.knots()
+        h = self.length / n
+        parts = [np.linspace(a, b, max(1, int(np.ceil((b - a) / h - 1e-9))) + 1)[:-1]
+                 for a, b in pairwise(k)]  # fmt: skip
+        return np.concatenate([*parts, [self.length]])
 
     def at(self, s: Array) -> tuple[Array, Array]:
         """Points (M x 3) at arc lengths ``s`` (m) and their polyline arc length (M,)."""
@@ -197,23 +228,25 @@ def mark_path(
     pts: list[Array] = []
     wts: list[Array] = []
     strokes: list[tuple[int, ...]] = []
-    h_max, blended, k0 = 0.0, 0, 0
+    h_max, blended, k0, dev, gap = 0.0, 0, 0, 0.0, 0.0
     for a, b in pairwise(cuts):
         st = _Stroke(V[a : b + 1], u[a : b + 1], tolerance)
-        n = _spacing(st.length, spacing, tolerance, st.min_radius)
-        P, W = st.at(np.linspace(0.0, st.length, n + 1))
+        x = st.sample(_spacing(st.length, spacing, tolerance, st.min_radius))
+        n = len(x) - 1
+        P, W = st.at(x)
         first = 0 if not pts else 1  # the shared vertex sample is already there
         pts.append(P[first:])
         wts.append(W[first:])
         strokes.append(tuple(range(k0, k0 + n + 1)))
         k0 += n
-        h_max, blended = max(h_max, st.length / n), blended + st.blended
+        h_max, blended = max(h_max, float(np.diff(x).max())), blended + st.blended
+        dev, gap = max(dev, st.deviation), max(gap, st.gap)
     P, W = np.vstack(pts), np.concatenate(wts)
     if loop:  # the last sample repeats the first: the loop ends on 0
         P, W = P[:-1], W[:-1]
         strokes[-1] = (*strokes[-1][:-1], 0)
     sharp = len(cuts) - 2 + int(loop_sharp)
-    return MarkedPath(P, _normals_at(W, u, N), tuple(strokes), h_max, sharp, blended)
+    return MarkedPath(P, _normals_at(W, u, N), tuple(strokes), h_max, sharp, blended, dev, gap)
 
 
 def _smooth(V: Array, N: Array | None, spacing: float, closed: bool, tolerance: float

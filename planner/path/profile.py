@@ -49,8 +49,8 @@ class Profile(NamedTuple):
     """The path parameter s(t) (m, m/s, m/s^2) sampled at ``rate`` along a joint spline of
     arc length, with the speed caps the joint limits impose at each path sample (``speed``
     m/s, binding ``code`` 0 spot speed .. 3 jerk, stacked ``joint``) and the spot
-    acceleration and jerk used (m/s^2, m/s^3; ``accel_joint``: the joint that capped the
-    acceleration, -1 if none)."""
+    acceleration and jerk used (m/s^2, m/s^3; ``accel_joint`` / ``jerk_joint``: the joint
+    that capped the acceleration / the jerk below its nominal value, -1 if none)."""
 
     s: Array
     sd: Array
@@ -62,6 +62,7 @@ class Profile(NamedTuple):
     a_s: float
     j_s: float
     accel_joint: int
+    jerk_joint: int = -1
 
 
 def spot_ramp(spot_speed: float) -> tuple[float, float]:
@@ -80,6 +81,12 @@ def ramp_length(spot_speed: float, a_s: float | None = None, j_s: float | None =
     return float(v * t_acc / 2)
 
 
+def lookahead(speed: float, a_s: float, j_s: float, rate: float) -> float:
+    """Distance (m) ahead of the spot over which :func:`profile` applies the speed caps: a
+    conservative jerk-limited stopping distance from ``speed`` (m/s) plus two periods."""
+    return speed * speed / (2 * a_s) + speed * a_s / j_s + 2 * speed / rate
+
+
 def profile(q_path: Array, arc: Array, lim: Limits, spot_speed: float, rate: float) -> Profile:
     """Sample s(t) from rest to rest along the path at ``rate`` (1-DOF online Ruckig whose
     velocity limit is the spot speed, lowered ahead of time where a joint limit binds)."""
@@ -91,8 +98,10 @@ def profile(q_path: Array, arc: Array, lim: Limits, spot_speed: float, rate: flo
     a_nom, _ = spot_ramp(spot_speed)
     a_caps = _SHARE_A * lim.acceleration / d1max
     a_s = float(min(a_nom, a_caps.min()))
-    j_s = float(min(a_s * SPOT_JERK_PER_ACCEL, (_SHARE_J * lim.jerk / d1max).min()))
+    j_caps = _SHARE_J * lim.jerk / d1max
+    j_s = float(min(a_s * SPOT_JERK_PER_ACCEL, j_caps.min()))
     accel_joint = int(np.argmin(a_caps)) if a_caps.min() < a_nom else -1
+    jerk_joint = int(np.argmin(j_caps)) if j_caps.min() < a_s * SPOT_JERK_PER_ACCEL else -1
     speed, code, joint = path_speed_limit(spline, arc, lim, spot_speed, a_s)
     L = float(arc[-1])
     otg, inp, out = Ruckig(1, 1.0 / rate), InputParameter(1), OutputParameter(1)
@@ -103,7 +112,7 @@ def profile(q_path: Array, arc: Array, lim: Limits, spot_speed: float, rate: flo
     arc_list, speed_list = [float(x) for x in arc], [float(x) for x in speed]  # bisect, min
     for _ in range(int(50 * (L / max(speed.min(), 1e-9) + 1) * rate)):
         s, v = inp.current_position[0], inp.current_velocity[0]
-        brake = v * v / (2 * a_s) + v * a_s / j_s + 2 * v / rate  # stopping distance, m
+        brake = lookahead(v, a_s, j_s, rate)
         i0, i1 = bisect_left(arc_list, s), bisect_left(arc_list, s + brake)
         inp.max_velocity = [max(min(speed_list[max(i0 - 1, 0) : i1 + 1]), 1e-6)]
         result = otg.update(inp, out)
@@ -116,4 +125,28 @@ def profile(q_path: Array, arc: Array, lim: Limits, spot_speed: float, rate: flo
     else:
         raise PlanError(f"path timing did not finish (length {L:.4f} m)")
     s, sd, sdd = np.clip(np.array(S), [0.0, 0.0, -np.inf], [L, np.inf, np.inf]).T
-    return Profile(s, sd, sdd, spline, speed, code, joint, a_s, j_s, accel_joint)
+    return Profile(s, sd, sdd, spline, speed, code, joint, a_s, j_s, accel_joint, jerk_joint)
+
+
+def aligned(prof: Profile, s_mark: float, rate: float) -> Profile:
+    """``prof`` with its motion delayed by a fraction of a period so that a sample lands
+    exactly on arc length ``s_mark`` (m; where a mark starts): the spot rests for that
+    fraction at the start, then follows the same s(t) (quintic Hermite through the samples'
+    s, sd, sdd), one sample longer. Unchanged when ``s_mark`` is outside the profile or
+    already on a sample."""
+    from scipy.interpolate import BPoly
+    from scipy.optimize import brentq
+
+    s, sd, sdd = prof.s, prof.sd, prof.sdd
+    k = int(np.searchsorted(s, s_mark, side="left"))
+    if k == 0 or k >= len(s) or s[k] - s_mark < 1e-12 or s[k] <= s[k - 1]:
+        return prof
+    t = np.arange(len(s)) / rate
+    curve = BPoly.from_derivatives(t, np.column_stack([s, sd, sdd]))
+    tau = float(brentq(lambda x: float(curve(x)) - s_mark, t[k - 1], t[k], xtol=1e-15))
+    delay = k / rate - tau  # in (0, 1 / rate): the crossing moves onto sample k
+    tn = np.clip(np.arange(len(s) + 1) / rate - delay, 0.0, t[-1])
+    s_new = np.clip(curve(tn), 0.0, float(s[-1]))
+    sd_new, sdd_new = curve(tn, 1), curve(tn, 2)
+    s_new[-1], sd_new[[0, -1]], sdd_new[[0, -1]] = s[-1], 0.0, 0.0
+    return prof._replace(s=s_new, sd=sd_new, sdd=sdd_new)

@@ -312,8 +312,7 @@ class RequestHandler:
             marked = mark_path(points, self.path_spacing, normals=normals)
         except ValueError as exc:
             raise InputError(str(exc), "normals" if "normal" in str(exc) else "points") from exc
-        meta = {"strokes": marked.strokes, "sharp_corners": marked.sharp}
-        return Targets(marked.points, marked.normals, kind="path", meta=meta)
+        return Targets(marked.points, marked.normals, kind="path", meta=marked.meta())
 
     def parse(self, payload: bytes) -> Any:
         """Validate a request body (raises InputError naming the field)."""

@@ -62,17 +62,56 @@ def _segments(P: Array, closed: bool) -> tuple[Array, Array, Array]:
     return a, ab, np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
 
 
+def path_planes(P: Array, closed: bool) -> Array:
+    """Unit normal (K x 3) of the plane through each sample of a path and its neighbours
+    (the path's osculating plane; a planar path's own plane), taken from the nearest sample
+    where the path turns; NaN everywhere on a straight path."""
+    K = len(P)
+    n = np.full((K, 3), np.nan)
+    if K < 3:
+        return n
+    back, ahead = P - np.roll(P, 1, axis=0), np.roll(P, -1, axis=0) - P
+    c = np.cross(back, ahead)
+    size = np.linalg.norm(c, axis=1)
+    turns = size > 1e-6 * np.linalg.norm(back, axis=1) * np.linalg.norm(ahead, axis=1)
+    if not closed:
+        turns[[0, -1]] = False
+    at = np.flatnonzero(turns)
+    if not len(at):
+        return n
+    k = np.clip(np.searchsorted(at, np.arange(K)), 1, len(at) - 1) if len(at) > 1 else None
+    nearest = (
+        np.zeros(K, dtype=int)
+        if k is None
+        else np.where(
+            np.abs(at[k] - np.arange(K)) < np.abs(at[k - 1] - np.arange(K)), at[k], at[k - 1]
+        )
+    )
+    return np.asarray(c[nearest] / size[nearest, None])
+
+
 def spots_on_path(p: Array, v: Array, P: Array, N: Array | None, closed: bool) -> Array:
     """The spot of each ray (M x 3) on a path of samples ``P``: where it meets the plane of
-    the nearest sample (with normals), else its point of closest approach to the polyline."""
+    the nearest sample (with normals); without normals, where it meets the path's plane at
+    its nearest segment (:func:`path_planes`: exact for a planar path, whatever the chord
+    between two samples cuts off a curve), else (a straight path, a grazing ray) its point
+    of closest approach to the polyline."""
     if N is not None or len(P) < 2:
         return nearest_spots(p, v, P, N)[1]
     a, ab, ab2 = _segments(P, closed)
+    plane = path_planes(P, closed)
     out = np.empty_like(p)
     step = max(1, (1 << 21) // max(len(P), 1))
     for i0 in range(0, len(p), step):
-        out[i0 : i0 + step] = ray_polyline_closest(p[i0 : i0 + step], v[i0 : i0 + step], a, ab,
-                                                   ab2)[1]  # fmt: skip
+        sl = slice(i0, i0 + step)
+        near = ray_polyline_closest(p[sl], v[sl], a, ab, ab2)
+        n = plane[near.segment]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            vn = np.einsum("ij,ij->i", v[sl], n)
+            on = p[sl] + (np.einsum("ij,ij->i", a[near.segment] - p[sl], n) / vn)[:, None] * v[sl]
+        use = np.isfinite(on).all(axis=1) & (np.abs(vn) > 0.05)
+        use &= np.linalg.norm(on - near.point, axis=1) < np.sqrt(ab2[near.segment])
+        out[sl] = np.where(use[:, None], on, near.point)
     return out
 
 

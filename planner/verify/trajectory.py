@@ -129,11 +129,20 @@ def spot_deviation(
     return out
 
 
+class RayPolyline(NamedTuple):
+    """Closest approach of rays to a polyline: distance (m, M), the ray's point there
+    (M x 3) and the index of the nearest segment (M)."""
+
+    distance: Array
+    point: Array
+    segment: Array
+
+
 def ray_polyline_closest(p: Array, v: Array, a: Array, ab: Array, ab2: Array
-                         ) -> tuple[Array, Array]:  # fmt: skip
+                         ) -> RayPolyline:  # fmt: skip
     """Closest approach (m) of each ray (origins ``p``, unit directions ``v``, M x 3; the
     part ahead, t >= 0) to segments ``a + u ab`` (u in [0, 1]; ``ab2`` = |ab|^2), the
-    minimum over the segments (M,), and the ray's point there (M x 3)."""
+    minimum over the segments (M,), the ray's point there (M x 3) and that segment."""
     w = p[:, None, :] - a[None]  # M x S x 3
     b = np.einsum("mj,sj->ms", v, ab)
     d = np.einsum("mj,msj->ms", v, w)
@@ -148,7 +157,7 @@ def ray_polyline_closest(p: Array, v: Array, a: Array, ab: Array, ab2: Array
     dist = np.linalg.norm(gap, axis=2)
     j = np.argmin(dist, axis=1)
     rows = np.arange(len(p))
-    return np.asarray(dist[rows, j]), p + t[rows, j][:, None] * v
+    return RayPolyline(np.asarray(dist[rows, j]), p + t[rows, j][:, None] * v, j)
 
 
 class Solved(NamedTuple):

@@ -98,6 +98,7 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
     assert sorted(groups["bench"].commands) == [
         "brakes",
         "camera",
+        "corners",
         "ik",
         "marking",
         "path",
