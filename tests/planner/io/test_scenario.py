@@ -337,10 +337,11 @@ def test_curve_path_scenario() -> None:
     targets = targets_from_scenario(scn, system_from_scenario(scn))
     assert targets.kind == "path" and targets.normals is not None
     steps = np.linalg.norm(np.diff(targets.points, axis=0), axis=1)
-    # one stroke (every turn is below corner_deg), sampled uniformly at most 1 mm apart (finer:
-    # the blend arcs of the turns need it), chords on the arcs a hair shorter
+    # one stroke (every turn is below corner_deg), sampled at most 1 mm apart (finer: the
+    # blend arcs of the turns need it); each arc's midpoint is a sample (the vertex's target),
+    # so the spacing varies a little around the arcs
     assert targets.meta["strokes"] == (tuple(range(len(targets))),)
-    assert steps.max() <= 0.001 + 1e-12 and steps.max() - steps.min() < 1e-6
+    assert steps.max() <= 0.001 + 1e-12 and steps.max() - steps.min() < 0.05 * steps.max()
     assert 0.14 < steps.sum() < 0.16
     assert np.allclose(targets.normals, [0, 0, 1])
 

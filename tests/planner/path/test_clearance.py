@@ -39,10 +39,13 @@ def test_path_beams_keep_clear_of_a_keep_out_ball(curve) -> None:  # type: ignor
     eye = sphere("eye", 0.005, make_T(p=centre))
     sols, path = solve_path(system, targets, options, safety=Safety(system, (), (eye,)))
     assert path.complete and all(s.ok for s in sols)
-    # the plain NLP result broke the rule at a stretch of samples; the re-solve at none
+    # the plain NLP result broke the rule at a stretch of samples: re-solved with the
+    # clearance to none, or replaced by the (safe) per-sample warm start; either way every
+    # beam is checked below
     status = " ".join(seg.status for seg in path.segments)
     m = re.search(r"\+clearance \(\w+; unsafe samples (\d+) -> (\d+)\)", status)
-    assert m is not None and int(m.group(1)) >= 10 and int(m.group(2)) == 0, status
+    resolved = m is not None and int(m.group(1)) >= 10 and int(m.group(2)) == 0
+    assert resolved or "warm_start (NLP result unsafe" in status, status
     assert float(np.nanmax(path.error)) <= 1e-9
     s = setup(system, keep=(eye,))
     for sol in sols:
