@@ -4,11 +4,10 @@ figures as one JSON object on the last line of standard output."""
 
 from __future__ import annotations
 
-import typer
-
 from planner.bench import brakes, ik, marking, path, plan, preview, safety, service, servo, track
+from planner.cli.args import command_group
 
-app = typer.Typer(help="Benchmarks (figures printed, not asserted).", no_args_is_help=True)
+app = command_group(help="Benchmarks (figures printed, not asserted).", no_args_is_help=True)
 
 BENCHMARKS = {
     "ik": ik,
