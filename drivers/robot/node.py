@@ -392,11 +392,13 @@ class RobotNode(StreamingMixin, LoopNode):
         if self.gate is not None:
             self.gate.force_off(reason)
         moving = bool(np.any(np.abs(self.backend.follower.qd) > REST_VELOCITY))
+        active = self.streams.active
+        running = self._running.id if self._running is not None else None
+        running = running if active is None else active.id
         stream = self.streams.end(rejected or reason, moving, rejected is not None)
         if stream is not None:
             self.setpoints.end(stream)
         self.backend.brake(reason)
-        running = self._running.id if self._running is not None else None
         event(log, "stop", logging.WARNING, robot=self.robot, id=running, reason=reason)
         self._running = self._queued = None
         self.stopped_by = reason
