@@ -45,11 +45,19 @@ def configure(process: str, stream: IO[str] | None = None, level: int = logging.
     records: queue.Queue[logging.LogRecord] = queue.Queue(-1)
     _listener = logging.handlers.QueueListener(records, handler)
     _listener.start()
-    atexit.register(_listener.stop)
+    atexit.register(stop)
     root = logging.getLogger("beamrelay")
     root.addHandler(logging.handlers.QueueHandler(records))
     root.setLevel(level)
     root.propagate = False
+
+
+def stop() -> None:
+    """Write the queued records and stop the writer thread (at exit; idempotent)."""
+    global _listener
+    if _listener is not None:
+        _listener.stop()
+        _listener = None
 
 
 def field(value: object) -> str:
