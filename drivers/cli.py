@@ -14,9 +14,10 @@ from typing import Any
 
 import typer
 
+from planner.cli.args import command_group
 from schemas import defaults
 
-app = typer.Typer(help="Robot and camera drivers (simulated or real) for the running system.")
+app = command_group(help="Robot and camera drivers (simulated or real) for the running system.")
 
 SCENARIO = typer.Option(
     ..., "--scenario", "-s", help="Scenario YAML (robots, limits, camera, scene)."
@@ -98,6 +99,7 @@ def robot(
     from drivers.robot.node import RobotNode
     from planner.errors import InputError
     from planner.io.scenario import load_scenario, system_from_scenario
+    from planner.service import events
     from planner.service.bus import Keys, open_session
     from planner.service.priority import raised_priority
 
@@ -145,6 +147,7 @@ def robot(
             gate_output=gate_output,
             aim_output=None if emission is None else emission.aim_output,
         )
+    events.configure(name)
     with raised_priority() as got:  # Zenoh's threads receive the heartbeat: they inherit it
         session = open_session(listen=listen, endpoint=endpoint, config_file=zenoh_config)
     node = RobotNode(

@@ -22,6 +22,7 @@ from planner.beam.trace import mirror_poses, trace_beam
 from planner.model.status import Status
 from planner.model.system import System, Targets
 from planner.model.transforms import Array, inv_T
+from planner.plot_scene import draw_camera, target_marker_size
 
 _COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:purple")
 _SEGMENT_COLOURS = {"approach": "0.92", "move": "0.92", "path": "#e3f2e1", "dwell": "#fdf0d5",
@@ -93,7 +94,8 @@ def plot_beam_chain(
     qs = [q] if isinstance(q, np.ndarray) and q.ndim == 1 else list(q)
     fig = plt.figure(figsize=(8, 7))
     ax = fig.add_subplot(projection="3d")
-    ax.scatter(*points.T, s=2, color="black", alpha=0.4, label="targets")
+    ax.scatter(*points.T, s=target_marker_size(len(points)), color="tab:blue", alpha=0.9,
+               edgecolors="k", linewidths=0.3, depthshade=False, label="targets")  # fmt: skip
     laser = system.world_T_laser[:3, 3]
     ax.scatter(*laser, marker="*", s=120, color="red", label="laser")
     for i, r in enumerate(system.robots):
@@ -102,6 +104,10 @@ def plot_beam_chain(
         np.unique(np.linspace(0, len(qs) - 1, min(max_beams, len(qs))).astype(int)) if qs else []
     )
     drawn = [points, laser[None], *[r.world_T_base[:3, 3][None] for r in system.robots]]
+    if system.camera is not None:
+        k = system.camera.intrinsics
+        world_T_camera = system.camera.world_T_camera  # eye-in-hand: at the home joints
+        drawn.append(draw_camera(ax, world_T_camera, k.fx, k.fy, k.width, k.height))
     show_arms = pick[len(pick) // 2] if len(pick) else -1
     for k in pick:
         aim = points[min(k, len(points) - 1)]

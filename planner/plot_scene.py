@@ -88,3 +88,25 @@ def draw_failed(ax: Any, plan: dict[str, Any], points: Array) -> list[Array]:
         ax.scatter(*P.T, marker=markers[reason], s=30, color="red",
                    label=f"failed: {reason} ({count})")  # fmt: skip
     return [points[[int(s["target"]) for s in failed]]]
+
+
+def target_marker_size(n: int) -> float:
+    """Marker area (pt^2) of ``n`` targets: large for a few, small but visible for 10^4."""
+    return float(np.clip(3000.0 / max(n, 1), 6.0, 60.0))
+
+
+def draw_camera(ax: Any, world_T_camera: Array, fx: float, fy: float, width: int, height: int,
+                depth: float = 0.12) -> Array:  # fmt: skip
+    """The camera as its viewing frustum (OpenCV optical frame, +z forward) cut ``depth`` m in
+    front of it, and a marker at its centre; returns the points drawn (world, m)."""
+    T = np.asarray(world_T_camera, dtype=float)
+    hx, hy = depth * width / (2 * fx), depth * height / (2 * fy)
+    corners = np.array([[-hx, -hy, depth], [hx, -hy, depth], [hx, hy, depth], [-hx, hy, depth]])
+    world = corners @ T[:3, :3].T + T[:3, 3]
+    centre = T[:3, 3]
+    for c in world:
+        ax.plot(*np.stack([centre, c]).T, color="tab:purple", lw=1.0)
+    ring = np.vstack([world, world[:1]])
+    ax.plot(*ring.T, color="tab:purple", lw=1.0)
+    ax.scatter(*centre, marker="D", s=50, color="tab:purple", label="camera", depthshade=False)
+    return np.vstack([centre[None], world])

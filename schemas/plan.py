@@ -211,6 +211,9 @@ class Plan(StrictModel):
     """for an ``execute`` request: did every robot driver accept its trajectory"""
     execution_reason: str | None = None
     """with ``rejected``: which driver rejected it and why"""
+    warnings: list[str] | None = None
+    """one line each: what the user should know before trusting the plan (a target far
+    from every scene surface, so the spot lands elsewhere)"""
 
     @model_validator(mode="after")
     def _consistent(self) -> Self:

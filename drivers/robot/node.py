@@ -90,6 +90,7 @@ with the stop deceleration of :mod:`drivers.robot.follower`, drop the queued tra
 
 from __future__ import annotations
 
+import logging
 import sys
 import time
 from collections.abc import Callable
@@ -112,10 +113,12 @@ from drivers.robot.ur_link import RateLimitedLog, parse_recover, recover_key
 from planner.errors import InputError
 from planner.model.system import Limits
 from planner.service.bus import JSON, Keys, decode, encode, urgent
+from planner.service.events import event, stop_fields
 from planner.service.execution import base_id
 from planner.service.priority import Priority, raise_priority
 from schemas.messages import Heartbeat, JointState, RobotStatus, StopMessage, TrajectoryAck
 
+log = logging.getLogger("beamrelay.driver")
 HEARTBEAT_TIMEOUT = 0.100  # s: longest planner silence before the arm brakes
 #: s: a setpoint stream this silent is late: treatment off until the next setpoint (three
 #: periods of a 500 Hz stream; the stream itself ends at 50 ms)
@@ -290,6 +293,7 @@ class RobotNode(StreamingMixin, LoopNode):
 
     def _on_stop(self, sample: Any) -> None:
         self.stop_requested_at = self.clock()
+        event(log, "stop_seen", logging.WARNING, robot=self.robot, **stop_fields(sample))
 
     def _on_trajectory(self, sample: Any) -> None:
         self.intake.submit(sample.payload)
@@ -404,10 +408,14 @@ class RobotNode(StreamingMixin, LoopNode):
         if self.gate is not None:
             self.gate.force_off(reason)
         moving = bool(np.any(np.abs(self.backend.follower.qd) > REST_VELOCITY))
+        active = self.streams.active
+        running = self._running.id if self._running is not None else None
+        running = running if active is None else active.id
         stream = self.streams.end(rejected or reason, moving, rejected is not None)
         if stream is not None:
             self.setpoints.end(stream)
         self.backend.brake(reason)
+        event(log, "stop", logging.WARNING, robot=self.robot, id=running, reason=reason)
         self._running = self._queued = None
         self.stopped_by = reason
 
@@ -462,10 +470,12 @@ class RobotNode(StreamingMixin, LoopNode):
             self.n_rejected += 1
             self.rejection = f"trajectory rejected: {exc}"
             self.ack = TrajectoryAck(id=v.id, accepted=False, reason=str(exc), t=time.time())
+            event(log, "rejected", logging.WARNING, robot=self.robot, id=v.id, reason=str(exc))
             return
         self.n_accepted += 1
         self.rejection = self.stopped_by = None
         self.ack = TrajectoryAck(id=v.id, accepted=True, t=time.time())
+        event(log, "accepted", robot=self.robot, id=v.id)
 
     def _check_emission(self, laser_on: bool, aim_on: bool) -> None:
         """InputError when a trajectory or stream asks for a laser this driver cannot (or,

@@ -29,12 +29,14 @@ from planner.cli import (
     node,
     plan,
     record,
+    request,
     robot,
     study,
 )
+from planner.cli.args import command_group
 from planner.errors import InputError
 
-app = typer.Typer(
+app = command_group(
     name="beamrelay",
     help="Relay a free-space laser beam with robot-held mirrors: plan, check, calibrate, run.",
     no_args_is_help=True,
@@ -48,7 +50,7 @@ app.command("plan")(plan.plan)
 app.command("check")(plan.check)
 app.command("serve")(node.serve)
 app.command("up")(node.up)
-app.command("request")(node.request)
+app.command("request")(request.request)
 app.command("console")(console.console)
 app.add_typer(calibrate.app, name="calibrate")
 app.add_typer(study.app, name="study")

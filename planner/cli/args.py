@@ -6,6 +6,8 @@ import signal
 import threading
 from typing import Any
 
+import typer
+
 from planner.errors import InputError
 
 
@@ -38,3 +40,9 @@ def wait_until_set(stop: threading.Event, poll: float = 0.2) -> None:
     """Block until ``stop`` is set, waking every ``poll`` s (so signal handlers run)."""
     while not stop.wait(poll):
         pass
+
+
+def command_group(**settings: Any) -> typer.Typer:
+    """A command group of ``beamrelay`` (``typer.Typer(**settings)``) with click's plain help
+    formatter: paragraphs re-wrapped to the terminal, flags shown without a type, no boxes."""
+    return typer.Typer(rich_markup_mode=None, **settings)

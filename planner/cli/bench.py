@@ -4,8 +4,6 @@ figures as one JSON object on the last line of standard output."""
 
 from __future__ import annotations
 
-import typer
-
 from planner.bench import (
     brakes,
     camera,
@@ -20,8 +18,9 @@ from planner.bench import (
     servo,
     track,
 )
+from planner.cli.args import command_group
 
-app = typer.Typer(help="Benchmarks (figures printed, not asserted).", no_args_is_help=True)
+app = command_group(help="Benchmarks (figures printed, not asserted).", no_args_is_help=True)
 
 BENCHMARKS = {
     "ik": ik,

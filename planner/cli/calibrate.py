@@ -12,10 +12,10 @@ from typing import Annotated
 
 import typer
 
-from planner.cli.args import parse_xyz
+from planner.cli.args import command_group, parse_xyz
 from planner.errors import InputError
 
-app = typer.Typer(
+app = command_group(
     help="Calibrate the camera hand-eye and the laser line + mirror plane; simulate datasets.",
     no_args_is_help=True,
 )
@@ -42,10 +42,33 @@ def _fail_on_calibration_error(exc: Exception) -> None:
     raise typer.Exit(2)
 
 
+def _existing_kind(out: Path) -> str | None:
+    """``report.kind`` of the calibration file at ``out`` (None: no file, or not one)."""
+    from ruamel.yaml import YAML
+    from ruamel.yaml.error import YAMLError
+
+    if not out.is_file():
+        return None
+    try:
+        data = YAML(typ="safe", pure=True).load(out.read_text())
+    except (YAMLError, UnicodeDecodeError):
+        return None
+    report = data.get("report") if isinstance(data, dict) else None
+    kind = report.get("kind") if isinstance(report, dict) else None
+    return str(kind) if kind is not None else None
+
+
 def _write(document: dict[str, object], out: Path) -> None:
-    """Write the calibration YAML and print its summary."""
+    """Write the calibration YAML and print its summary. A file holding the other kind of
+    calibration (hand-eye vs beam) is never overwritten: both are needed, in two files."""
     from planner.calibration.report import summary_lines, write_calibration
 
+    kind = document["report"]["kind"]  # type: ignore[index]
+    held = _existing_kind(out)
+    if held is not None and held != kind:
+        other = "beam.yaml" if kind == "beam" else "handeye.yaml"
+        raise InputError(f"holds the {held} calibration, which the {kind} result would replace: "
+                         f"write it to another file (e.g. -o {other}) and include both", str(out))  # fmt: skip
     write_calibration(out, document)
     for line in summary_lines(document):  # type: ignore[arg-type]
         typer.echo(line)
@@ -71,7 +94,7 @@ def nominal_camera_warning(n_spots: int, scenario: Path, key: str) -> str:
 def handeye(
     data: Annotated[Path, typer.Argument(help="beamrelay.handeye/1 JSON dataset.")],
     scenario: ScenarioOpt,
-    out: OutOpt = Path("calibration.yaml"),
+    out: OutOpt = Path("handeye.yaml"),
     loss: LossOpt = "none",
     loss_scale: ScaleOpt = 0.005,
 ) -> None:
@@ -107,7 +130,7 @@ def handeye(
 def beam(
     data: Annotated[Path, typer.Argument(help="beamrelay.beam/1 JSON dataset.")],
     scenario: ScenarioOpt,
-    out: OutOpt = Path("calibration.yaml"),
+    out: OutOpt = Path("beam.yaml"),
     loss: LossOpt = "none",
     loss_scale: ScaleOpt = 0.005,
     mirror_centre: Annotated[

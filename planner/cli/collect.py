@@ -13,11 +13,11 @@ from typing import Annotated, Any
 
 import typer
 
-from planner.cli.args import parse_xyz
+from planner.cli.args import command_group, parse_xyz
 from planner.cli.node import EndpointOpt, PrefixOpt, ZenohConfigOpt
 from planner.errors import InputError
 
-app = typer.Typer(help="Collect calibration data on the running system (moves the robot).")
+app = command_group(help="Collect calibration data on the running system (moves the robot).")
 
 ScenarioOpt = Annotated[Path, typer.Option("--scenario", "-s", help="Scenario YAML.")]
 OutOpt = Annotated[Path, typer.Option("--output", "-o", help="Dataset JSON to write.")]

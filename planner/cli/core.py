@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -43,6 +43,23 @@ def _parse_q(specs: list[str]) -> dict[str, list[float]]:
     return out
 
 
+def check_radians(name: str, q: Any, lower: Any, upper: Any) -> None:
+    """Refuse joint values (rad) of robot ``name`` outside its position limits, saying so
+    when they look like degrees (any beyond 2 pi): one line, InputError."""
+    import numpy as np
+
+    outside = np.flatnonzero((q < lower) | (q > upper))
+    if not outside.size:
+        return
+    j = int(outside[0])
+    hint = ""
+    if np.abs(q).max() > 2 * np.pi:
+        hint = (f"; these look like degrees: --q takes radians "
+                f"({q[j]:g} deg = {np.radians(q[j]):.4f} rad)")  # fmt: skip
+    raise InputError(f"--q {name}: joint {j} = {q[j]:g} rad is outside its limits "
+                     f"[{lower[j]:.4f}, {upper[j]:.4f}] rad{hint}")  # fmt: skip
+
+
 def trace(
     scenario: Annotated[Path, typer.Argument(help="Scenario YAML.")],
     q: Annotated[
@@ -70,6 +87,7 @@ def trace(
         qi = np.asarray(given.pop(r.name, r.home), dtype=float)
         if qi.shape != (r.nq,):
             raise InputError(f"--q {r.name}: expected {r.nq} joint values, got {qi.size}")
+        check_radians(r.name, qi, r.limits.lower, r.limits.upper)
         joints[r.name] = qi
     if given:
         names = ", ".join(system.robot_names)

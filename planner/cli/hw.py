@@ -14,9 +14,10 @@ from typing import Annotated, Any
 
 import typer
 
+from planner.cli.args import command_group
 from planner.errors import InputError
 
-app = typer.Typer(help="Hardware bring-up: checklist of the arm and the camera.")
+app = command_group(help="Hardware bring-up: checklist of the arm and the camera.")
 
 
 @app.command("check")

@@ -8,7 +8,7 @@ from typing import Annotated, Any
 import typer
 
 from planner.errors import InputError
-from planner.model.status import Status
+from planner.model.status import Status, evidence_text
 
 
 def _fmt(x: float | None, scale: float, digits: str) -> str:
@@ -102,22 +102,6 @@ def _print_findings(console: Any, results: list[Any], title: str, most: int = 20
     return len(findings)
 
 
-def _evidence_text(evidence: dict[str, Any]) -> str:
-    """Compact ``key=value`` evidence (numbers to 4 significant digits, q left out)."""
-    import numpy as np
-
-    parts = []
-    for key, value in evidence.items():
-        if key == "q":
-            continue
-        if isinstance(value, float | int | np.floating):
-            value = f"{float(value):.4g}"
-        elif isinstance(value, list | tuple | np.ndarray):
-            value = "[" + " ".join(f"{float(v):.4g}" for v in np.ravel(value)) + "]"
-        parts.append(f"{key}={value}")
-    return ", ".join(parts)
-
-
 def _failures(solutions: list[Any], most: int = 8) -> Any:
     """The first failed targets with their reason and the numbers that show it."""
     from rich.table import Table
@@ -127,7 +111,7 @@ def _failures(solutions: list[Any], most: int = 8) -> Any:
     for col in ("target", "reason", "evidence"):
         table.add_column(col)
     for k, sol in failed[:most]:
-        table.add_row(str(k), str(sol.reason), _evidence_text(dict(sol.evidence or {})))
+        table.add_row(str(k), str(sol.reason), evidence_text(dict(sol.evidence or {})))
     return table
 
 
@@ -199,6 +183,10 @@ def _load_plan(path: Path) -> dict[str, Any]:
     return data
 
 
+#: check figures that are finite-difference joint rates over their limits
+_RATE_RATIOS = ("velocity_max_ratio", "acceleration_max_ratio", "jerk_max_ratio")
+
+
 def _figure_text(key: str, value: float) -> str:
     """A check figure with its unit, lengths in mm (the names of the JSON figures are SI)."""
     if key.endswith("_m"):
@@ -206,6 +194,13 @@ def _figure_text(key: str, value: float) -> str:
     for suffix, unit in (("_rad", "rad"), ("_deg", "deg"), ("_s", "s")):
         if key.endswith(suffix):
             return f"{key[: -len(suffix)].replace('_', ' ')} {value:.4g} {unit}"
+    if key in _RATE_RATIOS:
+        from planner.verify.tolerances import RATE_SLACK
+
+        text = f"{key[:-10]} max {100 * value:.1f} % of limit"
+        if value > 1:  # the verdict allows finite differences this far over the limit
+            text += f" (within the {100 * RATE_SLACK:g} % finite-difference allowance)"
+        return text
     if key.endswith("_ratio"):
         return f"{key[:-6].replace('_', ' ')} {100 * value:.1f} %"
     return f"{key.replace('_', ' ')} {value:.3g}"

@@ -12,6 +12,7 @@ from typing import Annotated
 
 import typer
 
+from drivers.record import CLOUD_RATE
 from planner.cli.args import stop_on_signals
 from planner.cli.node import EndpointOpt, PrefixOpt, ZenohConfigOpt
 from planner.errors import InputError
@@ -26,13 +27,23 @@ def record(
     prefix: PrefixOpt = "beamrelay",
     zenoh_config: ZenohConfigOpt = None,
     force: Annotated[bool, typer.Option("--force", help="Overwrite an existing file.")] = False,
+    cloud_rate: Annotated[
+        float,
+        typer.Option(
+            "--cloud-rate",
+            help="Point clouds kept per second (the camera sends 15; 0 keeps every one).",
+        ),
+    ] = CLOUD_RATE,
 ) -> None:
-    """Record every bus key under the prefix (and liveliness) with timestamps to MCAP."""
+    """Record every bus key under the prefix (and liveliness) with timestamps to MCAP
+    (zstd-compressed; point clouds decimated to --cloud-rate)."""
     from drivers.record import Recorder
     from planner.service.bus import open_session
 
     if duration is not None and not 0 < duration <= 86400:
         raise InputError(f"must be in (0, 86400] s, got {duration:g}", "--duration")
+    if not 0 <= cloud_rate <= 1000:
+        raise InputError(f"must be in [0, 1000] Hz, got {cloud_rate:g}", "--cloud-rate")
     if output.suffix != ".mcap":
         raise InputError("the recording is MCAP: name it *.mcap", f"--output {output}")
     if output.exists() and not force:
@@ -45,7 +56,7 @@ def record(
     t0 = time.monotonic()
     try:
         with tmp.open("wb") as f:
-            rec = Recorder(session, prefix, f)
+            rec = Recorder(session, prefix, f, cloud_rate)
             typer.echo(f"recording {prefix}/** to {output} (Ctrl-C to stop)", err=True)
             stop.wait(duration)
             n = rec.close()
@@ -53,7 +64,11 @@ def record(
     finally:
         session.close()
         tmp.unlink(missing_ok=True)
-    typer.echo(f"{output}: {n} messages in {time.monotonic() - t0:.1f} s")
+    dropped = (
+        f", {rec.clouds_dropped} point clouds skipped (--cloud-rate)" if rec.clouds_dropped else ""
+    )
+    size = output.stat().st_size / 1e6
+    typer.echo(f"{output}: {n} messages in {time.monotonic() - t0:.1f} s, {size:.1f} MB{dropped}")
 
 
 def replay(

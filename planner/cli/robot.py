@@ -19,10 +19,11 @@ from typing import Annotated, Any
 
 import typer
 
+from planner.cli.args import command_group
 from planner.cli.node import EndpointOpt, PrefixOpt, ZenohConfigOpt
 from planner.errors import InputError
 
-app = typer.Typer(help="Operator actions on a robot driver (recover after a fault).")
+app = command_group(help="Operator actions on a robot driver (recover after a fault).")
 
 
 @app.command("recover")

@@ -4,11 +4,10 @@ taking at least ``--trials``, ``--seed``, ``-o/--out``, ``--workers`` and ``--js
 
 from __future__ import annotations
 
-import typer
-
+from planner.cli.args import command_group
 from planner.studies import all as all_studies
 
-app = typer.Typer(help="Studies: paper reproductions and reports.", no_args_is_help=True)
+app = command_group(help="Studies: paper reproductions and reports.", no_args_is_help=True)
 
 STUDIES = {**all_studies.STUDIES, "all": all_studies}
 """Command name -> study module (its ``command`` is the sub-command)."""

@@ -1,6 +1,6 @@
 """The operator console: a browser page (viser) on the running system.
 
-It is a Zenoh client of the planner's public interface (SPEC section 6): it shows the live
+It is a Zenoh client of the planner's public interface (docs/conventions.md section 6): it shows the live
 point cloud, robots, beam, spot and node health; the operator clicks targets on the cloud,
 previews the plan, executes it and stops it. ``beamrelay console SCENARIO`` or
 ``beamrelay up SCENARIO --console``.

@@ -1,6 +1,6 @@
 """What the console sees on the bus: the latest of every stream, thread safe.
 
-:class:`LiveState` subscribes, on one Zenoh session, to the public topics of SPEC section 6:
+:class:`LiveState` subscribes, on one Zenoh session, to the public topics of docs/conventions.md section 6:
 ``camera/points`` (kept raw; decoded by the drawing loop), ``camera/spot``, every robot's
 ``joint_states`` and ``status``, the laser gate ``<prefix>/laser``, the planner's
 ``heartbeat`` and the liveliness tokens ``alive/**``. Callbacks only store; bodies that do

@@ -5,7 +5,7 @@ is the cloud point nearest to that ray among those ahead of the origin, within
 ``max_distance`` of it (m); ties in distance to the ray go to the point nearer the viewer,
 so a click never picks through a surface to the points behind it. Its normal comes from a
 plane fitted (SVD, as in the paper) to the cloud points within ``radius`` of it, turned to
-face the viewer (SPEC: a normal points out of the surface toward the side the beam arrives
+face the viewer (docs/conventions.md: a normal points out of the surface toward the side the beam arrives
 from, which for a surface the camera sees is the camera's side). The target is the picked
 point moved onto that plane: a single cloud point is off the surface by the depth noise
 (1.3 mm at 0.6 m for a D435), the plane of ~75 neighbours by about a tenth of that, and a

@@ -1,6 +1,6 @@
 """What a plan reply shows before anything moves: beams, failures, the swept path, timing.
 
-Pure functions of a plan.json dict (SPEC section 5; world frame, m, s) and the console's
+Pure functions of a plan.json dict (docs/conventions.md section 5; world frame, m, s) and the console's
 :class:`~planner.model.system.System`: :func:`preview_of` gathers the planned beam of every
 solved target (laser exit, mirror hits, spot), the failed targets with their reason, the
 spot's path over the trajectory and the duration; :func:`joints_at` interpolates the
@@ -26,7 +26,7 @@ SWEEP_SAMPLES = 400
 
 
 class Failure(NamedTuple):
-    """A failed target: its index, ``p`` (world, m), ``reason`` (SPEC reason), the detail text."""
+    """A failed target: its index, ``p`` (world, m), ``reason`` (a plan.json reason), the detail text."""
 
     target: int
     p: Array

@@ -149,7 +149,7 @@ class BeamIK:
         )
 
     def classify(self, ev: BeamTrace, q: Array, status: str) -> tuple[Reason, dict[str, object]]:
-        """Reason (SPEC section 5) of a rejected configuration, with its evidence."""
+        """Reason (docs/conventions.md section 5) of a rejected configuration, with its evidence."""
         evidence: dict[str, object] = {
             "error_m": ev.error,
             "ipopt_status": status,

@@ -171,7 +171,9 @@ def _apply_include(
     u = report_spot_uncertainty(inc.get("report")) if isinstance(inc, dict) else 0.0
     safety = data.setdefault("safety", {}) if u > 0 else None
     if isinstance(safety, dict) and u > float(safety.get("spot_uncertainty") or 0.0):
-        safety["spot_uncertainty"] = u  # the safety margin grows by 3 x it (SPEC section 4)
+        safety["spot_uncertainty"] = (
+            u  # the safety margin grows by 3 x it (docs/conventions.md section 4)
+        )
         origins[("safety", "spot_uncertainty")] = (inc_shown, 0)
     if isinstance(inc, dict) and inc.get("system"):
         over = {"system": inc["system"]}

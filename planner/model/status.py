@@ -41,3 +41,24 @@ class Failure(NamedTuple):
 
     def __str__(self) -> str:
         return f"{self.reason}: {self.detail}" if self.detail else str(self.reason)
+
+
+def evidence_text(evidence: object, digits: int = 4) -> str:
+    """Failure evidence (a JSON-like mapping of SI values, possibly nested) as one readable
+    line: ``key=value`` pairs, numbers to ``digits`` significant digits, vectors in brackets,
+    nested mappings in braces; joint vectors ``q`` are left out (they are in the plan)."""
+    if isinstance(evidence, dict):
+        return ", ".join(f"{k}={_value_text(v, digits)}" for k, v in evidence.items() if k != "q")
+    return _value_text(evidence, digits)
+
+
+def _value_text(value: object, digits: int) -> str:
+    if hasattr(value, "tolist"):  # a numpy array or scalar
+        value = value.tolist()
+    if isinstance(value, dict):
+        return "{" + evidence_text(value, digits) + "}"
+    if isinstance(value, list | tuple):
+        return "[" + " ".join(_value_text(v, digits) for v in value) + "]"
+    if isinstance(value, float):
+        return f"{value:.{digits}g}"
+    return str(value)

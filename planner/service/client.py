@@ -282,6 +282,9 @@ class PlanClient:
             connect_timeout=connect_timeout,
         )
         self.recorder = Recorder()
+        #: why the last :meth:`execute` motion did not run to its end (a driver's fault, a
+        #: stop, robots not at rest at the end in time), None when it did or nothing moved
+        self.interruption: str | None = None
         self._subs: list[Any] = []
         self._watching = False
 
@@ -371,10 +374,12 @@ class PlanClient:
         final joints (at most ``timeout`` s more), then ``settle`` seconds more so the camera
         sees the final target; stops waiting when a driver reports a fault or a protective
         stop on this request's trajectory (a lost heartbeat, STOP); returns at once when the drivers
-        rejected the trajectory (``plan["execution"]``). Spots are None where not measured
+        rejected the trajectory (``plan["execution"]``); :attr:`interruption` says why a motion
+        did not run to its end. Spots are None where not measured
         (all of them when rejected, or when the plan's scenario has no fixed camera).
         """
         self.watch()
+        self.interruption = None
         since = time.monotonic()
         if req.get("closed_loop"):  # the node measured: the reply comes after the motion
             plan = self.request({**req, "execute": True}, timeout)
@@ -390,10 +395,16 @@ class PlanClient:
         deadline = started + duration + timeout
         # the arm may run late (a dwell looks like the end): wait until it rests at the end,
         # or a driver reports that it stopped this trajectory (a fault, a protective stop)
+        reached = False
         while time.monotonic() < deadline and self.recorder.fault_of(plan.get("id")) is None:
             if time.monotonic() - started >= duration and self.recorder.rests_at(q_end):
+                reached = True
                 break
             time.sleep(0.02)
+        self.interruption = self.recorder.fault_of(plan.get("id"))
+        if self.interruption is None and not reached:
+            self.interruption = (f"the robots did not come to rest at the trajectory's end "
+                                 f"within {duration + timeout:.1f} s")  # fmt: skip
         time.sleep(settle)
         if world_T_camera_of(plan) is None:  # no camera (or one on a flange): not measured
             return plan, unmeasured
@@ -442,6 +453,7 @@ def request_summary(plan: dict[str, Any], spots: list[Array | None] | None) -> d
         "n_ok": plan["metrics"]["n_ok"],
         "n_targets": plan["metrics"]["n_targets"],
         "duration": plan["metrics"].get("duration"),
+        "warnings": list(plan.get("warnings") or []),
     }
     if measured:
         out["measured_error_median"] = float(np.median(measured))

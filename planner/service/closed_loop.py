@@ -41,6 +41,7 @@ import numpy as np
 
 from planner.errors import InputError
 from planner.model.settings import TrajectorySettings
+from planner.model.status import evidence_text
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
 from planner.service.execution import ExecuteError
@@ -94,7 +95,8 @@ def make_move_fn(system: System, settings: TrajectorySettings, safety: Any = Non
                                         q_start=np.asarray(q_from, dtype=float))  # fmt: skip
         if timed is None or not sols[0].ok:
             why = sols[0].reason if sols and sols[0].reason else "no safe move"
-            raise ExecuteError(f"closed-loop move refused: {why} {sols[0].evidence}",
+            shown = evidence_text(sols[0].evidence) if sols else ""
+            raise ExecuteError(f"closed-loop move refused: {why} ({shown})",
                                list(system.robot_names))  # fmt: skip
         return timed.trajectory.to_plan_dict(system)
 

@@ -199,9 +199,35 @@ def make_plan_fn(
                                                 order="given", path=None, progress=None,
                                                 q_start=q_from)  # fmt: skip
                 traj = None if timed is None else timed.trajectory.to_plan_dict(system)
-        return plan_document(system, targets, sols, scn_now, traj, verify=False)
+        doc = plan_document(system, targets, sols, scn_now, traj, verify=False)
+        if targets.kind != "path" and scene is not None and not scene.empty:
+            add_surface_warnings(doc, targets.points, scene)
+        return doc
 
     return plan_fn
+
+
+#: m: a point target farther than this from every scene surface gets a warning
+OFF_SURFACE = 0.005
+
+
+def add_surface_warnings(doc: dict[str, Any], points: Array, scene: Any) -> None:
+    """Warn (``doc["warnings"]``, one line each) about targets farther than
+    :data:`OFF_SURFACE` from every surface of ``scene`` (a SceneModel): the spot lands
+    where the beam meets a surface, not on a target in mid-air. Writes the largest
+    distance to ``metrics.extra.surface_distance_max`` (m)."""
+    dist, obj = scene.nearest_surface(points)
+    doc["metrics"]["extra"]["surface_distance_max"] = float(dist.max())
+    far = np.flatnonzero(dist > OFF_SURFACE)
+    if not len(far):
+        return
+    names = scene.names
+    lines = [f"target {int(k)} is {1e3 * dist[k]:.1f} mm from the nearest surface "
+             f"({names[obj[k]]}): the spot lands where the beam meets a surface"
+             for k in far[:5]]  # fmt: skip
+    if len(far) > 5:
+        lines.append(f"... and {len(far) - 5} more targets off every surface")
+    doc["warnings"] = lines
 
 
 def timed_trajectory(

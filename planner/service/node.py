@@ -51,6 +51,7 @@ from planner.errors import InputError
 from planner.model.transforms import Array
 from planner.service.bodies import encode_json
 from planner.service.bus import JSON, Keys, decode_sample, encode, update_alive, urgent
+from planner.service.events import event, request_fields, stop_fields, verdict_fields
 from planner.service.execution import (
     ACK_TIMEOUT,
     HALTED_MODES,
@@ -118,6 +119,7 @@ class PlannerNode:
         self.joints = JointCache(self.robots)
         self.tracks = MotionTracks()
         self.acks = AckBoard()
+        self._faults: dict[str, str | None] = {}  # robot -> the fault its status last reported
         self.spots = SpotBuffer()
         self.laser = LaserLog()
         self.stop_seen = threading.Event()
@@ -253,6 +255,7 @@ class PlannerNode:
             ack = msg.trajectory
             if ack is not None:
                 self.acks.offer(robot, ack)
+            self._log_fault(robot, msg)
             if self.track is not None:
                 self.track.on_status(robot, msg)
             if msg.mode in HALTED_MODES or msg.protective_stop:
@@ -264,6 +267,16 @@ class PlannerNode:
 
         return cb
 
+    def _log_fault(self, robot: str, msg: Any) -> None:
+        """One ``fault`` event when a driver's reported fault changes (and ``fault_cleared``)."""
+        fault = "protective stop" if msg.protective_stop else msg.fault
+        if fault == self._faults.get(robot):
+            return
+        self._faults[robot] = fault
+        ack = msg.trajectory
+        event(log, "fault" if fault else "fault_cleared", logging.WARNING if fault else logging.INFO,
+              robot=robot, id=None if ack is None else ack.id, mode=msg.mode, fault=fault)  # fmt: skip
+
     def _halt_all(self, reason: str) -> None:
         """One robot halted (or vanished) mid-execution: stop them all (the beam chain)."""
         log.warning("stopping every robot: %s", reason)
@@ -274,7 +287,8 @@ class PlannerNode:
         except Exception:  # the session may be closing
             log.exception("could not publish the stop")
 
-    def _on_stop(self, _sample: Any) -> None:
+    def _on_stop(self, sample: Any) -> None:
+        event(log, "stop_seen", logging.WARNING, **stop_fields(sample))
         self.stop_seen.set()
         self._stop_track(f"stop seen on {self.keys.stop}")
         self.tracks.clear()
@@ -293,6 +307,7 @@ class PlannerNode:
 
     def _respond(self, job: Job, body: bytes | None, exc: Exception | None) -> None:
         if exc is not None:
+            event(log, "refused", logging.WARNING, id=request_id_of(job.payload), error=str(exc))
             body = error_body(exc, request_id_of(job.payload))
         assert body is not None
         if job.kind == "query":
@@ -316,6 +331,7 @@ class PlannerNode:
         with self._handler_lock:
             handler, version = self.handler, self.calibration_version
         req = handler.parse(payload)
+        event(log, "request", **request_fields(req))
         check_closed_loop(req, handler.system, handler.closed_loop)
         if req.closed_loop and handler.closed_loop is None:
             raise InputError("this planner serves no closed_loop requests", "closed_loop")
@@ -334,6 +350,8 @@ class PlannerNode:
         timed = (req.execute and not req.closed_loop) or req.trajectory
         plan = handler.plan_fn(targets, start, timed, dwell=req.dwell)
         plan["id"] = req.id
+        for text in plan.get("warnings") or []:  # logged before anything moves
+            event(log, "warning", logging.WARNING, id=req.id, text=text)
         if self.online is not None:
             plan["metrics"].setdefault("extra", {})["calibration_version"] = version
         if req.execute and req.closed_loop:
@@ -342,6 +360,7 @@ class PlannerNode:
         elif req.execute:
             self.execute(plan, req.id)
         self.served += 1
+        event(log, "verdict", **verdict_fields(plan))
         return encode_json(plan)
 
     # --- execution -------------------------------------------------------------------------

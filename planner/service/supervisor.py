@@ -176,3 +176,27 @@ class Supervisor:
     def __exit__(self, *exc: Any) -> None:
         if not self.stopping:
             self.stop()
+
+
+class LogTail:
+    """The lines the children append to their logs (``<log_dir>/<name>.log``) from now on,
+    for ``up`` without a terminal: it prints the events every process logs."""
+
+    def __init__(self, log_dir: Path, names: list[str]) -> None:
+        self.paths = {n: Path(log_dir) / f"{n}.log" for n in names}
+        self.offsets = {n: (p.stat().st_size if p.exists() else 0) for n, p in self.paths.items()}
+        self.partial = dict.fromkeys(names, b"")
+
+    def lines(self) -> list[tuple[str, str]]:
+        """(child, line) of every complete line written since the last call."""
+        out = []
+        for name, path in self.paths.items():
+            if not path.exists():
+                continue
+            with path.open("rb") as f:
+                f.seek(self.offsets[name])
+                data = f.read()
+            self.offsets[name] += len(data)
+            *done, self.partial[name] = (self.partial[name] + data).split(b"\n")
+            out += [(name, line.decode(errors="replace")) for line in done if line.strip()]
+        return out

@@ -106,6 +106,7 @@ class TrackSession:
         self.t_start = clock()
         self._last: tuple[float, Array, Array] | None = None
         self._final_sent = False
+        self.completed = False  # ran for its whole duration (not ended by a fault or stop)
         self.summary: dict[str, Any] | None = None
 
     # --- lifecycle -------------------------------------------------------------------------
@@ -264,6 +265,7 @@ class TrackSession:
     def _check_time(self, t: float) -> None:
         f = self.follower
         if self.duration is not None and t - self.t_start >= self.duration:
+            self.completed = self.completed or f.stopped is None  # not already ended
             f.stop(f"duration {self.duration:g} s elapsed")
         elif f.frame_seen is None and t - self.t_start > FIRST_FRAME_TIMEOUT:
             f.stop(f"no frame of target stream {self.id!r} within {FIRST_FRAME_TIMEOUT:g} s")
@@ -290,7 +292,7 @@ class TrackSession:
         for s in self._joint_subs:
             s.undeclare()
         reason = self.follower.stopped or "stopped"
-        if not reason.startswith("duration"):
+        if not self.completed:
             self.send_stop(f"tracking {self.id!r} ended: {reason}")
         self.summary = self._summary(reason)
         log.info("tracking %s ended: %s", self.id, json.dumps(self.summary))
@@ -304,7 +306,8 @@ class TrackSession:
             figures = {"latency_p50": float(np.percentile(lat, 50)),
                        "latency_p99": float(np.percentile(lat, 99)),
                        "latency_max": float(lat.max())}  # fmt: skip
-        return {"schema": TRACK_SCHEMA, "id": self.id, "ended": reason, "frames": self.frames,
+        return {"schema": TRACK_SCHEMA, "id": self.id, "ended": reason,
+                "completed": self.completed, "frames": self.frames,
                 "ignored": self.ignored, "skipped": self.skipped, "setpoints": self.sent,
                 "laser_on_fraction": self.lit / self.sent if self.sent else 0.0,
                 "duration": self.clock() - self.t_start, "streamer_error": self._streamer.error,

@@ -33,7 +33,7 @@ from planner.service.bus import (
     update_alive,
 )
 from planner.service.priority import raised_priority
-from planner.service.supervisor import Supervisor
+from planner.service.supervisor import LogTail, Supervisor
 
 RATE_WINDOW = 2.0  # s over which message rates are averaged
 
@@ -260,6 +260,12 @@ def role_files(folder: Path) -> dict[str, Path]:
     return {r: p for r, p in ((r, _child_config(p)) for r, p in files.items()) if p is not None}
 
 
+def _print_events(console: Any, tail: LogTail | None) -> None:
+    """Print the lines the children logged since the last call, each after its name."""
+    for name, line in tail.lines() if tail is not None else []:
+        console.print(f"{name}: {line}", markup=False, highlight=False, soft_wrap=True)
+
+
 def run_up(
     scenario: Path,
     *,
@@ -321,8 +327,10 @@ def run_up(
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     console = Console(stderr=not live)
+    live = live and console.is_terminal  # without a terminal: the children's event lines
     health = Health(session, Keys(prefix))
     sup = Supervisor(argv, log_dir, manual=tuple(robots) if backend == "ur" else ())
+    tail = None if live else LogTail(log_dir, list(argv))
     title = f"beamrelay up {scn.model.name} on {endpoint} (logs {log_dir})"
     t_end = None if duration is None else time.monotonic() + duration
     try:
@@ -338,10 +346,12 @@ def run_up(
                         console.log(f"restarted {name} (operator recover)")
                 if view is not None:
                     view.update(health_table(sup, health, title))
+                _print_events(console, tail)
                 if t_end is not None and time.monotonic() >= t_end:
                     break
     finally:
         codes = sup.stop(order=["planner"])
+        _print_events(console, tail)
         health.close()
         session.close()
         for s, h in previous.items():

@@ -11,7 +11,7 @@ or the camera lens (within ``safety.return_radius`` m and ``return_cone_deg`` of
 axes; the lens within :data:`LENS_CONE_DEG`). A solved target inside a keep-out volume is a
 violation. Keep-out volumes and arm parts are inflated for the beam by the margin
 ``laser.beam_radius`` + :data:`UNCERTAINTY_K` x ``safety.spot_uncertainty`` (the included
-calibration's, echoed in the plan; SPEC section 4), computed here from the echo (a mesh
+calibration's, echoed in the plan; docs/conventions.md section 4), computed here from the echo (a mesh
 volume's planes move out by it: at its edges that is a little more than the margin).
 Only UR5e arms are modelled (a URDF arm is reported as not checked); a scene
 mesh is not re-checked (warning); a cylinder is checked against bounds of its true
@@ -46,7 +46,7 @@ if TYPE_CHECKING:
 
 #: deg: the camera lens cone (the planner's ``SafetySettings.lens_cone``)
 LENS_CONE_DEG = 45.0
-#: the SPEC's factor on the calibration's spot uncertainty in the safety margin
+#: the conventions' factor on the calibration's spot uncertainty in the safety margin
 UNCERTAINTY_K = 3.0
 #: m: numerical allowance between this geometry and the planner's (coal, GJK 1e-12 m)
 SLACK = 1e-6

@@ -147,3 +147,30 @@ def test_record_and_replay_user_mistakes(tmp_path: Path) -> None:
     for args in cases:
         cli_run.assert_usage_error(cli_run.beamrelay(*args))
     assert exist.read_bytes() == b""  # never lost data
+
+
+@pytest.mark.parametrize(("cloud_rate", "kept"), [(1.0, 1), (0.0, 12)])
+def test_point_clouds_are_decimated_and_chunks_compressed(
+    tmp_path: Path, cloud_rate: float, kept: int
+) -> None:
+    from mcap.reader import make_reader
+
+    buf = io.BytesIO()
+    sess = _Session()
+    rec = Recorder(sess, "p", buf, cloud_rate=cloud_rate)
+    cloud = bytes(200_000)  # a burst of 12 clouds well inside one second
+    for _ in range(12):
+        sess.cb(_Sample("p/camera/points", cloud))
+        sess.cb(_Sample("p/arm0/joint_states", b'{"q": [0, 0, 0, 0, 0, 0]}'))
+    rec.close()
+    path = tmp_path / "c.mcap"
+    path.write_bytes(buf.getvalue())
+    keys = [m.key for m in read(path)]
+    assert keys.count("p/camera/points") == kept and keys.count("p/arm0/joint_states") == 12
+    assert rec.clouds_dropped == 12 - kept
+    with path.open("rb") as f:
+        chunks = make_reader(f).get_summary().chunk_indexes  # type: ignore[union-attr]
+    assert chunks and {c.compression for c in chunks} == {"zstd"}
+    assert path.stat().st_size < 0.1 * kept * len(cloud) + 10_000  # zeros compress
+    out = _Session()
+    assert replay(out, path, speed=0) == (12 + kept, 0)

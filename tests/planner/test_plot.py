@@ -1,4 +1,4 @@
-"""Pictures: arm joint chains against the SPEC DH lengths; the profile figure is written."""
+"""Pictures: arm joint chains against the UR5e DH lengths (conventions section 2); the profile figure is written."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from planner.plot import arm_points, plot_profiles, profiles_path
 from planner.verify.check import ur5e_dh_fk
 from tests.planner.test_planning import write_scenario
 
-DH_LENGTHS = [0.1625, 0.425, 0.3922, 0.1333, 0.0997, 0.0996]  # SPEC section 2: d and a
+DH_LENGTHS = [0.1625, 0.425, 0.3922, 0.1333, 0.0997, 0.0996]  # conventions section 2: d and a
 
 
 def test_joint_chain_lengths_and_flange() -> None:

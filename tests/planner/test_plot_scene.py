@@ -59,3 +59,28 @@ def test_plan_picture_of_the_face(tmp_path: Path) -> None:
     png = tmp_path / "face.png"
     plot_plan(out.system, out.targets, out.doc, png)
     assert png.stat().st_size > 30_000
+
+
+def test_camera_frustum_from_the_intrinsics() -> None:
+    from planner.plot_scene import draw_camera
+
+    fig = plt.figure()
+    ax = fig.add_subplot(projection="3d")
+    T = np.eye(4)
+    T[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]  # 90 deg about z
+    T[:3, 3] = [0.5, -0.2, 1.0]
+    drawn = draw_camera(ax, T, fx=400.0, fy=200.0, width=800, height=400, depth=0.1)
+    np.testing.assert_allclose(drawn[0], [0.5, -0.2, 1.0])
+    # a corner of the image, (u, v) = (width, height), back-projected 0.1 m ahead by hand
+    x, y = 0.1 * (800 - 400) / 400, 0.1 * (400 - 200) / 200
+    corner = np.array([0.5 - y, -0.2 + x, 1.1])
+    assert np.min(np.linalg.norm(drawn[1:] - corner, axis=1)) < 1e-12
+    assert "camera" in [c.get_label() for c in ax.collections]
+    plt.close(fig)
+
+
+def test_targets_are_drawn_large_enough_to_see() -> None:
+    from planner.plot_scene import target_marker_size
+
+    assert target_marker_size(1) == 60.0 and target_marker_size(10_000) == 6.0
+    assert 6.0 < target_marker_size(100) < 60.0

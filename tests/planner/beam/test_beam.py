@@ -17,7 +17,7 @@ from tests.planner.model.test_kinematics import dh_fk
 
 
 def numpy_trace(system: System, q: np.ndarray, target: np.ndarray, normal: np.ndarray | None):
-    """Independent tracer: DH FK, plane intersection, reflection (SPEC section 3)."""
+    """Independent tracer: DH FK, plane intersection, reflection (conventions section 3)."""
     p = system.world_T_laser[:3, 3].copy()
     v = system.world_T_laser[:3, 2].copy()
     hits, uvs = [], []

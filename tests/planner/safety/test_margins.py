@@ -1,4 +1,4 @@
-"""Safety margins (SPEC section 4): keep-out and beam-vs-arm volumes are inflated by
+"""Safety margins (conventions section 4): keep-out and beam-vs-arm volumes are inflated by
 ``laser.beam_radius`` + 3 x the included calibration's spot uncertainty.
 
 The case: on the paper's N = 1 layout, a keep-out sphere sits just behind the grid's centre

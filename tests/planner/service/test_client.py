@@ -142,9 +142,18 @@ def moving_plan(duration: float) -> dict[str, Any]:
 def test_execute_stops_waiting_when_a_driver_stops_this_trajectory() -> None:
     # a 60 s trajectory the driver stops after 0.2 s: the client returns long before 60 s
     t0 = time.monotonic()
-    fake_client(moving_plan(60.0), ("arm0", "r1")).execute({"points": []}, 60.0, settle=0.0)
+    client = fake_client(moving_plan(60.0), ("arm0", "r1"))
+    client.execute({"points": []}, 60.0, settle=0.0)
     assert time.monotonic() - t0 < 30.0
+    assert client.interruption == "arm0: stop"  # `request --execute` exits 1 with it
     # a fault of another request does not end the wait: it lasts the whole trajectory
     t0 = time.monotonic()
     fake_client(moving_plan(0.6), ("arm0", "r0")).execute({"points": []}, 0.5, settle=0.0)
     assert time.monotonic() - t0 >= 0.6  # no joint state: at rest once the duration is over
+
+
+def test_execute_names_robots_that_never_came_to_rest_at_the_end() -> None:
+    client = fake_client(moving_plan(0.1), None)
+    client.recorder.on_joints("arm0", np.zeros(6), np.full(6, 0.5), 0.0)  # still moving
+    client.execute({"points": []}, 0.2, settle=0.0)
+    assert client.interruption is not None and "did not come to rest" in client.interruption

@@ -109,6 +109,7 @@ def test_track_follows_ignores_garbage_refuses_others_and_stops_when_stale(rig) 
                          for b in plans.bodies()), 2.0, "the tracking summary")  # fmt: skip
     summary = next(b for b in plans.bodies() if isinstance(b, dict) and "ended" in b)
     assert summary["ignored"] >= len(garbage) and summary["frames"] >= 20
+    assert summary["completed"] is False  # ended by a fault: `request --track` exits 1
     assert 0 < summary["latency_p50"] <= summary["latency_p99"]
     print(
         f"frame -> setpoint latency p50 {1e3 * summary['latency_p50']:.2f} ms, "
@@ -131,6 +132,20 @@ def test_stop_ends_tracking_and_track_needs_execute(rig) -> None:
     client.put(f"{PREFIX}/stop", b"{}")
     wait_for(lambda: not node.track.active, 2.0, "the session to end on stop")
     assert "stop seen" in node.track.summary["ended"]
+    assert node.track.summary["completed"] is False
+
+
+def test_a_track_that_runs_its_duration_is_completed(rig) -> None:
+    node, client, _ = rig
+    ok, _ = request(client, "p3", mode="track", execute=True, duration=0.3)
+    assert ok
+    t_end = time.monotonic() + 3.0
+    while node.track.active and time.monotonic() < t_end:
+        client.put(f"{PREFIX}/targets/stream", frame("p3", P0))
+        time.sleep(1 / 30)
+    wait_for(lambda: node.track.summary is not None, 2.0, "the tracking summary")
+    assert node.track.summary["ended"].startswith("duration 0.3 s")
+    assert node.track.summary["completed"] is True
 
 
 def test_the_first_move_to_a_tracked_target_is_a_planned_trajectory(

@@ -1,7 +1,7 @@
 """The shipped role files (scenarios/zenoh/roles/): deny by default, each identity may
 publish only its own keys. Every test opens real Zenoh sessions the way beamrelay opens
 them (:func:`planner.service.bus.zenoh_config`: the host listens with its file, every other
-process connects as a client), lets one role try every key of SPEC section 6, and shows
+process connects as a client), lets one role try every key of conventions section 6, and shows
 that what it may not send reached no subscriber while what it may send did.
 """
 
@@ -22,7 +22,7 @@ from tests.paths import REPO
 
 FOLDER = REPO / "scenarios" / "zenoh" / "roles"
 
-#: every put a process could try (SPEC section 6; arm0 stands for any robot)
+#: every put a process could try (conventions section 6; arm0 stands for any robot)
 PUTS = [
     "beamrelay/plan", "beamrelay/targets", "beamrelay/plans", "beamrelay/targets/stream",
     "beamrelay/arm0/joint_states", "beamrelay/arm0/trajectory", "beamrelay/arm0/status",
