@@ -7,6 +7,9 @@ File layout (MCAP, profile ``beamrelay``; opens in Foxglove Studio):
   message encoding ``json`` (schemaless), everything else ``beamrelay.bytes``; a sample
   with a Zenoh attachment (``camera/points`` metadata) uses ``beamrelay.attached``: data =
   4-byte big-endian attachment length, attachment, payload;
+- with a ROS 2 translator (``record --ros2``, :mod:`planner.ros2.recording`): ROS 2 channels
+  beside the raw ones (topics ``/<robot>/joint_states``, ``/tf``, ``/tf_static``; schema
+  encoding ``ros2msg``, message encoding ``cdr``), which ``replay`` skips;
 - liveliness: token appearances and disappearances as JSON ``{"alive": bool}`` messages on
   the topic ``@liveliness/<key>``;
 - ``log_time`` = the UNIX ns the recorder received the sample, ``publish_time`` = the
@@ -50,18 +53,29 @@ class Recorded(NamedTuple):
     sequence: int
 
 
-class Recorder:
-    """Subscribes ``<prefix>/**`` (and its liveliness) and writes an MCAP file until closed."""
+ROS_ENCODING = "cdr"
 
-    def __init__(self, session: Any, prefix: str, out: BinaryIO) -> None:
+
+class Recorder:
+    """Subscribes ``<prefix>/**`` (and its liveliness) and writes an MCAP file until closed.
+
+    ``ros``: a translator (:class:`planner.ros2.recording.RosTranslator`) whose ROS 2
+    messages are written beside the raw samples."""
+
+    def __init__(self, session: Any, prefix: str, out: BinaryIO, ros: Any = None) -> None:
         from mcap.writer import Writer
 
         self.writer = Writer(out)
         self.writer.start(profile=PROFILE, library="beamrelay")
         self.channels: dict[tuple[str, str], int] = {}
+        self.schemas: dict[str, int] = {}
         self.count = 0
+        self.ros = ros
         self._lock = threading.Lock()
         self._closed = False
+        if ros is not None:
+            for msg in ros.static(time.time()):
+                self._write_ros(msg, time.time_ns())
         self._handles = [
             session.declare_subscriber(f"{prefix}/**", self._on_sample),
             session.liveliness().declare_subscriber(f"{prefix}/**", self._on_token, history=True),
@@ -87,6 +101,23 @@ class Recorder:
             self.writer.add_message(ch, now, data, pub, self.count)
             self.count += 1
 
+    def _write_ros(self, msg: Any, now: int) -> None:
+        """One ROS 2 message (topic, ros_type, CDR data) on its ``cdr`` channel."""
+        with self._lock:
+            if self._closed:
+                return
+            ch = self.channels.get((msg.topic, ROS_ENCODING))
+            if ch is None:
+                schema = self.schemas.get(msg.ros_type)
+                if schema is None:
+                    text = self.ros.schema(msg.ros_type).encode()
+                    schema = self.writer.register_schema(msg.ros_type, "ros2msg", text)
+                    self.schemas[msg.ros_type] = schema
+                ch = self.writer.register_channel(msg.topic, ROS_ENCODING, schema)
+                self.channels[(msg.topic, ROS_ENCODING)] = ch
+            self.writer.add_message(ch, now, msg.data, now, self.count)
+            self.count += 1
+
     def _on_sample(self, sample: Any) -> None:
         payload = sample.payload.to_bytes()
         zenc = str(sample.encoding)
@@ -97,6 +128,10 @@ class Recorder:
         else:
             data, enc = payload, ("json" if _is_json(zenc, payload) else "beamrelay.bytes")
         self._write(str(sample.key_expr), enc, zenc, data, sample.timestamp)
+        if self.ros is not None and att is None:
+            now = time.time_ns()
+            for msg in self.ros(str(sample.key_expr), payload):
+                self._write_ros(msg, now)
 
     def _on_token(self, sample: Any) -> None:
         import zenoh
@@ -135,6 +170,8 @@ def read(path: Path) -> Iterator[Recorded]:
         with path.open("rb") as f:
             reader = make_reader(f)
             for _, channel, msg in reader.iter_messages(log_time_order=True):
+                if channel.message_encoding == ROS_ENCODING:
+                    continue  # derived ROS 2 copies: the raw channel is replayed
                 zenc = channel.metadata.get("zenoh_encoding", "")
                 data, att = msg.data, None
                 if channel.message_encoding == "beamrelay.attached":

@@ -30,6 +30,7 @@ from planner.cli import (
     plan,
     record,
     robot,
+    ros2,
     study,
 )
 from planner.errors import InputError
@@ -58,6 +59,7 @@ app.command("record")(record.record)
 app.command("replay")(record.replay)
 app.add_typer(robot.app, name="robot")
 app.add_typer(hw.app, name="hw")
+app.add_typer(ros2.app, name="ros2")
 calibrate.app.add_typer(collect.app, name="collect")
 
 

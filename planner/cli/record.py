@@ -26,10 +26,25 @@ def record(
     prefix: PrefixOpt = "beamrelay",
     zenoh_config: ZenohConfigOpt = None,
     force: Annotated[bool, typer.Option("--force", help="Overwrite an existing file.")] = False,
+    ros2: Annotated[
+        bool,
+        typer.Option("--ros2", help="Also write ROS 2 channels (JointState; TF with --scenario)."),
+    ] = False,
+    scenario: Annotated[
+        Path | None,
+        typer.Option(
+            "--scenario",
+            help="Scenario of the running system (TF tree for --ros2).",
+            dir_okay=False,
+        ),
+    ] = None,
 ) -> None:
-    """Record every bus key under the prefix (and liveliness) with timestamps to MCAP."""
+    """Record every bus key under the prefix (and liveliness) with timestamps to MCAP.
+
+    With --ros2 the file also holds ROS 2 channels (ros2msg schemas, CDR) that Foxglove and
+    ros2 bag read: /<robot>/joint_states and, with --scenario, /tf and /tf_static."""
     from drivers.record import Recorder
-    from planner.service.bus import open_session
+    from planner.service.bus import Keys, open_session
 
     if duration is not None and not 0 < duration <= 86400:
         raise InputError(f"must be in (0, 86400] s, got {duration:g}", "--duration")
@@ -39,13 +54,27 @@ def record(
         raise InputError("exists (use --force to overwrite)", f"--output {output}")
     if not output.parent.is_dir():
         raise InputError("no such directory", f"--output {output}")
+    if scenario is not None and not ros2:
+        raise InputError("--scenario gives the TF tree of the ROS 2 channels: add --ros2")
+    translator = None
+    if ros2:
+        from planner.ros2.recording import RosTranslator
+
+        system = None
+        if scenario is not None:
+            from planner.io.scenario import load_scenario, system_from_scenario
+
+            if not scenario.is_file():
+                raise InputError(f"scenario not found: {scenario}")
+            system = system_from_scenario(load_scenario(scenario))
+        translator = RosTranslator(Keys(prefix), system)
     stop = stop_on_signals()
     session = open_session(listen=False, endpoint=endpoint, config_file=zenoh_config)
     tmp = output.with_suffix(".mcap.part")
     t0 = time.monotonic()
     try:
         with tmp.open("wb") as f:
-            rec = Recorder(session, prefix, f)
+            rec = Recorder(session, prefix, f, ros=translator)
             typer.echo(f"recording {prefix}/** to {output} (Ctrl-C to stop)", err=True)
             stop.wait(duration)
             n = rec.close()

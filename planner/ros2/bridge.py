@@ -1,0 +1,204 @@
+"""The ROS 2 bridge node: beamrelay's bus republished the way rmw_zenoh publishes.
+
+:class:`Ros2Bridge` runs in its own process (``beamrelay ros2 bridge``, or ``beamrelay up
+--ros2``), on its own Zenoh session: nothing on the drivers' control loops or the planner's
+request path waits for it. Bus callbacks only store the latest state
+(:class:`planner.console.live.LiveState`, plus the last plan's targets); one publishing
+thread converts and publishes at fixed rates:
+
+- ``/<robot>/joint_states`` (``sensor_msgs/msg/JointState``) and ``/tf`` (base -> flange)
+  at ``rate`` Hz whenever a robot reported new joints;
+- ``/tf_static`` every ``STATIC_PERIOD`` s (see below);
+- ``/beamrelay/markers`` (``visualization_msgs/msg/MarkerArray``) at ``MARKER_RATE`` Hz.
+
+Every publisher and the node itself declare rmw_zenoh's liveliness tokens
+(:mod:`planner.ros2.graph`), so ``ros2 node list`` / ``ros2 topic list`` on
+``RMW_IMPLEMENTATION=rmw_zenoh_cpp`` see them; every sample carries rmw_zenoh's attachment.
+``/tf_static`` is announced transient-local (as tf2 expects) and republished periodically
+rather than served from a publication cache, so a late tf2 listener gets it within
+``STATIC_PERIOD`` s.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from planner.console.live import LiveState
+from planner.model.scene import SceneModel
+from planner.model.system import System
+from planner.model.transforms import Array
+from planner.ros2 import cell
+from planner.ros2 import messages as m
+from planner.ros2.graph import LATCHED, VOLATILE, Node, Qos, attachment, gid, topic_key
+from planner.service.bus import Keys
+
+log = logging.getLogger(__name__)
+
+NODE_NAME = "beamrelay_bridge"
+DEFAULT_RATE = 100.0  # Hz, joint states and /tf
+MARKER_RATE = 10.0  # Hz
+STATIC_PERIOD = 1.0  # s between /tf_static republications
+MARKER_TOPIC = "/beamrelay/markers"
+DEFAULT_KEYS = Keys()
+
+
+def joint_states_topic(robot: str) -> str:
+    return f"/{robot}/joint_states"
+
+
+@dataclass
+class Topic:
+    """One ROS publisher: its data key, liveliness token and rmw_zenoh attachment state."""
+
+    name: str
+    ros_type: str
+    key: str
+    token: str
+    gid: bytes
+    seq: int = 0
+    handles: list[Any] = field(default_factory=list)
+
+    def publish(self, msg: Any, t: float) -> None:
+        self.seq += 1
+        body = m.serialize(msg, self.ros_type)
+        self.handles[0].put(body, attachment=attachment(self.seq, round(t * 1e9), self.gid))
+
+
+class Ros2Bridge:
+    """See the module docstring. ``start`` declares everything, ``close`` undoes it."""
+
+    def __init__(
+        self,
+        session: Any,
+        system: System,
+        scene: SceneModel | None,
+        *,
+        keys: Keys = DEFAULT_KEYS,
+        domain: int = 0,
+        rate: float = DEFAULT_RATE,
+    ) -> None:
+        if not 0 <= domain <= 232:
+            raise ValueError(f"ROS domain id {domain} is outside 0..232")
+        if not 1.0 <= rate <= 1000.0:
+            raise ValueError(f"ROS 2 publishing rate {rate} Hz is outside 1..1000 Hz")
+        self.session, self.system, self.scene = session, system, scene
+        self.keys, self.domain, self.period = keys, domain, 1.0 / rate
+        self.node = Node(domain, str(session.info.zid()), NODE_NAME)
+        self.live = LiveState(keys)
+        self.targets: Array | None = None
+        self.published = 0
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._node_token: Any = None
+        self._plans_sub: Any = None
+        self.topics: dict[str, Topic] = {}
+        robots = system.robot_names
+        for r in robots:
+            self._topic(joint_states_topic(r), m.JOINT_STATE)
+        self._topic("/tf", m.TF_MESSAGE)
+        self._topic("/tf_static", m.TF_MESSAGE, LATCHED)
+        self._topic(MARKER_TOPIC, m.MARKER_ARRAY)
+
+    def _topic(self, name: str, ros_type: str, qos: Qos = VOLATILE) -> None:
+        h = m.type_hash(ros_type)
+        token = self.node.publisher_token(len(self.topics) + 1, name, ros_type, h, qos)
+        key = topic_key(self.domain, name, ros_type, h)
+        self.topics[name] = Topic(name, ros_type, key, token, gid(token))
+
+    def start(self) -> None:
+        s = self.session
+        self._node_token = s.liveliness().declare_token(self.node.token())
+        for topic in self.topics.values():
+            topic.handles = [
+                s.declare_publisher(topic.key),
+                s.liveliness().declare_token(topic.token),
+            ]
+        self.live.subscribe(s)
+        self._plans_sub = s.declare_subscriber(self.keys.plans, self._on_plan)
+        self._thread = threading.Thread(target=self._run, name="ros2-bridge", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+        self.live.close()
+        handles = [h for t in self.topics.values() for h in t.handles]
+        for h in [self._plans_sub, *handles, self._node_token]:
+            if h is not None:
+                h.undeclare()
+        for t in self.topics.values():
+            t.handles = []
+        self._plans_sub = self._node_token = self._thread = None
+
+    def _on_plan(self, sample: Any) -> None:
+        try:
+            plan = json.loads(sample.payload.to_bytes())
+            pts = np.array([tg["p"] for tg in plan["targets"]], dtype=float).reshape(-1, 3)
+        except (ValueError, KeyError, TypeError):
+            return  # a tracking summary or a body without targets: keep the last ones
+        with self._lock:
+            self.targets = pts
+
+    # publishing thread ------------------------------------------------------------------------
+    def _run(self) -> None:
+        next_static = next_markers = 0.0
+        seen: dict[str, float] = {}
+        while not self._stop.wait(self.period):
+            try:
+                now = time.monotonic()
+                self._publish_joints(seen)
+                if now >= next_static:
+                    self.publish_static()
+                    next_static = now + STATIC_PERIOD
+                if now >= next_markers:
+                    self.publish_markers()
+                    next_markers = now + 1.0 / MARKER_RATE
+            except Exception:  # a bad state must not end the bridge
+                log.exception("ROS 2 bridge: publishing failed")
+
+    def _publish_joints(self, seen: dict[str, float]) -> None:
+        fresh = {r: s for r, s in self.live.joint_states().items() if seen.get(r) != s.at}
+        q: dict[str, Array] = {}
+        for robot, stamped in fresh.items():
+            if robot not in self.system.robot_names:
+                continue
+            js = stamped.value
+            seen[robot] = stamped.at
+            q[robot] = np.asarray(js.q, dtype=float)
+            msg = m.joint_state(js.t, js.names, js.q, js.qd)
+            self.topics[joint_states_topic(robot)].publish(msg, js.t)
+        if q:
+            t = time.time()
+            self.topics["/tf"].publish(cell.tf_message(t, cell.moving_frames(self.system, q)), t)
+            self.published += 1
+
+    def publish_static(self) -> None:
+        t = time.time()
+        self.topics["/tf_static"].publish(cell.tf_message(t, cell.static_frames(self.system)), t)
+
+    def publish_markers(self) -> None:
+        robots = self.system.robot_names
+        q = self.live.joint_vector(robots) or {}
+        snap = self.live.snapshot()
+        laser = snap["laser"].value if snap["laser"] is not None else None
+        spot = snap["spot"].value if snap["spot"] is not None else None
+        with self._lock:
+            targets = self.targets
+        beam = cell.Beam(on=bool(laser and laser.on), aim=bool(laser and laser.aim))
+        spot_world = None
+        if spot is not None and spot.p_camera is not None and self.system.camera is not None:
+            world_T_camera = self.system.world_T_camera(q or None)
+            spot_world = world_T_camera[:3, :3] @ np.asarray(spot.p_camera) + world_T_camera[:3, 3]
+        t = time.time()
+        msg = cell.markers(t, self.system, self.scene, q, beam=beam, targets=targets,
+                           spot_world=spot_world)  # fmt: skip
+        self.topics[MARKER_TOPIC].publish(msg, t)

@@ -1,0 +1,122 @@
+"""The bridge seen from outside: a raw Zenoh subscriber on rmw_zenoh's documented key
+pattern (``<domain_id>/<fully_qualified_name>/<type_name>/<type_hash>``, ros2/rmw_zenoh
+docs/design.md) receives the messages; rosbags' own deserializer decodes them; the values
+are the beamrelay messages they came from. The liveliness tokens are read back with a
+liveliness query on ``@ros2_lv/<domain_id>/**`` and compared with strings written from the
+document's format."""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from planner.model.system import System
+from planner.ros2 import messages as m
+from planner.ros2.bridge import Ros2Bridge
+from planner.ros2.graph import parse_attachment
+from planner.service.bus import Keys, encode, open_session
+from schemas.messages import JointState
+from tests.planner.raw_zenoh import raw_session
+from tests.planner.ros2.test_messages import PUBLISHED
+
+DOMAIN = 7
+JOINT_STATE_HASH = PUBLISHED["sensor_msgs/msg/JointState"]
+TF_HASH = PUBLISHED["tf2_msgs/msg/TFMessage"]
+MARKER_HASH = m.type_hash(m.MARKER_ARRAY)  # no published value found: rosbags' REP-2016 hash
+JS_KEY = f"{DOMAIN}/arm0/joint_states/sensor_msgs::msg::dds_::JointState_/{JOINT_STATE_HASH}"
+TF_KEY = f"{DOMAIN}/tf/tf2_msgs::msg::dds_::TFMessage_/{TF_HASH}"
+STATIC_KEY = f"{DOMAIN}/tf_static/tf2_msgs::msg::dds_::TFMessage_/{TF_HASH}"
+MARKER_KEY = f"{DOMAIN}/beamrelay/markers/visualization_msgs::msg::dds_::MarkerArray_/{MARKER_HASH}"
+
+
+class Received:
+    def __init__(self) -> None:
+        self.samples: dict[str, list[tuple[bytes, bytes | None]]] = {}
+        self.lock = threading.Lock()
+
+    def __call__(self, sample: Any) -> None:
+        att = sample.attachment.to_bytes() if sample.attachment is not None else None
+        with self.lock:
+            self.samples.setdefault(str(sample.key_expr), []).append(
+                (sample.payload.to_bytes(), att)
+            )
+
+    def get(self, key: str) -> list[tuple[bytes, bytes | None]]:
+        with self.lock:
+            return list(self.samples.get(key, []))
+
+
+def test_bridge_publishes_rmw_zenoh_topics_and_tokens(system1: System, endpoint: str) -> None:
+    hub = open_session(listen=True, endpoint=endpoint)
+    raw = raw_session(endpoint)
+    bridge = Ros2Bridge(hub, system1, None, domain=DOMAIN, rate=200.0)
+    received = Received()
+    sub = raw.declare_subscriber(f"{DOMAIN}/**", received)
+    driver = raw.declare_publisher(Keys().joint_states("arm0"))
+    names = list(system1.robots[0].joint_names)
+    js = JointState(t=1_700_000_123.5, names=names, q=[0.1, -1.4, 1.2, -0.3, -1.5, 0.2],
+                    qd=[0.0, 0.01, -0.02, 0.0, 0.0, 0.03])  # fmt: skip
+    try:
+        bridge.start()
+        deadline = time.monotonic() + 15.0
+        keys = (JS_KEY, TF_KEY, STATIC_KEY, MARKER_KEY)
+        while time.monotonic() < deadline and not all(received.get(k) for k in keys):
+            driver.put(encode(js))
+            time.sleep(0.02)
+        missing = [k for k in keys if not received.get(k)]
+        assert not missing, f"nothing on {missing}; got {sorted(received.samples)}"
+
+        body, att = received.get(JS_KEY)[-1]
+        got = m.deserialize(body, m.JOINT_STATE)
+        assert got.name == names
+        np.testing.assert_array_equal(got.position, js.q)
+        np.testing.assert_array_equal(got.velocity, js.qd)
+        assert got.header.stamp.sec == 1_700_000_123
+        assert got.header.stamp.nanosec == 500_000_000
+        assert att is not None
+        seq, stamp_ns, gid = parse_attachment(att)
+        assert seq >= 1 and len(gid) == 16 and abs(stamp_ns - 1_700_000_123.5e9) < 1e3
+
+        (tf,) = m.deserialize(received.get(TF_KEY)[-1][0], m.TF_MESSAGE).transforms
+        r = system1.robots[0]
+        tr = tf.transform.translation
+        expected = r.kinematics.fk(np.asarray(js.q))[:3, 3]
+        np.testing.assert_allclose([tr.x, tr.y, tr.z], expected, atol=1e-12)
+        static = m.deserialize(received.get(STATIC_KEY)[-1][0], m.TF_MESSAGE).transforms
+        assert {(t.header.frame_id, t.child_frame_id) for t in static} == {
+            ("world", "laser"), ("world", "arm0_base"), ("arm0_flange", "arm0_mirror"),
+        }  # fmt: skip
+        markers = m.deserialize(received.get(MARKER_KEY)[-1][0], m.MARKER_ARRAY).markers
+        assert [mk.ns for mk in markers[1:]] == ["beam"]
+
+        zid = str(hub.info.zid())
+        tokens = ros_tokens(raw)
+        node = f"@ros2_lv/{DOMAIN}/{zid}/0/0/NN/%/%/beamrelay_bridge"
+        prefix = f"@ros2_lv/{DOMAIN}/{zid}/0"
+        assert tokens == {
+            node,
+            f"{prefix}/1/MP/%/%/beamrelay_bridge/%arm0%joint_states/"
+            f"sensor_msgs::msg::dds_::JointState_/{JOINT_STATE_HASH}/::,10:,:,:,,",
+            f"{prefix}/2/MP/%/%/beamrelay_bridge/%tf/"
+            f"tf2_msgs::msg::dds_::TFMessage_/{TF_HASH}/::,10:,:,:,,",
+            f"{prefix}/3/MP/%/%/beamrelay_bridge/%tf_static/"
+            f"tf2_msgs::msg::dds_::TFMessage_/{TF_HASH}/:1:,1:,:,:,,",
+            f"{prefix}/4/MP/%/%/beamrelay_bridge/%beamrelay%markers/"
+            f"visualization_msgs::msg::dds_::MarkerArray_/{MARKER_HASH}/::,10:,:,:,,",
+        }
+        bridge.close()
+        assert ros_tokens(raw) == set()  # the graph forgets the node when it closes
+    finally:
+        bridge.close()
+        sub.undeclare()
+        driver.undeclare()
+        raw.close()
+        hub.close()
+
+
+def ros_tokens(session: Any) -> set[str]:
+    replies = session.liveliness().get(f"@ros2_lv/{DOMAIN}/**", timeout=2.0)
+    return {str(r.ok.key_expr) for r in replies if r.ok is not None}

@@ -1,0 +1,74 @@
+"""``record --ros2``: ROS 2 channels in the MCAP file, read back with mcap and decoded with
+mcap-ros2-support (an independent ros2msg/CDR decoder); ``replay``'s reader still sees only
+the raw bus channels."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from drivers.record import Recorder, read
+from planner.model.system import System
+from planner.ros2.recording import RosTranslator
+from planner.service.bus import Keys, encode, open_session
+from schemas.messages import JointState
+from tests.drivers.conftest import wait_for
+
+
+def test_recording_has_ros2_schemas_channels_and_tf_tree(
+    system1: System, endpoint: str, tmp_path: Path
+) -> None:
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    prefix = "brros"
+    hub = open_session(listen=True, endpoint=endpoint)
+    path = tmp_path / "ros.mcap"
+    out = path.open("wb")
+    rec = Recorder(hub, prefix, out, ros=RosTranslator(Keys(prefix), system1))
+    names = list(system1.robots[0].joint_names)
+    sent = [
+        JointState(t=1_700_000_000.0 + 0.01 * k, names=names, q=[0.1 * k, -1.5, 1.4, -1.6, -1.5, 0.0],
+                   qd=[0.0] * 6)
+        for k in range(5)
+    ]  # fmt: skip
+    try:
+        pub = hub.declare_publisher(Keys(prefix).joint_states("arm0"))
+        time.sleep(0.2)
+        for js in sent:
+            pub.put(encode(js))
+        wait_for(lambda: rec.count >= 1 + 3 * len(sent), 5.0)
+        pub.undeclare()
+        rec.close()
+    finally:
+        out.close()
+        hub.close()
+
+    reader = make_reader(path.open("rb"), decoder_factories=[DecoderFactory()])
+    summary = reader.get_summary()
+    assert summary is not None
+    schemas = {s.name: s.encoding for s in summary.schemas.values()}
+    assert schemas == {"sensor_msgs/msg/JointState": "ros2msg", "tf2_msgs/msg/TFMessage": "ros2msg"}
+    channels = {c.topic: c.message_encoding for c in summary.channels.values()}
+    assert channels == {f"{prefix}/arm0/joint_states": "json", "/arm0/joint_states": "cdr",
+                        "/tf": "cdr", "/tf_static": "cdr"}  # fmt: skip
+
+    decoded: dict[str, list] = {}
+    for _, channel, _, msg in reader.iter_decoded_messages(topics=["/arm0/joint_states", "/tf",
+                                                                   "/tf_static"]):  # fmt: skip
+        decoded.setdefault(channel.topic, []).append(msg)
+    assert [list(m.position) for m in decoded["/arm0/joint_states"]] == [js.q for js in sent]
+    assert decoded["/arm0/joint_states"][0].name == names
+    (static,) = decoded["/tf_static"]
+    edges = {(t.header.frame_id, t.child_frame_id) for t in static.transforms}
+    edges |= {(t.header.frame_id, t.child_frame_id) for m in decoded["/tf"] for t in m.transforms}
+    assert edges == {("world", "laser"), ("world", "arm0_base"), ("arm0_base", "arm0_flange"),
+                     ("arm0_flange", "arm0_mirror")}  # fmt: skip
+    last = decoded["/tf"][-1].transforms[0].transform.translation
+    fk = system1.robots[0].kinematics.fk(np.asarray(sent[-1].q))[:3, 3]
+    np.testing.assert_allclose([last.x, last.y, last.z], fk, atol=1e-12)
+
+    # replay reads the raw channel only
+    assert {m.key for m in read(path)} == {f"{prefix}/arm0/joint_states"}
