@@ -310,6 +310,11 @@ def run_up(
                 "--zenoh-roles gives every process its file: leave out --zenoh-config and "
                 "--planner-zenoh-config"
             )
+        if ros_domain is not None:
+            raise InputError(
+                "--ros2 with --zenoh-roles: the role files have no ROS 2 role yet (its topics "
+                "would be denied); use --zenoh-config"
+            )
         roles = role_files(zenoh_roles)
         configs = [roles["console"], None]
     has_camera = scn.model.system.camera is not None
