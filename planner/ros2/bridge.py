@@ -152,9 +152,11 @@ class Ros2Bridge:
     def _run(self) -> None:
         next_static = next_markers = 0.0
         seen: dict[str, float] = {}
-        while not self._stop.wait(self.period):
+        due = time.monotonic()
+        while not self._stop.wait(max(0.0, due - time.monotonic())):
+            now = time.monotonic()
+            due = max(due + self.period, now)  # fixed rate; no catching up after a stall
             try:
-                now = time.monotonic()
                 self._publish_joints(seen)
                 if now >= next_static:
                     self.publish_static()

@@ -63,7 +63,13 @@ def test_bridge_publishes_rmw_zenoh_topics_and_tokens(system1: System, endpoint:
         bridge.start()
         deadline = time.monotonic() + 15.0
         keys = (JS_KEY, TF_KEY, STATIC_KEY, MARKER_KEY)
-        while time.monotonic() < deadline and not all(received.get(k) for k in keys):
+
+        def complete() -> bool:  # every topic, and markers drawn from the joint states
+            if not all(received.get(k) for k in keys):
+                return False
+            return len(m.deserialize(received.get(MARKER_KEY)[-1][0], m.MARKER_ARRAY).markers) > 1
+
+        while time.monotonic() < deadline and not complete():
             driver.put(encode(js))
             time.sleep(0.02)
         missing = [k for k in keys if not received.get(k)]
