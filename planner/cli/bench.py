@@ -6,7 +6,19 @@ from __future__ import annotations
 
 import typer
 
-from planner.bench import brakes, ik, marking, path, plan, preview, safety, service, servo, track
+from planner.bench import (
+    brakes,
+    ik,
+    marking,
+    path,
+    plan,
+    preview,
+    ros2,
+    safety,
+    service,
+    servo,
+    track,
+)
 
 app = typer.Typer(help="Benchmarks (figures printed, not asserted).", no_args_is_help=True)
 
@@ -21,6 +33,7 @@ BENCHMARKS = {
     "servo": servo,
     "track": track,
     "brakes": brakes,
+    "ros2": ros2,
 }
 """Command name -> benchmark module (its ``command`` is the sub-command)."""
 
