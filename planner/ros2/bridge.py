@@ -9,7 +9,9 @@ thread converts and publishes at fixed rates:
 - ``/<robot>/joint_states`` (``sensor_msgs/msg/JointState``) and ``/tf`` (base -> flange)
   at ``rate`` Hz whenever a robot reported new joints;
 - ``/tf_static`` every ``STATIC_PERIOD`` s (see below);
-- ``/beamrelay/markers`` (``visualization_msgs/msg/MarkerArray``) at ``MARKER_RATE`` Hz.
+- ``/beamrelay/markers`` (``visualization_msgs/msg/MarkerArray``) at ``MARKER_RATE`` Hz;
+- ``/camera/points`` (``sensor_msgs/msg/PointCloud2``, ``camera`` frame), the newest cloud
+  at most ``CLOUD_RATE`` Hz (with a camera in the scenario).
 
 Every publisher and the node itself declare rmw_zenoh's liveliness tokens
 (:mod:`planner.ros2.graph`), so ``ros2 node list`` / ``ros2 topic list`` on
@@ -31,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from planner.console.live import LiveState
+from planner.errors import InputError
 from planner.model.scene import SceneModel
 from planner.model.system import System
 from planner.model.transforms import Array
@@ -46,6 +49,8 @@ DEFAULT_RATE = 100.0  # Hz, joint states and /tf
 MARKER_RATE = 10.0  # Hz
 STATIC_PERIOD = 1.0  # s between /tf_static republications
 MARKER_TOPIC = "/beamrelay/markers"
+CLOUD_TOPIC = "/camera/points"
+CLOUD_RATE = 5.0  # Hz at most
 DEFAULT_KEYS = Keys()
 
 
@@ -106,6 +111,9 @@ class Ros2Bridge:
         self._topic("/tf", m.TF_MESSAGE)
         self._topic("/tf_static", m.TF_MESSAGE, LATCHED)
         self._topic(MARKER_TOPIC, m.MARKER_ARRAY)
+        if system.camera is not None:
+            self._topic(CLOUD_TOPIC, m.POINT_CLOUD2)
+        self._cloud_seq = 0
 
     def _topic(self, name: str, ros_type: str, qos: Qos = VOLATILE) -> None:
         h = m.type_hash(ros_type)
@@ -150,7 +158,7 @@ class Ros2Bridge:
 
     # publishing thread ------------------------------------------------------------------------
     def _run(self) -> None:
-        next_static = next_markers = 0.0
+        next_static = next_markers = next_cloud = 0.0
         seen: dict[str, float] = {}
         due = time.monotonic()
         while not self._stop.wait(max(0.0, due - time.monotonic())):
@@ -164,6 +172,9 @@ class Ros2Bridge:
                 if now >= next_markers:
                     self.publish_markers()
                     next_markers = now + 1.0 / MARKER_RATE
+                if now >= next_cloud and CLOUD_TOPIC in self.topics:
+                    self.publish_cloud()
+                    next_cloud = now + 1.0 / CLOUD_RATE
             except Exception:  # a bad state must not end the bridge
                 log.exception("ROS 2 bridge: publishing failed")
 
@@ -187,6 +198,21 @@ class Ros2Bridge:
         t = time.time()
         self.topics["/tf_static"].publish(cell.tf_message(t, cell.static_frames(self.system)), t)
 
+    def publish_cloud(self) -> None:
+        """The newest camera cloud, if new, as PointCloud2 in the ``camera`` frame."""
+        from schemas.points import decode_points
+
+        self._cloud_seq, sample = self.live.take_points(self._cloud_seq)
+        if sample is None:
+            return
+        try:
+            rows, meta = decode_points(*sample)
+        except InputError:
+            return  # LiveState keeps raw bodies; a malformed one is dropped here
+        t = float(meta.get("t", time.time()))
+        msg = m.point_cloud(t, cell.CAMERA, rows, list(meta["fields"]))
+        self.topics[CLOUD_TOPIC].publish(msg, t)
+
     def publish_markers(self) -> None:
         robots = self.system.robot_names
         q = self.live.joint_vector(robots) or {}
@@ -197,9 +223,8 @@ class Ros2Bridge:
             targets = self.targets
         beam = cell.Beam(on=bool(laser and laser.on), aim=bool(laser and laser.aim))
         spot_world = None
-        if spot is not None and spot.p_camera is not None and self.system.camera is not None:
-            world_T_camera = self.system.world_T_camera(q or None)
-            spot_world = world_T_camera[:3, :3] @ np.asarray(spot.p_camera) + world_T_camera[:3, 3]
+        if spot is not None and spot.p_camera is not None:
+            spot_world = cell.spot_in_world(self.system, q, np.asarray(spot.p_camera))
         t = time.time()
         msg = cell.markers(t, self.system, self.scene, q, beam=beam, targets=targets,
                            spot_world=spot_world)  # fmt: skip

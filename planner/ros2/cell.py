@@ -85,6 +85,15 @@ def tf_message(t: float, frames: list[Frame]) -> Any:
     return m.tf_message([m.transform(t, f.parent, f.child, f.parent_T_child) for f in frames])
 
 
+def spot_in_world(system: System, q: dict[str, Array], p_camera: Array) -> Array | None:
+    """The camera's measured spot (optical frame, m) in the world at joints ``q`` (an
+    eye-in-hand camera moves with its robot); None without a camera."""
+    if system.camera is None:
+        return None
+    world_T_camera = system.world_T_camera(q or None)
+    return world_T_camera[:3, :3] @ np.asarray(p_camera, dtype=float) + world_T_camera[:3, 3]
+
+
 class Beam(NamedTuple):
     """What the beam marker shows: the gate (``on``) and aiming beam (``aim``) states."""
 

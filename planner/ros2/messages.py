@@ -20,6 +20,8 @@ from planner.model.transforms import Array
 JOINT_STATE = "sensor_msgs/msg/JointState"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
+POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"
+FLOAT32 = 7  # sensor_msgs/msg/PointField datatype
 
 #: visualization_msgs/msg/Marker constants
 LINE_STRIP, SPHERE_LIST, SPHERE = 4, 7, 2
@@ -169,3 +171,28 @@ def marker(
 
 def marker_array(markers: list[Any]) -> Any:
     return make(MARKER_ARRAY, markers=markers)
+
+
+def point_cloud(t: float, frame: str, rows: Array, fields: list[str]) -> Any:
+    """``sensor_msgs/msg/PointCloud2`` of ``rows`` (count x len(fields) float32, row-major;
+    ``x, y, z`` in m, optional ``r, g, b`` in [0, 1]) in ``frame``: one row of points, float32
+    fields at consecutive offsets, the rows' bytes as the data (not dense: NaN rows kept)."""
+    data = np.ascontiguousarray(rows, dtype="<f4")
+    count, n = data.shape
+    if n != len(fields):
+        raise ValueError(f"{n} columns for {len(fields)} fields")
+    return make(
+        POINT_CLOUD2,
+        header=header(t, frame),
+        height=1,
+        width=count,
+        fields=[
+            make("sensor_msgs/msg/PointField", name=f, offset=4 * i, datatype=FLOAT32, count=1)
+            for i, f in enumerate(fields)
+        ],
+        is_bigendian=False,
+        point_step=4 * n,
+        row_step=4 * n * count,
+        data=data.reshape(-1).view(np.uint8),
+        is_dense=False,
+    )

@@ -7,6 +7,7 @@ document's format."""
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from typing import Any
@@ -126,3 +127,40 @@ def test_bridge_publishes_rmw_zenoh_topics_and_tokens(system1: System, endpoint:
 def ros_tokens(session: Any) -> set[str]:
     replies = session.liveliness().get(f"@ros2_lv/{DOMAIN}/**", timeout=2.0)
     return {str(r.ok.key_expr) for r in replies if r.ok is not None}
+
+
+def test_bridge_publishes_the_camera_cloud_as_point_cloud2(endpoint: str) -> None:
+    from planner.io.scenario import load_scenario, system_from_scenario
+    from schemas.points import points_metadata
+    from tests.paths import REPO
+
+    system = system_from_scenario(load_scenario(REPO / "scenarios" / "paper_n1.yaml"))
+    hub = open_session(listen=True, endpoint=endpoint)
+    raw = raw_session(endpoint)
+    bridge = Ros2Bridge(hub, system, None, domain=DOMAIN)
+    received = Received()
+    key = (f"{DOMAIN}/camera/points/sensor_msgs::msg::dds_::PointCloud2_/"
+           f"{m.type_hash(m.POINT_CLOUD2)}")  # fmt: skip
+    sub = raw.declare_subscriber(key, received)
+    camera = raw.declare_publisher(Keys().camera_points)
+    rows = np.arange(30, dtype=np.float32).reshape(10, 3) / 10
+    meta = points_metadata(rows, 1_700_000_321.25, 4, {})
+    try:
+        bridge.start()
+        deadline = time.monotonic() + 15.0
+        while time.monotonic() < deadline and not received.get(key):
+            camera.put(rows.tobytes(), attachment=json.dumps(meta).encode())
+            time.sleep(0.05)
+        assert received.get(key), "no PointCloud2"
+        cloud = m.deserialize(received.get(key)[-1][0], m.POINT_CLOUD2)
+        assert cloud.header.frame_id == "camera" and cloud.width == 10
+        assert [f.name for f in cloud.fields] == ["x", "y", "z"]
+        got = np.frombuffer(bytes(cloud.data), dtype="<f4").reshape(10, 3)
+        np.testing.assert_array_equal(got, rows)
+        assert (cloud.header.stamp.sec, cloud.header.stamp.nanosec) == (1_700_000_321, 250_000_000)
+    finally:
+        bridge.close()
+        sub.undeclare()
+        camera.undeclare()
+        raw.close()
+        hub.close()

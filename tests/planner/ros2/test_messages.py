@@ -104,3 +104,35 @@ def test_markers_carry_the_beam_targets_and_spot(system1: System) -> None:
     np.testing.assert_allclose(got, targets)
     assert spot.type == m.SPHERE
     assert (spot.pose.position.x, spot.pose.position.y) == (0.4, 0.1)
+
+
+def test_point_cloud_round_trips_with_the_rows_as_data() -> None:
+    rng = np.random.default_rng(3)
+    rows = rng.normal(size=(50, 6)).astype(np.float32)
+    rows[7] = np.nan
+    fields = ["x", "y", "z", "r", "g", "b"]
+    back = m.deserialize(m.serialize(m.point_cloud(2.5, "camera", rows, fields), m.POINT_CLOUD2),
+                         m.POINT_CLOUD2)  # fmt: skip
+    assert (back.height, back.width, back.point_step, back.row_step) == (1, 50, 24, 1200)
+    assert [(f.name, f.offset, f.datatype, f.count) for f in back.fields] == [
+        (n, 4 * i, 7, 1) for i, n in enumerate(fields)
+    ]
+    assert back.header.frame_id == "camera" and not back.is_bigendian and not back.is_dense
+    got = np.frombuffer(bytes(back.data), dtype="<f4").reshape(50, 6)
+    np.testing.assert_array_equal(got, rows)  # NaN rows compare equal position-wise
+    with pytest.raises(ValueError, match="3 columns for 6 fields"):
+        m.point_cloud(0.0, "camera", rows[:, :3], fields)
+
+
+def test_spot_in_world_uses_the_camera_pose() -> None:
+    from planner.io.scenario import load_scenario, system_from_scenario
+    from tests.paths import REPO
+
+    system = system_from_scenario(load_scenario(REPO / "scenarios" / "paper_n1.yaml"))
+    assert system.camera is not None
+    p_camera = np.array([0.01, -0.02, 0.6])
+    T = system.camera.world_T_camera
+    expected = (T @ np.append(p_camera, 1.0))[:3]
+    got = cell.spot_in_world(system, {}, p_camera)
+    assert got is not None
+    np.testing.assert_allclose(got, expected, atol=1e-12)
