@@ -8,6 +8,8 @@ thread converts and publishes at fixed rates:
 
 - ``/<robot>/joint_states`` (``sensor_msgs/msg/JointState``) and ``/tf`` (base -> flange)
   at ``rate`` Hz whenever a robot reported new joints;
+- ``/<robot>/joint_trajectory`` (``trajectory_msgs/msg/JointTrajectory``): each trajectory
+  the planner sends a driver, stamped when the bridge saw it;
 - ``/tf_static`` every ``STATIC_PERIOD`` s (see below);
 - ``/beamrelay/markers`` (``visualization_msgs/msg/MarkerArray``) at ``MARKER_RATE`` Hz;
 - ``/camera/points`` (``sensor_msgs/msg/PointCloud2``, ``camera`` frame), the newest cloud
@@ -40,7 +42,8 @@ from planner.model.transforms import Array
 from planner.ros2 import cell
 from planner.ros2 import messages as m
 from planner.ros2.graph import LATCHED, VOLATILE, Node, Qos, attachment, gid, topic_key
-from planner.service.bus import Keys
+from planner.service.bus import Keys, decode
+from schemas.messages import JointTrajectory
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +59,10 @@ DEFAULT_KEYS = Keys()
 
 def joint_states_topic(robot: str) -> str:
     return f"/{robot}/joint_states"
+
+
+def trajectory_topic(robot: str) -> str:
+    return f"/{robot}/joint_trajectory"
 
 
 @dataclass
@@ -104,10 +111,13 @@ class Ros2Bridge:
         self._thread: threading.Thread | None = None
         self._node_token: Any = None
         self._plans_sub: Any = None
+        self._traj_sub: Any = None
         self.topics: dict[str, Topic] = {}
         robots = system.robot_names
         for r in robots:
             self._topic(joint_states_topic(r), m.JOINT_STATE)
+            self._topic(trajectory_topic(r), m.JOINT_TRAJECTORY)
+        self._trajectories: dict[str, bytes] = {}  # robot -> newest raw body not yet sent
         self._topic("/tf", m.TF_MESSAGE)
         self._topic("/tf_static", m.TF_MESSAGE, LATCHED)
         self._topic(MARKER_TOPIC, m.MARKER_ARRAY)
@@ -131,6 +141,7 @@ class Ros2Bridge:
             ]
         self.live.subscribe(s)
         self._plans_sub = s.declare_subscriber(self.keys.plans, self._on_plan)
+        self._traj_sub = s.declare_subscriber(self.keys.trajectory("*"), self._on_trajectory)
         self._thread = threading.Thread(target=self._run, name="ros2-bridge", daemon=True)
         self._thread.start()
 
@@ -140,12 +151,12 @@ class Ros2Bridge:
             self._thread.join(timeout=2.0)
         self.live.close()
         handles = [h for t in self.topics.values() for h in t.handles]
-        for h in [self._plans_sub, *handles, self._node_token]:
+        for h in [self._plans_sub, self._traj_sub, *handles, self._node_token]:
             if h is not None:
                 h.undeclare()
         for t in self.topics.values():
             t.handles = []
-        self._plans_sub = self._node_token = self._thread = None
+        self._plans_sub = self._traj_sub = self._node_token = self._thread = None
 
     def _on_plan(self, sample: Any) -> None:
         try:
@@ -155,6 +166,25 @@ class Ros2Bridge:
             return  # a tracking summary or a body without targets: keep the last ones
         with self._lock:
             self.targets = pts
+
+    def _on_trajectory(self, sample: Any) -> None:
+        robot = str(sample.key_expr).split("/")[-2]
+        if robot in self.system.robot_names:
+            with self._lock:  # parsed on the publishing thread, never in the callback
+                self._trajectories[robot] = sample.payload.to_bytes()
+
+    def publish_trajectories(self) -> None:
+        """Each trajectory a robot was sent since the last call, as JointTrajectory."""
+        with self._lock:
+            bodies, self._trajectories = self._trajectories, {}
+        for robot, body in bodies.items():
+            try:
+                traj = decode(body, JointTrajectory)
+            except InputError:
+                continue  # the driver rejects it too
+            t = time.time()
+            msg = m.joint_trajectory(t, traj.names, traj.t, traj.q, traj.qd, traj.qdd)
+            self.topics[trajectory_topic(robot)].publish(msg, t)
 
     # publishing thread ------------------------------------------------------------------------
     def _run(self) -> None:
@@ -166,6 +196,7 @@ class Ros2Bridge:
             due = max(due + self.period, now)  # fixed rate; no catching up after a stall
             try:
                 self._publish_joints(seen)
+                self.publish_trajectories()
                 if now >= next_static:
                     self.publish_static()
                     next_static = now + STATIC_PERIOD

@@ -21,6 +21,7 @@ JOINT_STATE = "sensor_msgs/msg/JointState"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"
+JOINT_TRAJECTORY = "trajectory_msgs/msg/JointTrajectory"
 FLOAT32 = 7  # sensor_msgs/msg/PointField datatype
 
 #: visualization_msgs/msg/Marker constants
@@ -112,6 +113,32 @@ def joint_state(t: float, names: list[str], q: ArrayLike, qd: ArrayLike) -> Any:
         position=np.asarray(q, dtype=np.float64),
         velocity=np.asarray(qd, dtype=np.float64),
     )
+
+
+def duration(seconds: float) -> Any:
+    """``builtin_interfaces/msg/Duration`` of ``seconds`` >= 0."""
+    t = stamp(seconds)
+    return make("builtin_interfaces/msg/Duration", sec=t.sec, nanosec=t.nanosec)
+
+
+def joint_trajectory(
+    t: float, names: list[str], times: ArrayLike, q: ArrayLike, qd: ArrayLike, qdd: ArrayLike
+) -> Any:
+    """``trajectory_msgs/msg/JointTrajectory`` starting at UNIX time ``t``: ``q`` (rad),
+    ``qd``, ``qdd`` (K x n) at ``times`` (K, s from the start)."""
+    T = np.asarray(times, dtype=float)
+    Q, QD, QDD = (np.asarray(a, dtype=np.float64).reshape(len(T), -1) for a in (q, qd, qdd))
+    points = [
+        make(
+            "trajectory_msgs/msg/JointTrajectoryPoint",
+            positions=Q[k].copy(),
+            velocities=QD[k].copy(),
+            accelerations=QDD[k].copy(),
+            time_from_start=duration(T[k] - T[0]),
+        )
+        for k in range(len(T))
+    ]
+    return make(JOINT_TRAJECTORY, header=header(t), joint_names=list(names), points=points)
 
 
 def transform(t: float, parent: str, child: str, parent_T_child: Array) -> Any:

@@ -19,14 +19,19 @@ from planner.ros2 import messages as m
 from planner.ros2.bridge import Ros2Bridge
 from planner.ros2.graph import parse_attachment
 from planner.service.bus import Keys, encode, open_session
-from schemas.messages import JointState
+from schemas.messages import JointState, JointTrajectory
 from tests.planner.raw_zenoh import raw_session
 from tests.planner.ros2.test_messages import PUBLISHED
 
 DOMAIN = 7
 JOINT_STATE_HASH = PUBLISHED["sensor_msgs/msg/JointState"]
 TF_HASH = PUBLISHED["tf2_msgs/msg/TFMessage"]
-MARKER_HASH = m.type_hash(m.MARKER_ARRAY)  # no published value found: rosbags' REP-2016 hash
+# no published values found for these two: rosbags' REP-2016 hashes
+MARKER_HASH = m.type_hash(m.MARKER_ARRAY)
+TRAJ_HASH = m.type_hash(m.JOINT_TRAJECTORY)
+TRAJ_KEY = (
+    f"{DOMAIN}/arm0/joint_trajectory/trajectory_msgs::msg::dds_::JointTrajectory_/{TRAJ_HASH}"
+)
 JS_KEY = f"{DOMAIN}/arm0/joint_states/sensor_msgs::msg::dds_::JointState_/{JOINT_STATE_HASH}"
 TF_KEY = f"{DOMAIN}/tf/tf2_msgs::msg::dds_::TFMessage_/{TF_HASH}"
 STATIC_KEY = f"{DOMAIN}/tf_static/tf2_msgs::msg::dds_::TFMessage_/{TF_HASH}"
@@ -57,13 +62,18 @@ def test_bridge_publishes_rmw_zenoh_topics_and_tokens(system1: System, endpoint:
     received = Received()
     sub = raw.declare_subscriber(f"{DOMAIN}/**", received)
     driver = raw.declare_publisher(Keys().joint_states("arm0"))
+    planner = raw.declare_publisher(Keys().trajectory("arm0"))
     names = list(system1.robots[0].joint_names)
     js = JointState(t=1_700_000_123.5, names=names, q=[0.1, -1.4, 1.2, -0.3, -1.5, 0.2],
                     qd=[0.0, 0.01, -0.02, 0.0, 0.0, 0.03])  # fmt: skip
     try:
         bridge.start()
         deadline = time.monotonic() + 15.0
-        keys = (JS_KEY, TF_KEY, STATIC_KEY, MARKER_KEY)
+        keys = (JS_KEY, TF_KEY, STATIC_KEY, MARKER_KEY, TRAJ_KEY)
+        traj = JointTrajectory(robot="arm0", t=[0.0, 0.5, 1.25], names=names,
+                               q=[[0.1 * k] * 6 for k in range(3)],
+                               qd=[[0.01 * k] * 6 for k in range(3)],
+                               qdd=[[0.001 * k] * 6 for k in range(3)])  # fmt: skip
 
         def complete() -> bool:  # every topic, and markers drawn from the joint states
             if not all(received.get(k) for k in keys):
@@ -72,6 +82,8 @@ def test_bridge_publishes_rmw_zenoh_topics_and_tokens(system1: System, endpoint:
 
         while time.monotonic() < deadline and not complete():
             driver.put(encode(js))
+            if not received.get(TRAJ_KEY):
+                planner.put(encode(traj))
             time.sleep(0.02)
         missing = [k for k in keys if not received.get(k)]
         assert not missing, f"nothing on {missing}; got {sorted(received.samples)}"
@@ -96,6 +108,14 @@ def test_bridge_publishes_rmw_zenoh_topics_and_tokens(system1: System, endpoint:
         assert {(t.header.frame_id, t.child_frame_id) for t in static} == {
             ("world", "laser"), ("world", "arm0_base"), ("arm0_flange", "arm0_mirror"),
         }  # fmt: skip
+        sent = m.deserialize(received.get(TRAJ_KEY)[-1][0], m.JOINT_TRAJECTORY)
+        assert sent.joint_names == names
+        starts = [(p.time_from_start.sec, p.time_from_start.nanosec) for p in sent.points]
+        assert starts == [(0, 0), (0, 500_000_000), (1, 250_000_000)]
+        for k, p in enumerate(sent.points):
+            np.testing.assert_array_equal(p.positions, traj.q[k])
+            np.testing.assert_array_equal(p.velocities, traj.qd[k])
+            np.testing.assert_array_equal(p.accelerations, traj.qdd[k])
         markers = m.deserialize(received.get(MARKER_KEY)[-1][0], m.MARKER_ARRAY).markers
         assert [mk.ns for mk in markers[1:]] == ["beam"]
 
@@ -107,11 +127,13 @@ def test_bridge_publishes_rmw_zenoh_topics_and_tokens(system1: System, endpoint:
             node,
             f"{prefix}/1/MP/%/%/beamrelay_bridge/%arm0%joint_states/"
             f"sensor_msgs::msg::dds_::JointState_/{JOINT_STATE_HASH}/::,10:,:,:,,",
-            f"{prefix}/2/MP/%/%/beamrelay_bridge/%tf/"
+            f"{prefix}/2/MP/%/%/beamrelay_bridge/%arm0%joint_trajectory/"
+            f"trajectory_msgs::msg::dds_::JointTrajectory_/{TRAJ_HASH}/::,10:,:,:,,",
+            f"{prefix}/3/MP/%/%/beamrelay_bridge/%tf/"
             f"tf2_msgs::msg::dds_::TFMessage_/{TF_HASH}/::,10:,:,:,,",
-            f"{prefix}/3/MP/%/%/beamrelay_bridge/%tf_static/"
+            f"{prefix}/4/MP/%/%/beamrelay_bridge/%tf_static/"
             f"tf2_msgs::msg::dds_::TFMessage_/{TF_HASH}/:1:,1:,:,:,,",
-            f"{prefix}/4/MP/%/%/beamrelay_bridge/%beamrelay%markers/"
+            f"{prefix}/5/MP/%/%/beamrelay_bridge/%beamrelay%markers/"
             f"visualization_msgs::msg::dds_::MarkerArray_/{MARKER_HASH}/::,10:,:,:,,",
         }
         bridge.close()
@@ -120,6 +142,7 @@ def test_bridge_publishes_rmw_zenoh_topics_and_tokens(system1: System, endpoint:
         bridge.close()
         sub.undeclare()
         driver.undeclare()
+        planner.undeclare()
         raw.close()
         hub.close()
 
