@@ -8,7 +8,8 @@ File layout (MCAP, profile ``beamrelay``; opens in Foxglove Studio):
   with a Zenoh attachment (``camera/points`` metadata) uses ``beamrelay.attached``: data =
   4-byte big-endian attachment length, attachment, payload;
 - with a ROS 2 translator (``record --ros2``, :mod:`planner.ros2.recording`): ROS 2 channels
-  beside the raw ones (topics ``/<robot>/joint_states``, ``/tf``, ``/tf_static``; schema
+  beside the raw ones (topics ``/<robot>/joint_states``, ``/tf``, ``/tf_static``,
+  ``/beamrelay/markers``; schema
   encoding ``ros2msg``, message encoding ``cdr``), which ``replay`` skips;
 - liveliness: token appearances and disappearances as JSON ``{"alive": bool}`` messages on
   the topic ``@liveliness/<key>``;

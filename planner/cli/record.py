@@ -28,7 +28,9 @@ def record(
     force: Annotated[bool, typer.Option("--force", help="Overwrite an existing file.")] = False,
     ros2: Annotated[
         bool,
-        typer.Option("--ros2", help="Also write ROS 2 channels (JointState; TF with --scenario)."),
+        typer.Option(
+            "--ros2", help="Also write ROS 2 channels (JointState; TF, markers with --scenario)."
+        ),
     ] = False,
     scenario: Annotated[
         Path | None,
@@ -42,7 +44,8 @@ def record(
     """Record every bus key under the prefix (and liveliness) with timestamps to MCAP.
 
     With --ros2 the file also holds ROS 2 channels (ros2msg schemas, CDR) that Foxglove and
-    ros2 bag read: /<robot>/joint_states and, with --scenario, /tf and /tf_static."""
+    ros2 bag read: /<robot>/joint_states and, with --scenario, /tf, /tf_static and
+    /beamrelay/markers (the beam, the targets)."""
     from drivers.record import Recorder
     from planner.service.bus import Keys, open_session
 
@@ -60,14 +63,16 @@ def record(
     if ros2:
         from planner.ros2.recording import RosTranslator
 
-        system = None
+        translator = RosTranslator(Keys(prefix))
         if scenario is not None:
-            from planner.io.scenario import load_scenario, system_from_scenario
+            from planner.io.scenario import load_scenario, scene_objects, system_from_scenario
+            from planner.model.scene import SceneModel
 
             if not scenario.is_file():
                 raise InputError(f"scenario not found: {scenario}")
-            system = system_from_scenario(load_scenario(scenario))
-        translator = RosTranslator(Keys(prefix), system)
+            scn = load_scenario(scenario)
+            scene = SceneModel(scene_objects(scn))
+            translator = RosTranslator(Keys(prefix), system_from_scenario(scn), scene)
     stop = stop_on_signals()
     session = open_session(listen=False, endpoint=endpoint, config_file=zenoh_config)
     tmp = output.with_suffix(".mcap.part")

@@ -25,7 +25,6 @@ rather than served from a publication cache, so a late tf2 listener gets it with
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
 import time
@@ -159,13 +158,10 @@ class Ros2Bridge:
         self._plans_sub = self._traj_sub = self._node_token = self._thread = None
 
     def _on_plan(self, sample: Any) -> None:
-        try:
-            plan = json.loads(sample.payload.to_bytes())
-            pts = np.array([tg["p"] for tg in plan["targets"]], dtype=float).reshape(-1, 3)
-        except (ValueError, KeyError, TypeError):
-            return  # a tracking summary or a body without targets: keep the last ones
-        with self._lock:
-            self.targets = pts
+        pts = cell.plan_targets(sample.payload.to_bytes())
+        if pts is not None:  # else a tracking summary: keep the last targets
+            with self._lock:
+                self.targets = pts
 
     def _on_trajectory(self, sample: Any) -> None:
         robot = str(sample.key_expr).split("/")[-2]

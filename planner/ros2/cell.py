@@ -12,6 +12,7 @@ the camera's measured spot.
 
 from __future__ import annotations
 
+import json
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -92,6 +93,16 @@ def spot_in_world(system: System, q: dict[str, Array], p_camera: Array) -> Array
         return None
     world_T_camera = system.world_T_camera(q or None)
     return world_T_camera[:3, :3] @ np.asarray(p_camera, dtype=float) + world_T_camera[:3, 3]
+
+
+def plan_targets(body: bytes) -> Array | None:
+    """The targets (K x 3, world, m) of a plan.json body from ``<prefix>/plans``; None for any
+    other body (a tracking summary, malformed JSON)."""
+    try:
+        plan = json.loads(body)
+        return np.array([tg["p"] for tg in plan["targets"]], dtype=float).reshape(-1, 3)
+    except (ValueError, KeyError, TypeError):
+        return None
 
 
 class Beam(NamedTuple):

@@ -5,7 +5,10 @@ the raw channel (which ``replay`` keeps using): ``<prefix>/<robot>/joint_states`
 ``/<robot>/joint_states`` (``sensor_msgs/msg/JointState``) and, with the system model,
 ``/tf`` (base -> flange); :meth:`RosTranslator.static` gives ``/tf_static``. Schemas are the
 concatenated ``.msg`` definitions rosbags generates (MCAP's ``ros2msg`` schema encoding),
-the data CDR (message encoding ``cdr``), as Foxglove and ``ros2 bag`` read them.
+the data CDR (message encoding ``cdr``), as Foxglove and ``ros2 bag`` read them. With the
+system model it also writes ``/beamrelay/markers`` (the beam at the recorded joints, coloured
+by the recorded laser state, and the targets of the recorded plans) at most
+``MARKER_RATE`` Hz of recorded time.
 """
 
 from __future__ import annotations
@@ -15,12 +18,14 @@ from typing import NamedTuple
 import numpy as np
 
 from planner.errors import InputError
+from planner.model.scene import SceneModel
 from planner.model.system import System
+from planner.model.transforms import Array
 from planner.ros2 import cell
 from planner.ros2 import messages as m
-from planner.ros2.bridge import joint_states_topic
+from planner.ros2.bridge import MARKER_RATE, MARKER_TOPIC, joint_states_topic
 from planner.service.bus import Keys, decode
-from schemas.messages import JointState
+from schemas.messages import JointState, LaserState
 
 SCHEMA_ENCODING = "ros2msg"
 MESSAGE_ENCODING = "cdr"
@@ -44,8 +49,14 @@ def schema_text(ros_type: str) -> str:
 class RosTranslator:
     """See the module docstring; ``system`` None: joint states only (no TF)."""
 
-    def __init__(self, keys: Keys, system: System | None = None) -> None:
-        self.keys, self.system = keys, system
+    def __init__(
+        self, keys: Keys, system: System | None = None, scene: SceneModel | None = None
+    ) -> None:
+        self.keys, self.system, self.scene = keys, system, scene
+        self.q: dict[str, Array] = {}
+        self.beam = cell.BEAM_IDLE
+        self.targets: Array | None = None
+        self._next_markers = 0.0
 
     def schema(self, ros_type: str) -> str:
         return schema_text(ros_type)
@@ -57,6 +68,12 @@ class RosTranslator:
         return [RosMessage("/tf_static", m.TF_MESSAGE, m.serialize(msg, m.TF_MESSAGE))]
 
     def __call__(self, key: str, payload: bytes) -> list[RosMessage]:
+        if key == self.keys.laser:
+            self._on_laser(payload)
+            return []
+        if key == self.keys.plans:
+            self._on_plan(payload)
+            return []
         prefix, _, rest = key.partition("/")
         robot, _, leaf = rest.partition("/")
         if prefix != self.keys.prefix or leaf != "joint_states" or "/" in robot:
@@ -76,4 +93,25 @@ class RosTranslator:
             q = {robot: np.asarray(js.q, dtype=float)}
             tf = cell.tf_message(js.t, cell.moving_frames(self.system, q))
             out.append(RosMessage("/tf", m.TF_MESSAGE, m.serialize(tf, m.TF_MESSAGE)))
+            self.q[robot] = q[robot]
+            out += self._markers(js.t)
         return out
+
+    def _markers(self, t: float) -> list[RosMessage]:
+        if self.system is None or t < self._next_markers:
+            return []
+        self._next_markers = t + 1.0 / MARKER_RATE
+        msg = cell.markers(t, self.system, self.scene, self.q, beam=self.beam,
+                           targets=self.targets)  # fmt: skip
+        return [RosMessage(MARKER_TOPIC, m.MARKER_ARRAY, m.serialize(msg, m.MARKER_ARRAY))]
+
+    def _on_laser(self, payload: bytes) -> None:
+        try:
+            laser = decode(payload, LaserState)
+        except InputError:
+            return
+        self.beam = cell.Beam(on=laser.on, aim=bool(laser.aim))
+
+    def _on_plan(self, payload: bytes) -> None:
+        if (pts := cell.plan_targets(payload)) is not None:
+            self.targets = pts

@@ -13,7 +13,7 @@ from drivers.record import Recorder, read
 from planner.model.system import System
 from planner.ros2.recording import RosTranslator
 from planner.service.bus import Keys, encode, open_session
-from schemas.messages import JointState
+from schemas.messages import JointState, LaserState
 from tests.drivers.conftest import wait_for
 
 
@@ -36,11 +36,16 @@ def test_recording_has_ros2_schemas_channels_and_tf_tree(
     ]  # fmt: skip
     try:
         pub = hub.declare_publisher(Keys(prefix).joint_states("arm0"))
+        laser = hub.declare_publisher(Keys(prefix).laser)
         time.sleep(0.2)
+        laser.put(encode(LaserState(robot="arm0", t=sent[0].t, on=True)))
+        wait_for(lambda: rec.count >= 2, 5.0)
         for js in sent:
             pub.put(encode(js))
-        wait_for(lambda: rec.count >= 1 + 3 * len(sent), 5.0)
+        # per sample: raw + JointState + TF; markers once (10 Hz of the samples' 40 ms)
+        wait_for(lambda: rec.count >= 2 + 3 * len(sent) + 1, 5.0)
         pub.undeclare()
+        laser.undeclare()
         rec.close()
     finally:
         out.close()
@@ -50,14 +55,16 @@ def test_recording_has_ros2_schemas_channels_and_tf_tree(
     summary = reader.get_summary()
     assert summary is not None
     schemas = {s.name: s.encoding for s in summary.schemas.values()}
-    assert schemas == {"sensor_msgs/msg/JointState": "ros2msg", "tf2_msgs/msg/TFMessage": "ros2msg"}
+    assert schemas == {"sensor_msgs/msg/JointState": "ros2msg", "tf2_msgs/msg/TFMessage": "ros2msg",
+                       "visualization_msgs/msg/MarkerArray": "ros2msg"}  # fmt: skip
     channels = {c.topic: c.message_encoding for c in summary.channels.values()}
-    assert channels == {f"{prefix}/arm0/joint_states": "json", "/arm0/joint_states": "cdr",
-                        "/tf": "cdr", "/tf_static": "cdr"}  # fmt: skip
+    assert channels == {f"{prefix}/arm0/joint_states": "json", f"{prefix}/laser": "json",
+                        "/arm0/joint_states": "cdr", "/tf": "cdr", "/tf_static": "cdr",
+                        "/beamrelay/markers": "cdr"}  # fmt: skip
 
     decoded: dict[str, list] = {}
-    for _, channel, _, msg in reader.iter_decoded_messages(topics=["/arm0/joint_states", "/tf",
-                                                                   "/tf_static"]):  # fmt: skip
+    topics = ["/arm0/joint_states", "/tf", "/tf_static", "/beamrelay/markers"]
+    for _, channel, _, msg in reader.iter_decoded_messages(topics=topics):
         decoded.setdefault(channel.topic, []).append(msg)
     assert [list(m.position) for m in decoded["/arm0/joint_states"]] == [js.q for js in sent]
     assert decoded["/arm0/joint_states"][0].name == names
@@ -70,5 +77,11 @@ def test_recording_has_ros2_schemas_channels_and_tf_tree(
     fk = system1.robots[0].kinematics.fk(np.asarray(sent[-1].q))[:3, 3]
     np.testing.assert_allclose([last.x, last.y, last.z], fk, atol=1e-12)
 
-    # replay reads the raw channel only
-    assert {m.key for m in read(path)} == {f"{prefix}/arm0/joint_states"}
+    (markers,) = decoded["/beamrelay/markers"]
+    beam = next(mk for mk in markers.markers if mk.ns == "beam")
+    assert (beam.color.r, beam.color.g, beam.color.b) == (1.0, 0.0, 0.0)  # the gate was on
+    first = beam.points[0]
+    np.testing.assert_allclose([first.x, first.y, first.z], system1.world_T_laser[:3, 3])
+
+    # replay reads the raw channels only
+    assert {m.key for m in read(path)} == {f"{prefix}/arm0/joint_states", f"{prefix}/laser"}
