@@ -15,6 +15,9 @@ thread converts and publishes at fixed rates:
 - ``/camera/points`` (``sensor_msgs/msg/PointCloud2``, ``camera`` frame), the newest cloud
   at most ``CLOUD_RATE`` Hz (with a camera in the scenario).
 
+It subscribes to ROS 2 targets (:mod:`planner.ros2.inputs`) and forwards them as
+TargetRequests on the bus.
+
 Every publisher and the node itself declare rmw_zenoh's liveliness tokens
 (:mod:`planner.ros2.graph`), so ``ros2 node list`` / ``ros2 topic list`` on
 ``RMW_IMPLEMENTATION=rmw_zenoh_cpp`` see them; every sample carries rmw_zenoh's attachment.
@@ -28,6 +31,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -41,7 +45,8 @@ from planner.model.transforms import Array
 from planner.ros2 import cell
 from planner.ros2 import messages as m
 from planner.ros2.graph import LATCHED, VOLATILE, Node, Qos, attachment, gid, topic_key
-from planner.service.bus import Keys, decode
+from planner.ros2.inputs import INPUTS, target_request
+from planner.service.bus import JSON, Keys, decode, encode
 from schemas.messages import JointTrajectory
 
 log = logging.getLogger(__name__)
@@ -53,6 +58,7 @@ STATIC_PERIOD = 1.0  # s between /tf_static republications
 MARKER_TOPIC = "/beamrelay/markers"
 CLOUD_TOPIC = "/camera/points"
 CLOUD_RATE = 5.0  # Hz at most
+INBOX = 16  # ROS 2 target messages kept between two publishing periods (older dropped)
 DEFAULT_KEYS = Keys()
 
 
@@ -111,6 +117,7 @@ class Ros2Bridge:
         self._node_token: Any = None
         self._plans_sub: Any = None
         self._traj_sub: Any = None
+        self._targets_pub: Any = None
         self.topics: dict[str, Topic] = {}
         robots = system.robot_names
         for r in robots:
@@ -120,13 +127,24 @@ class Ros2Bridge:
         self._topic("/tf", m.TF_MESSAGE)
         self._topic("/tf_static", m.TF_MESSAGE, LATCHED)
         self._topic(MARKER_TOPIC, m.MARKER_ARRAY)
+        self.inputs: dict[str, Topic] = {}
+        for inp in INPUTS:
+            h = m.type_hash(inp.ros_type)
+            token = self.node.subscription_token(self._next_id(), inp.topic, inp.ros_type, h)
+            key = topic_key(self.domain, inp.topic, inp.ros_type, h)
+            self.inputs[inp.topic] = Topic(inp.topic, inp.ros_type, key, token, gid(token))
+        self._inbox: deque[tuple[str, bytes]] = deque(maxlen=INBOX)
+        self.requests = self.rejected = 0
         if system.camera is not None:
             self._topic(CLOUD_TOPIC, m.POINT_CLOUD2)
         self._cloud_seq = 0
 
+    def _next_id(self) -> int:
+        return len(self.topics) + len(getattr(self, "inputs", {})) + 1
+
     def _topic(self, name: str, ros_type: str, qos: Qos = VOLATILE) -> None:
         h = m.type_hash(ros_type)
-        token = self.node.publisher_token(len(self.topics) + 1, name, ros_type, h, qos)
+        token = self.node.publisher_token(self._next_id(), name, ros_type, h, qos)
         key = topic_key(self.domain, name, ros_type, h)
         self.topics[name] = Topic(name, ros_type, key, token, gid(token))
 
@@ -138,6 +156,12 @@ class Ros2Bridge:
                 s.declare_publisher(topic.key),
                 s.liveliness().declare_token(topic.token),
             ]
+        for inp in self.inputs.values():
+            inp.handles = [
+                s.declare_subscriber(inp.key, self._on_input(inp.name)),
+                s.liveliness().declare_token(inp.token),
+            ]
+        self._targets_pub = s.declare_publisher(self.keys.targets)
         self.live.subscribe(s)
         self._plans_sub = s.declare_subscriber(self.keys.plans, self._on_plan)
         self._traj_sub = s.declare_subscriber(self.keys.trajectory("*"), self._on_trajectory)
@@ -149,13 +173,15 @@ class Ros2Bridge:
         if self._thread is not None:
             self._thread.join(timeout=2.0)
         self.live.close()
-        handles = [h for t in self.topics.values() for h in t.handles]
-        for h in [self._plans_sub, self._traj_sub, *handles, self._node_token]:
+        entities = [*self.topics.values(), *self.inputs.values()]
+        handles = [h for t in entities for h in t.handles]
+        for h in [self._plans_sub, self._traj_sub, self._targets_pub, *handles, self._node_token]:
             if h is not None:
                 h.undeclare()
-        for t in self.topics.values():
+        for t in entities:
             t.handles = []
-        self._plans_sub = self._traj_sub = self._node_token = self._thread = None
+        self._plans_sub = self._traj_sub = self._targets_pub = self._node_token = None
+        self._thread = None
 
     def _on_plan(self, sample: Any) -> None:
         pts = cell.plan_targets(sample.payload.to_bytes())
@@ -168,6 +194,26 @@ class Ros2Bridge:
         if robot in self.system.robot_names:
             with self._lock:  # parsed on the publishing thread, never in the callback
                 self._trajectories[robot] = sample.payload.to_bytes()
+
+    def _on_input(self, topic: str) -> Any:
+        def cb(sample: Any) -> None:  # stored only; converted on the publishing thread
+            self._inbox.append((topic, sample.payload.to_bytes()))
+
+        return cb
+
+    def forward_targets(self) -> None:
+        """Each ROS 2 target message received since the last call, as a TargetRequest on
+        ``<prefix>/targets`` (planned, not executed); bad ones are counted and logged."""
+        while self._inbox:
+            topic, body = self._inbox.popleft()
+            self.requests += 1
+            try:
+                req = target_request(self.inputs[topic].ros_type, body, f"ros2-{self.requests}")
+            except ValueError as exc:
+                self.rejected += 1
+                log.warning("ROS 2 %s refused: %s", topic, exc)
+                continue
+            self._targets_pub.put(encode(req), encoding=JSON)
 
     def publish_trajectories(self) -> None:
         """Each trajectory a robot was sent since the last call, as JointTrajectory."""
@@ -193,6 +239,7 @@ class Ros2Bridge:
             try:
                 self._publish_joints(seen)
                 self.publish_trajectories()
+                self.forward_targets()
                 if now >= next_static:
                     self.publish_static()
                     next_static = now + STATIC_PERIOD

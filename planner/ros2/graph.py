@@ -11,8 +11,8 @@ volatile, keep-last 42, infinite durations):
   <mangled_namespace>/<node_name>``;
 - publisher token: ``@ros2_lv/<domain_id>/<session_id>/<node_id>/<entity_id>/MP/
   <mangled_enclave>/<mangled_namespace>/<node_name>/<mangled_qualified_name>/<type_name>/
-  <type_hash>/<qos>``, a mangled name having every ``/`` replaced by ``%`` (``%`` alone
-  when empty);
+  <type_hash>/<qos>`` (``MS`` for a subscription), a mangled name having every ``/``
+  replaced by ``%`` (``%`` alone when empty);
 - every sample carries an attachment: sequence number (int64 LE), source timestamp (ns
   since the UNIX epoch, int64 LE), the GID length (one byte, 16) and the 16-byte GID.
 
@@ -118,9 +118,20 @@ class Node:
         self, entity_id: int, topic: str, ros_type: str, type_hash: str, qos: Qos = VOLATILE
     ) -> str:
         """The liveliness token of a publisher (entity kind ``MP``) of this node."""
+        return self._endpoint_token("MP", entity_id, topic, ros_type, type_hash, qos)
+
+    def subscription_token(
+        self, entity_id: int, topic: str, ros_type: str, type_hash: str, qos: Qos = VOLATILE
+    ) -> str:
+        """The liveliness token of a subscription (entity kind ``MS``) of this node."""
+        return self._endpoint_token("MS", entity_id, topic, ros_type, type_hash, qos)
+
+    def _endpoint_token(
+        self, kind: str, entity_id: int, topic: str, ros_type: str, type_hash: str, qos: Qos
+    ) -> str:
         fq = fully_qualified(topic, self.namespace)
         return (
-            f"{self._prefix(entity_id, 'MP')}/{mangle(fq)}/{dds_type_name(ros_type)}/"
+            f"{self._prefix(entity_id, kind)}/{mangle(fq)}/{dds_type_name(ros_type)}/"
             f"{type_hash}/{qos.keyexpr()}"
         )
 

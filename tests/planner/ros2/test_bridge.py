@@ -26,9 +26,11 @@ from tests.planner.ros2.test_messages import PUBLISHED
 DOMAIN = 7
 JOINT_STATE_HASH = PUBLISHED["sensor_msgs/msg/JointState"]
 TF_HASH = PUBLISHED["tf2_msgs/msg/TFMessage"]
-# no published values found for these two: rosbags' REP-2016 hashes
+# no published values found for these: rosbags' REP-2016 hashes
 MARKER_HASH = m.type_hash(m.MARKER_ARRAY)
 TRAJ_HASH = m.type_hash(m.JOINT_TRAJECTORY)
+POINT_HASH = m.type_hash("geometry_msgs/msg/PointStamped")
+POSES_HASH = m.type_hash("geometry_msgs/msg/PoseArray")
 TRAJ_KEY = (
     f"{DOMAIN}/arm0/joint_trajectory/trajectory_msgs::msg::dds_::JointTrajectory_/{TRAJ_HASH}"
 )
@@ -135,6 +137,10 @@ def test_bridge_publishes_rmw_zenoh_topics_and_tokens(system1: System, endpoint:
             f"tf2_msgs::msg::dds_::TFMessage_/{TF_HASH}/:1:,1:,:,:,,",
             f"{prefix}/5/MP/%/%/beamrelay_bridge/%beamrelay%markers/"
             f"visualization_msgs::msg::dds_::MarkerArray_/{MARKER_HASH}/::,10:,:,:,,",
+            f"{prefix}/6/MS/%/%/beamrelay_bridge/%beamrelay%target/"
+            f"geometry_msgs::msg::dds_::PointStamped_/{POINT_HASH}/::,10:,:,:,,",
+            f"{prefix}/7/MS/%/%/beamrelay_bridge/%beamrelay%targets/"
+            f"geometry_msgs::msg::dds_::PoseArray_/{POSES_HASH}/::,10:,:,:,,",
         }
         bridge.close()
         assert ros_tokens(raw) == set()  # the graph forgets the node when it closes
@@ -185,5 +191,51 @@ def test_bridge_publishes_the_camera_cloud_as_point_cloud2(endpoint: str) -> Non
         bridge.close()
         sub.undeclare()
         camera.undeclare()
+        raw.close()
+        hub.close()
+
+
+def test_ros2_targets_become_target_requests(system1: System, endpoint: str) -> None:
+    """A ROS 2 node's PointStamped / PoseArray (CDR by rosbags, on the documented keys) ->
+    TargetRequests on beamrelay/targets, frame from the header; other frames are refused."""
+    hub = open_session(listen=True, endpoint=endpoint)
+    raw = raw_session(endpoint)
+    bridge = Ros2Bridge(hub, system1, None, domain=DOMAIN)
+    requests: list[dict[str, Any]] = []
+    sub = raw.declare_subscriber(Keys().targets, lambda s: requests.append(json.loads(
+        s.payload.to_bytes())))  # fmt: skip
+    point_key = f"{DOMAIN}/beamrelay/target/geometry_msgs::msg::dds_::PointStamped_/{POINT_HASH}"
+    poses_key = f"{DOMAIN}/beamrelay/targets/geometry_msgs::msg::dds_::PoseArray_/{POSES_HASH}"
+    point = m.make("geometry_msgs/msg/PointStamped", header=m.header(1.0, "world"),
+                   point=m.point([0.4, -0.1, 0.2]))  # fmt: skip
+    elsewhere = m.make("geometry_msgs/msg/PointStamped", header=m.header(1.0, "map"),
+                       point=m.point([1.0, 2.0, 3.0]))  # fmt: skip
+    poses = m.make("geometry_msgs/msg/PoseArray", header=m.header(1.0, "camera"),
+                   poses=[m.make("geometry_msgs/msg/Pose", position=m.point(p))
+                          for p in ([0.0, 0.01, 0.5], [0.02, 0.0, 0.55])])  # fmt: skip
+    try:
+        bridge.start()
+        deadline = time.monotonic() + 15.0
+        while time.monotonic() < deadline and not requests:  # until the links are up
+            raw.put(point_key, m.serialize(point, "geometry_msgs/msg/PointStamped"))
+            time.sleep(0.1)
+        assert requests, "no TargetRequest"
+        raw.put(point_key, m.serialize(elsewhere, "geometry_msgs/msg/PointStamped"))
+        raw.put(poses_key, m.serialize(poses, "geometry_msgs/msg/PoseArray"))
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline and requests[-1]["frame"] != "camera":
+            time.sleep(0.05)
+        first, last = requests[0], requests[-1]
+        assert (first["frame"], first["points"], first["execute"]) == (
+            "world",
+            [[0.4, -0.1, 0.2]],
+            False,
+        )
+        assert (last["frame"], last["points"]) == ("camera", [[0.0, 0.01, 0.5], [0.02, 0.0, 0.55]])
+        assert all(r["frame"] in ("world", "camera") for r in requests)
+        assert bridge.rejected == 1  # the "map" point
+    finally:
+        bridge.close()
+        sub.undeclare()
         raw.close()
         hub.close()

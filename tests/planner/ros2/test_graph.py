@@ -85,3 +85,15 @@ def test_attachment_layout() -> None:
     assert parse_attachment(data) == (5, 1_700_000_000_123_456_789, g)
     with pytest.raises(ValueError, match="16 bytes"):
         attachment(1, 0, b"short")
+
+
+def test_subscription_tokens_have_kind_ms() -> None:
+    # design.md: "`MS` for a message subscription"; the listener example's token
+    listener = Node(2, "aac3178e146ba6f1fc6e6a4085e77f21", "listener")
+    assert listener.subscription_token(
+        10, "chatter", "std_msgs/msg/String", STRING_HASH, Qos(10)
+    ) == (
+        "@ros2_lv/2/aac3178e146ba6f1fc6e6a4085e77f21/0/10/MS/%/%/listener/%chatter/"
+        "std_msgs::msg::dds_::String_/"
+        "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18/::,10:,:,:,,"
+    )
