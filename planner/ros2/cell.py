@@ -6,8 +6,9 @@ Frames (tf2 names, no leading ``/``): ``world``; per robot ``<robot>_base`` (its
 world or flange -> camera) go on ``/tf_static``; base -> flange, from the robot model's
 forward kinematics at the measured joints, on ``/tf``. Markers (in ``world``): the beam as a
 line strip from the laser exit over the mirror hits to the first scene surface (red with the
-treatment gate on, green with the aiming beam, grey when off), the last plan's targets, and
-the camera's measured spot.
+treatment gate on, green with the aiming beam, grey when off), each mirror's rectangle (a
+plate in its ``<robot>_mirror`` frame), the last plan's targets, and the camera's measured
+spot.
 """
 
 from __future__ import annotations
@@ -32,6 +33,8 @@ BEAM_AIM = (0.0, 0.9, 0.0, 0.9)
 BEAM_OFF = (0.6, 0.6, 0.6, 0.4)
 TARGET_RGBA = (0.1, 0.4, 1.0, 1.0)
 SPOT_RGBA = (1.0, 0.8, 0.0, 1.0)
+MIRROR_RGBA = (0.75, 0.85, 0.95, 0.8)
+MIRROR_THICKNESS = 0.002  # m, of the drawn plate (centred on the mirror frame)
 BEAM_WIDTH = 0.002  # m, line width of the beam marker
 TARGET_SIZE = 0.004  # m, sphere diameter of a target
 SPOT_SIZE = 0.006  # m
@@ -129,9 +132,14 @@ def markers(
     targets: Array | None = None,
     spot_world: Array | None = None,
 ) -> Any:
-    """``visualization_msgs/msg/MarkerArray``: a DELETEALL, then the beam at joints ``q``
-    (every robot needed; else no beam), the ``targets`` (K x 3, world) and the spot."""
+    """``visualization_msgs/msg/MarkerArray``: a DELETEALL, each mirror's rectangle (in its
+    own frame), the beam at joints ``q`` (every robot needed; else no beam), the ``targets``
+    (K x 3, world) and the spot."""
     out = [m.make("visualization_msgs/msg/Marker", header=m.header(t, WORLD), action=m.DELETEALL)]
+    for i, r in enumerate(system.robots):
+        w, h = r.mirror.size
+        size = (float(w), float(h), MIRROR_THICKNESS)
+        out.append(m.box(t, "mirrors", i, mirror_frame(r.name), size, MIRROR_RGBA))
     if all(r.name in q for r in system.robots):
         line = beam_polyline(system, q, scene)
         out.append(m.marker(t, "beam", 0, m.LINE_STRIP, line, beam.rgba, BEAM_WIDTH))

@@ -25,7 +25,7 @@ JOINT_TRAJECTORY = "trajectory_msgs/msg/JointTrajectory"
 FLOAT32 = 7  # sensor_msgs/msg/PointField datatype
 
 #: visualization_msgs/msg/Marker constants
-LINE_STRIP, SPHERE_LIST, SPHERE = 4, 7, 2
+LINE_STRIP, SPHERE_LIST, SPHERE, CUBE = 4, 7, 2, 1
 ADD, DELETEALL = 0, 3
 
 
@@ -193,6 +193,32 @@ def marker(
         scale=make("geometry_msgs/msg/Vector3", x=scale, y=scale, z=scale),
         color=make("std_msgs/msg/ColorRGBA", r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3]),
         points=[] if one else [point(p) for p in P],
+    )
+
+
+def box(
+    t: float,
+    ns: str,
+    marker_id: int,
+    frame: str,
+    size: tuple[float, float, float],
+    rgba: tuple[float, float, float, float],
+) -> Any:
+    """A CUBE marker centred on ``frame``'s origin, axis aligned with it, of ``size`` (m),
+    locked to the frame (it moves with it through TF)."""
+    pose = make("geometry_msgs/msg/Pose")
+    pose.orientation.w = 1.0
+    return make(
+        "visualization_msgs/msg/Marker",
+        header=header(t, frame),
+        ns=ns,
+        id=marker_id,
+        type=CUBE,
+        action=ADD,
+        pose=pose,
+        scale=make("geometry_msgs/msg/Vector3", x=size[0], y=size[1], z=size[2]),
+        color=make("std_msgs/msg/ColorRGBA", r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3]),
+        frame_locked=True,
     )
 
 

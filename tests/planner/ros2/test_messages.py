@@ -91,8 +91,11 @@ def test_markers_carry_the_beam_targets_and_spot(system1: System) -> None:
     msg = cell.markers(3.0, system1, None, q, beam=cell.Beam(on=True), targets=targets,
                        spot_world=np.array([0.4, 0.1, 0.0]))  # fmt: skip
     back = m.deserialize(m.serialize(msg, m.MARKER_ARRAY), m.MARKER_ARRAY)
-    clear, beam, tgt, spot = back.markers
+    clear, mirror, beam, tgt, spot = back.markers
     assert clear.action == m.DELETEALL
+    assert (mirror.ns, mirror.type, mirror.header.frame_id) == ("mirrors", m.CUBE, "arm0_mirror")
+    size = system1.robots[0].mirror.size
+    assert (mirror.scale.x, mirror.scale.y) == (size[0], size[1]) and mirror.frame_locked
     assert (beam.ns, beam.type, beam.header.frame_id) == ("beam", m.LINE_STRIP, "world")
     pts = np.array([[p.x, p.y, p.z] for p in beam.points])
     np.testing.assert_allclose(pts[0], system1.world_T_laser[:3, 3], atol=1e-12)
