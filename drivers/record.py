@@ -8,8 +8,8 @@ File layout (MCAP, profile ``beamrelay``; opens in Foxglove Studio):
   with a Zenoh attachment (``camera/points`` metadata) uses ``beamrelay.attached``: data =
   4-byte big-endian attachment length, attachment, payload;
 - with a ROS 2 translator (``record --ros2``, :mod:`planner.ros2.recording`): ROS 2 channels
-  beside the raw ones (topics ``/<robot>/joint_states``, ``/tf``, ``/tf_static``,
-  ``/beamrelay/markers``; schema
+  beside the raw ones (topics ``/<robot>/joint_states``, ``/<robot>/joint_trajectory``,
+  ``/tf``, ``/tf_static``, ``/camera/points``, ``/beamrelay/markers``; schema
   encoding ``ros2msg``, message encoding ``cdr``), which ``replay`` skips;
 - liveliness: token appearances and disappearances as JSON ``{"alive": bool}`` messages on
   the topic ``@liveliness/<key>``;
@@ -129,9 +129,10 @@ class Recorder:
         else:
             data, enc = payload, ("json" if _is_json(zenc, payload) else "beamrelay.bytes")
         self._write(str(sample.key_expr), enc, zenc, data, sample.timestamp)
-        if self.ros is not None and att is None:
+        if self.ros is not None:
             now = time.time_ns()
-            for msg in self.ros(str(sample.key_expr), payload):
+            a = None if att is None else att.to_bytes()
+            for msg in self.ros(str(sample.key_expr), payload, a):
                 self._write_ros(msg, now)
 
     def _on_token(self, sample: Any) -> None:

@@ -8,11 +8,14 @@ concatenated ``.msg`` definitions rosbags generates (MCAP's ``ros2msg`` schema e
 the data CDR (message encoding ``cdr``), as Foxglove and ``ros2 bag`` read them. With the
 system model it also writes ``/beamrelay/markers`` (the beam at the recorded joints, coloured
 by the recorded laser state, and the targets of the recorded plans) at most
-``MARKER_RATE`` Hz of recorded time.
+``MARKER_RATE`` Hz of recorded time. Trajectories sent to the drivers become
+``/<robot>/joint_trajectory`` (``trajectory_msgs/msg/JointTrajectory``), the camera cloud
+``/camera/points`` (``sensor_msgs/msg/PointCloud2``, at most ``CLOUD_RATE`` Hz).
 """
 
 from __future__ import annotations
 
+import time
 from typing import NamedTuple
 
 import numpy as np
@@ -23,9 +26,17 @@ from planner.model.system import System
 from planner.model.transforms import Array
 from planner.ros2 import cell
 from planner.ros2 import messages as m
-from planner.ros2.bridge import MARKER_RATE, MARKER_TOPIC, joint_states_topic
+from planner.ros2.bridge import (
+    CLOUD_RATE,
+    CLOUD_TOPIC,
+    MARKER_RATE,
+    MARKER_TOPIC,
+    joint_states_topic,
+    trajectory_topic,
+)
 from planner.service.bus import Keys, decode
-from schemas.messages import JointState, LaserState
+from schemas.messages import JointState, JointTrajectory, LaserState
+from schemas.points import decode_points
 
 SCHEMA_ENCODING = "ros2msg"
 MESSAGE_ENCODING = "cdr"
@@ -56,7 +67,7 @@ class RosTranslator:
         self.q: dict[str, Array] = {}
         self.beam = cell.BEAM_IDLE
         self.targets: Array | None = None
-        self._next_markers = 0.0
+        self._next_markers = self._next_cloud = 0.0
 
     def schema(self, ros_type: str) -> str:
         return schema_text(ros_type)
@@ -67,27 +78,35 @@ class RosTranslator:
         msg = cell.tf_message(t, cell.static_frames(self.system))
         return [RosMessage("/tf_static", m.TF_MESSAGE, m.serialize(msg, m.TF_MESSAGE))]
 
-    def __call__(self, key: str, payload: bytes) -> list[RosMessage]:
+    def __call__(
+        self, key: str, payload: bytes, attachment: bytes | None = None
+    ) -> list[RosMessage]:
         if key == self.keys.laser:
             self._on_laser(payload)
             return []
         if key == self.keys.plans:
             self._on_plan(payload)
             return []
+        if key == self.keys.camera_points:
+            return self._cloud(payload, attachment)
         prefix, _, rest = key.partition("/")
         robot, _, leaf = rest.partition("/")
-        if prefix != self.keys.prefix or leaf != "joint_states" or "/" in robot:
+        if prefix != self.keys.prefix or "/" in robot:
             return []
+        if leaf == "trajectory":
+            return self._trajectory(robot, payload)
+        if leaf == "joint_states":
+            return self._joint_state(robot, payload)
+        return []
+
+    def _joint_state(self, robot: str, payload: bytes) -> list[RosMessage]:
         try:
             js = decode(payload, JointState)
         except InputError:
             return []
+        msg = m.joint_state(js.t, js.names, js.q, js.qd)
         out = [
-            RosMessage(
-                joint_states_topic(robot),
-                m.JOINT_STATE,
-                m.serialize(m.joint_state(js.t, js.names, js.q, js.qd), m.JOINT_STATE),
-            )
+            RosMessage(joint_states_topic(robot), m.JOINT_STATE, m.serialize(msg, m.JOINT_STATE))
         ]
         if self.system is not None and robot in self.system.robot_names:
             q = {robot: np.asarray(js.q, dtype=float)}
@@ -96,6 +115,29 @@ class RosTranslator:
             self.q[robot] = q[robot]
             out += self._markers(js.t)
         return out
+
+    def _trajectory(self, robot: str, payload: bytes) -> list[RosMessage]:
+        try:
+            traj = decode(payload, JointTrajectory)
+        except InputError:
+            return []
+        msg = m.joint_trajectory(time.time(), traj.names, traj.t, traj.q, traj.qd, traj.qdd)
+        data = m.serialize(msg, m.JOINT_TRAJECTORY)
+        return [RosMessage(trajectory_topic(robot), m.JOINT_TRAJECTORY, data)]
+
+    def _cloud(self, payload: bytes, attachment: bytes | None) -> list[RosMessage]:
+        if attachment is None:
+            return []
+        try:
+            rows, meta = decode_points(payload, attachment)
+        except InputError:
+            return []
+        t = float(meta.get("t", time.time()))
+        if t < self._next_cloud:
+            return []
+        self._next_cloud = t + 1.0 / CLOUD_RATE
+        msg = m.point_cloud(t, cell.CAMERA, rows, list(meta["fields"]))
+        return [RosMessage(CLOUD_TOPIC, m.POINT_CLOUD2, m.serialize(msg, m.POINT_CLOUD2))]
 
     def _markers(self, t: float) -> list[RosMessage]:
         if self.system is None or t < self._next_markers:

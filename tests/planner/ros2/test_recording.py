@@ -4,6 +4,7 @@ the raw bus channels."""
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
@@ -13,7 +14,8 @@ from drivers.record import Recorder, read
 from planner.model.system import System
 from planner.ros2.recording import RosTranslator
 from planner.service.bus import Keys, encode, open_session
-from schemas.messages import JointState, LaserState
+from schemas.messages import JointState, JointTrajectory, LaserState
+from schemas.points import points_metadata
 from tests.drivers.conftest import wait_for
 
 
@@ -34,6 +36,9 @@ def test_recording_has_ros2_schemas_channels_and_tf_tree(
                    qd=[0.0] * 6)
         for k in range(5)
     ]  # fmt: skip
+    traj = JointTrajectory(robot="arm0", t=[0.0, 0.25], names=names, q=[[0.0] * 6, [0.1] * 6],
+                           qd=[[0.0] * 6] * 2, qdd=[[0.0] * 6] * 2)  # fmt: skip
+    rows = np.arange(12, dtype=np.float32).reshape(4, 3)
     try:
         pub = hub.declare_publisher(Keys(prefix).joint_states("arm0"))
         laser = hub.declare_publisher(Keys(prefix).laser)
@@ -44,6 +49,12 @@ def test_recording_has_ros2_schemas_channels_and_tf_tree(
             pub.put(encode(js))
         # per sample: raw + JointState + TF; markers once (10 Hz of the samples' 40 ms)
         wait_for(lambda: rec.count >= 2 + 3 * len(sent) + 1, 5.0)
+        n = rec.count
+        keys = Keys(prefix)
+        hub.put(keys.trajectory("arm0"), encode(traj))
+        hub.put(keys.camera_points, rows.tobytes(),
+                attachment=json.dumps(points_metadata(rows, 5.0, 1, {})).encode())  # fmt: skip
+        wait_for(lambda: rec.count >= n + 4, 5.0)  # two raw, two ROS 2
         pub.undeclare()
         laser.undeclare()
         rec.close()
@@ -55,16 +66,23 @@ def test_recording_has_ros2_schemas_channels_and_tf_tree(
     summary = reader.get_summary()
     assert summary is not None
     schemas = {s.name: s.encoding for s in summary.schemas.values()}
-    assert schemas == {"sensor_msgs/msg/JointState": "ros2msg", "tf2_msgs/msg/TFMessage": "ros2msg",
-                       "visualization_msgs/msg/MarkerArray": "ros2msg"}  # fmt: skip
+    ros_types = ["sensor_msgs/msg/JointState", "tf2_msgs/msg/TFMessage",
+                 "visualization_msgs/msg/MarkerArray", "trajectory_msgs/msg/JointTrajectory",
+                 "sensor_msgs/msg/PointCloud2"]  # fmt: skip
+    assert schemas == dict.fromkeys(ros_types, "ros2msg")
     channels = {c.topic: c.message_encoding for c in summary.channels.values()}
-    assert channels == {f"{prefix}/arm0/joint_states": "json", f"{prefix}/laser": "json",
-                        "/arm0/joint_states": "cdr", "/tf": "cdr", "/tf_static": "cdr",
-                        "/beamrelay/markers": "cdr"}  # fmt: skip
+    raw = {
+        f"{prefix}/arm0/joint_states": "json",
+        f"{prefix}/laser": "json",
+        f"{prefix}/arm0/trajectory": "json",
+        f"{prefix}/camera/points": "beamrelay.attached",
+    }
+    ros = ["/arm0/joint_states", "/tf", "/tf_static", "/beamrelay/markers",
+           "/arm0/joint_trajectory", "/camera/points"]  # fmt: skip
+    assert channels == {**raw, **dict.fromkeys(ros, "cdr")}
 
     decoded: dict[str, list] = {}
-    topics = ["/arm0/joint_states", "/tf", "/tf_static", "/beamrelay/markers"]
-    for _, channel, _, msg in reader.iter_decoded_messages(topics=topics):
+    for _, channel, _, msg in reader.iter_decoded_messages(topics=ros):
         decoded.setdefault(channel.topic, []).append(msg)
     assert [list(m.position) for m in decoded["/arm0/joint_states"]] == [js.q for js in sent]
     assert decoded["/arm0/joint_states"][0].name == names
@@ -83,5 +101,12 @@ def test_recording_has_ros2_schemas_channels_and_tf_tree(
     first = beam.points[0]
     np.testing.assert_allclose([first.x, first.y, first.z], system1.world_T_laser[:3, 3])
 
+    (sent_traj,) = decoded["/arm0/joint_trajectory"]
+    assert [list(p.positions) for p in sent_traj.points] == traj.q
+    assert sent_traj.points[1].time_from_start.nanosec == 250_000_000
+    (cloud,) = decoded["/camera/points"]
+    assert cloud.header.frame_id == "camera" and cloud.width == 4
+    np.testing.assert_array_equal(np.frombuffer(bytes(cloud.data), "<f4").reshape(4, 3), rows)
+
     # replay reads the raw channels only
-    assert {m.key for m in read(path)} == {f"{prefix}/arm0/joint_states", f"{prefix}/laser"}
+    assert {m.key for m in read(path)} == set(raw)
