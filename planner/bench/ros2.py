@@ -20,6 +20,7 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 
+from planner.bench.service import period_figures
 from planner.errors import InputError
 
 CLI = [sys.executable, "-m", "planner.cli"]
@@ -27,18 +28,11 @@ DOMAIN = 77  # a domain no lab is likely to use: the bench's topics stay out of 
 WARMUP = 60.0  # s allowed for the bridge to start and reach the bench's subscriber
 
 
-def period_figures(stamps: list[float]) -> dict[str, float]:
+def arrival_figures(stamps: list[float]) -> dict[str, float]:
     """Rate (Hz) and period statistics (ms) of arrival times (s)."""
-    dt = np.diff(np.asarray(stamps, dtype=float))
-    if len(dt) < 2:
+    if len(stamps) < 3:
         raise RuntimeError(f"only {len(stamps)} samples arrived")
-    return {
-        "rate_hz": float(1.0 / np.mean(dt)),
-        "period_median_ms": float(1e3 * np.median(dt)),
-        "jitter_std_ms": float(1e3 * np.std(dt)),
-        "period_p99_ms": float(1e3 * np.percentile(dt, 99)),
-        "period_max_ms": float(1e3 * dt.max()),
-    }
+    return period_figures(np.diff(np.asarray(stamps, dtype=float)))
 
 
 class Arrivals:
@@ -104,9 +98,9 @@ def measure(scenario: Path, seconds: float) -> dict[str, Any]:
             session.close()
     return {
         "seconds": seconds,
-        "off": period_figures(off),
-        "on": period_figures(on["bus"]),
-        "ros2": period_figures(on["ros"]),
+        "off": arrival_figures(off),
+        "on": arrival_figures(on["bus"]),
+        "ros2": arrival_figures(on["ros"]),
     }
 
 

@@ -180,20 +180,10 @@ def marker(
     sphere diameter (m)."""
     P = np.asarray(points, dtype=float).reshape(-1, 3)
     one = kind == SPHERE
-    pose = make("geometry_msgs/msg/Pose", position=point(P[0]) if one else point(np.zeros(3)))
-    pose.orientation.w = 1.0
-    return make(
-        "visualization_msgs/msg/Marker",
-        header=header(t, frame),
-        ns=ns,
-        id=marker_id,
-        type=kind,
-        action=ADD,
-        pose=pose,
-        scale=make("geometry_msgs/msg/Vector3", x=scale, y=scale, z=scale),
-        color=make("std_msgs/msg/ColorRGBA", r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3]),
+    return _marker(
+        t, ns, marker_id, kind, frame, P[0] if one else np.zeros(3), (scale,) * 3, rgba,
         points=[] if one else [point(p) for p in P],
-    )
+    )  # fmt: skip
 
 
 def box(
@@ -206,19 +196,33 @@ def box(
 ) -> Any:
     """A CUBE marker centred on ``frame``'s origin, axis aligned with it, of ``size`` (m),
     locked to the frame (it moves with it through TF)."""
-    pose = make("geometry_msgs/msg/Pose")
+    return _marker(t, ns, marker_id, CUBE, frame, np.zeros(3), size, rgba, frame_locked=True)
+
+
+def _marker(
+    t: float,
+    ns: str,
+    marker_id: int,
+    kind: int,
+    frame: str,
+    position: Array,
+    scale: tuple[float, float, float],
+    rgba: tuple[float, float, float, float],
+    **fields: Any,
+) -> Any:
+    pose = make("geometry_msgs/msg/Pose", position=point(position))
     pose.orientation.w = 1.0
     return make(
         "visualization_msgs/msg/Marker",
         header=header(t, frame),
         ns=ns,
         id=marker_id,
-        type=CUBE,
+        type=kind,
         action=ADD,
         pose=pose,
-        scale=make("geometry_msgs/msg/Vector3", x=size[0], y=size[1], z=size[2]),
+        scale=make("geometry_msgs/msg/Vector3", x=scale[0], y=scale[1], z=scale[2]),
         color=make("std_msgs/msg/ColorRGBA", r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3]),
-        frame_locked=True,
+        **fields,
     )
 
 
