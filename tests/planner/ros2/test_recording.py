@@ -110,3 +110,34 @@ def test_recording_has_ros2_schemas_channels_and_tf_tree(
 
     # replay reads the raw channels only
     assert {m.key for m in read(path)} == set(raw)
+
+
+def test_record_command_writes_the_static_tf_with_a_scenario(endpoint: str, tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from tests.paths import REPO
+
+    out = tmp_path / "s.mcap"
+    hub = open_session(listen=True, endpoint=endpoint)
+    try:
+        rec = subprocess.run([sys.executable, "-m", "planner.cli", "record", "-o", str(out),
+                              "--duration", "1", "--ros2", "--scenario",
+                              str(REPO / "scenarios" / "paper_n1.yaml"), "--endpoint", endpoint],
+                             capture_output=True, text=True, timeout=120)  # fmt: skip
+    finally:
+        hub.close()
+    assert rec.returncode == 0, rec.stderr
+    with out.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        ((schema, channel, _, msg),) = list(reader.iter_decoded_messages())
+    assert (channel.topic, schema.name, schema.encoding) == (
+        "/tf_static",
+        "tf2_msgs/msg/TFMessage",
+        "ros2msg",
+    )
+    children = {t.child_frame_id for t in msg.transforms}
+    assert children == {"laser", "camera", "arm0_base", "arm0_mirror"}
