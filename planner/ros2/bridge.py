@@ -21,9 +21,8 @@ TargetRequests on the bus.
 Every publisher and the node itself declare rmw_zenoh's liveliness tokens
 (:mod:`planner.ros2.graph`), so ``ros2 node list`` / ``ros2 topic list`` on
 ``RMW_IMPLEMENTATION=rmw_zenoh_cpp`` see them; every sample carries rmw_zenoh's attachment.
-``/tf_static`` is announced transient-local (as tf2 expects) and republished periodically
-rather than served from a publication cache, so a late tf2 listener gets it within
-``STATIC_PERIOD`` s.
+``/tf_static`` is transient-local (as tf2 expects): an advanced publisher whose cache a
+late subscriber queries; it is also republished every ``STATIC_PERIOD`` s.
 """
 
 from __future__ import annotations
@@ -44,7 +43,16 @@ from planner.model.system import System
 from planner.model.transforms import Array
 from planner.ros2 import cell
 from planner.ros2 import messages as m
-from planner.ros2.graph import LATCHED, VOLATILE, Node, Qos, attachment, gid, topic_key
+from planner.ros2.graph import (
+    LATCHED,
+    VOLATILE,
+    Durability,
+    Node,
+    Qos,
+    attachment,
+    gid,
+    topic_key,
+)
 from planner.ros2.inputs import INPUTS, target_request
 from planner.service.bus import JSON, Keys, decode, encode
 from schemas.messages import JointTrajectory
@@ -79,6 +87,7 @@ class Topic:
     key: str
     token: str
     gid: bytes
+    qos: Qos = VOLATILE
     seq: int = 0
     handles: list[Any] = field(default_factory=list)
 
@@ -86,6 +95,25 @@ class Topic:
         self.seq += 1
         body = m.serialize(msg, self.ros_type)
         self.handles[0].put(body, attachment=attachment(self.seq, round(t * 1e9), self.gid))
+
+
+def _publisher(session: Any, topic: Topic) -> Any:
+    """A Zenoh publisher for ``topic``; transient-local ones are advanced publishers with a
+    cache of ``depth`` samples that late subscribers query (rmw_zenoh's design: "a Zenoh
+    advanced publisher will be created with a publication cache")."""
+    if topic.qos.durability is not Durability.TRANSIENT_LOCAL:
+        return session.declare_publisher(topic.key)
+    import zenoh.ext
+
+    cache = zenoh.ext.CacheConfig(max_samples=topic.qos.depth)
+    # sequence numbers (sample-miss detection) order the cache: no session timestamping needed
+    return zenoh.ext.declare_advanced_publisher(
+        session,
+        topic.key,
+        cache=cache,
+        sample_miss_detection=zenoh.ext.MissDetectionConfig(),
+        publisher_detection=True,
+    )
 
 
 class Ros2Bridge:
@@ -146,16 +174,13 @@ class Ros2Bridge:
         h = m.type_hash(ros_type)
         token = self.node.publisher_token(self._next_id(), name, ros_type, h, qos)
         key = topic_key(self.domain, name, ros_type, h)
-        self.topics[name] = Topic(name, ros_type, key, token, gid(token))
+        self.topics[name] = Topic(name, ros_type, key, token, gid(token), qos)
 
     def start(self) -> None:
         s = self.session
         self._node_token = s.liveliness().declare_token(self.node.token())
         for topic in self.topics.values():
-            topic.handles = [
-                s.declare_publisher(topic.key),
-                s.liveliness().declare_token(topic.token),
-            ]
+            topic.handles = [_publisher(s, topic), s.liveliness().declare_token(topic.token)]
         for inp in self.inputs.values():
             inp.handles = [
                 s.declare_subscriber(inp.key, self._on_input(inp.name)),

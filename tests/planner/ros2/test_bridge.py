@@ -13,6 +13,7 @@ import time
 from typing import Any
 
 import numpy as np
+import pytest
 
 from planner.model.system import System
 from planner.ros2 import messages as m
@@ -20,6 +21,7 @@ from planner.ros2.bridge import Ros2Bridge
 from planner.ros2.graph import parse_attachment
 from planner.service.bus import Keys, encode, open_session
 from schemas.messages import JointState, JointTrajectory
+from tests.drivers.conftest import wait_for
 from tests.planner.raw_zenoh import raw_session
 from tests.planner.ros2.test_messages import PUBLISHED
 
@@ -239,4 +241,36 @@ def test_ros2_targets_become_target_requests(system1: System, endpoint: str) -> 
         bridge.close()
         sub.undeclare()
         raw.close()
+        hub.close()
+
+
+def test_a_late_subscriber_gets_tf_static_from_the_publication_cache(
+    system1: System, endpoint: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Transient local as rmw_zenoh does it: an advanced subscriber that joins after the one
+    /tf_static sample (no republication within the test) still receives it, from the cache."""
+    import zenoh.ext
+
+    from planner.ros2 import bridge as bridge_module
+
+    monkeypatch.setattr(bridge_module, "STATIC_PERIOD", 1e6)
+    hub = open_session(listen=True, endpoint=endpoint)
+    bridge = Ros2Bridge(hub, system1, None, domain=DOMAIN)
+    raw = None
+    received = Received()
+    try:
+        bridge.start()
+        wait_for(lambda: bridge.topics["/tf_static"].seq == 1, 10.0, "the /tf_static sample")
+        raw = raw_session(endpoint)
+        history = zenoh.ext.HistoryConfig(detect_late_publishers=True)
+        sub = zenoh.ext.declare_advanced_subscriber(raw, STATIC_KEY, received, history=history)
+        wait_for(lambda: bool(received.get(STATIC_KEY)), 15.0, "the cached /tf_static")
+        sub.undeclare()
+        assert bridge.topics["/tf_static"].seq == 1  # it came from the cache
+        tf = m.deserialize(received.get(STATIC_KEY)[0][0], m.TF_MESSAGE)
+        assert {t.child_frame_id for t in tf.transforms} == {"laser", "arm0_base", "arm0_mirror"}
+    finally:
+        bridge.close()
+        if raw is not None:
+            raw.close()
         hub.close()
