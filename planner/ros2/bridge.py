@@ -111,7 +111,9 @@ def _publisher(session: Any, topic: Topic) -> Any:
         session,
         topic.key,
         cache=cache,
-        sample_miss_detection=zenoh.ext.MissDetectionConfig(),
+        sample_miss_detection=zenoh.ext.MissDetectionConfig(
+            heartbeat=None, sporadic_heartbeat=None
+        ),
         publisher_detection=True,
     )
 
