@@ -146,7 +146,8 @@ def test_bridge_publishes_rmw_zenoh_topics_and_tokens(system1: System, endpoint:
             f"geometry_msgs::msg::dds_::PoseArray_/{POSES_HASH}/::,10:,:,:,,",
         }
         bridge.close()
-        assert ros_tokens(raw) == set()  # the graph forgets the node when it closes
+        # the graph forgets the node when it closes (undeclarations propagate asynchronously)
+        wait_for(lambda: ros_tokens(raw) == set(), 10.0, "the tokens to go")
     finally:
         bridge.close()
         sub.undeclare()
