@@ -7,6 +7,10 @@ File layout (MCAP, profile ``beamrelay``; opens in Foxglove Studio):
   message encoding ``json`` (schemaless), everything else ``beamrelay.bytes``; a sample
   with a Zenoh attachment (``camera/points`` metadata) uses ``beamrelay.attached``: data =
   4-byte big-endian attachment length, attachment, payload;
+- with a ROS 2 translator (``record --ros2``, :mod:`planner.ros2.recording`): ROS 2 channels
+  beside the raw ones (topics ``/<robot>/joint_states``, ``/<robot>/joint_trajectory``,
+  ``/tf``, ``/tf_static``, ``/camera/points``, ``/beamrelay/markers``; schema
+  encoding ``ros2msg``, message encoding ``cdr``), which ``replay`` skips;
 - liveliness: token appearances and disappearances as JSON ``{"alive": bool}`` messages on
   the topic ``@liveliness/<key>``;
 - ``<prefix>/camera/points`` (the point cloud: ~97 % of the bytes at its 15 Hz, 12 MB in
@@ -57,25 +61,34 @@ class Recorded(NamedTuple):
 CLOUD_SUFFIX = "/camera/points"
 #: Hz: point clouds kept per second by default (the camera publishes 15)
 CLOUD_RATE = 1.0
+ROS_ENCODING = "cdr"
 
 
 class Recorder:
     """Subscribes ``<prefix>/**`` (and its liveliness) and writes an MCAP file until closed;
-    point clouds at most ``cloud_rate`` Hz (0: all), the others counted in ``clouds_dropped``."""
+    point clouds at most ``cloud_rate`` Hz (0: all), the others counted in ``clouds_dropped``.
+
+    ``ros``: a translator (:class:`planner.ros2.recording.RosTranslator`) whose ROS 2
+    messages are written beside the raw samples."""
 
     def __init__(self, session: Any, prefix: str, out: BinaryIO,
-                 cloud_rate: float = CLOUD_RATE) -> None:  # fmt: skip
+                 cloud_rate: float = CLOUD_RATE, ros: Any = None) -> None:  # fmt: skip
         from mcap.writer import CompressionType, Writer
 
         self.writer = Writer(out, compression=CompressionType.ZSTD)
         self.writer.start(profile=PROFILE, library="beamrelay")
         self.channels: dict[tuple[str, str], int] = {}
+        self.schemas: dict[str, int] = {}
         self.count = 0
         self.clouds_dropped = 0
         self._cloud_period = 1.0 / cloud_rate if cloud_rate > 0 else 0.0
         self._cloud_last = -float("inf")
+        self.ros = ros
         self._lock = threading.Lock()
         self._closed = False
+        if ros is not None:
+            for msg in ros.static(time.time()):
+                self._write_ros(msg, time.time_ns())
         self._handles = [
             session.declare_subscriber(f"{prefix}/**", self._on_sample),
             session.liveliness().declare_subscriber(f"{prefix}/**", self._on_token, history=True),
@@ -111,6 +124,23 @@ class Recorder:
             self._cloud_last = now
             return True
 
+    def _write_ros(self, msg: Any, now: int) -> None:
+        """One ROS 2 message (topic, ros_type, CDR data) on its ``cdr`` channel."""
+        with self._lock:
+            if self._closed:
+                return
+            ch = self.channels.get((msg.topic, ROS_ENCODING))
+            if ch is None:
+                schema = self.schemas.get(msg.ros_type)
+                if schema is None:
+                    text = self.ros.schema(msg.ros_type).encode()
+                    schema = self.writer.register_schema(msg.ros_type, "ros2msg", text)
+                    self.schemas[msg.ros_type] = schema
+                ch = self.writer.register_channel(msg.topic, ROS_ENCODING, schema)
+                self.channels[(msg.topic, ROS_ENCODING)] = ch
+            self.writer.add_message(ch, now, msg.data, now, self.count)
+            self.count += 1
+
     def _on_sample(self, sample: Any) -> None:
         if str(sample.key_expr).endswith(CLOUD_SUFFIX) and not self._keep_cloud():
             return
@@ -123,6 +153,11 @@ class Recorder:
         else:
             data, enc = payload, ("json" if _is_json(zenc, payload) else "beamrelay.bytes")
         self._write(str(sample.key_expr), enc, zenc, data, sample.timestamp)
+        if self.ros is not None:
+            now = time.time_ns()
+            a = None if att is None else att.to_bytes()
+            for msg in self.ros(str(sample.key_expr), payload, a):
+                self._write_ros(msg, now)
 
     def _on_token(self, sample: Any) -> None:
         import zenoh
@@ -161,6 +196,8 @@ def read(path: Path) -> Iterator[Recorded]:
         with path.open("rb") as f:
             reader = make_reader(f)
             for _, channel, msg in reader.iter_messages(log_time_order=True):
+                if channel.message_encoding == ROS_ENCODING:
+                    continue  # derived ROS 2 copies: the raw channel is replayed
                 zenc = channel.metadata.get("zenoh_encoding", "")
                 data, att = msg.data, None
                 if channel.message_encoding == "beamrelay.attached":

@@ -116,12 +116,20 @@ def measure_joint_states(seconds: float) -> dict[str, float]:
         hub.close()
     if len(window) < 2:
         raise RuntimeError("no joint states received")
+    return period_figures(window)
+
+
+def period_figures(periods: Any) -> dict[str, float]:
+    """Rate (Hz) and period statistics (ms) of inter-arrival periods (s)."""
+    import numpy as np
+
+    dt = np.asarray(periods, dtype=float)
     return {
-        "rate_hz": float(1.0 / np.mean(window)),
-        "period_median_ms": float(1e3 * np.median(window)),
-        "jitter_std_ms": float(1e3 * np.std(window)),
-        "period_p99_ms": float(1e3 * np.percentile(window, 99)),
-        "period_max_ms": float(1e3 * window.max()),
+        "rate_hz": float(1.0 / np.mean(dt)),
+        "period_median_ms": float(1e3 * np.median(dt)),
+        "jitter_std_ms": float(1e3 * np.std(dt)),
+        "period_p99_ms": float(1e3 * np.percentile(dt, 99)),
+        "period_max_ms": float(1e3 * dt.max()),
     }
 
 

@@ -31,6 +31,7 @@ from planner.cli import (
     record,
     request,
     robot,
+    ros2,
     study,
 )
 from planner.cli.args import command_group
@@ -60,6 +61,7 @@ app.command("record")(record.record)
 app.command("replay")(record.replay)
 app.add_typer(robot.app, name="robot")
 app.add_typer(hw.app, name="hw")
+app.add_typer(ros2.app, name="ros2")
 calibrate.app.add_typer(collect.app, name="collect")
 
 

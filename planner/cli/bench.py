@@ -13,6 +13,7 @@ from planner.bench import (
     path,
     plan,
     preview,
+    ros2,
     safety,
     service,
     servo,
@@ -35,6 +36,7 @@ BENCHMARKS = {
     "track": track,
     "brakes": brakes,
     "camera": camera,
+    "ros2": ros2,
 }
 """Command name -> benchmark module (its ``command`` is the sub-command)."""
 

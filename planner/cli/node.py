@@ -177,10 +177,21 @@ def up(
         int, typer.Option("--console-port", help="Port of the console page on 127.0.0.1.")
     ] = 8080,
     online_calibration: OnlineOpt = None,
+    ros2: Annotated[
+        bool,
+        typer.Option(
+            "--ros2", help="Also publish ROS 2 topics (rmw_zenoh; beamrelay ros2 bridge)."
+        ),
+    ] = False,
+    ros_domain: Annotated[
+        int, typer.Option("--ros-domain", help="ROS_DOMAIN_ID of the ROS 2 topics (0-232).")
+    ] = 0,
 ) -> None:
     """Start planner + camera + one robot driver per robot, supervised, until Ctrl-C.
 
-    --zenoh-config is used by up itself and passed on to every child."""
+    --zenoh-config is used by up itself and passed on to every child. With --ros2 the ROS 2
+    bridge runs as one more child, in its own process (never on a control loop)."""
+    from planner.cli.ros2 import check_domain
     from planner.console.address import DEFAULT_HOST, check_free, check_port
     from planner.service.up import run_up
 
@@ -208,4 +219,5 @@ def up(
         console_port=console_port if console else None,
         online_calibration=online_calibration,
         zenoh_roles=zenoh_roles,
+        ros_domain=check_domain(ros_domain) if ros2 else None,
     )

@@ -34,11 +34,29 @@ def record(
             help="Point clouds kept per second (the camera sends 15; 0 keeps every one).",
         ),
     ] = CLOUD_RATE,
+    ros2: Annotated[
+        bool,
+        typer.Option(
+            "--ros2", help="Also write ROS 2 channels (JointState; TF, markers with --scenario)."
+        ),
+    ] = False,
+    scenario: Annotated[
+        Path | None,
+        typer.Option(
+            "--scenario",
+            help="Scenario of the running system (TF tree for --ros2).",
+            dir_okay=False,
+        ),
+    ] = None,
 ) -> None:
     """Record every bus key under the prefix (and liveliness) with timestamps to MCAP
-    (zstd-compressed; point clouds decimated to --cloud-rate)."""
+    (zstd-compressed; point clouds decimated to --cloud-rate).
+
+    With --ros2 the file also holds ROS 2 channels (ros2msg schemas, CDR) that Foxglove and
+    ros2 bag read: /<robot>/joint_states and, with --scenario, /tf, /tf_static and
+    /beamrelay/markers (the beam, the targets)."""
     from drivers.record import Recorder
-    from planner.service.bus import open_session
+    from planner.service.bus import Keys, open_session
 
     if duration is not None and not 0 < duration <= 86400:
         raise InputError(f"must be in (0, 86400] s, got {duration:g}", "--duration")
@@ -50,13 +68,29 @@ def record(
         raise InputError("exists (use --force to overwrite)", f"--output {output}")
     if not output.parent.is_dir():
         raise InputError("no such directory", f"--output {output}")
+    if scenario is not None and not ros2:
+        raise InputError("--scenario gives the TF tree of the ROS 2 channels: add --ros2")
+    translator = None
+    if ros2:
+        from planner.ros2.recording import RosTranslator
+
+        translator = RosTranslator(Keys(prefix))
+        if scenario is not None:
+            from planner.io.scenario import load_scenario, scene_objects, system_from_scenario
+            from planner.model.scene import SceneModel
+
+            if not scenario.is_file():
+                raise InputError(f"scenario not found: {scenario}")
+            scn = load_scenario(scenario)
+            scene = SceneModel(scene_objects(scn))
+            translator = RosTranslator(Keys(prefix), system_from_scenario(scn), scene)
     stop = stop_on_signals()
     session = open_session(listen=False, endpoint=endpoint, config_file=zenoh_config)
     tmp = output.with_suffix(".mcap.part")
     t0 = time.monotonic()
     try:
         with tmp.open("wb") as f:
-            rec = Recorder(session, prefix, f, cloud_rate)
+            rec = Recorder(session, prefix, f, cloud_rate, ros=translator)
             typer.echo(f"recording {prefix}/** to {output} (Ctrl-C to stop)", err=True)
             stop.wait(duration)
             n = rec.close()

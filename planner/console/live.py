@@ -144,6 +144,11 @@ class LiveState:
                 return None
             return {r: np.asarray(self.joints[r].value.q, dtype=float) for r in robots}
 
+    def joint_states(self) -> dict[str, Stamped]:
+        """The latest JointState of every robot that reported (a copy of the mapping)."""
+        with self._lock:
+            return dict(self.joints)
+
     def snapshot(self) -> dict[str, Any]:
         """A consistent copy of the scalar state for the health panel."""
         with self._lock:

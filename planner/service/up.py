@@ -53,6 +53,7 @@ def child_commands(
     console_port: int | None = None,
     online_calibration: Path | None = None,
     role_configs: dict[str, Path] | None = None,
+    ros_domain: int | None = None,
 ) -> dict[str, list[str]]:
     """argv of every child: ``planner``, ``camera`` (if any), the simulated ``tracker`` (sim
     only, when asked: the scenario has targets on a moving object), one per robot, then the
@@ -60,7 +61,8 @@ def child_commands(
     ``zenoh_config`` except the planner, which gets ``planner_zenoh_config`` if given (its
     own identity on a bus with access control). ``role_configs`` (see :func:`role_files`)
     instead gives each child the file of its role: ``planner``, ``camera``, ``tracker``,
-    ``driver`` (every robot), ``console``."""
+    ``driver`` (every robot), ``console``. With ``ros_domain`` the ROS 2 bridge runs as
+    ``ros2`` (with the console's role: it only reads the bus)."""
     cli = [sys.executable, "-m", "planner.cli"]
     bus = ["--endpoint", endpoint, *(["--prefix", prefix] if prefix != "beamrelay" else [])]
     planner_bus = list(bus)
@@ -106,6 +108,11 @@ def child_commands(
             str(console_port),
             *role_bus("console"),
         ]
+    if ros_domain is not None:
+        out["ros2"] = [
+            *cli, "ros2", "bridge", str(scenario), "--ros-domain", str(ros_domain),
+            *role_bus("console"),
+        ]  # fmt: skip
     return out
 
 
@@ -281,9 +288,11 @@ def run_up(
     console_port: int | None = None,
     online_calibration: Path | None = None,
     zenoh_roles: Path | None = None,
+    ros_domain: int | None = None,
 ) -> dict[str, int | None]:
     """Run the system until Ctrl-C / SIGTERM / ``duration`` s; the children's exit codes.
-    With ``console_port`` the operator console runs as one more supervised child.
+    With ``console_port`` the operator console runs as one more supervised child, with
+    ``ros_domain`` the ROS 2 bridge (``beamrelay ros2 bridge``).
 
     ``zenoh_config`` is used by ``up`` itself and passed on to every child,
     ``planner_zenoh_config`` (default ``zenoh_config``) to the planner child only.
@@ -307,6 +316,11 @@ def run_up(
                 "--zenoh-roles gives every process its file: leave out --zenoh-config and "
                 "--planner-zenoh-config"
             )
+        if ros_domain is not None:
+            raise InputError(
+                "--ros2 with --zenoh-roles: the role files have no ROS 2 role yet (its topics "
+                "would be denied); use --zenoh-config"
+            )
         roles = role_files(zenoh_roles)
         configs = [roles["console"], None]
     has_camera = scn.model.system.camera is not None
@@ -320,6 +334,7 @@ def run_up(
         camera=has_camera, zenoh_config=configs[0], planner_zenoh_config=configs[1],
         hosts=host_map, tracker=has_camera and has_tracked_targets(scn),
         console_port=console_port, online_calibration=online, role_configs=roles,
+        ros_domain=ros_domain,
     )  # fmt: skip
     log_dir = Path(log_dir or tempfile.mkdtemp(prefix="beamrelay-up-"))
     with raised_priority() as got:  # the hub routes the heartbeat: its threads first

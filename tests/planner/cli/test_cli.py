@@ -79,9 +79,10 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
     root = typer.main.get_command(app)
     assert sorted(root.commands) == sorted(  # type: ignore[attr-defined]
         ["validate", "trace", "plan", "check", "serve", "up", "request", "calibrate", "study",
-         "bench", "driver", "record", "replay", "robot", "hw", "console"]
+         "bench", "driver", "record", "replay", "robot", "hw", "console", "ros2"]
     )  # fmt: skip
     groups = root.commands  # type: ignore[attr-defined]
+    assert sorted(groups["ros2"].commands) == ["bridge"]
     assert sorted(groups["calibrate"].commands) == ["beam", "collect", "handeye", "simulate"]
     assert sorted(groups["study"].commands) == sorted(
         [
@@ -104,6 +105,7 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
         "path",
         "plan",
         "preview",
+        "ros2",
         "safety",
         "service",
         "servo",

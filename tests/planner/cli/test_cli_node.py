@@ -37,6 +37,15 @@ def run(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
         (["request", "--points", "1,2,3", "--track", "p", "--duration", "0"], "(0, 3600] s"),
         (["serve", "/nonexistent/scenario.yaml"], "scenario.yaml"),
         (["up", "/nonexistent/scenario.yaml", "--backend", "robotstudio"], "expected sim or ur"),
+        (["up", "scenarios/paper_n1.yaml", "--ros2", "--ros-domain", "300"], "expected 0-232"),
+        (
+            ["up", "scenarios/paper_n1.yaml", "--ros2", "--zenoh-roles", "scenarios/zenoh/roles"],
+            "no ROS 2 role yet",
+        ),
+        (["ros2", "bridge", "scenarios/paper_n1.yaml", "--ros-domain", "-1"], "expected 0-232"),
+        (["ros2", "bridge", "scenarios/paper_n1.yaml", "--rate", "0"], "expected 1-1000 Hz"),
+        (["ros2", "bridge", "/nonexistent/scenario.yaml"], "scenario not found"),
+        (["record", "-o", "x.mcap", "--scenario", "scenarios/paper_n1.yaml"], "add --ros2"),
     ],
 )
 def test_user_mistakes_exit_2_with_one_line(args: list[str], words: str) -> None:

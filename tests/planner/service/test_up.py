@@ -155,3 +155,13 @@ def test_child_commands_pass_the_online_calibration_file_to_the_planner_only() -
     assert argv["planner"][-2:] == ["--online-calibration", str(out)]
     assert "--online-calibration" not in argv["arm0"] + argv["camera"]
     assert "--online-calibration" not in child_commands(s, ["arm0"], endpoint="e")["planner"]
+
+
+def test_the_ros2_bridge_child_gets_its_domain_and_the_bus() -> None:
+    s = Path("/x/s.yaml")
+    argv = child_commands(s, ["arm0"], endpoint="tcp/127.0.0.1:9", prefix="p", ros_domain=5)
+    assert list(argv) == ["planner", "camera", "arm0", "ros2"]
+    assert argv["ros2"] == [sys.executable, "-m", "planner.cli", "ros2", "bridge", str(s),
+                            "--ros-domain", "5", "--endpoint", "tcp/127.0.0.1:9",
+                            "--prefix", "p"]  # fmt: skip
+    assert "ros2" not in child_commands(s, ["arm0"], endpoint="e")

@@ -1,0 +1,332 @@
+"""The ROS 2 bridge node: beamrelay's bus republished the way rmw_zenoh publishes.
+
+:class:`Ros2Bridge` runs in its own process (``beamrelay ros2 bridge``, or ``beamrelay up
+--ros2``), on its own Zenoh session: nothing on the drivers' control loops or the planner's
+request path waits for it. Bus callbacks only store the latest state
+(:class:`planner.console.live.LiveState`, plus the last plan's targets); one publishing
+thread converts and publishes at fixed rates:
+
+- ``/<robot>/joint_states`` (``sensor_msgs/msg/JointState``) and ``/tf`` (base -> flange)
+  at ``rate`` Hz whenever a robot reported new joints;
+- ``/<robot>/joint_trajectory`` (``trajectory_msgs/msg/JointTrajectory``): each trajectory
+  the planner sends a driver, stamped when the bridge saw it;
+- ``/tf_static`` every ``STATIC_PERIOD`` s (see below);
+- ``/beamrelay/markers`` (``visualization_msgs/msg/MarkerArray``) at ``MARKER_RATE`` Hz;
+- ``/camera/points`` (``sensor_msgs/msg/PointCloud2``, ``camera`` frame), the newest cloud
+  at most ``CLOUD_RATE`` Hz (with a camera in the scenario).
+
+It subscribes to ROS 2 targets (:mod:`planner.ros2.inputs`) and forwards them as
+TargetRequests on the bus.
+
+Every publisher and the node itself declare rmw_zenoh's liveliness tokens
+(:mod:`planner.ros2.graph`), so ``ros2 node list`` / ``ros2 topic list`` on
+``RMW_IMPLEMENTATION=rmw_zenoh_cpp`` see them; every sample carries rmw_zenoh's attachment.
+``/tf_static`` is transient-local (as tf2 expects): an advanced publisher whose cache a
+late subscriber queries; it is also republished every ``STATIC_PERIOD`` s.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from planner.console.live import LiveState
+from planner.errors import InputError
+from planner.model.scene import SceneModel
+from planner.model.system import System
+from planner.model.transforms import Array
+from planner.ros2 import cell
+from planner.ros2 import messages as m
+from planner.ros2.graph import (
+    LATCHED,
+    VOLATILE,
+    Durability,
+    Node,
+    Qos,
+    attachment,
+    gid,
+    topic_key,
+)
+from planner.ros2.inputs import INPUTS, target_request
+from planner.service.bus import JSON, Keys, decode, encode
+from schemas.messages import JointTrajectory
+
+log = logging.getLogger(__name__)
+
+NODE_NAME = "beamrelay_bridge"
+DEFAULT_RATE = 100.0  # Hz, joint states and /tf
+MARKER_RATE = 10.0  # Hz
+STATIC_PERIOD = 1.0  # s between /tf_static republications
+MARKER_TOPIC = "/beamrelay/markers"
+CLOUD_TOPIC = "/camera/points"
+CLOUD_RATE = 5.0  # Hz at most
+INBOX = 16  # ROS 2 target messages kept between two publishing periods (older dropped)
+DEFAULT_KEYS = Keys()
+
+
+def joint_states_topic(robot: str) -> str:
+    return f"/{robot}/joint_states"
+
+
+def trajectory_topic(robot: str) -> str:
+    return f"/{robot}/joint_trajectory"
+
+
+@dataclass
+class Topic:
+    """One ROS publisher: its data key, liveliness token and rmw_zenoh attachment state."""
+
+    name: str
+    ros_type: str
+    key: str
+    token: str
+    gid: bytes
+    qos: Qos = VOLATILE
+    seq: int = 0
+    handles: list[Any] = field(default_factory=list)
+
+    def publish(self, msg: Any, t: float) -> None:
+        self.seq += 1
+        body = m.serialize(msg, self.ros_type)
+        self.handles[0].put(body, attachment=attachment(self.seq, round(t * 1e9), self.gid))
+
+
+def _publisher(session: Any, topic: Topic) -> Any:
+    """A Zenoh publisher for ``topic``; transient-local ones are advanced publishers with a
+    cache of ``depth`` samples that late subscribers query (rmw_zenoh's design: "a Zenoh
+    advanced publisher will be created with a publication cache")."""
+    if topic.qos.durability is not Durability.TRANSIENT_LOCAL:
+        return session.declare_publisher(topic.key)
+    import zenoh.ext
+
+    cache = zenoh.ext.CacheConfig(max_samples=topic.qos.depth)
+    # sequence numbers (sample-miss detection) order the cache: no session timestamping needed
+    return zenoh.ext.declare_advanced_publisher(
+        session,
+        topic.key,
+        cache=cache,
+        sample_miss_detection=zenoh.ext.MissDetectionConfig(
+            heartbeat=None, sporadic_heartbeat=None
+        ),
+        publisher_detection=True,
+    )
+
+
+class Ros2Bridge:
+    """See the module docstring. ``start`` declares everything, ``close`` undoes it."""
+
+    def __init__(
+        self,
+        session: Any,
+        system: System,
+        scene: SceneModel | None,
+        *,
+        keys: Keys = DEFAULT_KEYS,
+        domain: int = 0,
+        rate: float = DEFAULT_RATE,
+    ) -> None:
+        if not 0 <= domain <= 232:
+            raise ValueError(f"ROS domain id {domain} is outside 0..232")
+        if not 1.0 <= rate <= 1000.0:
+            raise ValueError(f"ROS 2 publishing rate {rate} Hz is outside 1..1000 Hz")
+        self.session, self.system, self.scene = session, system, scene
+        self.keys, self.domain, self.period = keys, domain, 1.0 / rate
+        self.node = Node(domain, str(session.info.zid()), NODE_NAME)
+        self.live = LiveState(keys)
+        self.targets: Array | None = None
+        self.published = 0
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._node_token: Any = None
+        self._plans_sub: Any = None
+        self._traj_sub: Any = None
+        self._targets_pub: Any = None
+        self.topics: dict[str, Topic] = {}
+        robots = system.robot_names
+        for r in robots:
+            self._topic(joint_states_topic(r), m.JOINT_STATE)
+            self._topic(trajectory_topic(r), m.JOINT_TRAJECTORY)
+        self._trajectories: dict[str, bytes] = {}  # robot -> newest raw body not yet sent
+        self._topic("/tf", m.TF_MESSAGE)
+        self._topic("/tf_static", m.TF_MESSAGE, LATCHED)
+        self._topic(MARKER_TOPIC, m.MARKER_ARRAY)
+        self.inputs: dict[str, Topic] = {}
+        for inp in INPUTS:
+            h = m.type_hash(inp.ros_type)
+            token = self.node.subscription_token(self._next_id(), inp.topic, inp.ros_type, h)
+            key = topic_key(self.domain, inp.topic, inp.ros_type, h)
+            self.inputs[inp.topic] = Topic(inp.topic, inp.ros_type, key, token, gid(token))
+        self._inbox: deque[tuple[str, bytes]] = deque(maxlen=INBOX)
+        self.requests = self.rejected = 0
+        if system.camera is not None:
+            self._topic(CLOUD_TOPIC, m.POINT_CLOUD2)
+        self._cloud_seq = 0
+
+    def _next_id(self) -> int:
+        return len(self.topics) + len(getattr(self, "inputs", {})) + 1
+
+    def _topic(self, name: str, ros_type: str, qos: Qos = VOLATILE) -> None:
+        h = m.type_hash(ros_type)
+        token = self.node.publisher_token(self._next_id(), name, ros_type, h, qos)
+        key = topic_key(self.domain, name, ros_type, h)
+        self.topics[name] = Topic(name, ros_type, key, token, gid(token), qos)
+
+    def start(self) -> None:
+        s = self.session
+        self._node_token = s.liveliness().declare_token(self.node.token())
+        for topic in self.topics.values():
+            topic.handles = [_publisher(s, topic), s.liveliness().declare_token(topic.token)]
+        for inp in self.inputs.values():
+            inp.handles = [
+                s.declare_subscriber(inp.key, self._on_input(inp.name)),
+                s.liveliness().declare_token(inp.token),
+            ]
+        self._targets_pub = s.declare_publisher(self.keys.targets)
+        self.live.subscribe(s)
+        self._plans_sub = s.declare_subscriber(self.keys.plans, self._on_plan)
+        self._traj_sub = s.declare_subscriber(self.keys.trajectory("*"), self._on_trajectory)
+        self._thread = threading.Thread(target=self._run, name="ros2-bridge", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+        self.live.close()
+        entities = [*self.topics.values(), *self.inputs.values()]
+        handles = [h for t in entities for h in t.handles]
+        for h in [self._plans_sub, self._traj_sub, self._targets_pub, *handles, self._node_token]:
+            if h is not None:
+                h.undeclare()
+        for t in entities:
+            t.handles = []
+        self._plans_sub = self._traj_sub = self._targets_pub = self._node_token = None
+        self._thread = None
+
+    def _on_plan(self, sample: Any) -> None:
+        pts = cell.plan_targets(sample.payload.to_bytes())
+        if pts is not None:  # else a tracking summary: keep the last targets
+            with self._lock:
+                self.targets = pts
+
+    def _on_trajectory(self, sample: Any) -> None:
+        robot = str(sample.key_expr).split("/")[-2]
+        if robot in self.system.robot_names:
+            with self._lock:  # parsed on the publishing thread, never in the callback
+                self._trajectories[robot] = sample.payload.to_bytes()
+
+    def _on_input(self, topic: str) -> Any:
+        def cb(sample: Any) -> None:  # stored only; converted on the publishing thread
+            self._inbox.append((topic, sample.payload.to_bytes()))
+
+        return cb
+
+    def forward_targets(self) -> None:
+        """Each ROS 2 target message received since the last call, as a TargetRequest on
+        ``<prefix>/targets`` (planned, not executed); bad ones are counted and logged."""
+        while self._inbox:
+            topic, body = self._inbox.popleft()
+            self.requests += 1
+            try:
+                req = target_request(self.inputs[topic].ros_type, body, f"ros2-{self.requests}")
+            except ValueError as exc:
+                self.rejected += 1
+                log.warning("ROS 2 %s refused: %s", topic, exc)
+                continue
+            self._targets_pub.put(encode(req), encoding=JSON)
+
+    def publish_trajectories(self) -> None:
+        """Each trajectory a robot was sent since the last call, as JointTrajectory."""
+        with self._lock:
+            bodies, self._trajectories = self._trajectories, {}
+        for robot, body in bodies.items():
+            try:
+                traj = decode(body, JointTrajectory)
+            except InputError:
+                continue  # the driver rejects it too
+            t = time.time()
+            msg = m.joint_trajectory(t, traj.names, traj.t, traj.q, traj.qd, traj.qdd)
+            self.topics[trajectory_topic(robot)].publish(msg, t)
+
+    # publishing thread ------------------------------------------------------------------------
+    def _run(self) -> None:
+        next_static = next_markers = next_cloud = 0.0
+        seen: dict[str, float] = {}
+        due = time.monotonic()
+        while not self._stop.wait(max(0.0, due - time.monotonic())):
+            now = time.monotonic()
+            due = max(due + self.period, now)  # fixed rate; no catching up after a stall
+            try:
+                self._publish_joints(seen)
+                self.publish_trajectories()
+                self.forward_targets()
+                if now >= next_static:
+                    self.publish_static()
+                    next_static = now + STATIC_PERIOD
+                if now >= next_markers:
+                    self.publish_markers()
+                    next_markers = now + 1.0 / MARKER_RATE
+                if now >= next_cloud and CLOUD_TOPIC in self.topics:
+                    self.publish_cloud()
+                    next_cloud = now + 1.0 / CLOUD_RATE
+            except Exception:  # a bad state must not end the bridge
+                log.exception("ROS 2 bridge: publishing failed")
+
+    def _publish_joints(self, seen: dict[str, float]) -> None:
+        fresh = {r: s for r, s in self.live.joint_states().items() if seen.get(r) != s.at}
+        q: dict[str, Array] = {}
+        for robot, stamped in fresh.items():
+            if robot not in self.system.robot_names:
+                continue
+            js = stamped.value
+            seen[robot] = stamped.at
+            q[robot] = np.asarray(js.q, dtype=float)
+            msg = m.joint_state(js.t, js.names, js.q, js.qd)
+            self.topics[joint_states_topic(robot)].publish(msg, js.t)
+        if q:
+            t = time.time()
+            self.topics["/tf"].publish(cell.tf_message(t, cell.moving_frames(self.system, q)), t)
+            self.published += 1
+
+    def publish_static(self) -> None:
+        t = time.time()
+        self.topics["/tf_static"].publish(cell.tf_message(t, cell.static_frames(self.system)), t)
+
+    def publish_cloud(self) -> None:
+        """The newest camera cloud, if new, as PointCloud2 in the ``camera`` frame."""
+        from schemas.points import decode_points
+
+        self._cloud_seq, sample = self.live.take_points(self._cloud_seq)
+        if sample is None:
+            return
+        try:
+            rows, meta = decode_points(*sample)
+        except InputError:
+            return  # LiveState keeps raw bodies; a malformed one is dropped here
+        t = float(meta.get("t", time.time()))
+        msg = m.point_cloud(t, cell.CAMERA, rows, list(meta["fields"]))
+        self.topics[CLOUD_TOPIC].publish(msg, t)
+
+    def publish_markers(self) -> None:
+        robots = self.system.robot_names
+        q = self.live.joint_vector(robots) or {}
+        snap = self.live.snapshot()
+        laser = snap["laser"].value if snap["laser"] is not None else None
+        spot = snap["spot"].value if snap["spot"] is not None else None
+        with self._lock:
+            targets = self.targets
+        beam = cell.Beam(on=bool(laser and laser.on), aim=bool(laser and laser.aim))
+        spot_world = None
+        if spot is not None and spot.p_camera is not None:
+            spot_world = cell.spot_in_world(self.system, q, np.asarray(spot.p_camera))
+        t = time.time()
+        msg = cell.markers(t, self.system, self.scene, q, beam=beam, targets=targets,
+                           spot_world=spot_world)  # fmt: skip
+        self.topics[MARKER_TOPIC].publish(msg, t)
