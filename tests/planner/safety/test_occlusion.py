@@ -196,7 +196,11 @@ def test_node_plan_reports_occluded(tmp_path: Path) -> None:
     doc = handler.plan(handler.parse(encode(make_request([[-0.88, 0.30, 0.05]]))))
     [sol] = doc["solutions"]
     assert (sol["status"], sol["reason"], "q" in sol) == ("failed", "occluded", False)
-    assert doc["metrics"]["extra"] == {"failed_occluded": 1}
+    extra = doc["metrics"]["extra"]
+    assert extra["failed_occluded"] == 1 and set(extra) == {
+        "failed_occluded",
+        "surface_distance_max",
+    }
 
 
 def test_node_plan_applies_the_keep_out_rules(tmp_path: Path) -> None:
