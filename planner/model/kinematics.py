@@ -7,6 +7,7 @@ Frames: ``base`` is the UR controller base frame, ``flange`` = ``tool0``.
 
 from __future__ import annotations
 
+import threading
 from functools import cached_property
 from importlib import resources
 from pathlib import Path
@@ -25,6 +26,10 @@ UR5E_DH = {
     "alpha": (np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0),
 }
 
+#: every Kinematics writes its one Pinocchio ``data`` and reads it back: threads (tracking's
+#: frame solver and setpoint check, a Zenoh callback) take turns (not an instance attribute:
+#: a System pickles)
+_DATA_LOCK = threading.Lock()
 _REVOLUTE_AXES = {"JointModelRX": (1.0, 0.0, 0.0), "JointModelRY": (0.0, 1.0, 0.0)}
 _REVOLUTE_AXES |= {"JointModelRZ": (0.0, 0.0, 1.0)}
 _PRISMATIC_AXES = {"JointModelPX": (1.0, 0.0, 0.0), "JointModelPY": (0.0, 1.0, 0.0)}
@@ -183,8 +188,9 @@ class RobotKinematics:
     # numeric ------------------------------------------------------------------------------
     def fk(self, q: Array) -> Array:
         """``base_T_flange`` at joints ``q`` (Pinocchio)."""
-        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
-        return self._base_T_universe @ _se3(self.data.oMf[self.flange_id])
+        with _DATA_LOCK:  # one Pinocchio data: written, then read, by one thread at a time
+            pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
+            return self._base_T_universe @ _se3(self.data.oMf[self.flange_id])
 
     def jacobian(self, q: Array) -> Array:
         """6 x nq Jacobian of the flange, rows (v, w) in base-frame axes (LOCAL_WORLD_ALIGNED).
@@ -192,20 +198,22 @@ class RobotKinematics:
         ``v`` is the velocity of the flange origin, ``w`` its angular velocity.
         """
         q = np.asarray(q, dtype=float)
-        pin.computeJointJacobians(self.model, self.data, q)
-        pin.updateFramePlacements(self.model, self.data)
-        J = pin.getFrameJacobian(
-            self.model, self.data, self.flange_id, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-        )
-        R = self._base_T_universe[:3, :3]
-        return np.vstack([R @ J[:3], R @ J[3:]])
+        with _DATA_LOCK:
+            pin.computeJointJacobians(self.model, self.data, q)
+            pin.updateFramePlacements(self.model, self.data)
+            J = pin.getFrameJacobian(
+                self.model, self.data, self.flange_id, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+            )
+            R = self._base_T_universe[:3, :3]
+            return np.vstack([R @ J[:3], R @ J[3:]])
 
     def joint_origins(self, q: Array) -> Array:
         """``base``-frame origins of every joint, then the flange ((nq + 1) x 3, metres)."""
-        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
-        pts = [_se3(self.data.oMi[j])[:, 3] for j in range(1, self.model.njoints)]
-        pts.append(_se3(self.data.oMf[self.flange_id])[:, 3])
-        return (np.array(pts) @ self._base_T_universe.T)[:, :3]
+        with _DATA_LOCK:
+            pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
+            pts = [_se3(self.data.oMi[j])[:, 3] for j in range(1, self.model.njoints)]
+            pts.append(_se3(self.data.oMf[self.flange_id])[:, 3])
+            return (np.array(pts) @ self._base_T_universe.T)[:, :3]
 
     def analytic_ik(self, base_T_flange: Array) -> list[Array]:
         """All closed-form IK branches (up to 8) for the nominal UR model; [] otherwise."""
