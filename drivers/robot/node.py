@@ -76,11 +76,15 @@ with the stop deceleration of :mod:`drivers.robot.follower`, drop the queued tra
   :data:`HEARTBEAT_TIMEOUT` (0.1 s), checked every period; heartbeats of other sessions do
   not count. Beats are queued by Zenoh's own (Rust) threads in a ring of
   :data:`HEARTBEAT_RING` without Python's GIL and taken by the control loop at the start of
-  every period, each heard at that period's start: a Python thread of this process that
-  holds the GIL while the machine is busy can delay the loop, but no beat that reached the
-  process counts as missing once the loop runs (a Python callback would wait for the GIL
-  behind the loop and the beat would look late: a false brake). A flood of beats beyond the
-  ring drops the oldest, so a real beat can be pushed out: the arm then brakes (fail-safe);
+  every period: a Python thread of this process that holds the GIL while the machine is
+  busy can delay the loop, but no beat that reached the process counts as missing once the
+  loop runs (a Python callback would wait for the GIL behind the loop and the beat would
+  look late: a false brake). A beat counts from the period that took it, but never more
+  than :data:`HEARTBEAT_TIMEOUT` after it was sent (its ``t`` on this clock: plus the
+  smallest receive-minus-send offset its session has shown), so a planner that hangs while
+  the loop stalls brakes the arm at most 200 ms after its last beat. A flood of beats beyond the ring drops the oldest, so a real
+  beat can be pushed out: the arm then brakes (fail-safe); at most
+  :data:`BEATS_PER_PERIOD` are decoded per period;
 - the planner's liveliness token disappearing (an extra trigger: it comes 2-9 ms after the
   planner process dies, but a hung planner keeps it for the ~9 s Zenoh lease);
 - any sample on ``<prefix>/stop``, whatever its body: brake, and refuse every trajectory
@@ -127,6 +131,7 @@ MAX_SESSIONS = 64  # heartbeat sessions remembered (oldest forgotten first)
 #: heartbeats queued between two periods (at 100 Hz per planner: 2.5 s of one planner's
 #: beats; beyond it the oldest are dropped, never blocking Zenoh's receive thread)
 HEARTBEAT_RING = 256
+BEATS_PER_PERIOD = 32  # beats decoded per period at most (a flood cannot stretch a period)
 #: setpoints queued between two periods (0.5 s of a 500 Hz stream), of which the loop parses
 #: at most SETPOINTS_PER_PERIOD per period (a flood cannot stretch a period; the rest wait)
 SETPOINT_RING = 256
@@ -189,6 +194,7 @@ class RobotNode(StreamingMixin, LoopNode):
         self.streams = StreamControl(limits, 1.0 / backend.rate)
         self.heartbeats: dict[str, float] = {}  # session -> monotonic time of its last beat
         self._beats: Any = None  # the heartbeat subscriber's ring (made in attach)
+        self._beat_offsets: dict[str, float] = {}  # session -> min(receive - send) (s)
         self._setpoint_ring: Any = None  # the setpoint subscriber's ring (made in attach)
         self.planner_alive = False
         self.planner_lost_at: float | None = None  # UNIX time the planner's token went away
@@ -271,8 +277,9 @@ class RobotNode(StreamingMixin, LoopNode):
             self._triggers.append("planner liveliness lost")
 
     def _take_heartbeats(self, now: float) -> None:
-        """Every beat queued since the last period, heard at ``now`` (the period's start)."""
-        for _ in range(HEARTBEAT_RING if self._beats is not None else 0):
+        """The beats queued since the last period (at most :data:`BEATS_PER_PERIOD`), each
+        heard at the earliest time it can have arrived (:meth:`_on_heartbeat`)."""
+        for _ in range(BEATS_PER_PERIOD if self._beats is not None else 0):
             sample = self._beats.try_recv()
             if sample is None:
                 return
@@ -286,10 +293,21 @@ class RobotNode(StreamingMixin, LoopNode):
         except Exception:  # a bad heartbeat is no heartbeat
             self.n_bad_heartbeats += 1
             return
-        beats = self.heartbeats  # the control loop reads it: never remove a live entry
+        # heard when taken (``now``), but never later than HEARTBEAT_TIMEOUT after it was
+        # sent on this clock (its ``t`` plus the smallest receive - send offset its session
+        # has shown): a beat that waited in this process (the GIL, a stalled loop) is not
+        # late for it, yet a planner that hung while the loop stalled is silent at most
+        # 2 x HEARTBEAT_TIMEOUT after its last beat; a stamp from the future only lowers
+        # the offset (the session's later beats look older, never fresher)
+        offsets, beats = self._beat_offsets, self.heartbeats
+        offset = min(offsets.get(beat.session, np.inf), now - beat.t)
+        heard = min(now, beat.t + offset + HEARTBEAT_TIMEOUT)
         if beat.session not in beats and len(beats) >= MAX_SESSIONS:
-            del beats[min(beats, key=beats.__getitem__)]  # forget the longest silent
-        beats[beat.session] = now
+            oldest = min(beats, key=beats.__getitem__)  # forget the longest silent
+            del beats[oldest]
+            offsets.pop(oldest, None)
+        offsets[beat.session] = offset
+        beats[beat.session] = max(beats.get(beat.session, -np.inf), heard)
 
     def _on_stop(self, sample: Any) -> None:
         self.stop_requested_at = self.clock()
@@ -297,6 +315,13 @@ class RobotNode(StreamingMixin, LoopNode):
 
     def _on_trajectory(self, sample: Any) -> None:
         self.intake.submit(sample.payload)
+
+    def _drop_queued_setpoints(self) -> None:
+        """Discard the setpoints Zenoh queued since the last period (a stop came meanwhile:
+        they may have been sent before it and must not start a stream after it)."""
+        for _ in range(SETPOINT_RING if self._setpoint_ring is not None else 0):
+            if self._setpoint_ring.try_recv() is None:
+                return
 
     def _take_setpoints(self) -> None:
         """Setpoints queued since the last period (at most :data:`SETPOINTS_PER_PERIOD`),
@@ -386,6 +411,7 @@ class RobotNode(StreamingMixin, LoopNode):
         stop_at = self.stop_requested_at
         if stop_at is not None and stop_at != self._handled_stop:
             self._handled_stop = stop_at
+            self._drop_queued_setpoints()  # sent before the stop, maybe: never a new stream
             self._safe_stop(f"stop requested on {self.keys.stop}")
         while self._triggers:
             self._safe_stop(self._triggers.pop(0))

@@ -74,6 +74,9 @@ SWEEP_JOINT_STEP = 1e-3
 SWEEP_SPOT_STEP = 2e-4
 #: fewest markers whose rigid motion moves the attached volumes
 MIN_MARKERS = 3
+#: m: RMS distance of the markers from their rigid fit beyond which a frame stops tracking
+#: (the markers are sub-millimetre measurements; a swapped or moved marker is centimetres)
+MAX_MARKER_RESIDUAL = 0.003
 
 
 @dataclass(frozen=True)
@@ -203,7 +206,9 @@ class TargetFollower:
             R = self.noise.covariance_world(p, self.world_T_camera)
         self.predictor.update(t, p, R)
         self.frame_seen = now
-        self._fit_markers(t, markers, R)
+        lost = self._fit_markers(t, markers, R)
+        if lost is not None:
+            return self._halt(lost, t0)
         st = self.settings
         t_a = now + st.lead
         t_b = t_a + 1.0 / st.frame_rate
@@ -245,17 +250,27 @@ class TargetFollower:
             D = segment.object_T_rest
             self.keep_out_shift = D[:3, :3] @ self.first + D[:3, 3] - self.first
 
-    def _fit_markers(self, t: float, markers: Array | None, R: Array) -> None:
+    def _fit_markers(self, t: float, markers: Array | None, R: Array) -> str | None:
         """The object's rigid motion from rest to the frame captured at ``t`` (s), from the
-        matched markers (``R``: one point's measurement covariance, m^2)."""
-        if markers is None or self.markers is None or len(self.markers) < MIN_MARKERS:
-            return
-        seen = np.asarray(markers, dtype=float)
-        if seen.shape != self.markers.shape or not np.all(np.isfinite(seen)):
-            return
+        matched markers (``R``: one point's measurement covariance, m^2). When volumes
+        follow markers, a frame whose markers are missing, malformed or do not move
+        rigidly (RMS residual over :data:`MAX_MARKER_RESIDUAL`) is a reason to stop: the
+        volumes' place is then unknown (they are never moved on by extrapolation alone)."""
+        if self.markers is None or len(self.markers) < MIN_MARKERS:
+            return None
+        seen = None if markers is None else np.asarray(markers, dtype=float)
+        if seen is None or seen.shape != self.markers.shape or not np.all(np.isfinite(seen)):
+            return "the markers of the attached keep-out volumes are missing from the frame"
+        fit = fit_rigid(self.markers, seen)
+        moved = self.markers @ fit[:3, :3].T + fit[:3, 3]
+        rms = float(np.sqrt(np.mean(np.sum((seen - moved) ** 2, axis=1))))
+        if rms > MAX_MARKER_RESIDUAL:
+            return (f"the markers do not move rigidly (RMS residual {1e3 * rms:.1f} mm, limit "
+                    f"{1e3 * MAX_MARKER_RESIDUAL:g} mm): the keep-out volumes' place is unknown")  # fmt: skip
         centroid = seen.mean(axis=0)
         self._centroid.update(t, centroid, np.asarray(R) / len(seen))
-        self._fit = fit_rigid(self.markers, seen), centroid
+        self._fit = fit, centroid
+        return None
 
     def _attached_move(self, p: Array, t: float) -> Array:
         """How the attached volumes move (4 x 4, world) from rest at time ``t`` (s): the

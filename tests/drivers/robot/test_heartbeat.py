@@ -122,7 +122,8 @@ def test_beats_that_arrive_while_the_gil_is_held_count_when_the_loop_runs(
             sys.setswitchinterval(switch)
         start = node.period_starts[(node.n_periods - 1) % PERIOD_LOG]
         assert start - t0 >= 0.5
-        assert node.heartbeats["P"] == start  # heard at that period, not 500 ms ago
+        # heard when it was sent (during the stall), not 500 ms ago: the watchdog is quiet
+        assert start - node.heartbeats["P"] < HEARTBEAT_TIMEOUT
     finally:
         planner.kill()
         planner.wait()

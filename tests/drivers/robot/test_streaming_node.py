@@ -62,7 +62,8 @@ class Rig:
     def period(self, n: int = 1) -> None:
         for _ in range(n):
             if self.beating and self.k % 5 == 0:  # 100 Hz
-                beat = {"schema": "beamrelay.heartbeat/1", "t": 0.0, "session": "S", "seq": self.k}
+                beat = {"schema": "beamrelay.heartbeat/1", "t": self.clock.t,
+                        "session": "S", "seq": self.k}  # fmt: skip
                 self.bus.put(KEYS.heartbeat, json.dumps(beat))
             self.node.period()
             self.clock.t += DT
@@ -337,3 +338,19 @@ def test_the_ur_backend_streams_through_servoj_one_write_per_cycle() -> None:
     assert "servoStop" in fake.calls and not ur.servoing
     assert rig.ack()["state"] == "ended" and rig.ack()["braked"] is False
     np.testing.assert_allclose(fake.getActualQ(), goal, atol=1e-12)
+
+
+def test_setpoints_queued_before_a_stop_do_not_start_a_stream_after_it() -> None:
+    """Setpoints wait in Zenoh's queue while a stop arrives (its callback runs at once):
+    the next period sees the stop and discards them; the arm at rest stays stopped, no
+    stream starts, and a later stream (after its 50 ms pause) is judged afresh."""
+    rig = Rig()
+    rig.period(3)
+    for k in range(3):
+        q, qd = wave(k * DT)
+        rig.send(q, qd)
+    rig.bus.put(KEYS.stop, b"halt")
+    rig.period(5)
+    assert rig.node.streams.active is None and rig.node.streams.status() is None
+    assert rig.node.stopped_by == "stop requested on sim/stop"
+    assert "streaming" not in rig.modes

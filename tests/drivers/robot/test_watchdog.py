@@ -30,7 +30,8 @@ def beat(rig: Rig, session: str = "S") -> float:
     """One heartbeat of ``session`` received now and taken by the control loop at once (it
     takes the queued beats at the start of every period, this one included); the time it
     is heard (driver clock, s)."""
-    body = {"schema": "beamrelay.heartbeat/1", "t": 0.0, "session": session, "seq": rig.k}
+    body = {"schema": "beamrelay.heartbeat/1", "t": rig.clock(), "session": session,
+            "seq": rig.k}  # fmt: skip
     rig.bus.put(KEYS.heartbeat, json.dumps(body))
     rig.node._take_heartbeats(rig.clock())
     return rig.clock()
@@ -183,3 +184,42 @@ def test_queue_one_trajectory_behind_the_running_one() -> None:
     qs = np.array(rig.q)
     assert np.min(np.abs(qs - end_a).max(axis=1)) < 1e-9  # played A's last sample, then B2
     assert np.all(qs[:, 3] == HOME[3])  # B (which moves joint 3) never ran
+
+
+def test_a_planner_that_hangs_while_the_loop_stalls_is_silent_from_its_last_beat() -> None:
+    """The control loop stalls 300 ms (no period runs) while the planner beats for 100 ms
+    and then hangs: its queued beats count at most HEARTBEAT_TIMEOUT past their sending
+    (0.09 + 0.1 s), so the first period after the stall brakes (silent 110 ms), not one
+    100 ms later."""
+    rig = Rig()
+    rig.period(5)
+    assert send(rig, reference(2.0, [[0.0, 1.9]]), "A")["accepted"]
+    rig.period(100)
+    rig.beating = False
+    t0 = rig.clock()
+    for k in range(10):  # queued, not taken: no period runs meanwhile
+        rig.clock.t = t0 + 0.01 * k
+        body = {"schema": "beamrelay.heartbeat/1", "t": rig.clock(),
+                "session": "S", "seq": 1000 + k}  # fmt: skip
+        rig.bus.put(KEYS.heartbeat, json.dumps(body))
+    last = t0 + 0.09
+    assert period_at(rig, t0 + 0.3) == "braking" and not rig.sim.gate
+    assert rig.node.heartbeats["S"] == pytest.approx(last + HEARTBEAT_TIMEOUT, abs=1e-9)
+    assert rig.node.stopped_by == "planner heartbeat lost: session S silent for 110 ms"
+
+
+def test_a_beat_stamped_in_the_future_cannot_keep_a_session_alive() -> None:
+    """A beat whose ``t`` lies an hour ahead lowers the session's offset: it counts as heard
+    when it was taken, and the session's later honest beats look older, never fresher."""
+    rig = Rig()
+    rig.period(5)
+    assert send(rig, reference(2.0), "A")["accepted"]
+    rig.beating = False
+    body = {"schema": "beamrelay.heartbeat/1", "t": rig.clock() + 3600.0,
+            "session": "S", "seq": 99999}  # fmt: skip
+    rig.bus.put(KEYS.heartbeat, json.dumps(body))
+    t_beat = rig.clock()
+    assert period_at(rig, t_beat) == "following"
+    assert rig.node.heartbeats["S"] <= t_beat
+    modes = [period_at(rig, t_beat + k * DT) for k in range(1, 60)]
+    assert "braking" in modes and modes.index("braking") <= round(HEARTBEAT_TIMEOUT / DT)

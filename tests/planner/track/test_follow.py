@@ -333,3 +333,35 @@ def test_capped_setpoints_at_uneven_intervals_stay_within_the_acceleration_limit
     a_max = ik.system.limits.acceleration
     rate = np.abs(np.diff(qd, axis=0)) / np.diff(t)[:, None]
     assert (rate <= a_max * (1 + 1e-6)).all(), (rate / a_max).max()
+
+
+@pytest.mark.parametrize("fault", ["missing", "moved"])
+def test_markers_that_cannot_place_the_attached_volumes_stop_tracking(
+    ik: BeamIK, fault: str
+) -> None:
+    """An occluded marker (the frame has one fewer) or a marker 20 mm off its rigid place
+    (a swapped match): the volumes' place is unknown, so the follower stops instead of
+    moving the eye on by extrapolation or by a wrong fit."""
+    from planner.model.transforms import make_T
+    from planner.track.follow import MAX_MARKER_RESIDUAL
+
+    eye_rest = P0 + np.array([0.015, 0.006, 0.0])
+    markers = P0 + np.array([[0, 0, 0], [0.02, 0, 0], [-0.02, 0, 0], [0, 0.02, 0], [0, -0.02, 0]])
+    q0 = ik.solve(P0, N).q
+    assert q0 is not None
+    f = TargetFollower(ik, q0, P0, None, TrackSettings(), attached={"eye": make_T(p=eye_rest)},
+                       markers=markers)  # fmt: skip
+    f.on_frame(0.0, P0, N, 0.0, R_SMALL, markers=markers)
+    assert f.stopped is None
+    bad = (
+        markers[:-1] if fault == "missing" else markers + np.array([[0.02, 0, 0]] + [[0, 0, 0]] * 4)
+    )
+    if fault == "moved":  # independent: the residual of the best rigid fit exceeds the limit
+        from planner.calibration.handeye import fit_rigid
+
+        T = fit_rigid(markers, bad)
+        rms = np.sqrt(np.mean(np.sum((bad - (markers @ T[:3, :3].T + T[:3, 3])) ** 2, axis=1)))
+        assert rms > MAX_MARKER_RESIDUAL
+    out = f.on_frame(FRAME, P0, N, FRAME, R_SMALL, markers=bad)
+    assert f.stopped is not None and out.stopped == f.stopped
+    assert ("missing" if fault == "missing" else "do not move rigidly") in f.stopped
