@@ -182,7 +182,10 @@ class TrackSession:
         points = np.asarray(msg.points, dtype=float)
         normals = None if msg.normals is None else np.asarray(msg.normals, dtype=float)
         if msg.frame == "camera":
-            if self.system.camera is None:
+            cam = self.system.camera
+            # an eye-in-hand camera's pose needs its arm's measured joints: until they came,
+            # the frame would map through the home pose and could fix the wrong point
+            if cam is None or (cam.robot is not None and cam.robot not in self._measured):
                 self.ignored += 1
                 return
             points, normals = camera_to_world(self.system, points, normals, dict(self._measured))
