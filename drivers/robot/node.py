@@ -97,7 +97,7 @@ from __future__ import annotations
 import logging
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -138,6 +138,16 @@ SETPOINT_RING = 256
 SETPOINTS_PER_PERIOD = 16
 RT_IDLE = 0.0002  # s a real-time control loop sleeps after a period that did not sleep
 PERIOD_LOG = 1 << 16  # control periods whose start times are kept (2 min at 500 Hz)
+
+
+def queued(ring: Any, at_most: int) -> Iterator[Any]:
+    """Up to ``at_most`` samples waiting in a Zenoh channel subscriber ``ring`` (none when
+    it is None: not attached), oldest first, without blocking."""
+    for _ in range(at_most if ring is not None else 0):
+        sample = ring.try_recv()
+        if sample is None:
+            return
+        yield sample
 
 
 class Accepted(NamedTuple):
@@ -278,11 +288,8 @@ class RobotNode(StreamingMixin, LoopNode):
 
     def _take_heartbeats(self, now: float) -> None:
         """The beats queued since the last period (at most :data:`BEATS_PER_PERIOD`), each
-        heard at the earliest time it can have arrived (:meth:`_on_heartbeat`)."""
-        for _ in range(BEATS_PER_PERIOD if self._beats is not None else 0):
-            sample = self._beats.try_recv()
-            if sample is None:
-                return
+        heard now but at most HEARTBEAT_TIMEOUT past its sending (:meth:`_on_heartbeat`)."""
+        for sample in queued(self._beats, BEATS_PER_PERIOD):
             self._on_heartbeat(sample, now)
 
     def _on_heartbeat(self, sample: Any, now: float) -> None:
@@ -319,17 +326,13 @@ class RobotNode(StreamingMixin, LoopNode):
     def _drop_queued_setpoints(self) -> None:
         """Discard the setpoints Zenoh queued since the last period (a stop came meanwhile:
         they may have been sent before it and must not start a stream after it)."""
-        for _ in range(SETPOINT_RING if self._setpoint_ring is not None else 0):
-            if self._setpoint_ring.try_recv() is None:
-                return
+        for _ in queued(self._setpoint_ring, SETPOINT_RING):
+            pass
 
     def _take_setpoints(self) -> None:
         """Setpoints queued since the last period (at most :data:`SETPOINTS_PER_PERIOD`),
         parsed and checked here, received at this period's start."""
-        for _ in range(SETPOINTS_PER_PERIOD if self._setpoint_ring is not None else 0):
-            sample = self._setpoint_ring.try_recv()
-            if sample is None:
-                return
+        for sample in queued(self._setpoint_ring, SETPOINTS_PER_PERIOD):
             self.setpoints.submit(sample.payload)
 
     def _on_recover(self, sample: Any) -> None:
