@@ -196,8 +196,13 @@ def test_a_path_is_marked_at_spot_speed_measured_from_the_joint_states(
     along = (spots - a) @ u  # m along the path from its first point
     off = np.linalg.norm((spots - a) - np.outer(along, u), axis=1)  # m from the path's line
     margin = 0.005  # m clear of each end
-    marked = (along > margin) & (along < np.linalg.norm(b - a) - margin) & (off < 5e-4)
-    assert marked.sum() > 0.8 * 250 * (0.06 - 2 * margin) / spot_speed  # 250 Hz states
+    on_line = (along > margin) & (along < np.linalg.norm(b - a) - margin) & (off < 5e-4)
+    # the pass is the longest unbroken run of states on the line: the move to the path's
+    # start may cross the line too (from where an earlier test left the spot), laser off
+    idx = np.flatnonzero(on_line)
+    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+    marked = max(runs, key=len)
+    assert len(marked) > 0.8 * 250 * (0.06 - 2 * margin) / spot_speed  # 250 Hz states
     tm, sm = t[marked], along[marked]
     assert np.all(np.diff(tm) > 0) and np.all(np.diff(sm) > 0)  # one pass, forward
     slope = np.polyfit(tm - tm[0], sm, 1)[0]  # m/s, a least-squares fit over the marked part
@@ -207,7 +212,7 @@ def test_a_path_is_marked_at_spot_speed_measured_from_the_joint_states(
     print(f"spot speed over the marked {1e3 * (sm[-1] - sm[0]):.0f} mm: {1e3 * slope:.3f} mm/s "
           f"(spot_speed {1e3 * spot_speed:.0f} mm/s); 0.25 s windows "
           f"{1e3 * speeds.min():.3f}-{1e3 * speeds.max():.3f} mm/s; largest distance from "
-          f"the path {1e6 * off[marked].max():.1f} um")  # fmt: skip
+          f"the path {1e6 * off[marked].max():.1f} um; {len(runs)} runs on the line")  # fmt: skip
     assert slope == pytest.approx(spot_speed, rel=0.02)
     assert np.all(np.abs(speeds / spot_speed - 1) < 0.02)
 

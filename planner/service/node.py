@@ -150,14 +150,13 @@ class PlannerNode:
 
     # --- lifecycle -------------------------------------------------------------------------
     def start(self) -> PlannerNode:
-        """Start beating, then declare the token and serve (HeartbeatError if the heartbeat
-        process cannot start)."""
+        """Start beating and serving, then declare the token: a client that sees the token
+        finds the queryable there (HeartbeatError if the heartbeat process cannot start)."""
         s, k = self.session, self.keys
         self._publishers = {r: s.declare_publisher(k.trajectory(r)) for r in self.robots}
         self._plans = s.declare_publisher(k.plans)
         self._stop_pub = s.declare_publisher(k.stop, **urgent())
         self._start_heartbeat()
-        self._token = s.liveliness().declare_token(k.alive("planner"))
         self._handles.append(
             s.liveliness().declare_subscriber(k.alive_all, self._on_alive, history=True)
         )
@@ -176,6 +175,7 @@ class PlannerNode:
                                             self.install_calibration)  # fmt: skip
             self._handles += handles
         self._worker.start()
+        self._token = s.liveliness().declare_token(k.alive("planner"))
         return self
 
     def install_calibration(self, handler: RequestHandler | None, calibration: Any) -> None:
