@@ -13,6 +13,7 @@ up with wall time.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 from drivers.robot.backend import Measured
 from drivers.robot.follower import STOP_ACCELERATION, Reference, TrajectoryFollower
@@ -36,13 +37,16 @@ class SimRobot:
         rate: float = defaults.SERVO_RATE_HZ,
         stop_acceleration: float = STOP_ACCELERATION,
         realtime: bool = True,
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
     ) -> None:
         self.names = tuple(names)
+        self.clock, self.sleep = clock, sleep  # injected by tests
         self.rate = float(rate)
         self.dt = 1.0 / self.rate
         self.follower = TrajectoryFollower(q0, limits, self.dt, stop_acceleration)
         self.realtime = realtime
-        self._next = time.monotonic()
+        self._next = clock()
         self.outputs = 0  # the simulated standard digital outputs (bit k = output k)
         self.output_calls: list[tuple[float, int, bool]] = []  # (monotonic s, output, state)
         self.speed = 1.0  # the simulated speed slider (tests set it)
@@ -54,8 +58,9 @@ class SimRobot:
         """Advance the model by the elapsed period(s) and return the new state."""
         n = 1
         if self.realtime:
-            behind = time.monotonic() - self._next
+            behind = self.clock() - self._next
             n = int(min(max(behind // self.dt, 0) + 1, MAX_CATCH_UP))
+            self._next += (n - 1) * self.dt  # the missed periods are simulated now, once
         self.follower.dt = self.dt * self.speed  # the slider slows the trajectory clock
         for _ in range(n):
             self.follower.step()
@@ -66,9 +71,9 @@ class SimRobot:
         if not self.realtime:
             return
         self._next += self.dt
-        now = time.monotonic()
+        now = self.clock()
         if self._next > now:
-            time.sleep(self._next - now)
+            self.sleep(self._next - now)
         elif now - self._next > MAX_CATCH_UP * self.dt:
             self._next = now  # hopelessly late: drop the backlog
 
