@@ -19,8 +19,8 @@ def console(
         str,
         typer.Option(
             "--host",
-            help="Address to listen on (default loopback only; the page has no login: "
-            "anyone who reaches it can move the robots).",
+            help="Address to listen on (default loopback only; the page opens only with "
+            "the token in the URL this command prints).",
         ),
     ] = "127.0.0.1",
     max_points: Annotated[
@@ -32,8 +32,11 @@ def console(
 ) -> None:
     """Serve the operator console until Ctrl-C: live cloud, robots and beam; click targets
     on the cloud, preview, execute, stop."""
+    import os
+
     from planner.console.address import check_free, check_host, check_port, is_loopback
     from planner.console.app import Console
+    from planner.console.gate import TOKEN_ENV, check_token
 
     check_port(port)
     host = check_host(host)
@@ -41,12 +44,19 @@ def console(
         raise InputError(f"scenario not found: {scenario}")
     if not 100 <= max_points <= 2_000_000:
         raise InputError(f"--max-points {max_points}: expected 100-2000000")
+    token = os.environ.get(TOKEN_ENV) or None
+    if token is not None:
+        try:
+            check_token(token)
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
     if not is_loopback(host):
-        typer.echo(f"warning: the console listens on {host}, beyond this machine; it has no "
-                   "login: anyone who can reach it can move the robots", err=True)  # fmt: skip
+        typer.echo(f"warning: the console listens on {host}, beyond this machine, over plain "
+                   "HTTP: anyone who sees its URL (token included) can move the robots",
+                   err=True)  # fmt: skip
     check_free(host, port)
     app = Console(scenario, host=host, port=port, endpoint=endpoint, prefix=prefix,
-                  zenoh_config=zenoh_config, max_points=max_points).start()  # fmt: skip
+                  zenoh_config=zenoh_config, max_points=max_points, token=token).start()  # fmt: skip
     stop = stop_on_signals()
     typer.echo(f"console of {app.name} on {app.url}")
     try:

@@ -1,7 +1,8 @@
 """Where the console's web server listens: host and port checks (light, no heavy imports).
 
-The page has no authentication: anyone who can reach it can move the robots. It therefore
-listens on loopback (127.0.0.1) unless told otherwise, and says so loudly when it is not.
+The page opens only with its launch's token (:mod:`planner.console.gate`), but it is plain
+HTTP: anyone who sees the URL can move the robots. It therefore listens on loopback
+(127.0.0.1) unless told otherwise, and says so loudly when it is not.
 """
 
 from __future__ import annotations

@@ -5,6 +5,8 @@ public topics (:class:`~planner.console.live.LiveState`) and sends TargetRequest
 ``<prefix>/plan`` (:class:`~planner.console.operator.Operator`). A drawing thread pushes the
 newest cloud, the robots, the live beam and the spot to the browser at up to ``DRAW_RATE``;
 the GUI callbacks (viser's thread pool) edit the target list, plan, execute and stop.
+Only a browser holding the launch's token gets the page (:mod:`planner.console.gate`), and
+when the last browser leaves, the console sends STOP.
 """
 
 from __future__ import annotations
@@ -16,8 +18,10 @@ from typing import Any
 
 import numpy as np
 
+from planner.console.arming import HEARTBEAT, PROTECTIVE_STOP, Arming, treatment
 from planner.console.cloud import MAX_POINTS, Cloud, cloud_from_sample
 from planner.console.draw import BEAM_COLOUR, RobotDrawing, add_fixed, set_lines
+from planner.console.gate import Gate, guarded_serve, new_token
 from planner.console.health import health_markdown
 from planner.console.live import LiveState
 from planner.console.operator import Answer, BusyError, Operator
@@ -33,10 +37,16 @@ from planner.model.transforms import Array
 DRAW_RATE = 30.0
 #: the health panel is refreshed at this rate (Hz)
 HEALTH_RATE = 2.0
+#: colours outside the cloud's depth ramp (hues 50-230 deg: yellow, green, cyan, blue) and
+#: apart from each other: live beam dark grey, planned beams violet, the laser-on path red
 TARGET_COLOUR = (255, 140, 0)
-FAILED_COLOUR = (230, 30, 30)
-SWEEP_COLOUR = (250, 220, 0)
+FAILED_COLOUR = (25, 25, 25)
+SWEEP_COLOUR = (255, 30, 30)
 SPOT_COLOUR = (255, 0, 200)
+PLANNED_BEAM_COLOUR = (170, 90, 255)
+#: s of planner-heartbeat silence (as this console hears it) that refuse or drop an arming;
+#: the drivers themselves brake after 0.1 s
+ARM_SILENT = 1.0
 
 
 class Console:
@@ -44,7 +54,8 @@ class Console:
 
     def __init__(self, scenario: Path, *, host: str = "127.0.0.1", port: int = 8080,
                  endpoint: str | None = None, prefix: str = "beamrelay",
-                 zenoh_config: Path | None = None, max_points: int = MAX_POINTS) -> None:  # fmt: skip
+                 zenoh_config: Path | None = None, max_points: int = MAX_POINTS,
+                 token: str | None = None) -> None:  # fmt: skip
         from planner.io.scenario import (
             keep_out_objects,
             load_scenario,
@@ -57,10 +68,15 @@ class Console:
         self.scenario = Path(scenario).resolve()
         self.name = scn.model.name
         self.system = system_from_scenario(scn)
+        self.laser_power: float | None = scn.model.system.laser.power  # W, for the energy
+        self.laser_gated = scn.model.system.laser.gate is not None
         self.scene_items = scene_objects(scn)
         self.keep_out = keep_out_objects(scn)
         self.scene = SceneModel(self.scene_items)
         self.host, self.port, self.max_points = host, port, max_points
+        self.gate = Gate.for_address(host, port, token or new_token())
+        self.unwatched_stops = 0  # stops sent because no browser was left
+        self.arming = Arming()
         self.bus = {"endpoint": endpoint, "prefix": prefix, "zenoh_config": zenoh_config}
         self.targets = TargetList()
         self.cloud: Cloud | None = None
@@ -78,8 +94,6 @@ class Console:
     # lifecycle ----------------------------------------------------------------------------
     def start(self) -> Console:
         """Connect to the bus, serve the page, start drawing."""
-        import viser
-
         from planner.service.client import PlanClient
 
         self.client = PlanClient(**self.bus)  # type: ignore[arg-type]
@@ -89,7 +103,7 @@ class Console:
             self.client.keys.alive("console")
         )
         self.operator = Operator(self.client)
-        self.server = viser.ViserServer(host=self.host, port=self.port, verbose=False)
+        self.server = self.serve()
         if self.server.get_port() != self.port:
             self.close()
             raise InputError(f"port {self.port} is in use (viser moved to another)", "--port")
@@ -124,7 +138,27 @@ class Console:
 
     @property
     def url(self) -> str:
-        return f"http://{self.host}:{self.port}/"
+        """The page's address with its token: the only way in."""
+        return self.gate.url(self.host, self.port)
+
+    def serve(self) -> Any:
+        """The viser server behind :attr:`gate`; when its last browser leaves, STOP."""
+        import viser
+
+        with guarded_serve(self.gate):
+            server = viser.ViserServer(host=self.host, port=self.port, verbose=False)
+        server.on_client_disconnect(self._on_disconnect)
+        return server
+
+    def _on_disconnect(self, _client: Any) -> None:
+        """The last browser closed its page or stopped answering its pings
+        (:data:`~planner.console.gate.PING_TIMEOUT`): nobody can press STOP any more, so the
+        console presses it (on viser's event loop: the put does not block)."""
+        if self.server.get_clients() or self._stop.is_set():
+            return
+        self.operator.stop("no operator console is open (the last browser left)")
+        self.unwatched_stops += 1
+        print("console: the last browser left: STOP sent", flush=True)
 
     # wiring -------------------------------------------------------------------------------
     def _wire(self) -> None:
@@ -137,7 +171,10 @@ class Console:
         p.clear.on_click(lambda _: self._edit_list(lambda t: TargetList()))
         p.mode.on_update(lambda _: self._draw_targets())
         p.plan.on_click(lambda _: self._run(self._do_preview))
+        p.arm.on_click(lambda _: self._run(self._do_arm))
         p.execute.on_click(lambda _: self._run(self._do_execute))
+        for option in (p.mode, p.dwell, p.closed_loop, p.normals):
+            option.on_update(lambda _: self.arming.drop("an option changed"))
         p.scrub.on_update(lambda _: self._on_scrub())
         p.live.on_click(lambda _: self._follow_live())
 
@@ -240,6 +277,7 @@ class Console:
                 return  # else a click came in after the loop: serve it
 
     def _edit_list(self, edit: Any) -> None:
+        self.arming.drop("the target list changed")
         with self._edit:
             try:
                 self.targets = edit(self.targets)
@@ -281,14 +319,47 @@ class Console:
         answer = self.operator.preview(req)
         self._show_answer(answer, executed=False)
 
+    def _do_arm(self) -> None:
+        """Preview the list and arm Execute for exactly it (see :mod:`~planner.console.arming`)."""
+        req = self._request(execute=False)
+        self._message("arming: planning...")
+        answer = self.operator.preview(req)
+        self._show_answer(answer, executed=False)
+        if self.preview is None or self.preview.n_ok == 0:
+            self._message(f"**not armed: no target solved**  \n{self.panel.result.content}")
+            return
+        armed = self.arming.arm(req, treatment(answer.plan, self.laser_power), self.faults())
+        if isinstance(armed, str):
+            self._message(f"**not armed: {armed}**  \n{self.panel.result.content}")
+            return
+        self._message(f"**ARMED for {self.arming.window:.0f} s**: Execute runs {armed.summary}; "
+                      f"an edit, a fault or STOP disarms  \n{self.panel.result.content}")  # fmt: skip
+
+    def faults(self) -> dict[str, str]:
+        """What the bus says is wrong now: robot -> its driver's fault or protective stop, and
+        ``heartbeat`` when the planner's has been silent for :data:`ARM_SILENT` s."""
+        snap = self.live.snapshot()
+        out = {robot: PROTECTIVE_STOP if st.value.protective_stop else st.value.fault
+               for robot, st in snap["status"].items()
+               if st.value.protective_stop or st.value.fault}  # fmt: skip
+        hb = snap["heartbeat"]
+        if hb is None or time.monotonic() - hb.at > ARM_SILENT:
+            out[HEARTBEAT] = "the planner's heartbeat is silent"
+        return out
+
     def _do_execute(self) -> None:
         req = self._request(execute=True)
+        refused = self.arming.fire(req)
+        if refused is not None:
+            self._message(f"**{refused}**")
+            return
         self._message("executing... (STOP brakes every robot)")
         self._follow_live()
         answer = self.operator.execute(req)
         self._show_answer(answer, executed=True)
 
     def _do_stop(self) -> None:
+        self.arming.drop("STOP")
         self.operator.stop()
         self._message("**STOP sent**: every robot brakes, laser off")
 
@@ -319,7 +390,7 @@ class Console:
     def _draw_preview(self, pv: Preview) -> None:
         sc = self.server.scene
         sc.remove_by_name("/preview")
-        set_lines(self.server, "/preview/beams", list(pv.beams), BEAM_COLOUR, 1.5)
+        set_lines(self.server, "/preview/beams", list(pv.beams), PLANNED_BEAM_COLOUR, 1.5)
         set_lines(self.server, "/preview/sweep", [pv.sweep], SWEEP_COLOUR, 3.0)
         for f in pv.failed:
             sc.add_icosphere(f"/preview/failed/{f.target}", radius=0.005, color=FAILED_COLOUR,
@@ -349,6 +420,21 @@ class Console:
 
         DrawLoop(self).run(self._stop, 1.0 / DRAW_RATE, 1.0 / HEALTH_RATE)
 
+    def watch_arming(self) -> None:
+        """Drop the arming on a new fault or when its window ran out, and say so."""
+        if self.arming.armed is None:
+            return
+        self.arming.watch(self.faults())
+        if self.arming.remaining() <= 0:
+            self._message(f"**disarmed**: {self.arming.dropped}  \n{self.panel.result.content}")
+
+    def arming_text(self) -> str:
+        left = self.arming.remaining()
+        if left > 0:
+            return f"arming: **ARMED**, Execute within {left:.0f} s"
+        why = f" ({self.arming.dropped})" if self.arming.dropped else ""
+        return f"arming: not armed{why}"
+
     def _show_stats(self) -> None:
         lat = " · ".join(f"{k} {1e3 * v:.0f} ms" for k, v in self.latency.items())
         self.panel.stats.content = f"cloud frames sent: {self.cloud_frames}  \n{lat}"
@@ -358,7 +444,9 @@ class Console:
                  *self.system.robot_names)  # fmt: skip
         rates = {r: self.live.rate(f"joints/{r}") for r in self.system.robot_names}
         rates |= {"camera": self.live.rate("spot"), "heartbeat": self.live.rate("heartbeat")}
-        return health_markdown(self.live.snapshot(), rates, nodes, time.monotonic())
+        health = health_markdown(self.live.snapshot(), rates, nodes, time.monotonic(),
+                                 gated=self.laser_gated)  # fmt: skip
+        return f"{health}  \n{self.arming_text()}"
 
     def world_T_camera(self, q: dict[str, Array] | None) -> Array:
         return self.system.world_T_camera(q)

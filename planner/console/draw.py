@@ -21,7 +21,7 @@ SCENE_COLOUR = (170, 170, 180)
 KEEP_OUT_COLOUR = (230, 40, 40)
 LINK_COLOUR = (150, 190, 235)
 MIRROR_COLOUR = (230, 230, 250)
-BEAM_COLOUR = (0, 220, 60)
+BEAM_COLOUR = (40, 40, 40)  # the live beam: dark, outside the cloud's colour ramp
 
 
 def wxyz(R: Array) -> tuple[float, float, float, float]:

@@ -44,6 +44,7 @@ class DrawLoop:
                 self.tick()
                 if time.monotonic() >= next_health:
                     self.c.panel.health.content = self.c.health_text()
+                    self.c.watch_arming()
                     self.c._show_stats()
                     next_health = time.monotonic() + health_period
             except Exception as exc:  # the page must keep drawing whatever one frame holds

@@ -15,9 +15,11 @@ HEARTBEAT_STALE = 0.1
 
 
 def health_markdown(snap: dict[str, Any], rates: dict[str, float], nodes: tuple[str, ...],
-                    now: float) -> str:  # fmt: skip
+                    now: float, gated: bool = True) -> str:  # fmt: skip
     """Markdown lines: one per expected node (alive or DOWN, its stream rate, the robot
-    driver's mode and fault), the heartbeat, the laser gate and the spot."""
+    driver's mode and fault), the heartbeat, the laser gate and the spot. ``gated``: the
+    scenario names a laser gate (without one nothing switches the laser: no line may say
+    it is off)."""
     lines = []
     for node in nodes:
         alive = "up" if node in snap["alive"] else "**DOWN**"
@@ -38,7 +40,10 @@ def health_markdown(snap: dict[str, Any], rates: dict[str, float], nodes: tuple[
     else:
         lines.append(f"heartbeat: ok, {rates.get('heartbeat', 0.0):.0f} Hz")
     laser = snap["laser"]
-    if laser is None:
+    if not gated:
+        lines.append("laser: **no gate** in this scenario (nothing switches it: a simulated "
+                     "laser is always on)")  # fmt: skip
+    elif laser is None:
         lines.append("laser gate: no report (off until switched)")
     else:
         lines.append(f"laser gate: **{'ON' if laser.value.on else 'off'}** ({laser.value.robot})")

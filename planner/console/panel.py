@@ -30,6 +30,7 @@ class Panel:
     plan: Any
     dwell: Any
     closed_loop: Any
+    arm: Any
     execute: Any
     result: Any
     scrub: Any
@@ -60,14 +61,17 @@ def build_panel(server: Any) -> Panel:
         plan = gui.add_button("Plan (preview)")
         dwell = gui.add_number("dwell [s]", 0.4, min=0.0, max=10.0, step=0.1)
         closed_loop = gui.add_checkbox("closed loop", False)
-        execute = gui.add_button("Execute", color="green")
+        arm = gui.add_button("Arm", color="orange", hint="Preview and show what Execute will "
+                             "do; Execute then runs exactly that, once, within 30 s")  # fmt: skip
+        execute = gui.add_button("Execute", color="green", hint="Runs what was armed")
         result = gui.add_markdown("")
         scrub = gui.add_slider("scrub t [s]", 0.0, 1.0, 0.01, 0.0, disabled=True)
         live = gui.add_button("Follow live robots")
     with gui.add_folder("View"):
         stats = gui.add_markdown("")
     return Panel(stop, health, targets, selected, up, down, delete, clear, mode, normals,
-                 auto_preview, plan, dwell, closed_loop, execute, result, scrub, live, stats)  # fmt: skip
+                 auto_preview, plan, dwell, closed_loop, arm, execute, result, scrub, live,
+                 stats)  # fmt: skip
 
 
 @dataclass(frozen=True)

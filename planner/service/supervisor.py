@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import os
 import signal
 import subprocess
 import sys
@@ -46,6 +47,7 @@ class Child:
     next_start: float = 0.0
     delay: float = RESTART_DELAY
     manual: bool = False  # restart only on the operator's acknowledgement
+    env: dict[str, str] = field(default_factory=dict)  # added to the inherited environment
     log: IO[bytes] | None = field(default=None, repr=False)
 
     @property
@@ -76,10 +78,13 @@ class Supervisor:
         log_dir: Path,
         manual: tuple[str, ...] = (),
         clock: Callable[[], float] = time.monotonic,
+        env: dict[str, dict[str, str]] | None = None,
     ) -> None:
         self.clock = clock
+        env = env or {}
         self.children = {
-            name: Child(name, argv, manual=name in manual) for name, argv in children.items()
+            name: Child(name, argv, manual=name in manual, env=env.get(name, {}))
+            for name, argv in children.items()
         }
         self.log_dir = Path(log_dir)
         self.log_dir.mkdir(parents=True, exist_ok=True)
@@ -93,6 +98,7 @@ class Supervisor:
             stdin=subprocess.DEVNULL,
             stdout=child.log,
             stderr=subprocess.STDOUT,
+            env={**os.environ, **child.env} if child.env else None,
             start_new_session=True,
             preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None,
         )

@@ -344,13 +344,22 @@ def run_up(
     console = Console(stderr=not live)
     live = live and console.is_terminal  # without a terminal: the children's event lines
     health = Health(session, Keys(prefix))
-    sup = Supervisor(argv, log_dir, manual=tuple(robots) if backend == "ur" else ())
+    env, page = {}, None
+    if console_port is not None:  # one token for the launch: a restarted console keeps it
+        from planner.service.token import TOKEN_ENV, console_url, new_token
+
+        token = new_token()
+        env["console"], page = {TOKEN_ENV: token}, console_url("127.0.0.1", console_port, token)
+    sup = Supervisor(argv, log_dir, manual=tuple(robots) if backend == "ur" else (), env=env)
     tail = None if live else LogTail(log_dir, list(argv))
     title = f"beamrelay up {scn.model.name} on {endpoint} (logs {log_dir})"
     t_end = None if duration is None else time.monotonic() + duration
     try:
         console.log(f"bus hub {got.note}")
         sup.start()
+        if page is not None:
+            console.print(f"operator console: {page}", markup=False, highlight=False,
+                          soft_wrap=True)  # fmt: skip
         view = Live(health_table(sup, health, title), console=console) if live else None
         with view or contextlib.nullcontext():
             while not stop.wait(0.25):

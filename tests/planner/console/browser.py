@@ -172,15 +172,21 @@ def page_text(d: Any) -> str:
     return str(d.execute_script("return document.body.textContent;"))
 
 
-def click_button(d: Any, label: str) -> None:
-    from selenium.webdriver.common.by import By
+#: the first button whose text is arguments[0], scrolled into view (one round trip: asking
+#: each of the page's ~30 buttons for its text took 20-40 s with a starved browser)
+FIND_BUTTON = """
+const b = [...document.querySelectorAll('button')].find(b => b.textContent.trim() === arguments[0]);
+if (b) b.scrollIntoView({block: 'center'});
+return b || null;
+"""
 
-    for b in d.find_elements(By.TAG_NAME, "button"):
-        if b.text.strip() == label:
-            d.execute_script("arguments[0].scrollIntoView({block: 'center'});", b)
-            b.click()
-            return
-    raise AssertionError(f"no button {label!r} on the page")
+
+def click_button(d: Any, label: str) -> None:
+    """Click the button labelled ``label`` with a real (webdriver) mouse click."""
+    b = d.execute_script(FIND_BUTTON, label)
+    if b is None:
+        raise AssertionError(f"no button {label!r} on the page")
+    b.click()
 
 
 def wait_text(d: Any, pred: Any, timeout: float, what: str) -> str:

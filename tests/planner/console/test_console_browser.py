@@ -7,7 +7,9 @@ the board's coordinates, plans, executes, and checks on the bus that the arm mov
 the spot the camera measured lies at the clicked point. The second marks a path: the
 operator picks "polyline" in the dropdown, clicks three points of the board, previews,
 executes, and the spots the camera saw (on the test's own bus client) must sweep the clicked
-polyline from one end to the other, in order. Figures (page load to first cloud, cloud frames per second
+polyline from one end to the other, in order; then it executes the path again and presses STOP
+while the arm moves, then once more and closes the browser: the console must publish STOP
+(within 1.5 s of the close) and the arm come to rest. The page opens only with the token ``up`` printed in its URL. Figures (page load to first cloud, cloud frames per second
 received by the browser, its render rate, click-to-preview latency for a target and for the
 path) are printed, and every Execute press a late planner heartbeat stopped.
 """
@@ -21,6 +23,7 @@ import sys
 import time
 import urllib.request
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -48,6 +51,7 @@ from tests.planner.console.browser import (
     select_option,
     wait_text,
 )
+from tests.planner.raw_zenoh import Inbox
 
 pytestmark = [pytest.mark.slow, pytest.mark.serial, pytest.mark.timeout(600)]
 
@@ -59,6 +63,8 @@ CLICK = np.array([-0.50, -0.57, BOARD_TOP])  # the point of the board the operat
 TARGET_ROW = re.compile(r"#0\s+(-?\d+\.\d), (-?\d+\.\d), (-?\d+\.\d) mm")
 REQUEST_ID = re.compile(r"\(request ([0-9a-f]{12})\)")
 MEASURED_ROW = re.compile(r"measured \((-?\d+\.\d), (-?\d+\.\d), (-?\d+\.\d)\) mm")
+#: the page's address ``up`` prints, with the launch's token
+PAGE_URL = re.compile(r"operator console: (http://127\.0\.0\.1:\d+/\?token=[\w-]+)")
 #: bytes above which a websocket message is a cloud frame (a 30 k-point frame is ~0.3 MB)
 CLOUD_MESSAGE_BYTES = 60_000
 
@@ -104,12 +110,19 @@ def execute(d: object, done: re.Pattern[str] = MEASURED_ROW, attempts: int = 5
     seen: set[str] = set(REQUEST_ID.findall(page_text(d)))
     faults: list[str] = []
     for _ in range(attempts):
+        arm(d)
+        seen |= set(REQUEST_ID.findall(page_text(d)))
         pressed = time.monotonic()
         click_button(d, "Execute")
         old = frozenset(seen)
-        text = wait_text(d, lambda t, old=old: set(REQUEST_ID.findall(t)) - old and "execution:" in t,
-                         180.0, "the reply to Execute")  # fmt: skip
+        text = wait_text(d, lambda t, old=old: (set(REQUEST_ID.findall(t)) - old
+                         and "execution:" in t) or "press Arm" in t, 180.0,
+                         "the reply to Execute")  # fmt: skip
         seen |= set(REQUEST_ID.findall(text))
+        if "press Arm" in text:  # the arming dropped before the press (a fault or late beat)
+            faults.append(re.search(r"not armed[^\n]*", text).group(0))  # type: ignore[union-attr]
+            print(f"\nExecute press {len(faults)} refused: {faults[-1]}")
+            continue
         if "execution: accepted" in text:
             text = wait_text(d, lambda t: done.search(t) or "driver: " in t, 60.0,
                              "the measured result")  # fmt: skip
@@ -122,6 +135,25 @@ def execute(d: object, done: re.Pattern[str] = MEASURED_ROW, attempts: int = 5
         print(f"\nExecute press {len(faults)} stopped for a late heartbeat: {fault.group(0)}")
     raise AssertionError(f"all {attempts} Execute presses stopped for a late planner heartbeat: "
                          f"{faults}")  # fmt: skip
+
+
+def arm(d: Any, attempts: int = 5) -> str:
+    """Press Arm until the page is armed (it previews, then says what Execute will do); a
+    planner heartbeat the console has not heard for 1 s refuses it (printed, pressed again).
+    Returns the page text once armed."""
+    for k in range(attempts):
+        old = frozenset(REQUEST_ID.findall(page_text(d)))
+        click_button(d, "Arm")
+        text = wait_text(d, lambda t, old=old: set(REQUEST_ID.findall(t)) - old
+                         and ("ARMED for" in t or "not armed: " in t), 180.0, "the page armed")  # fmt: skip
+        if "ARMED for" in text:
+            assert re.search(r"Execute runs \d+/\d+ targets, motion \d+\.\d s, treatment laser "
+                             r"on \d+\.\d\d s", text), text  # fmt: skip
+            return text
+        refused = re.search(r"not armed: [^\n]*", text)
+        print(f"\nArm press {k + 1} refused: {refused.group(0) if refused else text}")
+        time.sleep(1.0)
+    raise AssertionError(f"all {attempts} Arm presses were refused")
 
 
 @pytest.fixture(scope="module")
@@ -140,7 +172,10 @@ def system_up(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-unty
         client = PlanClient(endpoint=endpoint)
         client.watch()
         wait_for(lambda: "arm0" in client.recorder.joints, 120.0, "arm0 joint states")
-        url = f"http://127.0.0.1:{port}/"
+        up_log = tmp_path / "up.log"
+        wait_for(lambda: PAGE_URL.search(up_log.read_text()), 60.0, "the console's URL")
+        url = PAGE_URL.search(up_log.read_text()).group(1)  # type: ignore[union-attr]
+        assert url.startswith(f"http://127.0.0.1:{port}/?token=")
         wait_http(url, 120.0)
         yield url, client, tmp_path
     finally:
@@ -244,7 +279,7 @@ def test_operator_marks_a_clicked_polyline_on_the_board(system_up) -> None:  # t
     url, client, tmp = system_up
     scn = load_scenario(SCENARIO)
     view = default_view(system_from_scenario(scn), scene_objects(scn))
-    d = open_browser()
+    d: Any = open_browser()
     try:
         d.get(url)
         calm(d)
@@ -309,5 +344,75 @@ def test_operator_marks_a_clicked_polyline_on_the_board(system_up) -> None:  # t
         print(f"\nconsole figures (path of {n} samples): click to preview "
               f"{latency.group(1) if latency else '?'} ms; marked {n_marked} spots, covering "
               f"{covered} of {total} mm, distance median {median} mm, max {worst} mm")  # fmt: skip
+        # STOP pressed mid-execution, then the tab closed mid-execution: both stop the arm
+        pressed, rest = stopped_by(d, client, "button")
+        print(f"\nSTOP pressed mid-execution: on the bus {pressed:.2f} s later, the arm at rest "
+              f"{rest:.2f} s after the press")  # fmt: skip
+        # the stopped execution's reply names the stop (and frees the page for a request)
+        wait_text(d, lambda t: re.search(r"driver: arm0: [^\n]*stop", t), 60.0,
+                  "the stopped execution's reply")  # fmt: skip
+        closed, rest = stopped_by(d, client, "close")
+        d = None
+        print(f"\ntab closed mid-execution: STOP on the bus {closed:.2f} s later, the arm at "
+              f"rest {rest:.2f} s after the close")  # fmt: skip
+        assert closed <= 1.5, closed
     finally:
-        d.quit()
+        if d is not None:
+            d.quit()
+
+
+def joints(client: PlanClient) -> tuple[np.ndarray, np.ndarray]:
+    """arm0's latest (q, qd) on the test's bus client."""
+    with client.recorder.lock:
+        _, q, qd = client.recorder.joints["arm0"]
+    return q.copy(), qd.copy()
+
+
+def start_moving(d: Any, client: PlanClient) -> None:
+    """Arm and execute the page's list until the arm moves (the page shows the reply only
+    once the motion is over, so the motion is watched on the bus: 2 mrad from where it was;
+    the planner may run the path from the end the arm rests at, with no approach, and at the
+    spot speed the joints move at ~5 mrad/s)."""
+    for _ in range(5):  # a late planner heartbeat may refuse a press (see execute)
+        arm(d)
+        old = frozenset(REQUEST_ID.findall(page_text(d)))
+        q0 = joints(client)[0]
+        click_button(d, "Execute")
+        end = time.monotonic() + 120.0
+        while time.monotonic() < end:
+            if float(np.max(np.abs(joints(client)[0] - q0))) > 2e-3:
+                return
+            text = page_text(d)
+            if "press Arm" in text or (set(REQUEST_ID.findall(text)) - old
+                                       and "execution:" in text):  # fmt: skip
+                print(f"\nExecute press refused or over before it moved: {text[-300:]}")
+                break
+            time.sleep(0.05)
+        else:
+            raise AssertionError("the arm did not move within 120 s of Execute")
+    raise AssertionError("no Execute press moved the arm")
+
+
+def stopped_by(d: Any, client: PlanClient, how: str) -> tuple[float, float]:
+    """Execute the page's path again and, while the arm moves, press STOP (``how`` =
+    ``"button"``) or close the browser, the operator's only tab (``"close"``); seconds from
+    the press or close to the console's STOP on the bus, and to the arm at rest (its joint
+    speeds below 0.1 mrad/s)."""
+    stops = Inbox(client.session, client.keys.stop)
+    try:
+        start_moving(d, client)
+        t0 = time.monotonic()
+        if how == "button":
+            click_button(d, "STOP")
+        else:
+            d.quit()
+        wait_for(lambda: stops.bodies(), 10.0, f"STOP after the {how}")
+        msg = stops.bodies()[0]
+        reason = "operator pressed Stop" if how == "button" else "last browser"
+        assert msg["source"] == "console" and reason in msg["reason"], msg
+        sent = stops.times()[0] - t0
+        wait_for(lambda: float(np.max(np.abs(joints(client)[1]))) < 1e-4, 10.0,
+                 f"the arm at rest after the {how}")  # fmt: skip
+        return sent, time.monotonic() - t0
+    finally:
+        stops.close()

@@ -61,3 +61,12 @@ def test_address_checks() -> None:
     check_free("127.0.0.1", 0)
     with pytest.raises(InputError, match=r"cannot listen on 10\.255\.255\.1"):
         check_free("10.255.255.1", 8080)  # an address this machine does not have
+
+
+def test_a_weak_token_from_the_environment_is_refused(monkeypatch: pytest.MonkeyPatch) -> None:
+    from planner.console.gate import TOKEN_ENV
+
+    for weak in ("short", "a" * 30 + "/"):
+        monkeypatch.setenv(TOKEN_ENV, weak)
+        out = cli_run.beamrelay("console", N1, "--port", "8099")
+        cli_run.assert_usage_error(out, f"{TOKEN_ENV}: expected at least 16 URL-safe")

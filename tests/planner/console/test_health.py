@@ -39,3 +39,10 @@ def test_a_running_system_with_a_fault_and_the_laser_on() -> None:
     assert "2 malformed messages dropped" in text
     late = s | {"heartbeat": Stamped(Heartbeat(t=1.0, session="s1", seq=3), now - 0.2)}
     assert "heartbeat: **silent**" in health_markdown(late, {}, ("planner",), now)
+
+
+def test_no_line_says_off_for_a_laser_without_a_gate() -> None:
+    text = health_markdown(snap(), {}, ("planner",), now=100.0, gated=False)
+    assert "laser: **no gate** in this scenario" in text and "always on" in text
+    assert "off" not in text.split("laser:")[1].split("  \n")[0]
+    assert "laser gate" not in text

@@ -103,3 +103,21 @@ def test_kill_and_stop_escalates_to_sigkill(tmp_path: Path) -> None:
     assert codes["stubborn"] == -signal.SIGKILL
     assert 0.5 <= time.monotonic() - t0 < 3.0
     assert sup.poll() == []  # nothing restarts once stopping
+
+
+def test_a_childs_own_environment_reaches_only_it_and_survives_restarts(tmp_path: Path) -> None:
+    show = ["/bin/sh", "-c", 'echo "token=${BR_TEST_TOKEN:-none} home=${HOME:+set}"']
+    clock = FakeClock()
+    sup = Supervisor({"console": show, "driver": show}, tmp_path, clock=clock,
+                     env={"console": {"BR_TEST_TOKEN": "t0ken"}})  # fmt: skip
+    sup.start()
+    crashed(sup, "console")
+    crashed(sup, "driver")
+    sup.poll()  # the exits are noticed: the back-off starts
+    clock.advance(5.0)
+    assert "console" in sup.poll()  # it restarts, with the same environment
+    crashed(sup, "console")
+    sup.stop()
+    console = (tmp_path / "console.log").read_text().split()
+    assert console == ["token=t0ken", "home=set", "token=t0ken", "home=set"]
+    assert (tmp_path / "driver.log").read_text().split()[:2] == ["token=none", "home=set"]
