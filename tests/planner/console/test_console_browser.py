@@ -144,13 +144,14 @@ def arm(d: Any, attempts: int = 5) -> str:
     for k in range(attempts):
         old = frozenset(REQUEST_ID.findall(page_text(d)))
         click_button(d, "Arm")
-        text = wait_text(d, lambda t, old=old: set(REQUEST_ID.findall(t)) - old
-                         and ("ARMED for" in t or "not armed: " in t), 180.0, "the page armed")  # fmt: skip
+        text = wait_text(d, lambda t, old=old: (set(REQUEST_ID.findall(t)) - old
+                         and ("ARMED for" in t or "not armed: " in t))
+                         or "still running" in t, 180.0, "the page armed")  # fmt: skip
         if "ARMED for" in text:
             assert re.search(r"Execute runs \d+/\d+ targets, motion \d+\.\d s, treatment laser "
                              r"on \d+\.\d\d s", text), text  # fmt: skip
             return text
-        refused = re.search(r"not armed: [^\n]*", text)
+        refused = re.search(r"not armed: [^\n]*|a request is still running[^\n]*", text)
         print(f"\nArm press {k + 1} refused: {refused.group(0) if refused else text}")
         time.sleep(1.0)
     raise AssertionError(f"all {attempts} Arm presses were refused")
@@ -348,9 +349,11 @@ def test_operator_marks_a_clicked_polyline_on_the_board(system_up) -> None:  # t
         pressed, rest = stopped_by(d, client, "button")
         print(f"\nSTOP pressed mid-execution: on the bus {pressed:.2f} s later, the arm at rest "
               f"{rest:.2f} s after the press")  # fmt: skip
-        # the stopped execution's reply names the stop (and frees the page for a request)
-        wait_text(d, lambda t: re.search(r"driver: arm0: [^\n]*stop", t), 60.0,
-                  "the stopped execution's reply")  # fmt: skip
+        # the stopped execution's reply names the stop, or (when the click reached the page
+        # after the motion ended) the page says STOP was sent; arm() waits while the
+        # execution's request still runs
+        wait_text(d, lambda t: re.search(r"driver: arm0: [^\n]*stop", t) or "STOP sent" in t,
+                  60.0, "the stopped execution's reply")  # fmt: skip
         closed, rest = stopped_by(d, client, "close")
         d = None
         print(f"\ntab closed mid-execution: STOP on the bus {closed:.2f} s later, the arm at "
