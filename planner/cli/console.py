@@ -36,7 +36,7 @@ def console(
 
     from planner.console.address import check_free, check_host, check_port, is_loopback
     from planner.console.app import Console
-    from planner.console.gate import TOKEN_ENV, check_token
+    from planner.service.token import TOKEN_ENV, check_token
 
     check_port(port)
     host = check_host(host)

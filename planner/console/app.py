@@ -21,7 +21,7 @@ import numpy as np
 from planner.console.arming import HEARTBEAT, PROTECTIVE_STOP, Arming, treatment
 from planner.console.cloud import MAX_POINTS, Cloud, cloud_from_sample
 from planner.console.draw import BEAM_COLOUR, RobotDrawing, add_fixed, set_lines
-from planner.console.gate import Gate, guarded_serve, new_token
+from planner.console.gate import Gate, guarded_serve
 from planner.console.health import health_markdown
 from planner.console.live import LiveState
 from planner.console.operator import Answer, BusyError, Operator
@@ -32,6 +32,7 @@ from planner.console.targets import Mode, TargetList, build_request, path_points
 from planner.console.view import default_view
 from planner.errors import BeamrelayError, InputError
 from planner.model.transforms import Array
+from planner.service.token import new_token
 
 #: drawing loop rate (Hz)
 DRAW_RATE = 30.0
@@ -335,13 +336,18 @@ class Console:
         self._message(f"**ARMED for {self.arming.window:.0f} s**: Execute runs {armed.summary}; "
                       f"an edit, a fault or STOP disarms  \n{self.panel.result.content}")  # fmt: skip
 
+    def robot_faults(self, snap: dict[str, Any] | None = None) -> dict[str, str]:
+        """robot -> its driver's fault or protective stop, of every robot reporting one."""
+        status = (snap or self.live.snapshot())["status"]
+        return {robot: PROTECTIVE_STOP if st.value.protective_stop else st.value.fault
+                for robot, st in status.items()
+                if st.value.protective_stop or st.value.fault}  # fmt: skip
+
     def faults(self) -> dict[str, str]:
-        """What the bus says is wrong now: robot -> its driver's fault or protective stop, and
-        ``heartbeat`` when the planner's has been silent for :data:`ARM_SILENT` s."""
+        """What the bus says is wrong now: :meth:`robot_faults`, and ``heartbeat`` when the
+        planner's has been silent for :data:`ARM_SILENT` s."""
         snap = self.live.snapshot()
-        out = {robot: PROTECTIVE_STOP if st.value.protective_stop else st.value.fault
-               for robot, st in snap["status"].items()
-               if st.value.protective_stop or st.value.fault}  # fmt: skip
+        out = self.robot_faults(snap)
         hb = snap["heartbeat"]
         if hb is None or time.monotonic() - hb.at > ARM_SILENT:
             out[HEARTBEAT] = "the planner's heartbeat is silent"
@@ -382,10 +388,7 @@ class Console:
         """``robot: fault`` of every robot whose driver reports one (after an execution)."""
         if not executed:
             return ()
-        status = self.live.snapshot()["status"]
-        return tuple(f"{r}: {'protective stop' if st.value.protective_stop else st.value.fault}"
-                     for r, st in sorted(status.items())
-                     if st.value.fault or st.value.protective_stop)  # fmt: skip
+        return tuple(f"{r}: {f}" for r, f in sorted(self.robot_faults().items()))
 
     def _draw_preview(self, pv: Preview) -> None:
         sc = self.server.scene

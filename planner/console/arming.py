@@ -66,11 +66,11 @@ class Arming:
     def arm(self, request: dict[str, Any], summary: str, faults: dict[str, str]) -> Armed | str:
         """Arm ``request`` (``faults``: source -> fault now on the bus, :data:`HEARTBEAT` for
         a silent planner heartbeat); the arming, or why it may not be armed."""
-        blocking = [f"{k}: {v}" for k, v in sorted(faults.items())
-                    if k == HEARTBEAT or v == PROTECTIVE_STOP]  # fmt: skip
+        blocking = "; ".join(f"{k}: {v}" for k, v in sorted(faults.items())
+                             if k == HEARTBEAT or v == PROTECTIVE_STOP)  # fmt: skip
         if blocking:
-            self.drop("; ".join(blocking))
-            return "; ".join(blocking)
+            self.drop(blocking)
+            return blocking
         self.armed = Armed(request_key(request), self.clock(), summary,
                            frozenset(faults.items()))  # fmt: skip
         self.dropped = ""

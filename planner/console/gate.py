@@ -25,9 +25,7 @@ from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from planner.console.address import is_loopback
-from planner.service.token import TOKEN_ENV, check_token, console_url, new_token
-
-__all__ = ["TOKEN_ENV", "Gate", "check_token", "guarded_serve", "new_token"]
+from planner.service.token import check_token, console_url
 
 COOKIE = "beamrelay_console"
 #: s between websocket pings to each browser, and the wait for its answer before the
@@ -112,7 +110,7 @@ def gated(gate: Gate, inner: Callable[..., Any] | None) -> Callable[..., Any]:
 @contextlib.contextmanager
 def guarded_serve(gate: Gate) -> Iterator[None]:
     """While inside, every ``websockets.asyncio.server.serve`` (viser's server start) passes
-        its requests through ``gate``, pings its clients every :data:`PING_INTERVAL` and drops one
+    its requests through ``gate``, pings its clients every :data:`PING_INTERVAL` and drops one
     that does not answer within :data:`PING_TIMEOUT` (+ :data:`CLOSE_TIMEOUT`)."""
     import websockets.asyncio.server as ws_server
 

@@ -64,7 +64,7 @@ def test_address_checks() -> None:
 
 
 def test_a_weak_token_from_the_environment_is_refused(monkeypatch: pytest.MonkeyPatch) -> None:
-    from planner.console.gate import TOKEN_ENV
+    from planner.service.token import TOKEN_ENV
 
     for weak in ("short", "a" * 30 + "/"):
         monkeypatch.setenv(TOKEN_ENV, weak)

@@ -23,13 +23,12 @@ from planner.console.gate import (
     PING_INTERVAL,
     PING_TIMEOUT,
     Gate,
-    check_token,
-    new_token,
 )
 from planner.console.operator import Operator
 from planner.data import shipped_scenario
 from planner.service.bus import open_session
 from planner.service.client import PlanClient
+from planner.service.token import check_token, new_token
 from tests.drivers.conftest import free_port, wait_for
 from tests.planner.raw_zenoh import Inbox
 
