@@ -74,6 +74,11 @@ def _move(duration: float, laser_on: list[list[float]] | None, id: str) -> dict[
     return body
 
 
+def _edges(items: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The published LaserStates where ``on`` changed (the first one counts as a change)."""
+    return [m for i, m in enumerate(items) if i == 0 or m["on"] != items[i - 1]["on"]]
+
+
 @pytest.mark.serial
 def test_gate_plays_the_intervals(cell: GateCell) -> None:
     # off at start-up, commanded before the loop runs
@@ -98,8 +103,13 @@ def test_gate_plays_the_intervals(cell: GateCell) -> None:
     assert [s for _, s in switched] == [True, False]
     # on the wall clock the gate is on for the interval's 0.3 s (the sim runs in real time)
     assert switched[1][0] - switched[0][0] == pytest.approx(0.3, abs=0.05)
-    wait_for(lambda: [m["on"] for m in cell.lasers.items if m["reason"]][-2:] == [True, False],
+    # every status republishes the state (same ``on``, same reason): the switches are the
+    # messages where ``on`` changes
+    wait_for(lambda: [m["on"] for m in _edges(cell.lasers.items)] == [False, True, False],
              what="published switches")  # fmt: skip
+    _, lit, dark = _edges(cell.lasers.items)
+    assert lit["reason"] == "laser_on interval" and dark["reason"] == "interval ended"
+    assert lit["lag"] == pytest.approx(on.lag) and dark["lag"] == pytest.approx(off.lag)
     assert all(m["output"] == 2 for m in cell.lasers.items)
     wait_for(lambda: cell.statuses.items and cell.statuses.items[-1]["laser_on"] is False)
 
