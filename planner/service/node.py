@@ -93,6 +93,12 @@ __all__ = [
 log = logging.getLogger("beamrelay.node")
 
 
+DRIVER_GRACE = 10.0
+"""s after the planner's start during which an execute waits for drivers still starting
+(``beamrelay up`` starts them together; a request sent at once would find them down)"""
+DRIVER_POLL = 0.05  # s
+
+
 class PlannerNode:
     """The Zenoh adapter around a :class:`RequestHandler`. ``start()``, then ``close()``."""
 
@@ -107,6 +113,7 @@ class PlannerNode:
         ack_timeout: float = ACK_TIMEOUT,
         bus: BusAddress | None = None,
         online: OnlineCalibrator | None = None,
+        driver_grace: float = DRIVER_GRACE,
     ) -> None:
         self.handler = handler
         self.online = online
@@ -138,6 +145,9 @@ class PlannerNode:
         self._handles: list[Any] = []
         self._token: Any = None
         self._closing = threading.Event()
+        self._started: float | None = None  # monotonic s of start()
+        self._seen: set[str] = set()  # nodes whose token was ever seen
+        self.driver_grace = driver_grace
         # serve and respond are looked up per job: a subclass or a test may replace them
         self._worker = Worker(lambda body: self.serve(body),
                               lambda *a: self._respond(*a), self.progress, self._worker_stopped)  # fmt: skip
@@ -176,6 +186,7 @@ class PlannerNode:
             self._handles += handles
         self._worker.start()
         self._token = s.liveliness().declare_token(k.alive("planner"))
+        self._started = time.monotonic()
         return self
 
     def install_calibration(self, handler: RequestHandler | None, calibration: Any) -> None:
@@ -239,6 +250,8 @@ class PlannerNode:
     # --- callbacks (Zenoh threads: never plan here) ------------------------------------------
     def _on_alive(self, sample: Any) -> None:
         node, up = update_alive(self.alive, self._alive_lock, sample)
+        if up:
+            self._seen.add(node)
         log.info("%s %s", node, "up" if up else "DOWN")
         if not up and node in self.robots and self.tracks.running_end(node) is not None:
             self._halt_all(f"{node}'s liveliness token is gone during an execution")
@@ -366,9 +379,14 @@ class PlannerNode:
     # --- execution -------------------------------------------------------------------------
     def check_drivers(self) -> None:
         """ExecuteError naming every robot whose driver's liveliness token is missing, or
-        when a streamed trajectory still has chunks to send."""
-        with self._alive_lock:
-            down = [r for r in self.robots if r not in self.alive]
+        when a streamed trajectory still has chunks to send. Within :data:`DRIVER_GRACE` s
+        of the planner's start a driver never seen may still be starting: wait for it till
+        then (one that was seen and left is down at once)."""
+        while True:
+            with self._alive_lock:
+                down = [r for r in self.robots if r not in self.alive]
+            if not down or any(r in self._seen for r in down) or not self._starting():
+                break
         if down:
             raise ExecuteError(f"robot driver down: {', '.join(down)}", down)
         busy = self.execution.busy()
@@ -377,8 +395,21 @@ class PlannerNode:
 
     def start_state(self) -> dict[str, Array]:
         """Where each robot will be when a trajectory sent now starts (rad): the end of the
-        trajectory it still plays, else its latest joint state (ExecuteError if stale)."""
-        return start_state(self.robots, self.tracks, self.joints)
+        trajectory it still plays, else its latest joint state (ExecuteError if stale; a
+        driver that just started has :data:`DRIVER_GRACE` s to send its first)."""
+        while True:
+            try:
+                return start_state(self.robots, self.tracks, self.joints)
+            except ExecuteError:
+                if not self._starting():
+                    raise
+
+    def _starting(self) -> bool:
+        """Whether the planner started less than ``driver_grace`` s ago (then wait a poll
+        period and say True)."""
+        if self._started is None or time.monotonic() - self._started >= self.driver_grace:
+            return False
+        return not self._closing.wait(DRIVER_POLL)
 
     def execute(self, plan: dict[str, Any], request_id: str) -> None:
         """Send the plan's trajectories, wait for the drivers' verdicts, and write them into

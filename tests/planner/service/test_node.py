@@ -51,7 +51,7 @@ def bus(system: System) -> Iterator[tuple[str, PlannerNode]]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     session = open_session(listen=True, endpoint=endpoint)
     handler = RequestHandler(system, make_plan_fn(system, {"name": "node-test"}))
-    node = PlannerNode(handler, session, Keys(PREFIX)).start()
+    node = PlannerNode(handler, session, Keys(PREFIX), driver_grace=0.0).start()
     yield endpoint, node
     node.close()
     session.close()
@@ -134,6 +134,40 @@ def test_execute_refused_while_driver_down_names_it(client: PlanClient) -> None:
         "error": "robot driver down: arm0",
         "field": "execute",
     }
+
+
+def test_execute_waits_for_drivers_still_starting_only_within_the_grace(system: System) -> None:
+    """``beamrelay up`` then ``request --execute`` at once: the planner waits up to its
+    driver grace for a driver never seen; a driver seen and gone is down at once."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    session = open_session(listen=True, endpoint=endpoint)
+    handler = RequestHandler(system, make_plan_fn(system, {"name": "node-test"}))
+    grace = 1.5
+    node = PlannerNode(handler, session, Keys(PREFIX), driver_grace=grace).start()
+    started = time.monotonic()
+    driver = open_session(listen=False, endpoint=endpoint)
+    try:
+        with PlanClient(endpoint=endpoint, prefix=PREFIX) as c:
+            assert c.wait_for_node("planner", 10.0)
+            timer = threading.Timer(0.3, lambda: tokens.append(
+                driver.liveliness().declare_token(Keys(PREFIX).alive("arm0"))))  # fmt: skip
+            tokens: list[Any] = []
+            timer.start()
+            with pytest.raises(RequestError) as exc:
+                c.request(make_request([[0.5, 0.0, 0.3]], execute=True), timeout=10)
+            # the token came during the grace (not "driver down"); the joint state never did
+            assert "no current joint state from arm0" in exc.value.reply["error"]
+            assert time.monotonic() - started >= grace
+            tokens[0].undeclare()
+            wait_for(lambda: "arm0" not in node.alive, what="arm0 token gone")
+            # seen, then gone: down at once (and after the grace anyway)
+            with pytest.raises(RequestError) as exc:
+                c.request(make_request([[0.5, 0.0, 0.3]], execute=True), timeout=10)
+            assert exc.value.reply["error"] == "robot driver down: arm0"
+    finally:
+        driver.close()
+        node.close()
+        session.close()
 
 
 def test_execute_refused_without_joint_states(bus: tuple[str, PlannerNode]) -> None:
