@@ -95,7 +95,9 @@ def test_request_closed_loop_brings_5mm_open_loop_errors_within_half_a_millimetr
     errs = [t["measured_error"] for t in doc["targets"]]
     assert doc["measured_error_median"] == pytest.approx(float(np.median(errs)))
     assert all(t["closed_loop"]["status"] == "converged" for t in doc["targets"])
-    assert all(t["closed_loop"]["frames"] <= 10 for t in doc["targets"])
+    # 1 frame open loop, 3 per step, 9 to confirm a measurement inside the tolerance with
+    # too little confidence: under 1.5 s of the D435's 30 Hz
+    assert all(t["closed_loop"]["frames"] <= 40 for t in doc["targets"])
     assert all(t["closed_loop"]["dwell"] == pytest.approx(0.2, abs=0.06) for t in doc["targets"])
     # independent: the truth's spot at the joints the arm rests at now (the last target)
     truth = BeamModel(system_from_scenario(load_scenario(bus.truth), truth=True))

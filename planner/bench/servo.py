@@ -10,7 +10,9 @@ iterations per target (max, median), the servo's compute time and the modelled e
 time per target (rest-to-rest moves at the joint limits plus the measurement dwells of
 :func:`planner.service.closed_loop.measure_time`), and the same for one path pass corrected
 by iterative learning control (40 mm stroke, one frame at every second 1 mm sample).
-Goal: measured error <= 0.5 mm on every target within <= 10 frames.
+Goal: measured error <= 0.5 mm on every target within <= 30 frames (a measurement within
+the tolerance but not with two standard errors to spare is confirmed with 9 more frames
+before the target counts as converged and is treated: 1 + 3 per step + 9 per confirmation).
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ import numpy as np
 import typer
 
 GOAL_M = 0.5e-3
-GOAL_FRAMES = 10
+GOAL_FRAMES = 30  # 1 s of D435 frames at 30 Hz
 
 
 class _Visits:
@@ -136,7 +138,7 @@ def command(
     path = _path_figures(world)
     c = Console()
     c.print(f"bench servo: truth laser +{LASER_DEG} deg, mirror mount +{1e3 * MOUNT_M:g} mm, "
-            f"D435 noise, {frames} frames per measurement (goal <= 0.5 mm within <= 10 frames)")  # fmt: skip
+            f"D435 noise, {frames} frames per measurement (goal <= 0.5 mm within <= 30 frames)")  # fmt: skip
     c.print(f"targets: {pts['converged']}/{pts['targets']} converged; measured error median "
             f"{1e3 * pts['before_median']:.2f} -> {1e3 * pts['after_median']:.3f} mm, max "
             f"{1e3 * pts['before_max']:.2f} -> {1e3 * pts['after_max']:.3f} mm; true error after "

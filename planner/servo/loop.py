@@ -7,7 +7,10 @@ the measured error ``|spot - target|`` (m, 3D, world) is above the tolerance app
 :class:`~planner.servo.step.Corrector`'s step and measures again (``frames`` frames). It stops
 as
 
-- ``converged``: the measured error is within the tolerance;
+- ``converged``: the measured error is within the tolerance, with ``confidence`` standard
+  errors of the measurement to spare (:func:`within_tolerance`); a measurement within the
+  tolerance but not with confidence is confirmed once at the same joints with
+  ``confirm_frames`` more frames, merged with it (its entry in ``errors`` is the merged one);
 - ``not_improving``: a step reduced the best error so far by less than ``min_improvement``
   (a model too far off), unless the error is already within ``noise_floor`` times the
   tolerance: there camera noise decides, and the loop keeps correcting from the latest
@@ -36,7 +39,7 @@ import numpy as np
 
 from planner.model.status import Failure
 from planner.model.transforms import Array
-from planner.servo.measure import Measure, SpotMeasurement
+from planner.servo.measure import Measure, SpotMeasurement, merge
 from planner.servo.step import Corrector, ServoSettings
 
 
@@ -113,6 +116,13 @@ class _Run:
         return m
 
 
+def within_tolerance(err: float, m: SpotMeasurement, s: ServoSettings) -> bool:
+    """Whether measured error ``err`` (m) of measurement ``m`` is within the tolerance with
+    ``s.confidence`` standard errors (spread / sqrt(frames seen)) to spare."""
+    standard_error = m.spread / np.sqrt(max(m.seen, 1))
+    return bool(err + s.confidence * standard_error <= s.tolerance)
+
+
 def servo(
     measure: Measure,
     q0: Array,
@@ -151,9 +161,23 @@ def servo(
     best_q, best_m, best_err = q0, m, run.errors[-1]
     cur_q, cur_m, cur_err = q0, m, best_err
     it = 0
+    confirmed: Array | None = None  # the joints whose measurement was confirmed
     while True:
-        if cur_err <= s.tolerance:
+        if within_tolerance(cur_err, cur_m, s):
             return result(ServoStatus.CONVERGED, cur_q, cur_m, it)
+        if cur_err <= s.tolerance and confirmed is not cur_q:
+            confirmed = cur_q
+            extra = run.take(cur_q, s.confirm_frames)
+            if stop():
+                return result(ServoStatus.ABORTED, cur_q, None, it)
+            if extra is not None:
+                cur_m = merge(cur_m, extra)
+                cur_err = run.errors[-1] = float(np.linalg.norm(cur_m.spot_world - target))
+                if best_q is cur_q:
+                    best_m, best_err = cur_m, cur_err
+            else:  # not seen now: the merged entry is the one measurement's
+                run.errors[-1] = cur_err
+            continue
         if it >= s.max_iterations:
             return result(ServoStatus.MAX_ITERATIONS, cur_q, cur_m, it)
         step = corrector.step(cur_q, target, normal, plane_normal, cur_m.spot_world - target)

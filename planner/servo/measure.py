@@ -73,6 +73,19 @@ def average_frames(frames: Sequence[SpotFrame], world_T_camera: Array) -> SpotMe
     return SpotMeasurement(mean, len(frames), len(pts), float(W.mean()), spread)
 
 
+def merge(a: SpotMeasurement, b: SpotMeasurement) -> SpotMeasurement:
+    """Two measurements of one spot as one: the mean weighted by frames seen x confidence
+    (as :func:`average_frames` weighs frames), their pooled spread about it."""
+    wa, wb = a.seen * a.confidence, b.seen * b.confidence
+    mean = (wa * a.spot_world + wb * b.spot_world) / (wa + wb)
+    da, db = a.spot_world - mean, b.spot_world - mean
+    var = (wa * (a.spread**2 + da @ da) + wb * (b.spread**2 + db @ db)) / (wa + wb)
+    seen = a.seen + b.seen
+    return SpotMeasurement(mean, a.frames + b.frames, seen,
+                           (a.seen * a.confidence + b.seen * b.confidence) / seen,
+                           float(np.sqrt(var)))  # fmt: skip
+
+
 @dataclass(frozen=True)
 class SpotGate:
     """Which camera frames count: a confidence of at least ``min_confidence`` and a spot

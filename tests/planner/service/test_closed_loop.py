@@ -141,7 +141,7 @@ def test_every_target_converges_and_the_laser_is_on_only_at_rest(
     assert plan["execution"] == "accepted" and plan["execution_reason"] is None
     assert [r["status"] for r in rows] == ["converged", "converged"]
     assert all(r["measured_error_before"] > 3e-3 for r in rows)
-    assert all(r["measured_error_after"] <= 0.3e-3 and r["frames"] <= 10 for r in rows)
+    assert all(r["measured_error_after"] <= 0.3e-3 and r["frames"] <= 25 for r in rows)
     assert all(r["dwell"] == 0.1 for r in rows)
     spot = world.true_spot(bus.q)  # independent: the truth's spot where the arm was left
     assert spot is not None and np.linalg.norm(spot - plan["_targets"][-1]) <= 0.5e-3

@@ -79,7 +79,7 @@ def _true_error(world: SimWorld, q: np.ndarray, p: np.ndarray) -> float:
 
 
 @pytest.mark.parametrize("with_normal", [True, False])
-def test_servo_converges_from_5mm_to_half_a_millimetre_within_ten_frames(
+def test_servo_converges_from_5mm_to_half_a_millimetre_within_25_frames(
     world: SimWorld, plans: list[Any], with_normal: bool
 ) -> None:
     corrector = Corrector(world.model)
@@ -91,8 +91,12 @@ def test_servo_converges_from_5mm_to_half_a_millimetre_within_ten_frames(
         assert abs(r.error_before - open_loop) < 1e-3  # the first measurement sees it (noise)
         assert r.error_after <= 0.3e-3 and r.error_after == r.errors[-1]
         assert _true_error(world, r.q, p) <= 0.5e-3
-        assert r.frames <= 10 and r.frames == 1 + 3 * (len(r.errors) - 1)
-        assert r.iterations == len(r.errors) - 1 >= 1
+        # 1 frame open loop, 3 per step, 9 per confirmation of a measurement within the
+        # tolerance but not with confidence (one per joints at most)
+        confirms = len(r.errors) - 1 - r.iterations
+        s = corrector.settings
+        assert 0 <= confirms <= r.iterations and r.iterations >= 1
+        assert r.frames == 1 + s.frames * r.iterations + s.confirm_frames * confirms <= 25
         assert np.max(np.abs(r.q - q0)) <= corrector.settings.max_step + 1e-12
 
 
