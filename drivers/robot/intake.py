@@ -184,6 +184,7 @@ class TrajectoryIntake:
         self._closed = False
         self._worker: _Worker | None = None
         self._thread = threading.Thread(target=self._feed, name="trajectory-intake", daemon=True)
+        self.n_received = 0
         self.n_superseded = 0
         self.n_oversized = 0
         self.n_restarts = 0
@@ -206,6 +207,7 @@ class TrajectoryIntake:
     def submit(self, payload: Any) -> None:
         """Take one received payload (``zenoh.ZBytes`` or bytes); never blocks on parsing."""
         received = time.monotonic()
+        self.n_received += 1
         size = len(payload)
         if size > MAX_PAYLOAD_BYTES:
             self.n_oversized += 1

@@ -225,7 +225,11 @@ def test_stop_brakes_refuses_earlier_trajectories_then_accepts_a_new_one(cell: C
     dq = np.array([0, 0, 0, 0.8, 0.8, 0.8])  # 3 s, peak 0.5 rad/s: the stop comes mid-move
     cell.send(smooth_move(HOME, dq, 3.0, id="A", session=cell.name))
     wait_for(lambda: np.max(np.abs(cell.states.items[-1]["qd"])) > 0.3, what="motion")
+    before = cell.node.intake.n_received
     cell.send(late_body)
+    # the stop must come after the driver received the body (a 3.5 MB body can reach it
+    # after a stop put later on a loaded machine: then it is judged as sent after it)
+    wait_for(lambda: cell.node.intake.n_received > before, what="the late body received")
     t_stop = time.time()
     cell.client.put(cell.keys.stop, b"\x00 anything at all")
     wait_for(lambda: cell.states.items[-1]["t"] > t_stop and cell.at_rest(), 5.0, "arm at rest")
