@@ -190,10 +190,14 @@ def click_button(d: Any, label: str) -> None:
 
 
 def wait_text(d: Any, pred: Any, timeout: float, what: str) -> str:
-    end = time.monotonic() + timeout
+    """The page text once ``pred`` holds (a wait over 2 s is printed: the test's phases)."""
+    t0 = time.monotonic()
+    end = t0 + timeout
     while time.monotonic() < end:
         text = page_text(d)
         if pred(text):
+            if time.monotonic() - t0 > 2.0:
+                print(f"\n  {time.monotonic() - t0:.1f} s waiting for {what}")
             return text
         time.sleep(0.2)
     raise AssertionError(f"timed out after {timeout:g} s waiting for {what}; page:\n{page_text(d)}")
