@@ -55,6 +55,9 @@ def console(
                    "HTTP: anyone who sees its URL (token included) can move the robots",
                    err=True)  # fmt: skip
     check_free(host, port)
+    from planner.service import events
+
+    events.configure("console")
     app = Console(scenario, host=host, port=port, endpoint=endpoint, prefix=prefix,
                   zenoh_config=zenoh_config, max_points=max_points, token=token).start()  # fmt: skip
     stop = stop_on_signals()

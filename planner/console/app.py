@@ -11,6 +11,7 @@ when the last browser leaves, the console sends STOP.
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from pathlib import Path
@@ -32,9 +33,12 @@ from planner.console.targets import Mode, TargetList, build_request, path_points
 from planner.console.view import default_view
 from planner.errors import BeamrelayError, InputError
 from planner.model.transforms import Array
+from planner.service.events import event
 from planner.service.token import new_token
 
 #: drawing loop rate (Hz)
+log = logging.getLogger("beamrelay.console")
+
 DRAW_RATE = 30.0
 #: the health panel is refreshed at this rate (Hz)
 HEALTH_RATE = 2.0
@@ -228,7 +232,9 @@ class Console:
         self.panel.result.content = text
 
     def _run(self, fn: Any) -> None:
-        """Run an action; user mistakes and error replies become the result text."""
+        """Run an action (logged: the operator's presses are an audit trail); user mistakes
+        and error replies become the result text."""
+        event(log, "pressed", action=fn.__name__.removeprefix("_do_"))
         try:
             fn()
         except (BeamrelayError, BusyError) as exc:
@@ -367,6 +373,7 @@ class Console:
     def _do_stop(self) -> None:
         self.arming.drop("STOP")
         self.operator.stop()
+        event(log, "pressed", logging.WARNING, action="stop")
         self._message("**STOP sent**: every robot brakes, laser off")
 
     def _show_answer(self, answer: Answer, executed: bool) -> None:

@@ -182,11 +182,21 @@ return b || null;
 
 
 def click_button(d: Any, label: str) -> None:
-    """Click the button labelled ``label`` with a real (webdriver) mouse click."""
+    """Click the button labelled ``label`` with a real mouse click (W3C pointer actions:
+    move, press, release; chromedriver's element click took ~20 s on a starved page)."""
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    t0 = time.monotonic()
     b = d.execute_script(FIND_BUTTON, label)
     if b is None:
         raise AssertionError(f"no button {label!r} on the page")
-    b.click()
+    t1 = time.monotonic()
+    ActionChains(d).move_to_element(b).click().perform()
+    if time.monotonic() - t0 > 2.0:
+        print(
+            f"\n  click on {label!r}: found in {t1 - t0:.1f} s, clicked in "
+            f"{time.monotonic() - t1:.1f} s"
+        )
 
 
 def wait_text(d: Any, pred: Any, timeout: float, what: str) -> str:

@@ -4,6 +4,8 @@ is tested in a browser elsewhere) and the operator on a real bus."""
 
 from __future__ import annotations
 
+import logging
+
 import threading
 from collections.abc import Callable, Iterator
 from types import SimpleNamespace
@@ -70,14 +72,22 @@ def console() -> Iterator[tuple[Console, Inbox]]:
     hub.close()
 
 
-def test_the_stop_button_publishes_stop_and_says_so(console: tuple[Console, Inbox]) -> None:
+def test_the_stop_button_publishes_stop_and_says_so(
+    console: tuple[Console, Inbox], caplog: pytest.LogCaptureFixture
+) -> None:
     c, stops = console
-    c.panel.stop.click()
-    wait_for(lambda: len(stops.bodies()) == 1, 10.0, "the stop message")
-    msg = stops.bodies()[0]
-    assert (msg["schema"], msg["source"], msg["reason"]) == (
-        "beamrelay.stop/1", "console", "operator pressed Stop")  # fmt: skip
-    assert c.panel.result.content == "**STOP sent**: every robot brakes, laser off"
+    with caplog.at_level(logging.INFO, logger="beamrelay.console"):
+        c.panel.stop.click()
+        wait_for(lambda: len(stops.bodies()) == 1, 10.0, "the stop message")
+        msg = stops.bodies()[0]
+        assert (msg["schema"], msg["source"], msg["reason"]) == (
+            "beamrelay.stop/1", "console", "operator pressed Stop")  # fmt: skip
+        assert c.panel.result.content == "**STOP sent**: every robot brakes, laser off"
+        c.panel.clear.click()  # a list edit, not an operator action: not logged
+        c.panel.plan.click()  # logged, then refused (no targets)
+    # the operator's presses are an audit trail, in the console's log
+    pressed = [r.getMessage() for r in caplog.records if r.name == "beamrelay.console"]
+    assert pressed == ["pressed action=stop", "pressed action=preview"], pressed
 
 
 def grid() -> Cloud:
