@@ -5,7 +5,6 @@ is tested in a browser elsewhere) and the operator on a real bus."""
 from __future__ import annotations
 
 import logging
-
 import threading
 from collections.abc import Callable, Iterator
 from types import SimpleNamespace
