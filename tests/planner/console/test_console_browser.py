@@ -22,6 +22,7 @@ import subprocess
 import sys
 import time
 import urllib.request
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -190,23 +191,53 @@ def system_up(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-unty
             proc.wait()
 
 
-def test_operator_clicks_the_board_plans_and_executes(system_up) -> None:  # type: ignore[no-untyped-def]
-    url, client, tmp = system_up
-    scn = load_scenario(SCENARIO)
-    view = default_view(system_from_scenario(scn), scene_objects(scn))
-    d = open_browser()
-    try:
+class Page:
+    """One browser on the console page for the module's tests (opening one and drawing the
+    first cloud costs 15-25 s on a starved machine). ``get()`` opens it when there is none
+    (first use, or after a test closed the tab) and waits for the cloud on the board."""
+
+    def __init__(self, url: str, view: Any) -> None:
+        self.url, self.view = url, view
+        self.d: Any = None
+        self.first_cloud: float | None = None  # s from page load to the cloud, when opened
+
+    def get(self) -> Any:
+        if self.d is not None:
+            return self.d
+        d = open_browser()
         t0 = time.monotonic()
-        d.get(url)
+        d.get(self.url)
         calm(d)
+        rows, cols = board_box(self.view, canvas_rect(d))
+        wait_for(lambda: float(saturated(screenshot(d)[rows, cols]).mean()) > 0.3, 180.0,
+                 "the cloud drawn on the board")  # fmt: skip
+        self.first_cloud = time.monotonic() - t0
+        self.d = d
+        return d
+
+    def close(self) -> None:
+        d, self.d = self.d, None
+        if d is not None:
+            with contextlib.suppress(Exception):
+                d.quit()
+
+
+@pytest.fixture(scope="module")
+def page(system_up) -> Iterator[Page]:  # type: ignore[no-untyped-def]
+    scn = load_scenario(SCENARIO)
+    p = Page(system_up[0], default_view(system_from_scenario(scn), scene_objects(scn)))
+    yield p
+    p.close()
+
+
+def test_operator_clicks_the_board_plans_and_executes(system_up, page: Page) -> None:  # type: ignore[no-untyped-def]
+    _, client, tmp = system_up
+    view = page.view
+    d = page.get()
+    first_cloud = page.first_cloud
+    try:
         rect = canvas_rect(d)
         rows, cols = board_box(view, rect)
-
-        def cloud_drawn() -> bool:
-            return float(saturated(screenshot(d)[rows, cols]).mean()) > 0.3
-
-        wait_for(cloud_drawn, 180.0, "the cloud drawn on the board")
-        first_cloud = time.monotonic() - t0
         img = screenshot(d)
         (tmp / "console.png").write_bytes(d.get_screenshot_as_png())
         assert img.std() > 20, "blank page"
@@ -247,12 +278,14 @@ def test_operator_clicks_the_board_plans_and_executes(system_up) -> None:  # typ
         with contextlib.suppress(OSError):
             Path("/tmp/beamrelay-console.png").write_bytes(d.get_screenshot_as_png())
         print(
-            f"\nconsole figures: page load to first cloud {first_cloud:.2f} s; cloud frames "
+            f"\nconsole figures: page load to first cloud "
+            f"{'(page reused)' if first_cloud is None else f'{first_cloud:.2f} s'}; cloud frames "
             f"received {cloud_rate:.1f}/s; render {fps:.1f} fps; click to preview "
             f"{latency.group(1) if latency else '?'} ms"
         )
-    finally:
-        d.quit()
+    except BaseException:
+        page.close()  # a failed test leaves no half-used page to the next
+        raise
 
 
 #: the polyline the operator clicks on the board (150 mm: 152 samples at 1 mm)
@@ -274,20 +307,15 @@ def picked_rows(text: str, n: int) -> np.ndarray:
     return 1e-3 * np.array([[float(x) for x in r.groups()] for r in rows])  # type: ignore[union-attr]
 
 
-def test_operator_marks_a_clicked_polyline_on_the_board(system_up) -> None:  # type: ignore[no-untyped-def]
+def test_operator_marks_a_clicked_polyline_on_the_board(system_up, page: Page) -> None:  # type: ignore[no-untyped-def]
     from planner.console.sweep import polyline_distance
 
-    url, client, tmp = system_up
+    _, client, tmp = system_up
     scn = load_scenario(SCENARIO)
-    view = default_view(system_from_scenario(scn), scene_objects(scn))
-    d: Any = open_browser()
+    view = page.view
+    d: Any = page.get()
     try:
-        d.get(url)
-        calm(d)
         rect = canvas_rect(d)
-        rows, cols = board_box(view, rect)
-        wait_for(lambda: float(saturated(screenshot(d)[rows, cols]).mean()) > 0.3, 180.0,
-                 "the cloud drawn on the board")  # fmt: skip
         click_button(d, "Clear all")
         wait_text(d, lambda t: "no targets" in t, 30.0, "an empty target list")
         select_option(d, "visit as", "polyline")
@@ -354,6 +382,7 @@ def test_operator_marks_a_clicked_polyline_on_the_board(system_up) -> None:  # t
         # execution's request still runs
         wait_text(d, lambda t: re.search(r"driver: arm0: [^\n]*stop", t) or "STOP sent" in t,
                   60.0, "the stopped execution's reply")  # fmt: skip
+        page.d = None  # the tab is closed next
         closed, rest = stopped_by(d, client, "close")
         d = None
         print(f"\ntab closed mid-execution: STOP on the bus {closed:.2f} s later, the arm at "
@@ -361,7 +390,7 @@ def test_operator_marks_a_clicked_polyline_on_the_board(system_up) -> None:  # t
         assert closed <= 1.5, closed
     finally:
         if d is not None:
-            d.quit()
+            page.close()
 
 
 def joints(client: PlanClient) -> tuple[np.ndarray, np.ndarray]:
