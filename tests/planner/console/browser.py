@@ -181,17 +181,28 @@ return b || null;
 """
 
 
-def click_button(d: Any, label: str) -> None:
-    """Click the button labelled ``label`` with a real mouse click (W3C pointer actions:
-    move, press, release; chromedriver's element click took ~20 s on a starved page)."""
-    from selenium.webdriver.common.action_chains import ActionChains
-
-    t0 = time.monotonic()
+def find_button(d: Any, label: str) -> Any:
+    """The button labelled ``label`` (scrolled into view)."""
     b = d.execute_script(FIND_BUTTON, label)
     if b is None:
         raise AssertionError(f"no button {label!r} on the page")
-    t1 = time.monotonic()
+    return b
+
+
+def click_element(d: Any, b: Any) -> None:
+    """A real mouse click on element ``b`` (W3C pointer actions: move, press, release;
+    chromedriver's element click took ~20 s on a starved page)."""
+    from selenium.webdriver.common.action_chains import ActionChains
+
     ActionChains(d).move_to_element(b).click().perform()
+
+
+def click_button(d: Any, label: str) -> None:
+    """Click the button labelled ``label`` with a real mouse click."""
+    t0 = time.monotonic()
+    b = find_button(d, label)
+    t1 = time.monotonic()
+    click_element(d, b)
     if time.monotonic() - t0 > 2.0:
         print(
             f"\n  click on {label!r}: found in {t1 - t0:.1f} s, clicked in "
