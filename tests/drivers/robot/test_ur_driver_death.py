@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from drivers.robot.ur_fake import CYCLE, FakeURController, serve
+from drivers.robot.ur_fake import FakeURController, serve
 from planner.service.bus import Keys
 from tests.drivers.conftest import Heartbeats, raw_session, wait_for
 from tests.drivers.robot.test_robot_node import smooth_move
