@@ -36,9 +36,9 @@ from planner.model.transforms import Array
 from planner.service.events import event
 from planner.service.token import new_token
 
-#: drawing loop rate (Hz)
 log = logging.getLogger("beamrelay.console")
 
+#: drawing loop rate (Hz)
 DRAW_RATE = 30.0
 #: the health panel is refreshed at this rate (Hz)
 HEALTH_RATE = 2.0

@@ -81,8 +81,7 @@ def merge(a: SpotMeasurement, b: SpotMeasurement) -> SpotMeasurement:
     da, db = a.spot_world - mean, b.spot_world - mean
     var = (wa * (a.spread**2 + da @ da) + wb * (b.spread**2 + db @ db)) / (wa + wb)
     seen = a.seen + b.seen
-    return SpotMeasurement(mean, a.frames + b.frames, seen,
-                           (a.seen * a.confidence + b.seen * b.confidence) / seen,
+    return SpotMeasurement(mean, a.frames + b.frames, seen, (wa + wb) / seen,
                            float(np.sqrt(var)))  # fmt: skip
 
 
