@@ -150,7 +150,7 @@ def beam(
 
 def _run(system: Any, world: Any, robot: str, qs: Any, speed: float, endpoint: str | None,
          prefix: str, zenoh_config: Path | None, observe: Any) -> tuple[list[Any], list[Any], list[str]]:  # fmt: skip
-    """Visit every pose; (joints reached, observations, log lines)."""
+    """Visit every pose, then return to the start; (joints reached, observations, log lines)."""
     import numpy as np
 
     from drivers.collect import BusPlanner
@@ -162,16 +162,23 @@ def _run(system: Any, world: Any, robot: str, qs: Any, speed: float, endpoint: s
     got_p: list[Any] = []
     log: list[str] = []
     try:
-        bp.wait_joints()
+        # the poses the arm went through, joined by moves that were checked clear (None once
+        # a move ended early: the arm may have stopped anywhere)
+        trail: list[Any] | None = [bp.wait_joints()[robot].copy()]
         home = system.robot(robot).home
         for i, q in enumerate(qs):
             why = bp.move(robot, q, speed, world)
-            if (
-                why is not None
-                and why.startswith("safety check")
-                and bp.move(robot, home, speed, world) is None
-            ):  # the direct path collides: go through home
-                why = bp.move(robot, q, speed, world)
+            if why is not None and why.startswith("safety check"):
+                back = bp.move(robot, home, speed, world)  # the direct path collides
+                if back is None:  # go through home
+                    trail = None if trail is None else [*trail, np.array(home, dtype=float)]
+                    why = bp.move(robot, q, speed, world)
+                elif not back.startswith("safety check"):
+                    why, trail = back, None
+            if why is None:
+                trail = None if trail is None else [*trail, np.array(q, dtype=float)]
+            elif not why.startswith("safety check"):
+                trail = None
             obs = observe(bp) if why is None else None
             if why is None and (obs is None or not np.any(np.isfinite(obs))):
                 why = "nothing seen by the camera"
@@ -181,10 +188,33 @@ def _run(system: Any, world: Any, robot: str, qs: Any, speed: float, endpoint: s
             if why is None:
                 got_q.append(bp.q[robot].copy())
                 got_p.append(obs)
+        typer.echo(_return(bp, robot, trail, speed, world))
     finally:
         bp.close()
         session.close()
     return got_q, got_p, log
+
+
+def _return(bp: Any, robot: str, trail: list[Any] | None, speed: float, world: Any) -> str:
+    """Move the arm back to where the collection found it (``trail[0]``), so the next
+    collection or plan starts from there: directly when that move is clear, else one step
+    back along ``trail`` (poses joined by moves that were checked clear and made on the way
+    out) and try again. Every move is checked again before it is sent. The line to print."""
+    if trail is None:
+        return "not returned to the start pose: a move ended early (the arm rests where it stopped)"
+    moves = 0
+    while len(trail) > 1:
+        why = bp.move(robot, trail[0], speed, world)
+        if why is None:
+            return f"returned to the start pose ({moves + 1} moves)"
+        if not why.startswith("safety check"):
+            return f"not returned to the start pose: {why}"
+        trail.pop()
+        why = bp.move(robot, trail[-1], speed, world)  # back along a move made on the way out
+        if why is not None:
+            return f"not returned to the start pose: {why}"
+        moves += 1
+    return "the arm is at its start pose"
 
 
 def _finish(output: Path, doc: dict[str, Any] | None, log: list[str], n: int, write: Any) -> None:

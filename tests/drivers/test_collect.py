@@ -45,6 +45,50 @@ def test_min_jerk_move_peaks_at_the_speed() -> None:
     assert np.allclose(np.diff(mv.q, axis=0) / np.diff(mv.t)[:, None], mv.qd[1:], atol=2e-3)
 
 
+class SegmentWorld:
+    """A stand-in for the bus planner: the arm at ``q``; a move along one of ``blocked``
+    (pairs of pose labels, either way) fails its safety check and leaves the arm; every other
+    move arrives. Poses are labelled by their first joint."""
+
+    def __init__(self, start: float, blocked: set[frozenset[float]]) -> None:
+        self.q, self.blocked, self.moves = start, blocked, [start]
+
+    def move(self, robot: str, target: Any, speed: float, world: Any) -> str | None:
+        to = float(np.asarray(target)[0])
+        if frozenset((self.q, to)) in self.blocked:
+            return f"safety check: {self.q} -> {to} collides"
+        self.q = to
+        self.moves.append(to)
+        return None
+
+
+def pose(label: float) -> Any:
+    return np.array([label, 0, 0, 0, 0, 0], dtype=float)
+
+
+def test_a_collection_returns_to_its_start_back_along_its_own_clear_moves() -> None:
+    from planner.cli.collect import _return
+
+    # out: 0 -> 1 -> 2 -> 3; straight back to 0 collides from 3 and from 2, not from 1
+    bp = SegmentWorld(3.0, {frozenset((3.0, 0.0)), frozenset((2.0, 0.0))})
+    line = _return(bp, "arm0", [pose(0), pose(1), pose(2), pose(3)], 1.0, None)
+    assert bp.moves == [3.0, 2.0, 1.0, 0.0] and line == "returned to the start pose (3 moves)"
+    bp = SegmentWorld(3.0, set())  # a clear way home: one move
+    assert _return(bp, "arm0", [pose(0), pose(1), pose(3)], 1.0, None).endswith("(1 moves)")
+    assert bp.moves == [3.0, 0.0]
+    bp = SegmentWorld(0.0, set())
+    assert _return(bp, "arm0", [pose(0)], 1.0, None) == "the arm is at its start pose"
+    assert bp.moves == [0.0]
+    # a move that ended early: where the arm stopped is unknown, it stays there
+    bp = SegmentWorld(2.5, set())
+    assert _return(bp, "arm0", None, 1.0, None).startswith("not returned to the start pose")
+    assert bp.moves == [2.5]
+    # the way back re-checked and now blocked (the scene changed): stops and says so
+    bp = SegmentWorld(2.0, {frozenset((2.0, 0.0)), frozenset((2.0, 1.0))})
+    line = _return(bp, "arm0", [pose(0), pose(1), pose(2)], 1.0, None)
+    assert line.startswith("not returned to the start pose: safety check") and bp.moves == [2.0]
+
+
 def test_conditioning_selection_and_degenerate_poses() -> None:
     system = system_from_scenario(load_scenario(SCENARIO))
     assert system.camera is not None
@@ -117,20 +161,42 @@ def sim_system(sim_drivers: tuple[str, str]) -> tuple[str, str]:
     return sim_drivers
 
 
+def arm0_joints(ep: str, prefix: str) -> Any:
+    """arm0's joint angles now, from its joint states on the bus (rad)."""
+    got: list[Any] = []
+    client = raw_session(ep)
+    sub = client.declare_subscriber(f"{prefix}/arm0/joint_states",
+                                    lambda s: got.append(json.loads(s.payload.to_bytes())["q"]))  # fmt: skip
+    try:
+        end = time.monotonic() + 10.0
+        while not got and time.monotonic() < end:
+            time.sleep(0.02)
+        assert got, "no arm0 joint states"
+        return np.array(got[-1], dtype=float)
+    finally:
+        sub.undeclare()
+        client.close()
+
+
 @pytest.mark.serial
 def test_collect_handeye_on_the_simulated_system_calibrates(
     sim_system: Any, tmp_path: Path
 ) -> None:
     ep, prefix = sim_system
     out = tmp_path / "handeye.json"
+    q_start = arm0_joints(ep, prefix)
     run = subprocess.run([*CLI, "calibrate", "collect", "handeye", "-s", str(SCENARIO), "-o",
-                          str(out), "--poses", "4", "--speed", "1.0", "--endpoint", ep,
+                          str(out), "--poses", "3", "--speed", "1.0", "--endpoint", ep,
                           "--prefix", prefix], capture_output=True, env=ENV, timeout=300)  # fmt: skip
     text = run.stdout.decode()
     assert run.returncode == 0, text + run.stderr.decode()
     assert "condition number of the hand-eye Jacobian" in text
     summary = json.loads(text.strip().splitlines()[-1])
     assert summary["collected"] >= 3
+    # the arm is back where the collection found it, for the next one (a straight move back
+    # from the last pose may collide: then back along the collection's own moves)
+    assert "returned to the start pose" in text, text
+    assert np.max(np.abs(arm0_joints(ep, prefix) - q_start)) < 3e-3
     data = load_handeye(out)
     system = system_from_scenario(load_scenario(SCENARIO))
     truth = system_from_scenario(load_scenario(SCENARIO), truth=True)
@@ -143,7 +209,8 @@ def test_collect_handeye_on_the_simulated_system_calibrates(
     sd_r = float(np.linalg.norm(res.std["camera_rotation"]))
     print(f"\nhand-eye from {len(data.q)} collected poses: camera {1e3 * err_t:.2f} mm "
           f"(1 sigma {1e3 * sd_t:.2f} mm), {np.rad2deg(err_r):.3f} deg "
-          f"(1 sigma {np.rad2deg(sd_r):.3f} deg) from its true pose")  # fmt: skip
+          f"(1 sigma {np.rad2deg(sd_r):.3f} deg) from its true pose; "
+          f"{next(x for x in text.splitlines() if 'start pose' in x)}")  # fmt: skip
     # the sim camera's true pose, within the D435 noise the calibration itself predicts
     assert err_t < 5 * sd_t + 5e-4 and err_r < 5 * sd_r + 1e-4
     assert sd_t < 0.02 and res.converged

@@ -57,8 +57,11 @@ def chromium_paths() -> tuple[str, str] | None:
 BROWSER_NICE = 15
 #: CPUs the browser may use at most, when this process may set a cgroup CPU quota (root):
 #: rendering in software it takes every idle cycle, and a saturated 2-core virtual machine
-#: stalls even its highest-priority processes (the planner's heartbeat) for 100+ ms
-BROWSER_CPUS = 0.6
+#: stalls even its highest-priority processes (the planner's heartbeat) for 100+ ms. One core
+#: leaves the other to the system (which idles at ~0.6 of a core). Measured on the page: 0.6
+#: of a core draws 2.7 fps and answers a webdriver call in ~1.7 s, 1.0 draws 5.4 fps and
+#: answers in ~0.9 s
+BROWSER_CPUS = 1.0
 CGROUP_CPU = (Path("/sys/fs/cgroup/cpu"), Path("/sys/fs/cgroup"))  # v1, v2
 
 
@@ -243,57 +246,66 @@ def project(position: np.ndarray, look_at: np.ndarray, up: np.ndarray, fov: floa
     return np.column_stack([width / 2 + f * c[:, 0] / c[:, 2], height / 2 + f * c[:, 1] / c[:, 2]])
 
 
+#: the displayed input labelled arguments[0], scrolled into view, or null (one round trip)
+LABELLED = """
+const lab = [...document.querySelectorAll('label')].find(l => l.textContent.trim() === arguments[0]);
+const box = lab && document.getElementById(lab.htmlFor);
+if (!box || box.offsetParent === null) return null;
+box.scrollIntoView({block: 'center'});
+return box;
+"""
+
+
 def labelled(d: Any, label: str, timeout: float = 30.0) -> Any:
     """The displayed input labelled ``label``, scrolled into view (waits while the panel is
     still being built or re-rendered)."""
-    from selenium.common.exceptions import NoSuchElementException, StaleElementReferenceException
-    from selenium.webdriver.common.by import By
-
     end = time.monotonic() + timeout
-    while True:
-        try:
-            lab = d.find_element(By.XPATH, f"//label[normalize-space()='{label}']")
-            box = d.find_element(By.ID, lab.get_attribute("for"))
-            if box.is_displayed():
-                d.execute_script("arguments[0].scrollIntoView({block: 'center'});", box)
-                return box
-        except (NoSuchElementException, StaleElementReferenceException):
-            pass
+    while (box := d.execute_script(LABELLED, label)) is None:
         if time.monotonic() > end:
             raise AssertionError(f"no input labelled {label!r} on the page")
         time.sleep(0.2)
+    return box
+
+
+#: the displayed option of an open dropdown whose text is arguments[0], or null
+FIND_OPTION = """
+return [...document.querySelectorAll('[role=option]')].find(
+  o => o.offsetParent !== null && o.textContent.trim() === arguments[0]) || null;
+"""
 
 
 def select_option(d: Any, label: str, value: str, timeout: float = 20.0) -> None:
     """Choose ``value`` in the dropdown labelled ``label`` the way a user does: open it,
-    click the option; waits until the input shows it."""
-    from selenium.webdriver.common.by import By
-
+    click the option (real mouse clicks: chromedriver's element click took ~8 s each on a
+    starved page); waits until the input shows it."""
     box = labelled(d, label, timeout)
-    box.click()
+    click_element(d, box)
     end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        options = [o for o in d.find_elements(By.CSS_SELECTOR, "[role=option]")
-                   if o.is_displayed() and o.text.strip() == value]  # fmt: skip
-        if options:
-            options[0].click()
-            break
+    while (option := d.execute_script(FIND_OPTION, value)) is None:
+        if time.monotonic() > end:
+            raise AssertionError(f"no option {value!r} in the {label!r} dropdown")
         time.sleep(0.1)
-    else:
-        raise AssertionError(f"no option {value!r} in the {label!r} dropdown")
+    click_element(d, option)
     while box.get_attribute("value") != value:
         if time.monotonic() > end:
             raise AssertionError(f"the {label!r} dropdown shows {box.get_attribute('value')!r}")
         time.sleep(0.1)
 
 
+LARGEST_CANVAS = """
+return [...document.querySelectorAll('canvas')].reduce(
+  (a, c) => (c.clientWidth * c.clientHeight > a.clientWidth * a.clientHeight ? c : a));
+"""
+
+
 def click_world_point(d: Any, view: Any, rect: tuple[float, float, float, float],
                       p: np.ndarray) -> None:  # fmt: skip
     """Click the canvas where the page's starting camera ``view`` sees world point ``p``."""
     from selenium.webdriver.common.action_chains import ActionChains
-    from selenium.webdriver.common.by import By
 
-    canvas = max(d.find_elements(By.TAG_NAME, "canvas"), key=lambda c: c.size["width"])
+    canvas = d.execute_script(
+        LARGEST_CANVAS
+    )  # one round trip (asking each for its size: ~1 s each)
     u, v = project(view.position, view.look_at, view.up, view.fov, p, rect[2], rect[3])[0]
     ActionChains(d).move_to_element_with_offset(
         canvas, round(float(u) - rect[2] / 2), round(float(v) - rect[3] / 2)

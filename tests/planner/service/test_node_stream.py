@@ -323,7 +323,7 @@ def test_chunks_play_back_to_back_on_the_sim_driver(tmp_path: Path) -> None:
     hub = open_session(listen=True, endpoint=endpoint)
     node = PlannerNode(handler_from_scenario(scenario), hub, Keys(PREFIX),
                        bus=BusAddress(endpoint))  # fmt: skip
-    node.execution.chunk_bytes = 3 * SMALL_CHUNKS
+    node.execution.chunk_bytes = 2 * SMALL_CHUNKS
     node.start()
     client = raw_session(endpoint)
     statuses: list[dict[str, Any]] = []
@@ -341,7 +341,7 @@ def test_chunks_play_back_to_back_on_the_sim_driver(tmp_path: Path) -> None:
         wait_for(lambda: "arm0" in node.alive and node.joints.get("arm0") is not None, 60.0,
                  "the driver")  # fmt: skip
         body = {"schema": "beamrelay.request/1", "id": "sim", "execute": True,
-                "points": board_targets(24, seed=8).tolist()}  # fmt: skip
+                "points": board_targets(10, seed=8).tolist()}  # fmt: skip
         ok, reply = ask(client, f"{PREFIX}/plan", json.dumps(body).encode(), timeout=60)
         plan = json.loads(reply)
         assert ok and plan["execution"] == "accepted", plan
