@@ -111,13 +111,16 @@ def gated(gate: Gate, inner: Callable[..., Any] | None) -> Callable[..., Any]:
 def guarded_serve(gate: Gate) -> Iterator[None]:
     """While inside, every ``websockets.asyncio.server.serve`` (viser's server start) passes
     its requests through ``gate``, pings its clients every :data:`PING_INTERVAL` and drops one
-    that does not answer within :data:`PING_TIMEOUT` (+ :data:`CLOSE_TIMEOUT`)."""
+    that does not answer within :data:`PING_TIMEOUT` (+ :data:`CLOSE_TIMEOUT`); the page it
+    serves carries the space bar's STOP (:mod:`planner.console.hotkeys`)."""
     import websockets.asyncio.server as ws_server
+
+    from planner.console.hotkeys import with_hotkeys
 
     serve = ws_server.serve
 
     def guarded(*args: Any, **kwargs: Any) -> Any:
-        kwargs["process_request"] = gated(gate, kwargs.get("process_request"))
+        kwargs["process_request"] = gated(gate, with_hotkeys(kwargs.get("process_request")))
         kwargs["ping_interval"], kwargs["ping_timeout"] = PING_INTERVAL, PING_TIMEOUT
         kwargs["close_timeout"] = CLOSE_TIMEOUT
         return serve(*args, **kwargs)

@@ -10,9 +10,11 @@ are the receiver's monotonic clock (s).
 
 from __future__ import annotations
 
+import bisect
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -25,8 +27,12 @@ from schemas.messages import Heartbeat, JointState, LaserState, RobotStatus, Spo
 
 #: a stream silent for longer than this (s) is shown as stale
 STALE_AFTER = 0.5
-#: samples over which a rate is measured
-RATE_SAMPLES = 30
+#: s over which a stream's rate is counted: a window of time, not of samples, so a burst of
+#: queued messages arriving together (30 heartbeats in 23 ms once read 1275 Hz) does not
+#: read as a rate
+RATE_WINDOW = 1.0
+#: arrivals kept per stream (a 500 Hz joint-state stream fills RATE_WINDOW with 500)
+RATE_SAMPLES = 2000
 
 
 @dataclass
@@ -51,7 +57,9 @@ class LiveState:
     alive: set[str] = field(default_factory=set)
     rejected: int = 0
     points_seq: int = 0
+    clock: Callable[[], float] = time.monotonic
     _arrivals: dict[str, deque[float]] = field(default_factory=dict)
+    _first: dict[str, float] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
     _subs: list[Any] = field(default_factory=list)
 
@@ -75,8 +83,9 @@ class LiveState:
 
     # callbacks ------------------------------------------------------------------------------
     def _tick(self, name: str) -> float:
-        now = time.monotonic()
+        now = self.clock()
         q = self._arrivals.setdefault(name, deque(maxlen=RATE_SAMPLES))
+        self._first.setdefault(name, now)
         q.append(now)
         return now
 
@@ -112,12 +121,12 @@ class LiveState:
         robot = str(sample.key_expr).split("/")[-2]
         if (m := self._decode(sample, RobotStatus)) is not None:
             with self._lock:
-                self.status[robot] = Stamped(m, time.monotonic())
+                self.status[robot] = Stamped(m, self.clock())
 
     def _on_laser(self, sample: Any) -> None:
         if (m := self._decode(sample, LaserState)) is not None:
             with self._lock:
-                self.laser = Stamped(m, time.monotonic())
+                self.laser = Stamped(m, self.clock())
 
     def _on_heartbeat(self, sample: Any) -> None:
         if (m := self._decode(sample, Heartbeat)) is not None:
@@ -130,12 +139,17 @@ class LiveState:
     # readers ----------------------------------------------------------------------------
     def rate(self, name: str) -> float:
         """Arrivals per second of stream ``name`` (``points``, ``spot``, ``heartbeat``,
-        ``joints/<robot>``) over its last RATE_SAMPLES samples; 0 when stale."""
+        ``joints/<robot>``): those of the last :data:`RATE_WINDOW` s over the window (over
+        the time since the first arrival while the stream is younger); 0 when stale."""
         with self._lock:
             q = self._arrivals.get(name)
-            if not q or len(q) < 2 or time.monotonic() - q[-1] > STALE_AFTER:
+            now = self.clock()
+            if not q or len(q) < 2 or now - q[-1] > STALE_AFTER:
                 return 0.0
-            return (len(q) - 1) / max(q[-1] - q[0], 1e-9)
+            age = now - self._first[name]
+            if age < RATE_WINDOW:
+                return (len(q) - 1) / max(q[-1] - q[0], 1e-9)
+            return (len(q) - bisect.bisect_right(q, now - RATE_WINDOW)) / RATE_WINDOW
 
     def joint_vector(self, robots: tuple[str, ...]) -> dict[str, Array] | None:
         """Latest q (rad) of every robot in ``robots``, or None until all have reported."""

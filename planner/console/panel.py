@@ -42,7 +42,7 @@ def build_panel(server: Any) -> Panel:
     """Add the widgets to ``server``'s GUI."""
     gui = server.gui
     stop = gui.add_button("STOP", color="red", icon=None, hint="Publish beamrelay/stop: "
-                          "every robot brakes, laser off")  # fmt: skip
+                          "every robot brakes, laser off (or press the space bar)")  # fmt: skip
     with gui.add_folder("System"):
         health = gui.add_markdown("waiting for the bus...")
     with gui.add_folder("Targets"):

@@ -381,6 +381,13 @@ def test_operator_marks_a_clicked_polyline_on_the_board(system_up, page: Page) -
         print(f"\nSTOP pressed mid-execution: on the bus {pressed:.2f} s later, the arm at rest "
               f"{rest:.2f} s after the press")  # fmt: skip
         wait_text(d, lambda t: "STOP sent" in t, 60.0, "the page saying STOP was sent")
+        # the space bar, with the focus on Execute (a browser presses a focused button on
+        # the space bar): STOP, and nothing else pressed
+        pressed, rest = stopped_by(d, client, "space", picked)
+        print(f"\nspace bar mid-execution (Execute focused): STOP on the bus {pressed:.2f} s "
+              f"later, the arm at rest {rest:.2f} s after the press")  # fmt: skip
+        text = page_text(d)  # Execute, pressed unarmed, would say "not armed ...: press Arm"
+        assert "STOP sent" in text and "press Arm" not in text, text
         page.d = None  # the tab is closed next
         closed, rest = stopped_by(d, client, "close", picked)
         d = None
@@ -425,20 +432,27 @@ def start_moving(client: PlanClient, path: np.ndarray) -> None:
 
 def stopped_by(d: Any, client: PlanClient, how: str, path: np.ndarray) -> tuple[float, float]:
     """Execute ``path`` again (:func:`start_moving`) and, while the arm moves, press STOP (``how`` =
-    ``"button"``) or close the browser, the operator's only tab (``"close"``); seconds from
+    ``"button"``), press the space bar with the focus on the Execute button (``"space"``) or
+    close the browser, the operator's only tab (``"close"``); seconds from
     the press or close to the console's STOP on the bus, and to the arm at rest (its joint
     speeds below 0.1 mrad/s). Fails when the STOP reached the bus after the motion had ended
     (the joint states just before it at rest): a button press is tried 3 times."""
     from selenium.common.exceptions import WebDriverException
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.keys import Keys
 
-    for attempt in range(3 if how == "button" else 1):
+    for attempt in range(1 if how == "close" else 3):
         stops = Inbox(client.session, client.keys.stop)
         states = Inbox(client.session, client.keys.joint_states("arm0"))
         try:
             stop_button = find_button(d, "STOP") if how == "button" else None
+            if how == "space":
+                d.execute_script("arguments[0].focus();", find_button(d, "Execute"))
             start_moving(client, path)
             t0 = time.monotonic()
-            if stop_button is not None:
+            if how == "space":
+                ActionChains(d).send_keys(Keys.SPACE).perform()
+            elif stop_button is not None:
                 try:
                     click_element(d, stop_button)
                 except WebDriverException:  # re-rendered meanwhile: find it again
@@ -447,7 +461,7 @@ def stopped_by(d: Any, client: PlanClient, how: str, path: np.ndarray) -> tuple[
                 d.quit()
             wait_for(lambda s=stops: s.bodies(), 10.0, f"STOP after the {how}")
             msg = stops.bodies()[0]
-            reason = "operator pressed Stop" if how == "button" else "last browser"
+            reason = "last browser" if how == "close" else "operator pressed Stop"
             assert msg["source"] == "console" and reason in msg["reason"], msg
             t_stop = stops.times()[0]
             wait_for(lambda: float(np.max(np.abs(joints(client)[1]))) < 1e-4, 10.0,

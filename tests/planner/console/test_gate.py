@@ -115,6 +115,36 @@ def test_the_page_is_served_only_with_the_token(console: tuple[Console, Inbox, i
     assert get(base, cookie=f"{COOKIE}={c.gate.token}")[0] == 200
 
 
+def test_the_page_carries_the_space_bar_stop_plain_and_gzipped(
+    console: tuple[Console, Inbox, int],
+) -> None:
+    """The served page is viser's page with the space bar's handler added once, before its
+    last ``</body>``, with a Content-Length that is the body's, whether viser gzipped it or
+    not; a refused request gets no page and no script."""
+    import gzip
+    from pathlib import Path
+
+    import viser
+
+    from planner.console.hotkeys import SCRIPT
+
+    c, _, port = console
+    original = (Path(viser.__file__).parent / "client" / "build" / "index.html").read_bytes()
+    status, hdrs, body = get(c.url)
+    req = urllib.request.Request(c.url, headers={"Accept-Encoding": "gzip"})
+    with urllib.request.urlopen(req, timeout=10) as r:
+        zipped_headers, zipped = dict(r.headers), r.read()
+    assert status == 200 and int(hdrs["Content-Length"]) == len(body)
+    assert zipped_headers["Content-Encoding"] == "gzip"
+    assert int(zipped_headers["Content-Length"]) == len(zipped)
+    for html in (body, gzip.decompress(zipped)):
+        at = html.rfind(b"</body>")
+        assert html.count(SCRIPT) == 1 and html.index(SCRIPT) + len(SCRIPT) == at
+        assert html.replace(SCRIPT, b"") == original
+    status, _, refused = get(f"http://127.0.0.1:{port}/")
+    assert status == 401 and SCRIPT not in refused
+
+
 def camera_message() -> bytes:
     """A viewer-camera message: viser counts a socket as a client after its first one."""
     import msgspec

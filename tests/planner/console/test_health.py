@@ -46,3 +46,32 @@ def test_no_line_says_off_for_a_laser_without_a_gate() -> None:
     assert "laser: **no gate** in this scenario" in text and "always on" in text
     assert "off" not in text.split("laser:")[1].split("  \n")[0]
     assert "laser gate" not in text
+
+
+def test_a_burst_of_queued_heartbeats_does_not_read_as_a_rate() -> None:
+    """100 Hz heartbeats, then 280 ms with none and the 28 queued ones arriving within 23 ms
+    (what once read 1275 Hz): the rate over the last second still reads 100 Hz; a stream
+    younger than the window is measured over its age; a silent one reads 0."""
+    from planner.console.live import RATE_WINDOW, STALE_AFTER, LiveState
+    from planner.service.bus import Keys
+    from tests.fake_clock import FakeClock
+
+    clock = FakeClock()
+    live = LiveState(Keys("healthtest"), clock=clock)
+    for _ in range(50):  # 0.5 s at 100 Hz
+        live._tick("heartbeat")
+        clock.advance(0.01)
+    assert abs(live.rate("heartbeat") - 100.0) < 1e-6  # younger than the window: its age
+    for _ in range(100):  # 1 s more at 100 Hz
+        live._tick("heartbeat")
+        clock.advance(0.01)
+    clock.advance(0.27)  # silent 280 ms ...
+    for _ in range(28):  # ... then its 28 queued beats within 23 ms
+        live._tick("heartbeat")
+        clock.advance(0.023 / 28)
+    window = [t for t in live._arrivals["heartbeat"] if t > clock.t - RATE_WINDOW]
+    assert live.rate("heartbeat") == len(window) / RATE_WINDOW
+    assert 95.0 <= live.rate("heartbeat") <= 105.0  # 1 s holds ~100 beats, not 1275 Hz
+    clock.advance(STALE_AFTER + 0.01)
+    assert live.rate("heartbeat") == 0.0
+    assert live.rate("spot") == 0.0  # never seen
