@@ -134,7 +134,6 @@ def aligned(prof: Profile, s_mark: float, rate: float) -> Profile:
     fraction at the start, then follows the same s(t) (quintic Hermite through the samples'
     s, sd, sdd), one sample longer. Unchanged when ``s_mark`` is outside the profile or
     already on a sample."""
-    from scipy.interpolate import BPoly
     from scipy.optimize import brentq
 
     s, sd, sdd = prof.s, prof.sd, prof.sdd
@@ -142,11 +141,48 @@ def aligned(prof: Profile, s_mark: float, rate: float) -> Profile:
     if k == 0 or k >= len(s) or s[k] - s_mark < 1e-12 or s[k] <= s[k - 1]:
         return prof
     t = np.arange(len(s)) / rate
-    curve = BPoly.from_derivatives(t, np.column_stack([s, sd, sdd]))
-    tau = float(brentq(lambda x: float(curve(x)) - s_mark, t[k - 1], t[k], xtol=1e-15))
+    curve = QuinticHermite(t, s, sd, sdd)
+    tau = float(brentq(lambda x: float(curve(np.array([x]))[0]) - s_mark, t[k - 1], t[k],
+                       xtol=1e-15))  # fmt: skip
     delay = k / rate - tau  # in (0, 1 / rate): the crossing moves onto sample k
     tn = np.clip(np.arange(len(s) + 1) / rate - delay, 0.0, t[-1])
     s_new = np.clip(curve(tn), 0.0, float(s[-1]))
     sd_new, sdd_new = curve(tn, 1), curve(tn, 2)
     s_new[-1], sd_new[[0, -1]], sdd_new[[0, -1]] = s[-1], 0.0, 0.0
     return prof._replace(s=s_new, sd=sd_new, sdd=sdd_new)
+
+
+
+class QuinticHermite:
+    """The piecewise quintic through samples ``(t, y, yd, ydd)`` matching value, first and
+    second derivative at every sample (what ``scipy.interpolate.BPoly.from_derivatives``
+    builds from three derivatives a side, but vectorised: that one loops in Python per
+    interval: 130 ms for a 2300-sample profile, half of a path preview's timing). ``curve(tq, nu)``: the ``nu``-th derivative
+    (0-2) at ``tq`` (clipped to ``[t[0], t[-1]]``)."""
+
+    def __init__(self, t: Array, y: Array, yd: Array, ydd: Array) -> None:
+        self.t = np.asarray(t, dtype=float)
+        h = np.diff(self.t)
+        y0, y1 = y[:-1], y[1:]
+        v0, v1 = h * yd[:-1], h * yd[1:]  # per unit of u = (t - t_i) / h
+        a0, a1 = h**2 * ydd[:-1], h**2 * ydd[1:]
+        c0, c1, c2 = y0, v0, a0 / 2
+        P, V, A = y1 - (c0 + c1 + c2), v1 - (c1 + 2 * c2), a1 - 2 * c2
+        c3, c4, c5 = 10 * P - 4 * V + A / 2, -15 * P + 7 * V - A, 6 * P - 3 * V + A / 2
+        self.h = h
+        self.c = np.stack([c0, c1, c2, c3, c4, c5])  # 6 x (n - 1), ascending powers of u
+
+    def __call__(self, tq: Array, nu: int = 0) -> Array:
+        tq = np.clip(np.asarray(tq, dtype=float), self.t[0], self.t[-1])
+        i = np.clip(np.searchsorted(self.t, tq, side="right") - 1, 0, len(self.h) - 1)
+        h, u = self.h[i], (tq - self.t[i]) / self.h[i]
+        c = self.c[:, i]
+        if nu == 0:
+            return c[0] + u * (c[1] + u * (c[2] + u * (c[3] + u * (c[4] + u * c[5]))))
+        if nu == 1:
+            d = c[1] + u * (2 * c[2] + u * (3 * c[3] + u * (4 * c[4] + u * 5 * c[5])))
+            return d / h
+        if nu == 2:
+            d = 2 * c[2] + u * (6 * c[3] + u * (12 * c[4] + u * 20 * c[5]))
+            return d / h**2
+        raise ValueError(f"derivative order {nu} not in 0-2")

@@ -130,3 +130,24 @@ def test_path_planes_of_a_planar_turn_and_a_straight_line() -> None:
     n = path_planes(P, closed=False)
     np.testing.assert_allclose(np.abs(n[:, 2]), 1.0)  # every sample: the plane z = 0
     assert np.isnan(path_planes(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0]]), False)).all()
+
+
+def test_the_quintic_hermite_is_scipys_from_derivatives() -> None:
+    """The vectorised quintic matches ``BPoly.from_derivatives`` (value, first and second
+    derivative) on random samples with uneven spacing, and interpolates the samples."""
+    from scipy.interpolate import BPoly
+
+    from planner.path.profile import QuinticHermite
+
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(0.5e-3, 3e-3, 300))
+    y, yd, ydd = rng.normal(size=(3, 300)) * [[1.0], [50.0], [1e4]]
+    ours = QuinticHermite(t, y, yd, ydd)
+    ref = BPoly.from_derivatives(t, np.column_stack([y, yd, ydd]))
+    tq = np.concatenate([t, rng.uniform(t[0], t[-1], 2000)])
+    for nu, scale in ((0, 1.0), (1, 50.0), (2, 1e4)):
+        np.testing.assert_allclose(ours(tq, nu), ref(tq, nu), rtol=1e-9, atol=1e-9 * scale)
+    np.testing.assert_allclose(ours(t, 1), yd, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(ours(t, 2), ydd, rtol=1e-8, atol=1e-6)
+    with pytest.raises(ValueError, match="derivative order 3"):
+        ours(t, 3)
