@@ -88,7 +88,7 @@ def serve(
         session = open_session(listen=not connect, endpoint=endpoint, config_file=zenoh_config)
     typer.echo(f"planner bus {got.note}", err=True)
     node = PlannerNode(handler, session, Keys(prefix), bus=BusAddress(endpoint, zenoh_config),
-                       online=online)  # fmt: skip
+                       online=online, warm_up=True)  # fmt: skip
     stop = stop_on_signals()
 
     def on_fatal(reason: str) -> None:

@@ -152,7 +152,6 @@ def aligned(prof: Profile, s_mark: float, rate: float) -> Profile:
     return prof._replace(s=s_new, sd=sd_new, sdd=sdd_new)
 
 
-
 class QuinticHermite:
     """The piecewise quintic through samples ``(t, y, yd, ydd)`` matching value, first and
     second derivative at every sample (what ``scipy.interpolate.BPoly.from_derivatives``

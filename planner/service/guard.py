@@ -94,8 +94,9 @@ class JobQueue:
 class Worker:
     """The one thread that serves the node's jobs in order: ``serve(payload)`` -> the reply
     body, sent with ``respond(job, body, None)``; any Exception becomes an error reply
-    (``respond(job, None, exc)``); ``progress`` spans each job. ``on_exit()`` is called when
-    the thread ends, whether by :meth:`close` or not."""
+    (``respond(job, None, exc)``); ``progress`` spans each job. ``first()``, when given,
+    runs on the thread before the first job (jobs queue meanwhile). ``on_exit()`` is called
+    when the thread ends, whether by :meth:`close` or not."""
 
     def __init__(
         self,
@@ -103,8 +104,10 @@ class Worker:
         respond: Callable[[Job, bytes | None, Exception | None], None],
         progress: Progress,
         on_exit: Callable[[], None],
+        first: Callable[[], None] | None = None,
     ) -> None:
         self.serve, self.respond, self.progress, self.on_exit = serve, respond, progress, on_exit
+        self.first = first
         self.jobs = JobQueue()
         self._thread = threading.Thread(target=self._work, name="planner-worker", daemon=True)
 
@@ -145,6 +148,11 @@ class Worker:
 
     def _work(self) -> None:
         try:
+            if self.first is not None:
+                try:
+                    self.first()
+                except Exception:  # a warm-up must not kill the node
+                    log.exception("the worker's first task failed")
             while (job := self.jobs.get()) is not None:
                 self._run(job)
         finally:

@@ -114,6 +114,7 @@ class PlannerNode:
         bus: BusAddress | None = None,
         online: OnlineCalibrator | None = None,
         driver_grace: float = DRIVER_GRACE,
+        warm_up: bool = False,
     ) -> None:
         self.handler = handler
         self.online = online
@@ -150,7 +151,8 @@ class PlannerNode:
         self.driver_grace = driver_grace
         # serve and respond are looked up per job: a subclass or a test may replace them
         self._worker = Worker(lambda body: self.serve(body),
-                              lambda *a: self._respond(*a), self.progress, self._worker_stopped)  # fmt: skip
+                              lambda *a: self._respond(*a), self.progress, self._worker_stopped,
+                              self._warm_up if warm_up else None)  # fmt: skip
         self.on_alive_change: Callable[[str, bool], None] | None = None
         self.on_fatal: Callable[[str], None] | None = None
         self.failed: str | None = None
@@ -188,6 +190,13 @@ class PlannerNode:
         self._token = s.liveliness().declare_token(k.alive("planner"))
         self._started = time.monotonic()
         return self
+
+    def _warm_up(self) -> None:
+        """The worker's first task with ``warm_up``: :meth:`RequestHandler.warm_up`
+        (requests queue behind it, as they would behind a cold first request)."""
+        with self._handler_lock:
+            handler = self.handler
+        event(log, "warmed_up", seconds=round(handler.warm_up(), 3))
 
     def install_calibration(self, handler: RequestHandler | None, calibration: Any) -> None:
         """Serve later requests with ``handler`` (planned with ``calibration``, whose

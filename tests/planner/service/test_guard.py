@@ -91,3 +91,34 @@ def test_progress_allowance_grows_with_targets_and_ticks_restart_it() -> None:
     assert p.overdue() is not None
     p.end()
     assert p.overdue() is None
+
+
+def test_the_worker_runs_its_first_task_before_any_job_and_survives_its_failure() -> None:
+    import threading
+
+    from planner.service.guard import Job, Worker
+
+    for fails in (False, True):
+        order: list[str] = []
+        release, done = threading.Event(), threading.Event()
+
+        def first(fails: bool = fails, order: list[str] = order,
+                  release: threading.Event = release) -> None:  # fmt: skip
+            release.wait(5.0)  # a job submitted meanwhile waits
+            order.append("first")
+            if fails:
+                raise RuntimeError("warm-up failed")
+
+        def respond(job: Any, body: Any, err: Any, order: list[str] = order,
+                    done: threading.Event = done) -> None:  # fmt: skip
+            order.append(f"reply {body!r} {err!r}")
+            done.set()
+
+        w = Worker(lambda b, order=order: (order.append("serve"), b)[1], respond, Progress(),
+                   lambda: None, first)  # fmt: skip
+        w.start()
+        w.submit(Job("query", None, b"x"))
+        release.set()
+        assert done.wait(5.0)
+        w.close(5.0)
+        assert order == ["first", "serve", "reply b'x' None"], order

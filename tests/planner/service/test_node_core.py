@@ -98,3 +98,35 @@ def test_a_path_request_with_a_corner_is_marked_in_two_strokes() -> None:
     assert kinds.count("run_in") == 2 and kinds.count("run_out") == 2
     findings = [f for r in check_plan(plan) for f in r.findings]
     assert findings == [], findings[:3]
+
+
+def test_warm_up_plans_one_solved_target_down_the_beam_at_home(system: System) -> None:
+    """The warm-up's target lies on the beam at home, so the plan it makes (and drops) is
+    solved and its trajectory starts and stays at home: the IK, the path and the timing all
+    ran. A plan function that fails is no error."""
+    from planner.beam.trace import trace_beam
+
+    plans: list[dict[str, object]] = []
+    inner = make_plan_fn(system, {}, None, TrajectorySettings())
+
+    def spy(targets: Targets, start: object, trajectory: bool) -> dict[str, object]:
+        plan = inner(targets, start, trajectory)
+        plans.append({"targets": targets, "trajectory": trajectory, "plan": plan})
+        return plan
+
+    handler = RequestHandler(system, spy)
+    assert handler.warm_up() > 0.0
+    (only,) = plans
+    assert only["trajectory"] is True
+    point = only["targets"].points[0]  # type: ignore[attr-defined]
+    beam = trace_beam(system, system.home, point)
+    assert beam.error < 1e-9 and beam.target_ahead == pytest.approx(0.5, abs=1e-9)
+    plan = only["plan"]
+    assert plan["solutions"][0]["status"] == "ok"  # type: ignore[index]
+    q = np.asarray(plan["trajectory"]["q"][system.robot_names[0]])  # type: ignore[index]
+    np.testing.assert_allclose(q, np.tile(system.home, (len(q), 1)), atol=1e-4)
+
+    def failing(*_: object) -> dict[str, object]:
+        raise InputError("no", "points")
+
+    assert RequestHandler(system, failing).warm_up() >= 0.0
