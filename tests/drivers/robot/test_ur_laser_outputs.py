@@ -80,7 +80,10 @@ def test_io_call_that_does_not_return_is_a_fault_and_the_loop_keeps_its_period()
         durations.append(time.perf_counter() - t0)
     release.set()
     assert robot.fault == f"setStandardDigitalOut did not return within {1e3 * IO_TIMEOUT:.0f} ms"
-    assert max(durations) < IO_TIMEOUT / 2  # never waited for the hung call
+    # never waited for the hung call: that one hangs 5 s, every period returned long before
+    # (not a period bound: this runs beside other tests, and a preempted period once took
+    # 261 ms; the control period itself is measured in the serial real-time probes)
+    assert max(durations) < 1.0, max(durations)
 
 
 def test_fault_switches_every_laser_output_off() -> None:
