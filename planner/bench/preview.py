@@ -35,19 +35,25 @@ DEFAULT_CENTRE = ",".join(map(str, CENTRE))
 STAGES = ("path_solve", "verify", "beam_check", "timing", "document", "json_encode")
 
 
-def path_request(centre: tuple[float, ...], one: bool = False) -> Any:
-    """The validated TargetRequest: a path through the three corners about ``centre`` (with
-    ``one``: the single target ``centre``)."""
+def path_request(centre: tuple[float, ...]) -> Any:
+    """The validated TargetRequest: a path through the three corners about ``centre``."""
     import numpy as np
 
+    pts = np.asarray(centre, dtype=float) + np.asarray(CORNERS)
+    return _preview_request(pts.tolist(), "path")
+
+
+def target_request(centre: tuple[float, ...]) -> Any:
+    """The validated TargetRequest of the single target ``centre``."""
+    return _preview_request([list(centre)], "points")
+
+
+def _preview_request(points: list[Any], mode: str) -> Any:
     from schemas.messages import TargetRequest
 
-    pts = np.asarray(centre, dtype=float) + np.asarray(CORNERS)
     return TargetRequest.model_validate({
-        "schema": "beamrelay.request/1", "id": "bench-preview",
-        "points": [list(centre)] if one else pts.tolist(),
-        "mode": "points" if one else "path", "frame": "world", "execute": False,
-        "trajectory": True,
+        "schema": "beamrelay.request/1", "id": "bench-preview", "points": points, "mode": mode,
+        "frame": "world", "execute": False, "trajectory": True,
     })  # fmt: skip
 
 
@@ -140,7 +146,7 @@ def measure(scenario: Path, runs: int, centre: tuple[float, ...]) -> dict[str, A
         for k in STAGES:
             per[k].append(secs[k])
     plan = json.loads(body)
-    one = path_request(centre, one=True)
+    one = target_request(centre)
     encode_json(handler.plan(one, None, trajectory=True))
     single = []
     for _ in range(runs):

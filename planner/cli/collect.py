@@ -162,23 +162,24 @@ def _run(system: Any, world: Any, robot: str, qs: Any, speed: float, endpoint: s
     got_p: list[Any] = []
     log: list[str] = []
     try:
-        # the poses the arm went through, joined by moves that were checked clear (None once
-        # a move ended early: the arm may have stopped anywhere)
-        trail: list[Any] | None = [bp.wait_joints()[robot].copy()]
+        # the poses the arm went through, joined by moves that were checked clear; lost once
+        # a move ended early (the arm may have stopped anywhere)
+        trail = [bp.wait_joints()[robot].copy()]
+        lost = False
         home = system.robot(robot).home
         for i, q in enumerate(qs):
             why = bp.move(robot, q, speed, world)
             if why is not None and why.startswith("safety check"):
                 back = bp.move(robot, home, speed, world)  # the direct path collides
                 if back is None:  # go through home
-                    trail = None if trail is None else [*trail, np.array(home, dtype=float)]
+                    trail.append(np.array(home, dtype=float))
                     why = bp.move(robot, q, speed, world)
                 elif not back.startswith("safety check"):
-                    why, trail = back, None
+                    why = back
             if why is None:
-                trail = None if trail is None else [*trail, np.array(q, dtype=float)]
+                trail.append(np.array(q, dtype=float))
             elif not why.startswith("safety check"):
-                trail = None
+                lost = True
             obs = observe(bp) if why is None else None
             if why is None and (obs is None or not np.any(np.isfinite(obs))):
                 why = "nothing seen by the camera"
@@ -188,7 +189,7 @@ def _run(system: Any, world: Any, robot: str, qs: Any, speed: float, endpoint: s
             if why is None:
                 got_q.append(bp.q[robot].copy())
                 got_p.append(obs)
-        typer.echo(_return(bp, robot, trail, speed, world))
+        typer.echo(_return(bp, robot, None if lost else trail, speed, world))
     finally:
         bp.close()
         session.close()

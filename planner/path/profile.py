@@ -156,8 +156,9 @@ class QuinticHermite:
     """The piecewise quintic through samples ``(t, y, yd, ydd)`` matching value, first and
     second derivative at every sample (what ``scipy.interpolate.BPoly.from_derivatives``
     builds from three derivatives a side, but vectorised: that one loops in Python per
-    interval: 130 ms for a 2300-sample profile, half of a path preview's timing). ``curve(tq, nu)``: the ``nu``-th derivative
-    (0-2) at ``tq`` (clipped to ``[t[0], t[-1]]``)."""
+    interval, 130 ms for a 2300-sample profile, half of a path preview's timing).
+    ``curve(tq, nu)``: the ``nu``-th derivative (0-2) at ``tq`` (clipped to
+    ``[t[0], t[-1]]``)."""
 
     def __init__(self, t: Array, y: Array, yd: Array, ydd: Array) -> None:
         self.t = np.asarray(t, dtype=float)

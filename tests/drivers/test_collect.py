@@ -29,8 +29,9 @@ from planner.io.scenario import load_scenario, system_from_scenario
 from planner.model.system import Intrinsics
 from planner.model.transforms import axis_angle_to_matrix, inv_T, make_T
 from tests import cli_run
-from tests.drivers.conftest import free_port, raw_session, wait_for_nodes
+from tests.drivers.conftest import free_port, raw_session, wait_for, wait_for_nodes
 from tests.paths import REPO
+from tests.planner.raw_zenoh import Inbox
 
 SCENARIO = REPO / "scenarios" / "paper_n1.yaml"
 CLI = [sys.executable, "-m", "planner.cli"]
@@ -163,18 +164,13 @@ def sim_system(sim_drivers: tuple[str, str]) -> tuple[str, str]:
 
 def arm0_joints(ep: str, prefix: str) -> Any:
     """arm0's joint angles now, from its joint states on the bus (rad)."""
-    got: list[Any] = []
     client = raw_session(ep)
-    sub = client.declare_subscriber(f"{prefix}/arm0/joint_states",
-                                    lambda s: got.append(json.loads(s.payload.to_bytes())["q"]))  # fmt: skip
+    states = Inbox(client, f"{prefix}/arm0/joint_states")
     try:
-        end = time.monotonic() + 10.0
-        while not got and time.monotonic() < end:
-            time.sleep(0.02)
-        assert got, "no arm0 joint states"
-        return np.array(got[-1], dtype=float)
+        wait_for(states.bodies, 10.0, "arm0 joint states")
+        return np.array(states.bodies()[-1]["q"], dtype=float)
     finally:
-        sub.undeclare()
+        states.close()
         client.close()
 
 

@@ -292,6 +292,7 @@ def select_option(d: Any, label: str, value: str, timeout: float = 20.0) -> None
         time.sleep(0.1)
 
 
+#: the page's largest canvas element (the 3D view)
 LARGEST_CANVAS = """
 return [...document.querySelectorAll('canvas')].reduce(
   (a, c) => (c.clientWidth * c.clientHeight > a.clientWidth * a.clientHeight ? c : a));
@@ -303,9 +304,8 @@ def click_world_point(d: Any, view: Any, rect: tuple[float, float, float, float]
     """Click the canvas where the page's starting camera ``view`` sees world point ``p``."""
     from selenium.webdriver.common.action_chains import ActionChains
 
-    canvas = d.execute_script(
-        LARGEST_CANVAS
-    )  # one round trip (asking each for its size: ~1 s each)
+    # one round trip (asking each canvas for its size took ~1 s each)
+    canvas = d.execute_script(LARGEST_CANVAS)
     u, v = project(view.position, view.look_at, view.up, view.fov, p, rect[2], rect[3])[0]
     ActionChains(d).move_to_element_with_offset(
         canvas, round(float(u) - rect[2] / 2), round(float(v) - rect[3] / 2)
