@@ -282,10 +282,14 @@ class BeamIK:
         if cf.q is None:
             return None, None, "closed_form", cf.members, reason, evidence, []
         q, method = cf.q, "closed_form"
-        if not self.closed_form.exact:
+        ev = trace_beam(self.system, q, target, normal)
+        # A calibrated arm's member is a nominal seed; a nominal one can still lose digits in
+        # the closed form near a zero joint (ur_analytic_ik's atan2s: 1e-9 m where most land
+        # at 1e-13). Both close the gap by Gauss-Newton.
+        if not self.closed_form.exact or ev.error > EXACT:
             q = self.newton.polish(q, target, normal).q
             method = "closed_form+newton"
-        ev = trace_beam(self.system, q, target, normal)
+            ev = trace_beam(self.system, q, target, normal)
         if not self.accept(ev, q):
             why: dict[str, object] = {"why": "closed-form member rejected"}
             return None, None, method, cf.members, Reason.SOLVER_FAILED, why, [q]

@@ -95,7 +95,8 @@ class Worker:
     """The one thread that serves the node's jobs in order: ``serve(payload)`` -> the reply
     body, sent with ``respond(job, body, None)``; any Exception becomes an error reply
     (``respond(job, None, exc)``); ``progress`` spans each job. ``first()``, when given,
-    runs on the thread before the first job (jobs queue meanwhile). ``on_exit()`` is called
+    runs on the thread before the first job (jobs queue meanwhile), spanned by ``progress``
+    as a job is. ``on_exit()`` is called
     when the thread ends, whether by :meth:`close` or not."""
 
     def __init__(
@@ -149,10 +150,13 @@ class Worker:
     def _work(self) -> None:
         try:
             if self.first is not None:
+                self.progress.begin()  # a wedged warm-up is a wedged worker, as a job's is
                 try:
                     self.first()
                 except Exception:  # a warm-up must not kill the node
                     log.exception("the worker's first task failed")
+                finally:
+                    self.progress.end()
             while (job := self.jobs.get()) is not None:
                 self._run(job)
         finally:

@@ -168,15 +168,22 @@ def test_follows_trajectory_acks_with_the_request_id(cell: Cell) -> None:
 
 
 @pytest.mark.serial
+@pytest.mark.flaky(reruns=1)  # real time on a shared machine; a rerun is listed by -rR
 def test_joint_states_at_250_hz(cell: Cell) -> None:
-    """A real-time probe: the driver publishes joint states every 4 ms (SPEC: >= 100 Hz)."""
-    n0 = len(cell.states.items)
-    time.sleep(1.0)
-    dt = np.diff([s["t"] for s in cell.states.items[n0:]])
-    print(f"joint states: median gap {1e3 * np.median(dt):.2f} ms, p99 "
-          f"{1e3 * np.percentile(dt, 99):.2f} ms, max {1e3 * dt.max():.2f} ms (period 4 ms)")  # fmt: skip
+    """A real-time probe: the driver publishes joint states every 4 ms (SPEC: >= 100 Hz).
+    Counted by the states' own stamps over one second of the driver's clock, once a state
+    stamped after it has arrived: a receive thread running behind in this process (it shares
+    the GIL with the driver) no longer reads as states the driver did not publish."""
+    t_a = cell.states.items[-1]["t"]
+    wait_for(lambda: cell.states.items[-1]["t"] > t_a + 1.0, 5.0, "a second of joint states")
+    t = np.array([s["t"] for s in list(cell.states.items)])
+    t = t[(t > t_a) & (t <= t_a + 1.0)]
+    dt = np.diff(t)
+    print(f"joint states: {t.size} in 1 s of driver stamps, median gap "
+          f"{1e3 * np.median(dt):.2f} ms, p99 {1e3 * np.percentile(dt, 99):.2f} ms, max "
+          f"{1e3 * dt.max():.2f} ms (period 4 ms)")  # fmt: skip
     assert np.median(dt) == pytest.approx(1 / 250.0, rel=0.1)
-    assert len(dt) >= 0.9 * 250 - 1 and np.percentile(dt, 99) < 0.010  # SPEC: >= 100 Hz
+    assert t.size >= 0.9 * 250 and np.percentile(dt, 99) < 0.010  # SPEC: >= 100 Hz
 
 
 def test_position_jump_is_refused_and_the_arm_never_moves(cell: Cell) -> None:

@@ -406,10 +406,10 @@ def joints(client: PlanClient) -> tuple[np.ndarray, np.ndarray]:
     return q.copy(), qd.copy()
 
 
-def start_moving(client: PlanClient, path: np.ndarray) -> None:
+def start_moving(client: PlanClient, path: np.ndarray) -> np.ndarray:
     """Execute the marked ``path`` again, from the test's own bus client (the page's Arm and
     Execute were tested above; pressing them costs ~10 s on a starved browser), and return
-    once the arm moves (2 mrad from where it was: the planner may run the path from the end
+    the executed trajectory's last arm0 joints once the arm moves (2 mrad from where it was: the planner may run the path from the end
     the arm rests at, with no approach, and at the spot speed the joints move at ~5 mrad/s).
     A late planner heartbeat may refuse a request: tried 5 times (each refusal printed)."""
     for _ in range(5):
@@ -426,7 +426,7 @@ def start_moving(client: PlanClient, path: np.ndarray) -> None:
             continue
         wait_for(lambda q0=q0: float(np.max(np.abs(joints(client)[0] - q0))) > 2e-3, 30.0,
                  "the arm moving")  # fmt: skip
-        return
+        return np.asarray(plan["trajectory"]["q"]["arm0"][-1], dtype=float)
     raise AssertionError("no execute moved the arm")
 
 
@@ -435,8 +435,10 @@ def stopped_by(d: Any, client: PlanClient, how: str, path: np.ndarray) -> tuple[
     ``"button"``), press the space bar with the focus on the Execute button (``"space"``) or
     close the browser, the operator's only tab (``"close"``); seconds from
     the press or close to the console's STOP on the bus, and to the arm at rest (its joint
-    speeds below 0.1 mrad/s). Fails when the STOP reached the bus after the motion had ended
-    (the joint states just before it at rest): a button press is tried 3 times."""
+    speeds below 0.1 mrad/s). Fails when the STOP reached the bus after the motion had ended:
+    the joint states just before it at rest and the arm resting where the trajectory ends (a
+    STOP in the still instant between the approach and the path stops the arm short of the
+    end). A button press is tried 3 times."""
     from selenium.common.exceptions import WebDriverException
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.keys import Keys
@@ -448,7 +450,7 @@ def stopped_by(d: Any, client: PlanClient, how: str, path: np.ndarray) -> tuple[
             stop_button = find_button(d, "STOP") if how == "button" else None
             if how == "space":
                 d.execute_script("arguments[0].focus();", find_button(d, "Execute"))
-            start_moving(client, path)
+            q_end = start_moving(client, path)
             t0 = time.monotonic()
             if how == "space":
                 ActionChains(d).send_keys(Keys.SPACE).perform()
@@ -469,9 +471,13 @@ def stopped_by(d: Any, client: PlanClient, how: str, path: np.ndarray) -> tuple[
             rest = time.monotonic() - t0
             before = [np.max(np.abs(b["qd"])) for t, b in states.items
                       if t_stop - 0.05 <= t <= t_stop and isinstance(b, dict)]  # fmt: skip
-            if before and max(before) > 1e-3:  # rad/s: it was moving when the STOP came
+            short = float(np.max(np.abs(joints(client)[0] - q_end)))  # rad from the end
+            if (before and max(before) > 1e-3) or short > 2e-3:  # it was stopped mid-motion
                 return t_stop - t0, rest
-            print(f"\nSTOP by {how} came after the motion ended (attempt {attempt + 1})")
+            print(f"\nSTOP by {how} came after the motion ended (attempt {attempt + 1}): "
+                  f"{t_stop - t0:.2f} s after the {how}, joint speeds before it "
+                  f"{max(before, default=0.0) * 1e3:.2f} mrad/s, rest {short * 1e3:.2f} mrad "
+                  f"from the end")  # fmt: skip
         finally:
             stops.close()
             states.close()

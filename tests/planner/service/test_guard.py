@@ -122,3 +122,28 @@ def test_the_worker_runs_its_first_task_before_any_job_and_survives_its_failure(
         assert done.wait(5.0)
         w.close(5.0)
         assert order == ["first", "serve", "reply b'x' None"], order
+
+
+def test_a_wedged_first_task_counts_as_a_wedged_worker() -> None:
+    """The warm-up runs under the progress watchdog, as a job does: past its allowance the
+    worker is overdue (the heartbeat stops, drivers brake); once it ends, it is not."""
+    import threading
+
+    from planner.service.guard import Worker
+
+    clock = FakeClock(T0)
+    progress = Progress(timeout=0.5, per_target=0.0, clock=clock)
+    seen: list[str | None] = []
+
+    def first() -> None:
+        seen.append(progress.overdue())
+        clock.advance(0.5 + 1e-6)  # the warm-up hangs past the allowance
+        seen.append(progress.overdue())
+
+    ended = threading.Event()
+    w = Worker(lambda b: b, lambda *a: None, progress, ended.set, first)
+    w.start()
+    w.close(5.0)
+    assert ended.is_set()
+    assert seen == [None, "worker busy on one request for 0.5 s (allowed 0.5 s)"]
+    assert progress.overdue() is None
