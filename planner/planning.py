@@ -11,6 +11,7 @@ sky-writing (:mod:`planner.path.marking`), dense at ``rate``, with the laser gat
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -78,12 +79,14 @@ def plan_landed_points(
         out.append(sol)
         if progress is not None:
             progress(k)
-    if scene is not None and not scene.empty:
+    scene = None if scene is None or scene.empty else scene
+    if targets.surface_tolerance > 0 and (scene is not None or targets.cloud is not None):
         from planner.safety.landing import land_on_surfaces
+
+        targets, out = land_on_surfaces(ik, scene, targets, out)
+    if scene is not None:
         from planner.safety.occlusion import check_points
 
-        if targets.surface_tolerance > 0:
-            targets, out = land_on_surfaces(ik, scene, targets, out)
         out = check_points(ik, scene, targets, out)
     return targets, out
 
@@ -100,12 +103,56 @@ def solve_path(
     sample in a gap is ``failed`` with the gap's reason and evidence) and the path result.
     With a ``scene``, samples whose beam crosses it become ``occluded`` gaps
     (:func:`planner.safety.occlusion.check_path`); with ``safety`` rules, samples that
-    break them become gaps with their reason (:func:`~planner.safety.occlusion.check_path_safety`)."""
-    from planner.path.solve import PathOptions, plan_path
+    break them become gaps with their reason (:func:`~planner.safety.occlusion.check_path_safety`).
+    A path with a ``surface_tolerance`` is swept on the surface it lands on
+    (:func:`solve_landed_path` gives those samples)."""
+    return solve_landed_path(system, targets, options, q_start, scene, safety)[1:]
+
+
+def solve_landed_path(
+    system: System,
+    targets: Targets,
+    options: IKOptions,
+    q_start: Array | None = None,
+    scene: SceneModel | None = None,
+    safety: Safety | None = None,
+) -> tuple[Targets, list[Solution], PathResult]:
+    """:func:`solve_path` and the samples it swept: a path with a ``surface_tolerance`` (in
+    the camera frame) is swept once, moved onto the scene surface its beam lands on
+    (:func:`planner.safety.landing.land_path`), and swept again there, before the
+    occlusion check."""
+    from planner.path.solve import PathOptions
 
     inc = 90.0 if options.max_incidence is None else float(np.degrees(options.max_incidence))
     opts = PathOptions(tolerance=options.tolerance, max_iter=options.max_iter,
                        max_incidence_deg=inc)  # fmt: skip
+    out, res = _sweep(system, targets, opts, q_start, safety)
+    if scene is not None and not scene.empty and targets.surface_tolerance > 0:
+        from planner.safety.landing import land_path
+
+        moved = land_path(scene, targets, out)
+        if moved is not None:
+            targets, found = moved
+            out, res = _sweep(system, targets, opts, q_start, safety)
+            out = [dataclasses.replace(sol, evidence={**sol.evidence, "surface": found[k].to_json()})
+                   if k in found and sol.ok else sol for k, sol in enumerate(out)]  # fmt: skip
+    if scene is not None and not scene.empty:
+        from planner.safety.occlusion import check_path
+
+        out, res = check_path(system, scene, out, res)
+    if safety is not None:
+        from planner.safety.occlusion import check_path_safety
+
+        out, res = check_path_safety(system, safety, out, res)
+    return targets, out, res
+
+
+def _sweep(
+    system: System, targets: Targets, opts: Any, q_start: Array | None, safety: Safety | None
+) -> tuple[list[Solution], PathResult]:
+    """:func:`planner.path.solve.plan_path` as per-sample solutions (see :func:`solve_path`)."""
+    from planner.path.solve import plan_path
+
     t0 = time.perf_counter()
     res = plan_path(system, targets, q_start, opts, safety)
     per_sample = (time.perf_counter() - t0) / max(len(targets), 1)
@@ -120,14 +167,6 @@ def solve_path(
             reason = Reason.UNREACHABLE if gap is None else gap.reason
             evidence: dict[str, object] = {"detail": gap.detail if gap is not None else ""}
             out.append(Solution.failed(reason, per_sample, 0, "path", evidence))
-    if scene is not None and not scene.empty:
-        from planner.safety.occlusion import check_path
-
-        out, res = check_path(system, scene, out, res)
-    if safety is not None:
-        from planner.safety.occlusion import check_path_safety
-
-        out, res = check_path_safety(system, safety, out, res)
     return out, res
 
 
@@ -444,6 +483,11 @@ def run_scenario(
     resolved = resolved_scenario_dict(loaded)
     system = system_from_scenario(loaded)
     targets = targets_from_scenario(loaded, system)
+    if scn.targets.frame == "camera" and targets.kind in ("points", "path"):  # seen on a surface
+        from planner.safety.landing import surface_tolerance
+
+        tol = surface_tolerance(float(scn.safety.spot_uncertainty))
+        targets = dataclasses.replace(targets, surface_tolerance=tol)
     model = scene_model(loaded) if scene else None
     from planner.safety.model import Safety
 
@@ -458,12 +502,14 @@ def run_scenario(
     with Progress(*columns, disable=not progress, transient=True) as bar:
         if targets.kind == "path":
             task = bar.add_task("path NLP", total=None)
-            solutions, path = solve_path(system, targets, options, scene=model, safety=guard)
+            targets, solutions, path = solve_landed_path(system, targets, options, scene=model,
+                                                         safety=guard)  # fmt: skip
             bar.update(task, total=1, completed=1)
         else:
             task = bar.add_task("solving targets", total=len(targets))
-            solutions = plan_points(system, targets, options, scene=model, safety=guard,
-                                    progress=lambda k: bar.update(task, completed=k + 1))  # fmt: skip
+            targets, solutions = plan_landed_points(
+                system, targets, options, scene=model, safety=guard,
+                progress=lambda k: bar.update(task, completed=k + 1))  # fmt: skip
         solutions = verify_solutions(system, resolved, targets, solutions)
         n_ok = sum(s.ok for s in solutions)
         timing = bar.add_task("timing", total=n_ok if targets.kind != "path" else None)

@@ -33,16 +33,27 @@ class Ran:
 
 @contextlib.contextmanager
 def _unconfigured_logging() -> Iterator[None]:
-    """The root logger without handlers, as in a fresh interpreter: a warning then reaches
-    standard error through logging's last-resort handler (pytest's capture handlers would
-    take it instead)."""
-    root = logging.getLogger()
-    handlers = root.handlers[:]
+    """Logging as in a fresh interpreter: the root logger without handlers and the
+    ``beamrelay`` logger not configured (an earlier in-process command may have called
+    :func:`planner.service.events.configure`, which sends its records to the standard error
+    of that time), so a warning reaches this call's standard error through logging's
+    last-resort handler (pytest's capture handlers would take it instead). Both are put back
+    afterwards, and a writer this call configured is stopped."""
+    from planner.service import events
+
+    root, ours = logging.getLogger(), logging.getLogger("beamrelay")
+    saved = root.handlers[:], ours.handlers[:], ours.propagate, ours.level, events._listener
     root.handlers.clear()
+    ours.handlers.clear()
+    ours.propagate, events._listener = True, None
+    ours.setLevel(logging.NOTSET)
     try:
         yield
     finally:
-        root.handlers[:] = handlers
+        events.stop()
+        root.handlers[:], ours.handlers[:] = saved[0], saved[1]
+        ours.propagate, events._listener = saved[2], saved[4]
+        ours.setLevel(saved[3])
 
 
 def beamrelay(*args: str | Path, cwd: Path = REPO) -> Ran:

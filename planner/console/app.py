@@ -32,7 +32,7 @@ from planner.console.preview import Preview, beam_polyline, joints_at, preview_o
 from planner.console.targets import Mode, TargetList, build_request, path_points
 from planner.console.view import default_view
 from planner.errors import BeamrelayError, InputError
-from planner.model.transforms import Array
+from planner.model.transforms import Array, inv_T
 from planner.service.events import event
 from planner.service.token import new_token
 
@@ -316,9 +316,11 @@ class Console:
     # plan, execute, stop ------------------------------------------------------------------
     def _request(self, execute: bool) -> dict[str, Any]:
         p = self.panel
+        cam = self.system.camera  # picks on a fixed camera's cloud go in its frame
+        camera_T_world = None if cam is None or cam.robot is not None else inv_T(cam.world_T_camera)
         return build_request(self.targets, Mode(p.mode.value), execute=execute,
                              closed_loop=bool(p.closed_loop.value), dwell=float(p.dwell.value),
-                             use_normals=bool(p.normals.value))  # fmt: skip
+                             use_normals=bool(p.normals.value), camera_T_world=camera_T_world)  # fmt: skip
 
     def _do_preview(self) -> None:
         req = self._request(execute=False)

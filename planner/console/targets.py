@@ -2,7 +2,7 @@
 
 A :class:`TargetList` is an ordered tuple of picked :class:`Target` (world point, optional
 unit normal); every edit returns a new list. :func:`build_request` turns it into a
-TargetRequest dict: separate ``points``, or one ``path`` through the targets in order — a
+TargetRequest dict (in the camera frame for a fixed camera: the picks are its cloud's points): separate ``points``, or one ``path`` through the targets in order — a
 polyline (the planner resamples it and marks corners sharper than its corner angle) or a
 smooth curve, which the console samples itself (a cubic spline through the targets,
 :func:`planner.io.strokes.mark_path`) and sends as a dense polyline.
@@ -105,9 +105,13 @@ def build_request(
     dwell: float | None = None,
     use_normals: bool = True,
     request_id: str | None = None,
+    camera_T_world: Array | None = None,
 ) -> dict[str, Any]:
-    """The TargetRequest (world frame) for the list. InputError for an empty list, a path of
-    fewer than two targets, or a negative dwell."""
+    """The TargetRequest for the list: in the world frame, or with ``camera_T_world`` (the
+    calibrated pose of a fixed camera, inverted) in the camera frame, where the camera saw
+    the picked cloud points (the console drew them through that pose): the planner then
+    lands them on the surface that carries them and measures a closed loop in that frame.
+    InputError for an empty list, a path of fewer than two targets, or a negative dwell."""
     if len(targets) == 0:
         raise InputError("no targets: click the point cloud to add one", "targets")
     if mode is not Mode.POINTS and len(targets) < 2:
@@ -115,8 +119,14 @@ def build_request(
     if dwell is not None and not (np.isfinite(dwell) and dwell >= 0):
         raise InputError(f"dwell must be >= 0 s, got {dwell}", "dwell")
     P, N = path_points(targets, mode)
+    frame = "world"
+    if camera_T_world is not None:
+        T = np.asarray(camera_T_world, dtype=float)
+        P, N = P @ T[:3, :3].T + T[:3, 3], None if N is None else N @ T[:3, :3].T
+        frame = "camera"
     req = make_request(
         P,
+        frame=frame,
         normals=N if use_normals else None,
         path=mode is not Mode.POINTS,
         execute=execute,

@@ -185,6 +185,9 @@ class Targets:
     surface_tolerance: float = 0.0
     """m: how far a target may lie from the scene surface that carries it and still be
     planned onto it (:mod:`planner.safety.landing`; camera-frame point targets); 0: exact"""
+    cloud: Array | None = None
+    """(N, 3) world points of the camera's live cloud around the targets (m, through the
+    calibrated camera pose): a surface that can carry them where the scene has none"""
 
     def __len__(self) -> int:
         return len(self.points)

@@ -94,12 +94,16 @@ def landings(
 
 
 def land_on_surfaces(
-    ik: BeamIK, scene: SceneModel, targets: Targets, solutions: list[Solution]
+    ik: BeamIK, scene: SceneModel | None, targets: Targets, solutions: list[Solution]
 ) -> tuple[Targets, list[Solution]]:
-    """``targets`` with each landed one (:func:`landings`, ``targets.surface_tolerance``)
-    moved onto its surface and solved again there from its first solution; the landed
-    solutions carry their :class:`Landing` as ``evidence["surface"]``."""
-    found = landings(scene, targets, solutions, targets.surface_tolerance)
+    """``targets`` with each landed one (:func:`landings`, ``targets.surface_tolerance``; on
+    the live cloud, :func:`cloud_landings`, those the scene carries none of) moved onto its
+    surface and solved again there from its first solution; the landed solutions carry
+    their :class:`Landing` as ``evidence["surface"]``."""
+    tol = targets.surface_tolerance
+    found = {} if scene is None else landings(scene, targets, solutions, tol)
+    if targets.cloud is not None:
+        found |= cloud_landings(targets.cloud, targets, solutions, tol, set(found))
     if not found:
         return targets, solutions
     points = targets.points.copy()
@@ -111,3 +115,74 @@ def land_on_surfaces(
         evidence = {**sol.evidence, "surface": land.to_json()}
         out[k] = dataclasses.replace(sol, solve_time=solve_time, evidence=evidence)
     return dataclasses.replace(targets, points=points), out
+
+
+def land_path(
+    scene: SceneModel, targets: Targets, solutions: list[Solution]
+) -> tuple[Targets, dict[int, Landing]] | None:
+    """A camera-frame path's samples moved onto the surface their beam lands on: each landed
+    sample (:func:`landings`, ``targets.surface_tolerance``) to its landing point, every
+    other one (no beam, or not onto its carrier) by the landing displacement interpolated
+    along the path between the landed samples around it (the camera's calibration error
+    moves a path as a whole; beyond the first or last landed sample, theirs). The moved
+    targets and the landings by sample, or None when no sample landed."""
+    found = landings(scene, targets, solutions, targets.surface_tolerance)
+    if not found:
+        return None
+    idx = np.array(sorted(found))
+    shift = np.array([found[k].point - targets.points[k] for k in idx])
+    ks = np.arange(len(targets))
+    d = np.column_stack([np.interp(ks, idx, shift[:, i]) for i in range(3)])
+    return dataclasses.replace(targets, points=targets.points + d), found
+
+
+#: m: cloud points this close to a target's beam (its last segment's line) sample the surface
+#: it meets there
+CLOUD_RADIUS = 0.004
+#: fewest cloud points that make a surface
+CLOUD_MIN_POINTS = 12
+#: m: largest RMS distance of those points from their plane (a surface, not a corner or an edge)
+CLOUD_MAX_RMS = 0.001
+#: the name a landing on the live cloud reports as its carrier
+CLOUD = "camera cloud"
+
+
+def cloud_landings(
+    cloud: Array, targets: Targets, solutions: list[Solution], tolerance: float,
+    skip: set[int] | frozenset[int] = frozenset(),
+) -> dict[int, Landing]:  # fmt: skip
+    """Landings on the camera's live cloud (``cloud``: N x 3 world points, m, through the
+    calibrated camera pose) of the solved targets not in ``skip``: the cloud points within
+    :data:`CLOUD_RADIUS` of the target's beam line and within :data:`MAX_SLANT` x
+    ``tolerance`` of the target along it, at least :data:`CLOUD_MIN_POINTS`, lying on a
+    plane (RMS under :data:`CLOUD_MAX_RMS`; SVD fit) are the surface there; the beam meets
+    that plane at the landing point, taken when it lies within ``tolerance`` of the target
+    along the plane's normal. A pick on the cloud lands where the many points around it put
+    the surface, not at its own pixel's noisy depth."""
+    out: dict[int, Landing] = {}
+    cloud = np.asarray(cloud, dtype=float).reshape(-1, 3)
+    if len(cloud) < CLOUD_MIN_POINTS or tolerance <= 0:
+        return out
+    for k, sol in enumerate(solutions):
+        if k in skip or not sol.ok or sol.hits is None:
+            continue
+        start, end = sol.hits[-1], targets.points[k]
+        v = (end - start) / np.linalg.norm(end - start)
+        rel = cloud - end
+        along = rel @ v
+        near = (np.abs(along) <= MAX_SLANT * tolerance) & (
+            np.linalg.norm(rel - along[:, None] * v, axis=1) <= CLOUD_RADIUS
+        )
+        pts = cloud[near]
+        if len(pts) < CLOUD_MIN_POINTS:
+            continue
+        centre = pts.mean(axis=0)
+        _, sv, vt = np.linalg.svd(pts - centre, full_matrices=False)
+        normal = vt[2]
+        if sv[2] / np.sqrt(len(pts)) > CLOUD_MAX_RMS or abs(normal @ v) < 1e-3:
+            continue
+        t = float(normal @ (centre - end) / (normal @ v))  # from the target along the beam
+        point = end + t * v
+        if abs(float(normal @ (point - end))) <= tolerance:
+            out[k] = Landing(CLOUD, point, t, end.copy())
+    return out

@@ -162,7 +162,7 @@ def make_plan_fn(
     from planner.planning import (
         plan_document,
         plan_landed_points,
-        plan_path_targets,
+        solve_landed_path,
         time_safely,
         verify_solutions,
     )
@@ -183,7 +183,8 @@ def make_plan_fn(
         if targets.kind == "path":
             from planner.ik import IKOptions
 
-            sols = plan_path_targets(system, targets, options or IKOptions(), q0, scene, safety)
+            targets, sols, _ = solve_landed_path(system, targets, options or IKOptions(), q0,
+                                                 scene, safety)  # fmt: skip
         else:
             targets, sols = plan_landed_points(system, targets, options, q0, scene=scene,
                                                safety=safety)  # fmt: skip
@@ -338,7 +339,9 @@ class RequestHandler:
             marked = mark_path(points, self.path_spacing, normals=normals)
         except ValueError as exc:
             raise InputError(str(exc), "normals" if "normal" in str(exc) else "points") from exc
-        return Targets(marked.points, marked.normals, kind="path", meta=marked.meta())
+        tol = self.surface_tolerance if req.frame == "camera" else 0.0
+        return Targets(marked.points, marked.normals, kind="path", meta=marked.meta(),
+                       surface_tolerance=tol)  # fmt: skip
 
     def parse(self, payload: bytes) -> Any:
         """Validate a request body (raises InputError naming the field)."""

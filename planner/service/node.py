@@ -40,6 +40,7 @@ restarts it).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -48,6 +49,7 @@ from collections.abc import Callable
 from typing import Any
 
 from planner.errors import InputError
+from planner.model.system import Targets
 from planner.model.transforms import Array
 from planner.service.bodies import encode_json
 from planner.service.bus import JSON, Keys, decode_sample, encode, update_alive, urgent
@@ -72,6 +74,7 @@ from planner.service.handler import (
     request_id_of,
 )
 from planner.service.heartbeat import BusAddress, HeartbeatProcess, start_heartbeat
+from planner.service.live_cloud import LiveCloud
 from planner.service.online import OnlineCalibrator, attach
 from planner.service.spots import LaserLog, SpotBuffer
 from planner.service.stream import Execution
@@ -129,6 +132,7 @@ class PlannerNode:
         self.acks = AckBoard()
         self._faults: dict[str, str | None] = {}  # robot -> the fault its status last reported
         self.spots = SpotBuffer()
+        self.cloud = LiveCloud()  # the camera's newest cloud: a surface for camera targets
         self.laser = LaserLog()
         self.stop_seen = threading.Event()
         self.ack_timeout = ack_timeout
@@ -179,6 +183,8 @@ class PlannerNode:
             self._handles.append(s.declare_subscriber(k.status(robot), self._status_cb(robot)))
         self._handles.append(s.declare_subscriber(k.stop, self._on_stop))
         self._handles.append(s.declare_subscriber(k.camera_spot, self.spots.callback))
+        if self.handler.system.camera is not None:
+            self._handles.append(s.declare_subscriber(k.camera_points, self.cloud.callback))
         self._handles.append(s.declare_subscriber(k.laser, self.laser.callback))
         self._handles.append(s.declare_subscriber(k.targets, self._on_target))
         self._handles.append(s.declare_queryable(k.plan, self._on_query))
@@ -190,6 +196,15 @@ class PlannerNode:
         self._token = s.liveliness().declare_token(k.alive("planner"))
         self._started = time.monotonic()
         return self
+
+    def with_cloud(self, targets: Targets, req: Any, start: dict[str, Array] | None) -> Targets:
+        """Camera-frame point targets with the live cloud around them (world, through the
+        calibrated camera pose at ``start``) as a surface that may carry them
+        (:func:`planner.safety.landing.cloud_landings`); other targets as they are."""
+        if req.frame != "camera" or targets.kind != "points" or targets.surface_tolerance <= 0:
+            return targets
+        cloud = self.cloud.around(targets.points, self.handler.system.world_T_camera(start))
+        return targets if cloud is None else dataclasses.replace(targets, cloud=cloud)
 
     def _warm_up(self) -> None:
         """The worker's first task with ``warm_up``: :meth:`RequestHandler.warm_up`
@@ -367,7 +382,7 @@ class PlannerNode:
             start = self.start_state()
         elif req.trajectory:  # a preview: the trajectory execute would send, not sent
             start = self.start_state()
-        targets = handler.targets(req, start)
+        targets = self.with_cloud(handler.targets(req, start), req, start)
         self.progress.targets(len(targets.points))
         timed = (req.execute and not req.closed_loop) or req.trajectory
         plan = handler.plan_fn(targets, start, timed, dwell=req.dwell)

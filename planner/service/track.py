@@ -17,6 +17,10 @@
   rules), then the new reference committed under it, so a slow solve never holds up a
   setpoint, and a frame that a newer one replaced before it was solved is skipped
   (counted);
+- with a :class:`~planner.track.correction.SpotCorrection` (a camera-frame track request
+  whose camera can see the beam: :func:`planner.service.track_start.camera_correction`),
+  subscribes ``<prefix>/camera/spot`` too: each frame's point is aimed at corrected by the
+  spots the camera saw, and the treatment is on only while the correction permits it;
 - streams setpoints at 500 Hz through :class:`planner.service.setpoints.SetpointStreamer`
   (the follower's limited reference, ``laser_on`` to the gate robot);
 - ends on the request's ``duration``, :meth:`stop` (``<prefix>/stop``, a halted robot, the
@@ -45,12 +49,13 @@ import numpy as np
 from planner.errors import InputError
 from planner.model.system import System
 from planner.model.transforms import Array
-from planner.service.bus import Keys, decode
+from planner.service.bus import Keys, decode, decode_sample
 from planner.service.handler import camera_to_world
 from planner.service.priority import TIMING_NICE
 from planner.service.setpoints import SetpointStreamer
+from planner.track.correction import SpotCorrection
 from planner.track.follow import TargetFollower
-from schemas.messages import JointState, TargetStream
+from schemas.messages import JointState, SpotMessage, TargetStream
 
 log = logging.getLogger("beamrelay.track")
 
@@ -79,11 +84,14 @@ class TrackSession:
         send_stop: Callable[[str], None],
         on_end: Callable[[dict[str, Any]], None],
         clock: Callable[[], float] = time.time,
+        correction: SpotCorrection | None = None,
     ) -> None:
         self.session, self.keys, self.system = session, keys, system
         self.follower, self.id = follower, request_id
         self.duration, self.send_stop, self.on_end, self.clock = duration, send_stop, on_end, clock
         self._lock = threading.Lock()  # the follower's setpoint state
+        self.correction = correction
+        self._correction_lock = threading.Lock()
         self._frame_lock = threading.Lock()  # one frame solved at a time
         self._slot_lock = threading.Lock()
         self._slot: tuple[float, float, Array, Array | None] | None = None  # the newest frame
@@ -116,6 +124,10 @@ class TrackSession:
             self.session.declare_subscriber(self.keys.joint_states(r), self._on_joints(r))
             for r in self.system.robot_names
         ]
+        if self.correction is not None:
+            self._joint_subs.append(
+                self.session.declare_subscriber(self.keys.camera_spot, self._on_spot)
+            )
         self._streamer.start()
         threading.Thread(target=self._solve_frames, name="track-frames", daemon=True).start()
         threading.Thread(target=self._finish, name="track-end", daemon=True).start()
@@ -164,8 +176,20 @@ class TrackSession:
                 stacked = np.concatenate([self._measured[r] for r in self.system.robot_names])
                 with self._lock:
                     self.follower.on_joint_state(stacked, float(msg.t))
+                if self.correction is not None:
+                    with self._correction_lock:
+                        self.correction.on_joints(float(msg.t), stacked)
 
         return cb
+
+    def _on_spot(self, sample: Any) -> None:
+        """A camera spot: the correction's measurement (a bad body is logged and ignored)."""
+        msg = decode_sample(sample, SpotMessage, log, "spot message")
+        if msg is None or self.correction is None:
+            return
+        p = None if msg.p_camera is None else np.asarray(msg.p_camera, dtype=float)
+        with self._correction_lock:
+            self.correction.on_spot(float(msg.t), p, float(msg.confidence))
 
     # --- target stream ---------------------------------------------------------------------
     def _on_sample(self, sample: Any) -> None:
@@ -219,10 +243,14 @@ class TrackSession:
         assert self._index is not None
         k, m = self._index, self._marker_index
         markers = None if m is None or m.max() >= len(points) else points[m]
+        point, normal = points[k], None if normals is None else normals[k]
+        if self.correction is not None:
+            with self._correction_lock:
+                self.correction.on_target(t, point, normal)
+                point = self.correction.corrected(point)
         with self._frame_lock:  # setpoints go on meanwhile
-            out, segment = self.follower.solve_frame(
-                t, points[k], None if normals is None else normals[k], self.clock(),
-                markers=markers)  # fmt: skip
+            out, segment = self.follower.solve_frame(t, point, normal, self.clock(),
+                                                     markers=markers)  # fmt: skip
             with self._lock:
                 if segment is not None:
                     self.follower.commit(segment)
@@ -257,6 +285,9 @@ class TrackSession:
                 return self._final(t)
             return None
         _, q, qd, laser = sp
+        if laser and self.correction is not None:  # treatment only on a measured landing
+            with self._correction_lock:
+                laser = self.correction.permits(t)
         self._last = (t, q, qd)
         now = time.perf_counter()
         self.latencies += [now - r for r in receipts]
@@ -304,6 +335,10 @@ class TrackSession:
 
     def _summary(self, reason: str) -> dict[str, Any]:
         lat = np.asarray(self.latencies)
+        correction = {}
+        if self.correction is not None:
+            with self._correction_lock:
+                correction = {"camera_correction": self.correction.figures()}
         figures = {}
         if len(lat):
             figures = {"latency_p50": float(np.percentile(lat, 50)),
@@ -314,7 +349,7 @@ class TrackSession:
                 "ignored": self.ignored, "skipped": self.skipped, "setpoints": self.sent,
                 "laser_on_fraction": self.lit / self.sent if self.sent else 0.0,
                 "duration": self.clock() - self.t_start, "streamer_error": self._streamer.error,
-                **figures}  # fmt: skip
+                **figures, **correction}  # fmt: skip
 
 
 def nearest(points: Array, to: Array) -> Array:

@@ -12,6 +12,7 @@ import numpy as np
 from planner.errors import InputError
 from planner.model.transforms import Array
 from planner.service.track import TrackSession
+from planner.track.correction import SpotCorrection
 from planner.track.follow import TargetFollower
 
 #: rad/s: a track request starts only while every joint is slower than this
@@ -111,11 +112,29 @@ def start_track(node: Any, req: Any) -> dict[str, Any]:
     follower.warm_up(q1, normal)  # the first frame must not pay for first calls
     laser = ((plan.get("scenario") or {}).get("system") or {}).get("laser", {})
     gate = laser.get("gate") or {}
+    correction, why = camera_correction(req, system, laser, settings.tolerance)
     node.track = TrackSession(node.session, node.keys, node.session_id, system, follower,
                               req.id, duration=req.duration, gate_robot=gate.get("robot"),
-                              aim=laser.get("aim") is not None,
+                              aim=laser.get("aim") is not None, correction=correction,
                               send_stop=node.send_stop, on_end=node.track_ended).start()  # fmt: skip
     plan["execution"] = "accepted"
     plan["tracking"] = {"stream": req.id, "duration": req.duration,
-                        "tolerance": settings.tolerance, "rate": settings.rate}  # fmt: skip
+                        "tolerance": settings.tolerance, "rate": settings.rate,
+                        "camera_correction": why}  # fmt: skip
     return plan
+
+
+def camera_correction(
+    req: Any, system: Any, laser: dict[str, Any], tolerance: float
+) -> tuple[SpotCorrection | None, str]:
+    """The camera-frame spot correction of a track request
+    (:class:`planner.track.correction.SpotCorrection`) and what the reply says of it: on for
+    targets in the camera frame when the camera can see the beam while the treatment is off
+    (an aiming beam, or an ungated simulated laser, always on); otherwise off, and why."""
+    if req.frame != "camera":
+        return None, "off: targets in the world frame"
+    if system.camera is None:
+        return None, "off: no camera"
+    if laser.get("gate") is not None and laser.get("aim") is None:
+        return None, "off: no aiming beam (laser.aim) to measure the spot with"
+    return SpotCorrection(system, system.world_T_camera, tolerance=tolerance), "on"

@@ -86,3 +86,20 @@ def test_bad_requests_are_input_errors(targets: TargetList, mode: Mode, dwell: f
                                        match: str) -> None:  # fmt: skip
     with pytest.raises(InputError, match=match):
         build_request(targets, mode, dwell=dwell)
+
+
+def test_picks_of_a_fixed_cameras_cloud_go_in_its_frame() -> None:
+    """With the calibrated camera pose, the request carries the picks (and normals) where the
+    camera saw them: mapped back through that pose they are the picks again."""
+    from planner.model.transforms import axis_angle_to_matrix, inv_T, make_T
+
+    world_T_camera = make_T(axis_angle_to_matrix([0.4, -0.3, 0.2]), [-1.0, -1.0, 0.5])
+    for mode in (Mode.POINTS, Mode.POLYLINE):
+        req = build_request(three(), mode, camera_T_world=inv_T(world_T_camera))
+        parsed = decode(encode(req), TargetRequest)
+        assert parsed.frame == "camera"
+        back = np.asarray(parsed.points) @ world_T_camera[:3, :3].T + world_T_camera[:3, 3]
+        np.testing.assert_allclose(back, three().points(), atol=1e-12)
+        n = np.asarray(parsed.normals) @ world_T_camera[:3, :3].T
+        np.testing.assert_allclose(n, np.tile(UP, (3, 1)), atol=1e-12)
+    assert build_request(three(), Mode.POINTS)["frame"] == "world"

@@ -84,3 +84,60 @@ def test_another_object_in_front_still_occludes_the_target() -> None:
     _, [sol] = plan_landed_points(system, target, IKOptions(), scene=scene)
     assert sol.reason == "occluded"
     assert sol.evidence["occluded"]["object"] == "slab"
+
+
+def plane_cloud(rng: np.random.Generator, noise: float = 0.0005, half: float = 0.03) -> Array:
+    """A camera's cloud of the plane z = 0 around :data:`TOP`: 1.5 mm pitch, ``noise`` m
+    depth noise."""
+    u = np.arange(-half, half + 1e-9, 0.0015)
+    x, y = np.meshgrid(u, u)
+    pts = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)]) + TOP
+    pts[:, 2] += rng.normal(0.0, noise, len(pts))
+    return pts
+
+
+@pytest.mark.parametrize("dz", [-0.006, 0.004])
+def test_a_target_off_the_live_cloud_lands_on_the_surface_the_cloud_shows(dz: float) -> None:
+    """No scene object: the cloud around the target is the surface. The landing point lies
+    on the plane z = 0 where the beam meets it (numpy line-plane intersection) to within the
+    plane fit's error (0.5 mm depth noise averaged over ~30 points), not at the target's own
+    depth."""
+    from planner.safety.landing import CLOUD
+
+    rng = np.random.default_rng(4)
+    system = sy.n1()
+    requested = TOP + np.array([0.0, 0.0, dz])
+    camera = Targets(requested[None], UP[None], surface_tolerance=surface_tolerance(),
+                     cloud=plane_cloud(rng))  # fmt: skip
+    landed, [sol] = plan_landed_points(system, camera, IKOptions())
+    [before] = plan_points(system, Targets(requested[None], UP[None]), IKOptions())
+    assert before.q is not None
+    expected = on_plane(system, before.q, requested)
+    assert sol.ok and sol.error < 1e-9
+    assert sol.evidence["surface"]["object"] == CLOUD
+    assert np.linalg.norm(landed.points[0] - expected) < 3e-4
+    assert sol.evidence["surface"]["offset_m"] == pytest.approx(
+        float(np.linalg.norm(expected - requested)) * np.sign(dz), abs=3e-4)  # fmt: skip
+
+
+def test_the_cloud_carries_no_target_where_it_is_no_surface() -> None:
+    """Scattered points (no plane), too few points, a target beyond the tolerance, one the
+    scene already carries: no cloud landing."""
+    from types import SimpleNamespace
+
+    from planner.safety.landing import cloud_landings
+
+    rng = np.random.default_rng(5)
+    flat = plane_cloud(rng, noise=0.0)
+    start = TOP + np.array([0.0, -0.2, 0.4])  # the last mirror: the beam comes from there
+    sol = SimpleNamespace(ok=True, hits=start[None])
+
+    def land(cloud: Array, target: Array, skip: frozenset[int] = frozenset()) -> dict[int, object]:
+        return cloud_landings(cloud, Targets(target[None]), [sol], 0.015, skip)  # type: ignore[list-item]
+
+    assert set(land(flat, TOP + np.array([0, 0, -0.005]))) == {0}
+    blob = TOP + rng.uniform(-0.01, 0.01, (3000, 3))  # foliage, hair: no plane there
+    assert land(blob, TOP) == {}
+    assert land(flat[::200], TOP) == {}  # a handful of points is no surface
+    assert land(flat, TOP + np.array([0, 0, -0.03])) == {}  # 30 mm: beyond the tolerance
+    assert land(flat, TOP, frozenset({0})) == {}

@@ -6,6 +6,7 @@ closed-loop rows of a camera-frame request are given in the camera frame."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -87,3 +88,64 @@ def test_closed_loop_rows_of_a_camera_request_are_in_the_camera_frame() -> None:
     np.testing.assert_allclose(rows[0]["measured_spot_camera"], spot_cam, atol=1e-12)
     assert rows[0]["measured_error_camera"] == pytest.approx(np.sqrt(5e-8), rel=1e-9)
     assert rows[1]["target_camera"] == p_cam[1].tolist() and "measured_error_camera" not in rows[1]
+
+
+def test_a_scenarios_camera_frame_targets_land_on_their_board(tmp_path: Path) -> None:
+    """``targets: {frame: camera}`` in a scenario file, planned by ``beamrelay plan`` (run
+    in-process): the same landing as a request's, so the points the camera saw are planned
+    on the board, not failed as occluded; world-frame copies stay occluded."""
+    from tests.cli_run import beamrelay
+
+    handler, p_cam, n_cam = setup(tmp_path)
+    mapped = transform_points(handler.system.world_T_camera(), p_cam)
+
+    def targets(frame: str, points: np.ndarray, normal: np.ndarray) -> str:
+        rows = ", ".join("[" + ", ".join(f"{x:.9f}" for x in p) + "]" for p in points)
+        n = "[" + ", ".join(f"{x:.9f}" for x in normal) + "]"
+        return f"targets:\n  frame: {frame}\n  points: [{rows}]\n  normals: [{n}, {n}]\n"
+
+    docs = {}
+    for frame, points, normal in (("camera", p_cam, n_cam),
+                                  ("world", mapped, handler.system.world_T_camera()[:3, :3] @ n_cam)):  # fmt: skip
+        text = TILTED.replace(TILTED[TILTED.index("targets:"):TILTED.index("trajectory:")],
+                              targets(frame, points, normal))  # fmt: skip
+        path = tmp_path / f"{frame}.yaml"
+        path.write_text(text)
+        out = tmp_path / f"{frame}.json"
+        ran = beamrelay("plan", path, "--out", out)
+        assert ran.returncode == (0 if frame == "camera" else 1), ran.stderr  # 1: one failed
+        docs[frame] = json.loads(out.read_text())
+    doc = docs["camera"]
+    assert [s["status"] for s in doc["solutions"]] == ["ok", "ok"]
+    for tgt, sol, requested in zip(doc["targets"], doc["solutions"], mapped, strict=True):
+        assert abs(NORMAL @ (np.asarray(tgt["p"]) - TOP)) < 1e-5
+        np.testing.assert_allclose(sol["surface"]["requested"], requested, atol=1e-9)
+        assert sol["surface"]["offset_m"] < 0  # the board lay before the mapped point
+    assert [s["reason"] for s in docs["world"]["solutions"]] == ["occluded", "occluded"]
+
+
+def test_a_camera_frame_path_is_swept_on_its_board(tmp_path: Path) -> None:
+    """A path the camera saw across the board (a 40 mm line), sent in the camera frame: swept
+    on the board's top face (every sample within 10 um of it, each landed sample's offset
+    reported), where the same samples as world targets lie behind the board and are
+    occluded."""
+    handler, _, n_cam = setup(tmp_path)
+    true_T = handler.system.world_T_camera() @ ERROR
+    ends = TOP + np.array([[-0.02, 0.0, 0.0], [0.02, 0.0, 0.0]])  # on the true board
+    p_cam = transform_points(inv_T(true_T), ends)
+    req = TargetRequest.model_validate({
+        "schema": "beamrelay.request/1", "id": "p", "frame": "camera", "mode": "path",
+        "points": p_cam.tolist(), "normals": [n_cam.tolist()] * 2})  # fmt: skip
+    doc = plan(handler, req)
+    status = [s["status"] for s in doc["solutions"]]
+    assert len(status) > 20 and set(status) == {"ok"}, status
+    depth = [abs(float(NORMAL @ (np.asarray(t["p"]) - TOP))) for t in doc["targets"]]
+    assert max(depth) < 1e-5, max(depth)
+    offsets = [s["surface"]["offset_m"] for s in doc["solutions"] if "surface" in s]
+    assert len(offsets) == len(status) and all(-0.015 < o < -1e-3 for o in offsets)
+    assert all(s["error"] < 1e-6 for s in doc["solutions"])
+    world = req.model_copy(update={"frame": "world"})
+    mapped = handler.targets(req).points  # the samples as the calibrated pose maps them
+    world_doc = plan(handler, world.model_copy(update={"points": mapped[[0, -1]].tolist(),
+                     "normals": [(handler.system.world_T_camera()[:3, :3] @ n_cam).tolist()] * 2}))  # fmt: skip
+    assert {s["reason"] for s in world_doc["solutions"]} == {"occluded"}
