@@ -17,10 +17,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from planner.ik import BeamIK
     from planner.io.scenario import LoadedScenario
     from planner.model.scene import SceneModel
     from planner.model.system import System, Targets
+    from planner.scenario_planner import ScenarioPlanner
     from planner.verify.check import CheckResult
 
 
@@ -56,21 +56,25 @@ def load(path: str | Path) -> Setup:
     return Setup(loaded, system, targets_from_scenario(loaded, system))
 
 
-def solver(scenario: str | Path | Setup, *, optimal: bool = False) -> BeamIK:
-    """A per-target beam IK solver with the scenario's ``solver`` settings.
+def solver(scenario: str | Path | Setup, *, optimal: bool = False) -> ScenarioPlanner:
+    """A per-target solver under every rule of the scenario, the one ``beamrelay plan`` and
+    the planner node use (:class:`planner.scenario_planner.ScenarioPlanner`): solver
+    settings, safety rules (a target in a keep-out volume fails as ``keep_out``), the
+    scene's occlusion (a target under the board fails as ``occluded``), the bounds of a
+    scenario file (a target in millimetres is an InputError).
 
     Args:
         scenario: a scenario file or a :class:`Setup`.
         optimal: also run the IPOPT refinement (mirror-centred hits), as ``plan --optimal``.
 
     Returns:
-        :class:`planner.ik.BeamIK`; ``.solve(target, normal=None)`` returns a Solution.
+        ``.solve(target, normal=None, q_prev=None, frame="world")`` returns a Solution;
+        ``.system`` is the model, ``.ik`` the bare IK under the safety rules.
     """
-    from planner.ik import BeamIK
-    from planner.planning import ik_options
+    from planner.scenario_planner import ScenarioPlanner
 
     setup = scenario if isinstance(scenario, Setup) else load(scenario)
-    return BeamIK(setup.system, ik_options(setup.scenario.model.solver, optimal))
+    return ScenarioPlanner.from_scenario(setup.scenario, system=setup.system, optimal=optimal)
 
 
 def plan(path: str | Path, *, optimal: bool = False, progress: bool = False) -> dict[str, Any]:

@@ -12,22 +12,25 @@ sky-writing (:mod:`planner.path.marking`), dense at ``rate``, with the laser gat
 from __future__ import annotations
 
 import dataclasses
-import time
-from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from planner.beam.trace import trace_beam
-from planner.ik import BeamIK, IKOptions, Solution
+from planner.ik import Solution
 from planner.io.plan_file import plan_json as plan_json  # re-exported
 from planner.io.plan_file import write_plan as write_plan
 from planner.model.status import Reason, Status
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
+from planner.scenario_planner import Progress as Progress  # re-exported
+from planner.scenario_planner import ik_options as ik_options
+from planner.scenario_planner import plan_landed_points as plan_landed_points
+from planner.scenario_planner import plan_path_targets as plan_path_targets
+from planner.scenario_planner import plan_points as plan_points
+from planner.scenario_planner import solve_landed_path as solve_landed_path
+from planner.scenario_planner import solve_path as solve_path
 
 if TYPE_CHECKING:
-    from planner.model.scene import SceneModel
     from planner.model.settings import TrajectorySettings
     from planner.path.solve import PathResult
     from planner.path.timing import MoveFn, Trajectory, VisitReport
@@ -35,151 +38,6 @@ if TYPE_CHECKING:
     from planner.verify.spot import Mask
 
 PLAN_SCHEMA = "beamrelay.plan/1"
-Progress = Callable[[int], None]
-
-
-def plan_points(
-    system: System,
-    targets: Targets,
-    options: IKOptions | None = None,
-    q_start: Array | None = None,
-    progress: Progress | None = None,
-    scene: SceneModel | None = None,
-    safety: Safety | None = None,
-) -> list[Solution]:
-    """Solve every target in order; each solve starts from the last solved configuration
-    (``q_start``, default home, at first). ``progress(k)`` is called after target k. With a
-    ``scene``, beams that cross it are re-solved or fail as ``occluded``
-    (:func:`planner.safety.occlusion.check_points`). With ``safety`` rules every solution
-    passes them, or the target fails with their reason (:class:`planner.ik.BeamIK`).
-    Targets with a ``surface_tolerance`` are solved on the surface they land on
-    (:func:`plan_landed_points` gives those targets)."""
-    return plan_landed_points(system, targets, options, q_start, progress, scene, safety)[1]
-
-
-def plan_landed_points(
-    system: System,
-    targets: Targets,
-    options: IKOptions | None = None,
-    q_start: Array | None = None,
-    progress: Progress | None = None,
-    scene: SceneModel | None = None,
-    safety: Safety | None = None,
-) -> tuple[Targets, list[Solution]]:
-    """:func:`plan_points` and the targets it solved: those with a ``surface_tolerance``
-    moved onto the scene surface their beam lands on
-    (:func:`planner.safety.landing.land_on_surfaces`) before the occlusion check."""
-    ik = BeamIK(system, options, safety)
-    q_prev = system.home if q_start is None else np.asarray(q_start, dtype=float)
-    out = []
-    for k in range(len(targets)):
-        sol = ik.solve(targets.points[k], targets.normal(k), q_prev)
-        if sol.q is not None:
-            q_prev = sol.q
-        out.append(sol)
-        if progress is not None:
-            progress(k)
-    scene = None if scene is None or scene.empty else scene
-    if targets.surface_tolerance > 0 and (scene is not None or targets.cloud is not None):
-        from planner.safety.landing import land_on_surfaces
-
-        targets, out = land_on_surfaces(ik, scene, targets, out)
-    if scene is not None:
-        from planner.safety.occlusion import check_points
-
-        out = check_points(ik, scene, targets, out)
-    return targets, out
-
-
-def solve_path(
-    system: System,
-    targets: Targets,
-    options: IKOptions,
-    q_start: Array | None = None,
-    scene: SceneModel | None = None,
-    safety: Safety | None = None,
-) -> tuple[list[Solution], PathResult]:
-    """A continuous sweep through :func:`planner.path.solve.plan_path`: per-sample solutions (a
-    sample in a gap is ``failed`` with the gap's reason and evidence) and the path result.
-    With a ``scene``, samples whose beam crosses it become ``occluded`` gaps
-    (:func:`planner.safety.occlusion.check_path`); with ``safety`` rules, samples that
-    break them become gaps with their reason (:func:`~planner.safety.occlusion.check_path_safety`).
-    A path with a ``surface_tolerance`` is swept on the surface it lands on
-    (:func:`solve_landed_path` gives those samples)."""
-    return solve_landed_path(system, targets, options, q_start, scene, safety)[1:]
-
-
-def solve_landed_path(
-    system: System,
-    targets: Targets,
-    options: IKOptions,
-    q_start: Array | None = None,
-    scene: SceneModel | None = None,
-    safety: Safety | None = None,
-) -> tuple[Targets, list[Solution], PathResult]:
-    """:func:`solve_path` and the samples it swept: a path with a ``surface_tolerance`` (in
-    the camera frame) is swept once, moved onto the scene surface its beam lands on
-    (:func:`planner.safety.landing.land_path`), and swept again there, before the
-    occlusion check."""
-    from planner.path.solve import PathOptions
-
-    inc = 90.0 if options.max_incidence is None else float(np.degrees(options.max_incidence))
-    opts = PathOptions(tolerance=options.tolerance, max_iter=options.max_iter,
-                       max_incidence_deg=inc)  # fmt: skip
-    out, res = _sweep(system, targets, opts, q_start, safety)
-    if scene is not None and not scene.empty and targets.surface_tolerance > 0:
-        from planner.safety.landing import land_path
-
-        moved = land_path(scene, targets, out)
-        if moved is not None:
-            targets, found = moved
-            out, res = _sweep(system, targets, opts, q_start, safety)
-            out = [dataclasses.replace(sol, evidence={**sol.evidence, "surface": found[k].to_json()})
-                   if k in found and sol.ok else sol for k, sol in enumerate(out)]  # fmt: skip
-    if scene is not None and not scene.empty:
-        from planner.safety.occlusion import check_path
-
-        out, res = check_path(system, scene, out, res)
-    if safety is not None:
-        from planner.safety.occlusion import check_path_safety
-
-        out, res = check_path_safety(system, safety, out, res)
-    return targets, out, res
-
-
-def _sweep(
-    system: System, targets: Targets, opts: Any, q_start: Array | None, safety: Safety | None
-) -> tuple[list[Solution], PathResult]:
-    """:func:`planner.path.solve.plan_path` as per-sample solutions (see :func:`solve_path`)."""
-    from planner.path.solve import plan_path
-
-    t0 = time.perf_counter()
-    res = plan_path(system, targets, q_start, opts, safety)
-    per_sample = (time.perf_counter() - t0) / max(len(targets), 1)
-    gap_of = {k: g for g in res.gaps for k in range(g.k0, g.k1)}
-    out = []
-    for k in range(len(targets)):
-        if res.ok[k]:
-            ev = trace_beam(system, res.q[k], targets.points[k], targets.normal(k))
-            out.append(Solution.solved(res.q[k], ev, per_sample, 0, "path"))
-        else:
-            gap = gap_of.get(k)
-            reason = Reason.UNREACHABLE if gap is None else gap.reason
-            evidence: dict[str, object] = {"detail": gap.detail if gap is not None else ""}
-            out.append(Solution.failed(reason, per_sample, 0, "path", evidence))
-    return out, res
-
-
-def plan_path_targets(
-    system: System,
-    targets: Targets,
-    options: IKOptions,
-    q_start: Array | None = None,
-    scene: SceneModel | None = None,
-    safety: Safety | None = None,
-) -> list[Solution]:
-    """A continuous sweep through :func:`planner.path.solve.plan_path`, as per-sample solutions."""
-    return solve_path(system, targets, options, q_start, scene, safety)[0]
 
 
 def solution_json(system: System, k: int, sol: Solution) -> dict[str, Any]:
@@ -410,18 +268,6 @@ def path_deviation(system: System, targets: Targets, traj: Trajectory) -> float:
     return float(dev.max())
 
 
-def ik_options(solver: Any, optimal: bool = False) -> IKOptions:
-    """IKOptions from a scenario's ``solver`` section (pydantic model or None)."""
-    if solver is None:
-        return IKOptions(optimal=optimal)
-    return IKOptions(
-        tolerance=float(solver.tolerance),
-        max_iter=int(solver.max_iter),
-        max_incidence=float(np.radians(solver.max_incidence_deg)),
-        optimal=optimal,
-    )
-
-
 class PlanOutcome(NamedTuple):
     """Everything :func:`run_scenario` made: the plan.json dict and the objects behind it."""
 
@@ -470,29 +316,17 @@ def run_scenario(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 
     from planner.io.resolved import resolved_scenario_dict
-    from planner.io.scenario import (
-        load_scenario,
-        scene_model,
-        system_from_scenario,
-        targets_from_scenario,
-        trajectory_settings,
-    )
+    from planner.io.scenario import load_scenario, targets_from_scenario, trajectory_settings
+    from planner.scenario_planner import ScenarioPlanner
 
     loaded = load_scenario(scenario_path)
     scn = loaded.model
     resolved = resolved_scenario_dict(loaded)
-    system = system_from_scenario(loaded)
+    rules = ScenarioPlanner.from_scenario(loaded, optimal=optimal, scene=scene, safety=safety)
+    system, guard = rules.system, rules.safety
     targets = targets_from_scenario(loaded, system)
     if scn.targets.frame == "camera" and targets.kind in ("points", "path"):  # seen on a surface
-        from planner.safety.landing import surface_tolerance
-
-        tol = surface_tolerance(float(scn.safety.spot_uncertainty))
-        targets = dataclasses.replace(targets, surface_tolerance=tol)
-    model = scene_model(loaded) if scene else None
-    from planner.safety.model import Safety
-
-    guard = Safety.from_scenario(loaded, system) if safety else None
-    options = ik_options(scn.solver, optimal)
+        targets = dataclasses.replace(targets, surface_tolerance=rules.surface_tolerance)
     settings = trajectory_settings(loaded)
     order_key = settings.order or scn.targets.order
     order = "given" if order_key == "given" else "optimal"
@@ -502,14 +336,12 @@ def run_scenario(
     with Progress(*columns, disable=not progress, transient=True) as bar:
         if targets.kind == "path":
             task = bar.add_task("path NLP", total=None)
-            targets, solutions, path = solve_landed_path(system, targets, options, scene=model,
-                                                         safety=guard)  # fmt: skip
+            targets, solutions, path = rules.path(targets)
             bar.update(task, total=1, completed=1)
         else:
             task = bar.add_task("solving targets", total=len(targets))
-            targets, solutions = plan_landed_points(
-                system, targets, options, scene=model, safety=guard,
-                progress=lambda k: bar.update(task, completed=k + 1))  # fmt: skip
+            targets, solutions = rules.points(
+                targets, progress=lambda k: bar.update(task, completed=k + 1))  # fmt: skip
         solutions = verify_solutions(system, resolved, targets, solutions)
         n_ok = sum(s.ok for s in solutions)
         timing = bar.add_task("timing", total=n_ok if targets.kind != "path" else None)

@@ -11,6 +11,7 @@ from typing import Annotated, Final, Literal, Self
 from pydantic import AfterValidator, Field, StrictBool, model_validator
 from pydantic_core import PydanticCustomError
 
+from schemas.bounds import check_coordinates
 from schemas.common import (
     FieldError,
     JointVector,
@@ -49,22 +50,23 @@ MAX_COORDINATE = 100.0
 MAX_NORMAL_COMPONENT = 1e6
 
 
-def _within(limit: float, unit: str) -> AfterValidator:
-    """A check that a number's magnitude is at most ``limit`` (``unit`` for the message)."""
+def _within(limit: float, unit: str, hint: str = "") -> AfterValidator:
+    """A check that a number's magnitude is at most ``limit`` (``unit`` and ``hint`` for the
+    message)."""
 
     def check(v: float) -> float:
         if abs(v) > limit:
             raise PydanticCustomError(
                 "out_of_range",
-                "expected |value| <= {limit}{unit}, got {value}{unit}",
-                {"limit": f"{limit:g}", "unit": unit, "value": f"{v:g}"},
+                "expected |value| <= {limit}{unit}, got {value}{unit}{hint}",
+                {"limit": f"{limit:g}", "unit": unit, "value": f"{v:g}", "hint": hint},
             )
         return v
 
     return AfterValidator(check)
 
 
-Coordinate = Annotated[Num, _within(MAX_COORDINATE, " m")]
+Coordinate = Annotated[Num, _within(MAX_COORDINATE, " m", ": did you give millimetres?")]
 Point = Annotated[list[Coordinate], exact_length(3)]
 Direction = Annotated[list[Annotated[Num, _within(MAX_NORMAL_COMPONENT, "")]], exact_length(3)]
 
@@ -78,7 +80,9 @@ class TargetRequest(StrictModel):
     robots' current state, as ``execute`` would) without sending it, for a preview.
     ``closed_loop`` corrects each target from the camera's measured spot until it is within
     ``tolerance`` (m; default the scenario's, 0.3 mm); ``dwell`` (s) holds the spot on each target with the laser on.
-    Coordinates are bounded by :data:`MAX_COORDINATE` (m).
+    Coordinates are bounded by :data:`MAX_COORDINATE` (m) and, as in a scenario file, by
+    :func:`schemas.bounds.check_coordinates` (20 m: millimetres given as metres; in the
+    camera frame, in front of the camera).
     """
 
     schema_: Literal["beamrelay.request/1"] = Field(alias="schema")
@@ -101,6 +105,7 @@ class TargetRequest(StrictModel):
         self.normals = unit_normals(self.normals)
         if self.mode == "path" and len(self.points) < 2:
             raise FieldError(("points",), "a path needs at least 2 points")
+        check_coordinates(self.points, ("points",), self.frame)  # a scenario file's bounds
         return self
 
 

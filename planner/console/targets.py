@@ -2,7 +2,8 @@
 
 A :class:`TargetList` is an ordered tuple of picked :class:`Target` (world point, optional
 unit normal); every edit returns a new list. :func:`build_request` turns it into a
-TargetRequest dict (in the camera frame for a fixed camera: the picks are its cloud's points): separate ``points``, or one ``path`` through the targets in order — a
+TargetRequest dict (in the camera frame for a fixed camera: the picks are its cloud's
+points): separate ``points``, or one ``path`` through the targets in order — a
 polyline (the planner resamples it and marks corners sharper than its corner angle) or a
 smooth curve, which the console samples itself (a cubic spline through the targets,
 :func:`planner.io.strokes.mark_path`) and sends as a dense polyline.

@@ -274,8 +274,9 @@ class BeamIK:
     ) -> tuple[
         Array | None, BeamTrace | None, str, int, Reason | None, dict[str, object], list[Array]
     ]:
-        """The closed-form member (Newton-polished for calibrated arms): (q, evaluation,
-        method, members, reason, evidence, seeds for the multi-start)."""
+        """The closed-form member (Newton-polished for calibrated arms, and for a nominal one
+        that lost digits; a polished one is checked against the safety rules again): (q,
+        evaluation, method, members, reason, evidence, seeds for the multi-start)."""
         assert self.closed_form is not None
         cf = self.closed_form.search(target, normal, q_prev, self.options.max_incidence)
         reason, evidence = cf.reason, dict(cf.evidence)
@@ -293,7 +294,8 @@ class BeamIK:
         if not self.accept(ev, q):
             why: dict[str, object] = {"why": "closed-form member rejected"}
             return None, None, method, cf.members, Reason.SOLVER_FAILED, why, [q]
-        bad = None if self.closed_form.exact else self.unsafe(q, ev)
+        polished = method != "closed_form"  # not the member the search checked: check it
+        bad = self.unsafe(q, ev) if polished else None
         if bad is not None:
             return None, None, method, cf.members, Reason(bad.reason), bad.evidence, [q]
         return q, ev, method, cf.members, None, evidence, []

@@ -13,7 +13,11 @@ thread converts and publishes at fixed rates:
 - ``/tf_static`` every ``STATIC_PERIOD`` s (see below);
 - ``/beamrelay/markers`` (``visualization_msgs/msg/MarkerArray``) at ``MARKER_RATE`` Hz;
 - ``/camera/points`` (``sensor_msgs/msg/PointCloud2``, ``camera`` frame), the newest cloud
-  at most ``CLOUD_RATE`` Hz (with a camera in the scenario).
+  at most ``CLOUD_RATE`` Hz (with a camera in the scenario);
+- ``/beamrelay/laser/treatment`` and ``/beamrelay/laser/aim`` (``std_msgs/msg/Bool``,
+  transient-local: a late subscriber gets the state in force): the laser gate as its driver
+  last reported it, at every change and every ``STATIC_PERIOD`` s; nothing before the first
+  report (no report is not "off").
 
 It subscribes to ROS 2 targets (:mod:`planner.ros2.inputs`) and forwards them as
 TargetRequests on the bus.
@@ -157,6 +161,9 @@ class Ros2Bridge:
         self._topic("/tf", m.TF_MESSAGE)
         self._topic("/tf_static", m.TF_MESSAGE, LATCHED)
         self._topic(MARKER_TOPIC, m.MARKER_ARRAY)
+        for name in m.LASER_TOPICS.values():
+            self._topic(name, m.BOOL, LATCHED)
+        self._laser: tuple[bool, bool] | None = None  # the last (on, aim) published
         self.inputs: dict[str, Topic] = {}
         for inp in INPUTS:
             h = m.type_hash(inp.ros_type)
@@ -267,9 +274,11 @@ class Ros2Bridge:
                 self._publish_joints(seen)
                 self.publish_trajectories()
                 self.forward_targets()
-                if now >= next_static:
+                periodic = now >= next_static
+                if periodic:
                     self.publish_static()
                     next_static = now + STATIC_PERIOD
+                self.publish_laser(force=periodic)
                 if now >= next_markers:
                     self.publish_markers()
                     next_markers = now + 1.0 / MARKER_RATE
@@ -298,6 +307,19 @@ class Ros2Bridge:
     def publish_static(self) -> None:
         t = time.time()
         self.topics["/tf_static"].publish(cell.tf_message(t, cell.static_frames(self.system)), t)
+
+    def publish_laser(self, force: bool = False) -> None:
+        """The newest LaserState as the two Bool topics, when it changed (or ``force``)."""
+        stamped = self.live.snapshot()["laser"]
+        if stamped is None:
+            return  # never reported: unknown, not off
+        laser = stamped.value
+        state = (bool(laser.on), bool(laser.aim))
+        if state == self._laser and not force:
+            return
+        self._laser = state
+        for topic, msg in m.laser_messages(*state):
+            self.topics[topic].publish(msg, float(laser.t))
 
     def publish_cloud(self) -> None:
         """The newest camera cloud, if new, as PointCloud2 in the ``camera`` frame."""

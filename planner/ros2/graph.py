@@ -21,7 +21,6 @@ Pure string and byte functions: no Zenoh, no ROS.
 
 from __future__ import annotations
 
-import hashlib
 import struct
 from dataclasses import dataclass
 from enum import IntEnum
@@ -137,9 +136,13 @@ class Node:
 
 
 def gid(token: str) -> bytes:
-    """A 16-byte publisher GID derived from its liveliness token (rmw_zenoh hashes the token
-    with XXH3-128; any stable 16-byte digest of it serves the same purpose)."""
-    return hashlib.blake2b(token.encode(), digest_size=GID_LENGTH).digest()
+    """The 16-byte GID of the entity whose liveliness token is ``token``, as rmw_zenoh
+    makes it (``rmw_zenoh_cpp/src/detail/liveliness_utils.cpp``, ``Entity``): the XXH3-128
+    hash of the token's key expression, its low 64 bits then its high 64 bits, each in the
+    machine's (little-endian) byte order."""
+    import xxhash
+
+    return int(xxhash.xxh3_128_intdigest(token.encode())).to_bytes(GID_LENGTH, "little")
 
 
 def attachment(seq: int, stamp_ns: int, publisher_gid: bytes) -> bytes:

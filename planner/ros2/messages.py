@@ -22,6 +22,7 @@ TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"
 JOINT_TRAJECTORY = "trajectory_msgs/msg/JointTrajectory"
+BOOL = "std_msgs/msg/Bool"
 FLOAT32 = 7  # sensor_msgs/msg/PointField datatype
 
 #: visualization_msgs/msg/Marker constants
@@ -253,3 +254,14 @@ def point_cloud(t: float, frame: str, rows: Array, fields: list[str]) -> Any:
         data=data.reshape(-1).view(np.uint8),
         is_dense=False,
     )
+
+
+def laser_messages(on: bool, aim: bool) -> list[tuple[str, Any]]:
+    """The laser state as two ``std_msgs/msg/Bool``: (topic, message) for the treatment
+    gate and the aiming beam (:data:`LASER_TOPICS`)."""
+    return [(LASER_TOPICS["on"], make(BOOL, data=bool(on))),
+            (LASER_TOPICS["aim"], make(BOOL, data=bool(aim)))]  # fmt: skip
+
+
+#: the laser state's ROS 2 topics: the treatment gate, the aiming beam
+LASER_TOPICS = {"on": "/beamrelay/laser/treatment", "aim": "/beamrelay/laser/aim"}

@@ -10,7 +10,8 @@ system model it also writes ``/beamrelay/markers`` (the beam at the recorded joi
 by the recorded laser state, and the targets of the recorded plans) at most
 ``MARKER_RATE`` Hz of recorded time. Trajectories sent to the drivers become
 ``/<robot>/joint_trajectory`` (``trajectory_msgs/msg/JointTrajectory``), the camera cloud
-``/camera/points`` (``sensor_msgs/msg/PointCloud2``, at most ``CLOUD_RATE`` Hz).
+``/camera/points`` (``sensor_msgs/msg/PointCloud2``, at most ``CLOUD_RATE`` Hz), each laser
+state ``/beamrelay/laser/treatment`` and ``/beamrelay/laser/aim`` (``std_msgs/msg/Bool``).
 """
 
 from __future__ import annotations
@@ -82,8 +83,7 @@ class RosTranslator:
         self, key: str, payload: bytes, attachment: bytes | None = None
     ) -> list[RosMessage]:
         if key == self.keys.laser:
-            self._on_laser(payload)
-            return []
+            return self._on_laser(payload)
         if key == self.keys.plans:
             self._on_plan(payload)
             return []
@@ -147,12 +147,15 @@ class RosTranslator:
                            targets=self.targets)  # fmt: skip
         return [RosMessage(MARKER_TOPIC, m.MARKER_ARRAY, m.serialize(msg, m.MARKER_ARRAY))]
 
-    def _on_laser(self, payload: bytes) -> None:
+    def _on_laser(self, payload: bytes) -> list[RosMessage]:
+        """The beam's colour for the markers, and the laser state's two Bool channels."""
         try:
             laser = decode(payload, LaserState)
         except InputError:
-            return
+            return []
         self.beam = cell.Beam(on=laser.on, aim=bool(laser.aim))
+        return [RosMessage(topic, m.BOOL, m.serialize(msg, m.BOOL))
+                for topic, msg in m.laser_messages(laser.on, bool(laser.aim))]  # fmt: skip
 
     def _on_plan(self, payload: bytes) -> None:
         if (pts := cell.plan_targets(payload)) is not None:

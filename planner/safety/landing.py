@@ -157,8 +157,9 @@ def cloud_landings(
     ``tolerance`` of the target along it, at least :data:`CLOUD_MIN_POINTS`, lying on a
     plane (RMS under :data:`CLOUD_MAX_RMS`; SVD fit) are the surface there; the beam meets
     that plane at the landing point, taken when it lies within ``tolerance`` of the target
-    along the plane's normal. A pick on the cloud lands where the many points around it put
-    the surface, not at its own pixel's noisy depth."""
+    along the plane's normal and within :data:`MAX_SLANT` x ``tolerance`` along the beam (a
+    grazing beam meets a plane far beyond the sampled patch). A pick on the cloud lands where
+    the many points around it put the surface, not at its own pixel's noisy depth."""
     out: dict[int, Landing] = {}
     cloud = np.asarray(cloud, dtype=float).reshape(-1, 3)
     if len(cloud) < CLOUD_MIN_POINTS or tolerance <= 0:
@@ -183,6 +184,6 @@ def cloud_landings(
             continue
         t = float(normal @ (centre - end) / (normal @ v))  # from the target along the beam
         point = end + t * v
-        if abs(float(normal @ (point - end))) <= tolerance:
+        if abs(float(normal @ (point - end))) <= tolerance and abs(t) <= MAX_SLANT * tolerance:
             out[k] = Landing(CLOUD, point, t, end.copy())
     return out

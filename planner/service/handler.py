@@ -159,15 +159,12 @@ def make_plan_fn(
     that carries them first: the plan's ``targets`` are the landed points); ``safety`` (:class:`~planner.safety.model.Safety`)
     applies the collision, keep-out and clearance rules to the solutions and the trajectory.
     """
-    from planner.planning import (
-        plan_document,
-        plan_landed_points,
-        solve_landed_path,
-        time_safely,
-        verify_solutions,
-    )
+    from planner.ik import IKOptions
+    from planner.planning import plan_document, time_safely, verify_solutions
+    from planner.scenario_planner import ScenarioPlanner
 
     timing = settings or TrajectorySettings()
+    rules = ScenarioPlanner(system, options or IKOptions(), scene, safety, 0.0)
 
     def plan_fn(
         targets: Targets,
@@ -181,13 +178,9 @@ def make_plan_fn(
             timing_now = replace(timing, dwell=dwell)
             scn_now = {**scenario, "trajectory": {**scenario.get("trajectory", {}), "dwell": dwell}}
         if targets.kind == "path":
-            from planner.ik import IKOptions
-
-            targets, sols, _ = solve_landed_path(system, targets, options or IKOptions(), q0,
-                                                 scene, safety)  # fmt: skip
+            targets, sols, _ = rules.path(targets, q0)
         else:
-            targets, sols = plan_landed_points(system, targets, options, q0, scene=scene,
-                                               safety=safety)  # fmt: skip
+            targets, sols = rules.points(targets, q0)
         if "system" in scenario:  # re-verified before timing: a rejected one is not visited
             sols = verify_solutions(system, scenario, targets, sols)
         traj = None
@@ -250,33 +243,24 @@ def handler_from_scenario(path: Any, extra_includes: tuple[Any, ...] = ()) -> Re
     """A :class:`RequestHandler` for a scenario file (calibration applied via ``include:``;
     ``extra_includes`` after the scenario's own, e.g. the online calibration file)."""
     from planner.io.resolved import resolved_scenario_dict
-    from planner.io.scenario import (
-        load_scenario,
-        scene_model,
-        system_from_scenario,
-        trajectory_settings,
-    )
-    from planner.planning import ik_options
-    from planner.safety.model import Safety
+    from planner.io.scenario import load_scenario, trajectory_settings
+    from planner.scenario_planner import ScenarioPlanner
     from planner.service.closed_loop import closed_loop_config
 
     scn = load_scenario(path, extra_includes)
-    system = system_from_scenario(scn)
-    model = scn.model
+    rules = ScenarioPlanner.from_scenario(scn)  # the rules `beamrelay plan` and the API use
+    system, safety, model = rules.system, rules.safety, scn.model
     settings = trajectory_settings(scn)
-    safety = Safety.from_scenario(scn, system)
-    plan_fn = make_plan_fn(system, resolved_scenario_dict(scn), ik_options(model.solver), settings,
-                           scene_model(scn), safety)  # fmt: skip
+    plan_fn = make_plan_fn(system, resolved_scenario_dict(scn), rules.options, settings,
+                           rules.scene, safety)  # fmt: skip
     laser = model.system.laser
     gated = laser.gate is not None
     # ungated (simulation only: --backend ur needs a gate), the laser is always on: there is
     # no treatment gate to keep off, so the measurements need no aiming beam of their own
     closed = closed_loop_config(system, settings, safety, gated, laser.aim is not None or not gated)
-    tracker = track_ik(system, ik_options(model.solver), safety)
-    tol = surface_tolerance(float(model.safety.spot_uncertainty))
-    return RequestHandler(
-        system, plan_fn, closed_loop=closed, track_ik=tracker, surface_tolerance=tol
-    )
+    tracker = track_ik(system, rules.options, safety)
+    return RequestHandler(system, plan_fn, closed_loop=closed, track_ik=tracker,
+                          surface_tolerance=rules.surface_tolerance)  # fmt: skip
 
 
 def track_ik(system: System, options: Any, safety: Safety | None) -> Any:

@@ -198,10 +198,13 @@ class PlannerNode:
         return self
 
     def with_cloud(self, targets: Targets, req: Any, start: dict[str, Array] | None) -> Targets:
-        """Camera-frame point targets with the live cloud around them (world, through the
-        calibrated camera pose at ``start``) as a surface that may carry them
+        """Camera-frame point targets with a fixed camera's live cloud around them (world,
+        through its calibrated pose) as a surface that may carry them
         (:func:`planner.safety.landing.cloud_landings`); other targets as they are."""
+        cam = self.handler.system.camera
         if req.frame != "camera" or targets.kind != "points" or targets.surface_tolerance <= 0:
+            return targets
+        if cam is None or cam.robot is not None:  # a moving camera's cloud: other joints
             return targets
         cloud = self.cloud.around(targets.points, self.handler.system.world_T_camera(start))
         return targets if cloud is None else dataclasses.replace(targets, cloud=cloud)

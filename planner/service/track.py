@@ -20,7 +20,8 @@
 - with a :class:`~planner.track.correction.SpotCorrection` (a camera-frame track request
   whose camera can see the beam: :func:`planner.service.track_start.camera_correction`),
   subscribes ``<prefix>/camera/spot`` too: each frame's point is aimed at corrected by the
-  spots the camera saw, and the treatment is on only while the correction permits it;
+  spots the camera saw, the treatment is on only while the correction permits it (read
+  without a lock by the setpoint thread), and a world-frame frame is ignored (counted);
 - streams setpoints at 500 Hz through :class:`planner.service.setpoints.SetpointStreamer`
   (the follower's limited reference, ``laser_on`` to the gate robot);
 - ends on the request's ``duration``, :meth:`stop` (``<prefix>/stop``, a halted robot, the
@@ -203,6 +204,9 @@ class TrackSession:
         if msg.id != self.id:
             self.ignored += 1
             return
+        if self.correction is not None and msg.frame != "camera":
+            self.ignored += 1  # corrected in the camera's frame: a world frame would add its error
+            return
         points = np.asarray(msg.points, dtype=float)
         normals = None if msg.normals is None else np.asarray(msg.normals, dtype=float)
         if msg.frame == "camera":
@@ -286,8 +290,7 @@ class TrackSession:
             return None
         _, q, qd, laser = sp
         if laser and self.correction is not None:  # treatment only on a measured landing
-            with self._correction_lock:
-                laser = self.correction.permits(t)
+            laser = self.correction.permits(t)  # lock-free: one attribute, replaced whole
         self._last = (t, q, qd)
         now = time.perf_counter()
         self.latencies += [now - r for r in receipts]

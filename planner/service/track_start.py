@@ -112,7 +112,14 @@ def start_track(node: Any, req: Any) -> dict[str, Any]:
     follower.warm_up(q1, normal)  # the first frame must not pay for first calls
     laser = ((plan.get("scenario") or {}).get("system") or {}).get("laser", {})
     gate = laser.get("gate") or {}
-    correction, why = camera_correction(req, system, laser, settings.tolerance)
+    scenario = plan.get("scenario") or {}
+    padding = None
+    if scenario.get("keep_out"):  # the rules check the model's beam: the bias must fit in
+        from schemas.scenario import safety_margin
+
+        uncertainty = (scenario.get("safety") or {}).get("spot_uncertainty") or 0.0
+        padding = safety_margin(float(laser.get("beam_radius") or 0.0), float(uncertainty))
+    correction, why = camera_correction(req, system, laser, settings.tolerance, padding)
     node.track = TrackSession(node.session, node.keys, node.session_id, system, follower,
                               req.id, duration=req.duration, gate_robot=gate.get("robot"),
                               aim=laser.get("aim") is not None, correction=correction,
@@ -125,16 +132,21 @@ def start_track(node: Any, req: Any) -> dict[str, Any]:
 
 
 def camera_correction(
-    req: Any, system: Any, laser: dict[str, Any], tolerance: float
-) -> tuple[SpotCorrection | None, str]:
+    req: Any, system: Any, laser: dict[str, Any], tolerance: float,
+    max_bias: float | None = None,
+) -> tuple[SpotCorrection | None, str]:  # fmt: skip
     """The camera-frame spot correction of a track request
     (:class:`planner.track.correction.SpotCorrection`) and what the reply says of it: on for
-    targets in the camera frame when the camera can see the beam while the treatment is off
-    (an aiming beam, or an ungated simulated laser, always on); otherwise off, and why."""
+    targets in the camera frame of a fixed camera that can see the beam while the treatment
+    is off (an aiming beam, or an ungated simulated laser, always on); otherwise off, and
+    why. ``max_bias`` (m): the keep-out padding, when there are keep-out volumes."""
     if req.frame != "camera":
         return None, "off: targets in the world frame"
     if system.camera is None:
         return None, "off: no camera"
+    if system.camera.robot is not None:  # frames and spots would map through other joints
+        return None, "off: the camera moves with an arm"
     if laser.get("gate") is not None and laser.get("aim") is None:
         return None, "off: no aiming beam (laser.aim) to measure the spot with"
-    return SpotCorrection(system, system.world_T_camera, tolerance=tolerance), "on"
+    return SpotCorrection(system, system.world_T_camera, tolerance=tolerance,
+                          max_bias=max_bias), "on"  # fmt: skip

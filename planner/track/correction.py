@@ -22,11 +22,14 @@ joints. :class:`SpotCorrection`, per camera spot (:meth:`~SpotCorrection.on_spot
    pose, so equal to their distance as the camera measured them) is :attr:`error`.
 
 :meth:`permits` is the treatment's condition: a delivery error within ``tolerance`` measured
-no longer than ``fresh`` s ago. A spot is not used (counted in :attr:`dropped` by why) when
-its confidence is under ``min_confidence``, when joints or frames do not cover its time, or
-when its model error is farther than ``radius`` from the estimate (another bright point: the
-first one is allowed ``first_radius``, the calibration's error bound). After
-:data:`RESTART_AFTER` implausible spots in a row the estimate starts again from nothing.
+no longer than ``fresh`` s ago, and with keep-out volumes a model error within their padding
+(``max_bias``: the safety rules check the model's beam). A spot is not used (counted in
+:attr:`dropped` by why) when its confidence is under ``min_confidence``, when joints or
+frames do not cover its time, when the model has no valid beam there, or when its model
+error is farther than ``radius`` from the estimate (another bright point: the first one is
+allowed ``first_radius``, the calibration's error bound); such an implausible spot also
+withdraws the last delivery error (no treatment until a plausible one), and after
+:data:`RESTART_AFTER` of them in a row the estimate starts again from nothing.
 """
 
 from __future__ import annotations
@@ -61,17 +64,23 @@ class SpotCorrection:
     min_confidence: float = 0.3
     first_radius: float = 0.03  # m, the first model error's largest size
     radius: float = 0.005  # m, a later one's largest distance from the estimate
+    max_bias: float | None = None
+    """m: with keep-out volumes, the largest model error the treatment tolerates (their
+    padding: the beam and keep-out checks run on the model's beam, which misses the true one
+    by the bias); None: no limit"""
     bias: Array = field(default_factory=lambda: np.zeros(3))
     dropped: Counter[str] = field(default_factory=Counter)
 
     def __post_init__(self) -> None:
         self._joints: deque[tuple[float, Array]] = deque()
         self._frames: deque[tuple[float, Array, Array | None]] = deque()
-        self.used = 0  # spots that updated the estimate
+        self.used = 0  # spots that updated the estimate since it (re)started
+        self.used_total = 0  # spots that updated an estimate
         self.restarts = 0  # estimates started again after implausible spots in a row
         self._implausible = 0  # implausible spots in a row
-        self.error: float | None = None  # m, the last measured delivery error
-        self.error_t: float | None = None  # its capture time (s)
+        # (m, s): the last measured delivery error and its capture time, or None; one tuple,
+        # replaced whole, so the setpoint thread reads it without a lock
+        self.last: tuple[float, float] | None = None
         self.errors: list[float] = []  # every measured delivery error (m), in order
 
     # --- inputs ----------------------------------------------------------------------------
@@ -96,11 +105,21 @@ class SpotCorrection:
             self.dropped[why] += 1
         return why
 
+    @property
+    def error(self) -> float | None:
+        """m: the last measured delivery error (None: none since the start or a bad spot)."""
+        last = self.last
+        return None if last is None else last[0]
+
     def permits(self, now: float) -> bool:
         """Whether the treatment may be on at ``now`` (s): the last delivery error is within
-        :attr:`tolerance` and was measured at most :attr:`fresh` s before."""
-        return (self.error is not None and self.error_t is not None
-                and self.error <= self.tolerance and now - self.error_t <= self.fresh)  # fmt: skip
+        :attr:`tolerance`, was measured at most :attr:`fresh` s before or after ``now`` (a
+        stamp from the future is a clock to distrust, not a fresh spot), and the model error
+        is within :attr:`max_bias`. Reads one attribute: safe from any thread."""
+        last, bias = self.last, self.bias
+        if last is None or (self.max_bias is not None and np.linalg.norm(bias) > self.max_bias):
+            return False
+        return last[0] <= self.tolerance and abs(now - last[1]) <= self.fresh
 
     # --- the estimate ----------------------------------------------------------------------
     def _use(self, t: float, p_camera: Array | None, confidence: float) -> str:
@@ -119,9 +138,12 @@ class SpotCorrection:
         v = tr.dirs[-1] / np.linalg.norm(tr.dirs[-1])
         err = spot - tr.spot
         err = err - (err @ v) * v
+        if not tr.valid or not np.all(np.isfinite(err)):
+            return "model_invalid"  # no model spot to compare with (off the mirror, NaN)
         first = self.used == 0
         off = float(np.linalg.norm(err if first else err - self.bias))
-        if off > (self.first_radius if first else self.radius):
+        if not off <= (self.first_radius if first else self.radius):
+            self.last = None  # the camera contradicts the estimate: no treatment on it
             self._implausible += 1
             if self._implausible >= RESTART_AFTER:
                 self._restart()
@@ -129,20 +151,21 @@ class SpotCorrection:
         self._implausible = 0
         self.bias = err if first else self.bias + self.gain * (err - self.bias)
         self.used += 1
-        self.error, self.error_t = float(np.linalg.norm(spot - target)), float(t)
-        self.errors.append(self.error)
+        self.used_total += 1
+        error = float(np.linalg.norm(spot - target))
+        self.last = (error, float(t))
+        self.errors.append(error)
         return "used"
 
     def _restart(self) -> None:
-        self.bias, self.used, self._implausible = np.zeros(3), 0, 0
-        self.error = self.error_t = None
+        self.bias, self.used, self._implausible, self.last = np.zeros(3), 0, 0, None
         self.restarts += 1
 
     def figures(self) -> dict[str, object]:
         """For the tracking summary: spots used and dropped, the estimate (mm), the delivery
         errors measured (mm: first, median of the last half, last)."""
         e = np.asarray(self.errors) * 1e3
-        out: dict[str, object] = {"frame": "camera", "spots_used": self.used,
+        out: dict[str, object] = {"frame": "camera", "spots_used": self.used_total,
                                   "dropped": dict(self.dropped), "restarts": self.restarts,
                                   "bias_mm": np.round(self.bias * 1e3, 3).tolist()}  # fmt: skip
         if len(e):
@@ -196,5 +219,5 @@ def _frame_at(history: deque, t: float) -> tuple[Array, Array | None] | None:  #
         return None
     i, w = b
     p = history[i][1] if w == 0.0 else (1 - w) * history[i][1] + w * history[i + 1][1]
-    n = history[i][2] if w < 0.5 or w == 0.0 else history[i + 1][2]
+    n = history[i][2] if w < 0.5 else history[i + 1][2]
     return np.asarray(p), n

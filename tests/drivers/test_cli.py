@@ -50,10 +50,13 @@ def test_robot_and_camera_drivers_publish_and_stop_on_sigterm(
         def last_spots() -> list[SpotMessage]:
             return [decode(s.payload.to_bytes(), SpotMessage) for s in got["spot"][-10:]]
 
-        # the camera reports no spot until the robot's first joint state reaches it
+        # the camera reports no spot until the robot's first joint state reaches it; the
+        # order check below reads the last 200 joint states (a loaded machine may start the
+        # camera's stream before the robot's has sent that many: 164 once)
         wait_for(
             lambda: (
                 len(got["pts"]) > 3
+                and len(got["js"]) >= 200
                 and len(got["spot"]) >= 10
                 and all(s.p_camera is not None for s in last_spots())
             ),

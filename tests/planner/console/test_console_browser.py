@@ -409,8 +409,9 @@ def joints(client: PlanClient) -> tuple[np.ndarray, np.ndarray]:
 def start_moving(client: PlanClient, path: np.ndarray) -> np.ndarray:
     """Execute the marked ``path`` again, from the test's own bus client (the page's Arm and
     Execute were tested above; pressing them costs ~10 s on a starved browser), and return
-    the executed trajectory's last arm0 joints once the arm moves (2 mrad from where it was: the planner may run the path from the end
-    the arm rests at, with no approach, and at the spot speed the joints move at ~5 mrad/s).
+    the executed trajectory's last arm0 joints once the arm moves (2 mrad from where it was:
+    the planner may run the path from the end the arm rests at, with no approach, and at
+    the spot speed the joints move at ~5 mrad/s).
     A late planner heartbeat may refuse a request: tried 5 times (each refusal printed)."""
     for _ in range(5):
         q0 = joints(client)[0]

@@ -91,9 +91,9 @@ def test_bad_requests_are_input_errors(targets: TargetList, mode: Mode, dwell: f
 def test_picks_of_a_fixed_cameras_cloud_go_in_its_frame() -> None:
     """With the calibrated camera pose, the request carries the picks (and normals) where the
     camera saw them: mapped back through that pose they are the picks again."""
-    from planner.model.transforms import axis_angle_to_matrix, inv_T, make_T
+    from planner.model.transforms import inv_T, look_at
 
-    world_T_camera = make_T(axis_angle_to_matrix([0.4, -0.3, 0.2]), [-1.0, -1.0, 0.5])
+    world_T_camera = look_at([-1.0, -1.0, 0.5], three().points().mean(axis=0))
     for mode in (Mode.POINTS, Mode.POLYLINE):
         req = build_request(three(), mode, camera_T_world=inv_T(world_T_camera))
         parsed = decode(encode(req), TargetRequest)

@@ -40,6 +40,9 @@ JS_KEY = f"{DOMAIN}/arm0/joint_states/sensor_msgs::msg::dds_::JointState_/{JOINT
 TF_KEY = f"{DOMAIN}/tf/tf2_msgs::msg::dds_::TFMessage_/{TF_HASH}"
 STATIC_KEY = f"{DOMAIN}/tf_static/tf2_msgs::msg::dds_::TFMessage_/{TF_HASH}"
 MARKER_KEY = f"{DOMAIN}/beamrelay/markers/visualization_msgs::msg::dds_::MarkerArray_/{MARKER_HASH}"
+BOOL_HASH = PUBLISHED["std_msgs/msg/Bool"]
+LASER_KEYS = {k: f"{DOMAIN}{topic}/std_msgs::msg::dds_::Bool_/{BOOL_HASH}"
+              for k, topic in m.LASER_TOPICS.items()}  # fmt: skip
 
 
 class Received:
@@ -140,9 +143,13 @@ def test_bridge_publishes_rmw_zenoh_topics_and_tokens(system1: System, endpoint:
             f"tf2_msgs::msg::dds_::TFMessage_/{TF_HASH}/:1:,1:,:,:,,",
             f"{prefix}/5/MP/%/%/beamrelay_bridge/%beamrelay%markers/"
             f"visualization_msgs::msg::dds_::MarkerArray_/{MARKER_HASH}/::,10:,:,:,,",
-            f"{prefix}/6/MS/%/%/beamrelay_bridge/%beamrelay%target/"
+            f"{prefix}/6/MP/%/%/beamrelay_bridge/%beamrelay%laser%treatment/"
+            f"std_msgs::msg::dds_::Bool_/{BOOL_HASH}/:1:,1:,:,:,,",
+            f"{prefix}/7/MP/%/%/beamrelay_bridge/%beamrelay%laser%aim/"
+            f"std_msgs::msg::dds_::Bool_/{BOOL_HASH}/:1:,1:,:,:,,",
+            f"{prefix}/8/MS/%/%/beamrelay_bridge/%beamrelay%target/"
             f"geometry_msgs::msg::dds_::PointStamped_/{POINT_HASH}/::,10:,:,:,,",
-            f"{prefix}/7/MS/%/%/beamrelay_bridge/%beamrelay%targets/"
+            f"{prefix}/9/MS/%/%/beamrelay_bridge/%beamrelay%targets/"
             f"geometry_msgs::msg::dds_::PoseArray_/{POSES_HASH}/::,10:,:,:,,",
         }
         bridge.close()
@@ -274,4 +281,53 @@ def test_a_late_subscriber_gets_tf_static_from_the_publication_cache(
         bridge.close()
         if raw is not None:
             raw.close()
+        hub.close()
+
+
+def test_bridge_publishes_the_laser_state_only_once_reported(
+    system1: System, endpoint: str
+) -> None:
+    """No LaserState yet: nothing on the laser topics (unknown is not off). Then each
+    reported state, decoded by rosbags as std_msgs/Bool, on the treatment and aim topics;
+    a subscriber that joins later still gets the state in force (transient-local)."""
+    import zenoh.ext
+
+    from schemas.messages import LaserState
+
+    hub = open_session(listen=True, endpoint=endpoint)
+    raw = raw_session(endpoint)
+    bridge = Ros2Bridge(hub, system1, None, domain=DOMAIN, rate=200.0)
+    received = Received()
+    sub = raw.declare_subscriber(f"{DOMAIN}/beamrelay/laser/**", received)
+    driver = raw.declare_publisher(Keys().laser)
+    late = None
+    try:
+        bridge.start()
+        time.sleep(0.5)
+        assert not any(received.get(k) for k in LASER_KEYS.values())
+
+        def state(key: str) -> bool | None:
+            got = received.get(LASER_KEYS[key])
+            return None if not got else bool(m.deserialize(got[-1][0], m.BOOL).data)
+
+        for on, aim in ((False, True), (True, False)):
+            body = LaserState(robot="arm0", t=time.time(), on=on, aim=aim, output=0)
+            deadline = time.monotonic() + 10.0
+            while time.monotonic() < deadline and (state("on"), state("aim")) != (on, aim):
+                driver.put(encode(body))
+                time.sleep(0.05)
+            assert (state("on"), state("aim")) == (on, aim)
+        late_got = Received()
+        late = zenoh.ext.declare_advanced_subscriber(
+            raw, LASER_KEYS["on"], late_got,
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True))  # fmt: skip
+        wait_for(lambda: bool(late_got.get(LASER_KEYS["on"])), 10.0, "the cached laser state")
+        assert m.deserialize(late_got.get(LASER_KEYS["on"])[0][0], m.BOOL).data is True
+    finally:
+        if late is not None:
+            late.undeclare()
+        bridge.close()
+        sub.undeclare()
+        driver.undeclare()
+        raw.close()
         hub.close()

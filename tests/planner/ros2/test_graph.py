@@ -97,3 +97,12 @@ def test_subscription_tokens_have_kind_ms() -> None:
         "std_msgs::msg::dds_::String_/"
         "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18/::,10:,:,:,,"
     )
+
+
+def test_gids_are_the_xxh3_128_of_the_token_as_rmw_zenoh_lays_them_out() -> None:
+    """rmw_zenoh's Entity: XXH3-128 of the liveliness key expression, low 64 bits then high
+    64 bits in memory (little-endian) order. The empty input's XXH3-128 is the xxHash
+    project's published check value 99aa06d3014798d8 6001c324468d497f (high, low)."""
+    assert gid("") == bytes.fromhex("7f498d4624c30160d8984701d306aa99")
+    token = "@ros2_lv/0/x/0/1/MP/%/%/n/%tf/t/h/::,:,:,:,,"
+    assert gid(token) == gid(token) and gid(token) != gid(token + "x") and len(gid(token)) == 16

@@ -22,6 +22,9 @@ PUBLISHED = {
     "tf2_msgs/msg/TFMessage": (
         "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087"
     ),
+    # a Rust Zenoh ROS 2 client's message table (its MessageTypeInfo impls; the same table
+    # gives std_msgs/String the rmw_zenoh value above)
+    "std_msgs/msg/Bool": "RIHS01_feb91e995ff9ebd09c0cb3d2aed18b11077585839fb5db80193b62d74528f6c9",
 }
 
 

@@ -68,7 +68,7 @@ def test_recording_has_ros2_schemas_channels_and_tf_tree(
     schemas = {s.name: s.encoding for s in summary.schemas.values()}
     ros_types = ["sensor_msgs/msg/JointState", "tf2_msgs/msg/TFMessage",
                  "visualization_msgs/msg/MarkerArray", "trajectory_msgs/msg/JointTrajectory",
-                 "sensor_msgs/msg/PointCloud2"]  # fmt: skip
+                 "sensor_msgs/msg/PointCloud2", "std_msgs/msg/Bool"]  # fmt: skip
     assert schemas == dict.fromkeys(ros_types, "ros2msg")
     channels = {c.topic: c.message_encoding for c in summary.channels.values()}
     raw = {
@@ -78,7 +78,8 @@ def test_recording_has_ros2_schemas_channels_and_tf_tree(
         f"{prefix}/camera/points": "beamrelay.attached",
     }
     ros = ["/arm0/joint_states", "/tf", "/tf_static", "/beamrelay/markers",
-           "/arm0/joint_trajectory", "/camera/points"]  # fmt: skip
+           "/arm0/joint_trajectory", "/camera/points", "/beamrelay/laser/treatment",
+           "/beamrelay/laser/aim"]  # fmt: skip
     assert channels == {**raw, **dict.fromkeys(ros, "cdr")}
 
     decoded: dict[str, list] = {}
@@ -104,6 +105,8 @@ def test_recording_has_ros2_schemas_channels_and_tf_tree(
     (sent_traj,) = decoded["/arm0/joint_trajectory"]
     assert [list(p.positions) for p in sent_traj.points] == traj.q
     assert sent_traj.points[1].time_from_start.nanosec == 250_000_000
+    assert [m.data for m in decoded["/beamrelay/laser/treatment"]] == [True]  # the gate on
+    assert [m.data for m in decoded["/beamrelay/laser/aim"]] == [False]
     (cloud,) = decoded["/camera/points"]
     assert cloud.header.frame_id == "camera" and cloud.width == 4
     np.testing.assert_array_equal(np.frombuffer(bytes(cloud.data), "<f4").reshape(4, 3), rows)

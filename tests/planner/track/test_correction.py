@@ -104,12 +104,32 @@ def test_spots_that_cannot_count_are_dropped_and_say_why() -> None:
     far = trace_beam(truth, q, P, normal).spot + 0.01 * side / np.linalg.norm(side)  # type: ignore[arg-type]
     for _ in range(RESTART_AFTER - 1):
         assert c.on_spot(0.30, seen(far), 0.9) == "implausible"
-    np.testing.assert_array_equal(c.bias, bias)
-    assert c.permits(0.30)
+    np.testing.assert_array_equal(c.bias, bias)  # the estimate stands...
+    assert not c.permits(0.30)  # ...but the camera contradicts it: no treatment
     assert c.on_spot(0.30, seen(far), 0.9) == "implausible"  # the 5th in a row: start again
     assert c.restarts == 1 and not c.permits(0.30) and np.all(c.bias == 0.0)
+    c.on_target(0.31, np.full(3, np.nan), n_map)  # a frame the model has no beam for
+    c.on_joints(0.32, q)
+    assert c.on_spot(0.31, seen(far), 0.9) == "model_invalid"
     assert dict(c.dropped) == {"not_seen": 1, "low_confidence": 1, "no_joints": 1,
-                               "no_frame": 1, "implausible": RESTART_AFTER}  # fmt: skip
+                               "no_frame": 1, "implausible": RESTART_AFTER,
+                               "model_invalid": 1}  # fmt: skip
+
+
+def test_no_treatment_on_a_stamp_from_the_future_or_a_bias_beyond_the_keep_out_padding() -> None:
+    ik, truth, normal, p_map, n_map = cell()
+    c = SpotCorrection(ik.system, lambda q: CAL, tolerance=1e-3)
+    q = None
+    for k in range(8):
+        q, _, _ = step(c, ik, truth, normal, p_map, n_map, 0.05 * k, q)
+    assert c.permits(0.36)
+    assert not c.permits(0.35 - c.fresh - 1e-3)  # measured "after" now: a clock to distrust
+    bias = float(np.linalg.norm(c.bias))
+    assert bias > 3e-3  # the model is mm off: the rules' beam misses the true one by that
+    c.max_bias = bias - 1e-4
+    assert not c.permits(0.36)
+    c.max_bias = bias + 1e-4
+    assert c.permits(0.36)
 
 
 def test_a_moving_target_is_taken_at_the_spot_time() -> None:
@@ -139,12 +159,14 @@ def test_the_correction_is_on_only_where_the_camera_can_see_the_beam() -> None:
 
     from planner.service.track_start import camera_correction
 
-    camera = SimpleNamespace(world_T_camera=CAL)
+    camera = SimpleNamespace(world_T_camera=CAL, robot=None)
     system = SimpleNamespace(camera=camera, world_T_camera=lambda q=None: CAL)
+    on_arm = SimpleNamespace(camera=SimpleNamespace(robot="arm0"))
     gate, aim = {"robot": "arm0", "output": 0}, {"robot": "arm0", "output": 1}
     cases = [
         ("world", system, {}, "off: targets in the world frame"),
         ("camera", SimpleNamespace(camera=None), {}, "off: no camera"),
+        ("camera", on_arm, {}, "off: the camera moves with an arm"),
         (
             "camera",
             system,
@@ -155,7 +177,44 @@ def test_the_correction_is_on_only_where_the_camera_can_see_the_beam() -> None:
         ("camera", system, {}, "on"),  # ungated (simulation): the laser is always on
     ]
     for frame, sys_, laser, why in cases:
-        c, said = camera_correction(SimpleNamespace(frame=frame), sys_, laser, 5e-4)
+        c, said = camera_correction(SimpleNamespace(frame=frame), sys_, laser, 5e-4, 0.002)
         assert said == why and (c is not None) == (why == "on")
         if c is not None:
             assert c.tolerance == 5e-4 and c.world_T_camera is system.world_T_camera
+            assert c.max_bias == 0.002
+
+
+def test_a_corrected_session_takes_only_camera_frame_frames() -> None:
+    """With the correction on, a stream frame in the world frame is ignored (counted): mapped
+    spots against a true world point would add the camera's error, not remove it."""
+    import json
+    from types import SimpleNamespace
+
+    from planner.service.bus import Keys
+    from planner.service.track import TrackSession
+
+    class Session:
+        def declare_publisher(self, *a: object, **k: object) -> SimpleNamespace:
+            return SimpleNamespace(put=lambda *a, **k: None, undeclare=lambda: None)
+
+    ik, *_ = cell()
+    system = SimpleNamespace(camera=SimpleNamespace(robot=None), robot_names=("arm0",),
+                             world_T_camera=lambda q=None: CAL)  # fmt: skip
+    follower = SimpleNamespace(first=P, markers=None)
+    corr = SpotCorrection(ik.system, lambda q: CAL)
+    session = TrackSession(Session(), Keys("t"), "s", system, follower, "r",  # type: ignore[arg-type]
+                           send_stop=lambda r: None, on_end=lambda s: None, correction=corr)  # fmt: skip
+
+    class Payload(bytes):
+        def to_bytes(self) -> bytes:
+            return bytes(self)
+
+    def frame(kind: str) -> SimpleNamespace:
+        body = {"schema": "beamrelay.target_stream/1", "t": 1.0, "id": "r", "frame": kind,
+                "points": [P.tolist()]}  # fmt: skip
+        return SimpleNamespace(payload=Payload(json.dumps(body).encode()))
+
+    session._on_sample(frame("world"))
+    assert session.ignored == 1 and session._slot is None
+    session._on_sample(frame("camera"))
+    assert session.ignored == 1 and session._slot is not None
