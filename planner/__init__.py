@@ -2,8 +2,9 @@
 
 The curated API (imported lazily, so ``import planner`` and ``beamrelay --help`` stay fast):
 
-- :func:`load` a scenario -> :class:`Setup` (system model + targets); :func:`solver` ->
-  :class:`BeamIK` for per-target IK; :func:`plan` a scenario -> plan.json dict;
+- :func:`load` a scenario -> :class:`Setup` (system model + targets); :func:`solver` -> a
+  per-target solver under the scenario's rules (safety, occlusion, bounds: what ``plan``
+  applies); :func:`plan` a scenario -> plan.json dict;
   :func:`check_plan` re-verifies one; :func:`calibrate_handeye`, :func:`calibrate_beam`.
 - Model types: :class:`System`, :class:`Robot`, :class:`Mirror`, :class:`Limits`,
   :class:`Targets`, :class:`BeamModel` (forward trace), :class:`IKOptions`,

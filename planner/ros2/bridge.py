@@ -15,9 +15,10 @@ thread converts and publishes at fixed rates:
 - ``/camera/points`` (``sensor_msgs/msg/PointCloud2``, ``camera`` frame), the newest cloud
   at most ``CLOUD_RATE`` Hz (with a camera in the scenario);
 - ``/beamrelay/laser/treatment`` and ``/beamrelay/laser/aim`` (``std_msgs/msg/Bool``,
-  transient-local: a late subscriber gets the state in force): the laser gate as its driver
-  last reported it, at every change and every ``STATIC_PERIOD`` s; nothing before the first
-  report (no report is not "off").
+  transient-local: a late subscriber gets the last state): the laser gate as its driver
+  last reported it, at every change and every ``STATIC_PERIOD`` s while the report is at
+  most ``LASER_RECENT`` s old; nothing before the first report (no report is not "off"),
+  and no aim topic value for a rig without an aiming beam.
 
 It subscribes to ROS 2 targets (:mod:`planner.ros2.inputs`) and forwards them as
 TargetRequests on the bus.
@@ -70,6 +71,7 @@ STATIC_PERIOD = 1.0  # s between /tf_static republications
 MARKER_TOPIC = "/beamrelay/markers"
 CLOUD_TOPIC = "/camera/points"
 CLOUD_RATE = 5.0  # Hz at most
+LASER_RECENT = 1.0  # s: a laser state older than this is not republished
 INBOX = 16  # ROS 2 target messages kept between two publishing periods (older dropped)
 DEFAULT_KEYS = Keys()
 
@@ -309,16 +311,22 @@ class Ros2Bridge:
         self.topics["/tf_static"].publish(cell.tf_message(t, cell.static_frames(self.system)), t)
 
     def publish_laser(self, force: bool = False) -> None:
-        """The newest LaserState as the two Bool topics, when it changed (or ``force``)."""
+        """The newest LaserState as the Bool topics, when it changed, or with ``force`` while
+        it is recent (a driver reports with every status; an old report is not repeated as
+        if it were news: std_msgs/Bool carries no time). The aim topic only for a rig with an
+        aiming beam (``aim`` None: no such beam, not "off")."""
         stamped = self.live.snapshot()["laser"]
         if stamped is None:
             return  # never reported: unknown, not off
         laser = stamped.value
         state = (bool(laser.on), bool(laser.aim))
-        if state == self._laser and not force:
+        recent = time.monotonic() - stamped.at <= LASER_RECENT
+        if state == self._laser and not (force and recent):
             return
         self._laser = state
         for topic, msg in m.laser_messages(*state):
+            if topic == m.LASER_TOPICS["aim"] and laser.aim is None:
+                continue
             self.topics[topic].publish(msg, float(laser.t))
 
     def publish_cloud(self) -> None:

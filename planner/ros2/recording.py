@@ -155,7 +155,8 @@ class RosTranslator:
             return []
         self.beam = cell.Beam(on=laser.on, aim=bool(laser.aim))
         return [RosMessage(topic, m.BOOL, m.serialize(msg, m.BOOL))
-                for topic, msg in m.laser_messages(laser.on, bool(laser.aim))]  # fmt: skip
+                for topic, msg in m.laser_messages(laser.on, bool(laser.aim))
+                if laser.aim is not None or topic != m.LASER_TOPICS["aim"]]  # fmt: skip
 
     def _on_plan(self, payload: bytes) -> None:
         if (pts := cell.plan_targets(payload)) is not None:

@@ -164,6 +164,7 @@ def make_plan_fn(
     from planner.scenario_planner import ScenarioPlanner
 
     timing = settings or TrajectorySettings()
+    # the targets carry their own surface tolerance (the handler's, for camera-frame ones)
     rules = ScenarioPlanner(system, options or IKOptions(), scene, safety, 0.0)
 
     def plan_fn(

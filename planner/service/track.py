@@ -21,7 +21,8 @@
   whose camera can see the beam: :func:`planner.service.track_start.camera_correction`),
   subscribes ``<prefix>/camera/spot`` too: each frame's point is aimed at corrected by the
   spots the camera saw, the treatment is on only while the correction permits it (read
-  without a lock by the setpoint thread), and a world-frame frame is ignored (counted);
+  without a lock by the setpoint thread), and a world-frame frame ends the session with a
+  reason (it would add the camera's error);
 - streams setpoints at 500 Hz through :class:`planner.service.setpoints.SetpointStreamer`
   (the follower's limited reference, ``laser_on`` to the gate robot);
 - ends on the request's ``duration``, :meth:`stop` (``<prefix>/stop``, a halted robot, the
@@ -184,13 +185,18 @@ class TrackSession:
         return cb
 
     def _on_spot(self, sample: Any) -> None:
-        """A camera spot: the correction's measurement (a bad body is logged and ignored)."""
+        """A camera spot: the correction's measurement (a bad body is logged and ignored;
+        nothing escapes into the Zenoh callback)."""
         msg = decode_sample(sample, SpotMessage, log, "spot message")
         if msg is None or self.correction is None:
             return
         p = None if msg.p_camera is None else np.asarray(msg.p_camera, dtype=float)
         with self._correction_lock:
-            self.correction.on_spot(float(msg.t), p, float(msg.confidence))
+            try:
+                self.correction.on_spot(float(msg.t), p, float(msg.confidence))
+            except (ArithmeticError, ValueError) as exc:  # a degenerate beam: no model spot
+                self.correction.dropped["model_invalid"] += 1
+                log.debug("camera spot not used: %s", exc)
 
     # --- target stream ---------------------------------------------------------------------
     def _on_sample(self, sample: Any) -> None:
@@ -206,6 +212,9 @@ class TrackSession:
             return
         if self.correction is not None and msg.frame != "camera":
             self.ignored += 1  # corrected in the camera's frame: a world frame would add its error
+            self.stop(f"target stream {self.id!r} sends {msg.frame}-frame points but the "
+                      "request is in the camera frame: send the stream with frame: camera, "
+                      "or request in the world frame")  # fmt: skip
             return
         points = np.asarray(msg.points, dtype=float)
         normals = None if msg.normals is None else np.asarray(msg.normals, dtype=float)

@@ -113,13 +113,14 @@ def start_track(node: Any, req: Any) -> dict[str, Any]:
     laser = ((plan.get("scenario") or {}).get("system") or {}).get("laser", {})
     gate = laser.get("gate") or {}
     scenario = plan.get("scenario") or {}
-    padding = None
+    allowance = None
     if scenario.get("keep_out"):  # the rules check the model's beam: the bias must fit in
-        from schemas.scenario import safety_margin
+        from schemas.scenario import UNCERTAINTY_K  # the padding's calibration part (the
 
+        # beam radius part is the beam's own width)
         uncertainty = (scenario.get("safety") or {}).get("spot_uncertainty") or 0.0
-        padding = safety_margin(float(laser.get("beam_radius") or 0.0), float(uncertainty))
-    correction, why = camera_correction(req, system, laser, settings.tolerance, padding)
+        allowance = UNCERTAINTY_K * float(uncertainty)
+    correction, why = camera_correction(req, system, laser, settings.tolerance, allowance)
     node.track = TrackSession(node.session, node.keys, node.session_id, system, follower,
                               req.id, duration=req.duration, gate_robot=gate.get("robot"),
                               aim=laser.get("aim") is not None, correction=correction,
@@ -139,7 +140,8 @@ def camera_correction(
     (:class:`planner.track.correction.SpotCorrection`) and what the reply says of it: on for
     targets in the camera frame of a fixed camera that can see the beam while the treatment
     is off (an aiming beam, or an ungated simulated laser, always on); otherwise off, and
-    why. ``max_bias`` (m): the keep-out padding, when there are keep-out volumes."""
+    why. ``max_bias`` (m): with keep-out volumes, the calibration part of their padding
+    (:data:`~schemas.scenario.UNCERTAINTY_K` x ``safety.spot_uncertainty``)."""
     if req.frame != "camera":
         return None, "off: targets in the world frame"
     if system.camera is None:

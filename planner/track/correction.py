@@ -22,8 +22,10 @@ joints. :class:`SpotCorrection`, per camera spot (:meth:`~SpotCorrection.on_spot
    pose, so equal to their distance as the camera measured them) is :attr:`error`.
 
 :meth:`permits` is the treatment's condition: a delivery error within ``tolerance`` measured
-no longer than ``fresh`` s ago, and with keep-out volumes a model error within their padding
-(``max_bias``: the safety rules check the model's beam). A spot is not used (counted in
+no longer than ``fresh`` s ago (a stamp more than :data:`AHEAD` s in the future is a clock
+to distrust), and with keep-out volumes a model error within the calibration part of their
+padding (``max_bias``: the rules check the model's beam, which misses the true one by about
+the bias; with ``spot_uncertainty: 0`` that allows none: recalibrate or declare it). A spot is not used (counted in
 :attr:`dropped` by why) when its confidence is under ``min_confidence``, when joints or
 frames do not cover its time, when the model has no valid beam there, or when its model
 error is farther than ``radius`` from the estimate (another bright point: the first one is
@@ -46,6 +48,9 @@ from planner.model.transforms import Array
 
 #: s of joint states and target frames kept to look up a spot's capture time in
 HISTORY = 1.0
+#: s: a spot stamped this far after ``now`` still counts (clocks of one machine); more is a
+#: clock to distrust
+AHEAD = 0.01
 #: implausible spots in a row after which the estimate starts again (its first spot was
 #: another bright point, or the calibration changed): no treatment until it has
 RESTART_AFTER = 5
@@ -54,7 +59,8 @@ RESTART_AFTER = 5
 @dataclass
 class SpotCorrection:
     """One tracked target's correction (see the module docstring). ``world_T_camera(q)``:
-    the calibrated camera pose at stacked joints ``q`` (an eye-in-hand camera moves)."""
+    the calibrated camera pose at stacked joints ``q`` (the node turns the correction on for
+    a fixed camera only)."""
 
     system: System
     world_T_camera: Callable[[Array], Array]
@@ -65,9 +71,8 @@ class SpotCorrection:
     first_radius: float = 0.03  # m, the first model error's largest size
     radius: float = 0.005  # m, a later one's largest distance from the estimate
     max_bias: float | None = None
-    """m: with keep-out volumes, the largest model error the treatment tolerates (their
-    padding: the beam and keep-out checks run on the model's beam, which misses the true one
-    by the bias); None: no limit"""
+    """m: with keep-out volumes, the largest model error the treatment tolerates (the
+    calibration part of their padding); None: no limit"""
     bias: Array = field(default_factory=lambda: np.zeros(3))
     dropped: Counter[str] = field(default_factory=Counter)
 
@@ -113,13 +118,19 @@ class SpotCorrection:
 
     def permits(self, now: float) -> bool:
         """Whether the treatment may be on at ``now`` (s): the last delivery error is within
-        :attr:`tolerance`, was measured at most :attr:`fresh` s before or after ``now`` (a
-        stamp from the future is a clock to distrust, not a fresh spot), and the model error
-        is within :attr:`max_bias`. Reads one attribute: safe from any thread."""
+        :attr:`tolerance`, was measured at most :attr:`fresh` s before ``now`` (and at most
+        :data:`AHEAD` s after: a stamp from the future is a clock to distrust), and the model
+        error is within :attr:`max_bias`. Reads two attributes that are only ever replaced
+        whole, never changed in place: safe from any thread without a lock."""
         last, bias = self.last, self.bias
-        if last is None or (self.max_bias is not None and np.linalg.norm(bias) > self.max_bias):
+        if last is None or self.over_limit(bias):
             return False
-        return last[0] <= self.tolerance and abs(now - last[1]) <= self.fresh
+        return last[0] <= self.tolerance and -AHEAD <= now - last[1] <= self.fresh
+
+    def over_limit(self, bias: Array | None = None) -> bool:
+        """Whether the model error (default the estimate) exceeds :attr:`max_bias`."""
+        b = self.bias if bias is None else bias
+        return self.max_bias is not None and float(np.linalg.norm(b)) > self.max_bias
 
     # --- the estimate ----------------------------------------------------------------------
     def _use(self, t: float, p_camera: Array | None, confidence: float) -> str:
@@ -167,6 +178,9 @@ class SpotCorrection:
         e = np.asarray(self.errors) * 1e3
         out: dict[str, object] = {"frame": "camera", "spots_used": self.used_total,
                                   "dropped": dict(self.dropped), "restarts": self.restarts,
+                                  "bias_limit_mm": None if self.max_bias is None
+                                  else round(1e3 * self.max_bias, 3),
+                                  "bias_over_limit": self.over_limit(),
                                   "bias_mm": np.round(self.bias * 1e3, 3).tolist()}  # fmt: skip
         if len(e):
             out |= {"measured_error_first_mm": round(float(e[0]), 3),

@@ -82,3 +82,13 @@ def test_a_target_in_millimetres_is_refused_by_every_entry_point(tmp_path: Path)
     for bad in ([float("nan"), 0.0, 0.0], [0.0, 0.0, -0.5]):  # not finite; behind the camera
         with pytest.raises(InputError):
             planner.solver(path).solve(bad, frame="camera")
+    # within the message schema's 100 m, beyond a scenario file's 20 m; behind the camera
+    far = [50.0, 0.0, 0.0]
+    with pytest.raises(InputError, match="beyond 20 m: did you give millimetres"):
+        planner.solver(path).solve(far)
+    with pytest.raises(InputError, match="beyond 20 m: did you give millimetres"):
+        handler.parse(encode({"schema": "beamrelay.request/1", "id": "r", "points": [far]}))
+    behind = {"schema": "beamrelay.request/1", "id": "r", "frame": "camera",
+              "points": [[0.0, 0.0, -0.5]]}  # fmt: skip
+    with pytest.raises(InputError, match="not in front of the camera"):
+        handler.parse(encode(behind))

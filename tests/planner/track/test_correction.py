@@ -122,14 +122,14 @@ def test_no_treatment_on_a_stamp_from_the_future_or_a_bias_beyond_the_keep_out_p
     q = None
     for k in range(8):
         q, _, _ = step(c, ik, truth, normal, p_map, n_map, 0.05 * k, q)
-    assert c.permits(0.36)
-    assert not c.permits(0.35 - c.fresh - 1e-3)  # measured "after" now: a clock to distrust
+    assert c.permits(0.36) and c.permits(0.35 - 0.005)  # 5 ms ahead: one machine's clocks
+    assert not c.permits(0.35 - 0.1)  # measured 0.1 s "after" now: a clock to distrust
     bias = float(np.linalg.norm(c.bias))
     assert bias > 3e-3  # the model is mm off: the rules' beam misses the true one by that
     c.max_bias = bias - 1e-4
-    assert not c.permits(0.36)
+    assert not c.permits(0.36) and c.figures()["bias_over_limit"] is True
     c.max_bias = bias + 1e-4
-    assert c.permits(0.36)
+    assert c.permits(0.36) and c.figures()["bias_over_limit"] is False
 
 
 def test_a_moving_target_is_taken_at_the_spot_time() -> None:
@@ -185,8 +185,9 @@ def test_the_correction_is_on_only_where_the_camera_can_see_the_beam() -> None:
 
 
 def test_a_corrected_session_takes_only_camera_frame_frames() -> None:
-    """With the correction on, a stream frame in the world frame is ignored (counted): mapped
-    spots against a true world point would add the camera's error, not remove it."""
+    """With the correction on, a stream frame in the world frame ends the session with a
+    reason that says so: mapped spots against a true world point would add the camera's
+    error, not remove it."""
     import json
     from types import SimpleNamespace
 
@@ -200,7 +201,8 @@ def test_a_corrected_session_takes_only_camera_frame_frames() -> None:
     ik, *_ = cell()
     system = SimpleNamespace(camera=SimpleNamespace(robot=None), robot_names=("arm0",),
                              world_T_camera=lambda q=None: CAL)  # fmt: skip
-    follower = SimpleNamespace(first=P, markers=None)
+    stopped: list[str] = []
+    follower = SimpleNamespace(first=P, markers=None, stop=stopped.append)
     corr = SpotCorrection(ik.system, lambda q: CAL)
     session = TrackSession(Session(), Keys("t"), "s", system, follower, "r",  # type: ignore[arg-type]
                            send_stop=lambda r: None, on_end=lambda s: None, correction=corr)  # fmt: skip
@@ -214,7 +216,8 @@ def test_a_corrected_session_takes_only_camera_frame_frames() -> None:
                 "points": [P.tolist()]}  # fmt: skip
         return SimpleNamespace(payload=Payload(json.dumps(body).encode()))
 
-    session._on_sample(frame("world"))
-    assert session.ignored == 1 and session._slot is None
     session._on_sample(frame("camera"))
-    assert session.ignored == 1 and session._slot is not None
+    assert session.ignored == 0 and session._slot is not None and not stopped
+    session._on_sample(frame("world"))  # e.g. the shipped tracker, which sends world frames
+    assert session.ignored == 1 and len(stopped) == 1
+    assert "sends world-frame points but the request is in the camera frame" in stopped[0]
