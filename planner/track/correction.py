@@ -75,6 +75,8 @@ class SpotCorrection:
     calibration part of their padding); None: no limit"""
     bias: Array = field(default_factory=lambda: np.zeros(3))
     dropped: Counter[str] = field(default_factory=Counter)
+    withheld: Counter[str] = field(default_factory=Counter)
+    """setpoints whose treatment :meth:`permits` refused, by why"""
 
     def __post_init__(self) -> None:
         self._joints: deque[tuple[float, Array]] = deque()
@@ -121,11 +123,23 @@ class SpotCorrection:
         :attr:`tolerance`, was measured at most :attr:`fresh` s before ``now`` (and at most
         :data:`AHEAD` s after: a stamp from the future is a clock to distrust), and the model
         error is within :attr:`max_bias`. Reads two attributes that are only ever replaced
-        whole, never changed in place: safe from any thread without a lock."""
+        whole, never changed in place: safe from any thread without a lock. A refusal is
+        counted by its reason in :attr:`withheld` (one caller: the setpoint thread)."""
+        why = self._refusal(now)
+        if why is not None:
+            self.withheld[why] += 1
+        return why is None
+
+    def _refusal(self, now: float) -> str | None:
         last, bias = self.last, self.bias
-        if last is None or self.over_limit(bias):
-            return False
-        return last[0] <= self.tolerance and -AHEAD <= now - last[1] <= self.fresh
+        if last is None:
+            return "no_measurement"
+        if self.over_limit(bias):
+            return "bias_over_limit"
+        if last[0] > self.tolerance:
+            return "over_tolerance"
+        age = now - last[1]
+        return "ahead" if age < -AHEAD else "stale" if age > self.fresh else None
 
     def over_limit(self, bias: Array | None = None) -> bool:
         """Whether the model error (default the estimate) exceeds :attr:`max_bias`."""
@@ -173,14 +187,16 @@ class SpotCorrection:
         self.restarts += 1
 
     def figures(self) -> dict[str, object]:
-        """For the tracking summary: spots used and dropped, the estimate (mm), the delivery
-        errors measured (mm: first, median of the last half, last)."""
+        """For the tracking summary: spots used and dropped, the estimate (mm) and its limit,
+        the setpoints whose treatment was withheld by why, the delivery errors measured (mm:
+        first, median of the last half, last)."""
         e = np.asarray(self.errors) * 1e3
         out: dict[str, object] = {"frame": "camera", "spots_used": self.used_total,
                                   "dropped": dict(self.dropped), "restarts": self.restarts,
                                   "bias_limit_mm": None if self.max_bias is None
                                   else round(1e3 * self.max_bias, 3),
                                   "bias_over_limit": self.over_limit(),
+                                  "treatment_withheld": dict(self.withheld),
                                   "bias_mm": np.round(self.bias * 1e3, 3).tolist()}  # fmt: skip
         if len(e):
             out |= {"measured_error_first_mm": round(float(e[0]), 3),

@@ -59,13 +59,13 @@ def step(c: SpotCorrection, ik: BeamIK, truth: object, normal: np.ndarray, p_map
 def test_the_spot_converges_onto_the_target_the_camera_saw() -> None:
     ik, truth, normal, p_map, n_map = cell()
     c = SpotCorrection(ik.system, lambda q: CAL, tolerance=1e-3)
-    assert not c.permits(0.0)  # nothing measured yet
+    assert not c.permits(0.0) and c.withheld == {"no_measurement": 1}  # nothing measured yet
     q, spot, why = step(c, ik, truth, normal, p_map, n_map, 0.0, None)
     open_loop = float(np.linalg.norm(spot - P))
     assert why == "used" and open_loop > 3e-3  # a real miscalibration
     # the measured delivery error is the camera-frame distance of spot and target
     assert c.error == pytest.approx(float(np.linalg.norm(seen(spot) - seen(P))), abs=1e-12)
-    assert not c.permits(0.0)
+    assert not c.permits(0.0) and c.withheld["over_tolerance"] == 1
     errors = []
     for k in range(1, 8):
         q, spot, why = step(c, ik, truth, normal, p_map, n_map, 0.05 * k, q)
@@ -124,12 +124,15 @@ def test_no_treatment_on_a_stamp_from_the_future_or_a_bias_beyond_the_keep_out_p
         q, _, _ = step(c, ik, truth, normal, p_map, n_map, 0.05 * k, q)
     assert c.permits(0.36) and c.permits(0.35 - 0.005)  # 5 ms ahead: one machine's clocks
     assert not c.permits(0.35 - 0.1)  # measured 0.1 s "after" now: a clock to distrust
+    assert not c.permits(0.35 + c.fresh + 1e-3)  # too old
     bias = float(np.linalg.norm(c.bias))
     assert bias > 3e-3  # the model is mm off: the rules' beam misses the true one by that
     c.max_bias = bias - 1e-4
     assert not c.permits(0.36) and c.figures()["bias_over_limit"] is True
     c.max_bias = bias + 1e-4
     assert c.permits(0.36) and c.figures()["bias_over_limit"] is False
+    # every refusal counted by why (the summary says why the treatment stayed off)
+    assert c.figures()["treatment_withheld"] == {"ahead": 1, "stale": 1, "bias_over_limit": 1}
 
 
 def test_a_moving_target_is_taken_at_the_spot_time() -> None:
