@@ -306,10 +306,11 @@ class RequestHandler:
         which only an eye-in-hand camera's pose depends on)."""
         points = np.asarray(req.points, dtype=float).reshape(-1, 3)
         normals = None if req.normals is None else np.asarray(req.normals, dtype=float)
+        tol = 0.0  # world targets are exact; camera-frame ones land on their surface
         if req.frame == "camera":
             points, normals = camera_to_world(self.system, points, normals, start)
+            tol = self.surface_tolerance
         if req.mode != "path":
-            tol = self.surface_tolerance if req.frame == "camera" else 0.0
             return Targets(points, normals, kind="points", surface_tolerance=tol)
         from planner.io.strokes import mark_path
 
@@ -324,7 +325,6 @@ class RequestHandler:
             marked = mark_path(points, self.path_spacing, normals=normals)
         except ValueError as exc:
             raise InputError(str(exc), "normals" if "normal" in str(exc) else "points") from exc
-        tol = self.surface_tolerance if req.frame == "camera" else 0.0
         return Targets(marked.points, marked.normals, kind="path", meta=marked.meta(),
                        surface_tolerance=tol)  # fmt: skip
 

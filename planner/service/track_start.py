@@ -110,9 +110,9 @@ def start_track(node: Any, req: Any) -> dict[str, Any]:
                               markers=markers,
                               check=None if rules is None else rules.twin())  # fmt: skip
     follower.warm_up(q1, normal)  # the first frame must not pay for first calls
-    laser = ((plan.get("scenario") or {}).get("system") or {}).get("laser", {})
-    gate = laser.get("gate") or {}
     scenario = plan.get("scenario") or {}
+    laser = (scenario.get("system") or {}).get("laser", {})
+    gate = laser.get("gate") or {}
     allowance = None
     if scenario.get("keep_out"):  # the rules check the model's beam: the bias must fit in
         from schemas.scenario import UNCERTAINTY_K  # the padding's calibration part (the
