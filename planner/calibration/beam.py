@@ -88,6 +88,9 @@ class BeamResult:
     converged: bool
     warnings: list[str] = field(default_factory=list)
     detected: list[str] = field(default_factory=list)  # null directions of the full Jacobian
+    #: covariance of the observable increments (names and order of ``std``), applied on the
+    #: right of the poses as ``T @ exp_T(d)`` (laser: first 6 of d, mirror: last 6)
+    covariance: Array | None = None
 
 
 @lru_cache(maxsize=16)
@@ -275,4 +278,5 @@ def calibrate_beam(
         converged=res.converged,
         warnings=warnings,
         detected=found,
+        covariance=np.asarray(res.covariance),
     )

@@ -28,11 +28,20 @@ Steps, each of which may refuse (the calibration in force is kept, the reason is
    depth error seen across the beam is; 5.9 sigma for isotropic 2-D noise);
 3. a plain least-squares fit of the inliers (its covariance gives the parameter std);
 4. the guard: a ``FOLDS``-fold cross-validation gives each inlier's held-out residual (from
-   a fit without it); the refit is accepted only if their median is at most the median
-   residual of the calibration in force over the same samples: a new version must predict
-   spots it was not fitted to at least as well as the one in force does (which has seen
-   some of them, so the test favours keeping it); medians under ``NUMERIC_FLOOR_M`` count
-   as equal.
+   a fit without it), compared with the residual of the calibration in force over the same
+   samples (which has seen some of them, so the test favours keeping it). The held-out
+   samples must lie on at least ``MIN_SURFACES`` surfaces (``SpotSample.surface``: the scene
+   object the spot landed on; ``MIN_PER_SURFACE`` samples each to count); on *each* of them
+   the held-out median must be no worse than the one in force's, and over all of them
+   better (medians both under ``EXACT_M`` count as equal). Samples on one plane cannot tell
+   a tilted laser from a shifted mirror, so a refit that predicts them well may still be
+   wrong everywhere else (version 1 of a cell once put the laser 6 deg and the mirror plane
+   36 mm off after 8 samples on one board; every target was "occluded" from then on);
+5. the mirror: the inlier fit's covariance, propagated to first order to the hit on every
+   mirror at every planned configuration (the samples' joints and the caller's
+   ``planned_q``), must keep each hit ``SIGMA_K`` standard deviations inside the mirror's
+   usable area (its region of interest, per axis), and the new model's beam must still meet
+   every mirror's front face ahead of it there.
 
 Units: metres, radians; frames: world, flange, laser as in the scenario.
 """
@@ -49,6 +58,7 @@ import numpy as np
 
 from planner.beam.graph import BeamModel
 from planner.calibration.beam import (
+    FULL_NAMES,
     OBSERVABLE_LASER,
     OBSERVABLE_MIRROR,
     BeamData,
@@ -60,12 +70,18 @@ from planner.calibration.report import beam_document
 from planner.errors import BeamrelayError, InputError
 from planner.model.system import System
 from planner.model.transforms import Array
+from planner.model.validity import MIN_AHEAD, MIN_FRONT
 
 OUTLIER_MEDIANS = 5.0  # residuals beyond 5 medians are outliers (3.4 sigma of 1-D noise)
 FOLDS = 5  # cross-validation folds of the guard
 DISTINCT_RAD = 1e-6  # configurations closer than this (max joint difference) count as one
 NUMERIC_FLOOR_M = 1e-12  # m: residual medians below this are rounding, all equally good
 MAX_SPOT_DISTANCE = 20.0  # m: a spot farther than this from the world origin is not a spot
+MIN_SURFACES = 2  # surfaces the held-out samples must span (one plane hides a tilt)
+MIN_PER_SURFACE = 2  # held-out samples a surface needs to count (one is not a median)
+EXACT_M = 1e-6  # m: held-out medians both below this count as equal (far below camera noise)
+SIGMA_K = 3.0  # standard deviations a planned mirror hit must keep inside the usable area
+FD_STEP = 1e-6  # rad or m: central-difference step of the hit's parameter Jacobian
 
 
 def n_unknowns(system: System) -> int:
@@ -83,16 +99,18 @@ def min_samples(system: System) -> int:
 @dataclass(frozen=True)
 class SpotSample:
     """One measured spot: stacked joints of every robot (rad, robot order), the spot in the
-    world (m), a placement label, and when it was taken (s, any clock)."""
+    world (m), a placement label, when it was taken (s, any clock) and the surface it lay on
+    (a scene object's name; "" unknown: such a sample is fitted, but no surface counts it)."""
 
     q: Array
     spot_world: Array
     board: int = 0
     t: float = 0.0
+    surface: str = ""
 
 
 def make_sample(
-    system: System, q: Any, spot_world: Any, board: int = 0, t: float = 0.0
+    system: System, q: Any, spot_world: Any, board: int = 0, t: float = 0.0, surface: str = ""
 ) -> SpotSample:
     """A validated :class:`SpotSample`; ``q`` is ``{robot: joints}`` or the stacked vector.
 
@@ -123,7 +141,7 @@ def make_sample(
             f"spot {float(np.linalg.norm(s)):.3g} m from the world origin (metres expected)",
             "spot_world",
         )
-    return SpotSample(q_arr, s, int(board), float(t))
+    return SpotSample(q_arr, s, int(board), float(t), str(surface))
 
 
 @dataclass(frozen=True)
@@ -151,6 +169,24 @@ class RefitResult:
     holdout_median: float = math.nan
     current_median: float = math.nan
     allowed_median: float = math.nan
+    #: per surface: held-out median (m), the calibration in force's median (m), samples
+    surfaces: dict[str, tuple[float, float, int]] = dataclasses.field(default_factory=dict)
+    #: smallest margin (m) of a planned mirror hit inside the usable area, less SIGMA_K std
+    mirror_margin: float = math.nan
+    #: largest propagated standard deviation (m) of a planned mirror hit
+    hit_std: float = math.nan
+
+    def figures(self) -> dict[str, Any]:
+        """The outcome as flat ``key: value`` figures (mm, counts) for an event line."""
+        out: dict[str, Any] = {
+            "accepted": self.accepted, "version": self.calibration.version,
+            "samples": self.samples, "outliers": len(self.outliers),
+            "holdout_mm": 1e3 * self.holdout_median, "current_mm": 1e3 * self.current_median,
+            "margin_mm": 1e3 * self.mirror_margin, "hit_std_mm": 1e3 * self.hit_std,
+        }  # fmt: skip
+        for name, (h, c, n) in self.surfaces.items():
+            out[f"surface.{name}"] = f"{1e3 * h:.3f}/{1e3 * c:.3f}mm(n={n})"
+        return out | {"reason": self.reason}
 
 
 def ray_distances(system: System, q: Array, spots: Array) -> Array:
@@ -188,11 +224,17 @@ def refit(
     *,
     loss_scale: float = 1e-3,
     starts: int = 1,
+    planned_q: Sequence[Array] = (),
+    first_version: int = 1,
+    sigma_k: float = SIGMA_K,
 ) -> RefitResult:
     """Refit the laser line and last mirror plane to ``samples`` (see the module docstring).
 
     ``current`` is the calibration in force (the fit starts from it and the guard compares
-    against it); ``nominal`` the scenario's system, whose poses fix the gauge.
+    against it); ``nominal`` the scenario's system, whose poses fix the gauge; ``planned_q``
+    further planned configurations (stacked joints) whose mirror hits the uncertainty must
+    keep in the usable area; an accepted version is numbered after ``current``'s and at
+    least ``first_version`` (a history that already holds higher numbers).
     """
     k = len(samples)
     need = min_samples(nominal)
@@ -203,6 +245,10 @@ def refit(
     if (distinct := _distinct(data.q)) < need:
         return _refuse(current, k, f"the {k} samples were taken at {distinct} distinct joint"
                        f" configurations; a refit needs at least {need}")  # fmt: skip
+    labels = [s.surface for s in samples]
+    early = {n: (math.nan, math.nan, labels.count(n)) for n in sorted(set(labels) - {""})}
+    if (few := _too_few_surfaces(early)) is not None:  # before any fit: cheap and plain
+        return _refuse(current, k, few, surfaces=early)
     m, p = 2 * k, n_unknowns(nominal)
     try:
         plain = _fit(data, current.system, "none", loss_scale, starts)
@@ -221,24 +267,32 @@ def refit(
         fit = _fit(_data(nominal, samples, inl), current.system, "none", loss_scale, 1)
     except BeamrelayError as exc:
         return _refuse(current, k, f"refit of the inliers failed: {exc}", outliers=outliers)
-    holdout = _holdout(samples, inl, current.system, nominal, loss_scale)
+    held = _holdout(samples, inl, current.system, nominal, loss_scale)
     q_in, s_in = data.q[inl], data.spots_world[inl]
-    cur_med = float(np.median(ray_distances(current.system, q_in, s_in)))
+    cur = ray_distances(current.system, q_in, s_in)
+    cur_med = float(np.median(cur))
     allowed = max(cur_med, NUMERIC_FLOOR_M)
-    figures = {"outliers": outliers, "current_median": cur_med, "allowed_median": allowed}
-    if holdout is None:
+    figures: dict[str, Any] = {"outliers": outliers, "current_median": cur_med,
+                               "allowed_median": allowed}  # fmt: skip
+    if held is None:
         return _refuse(current, k, "a cross-validation fold is degenerate (too few varied"
                        " samples without it)", **figures)  # fmt: skip
-    if not holdout <= allowed:
-        return _refuse(current, k, f"a refit would be worse out of sample: held-out median"
-                       f" {1e3 * holdout:.3f} mm > {1e3 * allowed:.3f} mm allowed (the version"
-                       f" {current.version} model gives {1e3 * cur_med:.3f} mm on the same"
-                       " samples)", holdout_median=holdout, **figures)  # fmt: skip
+    holdout = float(np.median(held))
+    figures |= {"holdout_median": holdout,
+                "surfaces": per_surface(held, cur, [samples[i].surface for i in inl])}  # fmt: skip
+    verdict = _compare(holdout, cur_med, figures["surfaces"], current.version)
+    if verdict is not None:
+        return _refuse(current, k, verdict, **figures)
     robot = nominal.robot_names[-1]
     L, M = apply_gauge(fit.world_T_laser, fit.flange_T_mirror, nominal.world_T_laser,
                        nominal.robot(robot).mirror.flange_T_mirror)  # fmt: skip
     system = current.system.with_params(L, {robot: M})
-    version = current.version + 1
+    configs = [samples[i].q for i in inl] + [np.asarray(q, dtype=float) for q in planned_q]
+    margin, hit_std, where = mirror_margins(system, fit, configs, sigma_k)
+    figures |= {"mirror_margin": margin, "hit_std": hit_std}
+    if where is not None:
+        return _refuse(current, k, where, **figures)
+    version = max(current.version, first_version - 1) + 1
     result = dataclasses.replace(fit, world_T_laser=L, flange_T_mirror=M)
     doc = beam_document(result, dataset=f"online refinement, version {version}")
     doc["report"]["online"] = {
@@ -250,17 +304,113 @@ def refit(
         "previous_median_m": cur_med,
         "allowed_median_m": allowed,
         "previous_version": current.version,
-    }
+        "surfaces": {n: {"holdout_median_m": h, "previous_median_m": c, "samples": m}
+                     for n, (h, c, m) in figures["surfaces"].items()},
+        "mirror_margin_m": margin,
+        "hit_std_max_m": hit_std,
+        "sigma_k": sigma_k,
+    }  # fmt: skip
     new = Calibration(version, system, doc, k)
     return RefitResult(True, f"version {version} from {len(inl)} of {k} samples", new, k,
-                       outliers, holdout, cur_med, allowed)  # fmt: skip
+                       **figures)  # fmt: skip
+
+
+def per_surface(
+    held: Array, cur: Array, labels: Sequence[str]
+) -> dict[str, tuple[float, float, int]]:
+    """Held-out and in-force medians (m) and sample count per named surface."""
+    out = {}
+    for name in sorted({n for n in labels if n}):
+        sel = np.array([n == name for n in labels])
+        out[name] = (float(np.median(held[sel])), float(np.median(cur[sel])), int(sel.sum()))
+    return out
+
+
+def _too_few_surfaces(surfaces: dict[str, tuple[float, float, int]]) -> str | None:
+    """Why the samples' surfaces (name: (.., .., count)) are too few, or None."""
+    counted = [n for n, v in surfaces.items() if v[2] >= MIN_PER_SURFACE]
+    if len(counted) >= MIN_SURFACES:
+        return None
+    names = ", ".join(f"{n} ({v[2]})" for n, v in surfaces.items()) or "none known"
+    return (f"the samples lie on {len(counted)} surface(s) with at least {MIN_PER_SURFACE}"
+            f" each (surfaces: {names}); a refit needs {MIN_SURFACES}: samples on one plane"
+            " cannot tell a tilted laser from a shifted mirror")  # fmt: skip
+
+
+def _compare(
+    holdout: float, current: float, surfaces: dict[str, tuple[float, float, int]], version: int
+) -> str | None:
+    """Why the held-out figures refuse a refit (step 4 of the module docstring), or None."""
+    if (few := _too_few_surfaces(surfaces)) is not None:
+        return few
+    counted = {n: v for n, v in surfaces.items() if v[2] >= MIN_PER_SURFACE}
+    for name, (h, c, _) in counted.items():
+        if h > max(c, NUMERIC_FLOOR_M, EXACT_M if c <= EXACT_M else 0.0):
+            return (f"a refit would be worse out of sample on {name}: held-out median"
+                    f" {1e3 * h:.3f} mm > {1e3 * c:.3f} mm of version {version}")  # fmt: skip
+    if not (holdout < current or max(holdout, current) <= EXACT_M):
+        return (f"a refit would be no better out of sample: held-out median"
+                f" {1e3 * holdout:.3f} mm, version {version} gives {1e3 * current:.3f} mm on"
+                " the same samples")  # fmt: skip
+    return None
+
+
+def mirror_margins(
+    system: System, fit: BeamResult, configs: Sequence[Array], sigma_k: float = SIGMA_K
+) -> tuple[float, float, str | None]:
+    """Step 5: the smallest margin (m) of a hit inside a mirror's usable area less ``SIGMA_K``
+    propagated standard deviations over ``configs`` (stacked joints), the largest hit
+    standard deviation (m), and why a configuration fails (None when none does).
+
+    The hit's Jacobian is taken by central differences of the increments the fit's
+    covariance describes (laser then last mirror, :attr:`BeamResult.covariance`), applied
+    on the right of ``system``'s calibrated poses."""
+    from planner.beam.trace import trace_beam
+    from planner.calibration.lsq import exp_T
+
+    robot = system.robot_names[-1]
+    names = list(fit.std)
+    cols = [FULL_NAMES.index(n) for n in names]
+    cov = (
+        fit.covariance if fit.covariance is not None else np.diag([v**2 for v in fit.std.values()])
+    )
+    L0, M0 = system.world_T_laser, system.robot(robot).mirror.flange_T_mirror
+
+    def margins(q: Array, d: Array) -> tuple[Array, bool]:
+        full = np.zeros(12)
+        full[cols] = d
+        sys_d = system.with_params(L0 @ exp_T(full[:6]), {robot: M0 @ exp_T(full[6:])})
+        tr = trace_beam(sys_d, q, np.zeros(3))
+        return tr.roi.ravel(), bool(np.all(tr.front > MIN_FRONT) and np.all(tr.ahead > MIN_AHEAD))
+
+    worst, worst_std = math.inf, 0.0
+    for k, q in enumerate(configs):
+        m0, faces = margins(q, np.zeros(len(cols)))
+        if not faces:
+            return -math.inf, worst_std, (f"with the refit the beam at planned configuration {k}"
+                                          " misses a mirror's face")  # fmt: skip
+        J = np.empty((len(m0), len(cols)))
+        for c in range(len(cols)):
+            e = np.zeros(len(cols))
+            e[c] = FD_STEP
+            J[:, c] = (margins(q, e)[0] - margins(q, -e)[0]) / (2 * FD_STEP)
+        std = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, cov, J), 0.0))
+        worst_std = max(worst_std, float(std.max()))
+        slack = m0 - sigma_k * std
+        worst = min(worst, float(slack.min()))
+        if slack.min() < 0:
+            return worst, worst_std, (
+                f"with its uncertainty the refit's hit at planned configuration {k} could"
+                f" leave the mirror's usable area: margin {1e3 * float(m0[np.argmin(slack)]):.2f}"
+                f" mm < {sigma_k:g} x {1e3 * float(std[np.argmin(slack)]):.2f} mm std")  # fmt: skip
+    return worst, worst_std, None
 
 
 def _holdout(
     samples: Sequence[SpotSample], inl: Any, start: System, nominal: System, scale: float
-) -> float | None:
-    """Median held-out residual (m) of ``FOLDS``-fold cross-validation over the inliers, or
-    None when a fold cannot be fitted."""
+) -> Array | None:
+    """Held-out residual (m) of each inlier in ``FOLDS``-fold cross-validation, or None when
+    a fold cannot be fitted."""
     folds = min(FOLDS, len(inl))
     out = np.empty(len(inl))
     robot = nominal.robot_names[-1]
@@ -278,4 +428,4 @@ def _holdout(
         q = np.array([samples[i].q for i in t_idx])
         s = np.array([samples[i].spot_world for i in t_idx])
         out[test] = ray_distances(sys_f, q, s)
-    return float(np.median(out))
+    return out

@@ -1,4 +1,4 @@
-"""``beamrelay calibrate handeye|beam|simulate`` (docs/conventions.md: Calibration data).
+"""``beamrelay calibrate handeye|beam|simulate|rollback`` (docs/conventions.md: Calibration data).
 
 Heavy imports (CasADi, Pinocchio) happen inside the commands. Bad files and insufficient
 or degenerate data end with one line on stderr and exit status 2.
@@ -185,6 +185,32 @@ def beam(
         f" hand-eye file), then verify with `beamrelay plan {scenario} -o plan.json` and"
         f" `beamrelay check plan.json`{more}"
     )
+
+
+@app.command("rollback")
+def rollback(
+    file: Annotated[
+        Path, typer.Argument(help="The --online-calibration FILE of serve/up.", dir_okay=False)
+    ],
+    to: Annotated[
+        int | None,
+        typer.Option(
+            "--to",
+            help="Version to go back to (default: the one before the refit"
+            " in force; 0 = the calibration before the first refit).",
+            min=0,
+        ),
+    ] = None,
+) -> None:
+    """Undo an online refit: FILE gets a new version with an earlier version's poses (its
+    history is kept in FILE.versions/); a running planner installs it within a second."""
+    from planner.service.online import POLL_S, history, rollback
+
+    new, back_to, was = rollback(file, to)
+    typer.echo(f"{file}: version {new} = version {back_to} (was {was}); a running planner"
+               f" with --online-calibration {file} uses it within {POLL_S:g} s, later refits"
+               f" start from it")  # fmt: skip
+    typer.echo(f"kept versions: {', '.join(str(v) for v in sorted(history(file.resolve())))}")
 
 
 def _check_simulate_options(

@@ -124,11 +124,13 @@ def serve(
 def online_calibrator(scenario: Path, out: Path, system: Any) -> Any:
     """The node's :class:`~planner.service.online.OnlineCalibrator` writing ``out`` (InputError
     if ``out`` is the scenario or a file the online refinement did not write)."""
+    from planner.io.scenario import load_scenario, scene_model
     from planner.service.handler import handler_from_scenario
     from planner.service.online import OnlineCalibrator, check_output_file
 
     path = check_output_file(out, scenario)
-    return OnlineCalibrator(system, path, rebuild=lambda f: handler_from_scenario(scenario, (f,)))
+    return OnlineCalibrator(system, path, rebuild=lambda f: handler_from_scenario(scenario, (f,)),
+                            scene=scene_model(load_scenario(scenario)))  # fmt: skip
 
 
 def up(

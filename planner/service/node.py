@@ -394,6 +394,7 @@ class PlannerNode:
             event(log, "warning", logging.WARNING, id=req.id, text=text)
         if self.online is not None:
             plan["metrics"].setdefault("extra", {})["calibration_version"] = version
+            self.online.add_planned(plan)  # a refit must keep these hits on the mirror
         if req.execute and req.closed_loop:
             assert start is not None
             execute_on_node(self, plan, targets, req, start, handler)

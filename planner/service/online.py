@@ -21,11 +21,27 @@ temporary file renamed over it), the scenario is reloaded with FILE as a last ``
 swaps to the new handler *between* requests (a request in progress keeps the system it
 started with), and a :class:`~schemas.messages.CalibrationMessage` with the new ``version``
 goes out on ``<prefix>/calibration``. A refused refit keeps the calibration in force;
-:attr:`OnlineCalibrator.last` holds the reason.
+:attr:`OnlineCalibrator.last` holds the reason. Every attempt is one ``refit_accepted`` or
+``refit_refused`` event line with its figures (held-out and in-force medians per surface,
+the mirror margin and hit std).
+
+Each sample is labelled with the scene object its spot lies on (within ``SURFACE_TOL_M``;
+a refit needs held-out samples on two surfaces), and the configurations of the node's
+recent plans (:meth:`OnlineCalibrator.add_planned`) join the samples' in the mirror-margin
+test of :func:`planner.calibration.online.refit`.
+
+History and rollback: every version is also kept as ``FILE.versions/NNNN.yaml`` (``0000`` is
+the calibration in force before the first refit). ``beamrelay calibrate rollback FILE [--to
+N]`` (:func:`rollback`) writes a new, higher version holding version N's poses (default: the
+one before the refit in force) to FILE and its history; the running node sees FILE change
+within ``POLL_S``, installs it like a refit, drops the samples it had (they would refit the
+same version again) and publishes it.
 """
 
 from __future__ import annotations
 
+import collections
+import dataclasses
 import logging
 import os
 import threading
@@ -44,12 +60,17 @@ from planner.calibration.online import (
     refit,
 )
 from planner.errors import InputError
+from planner.model.scene import SceneModel
 from planner.model.system import System
-from planner.model.transforms import Array, transform_points
+from planner.model.transforms import Array, make_T, quat_to_matrix, transform_points
+from planner.service.events import event
 
 log = logging.getLogger("beamrelay.online")
 
 MAX_SAMPLES = 400  # newest samples kept for refits (older ones are dropped)
+MAX_PLANNED = 64  # newest planned configurations whose mirror hits a refit must keep
+SURFACE_TOL_M = 0.01  # m: a spot this close to a scene object lies on it (D435 noise: mm)
+POLL_S = 1.0  # s: how often the refit thread looks for a rollback written to FILE
 MIN_CONFIDENCE = 0.3  # spot detection confidence a rest sample needs
 #: m: a spot farther than this from the current model's beam is not the beam (a reflection,
 #: another light, a lying camera): the calibration error it could come from is far smaller
@@ -103,9 +124,99 @@ def write_atomically(path: Path, document: dict[str, Any]) -> None:
     """Write the calibration YAML to a temporary file next to ``path``, then rename it."""
     from planner.calibration.report import write_calibration
 
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
     write_calibration(tmp, document)
     os.replace(tmp, path)
+
+
+def history_dir(path: Path) -> Path:
+    """The folder that keeps every version of the online calibration file ``path``."""
+    return path.with_name(path.name + ".versions")
+
+
+def history(path: Path) -> dict[int, Path]:
+    """The kept versions of ``path``: ``{version: file}``."""
+    folder = history_dir(path)
+    if not folder.is_dir():
+        return {}
+    return {int(f.stem): f for f in folder.glob("[0-9][0-9][0-9][0-9].yaml")}
+
+
+def read_document(path: Path) -> dict[str, Any]:
+    """A calibration YAML written by the online refinement (InputError naming the file)."""
+    from ruamel.yaml import YAML, YAMLError
+
+    try:
+        doc = YAML(typ="safe", pure=True).load(Path(path).read_text())
+    except (OSError, YAMLError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read it: {exc}", str(path)) from None
+    rep = doc.get("report") if isinstance(doc, dict) else None
+    if not isinstance(rep, dict) or not isinstance(rep.get(ONLINE_MARK), dict):
+        raise InputError("not a file written by the online calibration", str(path))
+    return doc
+
+
+def version_of(doc: dict[str, Any]) -> int:
+    """``report.online.version`` of an online calibration document."""
+    return int(doc["report"][ONLINE_MARK]["version"])
+
+
+def document_of(system: System, version: int, note: str) -> dict[str, Any]:
+    """A calibration document holding ``system``'s laser and last mirror poses (the
+    calibration in force before the first refit, kept as version 0 of the history)."""
+    from planner.calibration.report import pose_dict
+
+    robot = system.robots[-1]
+    sys_doc: dict[str, Any] = {"robots": [{"name": robot.name, "mirror": {
+        "flange_T_mirror": pose_dict(robot.mirror.flange_T_mirror)}}]}  # fmt: skip
+    if system.n_robots == 1:
+        sys_doc["laser"] = {"world_T_laser": pose_dict(system.world_T_laser)}
+    return {"system": sys_doc, "report": {"kind": "online", "dataset": note,
+                                          ONLINE_MARK: {"version": version}}}  # fmt: skip
+
+
+def system_of(doc: dict[str, Any], nominal: System) -> System:
+    """``nominal`` with the laser and last mirror poses of an online document."""
+
+    def pose(d: dict[str, Any]) -> Array:
+        return make_T(quat_to_matrix(np.asarray(d["quat"], dtype=float)), np.asarray(d["xyz"]))
+
+    sys_doc = doc["system"]
+    robot = sys_doc["robots"][-1]
+    L = pose(sys_doc["laser"]["world_T_laser"]) if "laser" in sys_doc else nominal.world_T_laser
+    return nominal.with_params(L, {robot["name"]: pose(robot["mirror"]["flange_T_mirror"])})
+
+
+def rollback(path: Path, to: int | None = None) -> tuple[int, int, int]:
+    """Roll the online calibration ``path`` back to version ``to`` (default: the version
+    before the refit in force): a new version, numbered after every kept one, with version
+    ``to``'s poses, written to the history and to ``path``. Returns ``(new, to, was)``;
+    InputError when ``path`` or its history does not allow it."""
+    path = Path(path).expanduser().resolve()
+    doc = read_document(path)
+    was = version_of(doc)
+    kept = history(path)
+    if not kept:
+        raise InputError(f"no kept versions in {history_dir(path)}", str(path))
+    if to is None:
+        online = doc["report"][ONLINE_MARK]
+        base = int(online.get("rolled_back_to", was))  # the refit whose poses are in force
+        base_doc = read_document(kept[base]) if base in kept else doc
+        to = int(base_doc["report"][ONLINE_MARK].get("previous_version", -1))
+        if to < 0 or base == 0:
+            raise InputError(f"version {was} has no earlier version to roll back to", str(path))
+    if to not in kept:
+        have = ", ".join(str(v) for v in sorted(kept))
+        raise InputError(f"no version {to} is kept (kept: {have})", "--to")
+    new_version = max(max(kept), was) + 1
+    new = read_document(kept[to])
+    new["report"]["dataset"] = f"rollback to version {to}"
+    new["report"][ONLINE_MARK] = {"version": new_version, "rolled_back_to": to,
+                                  "previous_version": was}  # fmt: skip
+    write_atomically(history_dir(path) / f"{new_version:04d}.yaml", new)
+    write_atomically(path, new)
+    return new_version, to, was
 
 
 class OnlineCalibrator:
@@ -114,7 +225,8 @@ class OnlineCalibrator:
     ``nominal`` is the scenario's system (it fixes the gauge); ``out_file`` where accepted
     calibrations go; ``rebuild(out_file)`` returns the planner's new handler (any object);
     ``publish(body)`` sends a JSON body on ``<prefix>/calibration``; ``on_update(handler,
-    calibration)`` installs it. ``clock`` gives message times (UNIX s).
+    calibration)`` installs it. ``clock`` gives message times (UNIX s). ``scene`` (the
+    scenario's objects) labels each sample with the surface its spot lies on.
     """
 
     def __init__(
@@ -127,13 +239,17 @@ class OnlineCalibrator:
         on_update: Callable[[Any, Calibration], None] | None = None,
         clock: Callable[[], float] = time.time,
         loss_scale: float = 1e-3,
+        scene: SceneModel | None = None,
     ) -> None:
         self.nominal = nominal
         self.out_file = Path(out_file)
         self.rebuild, self.publish, self.on_update = rebuild, publish, on_update
         self.clock = clock
         self.loss_scale = loss_scale
+        self.scene = scene
         self.current = Calibration(0, nominal)
+        self._planned: collections.deque[Array] = collections.deque(maxlen=MAX_PLANNED)
+        self._file_seen: tuple[int, int] | None = self._stat()
         #: take samples from ``camera/spot`` at rest (:class:`RestSampler`); a node whose
         #: servo calls :meth:`add_sample` itself may turn it off to avoid duplicates
         self.rest_sampling = True
@@ -152,12 +268,21 @@ class OnlineCalibrator:
 
     # --- samples (any thread) --------------------------------------------------------------
     def add_sample(
-        self, q: Any, spot_world: Any, *, board: int = 0, t: float | None = None
+        self,
+        q: Any,
+        spot_world: Any,
+        *,
+        board: int = 0,
+        t: float | None = None,
+        surface: str | None = None,
     ) -> bool:
         """Queue one measured spot: ``q`` ``{robot: joints}`` (rad, every robot) or stacked,
-        ``spot_world`` (3,) in the world (m). False (and logged) when it is not valid."""
+        ``spot_world`` (3,) in the world (m); ``surface`` the scene object it lies on
+        (default: found in the scene). False (and logged) when it is not valid."""
         try:
             s = make_sample(self.nominal, q, spot_world, board, self.clock() if t is None else t)
+            s = dataclasses.replace(s, surface=self.surface_of(s.spot_world) if surface is None
+                                    else str(surface))  # fmt: skip
         except InputError as exc:
             self.rejected += 1
             log.warning("online calibration: sample dropped (%s: %s)", exc.where, exc.reason)
@@ -197,6 +322,31 @@ class OnlineCalibrator:
             return False
         return self.add_sample(qs, spot, board=board, t=t)
 
+    def surface_of(self, spot_world: Array) -> str:
+        """The scene object ``spot_world`` lies on (within ``SURFACE_TOL_M``), or ""."""
+        if self.scene is None or self.scene.empty:
+            return ""
+        dist, idx = self.scene.closest(np.asarray(spot_world, dtype=float)[None])
+        return self.scene.names[int(idx[0])] if float(dist[0]) <= SURFACE_TOL_M else ""
+
+    def add_planned(self, plan: dict[str, Any]) -> int:
+        """Remember the solved configurations of a plan (plan.json ``solutions[].q`` of the
+        ``ok`` ones): a refit must keep their mirror hits in the usable area. Returns how
+        many; never raises."""
+        n = 0
+        for sol in plan.get("solutions") or []:
+            q = sol.get("q") if isinstance(sol, dict) and sol.get("status") == "ok" else None
+            if not isinstance(q, dict):
+                continue
+            try:
+                qs = make_sample(self.nominal, q, np.zeros(3)).q
+            except InputError:
+                continue
+            with self._lock:
+                self._planned.append(qs)
+            n += 1
+        return n
+
     @property
     def n_samples(self) -> int:
         with self._lock:
@@ -221,14 +371,16 @@ class OnlineCalibrator:
     def _loop(self) -> None:
         while True:
             with self._lock:
-                while not self._pending and not self._closing:
-                    self._wake.wait()
+                if not self._pending and not self._closing:
+                    self._wake.wait(POLL_S)
                 if self._closing:
                     return
-                self._pending = False
+                pending, self._pending = self._pending, False
                 samples = list(self._samples)
             try:
-                self.refit_now(samples)
+                self.check_rollback()
+                if pending:
+                    self.refit_now(samples)
             except Exception:  # a bug must not end online calibration or touch the planner
                 log.exception("online calibration: refit crashed; calibration unchanged")
             with self._lock:
@@ -237,23 +389,72 @@ class OnlineCalibrator:
 
     def refit_now(self, samples: list[SpotSample]) -> RefitResult:
         """One refit attempt on ``samples``; on acceptance write, rebuild, install, publish."""
-        result = refit(samples, self.current, self.nominal, loss_scale=self.loss_scale)
+        kept = history(self.out_file)
+        with self._lock:
+            planned = list(self._planned)
+        result = refit(samples, self.current, self.nominal, loss_scale=self.loss_scale,
+                       planned_q=planned, first_version=max(kept, default=0) + 1)  # fmt: skip
         self.refits += 1
         self.last = result
         if not result.accepted:
-            log.info("online calibration: refit refused (%s)", result.reason)
+            event(log, "refit_refused", **result.figures())
             return result
         cal = result.calibration
         assert cal.document is not None
+        if self.current.version not in kept:  # the version it replaces, for a rollback
+            before = self.current.document or document_of(
+                self.current.system, self.current.version, "the calibration in force before"
+                " the first online refit")  # fmt: skip
+            write_atomically(history_dir(self.out_file) / f"{self.current.version:04d}.yaml",
+                             before)  # fmt: skip
+        write_atomically(history_dir(self.out_file) / f"{cal.version:04d}.yaml", cal.document)
+        self._install(cal)
+        event(log, "refit_accepted", **result.figures(), file=str(self.out_file))
+        return result
+
+    def _install(self, cal: Calibration) -> None:
+        assert cal.document is not None
         write_atomically(self.out_file, cal.document)
+        self._file_seen = self._stat()
         handler = self.rebuild(self.out_file) if self.rebuild is not None else None
         self.current = cal
         if self.on_update is not None:
             self.on_update(handler, cal)
         if self.publish is not None:
             self.publish(self.message(cal))
-        log.info("online calibration: %s, written to %s", result.reason, self.out_file)
-        return result
+
+    def _stat(self) -> tuple[int, int] | None:
+        try:
+            st = self.out_file.stat()
+        except OSError:
+            return None
+        return st.st_mtime_ns, st.st_size
+
+    def check_rollback(self) -> bool:
+        """Install a rollback written to FILE (``beamrelay calibrate rollback``) since the
+        last look: a higher version marked ``rolled_back_to``. True when one was installed."""
+        stat = self._stat()
+        if stat is None or stat == self._file_seen:
+            return False
+        self._file_seen = stat
+        try:
+            doc = read_document(self.out_file)
+            version = version_of(doc)
+            to = doc["report"][ONLINE_MARK].get("rolled_back_to")
+            system = system_of(doc, self.nominal) if to is not None else None
+        except (InputError, KeyError, TypeError, ValueError) as exc:
+            event(log, "rollback_ignored", logging.WARNING, file=str(self.out_file), error=str(exc))
+            return False
+        if system is None or version <= self.current.version:
+            return False
+        was = self.current.version
+        with self._lock:
+            dropped = len(self._samples)
+            self._samples.clear()
+        self._install(Calibration(version, system, doc, 0))
+        event(log, "calibration_rolled_back", logging.WARNING, version=version, to=int(to),
+              was=was, samples_dropped=dropped, file=str(self.out_file))  # fmt: skip
+        return True
 
     def message(self, cal: Calibration) -> bytes:
         """The :class:`~schemas.messages.CalibrationMessage` body of ``cal``."""

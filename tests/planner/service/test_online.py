@@ -57,10 +57,11 @@ def truth(nominal: System) -> System:
     return nominal.with_params(L, {"arm0": M})
 
 
-def true_samples(truth: System, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Noise-free spots of the truth at ``n`` varied configurations, on 2 placements."""
+def true_samples(truth: System, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Noise-free spots of the truth at ``n`` varied configurations, on 2 placements (the
+    surfaces ``board0`` and ``board1``: they are not scene objects)."""
     data = simulate_beam(truth, "arm0", n // 2, 2, aim_world=AIM, rng=np.random.default_rng(seed))
-    return data.q, data.spots_world
+    return data.q, data.spots_world, [f"board{b}" for b in data.boards]
 
 
 def test_output_file_never_overwrites_a_users_file(tmp_path: Path, scenario: Path) -> None:
@@ -98,9 +99,9 @@ def test_refits_write_an_includable_file_and_publish_versions(
     cal.on_update = lambda h, c: installed.append((h, c))
     cal.start()
     try:
-        q, spots = true_samples(truth, 12)
-        for qk, sk in zip(q, spots, strict=True):
-            assert cal.add_sample({"arm0": qk}, sk)
+        q, spots, boards = true_samples(truth, 12)
+        for qk, sk, b in zip(q, spots, boards, strict=True):
+            assert cal.add_sample({"arm0": qk}, sk, surface=b)
         assert cal.wait_idle(120)
     finally:
         cal.close()
@@ -156,9 +157,9 @@ def test_garbage_never_crashes_the_refit_thread(
             assert not cal.add_sample(q, s)
             assert not cal.add_camera_spot(q, s)
         assert cal.rejected + cal.implausible == 2 * len(BAD_SAMPLES) and cal.n_samples == 0
-        q, spots = true_samples(truth, 10, seed=1)
-        for qk, sk in zip(q, spots, strict=True):
-            cal.add_sample(qk, sk)
+        q, spots, boards = true_samples(truth, 10, seed=1)
+        for qk, sk, b in zip(q, spots, boards, strict=True):
+            cal.add_sample(qk, sk, surface=b)
             assert cal.wait_idle(60)  # one refit per sample: the first accepted one crashes
         assert cal._thread.is_alive()
     finally:
@@ -250,10 +251,10 @@ def test_node_publishes_versions_and_plans_with_the_latest(
                 lambda: node.online is not None and node.online.n_samples == 1, 5.0, "a sample"
             )
             # the servo's API
-            q, spots = true_samples(truth, 12, seed=2)
+            q, spots, boards = true_samples(truth, 12, seed=2)
             assert node.online is not None
-            for qk, sk in zip(q, spots, strict=True):
-                node.online.add_sample({"arm0": qk}, sk)
+            for qk, sk, b in zip(q, spots, boards, strict=True):
+                node.online.add_sample({"arm0": qk}, sk, surface=b)
             assert node.online.wait_idle(120)
             version = node.online.current.version
             assert version >= 1
@@ -315,7 +316,7 @@ def test_a_camera_spot_far_from_the_modelled_beam_is_dropped_and_counted(
     from planner.service.online import MAX_RAY_DISTANCE, ray_distance
 
     cal, _ = calibrator(nominal, scenario, tmp_path / "online.yaml")
-    q, spots = true_samples(truth, 4, seed=2)
+    q, spots, _ = true_samples(truth, 4, seed=2)
     assert nominal.camera is not None
     camera_T_world = np.linalg.inv(nominal.camera.world_T_camera)
     for qk, sk in zip(q, spots, strict=True):
@@ -325,3 +326,113 @@ def test_a_camera_spot_far_from_the_modelled_beam_is_dropped_and_counted(
         assert not cal.add_camera_spot(qk, camera_T_world[:3, :3] @ far + camera_T_world[:3, 3])
         assert cal.add_camera_spot(qk, camera_T_world[:3, :3] @ sk + camera_T_world[:3, 3])
     assert cal.implausible == len(q) and cal.n_samples == len(q)
+
+
+def _poses(system: System) -> tuple[np.ndarray, np.ndarray]:
+    return system.world_T_laser, system.robots[0].mirror.flange_T_mirror
+
+
+def test_every_version_is_kept_and_logged_and_one_command_rolls_a_refit_back(
+    tmp_path: Path,
+    scenario: Path,
+    nominal: System,
+    truth: System,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Refits keep every version in FILE.versions/ and log one line each with their
+    figures; `beamrelay calibrate rollback FILE` (a real process) makes a new version with
+    the previous poses, which the running calibrator installs, publishes and starts over
+    from; `--to 0` goes back to the scenario's own calibration; bad rollbacks exit 2."""
+    import subprocess
+    import sys
+
+    from planner.service.online import history, read_document, system_of, version_of
+    from tests.cli_run import assert_usage_error, beamrelay
+
+    out = tmp_path / "online.yaml"
+    cal, bodies = calibrator(nominal, scenario, out)
+    installed: list[Any] = []
+    cal.on_update = lambda h, c: installed.append(h)
+    caplog.set_level("INFO", logger="beamrelay.online")
+    cal.start()
+    try:
+        q, spots, boards = true_samples(truth, 12)
+        for qk, sk, b in zip(q, spots, boards, strict=True):  # one refit attempt each
+            assert cal.add_sample({"arm0": qk}, sk, surface=b)
+            assert cal.wait_idle(120)
+        top = cal.current.version
+        kept = history(out)
+        assert top >= 2 and sorted(kept) == list(range(top + 1)), caplog.messages
+        # version 0: the calibration in force before the first refit (the scenario's)
+        v0 = read_document(kept[0])
+        for a, b in zip(_poses(system_of(v0, nominal)), _poses(nominal), strict=True):
+            np.testing.assert_allclose(a, b, atol=1e-12)
+        lines = [r.getMessage() for r in caplog.records]
+        accepted = [m for m in lines if m.startswith("refit_accepted")]
+        refused = [m for m in lines if m.startswith("refit_refused")]
+        assert len(accepted) == top and len(accepted) + len(refused) == cal.refits
+        assert "surface.board0=" in accepted[0] and "margin_mm=" in accepted[0]
+        assert sum("at least 7" in m for m in refused) == 6  # the first six samples
+        assert any("1 surface(s)" in m for m in refused)  # the seventh: one on board1
+        before = read_document(kept[top - 1])
+
+        ran = subprocess.run([sys.executable, "-m", "planner.cli", "calibrate", "rollback",
+                              str(out)], capture_output=True, text=True, timeout=60)  # fmt: skip
+        assert ran.returncode == 0, ran.stderr
+        assert f"version {top + 1} = version {top - 1} (was {top})" in ran.stdout
+        wait_for(lambda: cal.current.version == top + 1, 10, "the rollback installed")
+        for a, b in zip(_poses(cal.current.system), _poses(system_of(before, nominal)),
+                        strict=True):  # fmt: skip
+            np.testing.assert_allclose(a, b, atol=1e-12)
+        assert cal.n_samples == 0 and installed[-1] is not None
+        np.testing.assert_allclose(installed[-1].system.world_T_laser,
+                                   cal.current.system.world_T_laser, atol=1e-12)  # fmt: skip
+        assert CalibrationMessage.model_validate_json(bodies[-1]).version == top + 1
+        assert any(r.getMessage().startswith(f"calibration_rolled_back version={top + 1}"
+                   f" to={top - 1} was={top}") for r in caplog.records)  # fmt: skip
+
+        ran2 = beamrelay("calibrate", "rollback", out, "--to", "0")
+        assert ran2.returncode == 0, ran2.stderr
+        wait_for(lambda: cal.current.version == top + 2, 10, "the rollback to 0 installed")
+        for a, b in zip(_poses(cal.current.system), _poses(nominal), strict=True):
+            np.testing.assert_allclose(a, b, atol=1e-12)
+        assert version_of(read_document(out)) == top + 2 and sorted(history(out))[-1] == top + 2
+        # a new refit after a rollback is numbered after every kept version
+        for qk, sk, b in zip(q, spots, boards, strict=True):
+            cal.add_sample({"arm0": qk}, sk, surface=b)
+        assert cal.wait_idle(120) and cal.current.version > top + 2
+    finally:
+        cal.close()
+    assert_usage_error(beamrelay("calibrate", "rollback", out, "--to", "99"), "no version 99",
+                       "kept: 0, 1")  # fmt: skip
+    assert beamrelay("calibrate", "rollback", out, "--to", "-1").returncode == 2
+    assert_usage_error(beamrelay("calibrate", "rollback", scenario), "not a file written by"
+                       " the online calibration")  # fmt: skip
+    assert_usage_error(beamrelay("calibrate", "rollback", tmp_path / "nope.yaml"), "nope.yaml")
+    fresh = tmp_path / "fresh.yaml"  # a version-1 file whose history went missing
+    fresh.write_text(out.read_text())
+    assert_usage_error(beamrelay("calibrate", "rollback", fresh), "no kept versions")
+
+
+def test_samples_are_labelled_by_the_scene_object_they_lie_on_and_plans_are_remembered(
+    tmp_path: Path, scenario: Path, nominal: System
+) -> None:
+    from planner.io.scenario import scene_model
+
+    scene = scene_model(load_scenario(scenario))
+    cal, _ = calibrator(nominal, scenario, tmp_path / "o.yaml", scene=scene)
+    on_board = AIM  # the board's top face (z -0.06)
+    assert cal.surface_of(on_board) == "board"
+    assert cal.surface_of(on_board + np.array([0, 0, 0.009])) == "board"
+    assert cal.surface_of(on_board + np.array([0, 0, 0.05])) == ""  # in the air
+    assert cal.add_sample({"arm0": nominal.home}, on_board)
+    assert cal._samples[-1].surface == "board"
+    assert cal.add_sample({"arm0": nominal.home}, on_board, surface="table")
+    assert cal._samples[-1].surface == "table"
+    plan = {"solutions": [
+        {"status": "ok", "q": {"arm0": nominal.home.tolist()}},
+        {"status": "unreachable", "q": {"arm0": nominal.home.tolist()}},
+        {"status": "ok", "q": {"arm0": [0.0] * 3}}, {"status": "ok", "q": None}, "junk",
+    ]}  # fmt: skip
+    assert cal.add_planned(plan) == 1 and cal.add_planned({"solutions": None}) == 0
+    assert cal.add_planned({}) == 0

@@ -35,7 +35,8 @@ def test_the_camera_measures_the_true_spot_with_d435_noise(scn) -> None:
     truth = online.perturbed_truth(nominal, np.random.default_rng(1))
     world = online.World(scn, truth, seed=0)
     q = nominal.home
-    true_spot = BeamModel(truth).trace(q, world.centre, world.normal).spot
+    _, centre, normal, _ = world.faces[0]
+    true_spot = BeamModel(truth).trace(q, centre, normal).spot
     assert nominal.camera is not None
     got = [world.measure(q) for _ in range(50)]
     spots = transform_points(nominal.camera.world_T_camera, np.array(got))
@@ -43,10 +44,7 @@ def test_the_camera_measures_the_true_spot_with_d435_noise(scn) -> None:
     assert np.median(err) < 1e-3  # sub-millimetre spot noise at ~0.9 m
     assert np.std(spots, axis=0).max() > 1e-6  # but noisy
     # the nominal model predicts the spot millimetres away: that is what online refits remove
-    assert (
-        np.linalg.norm(BeamModel(nominal).trace(q, world.centre, world.normal).spot - true_spot)
-        > 2e-3
-    )
+    assert np.linalg.norm(BeamModel(nominal).trace(q, centre, normal).spot - true_spot) > 2e-3
 
 
 @pytest.mark.slow
@@ -60,4 +58,26 @@ def test_a_short_run_reduces_the_open_loop_error(
     assert before["samples"] == 0 and after["samples"] == 12
     assert before["median_mm"] > 3.0  # 0.4 deg at the laser + 3 mm at the mirror
     assert after["median_mm"] < 0.3 * before["median_mm"]
+    assert after["trials"] == 1 and after["gave_up"] == 0
     assert (tmp_path / "report.md").is_file() and (tmp_path / "online.png").is_file()
+
+
+def test_the_two_surfaces_are_where_the_block_stands(scn) -> None:
+    """The block stands on the board's +x half; targets on each face lie on that face (the
+    sim camera's raycast finds them there) and never on the other object."""
+    from planner.io.scenario import scene_objects
+    from planner.model.scene import SceneModel
+
+    items = list(scene_objects(scn))
+    block = online.block_item(items)
+    scene = SceneModel([*items, block])
+    world_faces = online.faces([*items, block])
+    assert [f[0] for f in world_faces] == ["board", "block"]
+    board_top = items[0].world_T_object[2, 3] + items[0].extents[2] / 2
+    assert block.world_T_object[2, 3] - block.extents[2] / 2 == pytest.approx(board_top)
+    rng = np.random.default_rng(0)
+    for name, centre, normal, half in world_faces:
+        pts = centre + rng.uniform(-1, 1, (50, 2)) @ half.T
+        hits = scene.cast(pts + 0.5 * normal, np.tile(-normal, (50, 1)))
+        assert np.allclose(hits.t, 0.5, atol=1e-5)  # the face is the first surface from above
+        assert {scene.names[i] for i in hits.object} == {name}
