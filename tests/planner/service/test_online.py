@@ -231,6 +231,7 @@ def test_node_publishes_versions_and_plans_with_the_latest(
             target = AIM + np.array([0.01, -0.02, 0.0])
             before = client.request(make_request([target]))
             assert before["metrics"]["extra"]["calibration_version"] == 0
+            assert node.online is not None and len(node.online._planned) == 1  # its hit counts
             # the rest sampler over the bus: joints at rest and frames of a spot
             assert nominal.camera is not None
             spot_w = BeamModel(truth).trace(nominal.home).spot
