@@ -83,7 +83,13 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
     )  # fmt: skip
     groups = root.commands  # type: ignore[attr-defined]
     assert sorted(groups["ros2"].commands) == ["bridge"]
-    assert sorted(groups["calibrate"].commands) == ["beam", "collect", "handeye", "rollback", "simulate"]
+    assert sorted(groups["calibrate"].commands) == [
+        "beam",
+        "collect",
+        "handeye",
+        "rollback",
+        "simulate",
+    ]
     assert sorted(groups["study"].commands) == sorted(
         [
             "ik-grid",
