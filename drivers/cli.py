@@ -51,6 +51,13 @@ CAMERA_BACKEND = typer.Option(CameraBackendName.sim, "--backend", help="sim or r
 DB3_RECORD = typer.Option(
     None, "--record", help="realsense device: also record the raw streams to this .db3."
 )
+ROS2 = typer.Option(
+    False,
+    "--ros2",
+    help="Also publish this driver's ROS 2 topics (rmw_zenoh key expressions),"
+    " from a thread and Zenoh session of their own.",
+)
+ROS_DOMAIN = typer.Option(0, "--ros-domain", help="ROS_DOMAIN_ID of the ROS 2 topics (0-232).")
 RECORDING = typer.Option(
     None, "--file", help="realsense: play a .db3 recording (librealsense 2.59) instead of a device."
 )
@@ -92,8 +99,16 @@ def robot(
         "--realtime",
         help="ur: SCHED_FIFO for the control loop and ur_rtde's threads (when permitted).",
     ),
+    ros2: bool = ROS2,
+    ros_domain: int = ROS_DOMAIN,
 ) -> None:
-    """Run a robot driver: joint_states, status, trajectories, planner heartbeat watchdog."""
+    """Run a robot driver: joint_states, status, trajectories, planner heartbeat watchdog.
+    With --ros2 its joint states, /tf (base -> flange), the trajectories it is sent and, on
+    the gate's driver, the laser state are on ROS 2 too (node beamrelay_NAME)."""
+    from planner.cli.ros2 import check_domain
+
+    if ros2:
+        check_domain(ros_domain)
     from drivers.robot.following import spot_gain
     from drivers.robot.gate import Emission
     from drivers.robot.node import RobotNode
@@ -163,8 +178,14 @@ def robot(
         chain=tuple(system.robot_names) if gate_output is not None else (),
         realtime=True,
     )
+    ros = None
+    if ros2:
+        from planner.ros2.bridge import Parts
+
+        ros = _ros2(system, None, Parts.robot(name, gate=emission is not None), ros_domain,
+                    prefix, endpoint, zenoh_config)  # fmt: skip
     _run(node, session, f"{name}: {backend.value} robot driver up (prefix {prefix}; "
-                        f"bus {got.note})")  # fmt: skip
+                        f"bus {got.note})", ros)  # fmt: skip
 
 
 @app.command("camera")
@@ -190,13 +211,19 @@ def camera(
         150.0, "--exposure", help="realsense: manual colour exposure, us (0: auto exposure)."
     ),
     record: Path | None = DB3_RECORD,
+    ros2: bool = ROS2,
+    ros_domain: int = ROS_DOMAIN,
 ) -> None:
-    """Run a camera driver: point cloud and laser spot."""
+    """Run a camera driver: point cloud and laser spot. With --ros2 the cloud is on ROS 2 too
+    (/camera/points, sensor_msgs/PointCloud2; node beamrelay_camera)."""
     from drivers.camera.node import CameraNode
+    from planner.cli.ros2 import check_domain
     from planner.errors import InputError
     from planner.io.scenario import load_scenario, scene_objects, system_from_scenario
     from planner.service.bus import Keys, open_session
 
+    if ros2:
+        check_domain(ros_domain)
     if stride < 1:
         raise InputError(f"must be >= 1, got {stride}", "--stride")
     scn = load_scenario(scenario)
@@ -225,7 +252,13 @@ def camera(
         )  # fmt: skip
     session = open_session(listen=listen, endpoint=endpoint, config_file=zenoh_config)
     node = CameraNode(session, Keys(prefix), source, spot_rate=spot_rate, points_rate=points_rate)
-    _run(node, session, f"camera: {backend.value} driver up (prefix {prefix})")
+    ros = None
+    if ros2:
+        from planner.ros2.bridge import Parts
+
+        ros = _ros2(system_from_scenario(scn), None, Parts.camera(), ros_domain, prefix,
+                    endpoint, zenoh_config)  # fmt: skip
+    _run(node, session, f"camera: {backend.value} driver up (prefix {prefix})", ros)
 
 
 @app.command("tracker")
@@ -317,20 +350,39 @@ def bench(
     )
 
 
-def _run(node: Any, session: Any, banner: str) -> None:
-    """Start a node, block until Ctrl-C / SIGTERM, then stop it and close the session."""
+def _ros2(
+    system: Any, scene: Any, parts: Any, domain: int, prefix: str, endpoint: Any, config: Any
+) -> Any:
+    """A starter of the process's own ROS 2 bridge (:func:`planner.ros2.bridge.start_in_process`),
+    called by :func:`_run` once the node is up (on the bus the node is on)."""
+    from planner.ros2.bridge import start_in_process
+    from planner.service.bus import Keys
+
+    return lambda: start_in_process(system, scene, parts, domain=domain, keys=Keys(prefix),
+                                    endpoint=endpoint, zenoh_config=config)  # fmt: skip
+
+
+def _run(node: Any, session: Any, banner: str, ros: Any = None) -> None:
+    """Start a node, block until Ctrl-C / SIGTERM, then stop it and close the session. ``ros``
+    starts the process's ROS 2 bridge after the node (it is closed before the node stops)."""
 
     def _terminate(signum: int, frame: Any) -> None:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, _terminate)
+    bridge = None
     try:
         node.start()
+        if ros is not None:
+            bridge = ros()
+            typer.echo(f"ROS 2: {len(bridge.bridge.topics)} topics", err=True)
         typer.echo(banner, err=True)
         node.wait()
     except KeyboardInterrupt:
         pass
     finally:
+        if bridge is not None:
+            bridge.close()
         node.stop()
         session.close()
     if node.failure is not None:

@@ -2,8 +2,10 @@
 robot driver process hosts a private bus; its ``joint_states`` rate and period jitter are
 measured on the bus for ``--seconds`` s without the bridge, then again while a
 ``beamrelay ros2 bridge`` process republishes them (whose ROS 2 JointState rate is measured
-at the same time). The period statistics of the driver's samples, receiver side, include
-its control loop's jitter (the sample is published from the loop) plus the bus's.
+at the same time), then once more with the bridge stopped and the driver restarted with
+``--ros2`` (its own topics from a thread and session inside the driver process). The period
+statistics of the driver's samples, receiver side, include its control loop's jitter (the
+sample is published from the loop) plus the bus's.
 """
 
 from __future__ import annotations
@@ -73,7 +75,7 @@ def measure(scenario: Path, seconds: float) -> dict[str, Any]:
     bus = ["--endpoint", endpoint, "--prefix", prefix]
     robot = _spawn(["driver", "robot", "--name", "arm0", "--listen", "--scenario",
                     str(scenario), *bus])  # fmt: skip
-    bridge = None
+    bridge: subprocess.Popen[bytes] | None = None
     session = None
     arrivals = Arrivals()
     try:
@@ -86,7 +88,17 @@ def measure(scenario: Path, seconds: float) -> dict[str, Any]:
         off = arrivals.window(seconds)["bus"]
         bridge = _spawn(["ros2", "bridge", str(scenario), "--ros-domain", str(DOMAIN), *bus])
         _wait(lambda: arrivals.count("ros") > 100, WARMUP, "the bridge's joint states")
-        on = arrivals.window(seconds)
+        on = arrival_figures_of(arrivals.window(seconds))
+        for running in (bridge, robot):
+            running.terminate()
+            running.wait(30)
+        bridge = None  # stopped: the driver runs its own
+        robot = _spawn(["driver", "robot", "--name", "arm0", "--listen", "--scenario",
+                        str(scenario), *bus, "--ros2", "--ros-domain", str(DOMAIN)])  # fmt: skip
+        n_bus, n_ros = arrivals.count("bus"), arrivals.count("ros")
+        _wait(lambda: arrivals.count("bus") > n_bus + 100 and arrivals.count("ros") > n_ros + 100,
+              WARMUP, "the restarted driver's joint states, bus and ROS 2")  # fmt: skip
+        inside = arrival_figures_of(arrivals.window(seconds))
         for s in subs:
             s.undeclare()
     finally:
@@ -99,9 +111,15 @@ def measure(scenario: Path, seconds: float) -> dict[str, Any]:
     return {
         "seconds": seconds,
         "off": arrival_figures(off),
-        "on": arrival_figures(on["bus"]),
-        "ros2": arrival_figures(on["ros"]),
+        "on": on["bus"],
+        "ros2": on["ros"],
+        "in_process": inside["bus"],
+        "ros2_in_process": inside["ros"],
     }
+
+
+def arrival_figures_of(window: dict[str, list[float]]) -> dict[str, dict[str, float]]:
+    return {k: arrival_figures(v) for k, v in window.items()}
 
 
 def _spawn(args: list[str]) -> subprocess.Popen[bytes]:
@@ -126,15 +144,17 @@ def command(
         False
     ),
 ) -> None:
-    """joint_states rate and period jitter of a simulated driver with the ROS 2 bridge off
-    and on, and the bridge's ROS 2 JointState rate."""
+    """joint_states rate and period jitter of a simulated driver with the ROS 2 bridge off,
+    on, and inside the driver (--ros2), and the ROS 2 JointState rate of each."""
     if not scenario.is_file():
         raise InputError(f"scenario not found: {scenario}")
     if not 0.5 <= seconds <= 600:
         raise InputError(f"--seconds {seconds:g}: expected 0.5-600 s")
     r = measure(scenario, seconds)
     for name, label in (("off", "bus, bridge off"), ("on", "bus, bridge on "),
-                        ("ros2", "ROS 2 JointState")):  # fmt: skip
+                        ("ros2", "ROS 2 JointState"),
+                        ("in_process", "bus, driver --ros2"),
+                        ("ros2_in_process", "ROS 2 JointState, driver --ros2")):  # fmt: skip
         f = r[name]
         typer.echo(
             f"{label}: {f['rate_hz']:.1f} Hz, period median {f['period_median_ms']:.2f} ms, "

@@ -34,6 +34,17 @@ OnlineOpt = Annotated[
     ),
 ]
 PrefixOpt = Annotated[str, typer.Option("--prefix", help="Key-expression namespace prefix.")]
+Ros2Opt = Annotated[
+    bool,
+    typer.Option(
+        "--ros2",
+        help="Also publish this process's ROS 2 topics (rmw_zenoh key expressions), from a"
+        " thread and Zenoh session of their own.",
+    ),
+]
+RosDomainOpt = Annotated[
+    int, typer.Option("--ros-domain", help="ROS_DOMAIN_ID of the ROS 2 topics (0-232).")
+]
 ZENOH_CONFIG_HELP = (
     "Zenoh config file (JSON5): user/password authentication, access control, TLS, routers; "
     "it replaces the default peer/loopback settings, the bus endpoint still comes from "
@@ -56,6 +67,8 @@ def serve(
         typer.Option("--connect", help="Connect to the endpoint instead of listening on it."),
     ] = False,
     online_calibration: OnlineOpt = None,
+    ros2: Ros2Opt = False,
+    ros_domain: RosDomainOpt = 0,
 ) -> None:
     """Run the planner node until Ctrl-C / SIGTERM.
 
@@ -64,6 +77,9 @@ def serve(
     calibration YAML a scenario can include), published on <prefix>/calibration and used for
     later plans. An existing FILE not written by the online refinement is never overwritten.
 
+    With --ros2 the cell's fixed frames (/tf_static), the markers (beam, mirrors, targets,
+    spot) and the ROS 2 target topics are on ROS 2 too (node beamrelay_planner).
+
     Exits 1 if the node fails (its worker thread died or stayed busy on one request beyond
     its allowance): the heartbeat has stopped and the liveliness token is gone by then, so
     robots brake and a supervisor (``beamrelay up``) restarts the planner.
@@ -71,10 +87,13 @@ def serve(
     import os
     import threading
 
+    from planner.cli.ros2 import check_domain
     from planner.service import events
     from planner.service.bus import Keys, open_session
     from planner.service.node import BusAddress, PlannerNode, handler_from_scenario
 
+    if ros2:
+        check_domain(ros_domain)
     handler = handler_from_scenario(scenario)
     online = None
     if online_calibration is not None:
@@ -110,10 +129,21 @@ def serve(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(1) from None
     names = ", ".join(handler.system.robot_names)
+    ros = None
+    if ros2:
+        from planner.io.scenario import load_scenario, scene_model
+        from planner.ros2.bridge import Parts, start_in_process
+
+        ros = start_in_process(handler.system, scene_model(load_scenario(scenario)),
+                               Parts.planner(), domain=ros_domain, keys=Keys(prefix),
+                               endpoint=endpoint, zenoh_config=zenoh_config)  # fmt: skip
+        typer.echo(f"ROS 2: domain {ros_domain}, {len(ros.bridge.topics)} topics", err=True)
     typer.echo(f"planner ready: {prefix}/plan, robots {names}, session {node.session_id}")
     try:
         wait_until_set(stop)
     finally:
+        if ros is not None:
+            ros.close()
         node.close()
         session.close()
         typer.echo(f"planner stopped after {node.served} requests")

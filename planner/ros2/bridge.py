@@ -1,8 +1,10 @@
 """The ROS 2 bridge node: beamrelay's bus republished the way rmw_zenoh publishes.
 
 :class:`Ros2Bridge` runs in its own process (``beamrelay ros2 bridge``, or ``beamrelay up
---ros2``), on its own Zenoh session: nothing on the drivers' control loops or the planner's
-request path waits for it. Bus callbacks only store the latest state
+--ros2``), or in a process of the system for that process's own topics (``serve|driver
+robot|driver camera --ros2``: :class:`Parts`, :func:`start_in_process`), always on its own
+Zenoh session and thread: nothing on the drivers' control loops or the planner's request
+path waits for it. Bus callbacks only store the latest state
 (:class:`planner.console.live.LiveState`, plus the last plan's targets); one publishing
 thread converts and publishes at fixed rates:
 
@@ -124,6 +126,39 @@ def _publisher(session: Any, topic: Topic) -> Any:
     )
 
 
+@dataclass(frozen=True)
+class Parts:
+    """What one bridge publishes, as the ROS 2 node ``node``: the joint states, ``/tf`` and
+    joint trajectories of ``robots`` (None: every robot), ``/tf_static``, the markers, the
+    camera cloud, the laser state, and whether it takes ROS 2 targets in."""
+
+    node: str = NODE_NAME
+    robots: tuple[str, ...] | None = None
+    static: bool = True
+    markers: bool = True
+    cloud: bool = True
+    laser: bool = True
+    inputs: bool = True
+
+    @classmethod
+    def planner(cls) -> Parts:
+        """``serve --ros2``: the cell's fixed frames, the markers, ROS 2 targets in."""
+        return cls("beamrelay_planner", robots=(), cloud=False, laser=False)
+
+    @classmethod
+    def robot(cls, name: str, gate: bool) -> Parts:
+        """``driver robot --name NAME --ros2``: that robot's joint states, ``/tf`` and the
+        trajectories it is sent; the laser state if its output is the gate."""
+        return cls(f"beamrelay_{name}", robots=(name,), static=False, markers=False,
+                   cloud=False, laser=gate, inputs=False)  # fmt: skip
+
+    @classmethod
+    def camera(cls) -> Parts:
+        """``driver camera --ros2``: the cloud."""
+        return cls("beamrelay_camera", robots=(), static=False, markers=False, laser=False,
+                   inputs=False)  # fmt: skip
+
+
 class Ros2Bridge:
     """See the module docstring. ``start`` declares everything, ``close`` undoes it."""
 
@@ -136,6 +171,7 @@ class Ros2Bridge:
         keys: Keys = DEFAULT_KEYS,
         domain: int = 0,
         rate: float = DEFAULT_RATE,
+        parts: Parts = Parts(),
     ) -> None:
         if not 0 <= domain <= 232:
             raise ValueError(f"ROS domain id {domain} is outside 0..232")
@@ -143,7 +179,8 @@ class Ros2Bridge:
             raise ValueError(f"ROS 2 publishing rate {rate} Hz is outside 1..1000 Hz")
         self.session, self.system, self.scene = session, system, scene
         self.keys, self.domain, self.period = keys, domain, 1.0 / rate
-        self.node = Node(domain, str(session.info.zid()), NODE_NAME)
+        self.parts = parts
+        self.node = Node(domain, str(session.info.zid()), parts.node)
         self.live = LiveState(keys)
         self.targets: Array | None = None
         self.published = 0
@@ -155,26 +192,30 @@ class Ros2Bridge:
         self._traj_sub: Any = None
         self._targets_pub: Any = None
         self.topics: dict[str, Topic] = {}
-        robots = system.robot_names
+        robots = system.robot_names if parts.robots is None else parts.robots
         for r in robots:
             self._topic(joint_states_topic(r), m.JOINT_STATE)
             self._topic(trajectory_topic(r), m.JOINT_TRAJECTORY)
         self._trajectories: dict[str, bytes] = {}  # robot -> newest raw body not yet sent
-        self._topic("/tf", m.TF_MESSAGE)
-        self._topic("/tf_static", m.TF_MESSAGE, LATCHED)
-        self._topic(MARKER_TOPIC, m.MARKER_ARRAY)
-        for name in m.LASER_TOPICS.values():
-            self._topic(name, m.BOOL, LATCHED)
+        if robots:
+            self._topic("/tf", m.TF_MESSAGE)
+        if parts.static:
+            self._topic("/tf_static", m.TF_MESSAGE, LATCHED)
+        if parts.markers:
+            self._topic(MARKER_TOPIC, m.MARKER_ARRAY)
+        if parts.laser:
+            for name in m.LASER_TOPICS.values():
+                self._topic(name, m.BOOL, LATCHED)
         self._laser: tuple[bool, bool] | None = None  # the last (on, aim) published
         self.inputs: dict[str, Topic] = {}
-        for inp in INPUTS:
+        for inp in INPUTS if parts.inputs else ():
             h = m.type_hash(inp.ros_type)
             token = self.node.subscription_token(self._next_id(), inp.topic, inp.ros_type, h)
             key = topic_key(self.domain, inp.topic, inp.ros_type, h)
             self.inputs[inp.topic] = Topic(inp.topic, inp.ros_type, key, token, gid(token))
         self._inbox: deque[tuple[str, bytes]] = deque(maxlen=INBOX)
         self.requests = self.rejected = 0
-        if system.camera is not None:
+        if system.camera is not None and parts.cloud:
             self._topic(CLOUD_TOPIC, m.POINT_CLOUD2)
         self._cloud_seq = 0
 
@@ -197,10 +238,13 @@ class Ros2Bridge:
                 s.declare_subscriber(inp.key, self._on_input(inp.name)),
                 s.liveliness().declare_token(inp.token),
             ]
-        self._targets_pub = s.declare_publisher(self.keys.targets)
+        if self.inputs:
+            self._targets_pub = s.declare_publisher(self.keys.targets)
         self.live.subscribe(s)
-        self._plans_sub = s.declare_subscriber(self.keys.plans, self._on_plan)
-        self._traj_sub = s.declare_subscriber(self.keys.trajectory("*"), self._on_trajectory)
+        if MARKER_TOPIC in self.topics:
+            self._plans_sub = s.declare_subscriber(self.keys.plans, self._on_plan)
+        if any(t.endswith("/joint_trajectory") for t in self.topics):
+            self._traj_sub = s.declare_subscriber(self.keys.trajectory("*"), self._on_trajectory)
         self._thread = threading.Thread(target=self._run, name="ros2-bridge", daemon=True)
         self._thread.start()
 
@@ -227,7 +271,7 @@ class Ros2Bridge:
 
     def _on_trajectory(self, sample: Any) -> None:
         robot = str(sample.key_expr).split("/")[-2]
-        if robot in self.system.robot_names:
+        if trajectory_topic(robot) in self.topics:
             with self._lock:  # parsed on the publishing thread, never in the callback
                 self._trajectories[robot] = sample.payload.to_bytes()
 
@@ -278,10 +322,12 @@ class Ros2Bridge:
                 self.forward_targets()
                 periodic = now >= next_static
                 if periodic:
-                    self.publish_static()
+                    if "/tf_static" in self.topics:
+                        self.publish_static()
                     next_static = now + STATIC_PERIOD
-                self.publish_laser(force=periodic)
-                if now >= next_markers:
+                if self.parts.laser:
+                    self.publish_laser(force=periodic)
+                if now >= next_markers and MARKER_TOPIC in self.topics:
                     self.publish_markers()
                     next_markers = now + 1.0 / MARKER_RATE
                 if now >= next_cloud and CLOUD_TOPIC in self.topics:
@@ -294,7 +340,7 @@ class Ros2Bridge:
         fresh = {r: s for r, s in self.live.joint_states().items() if seen.get(r) != s.at}
         q: dict[str, Array] = {}
         for robot, stamped in fresh.items():
-            if robot not in self.system.robot_names:
+            if joint_states_topic(robot) not in self.topics:
                 continue
             js = stamped.value
             seen[robot] = stamped.at
@@ -360,3 +406,36 @@ class Ros2Bridge:
         msg = cell.markers(t, self.system, self.scene, q, beam=beam, targets=targets,
                            spot_world=spot_world)  # fmt: skip
         self.topics[MARKER_TOPIC].publish(msg, t)
+
+
+@dataclass
+class InProcess:
+    """A started bridge on a session of its own (see :func:`start_in_process`)."""
+
+    bridge: Ros2Bridge
+    session: Any
+
+    def close(self) -> None:
+        """Stop the bridge (its tokens go away) and close its session."""
+        self.bridge.close()
+        self.session.close()
+
+
+def start_in_process(
+    system: System,
+    scene: SceneModel | None,
+    parts: Parts,
+    *,
+    domain: int,
+    keys: Keys,
+    endpoint: str | None,
+    zenoh_config: Any = None,
+) -> InProcess:
+    """A bridge for one process's own topics (``--ros2`` on ``serve`` and the drivers), on a
+    session of its own connected to ``endpoint`` (the bus the process is on), started."""
+    from planner.service.bus import open_session
+
+    session = open_session(listen=False, endpoint=endpoint, config_file=zenoh_config)
+    bridge = Ros2Bridge(session, system, scene, keys=keys, domain=domain, parts=parts)
+    bridge.start()
+    return InProcess(bridge, session)
