@@ -83,13 +83,15 @@ def test_refits_from_rest_spots_on_two_surfaces_land_closer_and_roll_back(tmp_pa
         assert all(s["holdout_median_m"] < s["previous_median_m"] for s in surfaces.values())
         assert doc["report"]["online"]["mirror_margin_m"] > 0
 
-        top = _wait_version(out, version - 1, 1)
         ran = subprocess.run([*CLI, "calibrate", "rollback", str(out), "--to", "0"],
                              capture_output=True, text=True, timeout=60, env=env)  # fmt: skip
         assert ran.returncode == 0, ran.stderr
-        new = max(history(out))
-        assert new > top and f"version {new} = version 0" in ran.stdout
-        _wait_for_line(logs / "planner.log", f"calibration_rolled_back version={new} to=0", 10)
+        said = re.search(r"version (\d+) = version 0 \(was (\d+)\)", ran.stdout)
+        assert said, ran.stdout
+        new, was = int(said[1]), int(said[2])
+        assert new > was >= version and new in history(out)
+        _wait_for_line(logs / "planner.log",
+                       f"calibration_rolled_back version={new} to=0 was={was}", 10)  # fmt: skip
         back = _request(bus, points[:2], env)
         print(f"measured spot error, median: {1e3 * before:.2f} mm open loop on version 0,"
               f" {1e3 * after:.3f} mm on version {version} (refit from {len(points)} rest"
@@ -103,4 +105,3 @@ def test_refits_from_rest_spots_on_two_surfaces_land_closer_and_roll_back(tmp_pa
     refits = [ln for ln in planner_log.splitlines() if " refit_" in ln]
     assert any("refit_accepted" in ln and "surface.block=" in ln for ln in refits), refits
     assert any("refit_refused" in ln and "at least 7" in ln for ln in refits), refits
-    assert re.search(rf"calibration_rolled_back version={new} to=0 was={top}", planner_log)

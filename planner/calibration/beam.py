@@ -89,8 +89,11 @@ class BeamResult:
     warnings: list[str] = field(default_factory=list)
     detected: list[str] = field(default_factory=list)  # null directions of the full Jacobian
     #: covariance of the observable increments (names and order of ``std``), applied on the
-    #: right of the poses as ``T @ exp_T(d)`` (laser: first 6 of d, mirror: last 6)
+    #: right of the poses as ``T @ exp_T(d)`` (laser: first 6 of d, mirror: last 6), and the
+    #: same for a unit residual noise (``covariance = sigma**2 * unit_covariance``)
     covariance: Array | None = None
+    unit_covariance: Array | None = None
+    sigma: float = float("nan")  # m: residual noise the fit's residuals give
 
 
 @lru_cache(maxsize=16)
@@ -279,4 +282,13 @@ def calibrate_beam(
         warnings=warnings,
         detected=found,
         covariance=np.asarray(res.covariance),
+        unit_covariance=_unit_covariance(res.singular_values, res.right_vectors),
+        sigma=float(res.sigma),
     )
+
+
+def _unit_covariance(sv: Array, Vt: Array) -> Array:
+    """``(J^T J)^-1`` from the Jacobian's singular values and right vectors (directions of
+    singular values under 1e-12 of the largest left out, as the fit's covariance does)."""
+    inv_sv2 = np.where(sv > sv[0] * 1e-12, 1.0 / np.maximum(sv, 1e-300) ** 2, 0.0)
+    return np.asarray((Vt.T * inv_sv2) @ Vt)

@@ -98,6 +98,10 @@ def serve(
     online = None
     if online_calibration is not None:
         online = online_calibrator(scenario, online_calibration, handler.system)
+        if online.resume():  # a restart goes on with the version it had
+            handler = online.rebuild(online.out_file)
+            typer.echo(f"online calibration: resuming version {online.current.version} from"
+                       f" {online.out_file} (remove it to start from the scenario's)", err=True)  # fmt: skip
     events.configure("planner")
     from planner.service.priority import raised_priority
 
@@ -108,6 +112,8 @@ def serve(
     typer.echo(f"planner bus {got.note}", err=True)
     node = PlannerNode(handler, session, Keys(prefix), bus=BusAddress(endpoint, zenoh_config),
                        online=online, warm_up=True)  # fmt: skip
+    if online is not None:
+        node.install_calibration(handler, online.current)  # plans report the resumed version
     stop = stop_on_signals()
 
     def on_fatal(reason: str) -> None:

@@ -41,12 +41,14 @@ same version again) and publishes it.
 from __future__ import annotations
 
 import collections
+import contextlib
 import dataclasses
 import logging
 import os
+import re
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -136,11 +138,27 @@ def history_dir(path: Path) -> Path:
 
 
 def history(path: Path) -> dict[int, Path]:
-    """The kept versions of ``path``: ``{version: file}``."""
+    """The kept versions of ``path``: ``{version: file}`` (``NNNN.yaml``, 4 digits or more)."""
     folder = history_dir(path)
     if not folder.is_dir():
         return {}
-    return {int(f.stem): f for f in folder.glob("[0-9][0-9][0-9][0-9].yaml")}
+    return {int(f.stem): f for f in folder.glob("*.yaml") if re.fullmatch(r"\d{4,}", f.stem)}
+
+
+@contextlib.contextmanager
+def history_lock(path: Path) -> Iterator[None]:
+    """Hold the history's lock (``FILE.versions/.lock``, an advisory ``flock``): numbering
+    and writing a version, by the refit thread or by ``calibrate rollback``, is one step."""
+    import fcntl
+
+    folder = history_dir(path)
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / ".lock", "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
 
 
 def read_document(path: Path) -> dict[str, Any]:
@@ -154,7 +172,31 @@ def read_document(path: Path) -> dict[str, Any]:
     rep = doc.get("report") if isinstance(doc, dict) else None
     if not isinstance(rep, dict) or not isinstance(rep.get(ONLINE_MARK), dict):
         raise InputError("not a file written by the online calibration", str(path))
+    online = rep[ONLINE_MARK]
+    for key in ("version", "rolled_back_to", "previous_version"):
+        value = online.get(key, 0)
+        if key == "version" and "version" not in online:
+            raise InputError("report.online.version is missing", str(path))
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise InputError(f"report.online.{key} is {value!r}, not a version number", str(path))
     return doc
+
+
+def check_poses(doc: dict[str, Any], path: Path) -> None:
+    """InputError unless ``doc`` holds a last mirror pose (and a laser pose, if any) as
+    ``{xyz, quat}``: a version without poses cannot be installed."""
+    try:
+        sys_doc = doc["system"]
+        poses = [sys_doc["robots"][-1]["mirror"]["flange_T_mirror"]]
+        if "laser" in sys_doc:
+            poses.append(sys_doc["laser"]["world_T_laser"])
+        for pose in poses:
+            if len(pose["xyz"]) != 3 or len(pose["quat"]) != 4:
+                raise ValueError(pose)
+            np.asarray([*pose["xyz"], *pose["quat"]], dtype=float)
+    except (KeyError, IndexError, TypeError, ValueError):
+        raise InputError("holds no mirror pose (system.robots[-1].mirror.flange_T_mirror"
+                         " as xyz and quat): it cannot be installed", str(path)) from None  # fmt: skip
 
 
 def version_of(doc: dict[str, Any]) -> int:
@@ -188,34 +230,52 @@ def system_of(doc: dict[str, Any], nominal: System) -> System:
     return nominal.with_params(L, {robot["name"]: pose(robot["mirror"]["flange_T_mirror"])})
 
 
+def refit_in_force(kept: dict[int, Path], doc: dict[str, Any], path: Path) -> dict[str, Any]:
+    """The document of the refit whose poses ``doc`` holds: ``doc`` itself, or the version
+    its ``rolled_back_to`` links lead to (InputError when a link is missing or loops)."""
+    seen: set[int] = set()
+    while (to := doc["report"][ONLINE_MARK].get("rolled_back_to")) is not None:
+        if to in seen or to not in kept:
+            raise InputError(f"the rollback chain of version {version_of(doc)} leads to version"
+                             f" {to}, which is not kept", str(path))  # fmt: skip
+        seen.add(to)
+        doc = read_document(kept[to])
+    return doc
+
+
 def rollback(path: Path, to: int | None = None) -> tuple[int, int, int]:
-    """Roll the online calibration ``path`` back to version ``to`` (default: the version
-    before the refit in force): a new version, numbered after every kept one, with version
-    ``to``'s poses, written to the history and to ``path``. Returns ``(new, to, was)``;
-    InputError when ``path`` or its history does not allow it."""
+    """Roll the online calibration ``path`` back to version ``to`` (default: the version in
+    force before the refit whose poses are in force): a new version, numbered after every
+    kept one, with version ``to``'s poses, written to the history and to ``path`` under the
+    history's lock. Returns ``(new, to, was)``; InputError when ``path`` or its history does
+    not allow it."""
     path = Path(path).expanduser().resolve()
-    doc = read_document(path)
-    was = version_of(doc)
-    kept = history(path)
-    if not kept:
-        raise InputError(f"no kept versions in {history_dir(path)}", str(path))
-    if to is None:
-        online = doc["report"][ONLINE_MARK]
-        base = int(online.get("rolled_back_to", was))  # the refit whose poses are in force
-        base_doc = read_document(kept[base]) if base in kept else doc
-        to = int(base_doc["report"][ONLINE_MARK].get("previous_version", -1))
-        if to < 0 or base == 0:
-            raise InputError(f"version {was} has no earlier version to roll back to", str(path))
-    if to not in kept:
-        have = ", ".join(str(v) for v in sorted(kept))
-        raise InputError(f"no version {to} is kept (kept: {have})", "--to")
-    new_version = max(max(kept), was) + 1
-    new = read_document(kept[to])
-    new["report"]["dataset"] = f"rollback to version {to}"
-    new["report"][ONLINE_MARK] = {"version": new_version, "rolled_back_to": to,
-                                  "previous_version": was}  # fmt: skip
-    write_atomically(history_dir(path) / f"{new_version:04d}.yaml", new)
-    write_atomically(path, new)
+    read_document(path)
+    with history_lock(path):
+        doc = read_document(path)
+        was = version_of(doc)
+        kept = history(path)
+        if not kept:
+            raise InputError(f"no kept versions in {history_dir(path)}", str(path))
+        where = "--to"
+        if to is None:
+            where = str(path)
+            refit_doc = refit_in_force(kept, doc, path)
+            if version_of(refit_doc) == 0 or "previous_version" not in refit_doc["report"][
+                    ONLINE_MARK]:  # fmt: skip
+                raise InputError(f"version {was} has no earlier version to roll back to", where)
+            to = int(refit_doc["report"][ONLINE_MARK]["previous_version"])
+        if to not in kept:
+            have = ", ".join(str(v) for v in sorted(kept))
+            raise InputError(f"no version {to} is kept (kept: {have})", where)
+        new = read_document(kept[to])
+        check_poses(new, kept[to])
+        new_version = max(max(kept), was) + 1
+        new["report"]["dataset"] = f"rollback to version {to}"
+        new["report"][ONLINE_MARK] = {"version": new_version, "rolled_back_to": to,
+                                      "previous_version": was}  # fmt: skip
+        write_atomically(history_dir(path) / f"{new_version:04d}.yaml", new)
+        write_atomically(path, new)
     return new_version, to, was
 
 
@@ -322,6 +382,25 @@ class OnlineCalibrator:
             return False
         return self.add_sample(qs, spot, board=board, t=t)
 
+    def resume(self) -> bool:
+        """Start from the version in FILE, if FILE holds one (a restarted planner, e.g. by
+        ``up``'s supervisor, goes on with the calibration it had, not the scenario's); True
+        when it did. A FILE that cannot be installed is left alone (logged)."""
+        if not self.out_file.is_file():
+            return False
+        try:
+            doc = read_document(self.out_file)
+            check_poses(doc, self.out_file)
+            cal = Calibration(version_of(doc), system_of(doc, self.nominal), doc,
+                              int(doc["report"][ONLINE_MARK].get("samples", 0)))  # fmt: skip
+        except (InputError, KeyError, TypeError, ValueError) as exc:
+            event(log, "resume_refused", logging.WARNING, file=str(self.out_file), error=str(exc))
+            return False
+        self.current = cal
+        self._file_seen = self._stat()
+        event(log, "calibration_resumed", version=cal.version, file=str(self.out_file))
+        return True
+
     def surface_of(self, spot_world: Array) -> str:
         """The scene object ``spot_world`` lies on (within ``SURFACE_TOL_M``), or ""."""
         if self.scene is None or self.scene.empty:
@@ -375,10 +454,11 @@ class OnlineCalibrator:
                     self._wake.wait(POLL_S)
                 if self._closing:
                     return
-                pending, self._pending = self._pending, False
-                samples = list(self._samples)
             try:
-                self.check_rollback()
+                rolled = self.check_rollback()  # first: it drops the samples it supersedes
+                with self._lock:
+                    pending, self._pending = self._pending and not rolled, False
+                    samples = list(self._samples)
                 if pending:
                     self.refit_now(samples)
             except Exception:  # a bug must not end online calibration or touch the planner
@@ -401,14 +481,22 @@ class OnlineCalibrator:
             return result
         cal = result.calibration
         assert cal.document is not None
-        if self.current.version not in kept:  # the version it replaces, for a rollback
-            before = self.current.document or document_of(
-                self.current.system, self.current.version, "the calibration in force before"
-                " the first online refit")  # fmt: skip
-            write_atomically(history_dir(self.out_file) / f"{self.current.version:04d}.yaml",
-                             before)  # fmt: skip
-        write_atomically(history_dir(self.out_file) / f"{cal.version:04d}.yaml", cal.document)
-        self._install(cal)
+        with history_lock(self.out_file):
+            if self._stat() != self._file_seen or cal.version in history(self.out_file):
+                # FILE or its history moved on while this refit ran (a rollback): the
+                # rollback wins; it is installed next, and later samples refit from it
+                event(log, "refit_dropped", logging.WARNING, version=cal.version,
+                      reason="FILE changed during the refit")  # fmt: skip
+                return dataclasses.replace(result, accepted=False, calibration=self.current,
+                                           reason="FILE changed during the refit")  # fmt: skip
+            if self.current.version not in history(self.out_file):  # for a rollback
+                before = self.current.document or document_of(
+                    self.current.system, self.current.version, "the calibration in force"
+                    " before the first online refit")  # fmt: skip
+                write_atomically(history_dir(self.out_file) / f"{self.current.version:04d}.yaml",
+                                 before)  # fmt: skip
+            write_atomically(history_dir(self.out_file) / f"{cal.version:04d}.yaml", cal.document)
+            self._install(cal)
         event(log, "refit_accepted", **result.figures(), file=str(self.out_file))
         return result
 
@@ -441,6 +529,8 @@ class OnlineCalibrator:
             doc = read_document(self.out_file)
             version = version_of(doc)
             to = doc["report"][ONLINE_MARK].get("rolled_back_to")
+            if to is not None:
+                check_poses(doc, self.out_file)
             system = system_of(doc, self.nominal) if to is not None else None
         except (InputError, KeyError, TypeError, ValueError) as exc:
             event(log, "rollback_ignored", logging.WARNING, file=str(self.out_file), error=str(exc))

@@ -437,3 +437,138 @@ def test_samples_are_labelled_by_the_scene_object_they_lie_on_and_plans_are_reme
     ]}  # fmt: skip
     assert cal.add_planned(plan) == 1 and cal.add_planned({"solutions": None}) == 0
     assert cal.add_planned({}) == 0
+
+
+def _refit_versions(cal: OnlineCalibrator, truth: System, n: int, seed: int) -> None:
+    """Feed ``n`` exact samples on two boards, one refit attempt each."""
+    q, spots, boards = true_samples(truth, n, seed=seed)
+    for qk, sk, b in zip(q, spots, boards, strict=True):
+        assert cal.add_sample({"arm0": qk}, sk, surface=b)
+        assert cal.wait_idle(120)
+
+
+def test_default_rollbacks_walk_back_through_refits_never_forward(
+    tmp_path: Path, scenario: Path, nominal: System, truth: System
+) -> None:
+    """refits 1..k, rollback (to k-1), refits, rollback, rollback: each default rollback
+    undoes one more refit (the one whose poses are in force, found through the rollback
+    links); none brings back a version that was rolled back."""
+    from planner.service.online import history, read_document, rollback
+
+    out = tmp_path / "online.yaml"
+    cal, _ = calibrator(nominal, scenario, out)
+    cal.start()
+    try:
+        _refit_versions(cal, truth, 12, seed=3)
+        top = cal.current.version
+        prev = read_document(history(out)[top])["report"]["online"]["previous_version"]
+        assert rollback(out) == (top + 1, prev, top)
+        wait_for(lambda: cal.current.version == top + 1, 10, "the rollback installed")
+        _refit_versions(cal, truth, 12, seed=4)  # new samples refit from the rolled-back one
+        refit_v = cal.current.version
+        assert refit_v > top + 1
+        _, to, was = rollback(out)  # undoes that refit
+        assert (to, was) == (read_document(history(out)[refit_v])["report"]["online"][
+            "previous_version"], refit_v)  # fmt: skip
+        _, to2, _ = rollback(out)  # one more: the refit whose poses those are, undone
+        assert to2 == read_document(history(out)[to])["report"]["online"]["previous_version"]
+        assert to2 < to and to2 not in (refit_v, top)  # never forward to an undone version
+    finally:
+        cal.close()
+
+
+def test_a_rollback_written_during_a_refit_wins(
+    tmp_path: Path, scenario: Path, nominal: System, truth: System
+) -> None:
+    """A rollback that lands while a refit runs: the refit is dropped (logged), FILE and the
+    history keep the rollback, and the calibrator installs it."""
+    from planner.service import online as online_mod
+    from planner.service.online import history, read_document, rollback, version_of
+
+    out = tmp_path / "online.yaml"
+    cal, _ = calibrator(nominal, scenario, out)
+    cal.start()
+    try:
+        _refit_versions(cal, truth, 10, seed=5)
+        top = cal.current.version
+        assert top >= 2
+        real_refit = online_mod.refit
+
+        def slow_refit(*args: Any, **kw: Any) -> Any:
+            result = real_refit(*args, **kw)
+            rollback(out, 0)  # the operator's command, while this refit is being decided
+            return result
+
+        online_mod.refit = slow_refit  # type: ignore[assignment]
+        try:
+            result = cal.refit_now(list(cal._samples))
+        finally:
+            online_mod.refit = real_refit  # type: ignore[assignment]
+        assert not result.accepted and "changed during the refit" in result.reason
+        doc = read_document(out)
+        assert doc["report"]["online"]["rolled_back_to"] == 0
+        assert version_of(doc) == max(history(out)) == top + 1
+        assert cal.check_rollback() and cal.current.version == top + 1 and cal.n_samples == 0
+    finally:
+        cal.close()
+
+
+def test_a_restarted_planner_resumes_the_version_in_its_file(
+    tmp_path: Path, scenario: Path, nominal: System, truth: System
+) -> None:
+    """A new calibrator on an existing FILE (the planner restarted by up's supervisor) goes
+    on with FILE's version and poses, and numbers its next refit after the history."""
+    out = tmp_path / "online.yaml"
+    first, _ = calibrator(nominal, scenario, out)
+    first.start()
+    try:
+        _refit_versions(first, truth, 10, seed=6)
+    finally:
+        first.close()
+    again, _ = calibrator(nominal, scenario, out)
+    assert again.resume()
+    assert again.current.version == first.current.version
+    for a, b in zip(_poses(again.current.system), _poses(first.current.system), strict=True):
+        np.testing.assert_allclose(a, b, atol=1e-12)
+    broken, _ = calibrator(nominal, scenario, tmp_path / "missing.yaml")
+    assert not broken.resume() and broken.current.version == 0
+
+
+@pytest.mark.parametrize(
+    ("edit", "words"),
+    [
+        (lambda d: d["report"]["online"].update(version="abc"), "report.online.version"),
+        (lambda d: d["report"]["online"].pop("version"), "version is missing"),
+        (lambda d: d["report"]["online"].update(version=True), "report.online.version"),
+        (lambda d: d["report"]["online"].update(rolled_back_to=None), "rolled_back_to"),
+        (lambda d: d["report"]["online"].update(previous_version=-3), "previous_version"),
+    ],
+)
+def test_hostile_online_files_are_refused_in_one_line(
+    tmp_path: Path, scenario: Path, nominal: System, truth: System, edit: Any, words: str
+) -> None:
+    from ruamel.yaml import YAML
+
+    from tests.cli_run import assert_usage_error, beamrelay
+
+    out = tmp_path / "online.yaml"
+    cal, _ = calibrator(nominal, scenario, out)
+    cal.start()
+    try:
+        _refit_versions(cal, truth, 9, seed=7)
+    finally:
+        cal.close()
+    yaml = YAML(typ="safe", pure=True)
+    doc = yaml.load(out.read_text())
+    edit(doc)
+    with out.open("w") as fh:
+        yaml.dump(doc, fh)
+    assert_usage_error(beamrelay("calibrate", "rollback", out), words)
+    # and a history whose target holds no poses: refused, nothing written
+    from planner.service.online import history
+
+    out.write_text((history(out)[max(history(out))]).read_text())
+    (history(out)[0]).write_text("report: {online: {version: 0}}\n")
+    before = sorted(history(out))
+    assert_usage_error(beamrelay("calibrate", "rollback", out, "--to", "0"), "no mirror pose")
+    assert sorted(history(out)) == before
