@@ -44,6 +44,8 @@ class LoopNode:
         try:
             self._loop()
         except Exception as exc:
+            if self._stop.is_set():  # shutting down: a loop that outlived stop()'s join
+                return  # met the closed session (a slow raycast under load): not a death
             name = self._thread.name if self._thread is not None else "loop"
             self.failure = f"{name} loop died: {type(exc).__name__}: {exc}"
             traceback.print_exc(file=sys.stderr)

@@ -196,8 +196,8 @@ def up(
         typer.Option(
             "--zenoh-roles",
             help="Folder of Zenoh config files, one per role (planner, driver, camera, "
-            "tracker, console .json5, e.g. scenarios/zenoh/roles): each child joins with its "
-            "role's identity, up itself with the console's. Replaces --zenoh-config.",
+            "tracker, console, ros2 .json5, e.g. scenarios/zenoh/roles): each child joins with "
+            "its role's identity, up itself with the console's. Replaces --zenoh-config.",
             file_okay=False,
         ),
     ] = None,

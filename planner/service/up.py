@@ -61,8 +61,9 @@ def child_commands(
     ``zenoh_config`` except the planner, which gets ``planner_zenoh_config`` if given (its
     own identity on a bus with access control). ``role_configs`` (see :func:`role_files`)
     instead gives each child the file of its role: ``planner``, ``camera``, ``tracker``,
-    ``driver`` (every robot), ``console``. With ``ros_domain`` the ROS 2 bridge runs as
-    ``ros2`` (with the console's role: it only reads the bus)."""
+    ``driver`` (every robot), ``console``, ``ros2``. With ``ros_domain`` the ROS 2 bridge
+    runs as ``ros2`` (with the ``ros2`` role: it reads the bus, publishes the ROS 2 keys and
+    forwards ROS 2 targets as plan-only requests)."""
     cli = [sys.executable, "-m", "planner.cli"]
     bus = ["--endpoint", endpoint, *(["--prefix", prefix] if prefix != "beamrelay" else [])]
     planner_bus = list(bus)
@@ -111,7 +112,7 @@ def child_commands(
     if ros_domain is not None:
         out["ros2"] = [
             *cli, "ros2", "bridge", str(scenario), "--ros-domain", str(ros_domain),
-            *role_bus("console"),
+            *role_bus("ros2"),
         ]  # fmt: skip
     return out
 
@@ -255,7 +256,7 @@ def _child_config(path: Path | None) -> Path | None:
 
 
 #: the role files of a folder given to ``up --zenoh-roles`` (scenarios/zenoh/roles/)
-ROLES = ("planner", "driver", "camera", "tracker", "console")
+ROLES = ("planner", "driver", "camera", "tracker", "console", "ros2")
 
 
 def role_files(folder: Path) -> dict[str, Path]:
@@ -316,10 +317,11 @@ def run_up(
                 "--zenoh-roles gives every process its file: leave out --zenoh-config and "
                 "--planner-zenoh-config"
             )
-        if ros_domain is not None:
+        if ros_domain not in (None, 0):
             raise InputError(
-                "--ros2 with --zenoh-roles: the role files have no ROS 2 role yet (its topics "
-                "would be denied); use --zenoh-config"
+                f"--ros-domain {ros_domain} with --zenoh-roles: the shipped role files allow"
+                " the ROS 2 keys of domain 0 (0/**, @ros2_lv/0/**); edit their ROS 2 rules"
+                " for another domain and use --zenoh-config per process"
             )
         roles = role_files(zenoh_roles)
         configs = [roles["console"], None]

@@ -103,7 +103,9 @@ def test_robot_and_camera_drivers_publish_and_stop_on_sigterm(
         codes = [proc.wait(timeout=10) for proc in (robot, camera)]
         for s in subs:
             s.undeclare()
-    assert codes == [0, 0]
+    errs = [p.stderr.read().decode(errors="replace")[-3000:] if p.stderr else "" for p in
+            (robot, camera)]  # fmt: skip
+    assert codes == [0, 0], errs
     time.sleep(0.2)
     assert not list(hub.liveliness().get(keys.alive_all))  # tokens withdrawn
 

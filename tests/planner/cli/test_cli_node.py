@@ -39,8 +39,16 @@ def run(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
         (["up", "/nonexistent/scenario.yaml", "--backend", "robotstudio"], "expected sim or ur"),
         (["up", "scenarios/paper_n1.yaml", "--ros2", "--ros-domain", "300"], "expected 0-232"),
         (
-            ["up", "scenarios/paper_n1.yaml", "--ros2", "--zenoh-roles", "scenarios/zenoh/roles"],
-            "no ROS 2 role yet",
+            [
+                "up",
+                "scenarios/paper_n1.yaml",
+                "--ros2",
+                "--ros-domain",
+                "3",
+                "--zenoh-roles",
+                "scenarios/zenoh/roles",
+            ],
+            "the ROS 2 keys of domain 0",
         ),
         (["ros2", "bridge", "scenarios/paper_n1.yaml", "--ros-domain", "-1"], "expected 0-232"),
         (["ros2", "bridge", "scenarios/paper_n1.yaml", "--rate", "0"], "expected 1-1000 Hz"),

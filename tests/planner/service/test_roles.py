@@ -30,7 +30,7 @@ PUTS = [
     "beamrelay/camera/spot", "beamrelay/camera/predicted", "beamrelay/heartbeat",
     "beamrelay/calibration", "beamrelay/laser", "beamrelay/stop",
 ]  # fmt: skip
-TOKENS = ["planner", "arm0", "camera", "tracker", "console"]
+TOKENS = ["planner", "arm0", "camera", "tracker", "console", "ros2"]
 #: what each role may do: puts, its liveliness token, serve ``plan``, ask ``plan``
 MAY: dict[str, dict[str, Any]] = {
     "planner": {
@@ -55,6 +55,7 @@ MAY: dict[str, dict[str, Any]] = {
         "puts": {"beamrelay/targets", "beamrelay/arm0/recover"},
         "token": "console", "serve": False, "ask": True,
     },
+    "ros2": {"puts": {"beamrelay/targets"}, "token": "ros2", "serve": False, "ask": False},
 }  # fmt: skip
 for _may in MAY.values():
     _may["puts"].add("beamrelay/stop")  # anyone may stop the motion
@@ -228,3 +229,44 @@ def test_real_robot_driver_hosting_with_its_role_file(opened: list[Any], tmp_pat
         proc.terminate()
         proc.wait(10)
         log.close()
+
+
+ROS_KEY = "0/arm0/joint_states/sensor_msgs::msg::dds_::JointState_/RIHS01_x"
+ROS_TOKEN = "@ros2_lv/0/{zid}/0/0/NN/%/%/beamrelay_{role}"
+
+
+@pytest.mark.parametrize("role", ROLES)
+def test_only_the_ros2_identity_publishes_ros_2_topics_and_graph_tokens(
+    opened: list[Any], role: str
+) -> None:
+    """ROS 2 keys (rmw_zenoh's data keys and graph tokens of domain 0): every identity may
+    read them; only ``ros2`` (the bridge) may publish them, so no other process can pose as
+    a ROS 2 node, and the bridge's own identity cannot move an arm (the table above)."""
+    endpoint = free_endpoint()
+    join(opened, "planner" if role == "console" else "console", endpoint, host=True)
+    reader = join(opened, "console" if role != "console" else "planner", endpoint)
+    got: list[str] = []
+    tokens: set[str] = set()
+    reader.declare_subscriber("0/**", lambda s: got.append(s.payload.to_bytes().decode()))
+    reader.liveliness().declare_subscriber(
+        "@ros2_lv/0/**", lambda s: tokens.add(str(s.key_expr).rsplit("_", 1)[-1]), history=True
+    )
+    stops: list[bytes] = []
+    reader.declare_subscriber("beamrelay/stop", lambda s: stops.append(s.payload.to_bytes()))
+    actor = join(opened, role, endpoint)
+
+    def synced() -> bool:  # stop is open to all: once it arrives, the declarations are in
+        actor.put("beamrelay/stop", b"sync")
+        return b"sync" in stops
+
+    assert wait_for(synced)
+    token = actor.liveliness().declare_token(ROS_TOKEN.format(zid=actor.info.zid(), role=role))
+    may = role == "ros2"
+    for _ in range(20):
+        actor.put(ROS_KEY, role)
+        if wait_for(lambda: role in got, 0.1):
+            break
+    time.sleep(0.5)
+    assert (role in got) is may, got
+    assert (role in tokens) is may, tokens
+    del token

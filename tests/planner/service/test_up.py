@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
+from planner.ros2 import messages as m
 from planner.service.up import child_commands
 from tests.paths import REPO
 
@@ -63,6 +65,10 @@ def test_child_commands_give_each_role_its_file() -> None:
         "arm0": "/z/driver.json5", "arm1": "/z/driver.json5", "console": "/z/console.json5",
     }  # fmt: skip
     assert all(a.count("--zenoh-config") == 1 for a in argv.values())
+    roles["ros2"] = Path("/z/ros2.json5")
+    argv = child_commands(s, ["arm0"], endpoint="e", role_configs=roles, ros_domain=0)
+    bridge = argv["ros2"]
+    assert bridge[bridge.index("--zenoh-config") + 1] == "/z/ros2.json5"  # its own identity
 
 
 @pytest.mark.parametrize("files", ["node+planner", "roles"])
@@ -86,8 +92,8 @@ def test_up_on_a_locked_bus(tmp_path: Path, files: str) -> None:
         sock.bind(("127.0.0.1", 0))
         endpoint = f"tcp/127.0.0.1:{sock.getsockname()[1]}"
     cli = [sys.executable, "-m", "planner.cli"]
-    if files == "roles":
-        up_files = ["--zenoh-roles", str(examples / "roles")]
+    if files == "roles":  # with the ROS 2 bridge, as the ros2 identity
+        up_files = ["--zenoh-roles", str(examples / "roles"), "--ros2"]
         client_file = examples / "roles" / "console.json5"
     else:
         up_files = ["--zenoh-config", str(examples / "acl-node.json5"),
@@ -116,10 +122,17 @@ def test_up_on_a_locked_bus(tmp_path: Path, files: str) -> None:
                 lambda s: alive.add(str(s.key_expr).rsplit("/", 1)[-1]),
                 history=True,
             )
+            ros: list[Any] = []
+            watcher.declare_subscriber("0/arm0/joint_states/**", ros.append)
+            want = {"planner", "arm0"} | ({"ros2"} if files == "roles" else set())
             end = time.monotonic() + 90
-            while not {"planner", "arm0"} <= alive and time.monotonic() < end:
+            while not (want <= alive and (files != "roles" or ros)) and time.monotonic() < end:
                 time.sleep(0.1)
-            assert {"planner", "arm0"} <= alive, (alive, list(tmp_path.glob("*")))
+            assert want <= alive, (alive, list(tmp_path.glob("*")))
+            if files == "roles":  # the bridge's ROS 2 keys pass the access list
+                assert ros, "no ROS 2 JointState from the bridge's ros2 identity"
+                js = m.deserialize(ros[-1].payload.to_bytes(), m.JOINT_STATE)
+                assert len(js.position) == 6
         req = subprocess.run(
             [*cli, "request", "--points", "-0.54,-0.57,-0.06", "--endpoint", endpoint,
              "--zenoh-config", str(client_file), "--timeout", "60"],
