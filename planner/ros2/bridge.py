@@ -11,7 +11,9 @@ thread converts and publishes at fixed rates:
 - ``/<robot>/joint_states`` (``sensor_msgs/msg/JointState``) and ``/tf`` (base -> flange)
   at ``rate`` Hz whenever a robot reported new joints;
 - ``/<robot>/joint_trajectory`` (``trajectory_msgs/msg/JointTrajectory``): each trajectory
-  the planner sends a driver, stamped when the bridge saw it;
+  the planner sends a driver (executing), stamped when the bridge saw it;
+- ``/<robot>/planned_trajectory`` (the same type): the trajectory of each timed plan on
+  ``<prefix>/plans`` (planned, executed or not: a preview shows here before it moves);
 - ``/tf_static`` every ``STATIC_PERIOD`` s (see below);
 - ``/beamrelay/markers`` (``visualization_msgs/msg/MarkerArray``) at ``MARKER_RATE`` Hz;
 - ``/camera/points`` (``sensor_msgs/msg/PointCloud2``, ``camera`` frame), the newest cloud
@@ -86,6 +88,10 @@ def trajectory_topic(robot: str) -> str:
     return f"/{robot}/joint_trajectory"
 
 
+def planned_topic(robot: str) -> str:
+    return f"/{robot}/planned_trajectory"
+
+
 @dataclass
 class Topic:
     """One ROS publisher: its data key, liveliness token and rmw_zenoh attachment state."""
@@ -134,6 +140,7 @@ class Parts:
 
     node: str = NODE_NAME
     robots: tuple[str, ...] | None = None
+    planned: bool = True  # every robot's planned trajectory, from the plans
     static: bool = True
     markers: bool = True
     cloud: bool = True
@@ -142,21 +149,22 @@ class Parts:
 
     @classmethod
     def planner(cls) -> Parts:
-        """``serve --ros2``: the cell's fixed frames, the markers, ROS 2 targets in."""
+        """``serve --ros2``: the planned trajectories, the cell's fixed frames, the markers,
+        ROS 2 targets in."""
         return cls("beamrelay_planner", robots=(), cloud=False, laser=False)
 
     @classmethod
     def robot(cls, name: str, gate: bool) -> Parts:
         """``driver robot --name NAME --ros2``: that robot's joint states, ``/tf`` and the
         trajectories it is sent; the laser state if its output is the gate."""
-        return cls(f"beamrelay_{name}", robots=(name,), static=False, markers=False,
-                   cloud=False, laser=gate, inputs=False)  # fmt: skip
+        return cls(f"beamrelay_{name}", robots=(name,), planned=False, static=False,
+                   markers=False, cloud=False, laser=gate, inputs=False)  # fmt: skip
 
     @classmethod
     def camera(cls) -> Parts:
         """``driver camera --ros2``: the cloud."""
-        return cls("beamrelay_camera", robots=(), static=False, markers=False, laser=False,
-                   inputs=False)  # fmt: skip
+        return cls("beamrelay_camera", robots=(), planned=False, static=False, markers=False,
+                   laser=False, inputs=False)  # fmt: skip
 
 
 class Ros2Bridge:
@@ -197,6 +205,7 @@ class Ros2Bridge:
             self._topic(joint_states_topic(r), m.JOINT_STATE)
             self._topic(trajectory_topic(r), m.JOINT_TRAJECTORY)
         self._trajectories: dict[str, bytes] = {}  # robot -> newest raw body not yet sent
+        self._plan_body: bytes | None = None  # the newest plan not yet published
         if robots:
             self._topic("/tf", m.TF_MESSAGE)
         if parts.static:
@@ -218,6 +227,9 @@ class Ros2Bridge:
         if system.camera is not None and parts.cloud:
             self._topic(CLOUD_TOPIC, m.POINT_CLOUD2)
         self._cloud_seq = 0
+        if parts.planned:  # last: the entity ids of the topics above stay as they were
+            for r in system.robot_names:
+                self._topic(planned_topic(r), m.JOINT_TRAJECTORY)
 
     def _next_id(self) -> int:
         return len(self.topics) + len(getattr(self, "inputs", {})) + 1
@@ -241,7 +253,7 @@ class Ros2Bridge:
         if self.inputs:
             self._targets_pub = s.declare_publisher(self.keys.targets)
         self.live.subscribe(s)
-        if MARKER_TOPIC in self.topics:
+        if MARKER_TOPIC in self.topics or self.parts.planned:
             self._plans_sub = s.declare_subscriber(self.keys.plans, self._on_plan)
         if any(t.endswith("/joint_trajectory") for t in self.topics):
             self._traj_sub = s.declare_subscriber(self.keys.trajectory("*"), self._on_trajectory)
@@ -264,10 +276,29 @@ class Ros2Bridge:
         self._thread = None
 
     def _on_plan(self, sample: Any) -> None:
-        pts = cell.plan_targets(sample.payload.to_bytes())
+        body = sample.payload.to_bytes()
+        pts = cell.plan_targets(body)
         if pts is not None:  # else a tracking summary: keep the last targets
             with self._lock:
                 self.targets = pts
+                self._plan_body = body  # its trajectory is parsed on the publishing thread
+
+    def publish_planned(self) -> None:
+        """The newest plan's trajectory (a timed plan's ``trajectory``), per robot, as
+        JointTrajectory on ``/<robot>/planned_trajectory``; an untimed plan has none."""
+        with self._lock:
+            body, self._plan_body = self._plan_body, None
+        if body is None or not self.parts.planned:
+            return
+        traj = cell.plan_trajectory(body)
+        if traj is None:
+            return
+        t = time.time()
+        for robot in self.system.robots:
+            if robot.name in traj.q and planned_topic(robot.name) in self.topics:
+                msg = m.joint_trajectory(t, list(robot.joint_names), traj.t, traj.q[robot.name],
+                                         traj.qd[robot.name], traj.qdd[robot.name])  # fmt: skip
+                self.topics[planned_topic(robot.name)].publish(msg, t)
 
     def _on_trajectory(self, sample: Any) -> None:
         robot = str(sample.key_expr).split("/")[-2]
@@ -319,6 +350,7 @@ class Ros2Bridge:
             try:
                 self._publish_joints(seen)
                 self.publish_trajectories()
+                self.publish_planned()
                 self.forward_targets()
                 periodic = now >= next_static
                 if periodic:

@@ -108,6 +108,29 @@ def plan_targets(body: bytes) -> Array | None:
         return None
 
 
+class PlanTrajectory(NamedTuple):
+    """A plan.json ``trajectory``: times (K, s), and per robot q, qd, qdd (K x n)."""
+
+    t: Array
+    q: dict[str, Array]
+    qd: dict[str, Array]
+    qdd: dict[str, Array]
+
+
+def plan_trajectory(body: bytes) -> PlanTrajectory | None:
+    """The ``trajectory`` of a plan.json body, or None (no trajectory, or malformed)."""
+    try:
+        tr = json.loads(body)["trajectory"]
+        t = np.asarray(tr["t"], dtype=float).reshape(-1)
+        out = {k: {r: np.asarray(v, dtype=float).reshape(len(t), -1) for r, v in tr[k].items()}
+               for k in ("q", "qd", "qdd")}  # fmt: skip
+    except (ValueError, KeyError, TypeError, AttributeError):
+        return None
+    if len(t) == 0 or set(out["q"]) != set(out["qd"]) or set(out["q"]) != set(out["qdd"]):
+        return None
+    return PlanTrajectory(t, out["q"], out["qd"], out["qdd"])
+
+
 class Beam(NamedTuple):
     """What the beam marker shows: the gate (``on``) and aiming beam (``aim``) states."""
 

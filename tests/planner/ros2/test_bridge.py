@@ -151,6 +151,8 @@ def test_bridge_publishes_rmw_zenoh_topics_and_tokens(system1: System, endpoint:
             f"geometry_msgs::msg::dds_::PointStamped_/{POINT_HASH}/::,10:,:,:,,",
             f"{prefix}/9/MS/%/%/beamrelay_bridge/%beamrelay%targets/"
             f"geometry_msgs::msg::dds_::PoseArray_/{POSES_HASH}/::,10:,:,:,,",
+            f"{prefix}/10/MP/%/%/beamrelay_bridge/%arm0%planned_trajectory/"
+            f"trajectory_msgs::msg::dds_::JointTrajectory_/{TRAJ_HASH}/::,10:,:,:,,",
         }
         bridge.close()
         # the graph forgets the node when it closes (undeclarations propagate asynchronously)
@@ -331,3 +333,52 @@ def test_bridge_publishes_the_laser_state_only_once_reported(
         driver.undeclare()
         raw.close()
         hub.close()
+
+
+def test_a_timed_plan_is_published_as_each_robots_planned_trajectory(
+    system1: System, endpoint: str
+) -> None:
+    """A plan.json with a trajectory on beamrelay/plans -> /arm0/planned_trajectory, decoded
+    by rosbags: the plan's times, positions, velocities and accelerations, the robot's joint
+    names; a plan without a trajectory (or garbage) publishes nothing."""
+    hub = open_session(listen=True, endpoint=endpoint)
+    raw = raw_session(endpoint)
+    bridge = Ros2Bridge(hub, system1, None, domain=DOMAIN)
+    got = Received()
+    key = (
+        f"{DOMAIN}/arm0/planned_trajectory/trajectory_msgs::msg::dds_::JointTrajectory_/{TRAJ_HASH}"
+    )
+    sub = raw.declare_subscriber(key, got)
+    rng = np.random.default_rng(3)
+    t = np.linspace(0.0, 0.9, 10)
+    q, qd, qdd = (rng.normal(size=(10, 6)) for _ in range(3))
+    plan = {"targets": [{"p": [0.1, 0.2, 0.3]}],
+            "trajectory": {"t": t.tolist(), "q": {"arm0": q.tolist()}, "qd": {"arm0": qd.tolist()},
+                           "qdd": {"arm0": qdd.tolist()}}}  # fmt: skip
+    plans = raw.declare_publisher(Keys().plans)
+    try:
+        bridge.start()
+        deadline = time.monotonic() + 15.0
+        while time.monotonic() < deadline and not got.get(key):  # until the links are up
+            plans.put(json.dumps(plan).encode())
+            time.sleep(0.2)
+        assert got.get(key), "no planned trajectory"
+        n = len(got.get(key))
+        plans.put(json.dumps({"targets": [{"p": [0, 0, 0]}], "trajectory": None}).encode())
+        plans.put(b"\xff garbage")
+        time.sleep(0.5)
+        assert len(got.get(key)) == n
+    finally:
+        bridge.close()
+        sub.undeclare()
+        plans.undeclare()
+        raw.close()
+        hub.close()
+    msg = m.deserialize(got.get(key)[0][0], m.JOINT_TRAJECTORY)
+    assert list(msg.joint_names) == list(system1.robots[0].joint_names)
+    assert len(msg.points) == 10
+    for k, pt in enumerate(msg.points):
+        assert pt.time_from_start.sec + 1e-9 * pt.time_from_start.nanosec == pytest.approx(t[k])
+        np.testing.assert_array_equal(pt.positions, q[k])
+        np.testing.assert_array_equal(pt.velocities, qd[k])
+        np.testing.assert_array_equal(pt.accelerations, qdd[k])

@@ -86,7 +86,8 @@ def test_each_process_publishes_its_own_ros2_topics() -> None:
     assert codes == [0, 0, 0], codes
     assert nodes["beamrelay_arm0"] == {"/arm0/joint_states", "/arm0/joint_trajectory", "/tf"}
     assert nodes["beamrelay_camera"] == {"/camera/points"}
-    assert nodes["beamrelay_planner"] == {"/tf_static", "/beamrelay/markers"}
+    assert nodes["beamrelay_planner"] == {"/tf_static", "/beamrelay/markers",
+                                          "/arm0/planned_trajectory"}  # fmt: skip
     system = system_from_scenario(load_scenario(SCENARIO))
     with lock:
         js, tf, cloud, static = (list(got[k]) for k in ("js", "tf", "cloud", "static"))
