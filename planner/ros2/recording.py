@@ -7,7 +7,8 @@ the raw channel (which ``replay`` keeps using): ``<prefix>/<robot>/joint_states`
 concatenated ``.msg`` definitions rosbags generates (MCAP's ``ros2msg`` schema encoding),
 the data CDR (message encoding ``cdr``), as Foxglove and ``ros2 bag`` read them. With the
 system model it also writes ``/beamrelay/markers`` (the beam at the recorded joints, coloured
-by the recorded laser state, and the targets of the recorded plans) at most
+by the recorded laser state, the targets of the recorded plans, and the camera's last
+measured spot, placed in the world through the camera pose at the recorded joints) at most
 ``MARKER_RATE`` Hz of recorded time. Trajectories sent to the drivers become
 ``/<robot>/joint_trajectory`` (``trajectory_msgs/msg/JointTrajectory``), the camera cloud
 ``/camera/points`` (``sensor_msgs/msg/PointCloud2``, at most ``CLOUD_RATE`` Hz), each laser
@@ -36,7 +37,7 @@ from planner.ros2.bridge import (
     trajectory_topic,
 )
 from planner.service.bus import Keys, decode
-from schemas.messages import JointState, JointTrajectory, LaserState
+from schemas.messages import JointState, JointTrajectory, LaserState, SpotMessage
 from schemas.points import decode_points
 
 SCHEMA_ENCODING = "ros2msg"
@@ -68,6 +69,7 @@ class RosTranslator:
         self.q: dict[str, Array] = {}
         self.beam = cell.BEAM_IDLE
         self.targets: Array | None = None
+        self.spot_camera: Array | None = None  # the last measured spot (optical frame, m)
         self._next_markers = self._next_cloud = 0.0
 
     def schema(self, ros_type: str) -> str:
@@ -89,6 +91,9 @@ class RosTranslator:
             return []
         if key == self.keys.camera_points:
             return self._cloud(payload, attachment)
+        if key == self.keys.camera_spot:
+            self._on_spot(payload)
+            return []
         prefix, _, rest = key.partition("/")
         robot, _, leaf = rest.partition("/")
         if prefix != self.keys.prefix or "/" in robot:
@@ -143,8 +148,11 @@ class RosTranslator:
         if self.system is None or t < self._next_markers:
             return []
         self._next_markers = t + 1.0 / MARKER_RATE
+        spot = None
+        if self.spot_camera is not None:
+            spot = cell.spot_in_world(self.system, self.q, self.spot_camera)
         msg = cell.markers(t, self.system, self.scene, self.q, beam=self.beam,
-                           targets=self.targets)  # fmt: skip
+                           targets=self.targets, spot_world=spot)  # fmt: skip
         return [RosMessage(MARKER_TOPIC, m.MARKER_ARRAY, m.serialize(msg, m.MARKER_ARRAY))]
 
     def _on_laser(self, payload: bytes) -> list[RosMessage]:
@@ -157,6 +165,14 @@ class RosTranslator:
         return [RosMessage(topic, m.BOOL, m.serialize(msg, m.BOOL))
                 for topic, msg in m.laser_messages(laser.on, bool(laser.aim))
                 if laser.aim is not None or topic != m.LASER_TOPICS["aim"]]  # fmt: skip
+
+    def _on_spot(self, payload: bytes) -> None:
+        """The measured spot for the markers (none while the camera sees none)."""
+        try:
+            spot = decode(payload, SpotMessage)
+        except InputError:
+            return
+        self.spot_camera = None if spot.p_camera is None else np.asarray(spot.p_camera, float)
 
     def _on_plan(self, payload: bytes) -> None:
         if (pts := cell.plan_targets(payload)) is not None:

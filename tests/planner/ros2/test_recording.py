@@ -12,6 +12,8 @@ import numpy as np
 
 from drivers.record import Recorder, read
 from planner.model.system import System
+from planner.ros2 import messages as m
+from planner.ros2.bridge import MARKER_TOPIC
 from planner.ros2.recording import RosTranslator
 from planner.service.bus import Keys, encode, open_session
 from schemas.messages import JointState, JointTrajectory, LaserState
@@ -143,3 +145,32 @@ def test_record_command_writes_the_static_tf_with_a_scenario(endpoint: str, tmp_
     )
     children = {t.child_frame_id for t in msg.transforms}
     assert children == {"laser", "camera", "arm0_base", "arm0_mirror"}
+
+
+def test_the_markers_show_the_measured_spot_where_the_camera_saw_it() -> None:
+    """A recorded camera/spot becomes the markers' spot sphere, in the world through the
+    scenario's camera pose (an independent transform of the message's point); a spot the
+    camera lost (p_camera null) takes it away."""
+    from planner.io.scenario import load_scenario, system_from_scenario
+    from schemas.messages import SpotMessage
+    from tests.paths import REPO
+
+    system = system_from_scenario(load_scenario(REPO / "scenarios" / "paper_n1.yaml"))
+    keys = Keys("recspot")
+    ros = RosTranslator(keys, system)
+    p_cam = np.array([0.02, -0.01, 0.9])
+    ros(keys.camera_spot, encode(SpotMessage(t=1.0, p_camera=p_cam.tolist(), confidence=0.9)))
+    names = list(system.robots[0].joint_names)
+    js = JointState(t=2.0, names=names, q=system.robots[0].home.tolist(), qd=[0.0] * 6)
+    out = ros(keys.joint_states("arm0"), encode(js))
+    (markers,) = [m.deserialize(r.data, m.MARKER_ARRAY) for r in out if r.topic == MARKER_TOPIC]
+    (spot,) = [mk for mk in markers.markers if mk.ns == "spot"]
+    assert system.camera is not None
+    T = system.camera.world_T_camera
+    p = spot.pose.position
+    np.testing.assert_allclose([p.x, p.y, p.z], T[:3, :3] @ p_cam + T[:3, 3], atol=1e-12)
+    ros(keys.camera_spot, encode(SpotMessage(t=3.0, p_camera=None, confidence=0.0)))
+    js2 = JointState(t=3.0, names=names, q=system.robots[0].home.tolist(), qd=[0.0] * 6)
+    out = ros(keys.joint_states("arm0"), encode(js2))
+    (markers,) = [m.deserialize(r.data, m.MARKER_ARRAY) for r in out if r.topic == MARKER_TOPIC]
+    assert "spot" not in {mk.ns for mk in markers.markers}
