@@ -229,14 +229,6 @@ class SceneModel:
 
     def nearest_surface(self, points: Array) -> tuple[Array, Array]:
         """Distance (m, inf without objects) from each point (K x 3, world) to the nearest
-        object surface, and that object's index in :attr:`names` (-1 without objects)."""
-        P = np.asarray(points, dtype=float).reshape(-1, 3)
-        if self.empty or len(P) == 0:
-            return np.full(len(P), np.inf), np.full(len(P), -1)
-        import open3d as o3d
-
-        ans = self.raycasting_scene.compute_closest_points(
-            o3d.core.Tensor.from_numpy(P.astype(np.float32))
-        )
-        closest = ans["points"].numpy().astype(float)
-        return np.linalg.norm(closest - P, axis=1), ans["geometry_ids"].numpy().astype(np.int64)
+        object surface, and that object's index in :attr:`names` (-1 without objects): the
+        same as :meth:`closest`."""
+        return self.closest(points)
