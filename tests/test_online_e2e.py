@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 
 from planner.io.scenario import load_scenario
-from planner.service.online import history, read_document, version_of
+from planner.service.online_file import history, read_document, version_of
 from tests.drivers.conftest import free_port
 from tests.paths import REPO
 

@@ -204,7 +204,8 @@ def rollback(
 ) -> None:
     """Undo an online refit: FILE gets a new version with an earlier version's poses (its
     history is kept in FILE.versions/); a running planner installs it within a second."""
-    from planner.service.online import POLL_S, history, rollback
+    from planner.service.online import POLL_S
+    from planner.service.online_file import history, rollback
 
     new, back_to, was = rollback(file, to)
     typer.echo(f"{file}: version {new} = version {back_to} (was {was}); a running planner"

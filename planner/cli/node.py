@@ -162,7 +162,8 @@ def online_calibrator(scenario: Path, out: Path, system: Any) -> Any:
     if ``out`` is the scenario or a file the online refinement did not write)."""
     from planner.io.scenario import load_scenario, scene_model
     from planner.service.handler import handler_from_scenario
-    from planner.service.online import OnlineCalibrator, check_output_file
+    from planner.service.online import OnlineCalibrator
+    from planner.service.online_file import check_output_file
 
     path = check_output_file(out, scenario)
     return OnlineCalibrator(system, path, rebuild=lambda f: handler_from_scenario(scenario, (f,)),

@@ -328,7 +328,7 @@ def run_up(
     has_camera = scn.model.system.camera is not None
     online = None
     if online_calibration is not None:  # checked here: a bad FILE is exit 2, not a crash loop
-        from planner.service.online import check_output_file
+        from planner.service.online_file import check_output_file
 
         online = check_output_file(online_calibration, scenario)
     argv = child_commands(

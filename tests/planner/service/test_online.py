@@ -24,12 +24,8 @@ from planner.service.bus import Keys, encode, open_session
 from planner.service.client import PlanClient, make_request
 from planner.service.handler import handler_from_scenario
 from planner.service.node import PlannerNode
-from planner.service.online import (
-    OnlineCalibrator,
-    RestSampler,
-    check_output_file,
-    is_online_file,
-)
+from planner.service.online import OnlineCalibrator, RestSampler
+from planner.service.online_file import check_output_file, is_online_file
 from schemas.messages import CalibrationMessage, JointState, SpotMessage
 from tests.drivers.conftest import free_port, wait_for
 from tests.planner.raw_zenoh import Inbox, raw_session
@@ -347,7 +343,7 @@ def test_every_version_is_kept_and_logged_and_one_command_rolls_a_refit_back(
     import subprocess
     import sys
 
-    from planner.service.online import history, read_document, system_of, version_of
+    from planner.service.online_file import history, read_document, system_of, version_of
     from tests.cli_run import assert_usage_error, beamrelay
 
     out = tmp_path / "online.yaml"
@@ -453,7 +449,7 @@ def test_default_rollbacks_walk_back_through_refits_never_forward(
     """refits 1..k, rollback (to k-1), refits, rollback, rollback: each default rollback
     undoes one more refit (the one whose poses are in force, found through the rollback
     links); none brings back a version that was rolled back."""
-    from planner.service.online import history, read_document, rollback
+    from planner.service.online_file import history, read_document, rollback
 
     out = tmp_path / "online.yaml"
     cal, _ = calibrator(nominal, scenario, out)
@@ -483,7 +479,7 @@ def test_a_rollback_written_during_a_refit_wins(
     """A rollback that lands while a refit runs: the refit is dropped (logged), FILE and the
     history keep the rollback, and the calibrator installs it."""
     from planner.service import online as online_mod
-    from planner.service.online import history, read_document, rollback, version_of
+    from planner.service.online_file import history, read_document, rollback, version_of
 
     out = tmp_path / "online.yaml"
     cal, _ = calibrator(nominal, scenario, out)
@@ -565,7 +561,7 @@ def test_hostile_online_files_are_refused_in_one_line(
         yaml.dump(doc, fh)
     assert_usage_error(beamrelay("calibrate", "rollback", out), words)
     # and a history whose target holds no poses: refused, nothing written
-    from planner.service.online import history
+    from planner.service.online_file import history
 
     out.write_text((history(out)[max(history(out))]).read_text())
     (history(out)[0]).write_text("report: {online: {version: 0}}\n")
