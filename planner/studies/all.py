@@ -42,7 +42,13 @@ def run_one(
 ) -> dict[str, Any]:
     """Run one study at its paper scale; returns its figures."""
     mod = STUDIES[name]
-    return dict(mod.main(mod.TRIALS, seed, out / name, workers, scheduler))
+    t0 = time.perf_counter()
+    figures = dict(mod.main(mod.TRIALS, seed, out / name, workers, scheduler))
+    report = out / name / "report.md"
+    common.stamp(report, common.provenance_lines(
+        f"beamrelay study all -o {out} ({name}: --trials {mod.TRIALS})", mod.TRIALS, seed,
+        time.perf_counter() - t0))  # fmt: skip
+    return figures
 
 
 def main(
