@@ -22,6 +22,7 @@ import threading
 import time
 import uuid
 from collections import deque
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -30,19 +31,50 @@ from planner.calibration.collect import min_jerk_move
 from planner.errors import InputError
 from planner.model.system import System
 from planner.model.transforms import Array
-from planner.service.bus import Keys, decode, urgent
+from planner.service.bus import MAX_PAYLOAD_BYTES, Keys, decode, urgent
 from schemas.messages import JointState, JointTrajectory, RobotStatus, SpotMessage
 
 ARRIVE = 2e-3  # rad: the arm counts as on the pose
 SETTLE = 0.3  # s at rest before the camera is asked
 AIM_HOLD = 1.5  # s the aiming beam is lit for one spot reading (10 frames at 30 Hz + latency)
+#: largest trajectory body (bytes) of one leg of a move: under the bus limit with room
+LEG_BYTES = 3 * MAX_PAYLOAD_BYTES // 4
+MAX_LEGS = 1000
+#: fraction of a joint's acceleration limit a collection move may use (the driver refuses more)
+ACCEL_SHARE = 0.8
+
+
+def trajectory_body(system: System, robot: str, ident: str, session: str, mv: Any) -> bytes:
+    """The JointTrajectory body of one move ``mv`` (:class:`~planner.calibration.collect.Move`)."""
+    names = list(system.robot(robot).joint_names)
+    msg = JointTrajectory(robot=robot, id=ident, session=session, t=mv.t.tolist(), names=names,
+                          q=mv.q.tolist(), qd=mv.qd.tolist(), qdd=mv.qdd.tolist())  # fmt: skip
+    return msg.model_dump_json(by_alias=True).encode()
+
+
+def legs(q0: Array, q1: Array, speed: float, size: Callable[[Any], int],
+         max_bytes: int = LEG_BYTES, acceleration: Array | None = None) -> list[Array]:  # fmt: skip
+    """Waypoints on the joint-space line from ``q0`` to ``q1`` (the last is ``q1``): as few
+    equal legs as keep each leg's minimum-jerk body (``size(move)``, bytes) under
+    ``max_bytes``."""
+    n = 1
+    while True:
+        nbytes = size(min_jerk_move(q0, q0 + (q1 - q0) / n, speed, acceleration=acceleration))
+        if nbytes <= max_bytes:
+            return [q0 + (q1 - q0) * (k / n) for k in range(1, n + 1)]
+        if n >= MAX_LEGS:  # a leg never gets shorter than the shortest move (0.5 s)
+            raise InputError(f"a move of {nbytes} bytes per leg after {n} legs: "
+                             f"{max_bytes} bytes cannot hold one", "move")  # fmt: skip
+        n = min(MAX_LEGS, max(n + 1, int(np.ceil(1.1 * n * nbytes / max_bytes))))
 
 
 class BusPlanner:
     """Heartbeat, planner token, joint states, statuses and spots of a collection run."""
 
-    def __init__(self, session: Any, keys: Keys, system: System) -> None:
+    def __init__(self, session: Any, keys: Keys, system: System,
+                 leg_bytes: int = LEG_BYTES) -> None:  # fmt: skip
         self.session, self.keys, self.system = session, keys, system
+        self.leg_bytes = leg_bytes  # largest body of one leg of a move
         self.name = f"collect-{uuid.uuid4().hex[:8]}"
         self.q: dict[str, Array] = {}
         self.status: dict[str, RobotStatus] = {}
@@ -96,25 +128,49 @@ class BusPlanner:
         raise InputError(f"no joint states from {', '.join(missing)} (drivers running?)", "bus")
 
     def move(self, robot: str, target: Array, speed: float, world: Any) -> str | None:
-        """Move ``robot`` to ``target``; None when it arrived, else why not."""
+        """Move ``robot`` to ``target``; None when it arrived, else why not. A move whose
+        body would pass ``leg_bytes`` goes as legs along the same joint-space line, each
+        a minimum-jerk move from rest to rest sent when the last one arrived (a driver joins
+        a trajectory only from rest; a slow or long move is a 30 s, 6 MB body at 500 Hz)."""
+        q0 = self.wait_joints()[robot]
+
+        def size(mv: Any) -> int:
+            return len(trajectory_body(self.system, robot, "x" * 12, self.name, mv))
+
+        waypoints = legs(q0, np.asarray(target, dtype=float), speed, size, self.leg_bytes,
+                         self._acceleration(robot))  # fmt: skip
+        for k, waypoint in enumerate(waypoints):
+            last = k == len(waypoints) - 1
+            why = self._leg(robot, waypoint, speed, world, SETTLE if last else 0.0)
+            if why is not None:
+                return why if len(waypoints) == 1 else f"leg {k + 1}/{len(waypoints)}: {why}"
+        return None
+
+    def _acceleration(self, robot: str) -> Array:
+        return ACCEL_SHARE * np.asarray(self.system.robot(robot).limits.acceleration, dtype=float)
+
+    def _leg(
+        self, robot: str, target: Array, speed: float, world: Any, settle: float
+    ) -> str | None:
+        """One minimum-jerk move from the measured joints, checked, sent, waited for."""
         from planner.safety.sweep import check_sweep
 
         q_all = self.wait_joints()
-        mv = min_jerk_move(q_all[robot], target, speed)
+        mv = min_jerk_move(q_all[robot], target, speed, acceleration=self._acceleration(robot))
         Q = np.hstack([np.tile(q_all[r], (len(mv.t), 1)) if r != robot else mv.q
                        for r in self.system.robot_names])  # fmt: skip
         hit = check_sweep(world, mv.t, Q)
         if hit is not None:
             return f"safety check: {hit}"
         ident = uuid.uuid4().hex[:12]
-        names = list(self.system.robot(robot).joint_names)
-        msg = JointTrajectory(robot=robot, id=ident, session=self.name, t=mv.t.tolist(),
-                              names=names, q=mv.q.tolist(), qd=mv.qd.tolist(),
-                              qdd=mv.qdd.tolist())  # fmt: skip
-        self.session.put(self.keys.trajectory(robot), msg.model_dump_json(by_alias=True))
-        return self._arrive(robot, ident, target, float(mv.t[-1]) + 15.0)
+        body = trajectory_body(self.system, robot, ident, self.name, mv)
+        if len(body) > MAX_PAYLOAD_BYTES:  # legs() keeps every leg far under it
+            return f"the move's body ({len(body)} bytes) exceeds {MAX_PAYLOAD_BYTES} bytes"
+        self.session.put(self.keys.trajectory(robot), body)
+        return self._arrive(robot, ident, target, float(mv.t[-1]) + 15.0, settle)
 
-    def _arrive(self, robot: str, ident: str, target: Array, timeout: float) -> str | None:
+    def _arrive(self, robot: str, ident: str, target: Array, timeout: float,
+                settle: float = SETTLE) -> str | None:  # fmt: skip
         end, rest_since = time.monotonic() + timeout, None
         while time.monotonic() < end:
             st = self.status.get(robot)
@@ -129,7 +185,7 @@ class BusPlanner:
             near = float(np.max(np.abs(self.q[robot] - target))) <= ARRIVE
             if near and st.mode == "idle":
                 rest_since = rest_since or time.monotonic()
-                if time.monotonic() - rest_since >= SETTLE:
+                if time.monotonic() - rest_since >= settle:
                     return None
             else:
                 rest_since = None

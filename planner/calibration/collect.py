@@ -38,11 +38,17 @@ class Move(NamedTuple):
     qdd: Array
 
 
-def min_jerk_move(q0: Array, q1: Array, speed: float, rate: float = RATE) -> Move:
-    """Minimum-jerk joint move from ``q0`` to ``q1`` whose fastest joint peaks at ``speed``."""
+def min_jerk_move(q0: Array, q1: Array, speed: float, rate: float = RATE,
+                  acceleration: Array | float | None = None) -> Move:  # fmt: skip
+    """Minimum-jerk joint move from ``q0`` to ``q1`` whose fastest joint peaks at ``speed``
+    (rad/s), slower when a joint would pass its ``acceleration`` (rad/s^2, per joint): a
+    minimum-jerk move of ``dq`` in ``T`` s peaks at 1.875 dq / T and 10 / sqrt(3) dq / T^2."""
     q0, q1 = np.asarray(q0, dtype=float), np.asarray(q1, dtype=float)
     dq = q1 - q0
     duration = max(0.5, 1.875 * float(np.max(np.abs(dq))) / speed)
+    if acceleration is not None:
+        need = 10 / np.sqrt(3) * np.abs(dq) / np.asarray(acceleration, dtype=float)
+        duration = max(duration, float(np.sqrt(np.max(need))))
     t = np.arange(0.0, duration + 0.5 / rate, 1.0 / rate)
     x = t / duration
     s = 10 * x**3 - 15 * x**4 + 6 * x**5

@@ -212,6 +212,74 @@ def test_collect_handeye_on_the_simulated_system_calibrates(
     assert sd_t < 0.02 and res.converged
 
 
+def test_a_long_slow_move_goes_as_legs_under_the_body_limit() -> None:
+    """The wizard's failure: one slow move over most of a joint's range was one 6 MB body,
+    which the driver refuses (its limit is 4 MiB)."""
+    from drivers.collect import LEG_BYTES, legs, trajectory_body
+    from planner.service.bus import MAX_PAYLOAD_BYTES
+
+    system = system_from_scenario(load_scenario(SCENARIO))
+    q0, q1 = np.zeros(6), np.array([3.0, -1.2, 1.0, 0.5, -2.0, 0.7])
+
+    def size(mv: Any) -> int:
+        return len(trajectory_body(system, "arm0", "x" * 12, "collect-12345678", mv))
+
+    whole = size(min_jerk_move(q0, q1, 0.2))  # 28 s at 500 Hz
+    assert whole > MAX_PAYLOAD_BYTES  # the move as one body: refused by the driver
+    points = legs(q0, q1, 0.2, size)
+    # as few as fit (sample rounding may cost one more than the bytes alone say)
+    assert np.ceil(whole / LEG_BYTES) <= len(points) <= np.ceil(whole / LEG_BYTES) + 1
+    starts = [q0, *points[:-1]]
+    for a, b in zip(starts, points, strict=True):
+        assert size(min_jerk_move(a, b, 0.2)) <= LEG_BYTES
+        # every waypoint on the straight joint-space line of the move, in order
+        s = float(np.dot(b - q0, q1 - q0) / np.dot(q1 - q0, q1 - q0))
+        np.testing.assert_allclose(b, q0 + s * (q1 - q0), atol=1e-12)
+    np.testing.assert_array_equal(points[-1], q1)
+    assert legs(q0, 0.1 * q1, 0.2, size) == [pytest.approx(0.1 * q1)]  # a short move: one leg
+
+
+@pytest.mark.serial
+def test_a_move_in_legs_arrives_on_the_simulated_driver(sim_system: Any) -> None:
+    """Each leg starts from rest where the last one ended: the real sim driver accepts every
+    one, and the arm ends on the target."""
+    from drivers.collect import BusPlanner, trajectory_body
+    from planner.safety.geometry import SafetyWorld
+    from planner.service.bus import Keys
+
+    ep, prefix = sim_system
+    system = system_from_scenario(load_scenario(SCENARIO))
+    client = raw_session(ep)
+    statuses = Inbox(client, f"{prefix}/arm0/status")
+    bp = BusPlanner(client, Keys(prefix), system)
+    try:
+        q0 = bp.wait_joints()["arm0"].copy()
+        target = q0 + np.array([0.5, 0.0, 0.0, 0.0, 0.0, -0.5])
+
+        def size(mv: Any) -> int:
+            return len(trajectory_body(system, "arm0", "x" * 12, bp.name, mv))
+
+        accel = bp._acceleration("arm0")
+        whole = size(min_jerk_move(q0, target, 1.0, acceleration=accel))
+        shortest = size(min_jerk_move(q0, q0 + 1e-3 * (target - q0), 1.0, acceleration=accel))
+        bp.leg_bytes = (whole + shortest) // 2  # the move as one body is over it
+        assert shortest < bp.leg_bytes < whole
+        for goal in (target, q0):  # there and back: the cell is left as it was found
+            assert bp.move("arm0", goal, 1.0, SafetyWorld(system, [])) is None
+            np.testing.assert_allclose(bp.q["arm0"], goal, atol=2e-3)
+    finally:
+        bp.close()
+        judged = {}
+        for body in statuses.bodies():
+            ack = body.get("trajectory") if isinstance(body, dict) else None
+            if ack is not None:
+                judged[ack["id"]] = ack["accepted"]
+        statuses.close()
+        client.close()
+    # the move over the limit: 2+ legs each way, each accepted
+    assert len(judged) >= 4 and all(judged.values()), judged
+
+
 @pytest.mark.serial
 def test_collect_beam_on_the_simulated_system(sim_system: Any, tmp_path: Path) -> None:
     ep, prefix = sim_system
