@@ -132,6 +132,8 @@ class Console:
 
     def close(self) -> None:
         self._stop.set()
+        if getattr(self, "wizard", None) is not None:
+            self.wizard.close()
         if getattr(self, "_thread", None) is not None:
             self._thread.join(timeout=2.0)
         if getattr(self, "server", None) is not None:
@@ -184,46 +186,9 @@ class Console:
         p.live.on_click(lambda _: self._follow_live())
 
     def _wire_wizard(self) -> None:
-        from planner.console.panel import build_calibration_panel
-        from planner.console.wizard import StepRunner
+        from planner.console.wizard import Wizard
 
-        centre = self.scene_items[0].world_T_object[:3, 3] if self.scene_items else [0, 0, 0]
-        aim = ",".join(f"{v:.3f}" for v in centre)
-        self.cal = build_calibration_panel(self.server, aim, str(self.scenario.parent))
-        self.steps = StepRunner(lambda text: setattr(self.cal.log, "content", text))
-        self.cal.collect.on_click(lambda _: self._run_cal(self._cal_collect))
-        self.cal.calibrate.on_click(lambda _: self._run_cal(self._cal_calibrate))
-        self.cal.cancel.on_click(lambda _: self.steps.cancel())
-
-    def _run_cal(self, fn: Any) -> None:
-        try:
-            fn()
-        except BeamrelayError as exc:
-            self.cal.log.content = f"**{exc}**"
-
-    def _cal_collect(self) -> None:
-        from planner.console.wizard import bus_options, collect_argv, parse_aim
-
-        kind = str(self.cal.kind.value)
-        aim = parse_aim(str(self.cal.aim.value)) if kind == "beam" else None
-        bus = bus_options(**self.bus)  # type: ignore[arg-type]
-        argv = collect_argv(kind, self.scenario, Path(self.cal.dataset.value),
-                            int(self.cal.poses.value), aim, bus)  # fmt: skip
-        self.steps.run(argv)
-
-    def _cal_calibrate(self) -> None:
-        from planner.console.wizard import calibrate_argv, report_markdown
-
-        out = Path(self.cal.output.value)
-        argv = calibrate_argv(
-            str(self.cal.kind.value), self.scenario, Path(self.cal.dataset.value), out
-        )
-
-        def done(code: int) -> None:
-            if code in (0, 1) and out.is_file():
-                self.cal.log.content += "  \n" + report_markdown(out)
-
-        self.steps.run(argv, done)
+        self.wizard = Wizard(self.server, self.scenario, self.scene_items, self.bus)
 
     def _selected(self) -> int:
         return int(self.panel.selected.value)

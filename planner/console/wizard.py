@@ -18,7 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from planner.errors import InputError
+from planner.errors import BeamrelayError, InputError
 
 KINDS = ("handeye", "beam")
 #: most output lines kept for the panel
@@ -116,3 +116,50 @@ class StepRunner:
     def cancel(self) -> None:
         if self.running and self.proc is not None:
             self.proc.terminate()
+
+
+class Wizard:
+    """The wizard's panel on ``server`` and its steps: collect, calibrate, cancel (one
+    :class:`StepRunner`); ``bus``: the console's bus options (endpoint, prefix, zenoh_config)."""
+
+    def __init__(self, server: Any, scenario: Path, scene_items: list[Any],
+                 bus: dict[str, Any]) -> None:  # fmt: skip
+        from planner.console.panel import build_calibration_panel
+
+        self.scenario, self.bus = scenario, bus
+        centre = scene_items[0].world_T_object[:3, 3] if scene_items else [0, 0, 0]
+        aim = ",".join(f"{v:.3f}" for v in centre)
+        self.cal = build_calibration_panel(server, aim, str(scenario.parent))
+        self.steps = StepRunner(lambda text: setattr(self.cal.log, "content", text))
+        self.cal.collect.on_click(lambda _: self._run(self._collect))
+        self.cal.calibrate.on_click(lambda _: self._run(self._calibrate))
+        self.cal.cancel.on_click(lambda _: self.steps.cancel())
+
+    def close(self) -> None:
+        """End a running step."""
+        self.steps.cancel()
+
+    def _run(self, fn: Callable[[], None]) -> None:
+        try:
+            fn()
+        except BeamrelayError as exc:
+            self.cal.log.content = f"**{exc}**"
+
+    def _collect(self) -> None:
+        kind = str(self.cal.kind.value)
+        aim = parse_aim(str(self.cal.aim.value)) if kind == "beam" else None
+        argv = collect_argv(kind, self.scenario, Path(self.cal.dataset.value),
+                            int(self.cal.poses.value), aim, bus_options(**self.bus))  # fmt: skip
+        self.steps.run(argv)
+
+    def _calibrate(self) -> None:
+        out = Path(self.cal.output.value)
+        argv = calibrate_argv(
+            str(self.cal.kind.value), self.scenario, Path(self.cal.dataset.value), out
+        )
+
+        def done(code: int) -> None:
+            if code in (0, 1) and out.is_file():
+                self.cal.log.content += "  \n" + report_markdown(out)
+
+        self.steps.run(argv, done)
