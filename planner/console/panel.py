@@ -74,6 +74,10 @@ def build_panel(server: Any) -> Panel:
                  stats)  # fmt: skip
 
 
+#: the wizard's place on the page: after the widgets of :func:`build_panel`
+WIZARD_ORDER = 1e9
+
+
 @dataclass(frozen=True)
 class CalibrationPanel:
     """Handles of the calibration wizard's widgets."""
@@ -95,7 +99,8 @@ def build_calibration_panel(server: Any, aim: str, folder: str) -> CalibrationPa
     from planner.console.wizard import KINDS
 
     gui = server.gui
-    with gui.add_folder("Calibration wizard", expand_by_default=False):
+    # below every browser's own panel, which is built later, when the browser connects
+    with gui.add_folder("Calibration wizard", expand_by_default=False, order=WIZARD_ORDER):
         kind = gui.add_dropdown("calibration", list(KINDS), initial_value=KINDS[0])
         poses = gui.add_number("poses", 12, min=3, max=200, step=1)
         aim_h = gui.add_text("board centre (beam) [m]", aim)
