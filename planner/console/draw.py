@@ -128,16 +128,14 @@ def polyline_segments(points: Array) -> Array:
     return np.stack([P[:-1], P[1:]], axis=1)
 
 
-def set_lines(server: Any, name: str, polylines: list[Array], colour: tuple[int, int, int],
+def set_lines(scene: Any, name: str, polylines: list[Array], colour: tuple[int, int, int],
               thickness: float = 2.0) -> Any:  # fmt: skip
     """Replace node ``name`` by the segments of ``polylines`` (screen-space thickness, px);
     removes it when there is nothing to draw."""
     segs = [polyline_segments(p) for p in polylines]
     segs = [s for s in segs if len(s)]
     if not segs:
-        return server.scene.add_line_segments(
-            name, np.zeros((1, 2, 3), np.float32), colour, visible=False
-        )
+        return scene.add_line_segments(name, np.zeros((1, 2, 3), np.float32), colour, visible=False)
     S = np.concatenate(segs)
-    return server.scene.add_line_segments(name, S, colour, thickness=thickness,
-                                          thickness_units="screen")  # fmt: skip
+    return scene.add_line_segments(name, S, colour, thickness=thickness,
+                                   thickness_units="screen")  # fmt: skip

@@ -43,19 +43,26 @@ class DrawLoop:
             try:
                 self.tick()
                 if time.monotonic() >= next_health:
-                    self.c.panel.health.content = self.c.health_text()
-                    self.c.watch_arming()
-                    self.c._show_stats()
+                    self.health()
                     next_health = time.monotonic() + health_period
             except Exception as exc:  # the page must keep drawing whatever one frame holds
-                self.c.panel.stats.content = f"drawing error: {type(exc).__name__}: {exc}"
+                for session in list(self.c.sessions.values()):
+                    session.panel.stats.content = f"drawing error: {type(exc).__name__}: {exc}"
+
+    def health(self) -> None:
+        """Every browser's health panel (the bus's health and its own arming) and stats."""
+        health = self.c.health_text()
+        for session in list(self.c.sessions.values()):
+            session.watch_arming()
+            session.panel.health.content = f"{health}  \n{session.arming_text()}"
+            session.show_stats()
 
     def tick(self) -> None:
         c = self.c
         q = c.live.joint_vector(c.system.robot_names)
         self.cloud(q)
         if q is not None and not c.scrubbing and self._moved(q):
-            c._pose(q)
+            c.pose(q)
             self.q_drawn = q
         self.spot()
 
@@ -98,7 +105,7 @@ class DrawLoop:
         T = c.world_T_camera(c.live.joint_vector(c.system.robot_names))
         p = T[:3, :3] @ np.asarray(snap.value.p_camera, dtype=float) + T[:3, 3]
         if self.spot_node is None:
-            from planner.console.app import SPOT_COLOUR
+            from planner.console.session import SPOT_COLOUR
 
             self.spot_node = c.server.scene.add_icosphere("/spot", radius=0.005, color=SPOT_COLOUR)
         self.spot_node.position = p

@@ -13,6 +13,7 @@ import pytest
 from planner.console.app import Console
 from planner.console.arming import ARM_WINDOW, HEARTBEAT, PROTECTIVE_STOP, Arming, treatment
 from planner.console.live import Stamped
+from planner.console.session import Session
 from planner.data import shipped_scenario
 from tests.planner.console.test_console_handlers import panel
 
@@ -117,46 +118,48 @@ def status(fault: str | None = None, protective_stop: bool = False) -> Stamped:
 
 
 @pytest.fixture
-def page() -> tuple[Console, FakeOperator, FakeLive]:
-    c = Console(shipped_scenario("s_curve.yaml"))
-    c.operator, c.live = FakeOperator(), FakeLive({}, 0.0)  # type: ignore[assignment]
-    c.server, c.panel = MagicMock(), panel()
+def page() -> tuple[Session, FakeOperator, FakeLive]:
+    console = Console(shipped_scenario("s_curve.yaml"))
+    console.operator, console.live = FakeOperator(), FakeLive({}, 0.0)  # type: ignore[assignment]
+    console.server = MagicMock()
+    c = Session(console, panel(), MagicMock())
+    console.sessions[1] = c
     c.targets = c.targets.add([0.1, 0.2, 0.3], None)
 
     def shown(answer: Any, executed: bool) -> None:
         c.preview = SimpleNamespace(n_ok=len(answer.plan.get("solutions") or []))  # type: ignore[assignment]
         c.panel.result.content = "preview shown" if not executed else "executed"
 
-    c._show_answer = shown  # type: ignore[method-assign]
-    c._follow_live = lambda: None  # type: ignore[method-assign]
-    return c, c.operator, c.live  # type: ignore[return-value]
+    c.show_answer = shown  # type: ignore[method-assign]
+    console.follow_live = lambda: None  # type: ignore[method-assign]
+    return c, console.operator, console.live  # type: ignore[return-value]
 
 
-def test_the_page_executes_only_after_arm(page: tuple[Console, FakeOperator, FakeLive]) -> None:
+def test_the_page_executes_only_after_arm(page: tuple[Session, FakeOperator, FakeLive]) -> None:
     c, op, live = page
-    c._do_execute()
+    c.do_execute()
     assert op.executed == [] and "not armed" in c.panel.result.content
-    c._do_arm()
+    c.do_arm()
     assert "ARMED for 30 s" in c.panel.result.content
     assert "1/1 targets, motion 2.0 s, treatment laser on 0.40 s" in c.panel.result.content
     assert "arming: **ARMED**" in c.arming_text()
-    c._do_execute()
+    c.do_execute()
     assert len(op.executed) == 1 and op.executed[0]["execute"] is True
-    c._do_execute()  # the arming was used
+    c.do_execute()  # the arming was used
     assert len(op.executed) == 1 and "not armed" in c.panel.result.content
-    c._do_arm()
-    c._edit_list(lambda t: t.add([0.2, 0.2, 0.3], None))  # a click after Arm
-    c._do_execute()
+    c.do_arm()
+    c.edit_list(lambda t: t.add([0.2, 0.2, 0.3], None))  # a click after Arm
+    c.do_execute()
     assert len(op.executed) == 1 and "target list changed" in c.panel.result.content
-    c._do_arm()
+    c.do_arm()
     live.status = {"arm0": status("joint limit")}
     c.watch_arming()
     assert "disarmed" in c.panel.result.content and "arm0: joint limit" in c.panel.result.content
-    c._do_execute()
+    c.do_execute()
     assert len(op.executed) == 1
     live.status = {"arm0": status(protective_stop=True)}
-    c._do_arm()
+    c.do_arm()
     assert "not armed: arm0: protective stop" in c.panel.result.content
     live.status, live.heartbeat_at = {}, None
-    c._do_arm()
+    c.do_arm()
     assert "not armed: heartbeat: the planner's heartbeat is silent" in c.panel.result.content

@@ -18,6 +18,7 @@ from planner.console.app import Console
 from planner.console.cloud import Cloud
 from planner.console.operator import Operator
 from planner.console.panel import Panel
+from planner.console.session import Session
 from planner.console.targets import Mode
 from planner.data import shipped_scenario
 from planner.service.bus import open_session
@@ -54,25 +55,26 @@ def panel() -> Panel:
 
 
 @pytest.fixture
-def console() -> Iterator[tuple[Console, Inbox]]:
-    """A console wired to stub widgets and a stub scene, its operator on a private bus;
-    an inbox of ``<prefix>/stop`` on that bus."""
+def console() -> Iterator[tuple[Session, Inbox]]:
+    """One browser's session of a console, wired to stub widgets and a stub scene, the
+    console's operator on a private bus; an inbox of ``<prefix>/stop`` on that bus."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     hub = open_session(listen=True, endpoint=endpoint)
     c = Console(shipped_scenario("s_curve.yaml"), endpoint=endpoint, prefix=PREFIX)
     c.client = PlanClient(endpoint=endpoint, prefix=PREFIX)
     c.operator = Operator(c.client)
-    c.server, c.panel = MagicMock(), panel()
-    c._wire()
+    c.server = MagicMock()
+    session = Session(c, panel(), MagicMock()).wire()
+    c.sessions[1] = session
     stops = Inbox(hub, f"{PREFIX}/stop")
-    yield c, stops
+    yield session, stops
     stops.close()
     c.client.close()
     hub.close()
 
 
 def test_the_stop_button_publishes_stop_and_says_so(
-    console: tuple[Console, Inbox], caplog: pytest.LogCaptureFixture
+    console: tuple[Session, Inbox], caplog: pytest.LogCaptureFixture
 ) -> None:
     c, stops = console
     with caplog.at_level(logging.INFO, logger="beamrelay.console"):
@@ -96,15 +98,16 @@ def grid() -> Cloud:
     return Cloud(P, np.zeros_like(P, dtype=np.uint8), 0.0, 0)
 
 
-def click_at(x: float, y: float) -> Any:
-    return SimpleNamespace(ray_origin=(x, y, 1.0), ray_direction=(0.0, 0.0, -1.0))
+def click_at(x: float, y: float) -> tuple[Any, Any]:
+    """The ray (origin, direction; world) of a click straight down on (x, y)."""
+    return (x, y, 1.0), (0.0, 0.0, -1.0)
 
 
 def test_clicks_during_a_preview_coalesce_into_one_more_of_the_last_list(
-    console: tuple[Console, Inbox],
+    console: tuple[Session, Inbox],
 ) -> None:
     c, stops = console
-    c.cloud = grid()
+    c.c.cloud = grid()
     release, running = threading.Event(), threading.Event()
     previews: list[int] = []  # targets in the list each preview planned
 
@@ -113,12 +116,12 @@ def test_clicks_during_a_preview_coalesce_into_one_more_of_the_last_list(
         running.set()
         release.wait(30)
 
-    c._do_preview = preview  # type: ignore[method-assign]
-    first = threading.Thread(target=c._on_click, args=(click_at(0.0, 0.0),))
+    c.do_preview = preview  # type: ignore[method-assign]
+    first = threading.Thread(target=c.on_click, args=click_at(0.0, 0.0))
     first.start()
     assert running.wait(10)
     for k in range(1, 4):  # three more clicks while the first preview runs: none waits
-        t = threading.Thread(target=c._on_click, args=(click_at(0.02 * k, 0.0),))
+        t = threading.Thread(target=c.on_click, args=click_at(0.02 * k, 0.0))
         t.start()
         t.join(5)
         assert not t.is_alive(), "a click waited for the running preview"
@@ -131,5 +134,43 @@ def test_clicks_during_a_preview_coalesce_into_one_more_of_the_last_list(
     picked = np.array([t.p for t in c.targets.items])
     np.testing.assert_allclose(picked[:, 0], [0.0, 0.02, 0.04, 0.06], atol=1e-6)
     assert "click_to_preview" in c.latency
-    c._on_click(click_at(0.08, 0.0))  # idle again: a click previews at once
+    c.on_click(*click_at(0.08, 0.0))  # idle again: a click previews at once
     assert previews == [1, 4, 5]
+
+
+def test_each_browser_keeps_its_own_picks_and_any_stop_disarms_all(
+    console: tuple[Session, Inbox],
+) -> None:
+    """Two browsers on one console: a click in one lists and draws the target in that one
+    only (its own panel and scene); a STOP pressed in either stops the system and drops the
+    other's arming."""
+    a, stops = console
+    c = a.c
+    b = Session(c, panel(), MagicMock()).wire()
+    c.sessions[2] = b
+    c.cloud = grid()
+    a.panel.auto_preview.value = b.panel.auto_preview.value = False
+    c._on_click(SimpleNamespace(client_id=1, ray_origin=(0.0, 0.0, 1.0),
+                                ray_direction=(0.0, 0.0, -1.0)))  # fmt: skip
+    c._on_click(SimpleNamespace(client_id=2, ray_origin=(0.05, 0.0, 1.0),
+                                ray_direction=(0.0, 0.0, -1.0)))  # fmt: skip
+    c._on_click(SimpleNamespace(client_id=2, ray_origin=(0.05, 0.05, 1.0),
+                                ray_direction=(0.0, 0.0, -1.0)))  # fmt: skip
+    c._on_click(SimpleNamespace(client_id=7, ray_origin=(0.0, 0.0, 1.0),
+                                ray_direction=(0.0, 0.0, -1.0)))  # fmt: skip  # no such browser
+    np.testing.assert_allclose([t.p for t in a.targets.items], [[0.0, 0.0, 0.0]], atol=1e-6)
+    np.testing.assert_allclose([t.p for t in b.targets.items],
+                               [[0.05, 0.0, 0.0], [0.05, 0.05, 0.0]], atol=1e-6)  # fmt: skip
+    assert "#1" not in a.panel.targets.content and "#1" in b.panel.targets.content
+    # each target marker was drawn in its own browser's scene
+    drawn = {
+        name: [call.args[0] for call in s.scene.add_icosphere.call_args_list]
+        for name, s in (("a", a), ("b", b))
+    }
+    assert drawn == {"a": ["/targets/0"], "b": ["/targets/0", "/targets/0", "/targets/1"]}
+    b.arming.armed = object()  # type: ignore[assignment]  # b armed; a presses STOP
+    a.panel.stop.click()
+    wait_for(lambda: len(stops.bodies()) == 1, 10.0, "the stop message")
+    assert b.arming.armed is None and b.arming.dropped == "STOP"
+    c._on_disconnect(SimpleNamespace(client_id=2))  # b's browser left: its session goes
+    assert set(c.sessions) == {1}

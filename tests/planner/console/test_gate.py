@@ -12,6 +12,7 @@ import time
 import urllib.error
 import urllib.request
 from collections.abc import Iterator
+from types import SimpleNamespace
 from unittest.mock import MagicMock
 
 import pytest
@@ -250,5 +251,5 @@ def test_no_stop_while_the_console_closes() -> None:
     c.server, c.operator = MagicMock(), MagicMock()
     c.server.get_clients.return_value = {}
     c._stop.set()
-    c._on_disconnect(None)
+    c._on_disconnect(SimpleNamespace(client_id=1))
     c.operator.stop.assert_not_called()
