@@ -223,7 +223,8 @@ def solve_landed_path(
 ) -> tuple[Targets, list[Solution], PathResult]:
     """:func:`solve_path` and the samples it swept: a path with a ``surface_tolerance`` (in
     the camera frame) is swept once, moved onto the scene surface its beam lands on
-    (:func:`planner.safety.landing.land_path`), and swept again there, before the
+    (:func:`planner.safety.landing.land_path`), and swept again there (warm-started from
+    the first sweep's joints: each landed sample lies on its first beam), before the
     occlusion check."""
     from planner.path.solve import PathOptions
 
@@ -237,7 +238,7 @@ def solve_landed_path(
         moved = land_path(scene, targets, out)
         if moved is not None:
             targets, found = moved
-            out, res = _sweep(system, targets, opts, q_start, safety)
+            out, res = _sweep(system, targets, opts, q_start, safety, res.q)
             out = [_landed(sol, found[k]) if k in found and sol.ok else sol
                    for k, sol in enumerate(out)]  # fmt: skip
     if scene is not None and not scene.empty:
@@ -258,13 +259,14 @@ def _landed(sol: Solution, landing: Any) -> Solution:
 
 def _sweep(
     system: System, targets: Targets, opts: PathOptions, q_start: Array | None,
-    safety: Safety | None,
+    safety: Safety | None, q_warm: Array | None = None,
 ) -> tuple[list[Solution], PathResult]:  # fmt: skip
-    """:func:`planner.path.solve.plan_path` as per-sample solutions (see :func:`solve_path`)."""
+    """:func:`planner.path.solve.plan_path` as per-sample solutions (see :func:`solve_path`;
+    ``q_warm``: its warm start, the joints of a nearby solved path)."""
     from planner.path.solve import plan_path
 
     t0 = time.perf_counter()
-    res = plan_path(system, targets, q_start, opts, safety)
+    res = plan_path(system, targets, q_start, opts, safety, q_warm)
     per_sample = (time.perf_counter() - t0) / max(len(targets), 1)
     gap_of = {k: g for g in res.gaps for k in range(g.k0, g.k1)}
     out = []

@@ -216,16 +216,61 @@ def _coarse_to_fine(ctx: PathContext, q_start: Array, arc: Array, closed: bool
     return Q, NB
 
 
+def _from_previous(ctx: PathContext, q_warm: Array) -> tuple[Array, Array] | None:
+    """Warm start from the joints of a solved path over nearly the same samples (K x nq,
+    rad): every row projected onto its sample (:func:`project`). None when a row is missing
+    (NaN, another K) or not valid there (the caller then builds its own warm start)."""
+    Q0 = np.asarray(q_warm, dtype=float)
+    K = len(ctx.P)
+    if Q0.shape != (K, len(ctx.lower)) or not np.all(np.isfinite(Q0)):
+        return None
+    ks = np.arange(K)
+    Q, NB, _ = project(ctx, ks, Q0)
+    if not valid_samples(ctx, ks, Q, NB).all():
+        return None
+    return Q, NB
+
+
+def _solve_feasible(ctx: PathContext, safety: Safety | None, targets: Targets, Q: Array,
+                    NB: Array, k0: int, k1: int, ds: float, closed: bool, reused: bool
+                    ) -> PathSegment:  # fmt: skip
+    """Solve the feasible run ``k0 <= k < k1`` of the warm start ``Q`` in place (see
+    :func:`plan_path`); ``reused``: ``Q`` is a nearby solved path projected onto these
+    samples, taken as the NLP's result (it is that NLP's optimum up to the projection; IPOPT
+    started at it ran out of iterations) and checked for clearance like one."""
+    if k1 - k0 < 2:
+        return PathSegment(k0, k1, "warm_start", 0, 0.0, 0.0)
+    ks = np.arange(k0, k1)
+    if reused:
+        Qs, seg, valid = Q[k0:k1].copy(), PathSegment(k0, k1, "previous path", 0, 0.0, 0.0), True
+    else:
+        Qs, seg, valid = _solve_run(ctx, ks, Q[k0:k1], NB[k0:k1], ds, closed)
+    unsafe = None  # samples of Qs breaking a rule, when known
+    if valid and safety is not None:
+        Qs, seg, unsafe = _clearance(ctx, safety, ks, Qs, Q[k0:k1], NB[k0:k1], ds, closed, seg)
+    if valid and safety is not None and safer_warm_start(safety, Qs, Q[k0:k1], ks, targets,
+                                                         unsafe):  # fmt: skip
+        valid, seg = False, seg._replace(status=f"warm_start (NLP result unsafe: {seg.status})")
+    if valid:
+        Q[k0:k1] = Qs
+    return seg
+
+
 def plan_path(
     system: System,
     targets: Targets,
     q_start: Array | None = None,
     solver_options: PathOptions | dict[str, object] | None = None,
     safety: Safety | None = None,
+    q_warm: Array | None = None,
 ) -> PathResult:
     """Joint configurations sweeping the spot along ``targets`` (resampled path, world frame).
 
-    ``q_start`` (stacked joints, default the robots' home) seeds the first sample. Infeasible
+    ``q_start`` (stacked joints, default the robots' home) seeds the first sample.
+    ``q_warm`` (K x nq, rad), the solution of a path whose samples lie close to these (the
+    same path moved onto its surface), projected onto these samples, is the result when it
+    is valid at every one (the NLP is not run again; the clearance rules and the polish
+    are applied as to an NLP result). Infeasible
     stretches are reported as :class:`PathGap` and the feasible runs solved separately. Long
     finely sampled paths are warm-started coarse-to-fine; every solved sample is finally
     polished to machine precision by a minimum-norm Gauss-Newton step (never worse). With
@@ -250,8 +295,10 @@ def plan_path(
     arc = arc_length(P)
     t0 = time.perf_counter()
     closed_path = bool(targets.closed)
-    warm = _coarse_to_fine(ctx, q_start, arc, closed_path) if K > 2 else None
-    segments: list[PathSegment] = []
+    warm = None if q_warm is None else _from_previous(ctx, q_warm)
+    reused = warm is not None
+    if warm is None and K > 2:
+        warm = _coarse_to_fine(ctx, q_start, arc, closed_path)
     if warm is not None:
         Q, NB = warm
         why: list[Failure | None] = [None] * K
@@ -263,22 +310,8 @@ def plan_path(
     t1 = time.perf_counter()
     feasible = runs(ok)
     closed = closed_path and feasible == [(0, K)]
-    for k0, k1 in feasible:
-        if k1 - k0 < 2:
-            segments.append(PathSegment(k0, k1, "warm_start", 0, 0.0, 0.0))
-            continue
-        ks = np.arange(k0, k1)
-        Qs, seg, valid = _solve_run(ctx, ks, Q[k0:k1], NB[k0:k1], ds, closed)
-        unsafe = None  # samples of Qs breaking a rule, when known
-        if valid and safety is not None:
-            Qs, seg, unsafe = _clearance(ctx, safety, ks, Qs, Q[k0:k1], NB[k0:k1], ds, closed,
-                                         seg)  # fmt: skip
-        if valid and safety is not None and safer_warm_start(safety, Qs, Q[k0:k1], ks, targets,
-                                                             unsafe):  # fmt: skip
-            valid, seg = False, seg._replace(status=f"warm_start (NLP result unsafe: {seg.status})")
-        if valid:
-            Q[k0:k1] = Qs
-        segments.append(seg)
+    segments = [_solve_feasible(ctx, safety, targets, Q, NB, k0, k1, ds, closed, reused)
+                for k0, k1 in feasible]  # fmt: skip
     if opts.polish and ok.any():
         ks = np.flatnonzero(ok)
         Qp, _, _ = project(ctx, ks, Q[ks], NB[ks])

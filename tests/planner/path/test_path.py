@@ -234,3 +234,40 @@ def test_compiled_functions_match_the_sx_originals(tmp_path, monkeypatch):
     assert compiled(f) is not f
     monkeypatch.setattr("shutil.which", lambda name: None)
     assert compiled(f) is f
+
+
+def along_own_beams(system, res, targets, d: float) -> np.ndarray:
+    """Plain numpy: every sample moved ``d`` m along the last ray of its solved beam (as a
+    landing moves a camera-frame path onto its surface)."""
+    model = BeamModel(system)
+    rays = [model.trace(q, p, n).dirs[-1] for q, p, n in
+            zip(res.q, targets.points, targets.normals, strict=True)]  # fmt: skip
+    return targets.points + d * np.asarray(rays)
+
+
+def test_a_path_moved_along_its_beams_reuses_the_solved_joints(curve):
+    """Samples moved along their own solved beams are hit by the same joints: given them as
+    ``q_warm``, the sweep takes them (no NLP run) and every sample lands on its moved point
+    (independent numpy trace), as smooth as before."""
+    system, targets, res = curve
+    moved = Targets(along_own_beams(system, res, targets, 0.004), targets.normals, kind="path")
+    again = plan_path(system, moved, q_warm=res.q)
+    assert again.complete and [s.status for s in again.segments] == ["previous path"]
+    model = BeamModel(system)
+    errs = [model.trace(q, p, n).error for q, p, n in
+            zip(again.q, moved.points, moved.normals, strict=True)]  # fmt: skip
+    assert max(errs) < 1e-12
+    assert np.abs(again.q - res.q).max() < 1e-6  # the beams already passed through them
+    assert np.abs(np.diff(again.q, axis=0)).max() < 0.02
+
+
+def test_a_warm_start_that_does_not_fit_is_not_used(curve):
+    """``q_warm`` with a missing row, or of another path length, leaves the sweep to its own
+    warm start and NLP: the same result as without it."""
+    system, targets, res = curve
+    holed = res.q.copy()
+    holed[5] = np.nan
+    for q_warm in (holed, res.q[:-1]):
+        again = plan_path(system, targets, q_warm=q_warm)
+        assert "previous path" not in [s.status for s in again.segments]
+        np.testing.assert_allclose(again.q, res.q, atol=1e-9)
