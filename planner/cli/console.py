@@ -11,6 +11,15 @@ from planner.cli.args import stop_on_signals, wait_until_set
 from planner.cli.node import EndpointOpt, PrefixOpt, ZenohConfigOpt
 from planner.errors import InputError
 
+WorkdirOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--workdir",
+        help="Working directory of the calibration wizard's files (created if missing; "
+        "default: $XDG_DATA_HOME/beamrelay/console, i.e. ~/.local/share/beamrelay/console).",
+    ),
+]
+
 
 def console(
     scenario: Annotated[Path, typer.Argument(help="Scenario YAML of the running system.")],
@@ -26,6 +35,7 @@ def console(
     max_points: Annotated[
         int, typer.Option("--max-points", help="Cloud points sent to the browser per frame.")
     ] = 30_000,
+    workdir: WorkdirOpt = None,
     endpoint: EndpointOpt = None,
     prefix: PrefixOpt = "beamrelay",
     zenoh_config: ZenohConfigOpt = None,
@@ -36,6 +46,7 @@ def console(
 
     from planner.console.address import check_free, check_host, check_port, is_loopback
     from planner.console.app import Console
+    from planner.console.workdir import ensure_dir
     from planner.service.token import TOKEN_ENV, check_token
 
     check_port(port)
@@ -54,12 +65,13 @@ def console(
         typer.echo(f"warning: the console listens on {host}, beyond this machine, over plain "
                    "HTTP: anyone who sees its URL (token included) can move the robots",
                    err=True)  # fmt: skip
+    folder = ensure_dir(workdir, "--workdir") if workdir is not None else None
     check_free(host, port)
     from planner.service import events
 
     events.configure("console")
     app = Console(scenario, host=host, port=port, endpoint=endpoint, prefix=prefix,
-                  zenoh_config=zenoh_config, max_points=max_points, token=token).start()  # fmt: skip
+                  zenoh_config=zenoh_config, max_points=max_points, token=token, workdir=folder).start()  # fmt: skip
     stop = stop_on_signals()
     typer.echo(f"console of {app.name} on {app.url}")
     try:

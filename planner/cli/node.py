@@ -215,6 +215,14 @@ def up(
     console_port: Annotated[
         int, typer.Option("--console-port", help="Port of the console page on 127.0.0.1.")
     ] = 8080,
+    console_workdir: Annotated[
+        Path | None,
+        typer.Option(
+            "--console-workdir",
+            help="Working directory of the console's calibration wizard (beamrelay console "
+            "--workdir; default: $XDG_DATA_HOME/beamrelay/console).",
+        ),
+    ] = None,
     online_calibration: OnlineOpt = None,
     ros2: Annotated[
         bool,
@@ -232,11 +240,16 @@ def up(
     bridge runs as one more child, in its own process (never on a control loop)."""
     from planner.cli.ros2 import check_domain
     from planner.console.address import DEFAULT_HOST, check_free, check_port
+    from planner.console.workdir import ensure_dir
     from planner.service.up import run_up
 
     if console:
         check_port(console_port, "--console-port")
         check_free(DEFAULT_HOST, console_port, "--console-port")
+    if console_workdir is not None:
+        if not console:
+            raise InputError("--console-workdir: the console's folder needs --console")
+        console_workdir = ensure_dir(console_workdir, "--console-workdir")
 
     if backend not in ("sim", "ur"):
         raise InputError(f"--backend {backend!r}: expected sim or ur")
@@ -256,6 +269,7 @@ def up(
         planner_zenoh_config=planner_zenoh_config,
         hosts=host,
         console_port=console_port if console else None,
+        console_workdir=console_workdir,
         online_calibration=online_calibration,
         zenoh_roles=zenoh_roles,
         ros_domain=check_domain(ros_domain) if ros2 else None,

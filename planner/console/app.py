@@ -51,7 +51,7 @@ class Console:
     def __init__(self, scenario: Path, *, host: str = "127.0.0.1", port: int = 8080,
                  endpoint: str | None = None, prefix: str = "beamrelay",
                  zenoh_config: Path | None = None, max_points: int = MAX_POINTS,
-                 token: str | None = None) -> None:  # fmt: skip
+                 token: str | None = None, workdir: Path | None = None) -> None:  # fmt: skip
         from planner.io.scenario import (
             keep_out_objects,
             load_scenario,
@@ -73,6 +73,7 @@ class Console:
         self.gate = Gate.for_address(host, port, token or new_token())
         self.unwatched_stops = 0  # stops sent because no browser was left
         self.bus = {"endpoint": endpoint, "prefix": prefix, "zenoh_config": zenoh_config}
+        self.workdir = workdir  # the wizard's files (None: the per-user default)
         self.cloud: Cloud | None = None
         self.scrubbing = False  # a session shows its planned trajectory, not the live robots
         self.cloud_frames = 0
@@ -166,7 +167,7 @@ class Console:
     def _wire_wizard(self) -> None:
         from planner.console.wizard import Wizard
 
-        self.wizard = Wizard(self.server, self.scenario, self.scene_items, self.bus)
+        self.wizard = Wizard(self.server, self.scenario, self.scene_items, self.bus, self.workdir)
 
     def stop_all(self, reason: str = "operator pressed Stop") -> None:
         """STOP for every robot (any session presses it for all); every arming is dropped."""

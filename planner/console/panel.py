@@ -7,6 +7,7 @@ plan / execute and their results, the trajectory scrubber, then the calibration 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from planner.console.targets import Mode
@@ -39,7 +40,7 @@ class Panel:
 
 
 def build_panel(server: Any) -> Panel:
-    """Add the widgets to ``server``'s GUI."""
+    """Add the widgets to the GUI of ``server`` (a viser server or one client's handle)."""
     gui = server.gui
     stop = gui.add_button("STOP", color="red", icon=None, hint="Publish beamrelay/stop: "
                           "every robot brakes, laser off (or press the space bar)")  # fmt: skip
@@ -93,9 +94,9 @@ class CalibrationPanel:
     log: Any
 
 
-def build_calibration_panel(server: Any, aim: str, folder: str) -> CalibrationPanel:
-    """The wizard's widgets (collapsed); ``aim``: the default board centre text, ``folder``
-    where the dataset and the calibration file go by default."""
+def build_calibration_panel(server: Any, aim: str, workdir: Path) -> CalibrationPanel:
+    """The wizard's widgets (collapsed); ``aim``: the default board centre text, ``workdir``
+    the working directory the file names are relative to (shown)."""
     from planner.console.wizard import KINDS
 
     gui = server.gui
@@ -104,8 +105,9 @@ def build_calibration_panel(server: Any, aim: str, folder: str) -> CalibrationPa
         kind = gui.add_dropdown("calibration", list(KINDS), initial_value=KINDS[0])
         poses = gui.add_number("poses", 12, min=3, max=200, step=1)
         aim_h = gui.add_text("board centre (beam) [m]", aim)
-        dataset = gui.add_text("dataset", f"{folder}/calibration_data.json")
-        output = gui.add_text("calibration file", f"{folder}/calibration.yaml")
+        gui.add_markdown(f"files in `{workdir}` unless a path is absolute")
+        dataset = gui.add_text("dataset", "calibration_data.json")
+        output = gui.add_text("calibration file", "calibration.yaml")
         collect = gui.add_button("1. Collect data (moves the robot)")
         calibrate = gui.add_button("2. Calibrate and write the file")
         cancel = gui.add_button("Cancel step")

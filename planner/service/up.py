@@ -51,13 +51,15 @@ def child_commands(
     hosts: dict[str, str] | None = None,
     tracker: bool = False,
     console_port: int | None = None,
+    console_workdir: Path | None = None,
     online_calibration: Path | None = None,
     role_configs: dict[str, Path] | None = None,
     ros_domain: int | None = None,
 ) -> dict[str, list[str]]:
     """argv of every child: ``planner``, ``camera`` (if any), the simulated ``tracker`` (sim
     only, when asked: the scenario has targets on a moving object), one per robot, then the
-    operator ``console`` on ``console_port`` (loopback) if given. Every child gets
+    operator ``console`` on ``console_port`` (loopback) if given, with ``console_workdir``
+    as its ``--workdir`` (the calibration wizard's files) if given. Every child gets
     ``zenoh_config`` except the planner, which gets ``planner_zenoh_config`` if given (its
     own identity on a bus with access control). ``role_configs`` (see :func:`role_files`)
     instead gives each child the file of its role: ``planner``, ``camera``, ``tracker``,
@@ -109,6 +111,8 @@ def child_commands(
             str(console_port),
             *role_bus("console"),
         ]
+        if console_workdir is not None:
+            out["console"] += ["--workdir", str(console_workdir)]
     if ros_domain is not None:
         out["ros2"] = [
             *cli, "ros2", "bridge", str(scenario), "--ros-domain", str(ros_domain),
@@ -287,12 +291,14 @@ def run_up(
     planner_zenoh_config: Path | None = None,
     hosts: list[str] | None = None,
     console_port: int | None = None,
+    console_workdir: Path | None = None,
     online_calibration: Path | None = None,
     zenoh_roles: Path | None = None,
     ros_domain: int | None = None,
 ) -> dict[str, int | None]:
     """Run the system until Ctrl-C / SIGTERM / ``duration`` s; the children's exit codes.
-    With ``console_port`` the operator console runs as one more supervised child, with
+    With ``console_port`` the operator console runs as one more supervised child (its
+    wizard's files in ``console_workdir``, default a per-user folder), with
     ``ros_domain`` the ROS 2 bridge (``beamrelay ros2 bridge``).
 
     ``zenoh_config`` is used by ``up`` itself and passed on to every child,
@@ -335,7 +341,8 @@ def run_up(
         Path(scenario).resolve(), robots, backend=backend, endpoint=endpoint, prefix=prefix,
         camera=has_camera, zenoh_config=configs[0], planner_zenoh_config=configs[1],
         hosts=host_map, tracker=has_camera and has_tracked_targets(scn),
-        console_port=console_port, online_calibration=online, role_configs=roles,
+        console_port=console_port, console_workdir=console_workdir, online_calibration=online,
+        role_configs=roles,
         ros_domain=ros_domain,
     )  # fmt: skip
     log_dir = Path(log_dir or tempfile.mkdtemp(prefix="beamrelay-up-"))
