@@ -54,6 +54,7 @@ class DrawLoop:
         health = self.c.health_text()
         for session in list(self.c.sessions.values()):
             session.watch_arming()
+            session.watch_verdicts()
             session.panel.health.content = f"{health}  \n{session.arming_text()}"
             session.show_stats()
 

@@ -25,9 +25,7 @@ def answer_markdown(answer: Answer, pv: Preview, executed: bool, faults: tuple[s
             f"reply in {1e3 * answer.seconds:.0f} ms (request {s.get('id')})")  # fmt: skip
     lines = [head]
     if executed:
-        verdict = s.get("execution") or "not executed"
-        reason = f" ({s['execution_reason']})" if s.get("execution_reason") else ""
-        lines.append(f"execution: **{verdict}**{reason}")
+        lines.append(execution_line(s))
         lines += [f"**driver: {f}**" for f in faults]
         if "measured_error_median" in s and answer.sweep is None:
             lines.append(
@@ -43,6 +41,25 @@ def answer_markdown(answer: Answer, pv: Preview, executed: bool, faults: tuple[s
     if executed and answer.sweep is None:  # a path's samples: the marked path says it
         lines += _measured_rows(s["targets"])
     return "  \n".join(lines)
+
+
+def execution_line(summary: dict[str, Any]) -> str:
+    """``execution: ...`` of a reply. A robot whose verdict the planner never heard is
+    *waiting*, not rejected: its driver may have accepted late (the planner then sent STOP,
+    so a late acceptance brakes); :func:`late_verdict_line` says what it answered."""
+    waiting = summary.get("execution_unanswered") or []
+    reason = f" ({summary['execution_reason']})" if summary.get("execution_reason") else ""
+    if waiting:
+        return (f"execution: **waiting for {', '.join(waiting)}** (no verdict heard; STOP sent, "
+                f"so a late acceptance brakes){reason}")  # fmt: skip
+    return f"execution: **{summary.get('execution') or 'not executed'}**{reason}"
+
+
+def late_verdict_line(robot: str, ack: Any) -> str:
+    """What ``robot``'s driver answered, after the reply, to the request it was waited for."""
+    if ack.accepted:
+        return f"{robot}: **accepted** (late: the STOP sent meanwhile brakes it)"
+    return f"{robot}: **rejected** ({ack.reason or 'no reason given'})"
 
 
 def sweep_line(sw: Sweep) -> str:

@@ -24,6 +24,7 @@ from planner.console.operator import Answer, BusyError
 from planner.console.panel import Panel
 from planner.console.picking import pick_point, surface_normal
 from planner.console.preview import Preview, joints_at, preview_of
+from planner.console.report import answer_markdown, late_verdict_line
 from planner.console.targets import Mode, TargetList, build_request, path_points
 from planner.errors import BeamrelayError, InputError
 from planner.model.transforms import inv_T
@@ -54,6 +55,7 @@ class Session:
         self.answer: Answer | None = None
         self.arming = Arming()
         self.latency: dict[str, float] = {}
+        self.waiting: dict[str, str] = {}  # robot -> request id whose verdict was not heard
         self._edit = threading.Lock()
         self._preview_wanted = threading.Event()
         self._previewing = threading.Lock()
@@ -213,14 +215,16 @@ class Session:
         self.message("**STOP sent**: every robot brakes, laser off")
 
     def show_answer(self, answer: Answer, executed: bool) -> None:
-        from planner.console.report import answer_markdown
-
         self.answer = answer
         self.preview = preview_of(answer.plan, self.c.system, self.c.scene)
         self.draw_preview(self.preview)
         if answer.sweep is not None and len(answer.sweep.marked):
             self.scene.add_point_cloud("/preview/marked", answer.sweep.marked,
                                        colors=SPOT_COLOUR, point_size=0.003)  # fmt: skip
+        summary = answer.summary
+        self.waiting = {
+            r: str(summary.get("id")) for r in summary.get("execution_unanswered") or []
+        }
         faults = self.c.robot_faults() if executed else {}
         self.message(answer_markdown(answer, self.preview, executed,
                                      tuple(f"{r}: {f}" for r, f in sorted(faults.items()))))  # fmt: skip
@@ -255,6 +259,17 @@ class Session:
         self.arming.watch(self.c.faults())
         if self.arming.remaining() <= 0:
             self.message(f"**disarmed**: {self.arming.dropped}  \n{self.panel.result.content}")
+
+    def watch_verdicts(self) -> None:
+        """Say what a robot the reply was waiting for answered, once its status carries the
+        verdict on that request."""
+        status = self.c.live.snapshot()["status"]
+        for robot, request_id in list(self.waiting.items()):
+            st = status.get(robot)
+            ack = None if st is None else st.value.trajectory
+            if ack is not None and ack.id == request_id:
+                del self.waiting[robot]
+                self.message(f"{self.panel.result.content}  \n{late_verdict_line(robot, ack)}")
 
     def arming_text(self) -> str:
         left = self.arming.remaining()

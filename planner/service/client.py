@@ -450,6 +450,7 @@ def request_summary(plan: dict[str, Any], spots: list[Array | None] | None) -> d
         "id": plan.get("id"),
         "execution": plan.get("execution"),
         "execution_reason": plan.get("execution_reason"),
+        "execution_unanswered": list(plan.get("execution_unanswered") or []),
         "n_ok": plan["metrics"]["n_ok"],
         "n_targets": plan["metrics"]["n_targets"],
         "duration": plan["metrics"].get("duration"),

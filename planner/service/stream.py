@@ -270,6 +270,8 @@ class Execution:
         elif verdict == "rejected" and silent:  # a late acceptance must not move the arm
             reason = f"{reason}; stop sent, so a late acceptance does not move"
             self.send_stop(f"request {request_id}: {reason}")
+        if verdict == "rejected" and silent:  # no verdict heard: not known to be refused
+            plan["execution_unanswered"] = sorted(silent)
         elif len(chunks) > 1:
             with self._lock:
                 self._stream = _Stream(self, request_id, chunks, begin).start()

@@ -174,3 +174,30 @@ def test_each_browser_keeps_its_own_picks_and_any_stop_disarms_all(
     assert b.arming.armed is None and b.arming.dropped == "STOP"
     c._on_disconnect(SimpleNamespace(client_id=2))  # b's browser left: its session goes
     assert set(c.sessions) == {1}
+
+
+def test_the_page_shows_a_late_verdict_when_the_drivers_status_carries_it(
+    console: tuple[Session, Inbox],
+) -> None:
+    """After a reply that waited for arm0, the health tick reads arm0's status: a verdict on
+    another request changes nothing; the verdict on this one is shown once."""
+    from planner.console.live import Stamped
+    from schemas.messages import RobotStatus, TrajectoryAck
+
+    s, _ = console
+    s.waiting = {"arm0": "req123"}
+    s.panel.result.content = "execution: **waiting for arm0**"
+
+    def status(ident: str) -> None:
+        ack = TrajectoryAck(id=ident, accepted=True, t=1.0)
+        st = RobotStatus(robot="arm0", t=1.0, mode="running", trajectory=ack)
+        s.c.live = SimpleNamespace(snapshot=lambda: {"status": {"arm0": Stamped(st, 0.0)}})  # type: ignore[assignment]
+
+    status("other")
+    s.watch_verdicts()
+    assert s.waiting and "accepted" not in s.panel.result.content
+    status("req123")
+    s.watch_verdicts()
+    s.watch_verdicts()
+    assert not s.waiting
+    assert s.panel.result.content.count("arm0: **accepted** (late") == 1

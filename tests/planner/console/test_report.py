@@ -8,7 +8,7 @@ import numpy as np
 
 from planner.console.operator import Answer
 from planner.console.preview import Preview
-from planner.console.report import answer_markdown, sweep_line
+from planner.console.report import answer_markdown, late_verdict_line, sweep_line
 from planner.console.sweep import Sweep
 from planner.service.client import request_summary
 
@@ -51,3 +51,24 @@ def test_a_sweep_without_lit_spots_says_so() -> None:
     sw = Sweep(np.zeros((0, 3)), 40, np.nan, np.nan, 0.0, 0.1)
     assert sweep_line(sw) == ("marked path: **no spot seen while the laser was on** "
                               "(40 with it off)")  # fmt: skip
+
+
+def test_a_verdict_never_heard_reads_waiting_never_rejected() -> None:
+    """The planner heard no verdict from arm0 (its reply says rejected, with a stop sent):
+    the page says it waits for arm0, and what arm0 answered once its status carries it."""
+    from schemas.messages import TrajectoryAck
+
+    p = plan(1) | {"execution": "rejected", "execution_unanswered": ["arm0"],
+                   "execution_reason": "no answer from arm0 within 2 s; stop sent"}  # fmt: skip
+    text = answer_markdown(Answer(p, request_summary(p, [None]), 0.4, [None]), preview(1),
+                           executed=True)  # fmt: skip
+    assert "execution: **waiting for arm0**" in text and "rejected" not in text, text
+    late = TrajectoryAck(id="abc", accepted=True, t=1.0)
+    assert late_verdict_line("arm0", late) == (
+        "arm0: **accepted** (late: the STOP sent meanwhile brakes it)")  # fmt: skip
+    refused = TrajectoryAck(id="abc", accepted=False, reason="q[3]: too fast", t=1.0)
+    assert late_verdict_line("arm0", refused) == "arm0: **rejected** (q[3]: too fast)"
+    heard = plan(1) | {"execution": "rejected", "execution_reason": "arm0: q[3]: too fast"}
+    text = answer_markdown(Answer(heard, request_summary(heard, [None]), 0.4, [None]),
+                           preview(1), executed=True)  # fmt: skip
+    assert "execution: **rejected** (arm0: q[3]: too fast)" in text

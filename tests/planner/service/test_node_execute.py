@@ -109,6 +109,7 @@ def test_silent_driver_is_a_rejection_after_the_timeout(
         f"no answer from arm0 within {ACK_TIMEOUT:g} s; stop sent, so a late acceptance does "
         "not move"
     )
+    assert plan["execution_unanswered"] == ["arm0"]  # not heard, so not known to be refused
     assert waited >= ACK_TIMEOUT
     assert len(fake.trajectories) == 1 and fake.trajectories[0]["id"] == "s1"
     deadline = time.monotonic() + 5.0
