@@ -226,19 +226,15 @@ def solve_landed_path(
     (:func:`planner.safety.landing.land_path`), and swept again there (warm-started from
     the first sweep's joints: each landed sample lies on its first beam), before the
     occlusion check."""
-    from planner.path.solve import PathOptions
-
-    inc = 90.0 if options.max_incidence is None else float(np.degrees(options.max_incidence))
-    opts = PathOptions(tolerance=options.tolerance, max_iter=options.max_iter,
-                       max_incidence_deg=inc)  # fmt: skip
-    out, res = _sweep(system, targets, opts, q_start, safety)
+    opts = path_options(options)
+    out, res = sweep_solutions(system, targets, opts, q_start, safety)
     if scene is not None and not scene.empty and targets.surface_tolerance > 0:
         from planner.safety.landing import land_path
 
         moved = land_path(scene, targets, out)
         if moved is not None:
             targets, found = moved
-            out, res = _sweep(system, targets, opts, q_start, safety, res.q)
+            out, res = sweep_solutions(system, targets, opts, q_start, safety, res.q)
             out = [_landed(sol, found[k]) if k in found and sol.ok else sol
                    for k, sol in enumerate(out)]  # fmt: skip
     if scene is not None and not scene.empty:
@@ -252,12 +248,21 @@ def solve_landed_path(
     return targets, out, res
 
 
+def path_options(options: IKOptions) -> PathOptions:
+    """The path NLP's options of the IK's (tolerance, iterations, incidence limit)."""
+    from planner.path.solve import PathOptions
+
+    inc = 90.0 if options.max_incidence is None else float(np.degrees(options.max_incidence))
+    return PathOptions(tolerance=options.tolerance, max_iter=options.max_iter,
+                       max_incidence_deg=inc)  # fmt: skip
+
+
 def _landed(sol: Solution, landing: Any) -> Solution:
     """``sol`` carrying its sample's :class:`~planner.safety.landing.Landing`."""
     return dataclasses.replace(sol, evidence={**sol.evidence, "surface": landing.to_json()})
 
 
-def _sweep(
+def sweep_solutions(
     system: System, targets: Targets, opts: PathOptions, q_start: Array | None,
     safety: Safety | None, q_warm: Array | None = None,
 ) -> tuple[list[Solution], PathResult]:  # fmt: skip

@@ -39,6 +39,13 @@ def test_preview_figures_of_the_k152_path() -> None:
     assert doc["bytes"] > 1e5
     # issue 26's goals for the console's click-to-preview: a 150-sample path, one target
     assert doc["goal_ms"] == 500.0 and doc["target_goal_ms"] == 200.0
+    # the same path as the console sends it (camera frame): the same samples, all solved,
+    # its path solve by stage
+    cam = doc["camera"]
+    assert cam["samples"] == cam["n_ok"] == doc["samples"]
+    assert set(cam["stages"]) == {"first_sweep", "landing", "landed_sweep"}
+    for s in [cam["total"], *cam["stages"].values()]:
+        assert 0.0 < s["median_ms"] <= s["p95_ms"] <= s["max_ms"], s
     # one target: solved, and a fraction of the path's work
     t = doc["target"]
     assert doc["target_ok"] and 0.0 < t["median_ms"] <= t["p95_ms"] <= t["max_ms"], t
