@@ -214,7 +214,7 @@ class Console:
         rates = {r: self.live.rate(f"joints/{r}") for r in self.system.robot_names}
         rates |= {"camera": self.live.rate("spot"), "heartbeat": self.live.rate("heartbeat")}
         return health_markdown(self.live.snapshot(), rates, nodes, time.monotonic(),
-                               gated=self.laser_gated)  # fmt: skip
+                               gated=self.laser_gated, keep_out=len(self.keep_out))  # fmt: skip
 
     def world_T_camera(self, q: dict[str, Array] | None) -> Array:
         return self.system.world_T_camera(q)

@@ -15,10 +15,11 @@ HEARTBEAT_STALE = 0.1
 
 
 def health_markdown(snap: dict[str, Any], rates: dict[str, float], nodes: tuple[str, ...],
-                    now: float, gated: bool = True) -> str:  # fmt: skip
+                    now: float, gated: bool = True, keep_out: int = 0) -> str:  # fmt: skip
     """Markdown lines: one per expected node (alive or DOWN, its stream rate, the robot
-    driver's mode and fault), the heartbeat, the laser gate and the spot. ``gated``: the
-    scenario names a laser gate (without one nothing switches the laser: no line may say
+    driver's mode and fault), the heartbeat, the laser gate, the spot, the keep-out volumes
+    in force (``keep_out``) and the last fault any driver reported, with its age. ``gated``:
+    the scenario names a laser gate (without one nothing switches the laser: no line may say
     it is off)."""
     lines = []
     for node in nodes:
@@ -54,6 +55,13 @@ def health_markdown(snap: dict[str, Any], rates: dict[str, float], nodes: tuple[
         lines.append("spot: not seen")
     else:
         lines.append(f"spot: seen, confidence {spot.value.confidence:.2f}")
+    lines.append(f"keep-out volumes: {keep_out}" if keep_out else "keep-out volumes: **none**")
+    last = snap.get("last_fault")
+    if last is None:
+        lines.append("last fault: none since the console started")
+    else:
+        robot, fault = last.value
+        lines.append(f"last fault: {robot}: {fault} ({now - last.at:.0f} s ago)")
     if snap["rejected"]:
         lines.append(f"{snap['rejected']} malformed messages dropped")
     return "  \n".join(lines)

@@ -55,6 +55,7 @@ class LiveState:
     laser: Stamped | None = None  # LaserState
     heartbeat: Stamped | None = None  # Heartbeat
     alive: set[str] = field(default_factory=set)
+    last_fault: Stamped | None = None  # (robot, fault): the newest fault any driver reported
     rejected: int = 0
     points_seq: int = 0
     clock: Callable[[], float] = time.monotonic
@@ -120,8 +121,13 @@ class LiveState:
     def _on_status(self, sample: Any) -> None:
         robot = str(sample.key_expr).split("/")[-2]
         if (m := self._decode(sample, RobotStatus)) is not None:
+            fault = "protective stop" if m.protective_stop else m.fault
             with self._lock:
-                self.status[robot] = Stamped(m, self.clock())
+                now = self.clock()
+                self.status[robot] = Stamped(m, now)
+                last = self.last_fault
+                if fault and (last is None or last.value != (robot, fault)):
+                    self.last_fault = Stamped((robot, fault), now)
 
     def _on_laser(self, sample: Any) -> None:
         if (m := self._decode(sample, LaserState)) is not None:
@@ -172,6 +178,7 @@ class LiveState:
                 "status": dict(self.status),
                 "laser": self.laser,
                 "heartbeat": self.heartbeat,
+                "last_fault": self.last_fault,
                 "rejected": self.rejected,
             }
 

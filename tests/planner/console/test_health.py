@@ -75,3 +75,38 @@ def test_a_burst_of_queued_heartbeats_does_not_read_as_a_rate() -> None:
     clock.advance(STALE_AFTER + 0.01)
     assert live.rate("heartbeat") == 0.0
     assert live.rate("spot") == 0.0  # never seen
+
+
+def test_the_last_fault_and_the_keep_out_count_stay_on_the_panel() -> None:
+    """A fault a driver reported stays as the last fault, with its age, after the driver
+    cleared it; a repeated report keeps its first time; the keep-out count is shown."""
+    from types import SimpleNamespace
+
+    from planner.console.live import LiveState
+    from planner.service.bus import Keys
+    from tests.fake_clock import FakeClock
+
+    clock = FakeClock()
+    live = LiveState(Keys("healthtest"), clock=clock)
+
+    def report(**kw: object) -> None:
+        st = RobotStatus(robot="arm0", t=1.0, mode="stopped", **kw)  # type: ignore[arg-type]
+        body = SimpleNamespace(to_bytes=lambda: st.model_dump_json().encode())
+        live._on_status(SimpleNamespace(key_expr="healthtest/arm0/status", payload=body))
+
+    text = health_markdown(live.snapshot(), {}, ("arm0",), clock.t, keep_out=0)
+    assert "last fault: none since the console started" in text
+    assert "keep-out volumes: **none**" in text
+    report(fault="planner heartbeat lost")
+    clock.advance(3.0)
+    report(fault="planner heartbeat lost")  # the same fault again: its first time stays
+    clock.advance(9.0)
+    report()  # cleared
+    text = health_markdown(live.snapshot(), {}, ("arm0",), clock.t, keep_out=2)
+    assert "last fault: arm0: planner heartbeat lost (12 s ago)" in text, text
+    assert "keep-out volumes: 2" in text
+    assert "**fault" not in text  # the driver's status no longer reports it
+    report(protective_stop=True)
+    assert "last fault: arm0: protective stop (0 s ago)" in health_markdown(
+        live.snapshot(), {}, ("arm0",), clock.t
+    )
