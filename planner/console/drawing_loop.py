@@ -26,6 +26,15 @@ REDRAW_Q = 1e-5
 POINT_SIZE = 0.004  # m
 
 
+def next_due(due: float, now: float, period: float) -> float:
+    """When (s) the next cloud frame may go, one having gone at ``now`` that was due at
+    ``due``: a period after ``due``, so that waiting for the drawing tick and for the
+    camera's next frame does not add up (taking the first new frame at least a period after
+    the last one sent 15 Hz frames at ~7.5/s), but never sooner than ``now``: a frame late
+    by more than a period lets only one more go at once."""
+    return max(due, now - period) + period
+
+
 class DrawLoop:
     """One drawing thread of a :class:`~planner.console.app.Console`."""
 
@@ -74,12 +83,13 @@ class DrawLoop:
 
     def cloud(self, q: dict[str, Any] | None) -> None:
         c = self.c
-        if time.monotonic() < self.cloud_due:
+        now = time.monotonic()
+        if now < self.cloud_due:
             return
         seq, raw = c.live.take_points(self.seq)
         if raw is None:
             return
-        self.cloud_due = time.monotonic() + 1.0 / CLOUD_RATE
+        self.cloud_due = next_due(self.cloud_due, now, 1.0 / CLOUD_RATE)
         self.seq = seq
         try:
             cloud = c.new_cloud(raw[0], raw[1], q)
