@@ -12,7 +12,7 @@ from planner.model.transforms import inv_T, transform_points
 from planner.planning import plan_points
 from planner.service.bus import encode
 from planner.service.client import make_request
-from planner.service.handler import RequestHandler, make_plan_fn, timed_trajectory
+from planner.service.handler import PATH_SPACING, RequestHandler, make_plan_fn, timed_trajectory
 from tests.planner.service.test_node import reachable_targets, system_with_camera
 
 
@@ -103,8 +103,10 @@ def test_a_path_request_with_a_corner_is_marked_in_two_strokes() -> None:
 def test_warm_up_plans_one_solved_target_down_the_beam_at_home(system: System) -> None:
     """The warm-up's target lies on the beam at home, so the plan it makes (and drops) is
     solved and its trajectory starts and stays at home: the IK, the path and the timing all
-    ran. A plan function that fails is no error."""
+    ran. Then a path through it, across the beam, long enough for the coarse-to-fine warm
+    start (4 coarse steps), every sample solved. A plan function that fails is no error."""
     from planner.beam.trace import trace_beam
+    from planner.path.nlp import PathOptions
 
     plans: list[dict[str, object]] = []
     inner = make_plan_fn(system, {}, None, TrajectorySettings())
@@ -116,8 +118,8 @@ def test_warm_up_plans_one_solved_target_down_the_beam_at_home(system: System) -
 
     handler = RequestHandler(system, spy)
     assert handler.warm_up() > 0.0
-    (only,) = plans
-    assert only["trajectory"] is True
+    only, path = plans
+    assert only["trajectory"] is True and path["trajectory"] is True
     point = only["targets"].points[0]  # type: ignore[attr-defined]
     beam = trace_beam(system, system.home, point)
     assert beam.error < 1e-9 and beam.target_ahead == pytest.approx(0.5, abs=1e-9)
@@ -125,6 +127,14 @@ def test_warm_up_plans_one_solved_target_down_the_beam_at_home(system: System) -
     assert plan["solutions"][0]["status"] == "ok"  # type: ignore[index]
     q = np.asarray(plan["trajectory"]["q"][system.robot_names[0]])  # type: ignore[index]
     np.testing.assert_allclose(q, np.tile(system.home, (len(q), 1)), atol=1e-4)
+    samples = path["targets"]
+    assert samples.kind == "path"  # type: ignore[attr-defined]
+    ends = samples.points[[0, -1]] - point  # type: ignore[attr-defined]
+    np.testing.assert_allclose(np.linalg.norm(ends, axis=1), 2 * PathOptions().coarse_spacing)
+    np.testing.assert_allclose(ends @ beam.dirs[-1], 0.0, atol=1e-12)  # across the beam
+    np.testing.assert_allclose(ends[0], -ends[1], atol=1e-12)  # centred on the target
+    n_ok = path["plan"]["metrics"]["n_ok"]  # type: ignore[index]
+    assert n_ok == len(samples.points) > 4 * PathOptions().coarse_spacing / PATH_SPACING
 
     def failing(*_: object) -> dict[str, object]:
         raise InputError("no", "points")
