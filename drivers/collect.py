@@ -3,7 +3,10 @@
 The collector plays the planner for its own moves: it declares ``<prefix>/alive/planner``
 and sends a heartbeat (100 Hz, its own session) so the robot drivers accept its
 trajectories, and stops beating when it ends (the drivers then brake if anything still
-moves). For each planned pose (:mod:`planner.calibration.collect`): a minimum-jerk move
+moves). Given the bus address, the beats come from the planner's heartbeat process
+(:class:`planner.service.heartbeat.HeartbeatProcess`: real-time priority where permitted,
+ends with this process), so a loaded machine (the console's browser rendering) does not
+silence them for the drivers' 100 ms; without it, from a thread of this process. For each planned pose (:mod:`planner.calibration.collect`): a minimum-jerk move
 from the measured joints, checked with the swept collision check of the scene and the other
 robots at their measured joints, sent as a ``JointTrajectory``; the collector waits for the
 driver's verdict and for the arm to come to rest on the pose, then asks the camera:
@@ -32,6 +35,7 @@ from planner.errors import InputError
 from planner.model.system import System
 from planner.model.transforms import Array
 from planner.service.bus import MAX_PAYLOAD_BYTES, Keys, decode, urgent
+from planner.service.heartbeat import BusAddress, HeartbeatError, HeartbeatProcess
 from schemas.messages import JointState, JointTrajectory, RobotStatus, SpotMessage
 
 ARRIVE = 2e-3  # rad: the arm counts as on the pose
@@ -69,10 +73,11 @@ def legs(q0: Array, q1: Array, speed: float, size: Callable[[Any], int],
 
 
 class BusPlanner:
-    """Heartbeat, planner token, joint states, statuses and spots of a collection run."""
+    """Heartbeat, planner token, joint states, statuses and spots of a collection run;
+    ``bus``: the address of ``session`` (the heartbeat then comes from its own process)."""
 
     def __init__(self, session: Any, keys: Keys, system: System,
-                 leg_bytes: int = LEG_BYTES) -> None:  # fmt: skip
+                 leg_bytes: int = LEG_BYTES, bus: BusAddress | None = None) -> None:  # fmt: skip
         self.session, self.keys, self.system = session, keys, system
         self.leg_bytes = leg_bytes  # largest body of one leg of a move
         self.name = f"collect-{uuid.uuid4().hex[:8]}"
@@ -88,9 +93,32 @@ class BusPlanner:
                 s.declare_subscriber(keys.status(r), self._on_status(r)),
             ]
         self._handles.append(s.declare_subscriber(keys.camera_spot, self._on_spot))
-        self._pub = s.declare_publisher(keys.heartbeat, **urgent())
-        self._beat = threading.Thread(target=self._beats, daemon=True)
-        self._beat.start()
+        self._pub: Any = None
+        self._beat: threading.Thread | None = None
+        self._process: HeartbeatProcess | None = None
+        self.silent: str | None = None  # why the heartbeat process stopped, if it did
+        if bus is not None:
+            self._process = self._start_process(bus)
+        else:
+            self._pub = s.declare_publisher(keys.heartbeat, **urgent())
+            self._beat = threading.Thread(target=self._beats, daemon=True)
+            self._beat.start()
+
+    def _start_process(self, bus: BusAddress) -> HeartbeatProcess:
+        process = HeartbeatProcess(bus, self.keys.heartbeat, self.name, _NeverOverdue(),
+                                   self._on_silent)  # fmt: skip
+        try:
+            return process.start()
+        except BaseException as exc:  # HeartbeatError, or SIGTERM/Ctrl-C while it starts
+            process.stop()
+            for h in reversed(self._handles):
+                h.undeclare()
+            if isinstance(exc, HeartbeatError):
+                raise InputError(f"{exc}: is the system running on this bus?", "bus") from None
+            raise
+
+    def _on_silent(self, reason: str) -> None:
+        self.silent = reason
 
     def _beats(self) -> None:
         seq = 0
@@ -132,6 +160,8 @@ class BusPlanner:
         body would pass ``leg_bytes`` goes as legs along the same joint-space line, each
         a minimum-jerk move from rest to rest sent when the last one arrived (a driver joins
         a trajectory only from rest; a slow or long move is a 30 s, 6 MB body at 500 Hz)."""
+        if self.silent is not None:  # the drivers would refuse the move
+            return f"no heartbeat: {self.silent}"
         q0 = self.wait_joints()[robot]
 
         def size(mv: Any) -> int:
@@ -241,8 +271,21 @@ class BusPlanner:
         return None
 
     def close(self) -> None:
+        """Stop beating (an arm still moving brakes), undeclare everything."""
         self._halt.set()
-        self._beat.join(2.0)
-        self._pub.undeclare()
+        if self._process is not None:
+            self._process.stop()
+        if self._beat is not None:
+            self._beat.join(2.0)
+        if self._pub is not None:
+            self._pub.undeclare()
         for h in reversed(self._handles):
             h.undeclare()
+
+
+class _NeverOverdue:
+    """The heartbeat process's progress check for the collector: nothing to watch beyond
+    the ticks (a wedged collector stops ticking, and so stops the beats)."""
+
+    def overdue(self) -> str | None:
+        return None

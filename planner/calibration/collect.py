@@ -27,6 +27,8 @@ from planner.model.transforms import Array, inv_T
 
 LEVER = 0.5  # m: rotation columns are scaled by this to compare with translations
 RATE = 500.0  # Hz, samples of a move
+#: rad/s, the default peak joint speed of a collection move, and the range allowed
+SPEED, SPEED_RANGE = 0.3, (0.01, 1.0)
 
 
 class Move(NamedTuple):

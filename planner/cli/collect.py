@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import signal
+import threading
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 
+from planner.calibration.collect import SPEED, SPEED_RANGE
 from planner.cli.args import command_group, parse_xyz
 from planner.cli.node import EndpointOpt, PrefixOpt, ZenohConfigOpt
 from planner.errors import InputError
@@ -36,8 +39,9 @@ def _setup(scenario: Path, robot: str, poses: int, speed: float, output: Path) -
         raise InputError("scenario not found", str(scenario))
     if not 3 <= poses <= 200:
         raise InputError(f"must be in [3, 200], got {poses}", "--poses")
-    if not 0.01 <= speed <= 1.0:
-        raise InputError(f"must be in [0.01, 1.0] rad/s, got {speed:g}", "--speed")
+    if not SPEED_RANGE[0] <= speed <= SPEED_RANGE[1]:
+        raise InputError(f"must be in [{SPEED_RANGE[0]:g}, {SPEED_RANGE[1]:g}] rad/s, got {speed:g}",
+                         "--speed")  # fmt: skip
     if output.suffix != ".json" or not output.parent.is_dir():
         raise InputError("expected a *.json file in an existing directory", f"--output {output}")
     scn = load_scenario(scenario)
@@ -70,7 +74,7 @@ def handeye(
     output: OutOpt,
     robot: RobotOpt = "arm0",
     poses: PosesOpt = 12,
-    speed: SpeedOpt = 0.3,
+    speed: SpeedOpt = SPEED,
     board_offset: Annotated[
         str, typer.Option(help="Nominal board origin on the flange X,Y,Z (m), eye_to_hand.")
     ] = "0,0,0.01",
@@ -111,7 +115,7 @@ def beam(
     aim: Annotated[str, typer.Option("--aim", help="Board centre X,Y,Z in the world (m).")],
     robot: RobotOpt = "arm0",
     poses: PosesOpt = 16,
-    speed: SpeedOpt = 0.3,
+    speed: SpeedOpt = SPEED,
     board: Annotated[int, typer.Option("--board", help="Placement label of this board.")] = 0,
     seed: SeedOpt = 0,
     endpoint: EndpointOpt = None,
@@ -155,9 +159,15 @@ def _run(system: Any, world: Any, robot: str, qs: Any, speed: float, endpoint: s
 
     from drivers.collect import BusPlanner
     from planner.service.bus import Keys, open_session
+    from planner.service.heartbeat import BusAddress
 
+    _interrupt_on_sigterm()
     session = open_session(listen=False, endpoint=endpoint, config_file=zenoh_config)
-    bp = BusPlanner(session, Keys(prefix), system)
+    try:
+        bp = BusPlanner(session, Keys(prefix), system, bus=BusAddress(endpoint, zenoh_config))
+    except BaseException:  # its subscribers' threads would keep the process alive
+        session.close()
+        raise
     got_q: list[Any] = []
     got_p: list[Any] = []
     log: list[str] = []
@@ -190,10 +200,25 @@ def _run(system: Any, world: Any, robot: str, qs: Any, speed: float, endpoint: s
                 got_q.append(bp.q[robot].copy())
                 got_p.append(obs)
         typer.echo(_return(bp, robot, None if lost else trail, speed, world))
+    except KeyboardInterrupt:  # SIGTERM (the console's Cancel, up stopping) or Ctrl-C
+        typer.echo("interrupted: the arm brakes where it is (not returned to the start pose)")
+        raise
     finally:
         bp.close()
         session.close()
     return got_q, got_p, log
+
+
+def _interrupt_on_sigterm() -> None:
+    """SIGTERM (the console's Cancel, or ``up`` stopping) ends the run as Ctrl-C does: the
+    heartbeat stops at once (the driver brakes an arm still moving within its 0.1 s
+    timeout), the session closes, no dataset is written, exit status 130."""
+
+    def on_term(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, on_term)
 
 
 def _return(bp: Any, robot: str, trail: list[Any] | None, speed: float, world: Any) -> str:

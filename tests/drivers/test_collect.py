@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -278,6 +279,72 @@ def test_a_move_in_legs_arrives_on_the_simulated_driver(sim_system: Any) -> None
         client.close()
     # the move over the limit: 2+ legs each way, each accepted
     assert len(judged) >= 4 and all(judged.values()), judged
+
+
+@pytest.mark.serial
+def test_a_collection_sent_sigterm_mid_move_exits_at_once_and_the_arm_brakes(
+    sim_system: Any, tmp_path: Path
+) -> None:
+    """The wizard's Cancel and a closing console send SIGTERM: the collector exits as on
+    Ctrl-C (130, no dataset), its heartbeat stops and the driver brakes the moving arm."""
+    from drivers.collect import BusPlanner
+    from planner.safety.geometry import SafetyWorld
+    from planner.service.bus import Keys
+
+    ep, prefix = sim_system
+    out = tmp_path / "handeye.json"
+    client = raw_session(ep)
+    states = Inbox(client, f"{prefix}/arm0/joint_states")
+    statuses = Inbox(client, f"{prefix}/arm0/status")
+    system = system_from_scenario(load_scenario(SCENARIO))
+    proc, back = None, None
+    try:
+        wait_for(states.bodies, 10.0, "arm0 joint states")
+        q_start = np.array(states.bodies()[-1]["q"])
+        proc = subprocess.Popen([*CLI, "calibrate", "collect", "handeye", "-s", str(SCENARIO),
+                                 "-o", str(out), "--poses", "3", "--speed", "1.0", "--endpoint",
+                                 ep, "--prefix", prefix], stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, env=ENV)  # fmt: skip
+
+        def moved() -> float:
+            return float(np.max(np.abs(np.array(states.bodies()[-1]["q"]) - q_start)))
+
+        wait_for(lambda: moved() > 0.05, 120.0, "the collection moving the arm")
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(10)
+        exited = time.monotonic() - t0
+
+        def at_rest() -> bool:
+            return float(np.max(np.abs(states.bodies()[-1]["qd"]))) < 1e-3
+
+        wait_for(at_rest, 2.0, "the arm at rest")
+        rest = time.monotonic() - t0
+        text = proc.stdout.read().decode() if proc.stdout else ""
+        print(f"\nSIGTERM mid-move: the collector exited {exited:.2f} s after it (code {code}), "
+              f"the arm was at rest {rest:.2f} s after it, {1e3 * moved():.0f} mrad from its start")  # fmt: skip
+        assert code == 130 and "interrupted: the arm brakes" in text and not out.exists(), text
+        assert exited < 3.0
+        # the driver stopped it for the collector's going: its beats (the bus of up, with a
+        # planner's token alive) or its planner token (here the only one) lost
+        faults = {b.get("fault") or "" for b in statuses.bodies() if isinstance(b, dict)}
+        assert "planner liveliness lost" in faults or any(
+            f.startswith("planner heartbeat lost: session collect-") for f in faults
+        ), faults
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        if proc is not None:  # the cell as it was found
+            bp = BusPlanner(client, Keys(prefix), system)
+            try:
+                back = bp.move("arm0", q_start, 1.0, SafetyWorld(system, []))
+            finally:
+                bp.close()
+        statuses.close()
+        states.close()
+        client.close()
+    assert back is None
 
 
 @pytest.mark.serial
