@@ -85,6 +85,7 @@ class CalibrationPanel:
 
     kind: Any
     poses: Any
+    speed: Any
     aim: Any
     dataset: Any
     output: Any
@@ -97,6 +98,7 @@ class CalibrationPanel:
 def build_calibration_panel(server: Any, aim: str, workdir: Path) -> CalibrationPanel:
     """The wizard's widgets (collapsed); ``aim``: the default board centre text, ``workdir``
     the working directory the file names are relative to (shown)."""
+    from planner.calibration.collect import SPEED, SPEED_RANGE
     from planner.console.wizard import KINDS
 
     gui = server.gui
@@ -104,6 +106,8 @@ def build_calibration_panel(server: Any, aim: str, workdir: Path) -> Calibration
     with gui.add_folder("Calibration wizard", expand_by_default=False, order=WIZARD_ORDER):
         kind = gui.add_dropdown("calibration", list(KINDS), initial_value=KINDS[0])
         poses = gui.add_number("poses", 12, min=3, max=200, step=1)
+        speed = gui.add_number("speed [rad/s]", SPEED, min=SPEED_RANGE[0], max=SPEED_RANGE[1],
+                               step=0.01)  # fmt: skip
         aim_h = gui.add_text("board centre (beam) [m]", aim)
         gui.add_markdown(f"files in `{workdir}` unless a path is absolute")
         dataset = gui.add_text("dataset", "calibration_data.json")
@@ -112,4 +116,5 @@ def build_calibration_panel(server: Any, aim: str, workdir: Path) -> Calibration
         calibrate = gui.add_button("2. Calibrate and write the file")
         cancel = gui.add_button("Cancel step")
         log = gui.add_markdown("")
-    return CalibrationPanel(kind, poses, aim_h, dataset, output, collect, calibrate, cancel, log)
+    return CalibrationPanel(kind, poses, speed, aim_h, dataset, output, collect, calibrate, cancel,
+                            log)  # fmt: skip

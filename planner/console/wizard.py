@@ -36,6 +36,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from planner.calibration.collect import SPEED, SPEED_RANGE
 from planner.console.workdir import default_workdir, ensure_dir, input_path, output_path
 from planner.errors import BeamrelayError, InputError
 
@@ -51,11 +52,16 @@ PR_SET_PDEATHSIG = 1  # prctl option (linux/prctl.h)
 
 
 def collect_argv(kind: str, scenario: Path, dataset: Path, poses: int, aim: list[float] | None,
-                 bus: list[str]) -> list[str]:  # fmt: skip
-    """argv of the collect step (``aim``: board centre in the world, m; beam only)."""
+                 bus: list[str], speed: float = SPEED) -> list[str]:  # fmt: skip
+    """argv of the collect step (``aim``: board centre in the world, m; beam only;
+    ``speed``: peak joint speed of the moves, rad/s)."""
     _check(kind, poses)
+    if not SPEED_RANGE[0] <= speed <= SPEED_RANGE[1]:
+        raise InputError(f"{speed:g} rad/s: expected {SPEED_RANGE[0]:g}-{SPEED_RANGE[1]:g}",
+                         "speed")  # fmt: skip
     argv = [sys.executable, "-m", "planner.cli", "calibrate", "collect", kind,
             "--scenario", str(scenario), "-o", str(dataset), "--poses", str(poses)]  # fmt: skip
+    argv += [] if speed == SPEED else ["--speed", f"{speed:g}"]
     if kind == "beam":
         if aim is None or len(aim) != 3:
             raise InputError("the beam step needs the board centre X,Y,Z (m)", "aim")
@@ -256,7 +262,8 @@ class Wizard:
         poses = int(self.cal.poses.value)
         _check(kind, poses)
         dataset = self._output(self.cal.dataset.value, "dataset", (".json",))
-        argv = collect_argv(kind, self.scenario, dataset, poses, aim, bus_options(**self.bus))
+        argv = collect_argv(kind, self.scenario, dataset, poses, aim, bus_options(**self.bus),
+                            float(self.cal.speed.value))  # fmt: skip
         self.steps.run(argv)
 
     def _calibrate(self) -> None:

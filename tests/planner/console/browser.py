@@ -274,6 +274,10 @@ return [...document.querySelectorAll('[role=option]')].find(
 """
 
 
+#: s after which a dropdown that has not opened is clicked again
+REOPEN = 5.0
+
+
 def select_option(d: Any, label: str, value: str, timeout: float = 20.0) -> None:
     """Choose ``value`` in the dropdown labelled ``label`` the way a user does: open it,
     click the option (real mouse clicks: chromedriver's element click took ~8 s each on a
@@ -281,9 +285,13 @@ def select_option(d: Any, label: str, value: str, timeout: float = 20.0) -> None
     box = labelled(d, label, timeout)
     click_element(d, box)
     end = time.monotonic() + timeout
+    clicked = time.monotonic()
     while (option := d.execute_script(FIND_OPTION, value)) is None:
         if time.monotonic() > end:
             raise AssertionError(f"no option {value!r} in the {label!r} dropdown")
+        if time.monotonic() - clicked > REOPEN:  # the click was lost (a starved page)
+            click_element(d, labelled(d, label, timeout))
+            clicked = time.monotonic()
         time.sleep(0.1)
     click_element(d, option)
     while box.get_attribute("value") != value:
@@ -310,3 +318,51 @@ def click_world_point(d: Any, view: Any, rect: tuple[float, float, float, float]
     ActionChains(d).move_to_element_with_offset(
         canvas, round(float(u) - rect[2] / 2), round(float(v) - rect[3] / 2)
     ).click().perform()
+
+
+#: the innermost displayed element whose whole text is arguments[0] (a folder's title),
+#: scrolled into view, or null
+FIND_TEXT = """
+const all = [...document.querySelectorAll('body *')].filter(
+  e => e.offsetParent !== null && e.textContent.trim() === arguments[0]);
+const inner = all.filter(e => !all.some(o => o !== e && e.contains(o)));
+if (inner.length) inner[0].scrollIntoView({block: 'center'});
+return inner[0] || null;
+"""
+
+
+def open_folder(d: Any, title: str, first_input: str, timeout: float = 30.0) -> None:
+    """Open the collapsed GUI folder ``title`` with a real click on its title; waits until
+    its input labelled ``first_input`` shows."""
+    end = time.monotonic() + timeout
+    while (head := d.execute_script(FIND_TEXT, title)) is None:
+        if time.monotonic() > end:
+            raise AssertionError(f"no folder {title!r} on the page")
+        time.sleep(0.2)
+    if d.execute_script(LABELLED, first_input) is None:
+        click_element(d, head)
+    labelled(d, first_input, max(end - time.monotonic(), 1.0))
+
+
+def set_number(d: Any, label: str, value: float, timeout: float = 20.0) -> None:
+    """Type ``value`` into the number input labelled ``label`` as a user does (select what
+    is there, type, Tab away); waits until the input shows it."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.keys import Keys
+
+    box = labelled(d, label, timeout)
+    click_element(d, box)
+    ActionChains(d).key_down(Keys.CONTROL).send_keys("a").key_up(Keys.CONTROL).perform()
+    ActionChains(d).send_keys(f"{value:g}").send_keys(Keys.TAB).perform()
+    end = time.monotonic() + timeout
+    while _number(box.get_attribute("value")) != value:
+        if time.monotonic() > end:
+            raise AssertionError(f"the {label!r} input shows {box.get_attribute('value')!r}")
+        time.sleep(0.1)
+
+
+def _number(text: str | None) -> float | None:
+    try:
+        return float(text or "")
+    except ValueError:
+        return None

@@ -10,7 +10,9 @@ executes, and the spots the camera saw (on the test's own bus client) must sweep
 polyline from one end to the other, in order; then the path runs again (sent from the test's
 bus client) and the operator presses STOP while the arm moves, then once more and closes the
 browser: the console must publish STOP
-(within 1.5 s of the close) and the arm come to rest. The page opens only with the token ``up`` printed in its URL. Figures (page load to first cloud, cloud frames per second
+(within 1.5 s of the close) and the arm come to rest. Between the two, the calibration
+wizard runs hand-eye on 3 poses to a calibration file in the working directory given to
+``up`` (``--console-workdir``), compared with the simulator's true camera pose. The page opens only with the token ``up`` printed in its URL. Figures (page load to first cloud, cloud frames per second
 received by the browser, its render rate, click-to-preview latency for a target and for the
 path) are printed, and every Execute press a late planner heartbeat stopped.
 """
@@ -48,11 +50,13 @@ from tests.planner.console.browser import (
     click_world_point,
     find_button,
     open_browser,
+    open_folder,
     page_text,
     project,
     render_fps,
     screenshot,
     select_option,
+    set_number,
     wait_text,
 )
 from tests.planner.raw_zenoh import Inbox
@@ -71,6 +75,8 @@ MEASURED_ROW = re.compile(r"measured \((-?\d+\.\d), (-?\d+\.\d), (-?\d+\.\d)\) m
 PAGE_URL = re.compile(r"operator console: (http://127\.0\.0\.1:\d+/\?token=[\w-]+)")
 #: bytes above which a websocket message is a cloud frame (a 30 k-point frame is ~0.3 MB)
 CLOUD_MESSAGE_BYTES = 60_000
+#: the console's working directory (``up --console-workdir``), under the module's tmp folder
+WORKDIR = "console-workdir"
 
 
 def saturated(img: np.ndarray) -> np.ndarray:
@@ -169,7 +175,8 @@ def system_up(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-unty
     endpoint, port = f"tcp/127.0.0.1:{free_port()}", free_port()
     argv = [sys.executable, "-m", "planner.cli", "up", str(SCENARIO), "--console",
             "--console-port", str(port), "--endpoint", endpoint, "--no-live",
-            "--log-dir", str(tmp_path / "logs")]  # fmt: skip
+            "--log-dir", str(tmp_path / "logs"), "--console-workdir",
+            str(tmp_path / WORKDIR)]  # fmt: skip
     log = (tmp_path / "up.log").open("wb")
     proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
     client = None
@@ -303,6 +310,57 @@ MARKED = re.compile(
 ON_PATH = 0.004
 
 
+def test_operator_runs_the_hand_eye_wizard_to_a_calibration_file(system_up, page: Page) -> None:  # type: ignore[no-untyped-def]
+    """The wizard on the simulated cell: hand-eye, 3 poses (the least) at 1 rad/s (the
+    fastest), collect, calibrate; the file lands in the working directory ``up`` was given,
+    and its camera pose is the simulator's true one within the deviation the calibration
+    itself reports."""
+    from ruamel.yaml import YAML
+    from scipy.spatial.transform import Rotation
+
+    _, client, tmp = system_up
+    workdir = tmp / WORKDIR
+    d = page.get()
+    t0 = time.monotonic()
+    q_start = joints(client)[0]
+    open_folder(d, "Calibration wizard", "poses")
+    select_option(d, "calibration", "handeye")
+    set_number(d, "poses", 3)
+    set_number(d, "speed [rad/s]", 1.0)  # as tests/drivers/test_collect.py: the fastest
+    click_button(d, "1. Collect data (moves the robot)")
+    pressed = time.monotonic()
+    text = wait_text(d, lambda t: '"collected": ' in t, 240.0,
+                     "the collection's summary")  # fmt: skip
+    collected = time.monotonic() - pressed
+    assert '"planned": 3' in text and '"collected": 3' in text, text
+    # the arm is back where the wizard found it: the next test plans from there
+    assert "returned to the start pose" in text or "at its start pose" in text, text
+    assert float(np.max(np.abs(joints(client)[0] - q_start))) < 3e-3
+    click_button(d, "2. Calibrate and write the file")
+    wait_text(d, lambda t: "kind: handeye" in t, 120.0, "the report")
+    out = workdir / "calibration.yaml"
+    assert (workdir / "calibration_data.json").is_file() and out.is_file()
+    doc = YAML(typ="safe").load(out.read_text())
+    assert doc["report"]["kind"] == "handeye" and doc["report"]["solver"]["converged"]
+    pose = doc["system"]["camera"]["world_T_camera"]
+    truth = system_from_scenario(load_scenario(SCENARIO), truth=True).camera
+    assert truth is not None
+    err_t = float(np.linalg.norm(np.array(pose["xyz"]) - truth.world_T_camera[:3, 3]))
+    R = Rotation.from_quat(pose["quat"]).as_matrix()  # [x, y, z, w]
+    err_r = float(Rotation.from_matrix(truth.world_T_camera[:3, :3].T @ R).magnitude())
+    sd = doc["report"]["std"]["world_T_camera"]
+    sd_t, sd_r = (
+        float(np.linalg.norm(sd["translation_m"])),
+        float(np.linalg.norm(sd["rotation_rad"])),
+    )
+    print(f"\nwizard: collection of 3 poses {collected:.1f} s, whole test {time.monotonic() - t0:.1f} s;"
+          f" camera {1e3 * err_t:.2f} mm (1 sigma {1e3 * sd_t:.2f} mm), {np.rad2deg(err_r):.3f} deg"
+          f" (1 sigma {np.rad2deg(sd_r):.3f} deg) from its true pose")  # fmt: skip
+    # as tests/drivers/test_collect.py: within the D435 noise the calibration predicts
+    assert err_t < 5 * sd_t + 5e-4 and err_r < 5 * sd_r + 1e-4
+    assert sd_t < 0.02
+
+
 def picked_rows(text: str, n: int) -> np.ndarray:
     """The first ``n`` targets of the page's list (world, m)."""
     rows = [re.search(ROW.format(k=k), text) for k in range(n)]
@@ -376,9 +434,10 @@ def test_operator_marks_a_clicked_polyline_on_the_board(system_up, page: Page) -
         print(f"\nconsole figures (path of {n} samples): click to preview "
               f"{latency.group(1) if latency else '?'} ms; marked {n_marked} spots, covering "
               f"{covered} of {total} mm, distance median {median} mm, max {worst} mm")  # fmt: skip
-        # STOP pressed mid-execution, then the tab closed mid-execution: both stop the arm
+        # the big STOP pressed mid-execution with the panel scrolled to its end, then the tab
+        # closed mid-execution: both stop the arm
         pressed, rest = stopped_by(d, client, "button", picked)
-        print(f"\nSTOP pressed mid-execution: on the bus {pressed:.2f} s later, the arm at rest "
+        print(f"\nbig STOP pressed mid-execution (panel scrolled): on the bus {pressed:.2f} s later, the arm at rest "
               f"{rest:.2f} s after the press")  # fmt: skip
         wait_text(d, lambda t: "STOP sent" in t, 60.0, "the page saying STOP was sent")
         # the space bar, with the focus on Execute (a browser presses a focused button on
@@ -431,12 +490,37 @@ def start_moving(client: PlanClient, path: np.ndarray) -> np.ndarray:
     raise AssertionError("no execute moved the arm")
 
 
+#: scrolls every scrolled box of the page to its end, then answers whether the big STOP
+#: button is on screen and on top at its centre
+BIG_STOP_ON_TOP = """
+for (const e of document.querySelectorAll('*'))
+  if (e.scrollHeight > e.clientHeight + 4) e.scrollTop = e.scrollHeight;
+const b = document.getElementById(arguments[0]);
+if (!b) return null;
+const r = b.getBoundingClientRect();
+const inside = r.left >= 0 && r.top >= 0 && r.right <= innerWidth && r.bottom <= innerHeight;
+return inside && document.elementFromPoint((r.left + r.right) / 2, (r.top + r.bottom) / 2) === b
+  ? b : null;
+"""
+
+
+def big_stop(d: Any) -> Any:
+    """The page's big STOP button, after scrolling the panel to its end (where results
+    push the panel's own STOP out of view): it must be on screen and on top."""
+    from planner.console.hotkeys import BIG_STOP_ID
+
+    b = d.execute_script(BIG_STOP_ON_TOP, BIG_STOP_ID)
+    assert b is not None, "the big STOP is not on screen, on top, with the panel scrolled"
+    return b
+
+
 def stopped_by(d: Any, client: PlanClient, how: str, path: np.ndarray) -> tuple[float, float]:
     """Execute ``path`` again (:func:`start_moving`) and, while the arm moves, press STOP (``how`` =
     ``"button"``), press the space bar with the focus on the Execute button (``"space"``) or
     close the browser, the operator's only tab (``"close"``); seconds from
     the press or close to the console's STOP on the bus, and to the arm at rest (its joint
-    speeds below 0.1 mrad/s). Fails when the STOP reached the bus after the motion had ended:
+    speeds below 0.1 mrad/s); the button is the big STOP, with the panel scrolled to its end.
+    Fails when the STOP reached the bus after the motion had ended:
     the joint states just before it at rest and the arm resting where the trajectory ends (a
     STOP in the still instant between the approach and the path stops the arm short of the
     end). A button press is tried 3 times."""
@@ -448,7 +532,7 @@ def stopped_by(d: Any, client: PlanClient, how: str, path: np.ndarray) -> tuple[
         stops = Inbox(client.session, client.keys.stop)
         states = Inbox(client.session, client.keys.joint_states("arm0"))
         try:
-            stop_button = find_button(d, "STOP") if how == "button" else None
+            stop_button = big_stop(d) if how == "button" else None
             if how == "space":
                 d.execute_script("arguments[0].focus();", find_button(d, "Execute"))
             q_end = start_moving(client, path)
@@ -459,7 +543,7 @@ def stopped_by(d: Any, client: PlanClient, how: str, path: np.ndarray) -> tuple[
                 try:
                     click_element(d, stop_button)
                 except WebDriverException:  # re-rendered meanwhile: find it again
-                    click_button(d, "STOP")
+                    click_element(d, big_stop(d))
             else:
                 d.quit()
             wait_for(lambda s=stops: s.bodies(), 10.0, f"STOP after the {how}")

@@ -36,6 +36,8 @@ def test_collect_and_calibrate_run_the_projects_commands_with_the_bus() -> None:
         "--poses", "12", *bus]  # fmt: skip
     beam = collect_argv("beam", S, D, 16, [-0.492, -0.55, -0.06], [])
     assert beam[-2:] == ["--aim", "-0.492,-0.55,-0.06"]
+    fast = collect_argv("handeye", S, D, 3, None, [], speed=1.0)
+    assert fast[fast.index("--speed") + 1] == "1"
     assert calibrate_argv("beam", S, D, O) == [
         *CLI, "calibrate", "beam", "/d.json", "--scenario", "/s.yaml", "-o", "/c.yaml"]  # fmt: skip
 
@@ -46,6 +48,7 @@ def test_collect_and_calibrate_run_the_projects_commands_with_the_bus() -> None:
         (lambda: collect_argv("laser", S, D, 12, None, []), "unknown calibration"),
         (lambda: collect_argv("handeye", S, D, 2, None, []), "poses 2"),
         (lambda: collect_argv("beam", S, D, 12, None, []), "board centre"),
+        (lambda: collect_argv("handeye", S, D, 12, None, [], speed=1.5), "1.5 rad/s"),
         (lambda: parse_aim("1,2"), "3 numbers"),
         (lambda: parse_aim("1,a,2"), "numbers"),
         (lambda: parse_aim("1,nan,2"), "3 numbers"),
