@@ -8,8 +8,9 @@
   that final state while the trajectory still runs, and from ``joint_states`` afterwards.
 - :class:`AckBoard`: the drivers' verdicts (:class:`~schemas.messages.TrajectoryAck`, carried
   by their ``status``) on the trajectories of one request id.
-- :func:`trajectory_messages`: plan.json ``trajectory`` -> one JointTrajectory per robot
-  (chunked for execution by :mod:`planner.service.stream`).
+
+plan.json ``trajectory`` -> one JointTrajectory per robot, and its chunks for execution, are
+:mod:`planner.service.stream`'s.
 """
 
 from __future__ import annotations
@@ -249,15 +250,3 @@ def execution_verdict(acks: dict[str, Any], timeout: float) -> tuple[str, str | 
         elif not ack.accepted:
             reasons.append(f"{robot}: {ack.reason or 'rejected without a reason'}")
     return ("rejected", "; ".join(reasons)) if reasons else ("accepted", None)
-
-
-def trajectory_messages(
-    plan: dict[str, Any], request_id: str | None = None, session: str | None = None
-) -> dict[str, bytes]:
-    """One JointTrajectory body per robot from a plan's ``trajectory`` (times from 0),
-    carrying the request id and the planner session (the ``laser.gate`` robot also gets
-    the ``laser_on`` intervals), whatever its size (see
-    :func:`planner.service.stream.split_trajectory` for chunks under the body limit)."""
-    from planner.service.stream import split_trajectory
-
-    return split_trajectory(plan, request_id, session, max_bytes=None)[0].bodies

@@ -63,7 +63,6 @@ from planner.service.execution import (
     JointCache,
     MotionTracks,
     start_state,
-    trajectory_messages,
 )
 from planner.service.guard import QUEUE_SIZE, Heartbeat, Job, Progress, Worker
 from planner.service.handler import (
@@ -77,7 +76,7 @@ from planner.service.heartbeat import BusAddress, HeartbeatProcess, start_heartb
 from planner.service.live_cloud import LiveCloud
 from planner.service.online import OnlineCalibrator, attach
 from planner.service.spots import LaserLog, SpotBuffer
-from planner.service.stream import Execution
+from planner.service.stream import Execution, trajectory_messages
 
 __all__ = [
     "QUEUE_SIZE",

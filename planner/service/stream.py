@@ -124,6 +124,16 @@ def split_trajectory(
 REST = 1e-9
 
 
+def trajectory_messages(
+    plan: dict[str, Any], request_id: str | None = None, session: str | None = None
+) -> dict[str, bytes]:
+    """One JointTrajectory body per robot from a plan's ``trajectory`` (times from 0),
+    carrying the request id and the planner session (the ``laser.gate`` robot also gets
+    the ``laser_on`` intervals), whatever its size (see
+    :func:`planner.service.stream.split_trajectory` for chunks under the body limit)."""
+    return split_trajectory(plan, request_id, session, max_bytes=None)[0].bodies
+
+
 def split_edges(candidates: Any, n_samples: int, budget: int) -> list[int] | None:
     """Sample indices ``[0, e1, ..., n_samples - 1]`` splitting ``n_samples`` samples into
     chunks of at most ``budget`` + 1 samples (consecutive chunks share their edge sample),

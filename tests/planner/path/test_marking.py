@@ -139,7 +139,7 @@ def test_the_gate_robot_gets_the_intervals_and_plays_them(s_curve: PlanOutcome) 
     for exactly the planned intervals (in trajectory time, one period per switch)."""
     from drivers.robot.follower import TrajectoryFollower
     from drivers.robot.trajectory_check import check_message
-    from planner.service.execution import trajectory_messages
+    from planner.service.stream import trajectory_messages
     from schemas.messages import JointTrajectory
 
     doc = s_curve.doc
