@@ -96,7 +96,7 @@ def run_size(scenario: str, n: int, stages: tuple[str, ...]) -> dict[str, Any]:
     row |= {"duration_s": traj.duration, "duration_given_order_s": None, "samples": len(traj.t),
             "trajectory_mb": sum(a.nbytes for a in (traj.t, traj.q, traj.qd, traj.qdd)) / 1e6}  # fmt: skip
     P = np.vstack([system.home, Q])
-    from planner.path.timing import move_time
+    from planner.path.rest_to_rest import move_time
 
     row["duration_given_order_s"] = float(move_time(P[:-1], P[1:], system.limits).sum())
     if "document" not in stages:

@@ -43,7 +43,7 @@ class _Visits:
 def _targets_figures(world: Any, n: int, seed: int, frames: int) -> dict[str, Any]:
     from planner.bench.servo_world import UP, board_targets
     from planner.ik import BeamIK
-    from planner.path.timing import move_time
+    from planner.path.rest_to_rest import move_time
     from planner.service.closed_loop import measure_time
     from planner.servo import Corrector, ServoSettings, servo
 

@@ -25,6 +25,7 @@ from planner.errors import PlanError
 from planner.model.system import Limits, System
 from planner.model.transforms import Array
 from planner.path.profile import Profile, path_speed_limit, profile
+from planner.path.rest_to_rest import move_time
 from planner.path.tour import visit_order
 from schemas import defaults
 
@@ -132,33 +133,8 @@ class _Piece(NamedTuple):
 
 
 # ------------------------------------------------------------------------------------------
-# rest-to-rest moves
+# rest-to-rest moves (their closed-form durations: planner.path.rest_to_rest)
 # ------------------------------------------------------------------------------------------
-def rest_to_rest_time(
-    d: Array | float, v: Array | float, a: Array | float, j: Array | float
-) -> Array:
-    """Time-optimal jerk-limited 1-DOF rest-to-rest duration (s) for distances ``|d|``.
-
-    Closed form: cruise at v if reachable; else a peak velocity below v, with or without a
-    constant-acceleration phase. Broadcasts over all arguments.
-    """
-    dist = np.abs(np.asarray(d, dtype=float))
-    v, a, j = (np.broadcast_to(np.asarray(x, dtype=float), dist.shape) for x in (v, a, j))
-    d = dist
-    t_acc = np.where(v * j >= a * a, v / a + a / j, 2 * np.sqrt(v / j))  # 0 -> v
-    cruise = d >= v * t_acc
-    vp_a = a * (-a / j + np.sqrt((a / j) ** 2 + 4 * d / a)) / 2  # peak with an a-limited phase
-    vp_j = (d * np.sqrt(j) / 2) ** (2 / 3)  # peak with jerk phases only
-    no_cruise = np.where(vp_a * j >= a * a, 2 * (vp_a / a + a / j), 4 * np.sqrt(vp_j / j))
-    return np.where(cruise, d / np.maximum(v, 1e-300) + t_acc, no_cruise)
-
-
-def move_time(q0: Array, q1: Array, lim: Limits) -> Array:
-    """Estimated synchronised move time: the slowest joint's rest-to-rest time (broadcasts
-    over leading axes of ``q1 - q0``)."""
-    return rest_to_rest_time(q1 - q0, lim.velocity, lim.acceleration, lim.jerk).max(axis=-1)
-
-
 def ruckig_move(q0: Array, q1: Array, lim: Limits, rate: float) -> tuple[Array, Array, Array]:
     """Time-optimal jerk-limited rest-to-rest move sampled at ``rate`` (includes both ends;
     the last interval is padded at rest so the move lasts a whole number of periods)."""

@@ -27,6 +27,7 @@ import numpy.typing as npt
 
 from planner.model.system import Limits
 from planner.model.transforms import Array
+from planner.path.rest_to_rest import move_time
 
 Order = npt.NDArray[np.intp]
 K_NEIGHBOURS = 10  # candidates per configuration
@@ -37,8 +38,6 @@ class _Costs:
     """True move times between rows of ``P`` (the start first), on demand, vectorised."""
 
     def __init__(self, P: Array, lim: Limits) -> None:
-        from planner.path.timing import move_time
-
         self.P, self.lim, self._move_time = P, lim, move_time
 
     def pairs(self, i: npt.ArrayLike, j: npt.ArrayLike) -> Array:

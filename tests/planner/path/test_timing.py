@@ -8,14 +8,8 @@ from ruckig import InputParameter, Result, Ruckig, Trajectory
 
 from planner.model.build import build_system
 from planner.model.transforms import make_T
-from planner.path.timing import (
-    move_time,
-    path_trajectory,
-    points_trajectory,
-    rest_to_rest_time,
-    ruckig_move,
-    visit_order,
-)
+from planner.path.rest_to_rest import move_time, rest_to_rest_time
+from planner.path.timing import path_trajectory, points_trajectory, ruckig_move, visit_order
 
 RATE = 500.0
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from planner.model.system import DEFAULT_HOME, Limits
-from planner.path.timing import move_time, points_trajectory
+from planner.path.rest_to_rest import move_time
+from planner.path.timing import points_trajectory
 from planner.path.tour import candidate_lists, visit_order
 
 HOME = np.array(DEFAULT_HOME)
