@@ -28,10 +28,10 @@ from planner.model.scene import END_MARGIN, START_MARGIN, SceneModel
 from planner.model.status import Reason
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
+from planner.path.result import PathGap, PathResult
 
 if TYPE_CHECKING:
     from planner.ik import BeamIK, Solution
-    from planner.path.solve import PathResult
     from planner.safety.model import Safety
 
 #: m, slides of the first mirror's hit along the laser beam tried for an occluded target
@@ -266,8 +266,6 @@ def split_path(
     feasible segments split around them."""
     if not gaps:
         return solutions, path
-    from planner.path.solve import PathGap
-
     out = list(solutions)
     for k, gap in gaps.items():
         out[k] = failed_with(solutions[k], gap.reason, gap.evidence)
