@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from planner.model.scene import SceneModel
     from planner.model.system import System, Targets
     from planner.scenario_planner import ScenarioPlanner
-    from planner.verify.check import CheckResult
+    from planner.verify.context import CheckResult
 
 
 @dataclass(frozen=True)

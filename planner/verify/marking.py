@@ -13,11 +13,13 @@ path is power / speed (J/m), energy per dwell is power x dwell time (J). World f
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from planner.model.transforms import Array
+from planner.verify.context import CheckResult, PlanContext
+from planner.verify.findings import Finding
 from planner.verify.numpy_beam import pose_matrix
 from planner.verify.spot import Mask, segment_mask
 from planner.verify.trajectory import (
@@ -28,9 +30,6 @@ from planner.verify.trajectory import (
     spot_deviation,
     trace_last_ray,
 )
-
-if TYPE_CHECKING:
-    from planner.verify.check import CheckResult, PlanContext
 
 SPEED_SLACK = 0.02  # fraction: the marked spot speed may differ this much from spot_speed
 EDGE_SLACK = 1e-9  # s: a laser interval may reach this far beyond its segment
@@ -296,8 +295,6 @@ def _exposure_findings(plan: dict[str, Any]) -> list[tuple[str, float, float]]:
 def check_marking(ctx: PlanContext) -> CheckResult:
     """The laser gate against the segments, the spot on the path at every laser-on sample,
     and the marked speed (see the module docstring)."""
-    from planner.verify.check import CheckResult, Finding
-
     traj = ctx.plan.get("trajectory") or {}
     res = CheckResult("laser", 0)
     if not traj or not traj.get("t"):

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -30,6 +30,8 @@ from planner.model.status import Reason
 from planner.model.transforms import Array
 from planner.verify import arms
 from planner.verify import batch_distances as bd
+from planner.verify.context import CheckResult, PlanContext, spots
+from planner.verify.findings import Finding
 from planner.verify.numpy_beam import pose_matrix, trace_rays
 from planner.verify.safety_shapes import (
     Shape,
@@ -40,9 +42,6 @@ from planner.verify.safety_shapes import (
     near_distances,
     volume,
 )
-
-if TYPE_CHECKING:
-    from planner.verify.check import CheckResult, PlanContext
 
 #: deg: the camera lens cone (the planner's ``SafetySettings.lens_cone``)
 LENS_CONE_DEG = 45.0
@@ -319,8 +318,6 @@ def check_safety(ctx: PlanContext) -> CheckResult:
     """Every solved target: arms clear of each other and of the scene, the beam clear of the
     arms and the keep-out volumes and not back into the laser or camera, the target outside
     every keep-out volume."""
-    from planner.verify.check import CheckResult, Finding, spots
-
     res = CheckResult("safety", len(ctx.solved))
     setup = Setup.from_plan(ctx.plan, getattr(ctx, "base_dir", Path(".")))
     res.warnings += [f"{n}: a URDF arm; its links are not re-checked" for n in setup.unchecked]
@@ -353,8 +350,6 @@ def laser_mask(traj: dict[str, Any], t: Array) -> Array:
 def check_trajectory_safety(ctx: PlanContext) -> CheckResult:
     """Every trajectory sample: arms clear (as for the targets); while the laser may be on,
     the beam clear as well (its spot at the nearest target)."""
-    from planner.verify.check import CheckResult, Finding
-
     traj = ctx.plan.get("trajectory") or {}
     t = np.asarray(traj.get("t") or [], dtype=float)
     res = CheckResult("trajectory safety", len(t))

@@ -36,7 +36,7 @@ def keep_out_summary(plan: dict[str, Any], base_dir: Path = Path(".")) -> list[d
     """Per keep-out volume: the targets inside it, how many of them failed as ``keep_out``,
     and the least distance (m) from it of the beam at every solved
     target and at every trajectory sample while the laser may be on."""
-    from planner.verify.check import PlanContext, spots
+    from planner.verify.context import PlanContext, spots
 
     ctx = PlanContext(plan, base_dir)
     setup = Setup.from_plan(plan, base_dir)

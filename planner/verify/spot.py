@@ -1,5 +1,5 @@
-"""The spot along a plan's trajectory, re-verified with plain numpy (part of
-:func:`planner.verify.trajectory.check_trajectory`).
+"""The spot along a plan's trajectory, re-verified with plain numpy (with the joint-limit
+checks of :func:`planner.verify.trajectory.check_trajectory`: :func:`trajectory_findings`).
 
 On ``path`` segments the spot stays within ``trajectory.path_tolerance`` of the target
 polyline; during ``dwell`` and at the last sample of every ``approach``/``move`` (arrival) it
@@ -11,7 +11,7 @@ Segment masks are built in linear time (:func:`segment_mask`).
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -19,10 +19,20 @@ import numpy.typing as npt
 from planner.model.transforms import Array
 from planner.verify.findings import Finding, Severity, trajectory_finding
 from planner.verify.tolerances import Tolerances
+from planner.verify.trajectory import (
+    NUMPY_FK,
+    Solved,
+    _plane_spots,
+    _Robot,
+    _robots,
+    check_trajectory,
+    matched_deviation,
+    point_deviation,
+    solved_targets,
+    spot_deviation,
+    trace_last_ray,
+)
 from schemas import defaults
-
-if TYPE_CHECKING:
-    from planner.verify.trajectory import Solved, _Robot
 
 Mask = npt.NDArray[np.bool_]
 REL_DURATION = 0.1  # path segments lasting more than 10 % off length / speed: a warning
@@ -62,17 +72,21 @@ def _targets(plan: dict[str, Any]) -> tuple[Array, Array | None]:
     return P, np.array([n if n is not None else [np.nan] * 3 for n in N], dtype=float)
 
 
+def trajectory_findings(plan: dict[str, Any], tol: Tolerances | None = None) -> list[Finding]:
+    """Every finding on ``plan["trajectory"]``: its time grid and joint limits
+    (:func:`~planner.verify.trajectory.check_trajectory`), then the spot along it."""
+    tol = tol or Tolerances.from_scenario(plan["scenario"])
+    out = check_trajectory(plan, tol)
+    traj = plan.get("trajectory")
+    if traj:
+        t = np.asarray(traj["t"], dtype=float)
+        out += check_spot(plan, _robots(plan["scenario"]), t, tol)
+    return out
+
+
 def check_spot(plan: dict[str, Any], robots: list[_Robot], t: Array, tol: Tolerances
                ) -> list[Finding]:  # fmt: skip
     """Spot findings of a plan's trajectory (see the module docstring)."""
-    from planner.verify.trajectory import (
-        NUMPY_FK,
-        matched_deviation,
-        point_deviation,
-        solved_targets,
-        spot_deviation,
-        trace_last_ray,
-    )
 
     traj, scn = plan["trajectory"], plan["scenario"]
     if any(r.model not in NUMPY_FK for r in robots) or not plan.get("targets"):
@@ -114,8 +128,6 @@ def _unvisited(p: Array, v: Array, Qa: Array, ta: Array, solved: Solved, tol: To
     """Solved targets that no arrival reaches: for each, the arrival nearest in joint space
     must put the spot within the path tolerance of it."""
     from scipy.spatial import cKDTree
-
-    from planner.verify.trajectory import _plane_spots
 
     _, j = cKDTree(Qa).query(solved.Q)
     j = np.asarray(j, dtype=int)

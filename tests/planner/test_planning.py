@@ -23,7 +23,9 @@ from planner.planning import (
     spot_rays,
     time_solutions,
 )
-from planner.verify.check import ArmGeometry, check_plan, trace_arms, ur5e_dh_fk
+from planner.verify.check import check_plan
+from planner.verify.context import ArmGeometry, trace_arms
+from planner.verify.numpy_beam import ur5e_dh_fk
 from schemas.plan import Plan
 from tests.paths import REPO
 from tests.planner.ik import ik_systems as sy

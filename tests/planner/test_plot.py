@@ -9,7 +9,7 @@ import numpy as np
 from planner.model.kinematics import RobotKinematics
 from planner.planning import run_scenario
 from planner.plot import arm_points, plot_profiles, profiles_path
-from planner.verify.check import ur5e_dh_fk
+from planner.verify.numpy_beam import ur5e_dh_fk
 from tests.planner.test_planning import write_scenario
 
 DH_LENGTHS = [0.1625, 0.425, 0.3922, 0.1333, 0.0997, 0.0996]  # conventions section 2: d and a

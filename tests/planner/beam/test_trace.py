@@ -84,7 +84,8 @@ def test_checker_applies_the_same_rule() -> None:
     """The independent checker (own FK, own mirror surface) judges each configuration as
     the planner's BeamTrace does: the same thresholds, with its rounding slack."""
     from planner.model.validity import ahead_ok, chain_ok, front_ok, roi_ok
-    from planner.verify.check import ArmGeometry, spots, trace_arms, ur5e_dh_fk
+    from planner.verify.context import ArmGeometry, spots, trace_arms
+    from planner.verify.numpy_beam import ur5e_dh_fk
     from planner.verify.tolerances import ROI_SLACK, TRACE_SLACK
 
     system = make_system(1, seed=2)

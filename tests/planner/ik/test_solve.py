@@ -13,7 +13,8 @@ from planner.ik import EXACT, BeamIK, IKOptions
 from planner.model.kinematics import RobotKinematics
 from planner.model.system import DEFAULT_HOME, Limits, System
 from planner.model.transforms import look_at
-from planner.verify.check import ArmGeometry, spots, trace_arms, ur5e_dh_fk
+from planner.verify.context import ArmGeometry, spots, trace_arms
+from planner.verify.numpy_beam import ur5e_dh_fk
 from tests.planner.ik import ik_systems as sy
 
 

@@ -7,7 +7,8 @@ import copy
 import numpy as np
 import pytest
 
-from planner.verify.trajectory import check_trajectory, point_deviation, spot_deviation
+from planner.verify.spot import trajectory_findings
+from planner.verify.trajectory import point_deviation, spot_deviation
 from tests.paths import REPO
 
 SCENARIO = REPO / "scenarios" / "curve_path.yaml"
@@ -50,7 +51,7 @@ def plan():
 
 
 def test_curve_path_meets_goals(plan):
-    found = {f.code: f for f in check_trajectory(plan)}
+    found = {f.code: f for f in trajectory_findings(plan)}
     assert not [f for f in found.values() if f.severity != "info"], found
     assert found["path_deviation"].value <= 5e-5  # issue goal: 0.05 mm
     assert abs(found["path_duration"].value / found["path_duration"].bound - 1) < 0.1
@@ -62,10 +63,10 @@ def test_violations_are_found(plan):
     i = len(q) - 400  # inside the path segment
     q[i, 2] += 1e-3  # a 1 mrad kink: jerk ~ 3e-3 * 500^3, and the spot leaves the line
     bad["trajectory"]["q"]["arm0"] = q.tolist()
-    codes = {f.code for f in check_trajectory(bad) if f.severity == "error"}
+    codes = {f.code for f in trajectory_findings(bad) if f.severity == "error"}
     assert {"jerk", "path_deviation"} <= codes
     bad["trajectory"]["t"][5] += 1e-3
-    assert "time_grid" in {f.code for f in check_trajectory(bad) if f.severity == "error"}
+    assert "time_grid" in {f.code for f in trajectory_findings(bad) if f.severity == "error"}
 
 
 def test_point_and_polyline_deviation_known_geometry():
@@ -90,19 +91,19 @@ def test_urdf_robots_are_not_checked_with_the_ur_model(plan):
     robot = doc["scenario"]["system"]["robots"][0]
     robot.pop("model")
     robot["urdf"] = "/somewhere/calibrated_ur5e.urdf"
-    found = {f.code: f for f in check_trajectory(doc)}
+    found = {f.code: f for f in trajectory_findings(doc)}
     assert found["model_unchecked"].severity == "warning"
     assert "path_deviation" not in found  # no spot check without a numpy model
     assert found["velocity"].severity == "info"  # limits are still checked
 
 
 def test_arrival_checked_at_the_end_of_the_approach(plan):
-    found = {f.code: f for f in check_trajectory(plan)}
+    found = {f.code: f for f in trajectory_findings(plan)}
     assert found["arrival_deviation"].severity == "info"
     assert found["arrival_deviation"].value < 1e-8  # the approach ends on the first sample
     bad = copy.deepcopy(plan)
     seg = bad["trajectory"]["segments"][0]
     assert seg["kind"] == "approach"
     bad["trajectory"]["q"]["arm0"][round(seg["t1"] * 500.0)][3] += 2e-3
-    found = {f.code: f for f in check_trajectory(bad)}
+    found = {f.code: f for f in trajectory_findings(bad)}
     assert found["arrival_deviation"].severity == "error"

@@ -9,7 +9,7 @@ import pytest
 from planner.model.status import Reason
 from planner.verify.check import check_plan
 from planner.verify.findings import Finding
-from planner.verify.trajectory import check_trajectory
+from planner.verify.spot import trajectory_findings
 
 
 def test_trajectory_and_target_findings_are_one_type(plan_doc: dict) -> None:  # type: ignore[type-arg]
@@ -23,8 +23,8 @@ def test_trajectory_and_target_findings_are_one_type(plan_doc: dict) -> None:  #
     assert limits and limits[0].reason is Reason.JOINT_LIMITS and limits[0].target is not None
     grid = [f for f in found if f.check == "trajectory limits" and f.code == "time_grid"]
     assert grid and grid[0].reason is None and grid[0].target is None
-    assert all(type(f) is Finding for f in check_trajectory(plan_doc))
-    assert {f.severity for f in check_trajectory(plan_doc)} <= {"info", "warning"}
+    assert all(type(f) is Finding for f in trajectory_findings(plan_doc))
+    assert {f.severity for f in trajectory_findings(plan_doc)} <= {"info", "warning"}
 
 
 @pytest.fixture(scope="module")
