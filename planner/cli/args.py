@@ -23,6 +23,16 @@ def parse_xyz(text: str, option: str) -> list[float]:
     return v
 
 
+MAX_DOMAIN = 232  # ROS_DOMAIN_ID range (REP 2005 / the ROS 2 domain id docs)
+
+
+def check_domain(domain: int) -> int:
+    """``--ros-domain``: a ROS_DOMAIN_ID (0-232), else InputError."""
+    if not 0 <= domain <= MAX_DOMAIN:
+        raise InputError(f"--ros-domain {domain}: expected 0-{MAX_DOMAIN}")
+    return domain
+
+
 def stop_on_signals() -> threading.Event:
     """An event that SIGINT (Ctrl-C) and SIGTERM set: what a command that runs until stopped
     waits on (install from the main thread)."""

@@ -12,7 +12,7 @@ from typing import Annotated, Any
 
 import typer
 
-from planner.cli.args import stop_on_signals, wait_until_set
+from planner.cli.args import check_domain, stop_on_signals, wait_until_set
 from planner.errors import BeamrelayError, InputError
 
 EndpointOpt = Annotated[
@@ -87,7 +87,6 @@ def serve(
     import os
     import threading
 
-    from planner.cli.ros2 import check_domain
     from planner.service import events
     from planner.service.bus import Keys, open_session
     from planner.service.node import BusAddress, PlannerNode, handler_from_scenario
@@ -238,7 +237,6 @@ def up(
 
     --zenoh-config is used by up itself and passed on to every child. With --ros2 the ROS 2
     bridge runs as one more child, in its own process (never on a control loop)."""
-    from planner.cli.ros2 import check_domain
     from planner.console.address import DEFAULT_HOST, check_free, check_port
     from planner.console.workdir import ensure_dir
     from planner.service.up import run_up

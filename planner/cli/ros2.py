@@ -7,24 +7,16 @@ from typing import Annotated
 
 import typer
 
-from planner.cli.args import stop_on_signals, wait_until_set
+from planner.cli.args import check_domain, stop_on_signals, wait_until_set
 from planner.cli.node import EndpointOpt, PrefixOpt, ZenohConfigOpt
 from planner.errors import InputError
 
 app = typer.Typer(no_args_is_help=True, help="ROS 2 (rmw_zenoh) interoperability.")
 
-MAX_DOMAIN = 232  # ROS_DOMAIN_ID range (REP 2005 / the ROS 2 domain id docs)
-
 DomainOpt = Annotated[
     int,
     typer.Option("--ros-domain", help="ROS_DOMAIN_ID the topics are published in (0-232)."),
 ]
-
-
-def check_domain(domain: int) -> int:
-    if not 0 <= domain <= MAX_DOMAIN:
-        raise InputError(f"--ros-domain {domain}: expected 0-{MAX_DOMAIN}")
-    return domain
 
 
 @app.command("bridge")
