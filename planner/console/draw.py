@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.console.visuals import urdf_visual, wxyz
 from planner.model.scene import SceneItem, object_mesh
 from planner.model.system import System
 from planner.model.transforms import Array
@@ -22,14 +23,6 @@ KEEP_OUT_COLOUR = (230, 40, 40)
 LINK_COLOUR = (150, 190, 235)
 MIRROR_COLOUR = (230, 230, 250)
 BEAM_COLOUR = (40, 40, 40)  # the live beam: dark, outside the cloud's colour ramp
-
-
-def wxyz(R: Array) -> tuple[float, float, float, float]:
-    """Unit quaternion (w, x, y, z) of a rotation matrix."""
-    from viser import transforms as vtf
-
-    q = vtf.SO3.from_matrix(np.asarray(R, dtype=float)).wxyz
-    return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
 
 
 def add_item(server: Any, name: str, item: SceneItem, colour: tuple[int, int, int],
@@ -78,7 +71,6 @@ class RobotDrawing:
     def __init__(self, server: Any, system: System) -> None:
         import trimesh
 
-        from planner.console.visuals import urdf_visual
         from planner.safety.geometry import PartKind, SafetyWorld
 
         self.system = system

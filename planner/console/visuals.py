@@ -19,6 +19,14 @@ from planner.model.system import Robot
 from planner.model.transforms import Array
 
 
+def wxyz(R: Array) -> tuple[float, float, float, float]:
+    """Unit quaternion (w, x, y, z) of a rotation matrix."""
+    from viser import transforms as vtf
+
+    q = vtf.SO3.from_matrix(np.asarray(R, dtype=float)).wxyz
+    return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+
+
 def has_visuals(path: Path) -> bool:
     """Whether the URDF file at ``path`` gives any link a ``<visual>`` (False if unreadable)."""
     try:
@@ -35,8 +43,6 @@ class UrdfVisual:
     def __init__(self, server: Any, robot: Robot, path: Path) -> None:
         import yourdfpy
         from viser.extras import ViserUrdf
-
-        from planner.console.draw import wxyz
 
         urdf = yourdfpy.URDF.load(
             path, build_scene_graph=True, load_meshes=True,
