@@ -95,23 +95,24 @@ class CalibrationPanel:
     log: Any
 
 
-def build_calibration_panel(server: Any, aim: str, workdir: Path) -> CalibrationPanel:
-    """The wizard's widgets (collapsed); ``aim``: the default board centre text, ``workdir``
-    the working directory the file names are relative to (shown)."""
+def build_calibration_panel(server: Any, kinds: tuple[str, ...], aim: str, workdir: Path,
+                            files: tuple[str, str]) -> CalibrationPanel:  # fmt: skip
+    """The wizard's widgets (collapsed): ``kinds`` of calibration (the first chosen),
+    ``aim`` the default board centre text, ``workdir`` the working directory the file names
+    are relative to (shown), ``files`` the first kind's default dataset and output names."""
     from planner.calibration.collect import SPEED, SPEED_RANGE
-    from planner.console.wizard import KINDS
 
     gui = server.gui
     # below every browser's own panel, which is built later, when the browser connects
     with gui.add_folder("Calibration wizard", expand_by_default=False, order=WIZARD_ORDER):
-        kind = gui.add_dropdown("calibration", list(KINDS), initial_value=KINDS[0])
+        kind = gui.add_dropdown("calibration", list(kinds), initial_value=kinds[0])
         poses = gui.add_number("poses", 12, min=3, max=200, step=1)
         speed = gui.add_number("speed [rad/s]", SPEED, min=SPEED_RANGE[0], max=SPEED_RANGE[1],
                                step=0.01)  # fmt: skip
         aim_h = gui.add_text("board centre (beam) [m]", aim)
         gui.add_markdown(f"files in `{workdir}` unless a path is absolute")
-        dataset = gui.add_text("dataset", "calibration_data.json")
-        output = gui.add_text("calibration file", "calibration.yaml")
+        dataset = gui.add_text("dataset", files[0])
+        output = gui.add_text("calibration file", files[1])
         collect = gui.add_button("1. Collect data (moves the robot)")
         calibrate = gui.add_button("2. Calibrate and write the file")
         cancel = gui.add_button("Cancel step")

@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from planner.calibration.collect import SPEED, SPEED_RANGE
+from planner.console.panel import build_calibration_panel
 from planner.console.workdir import default_workdir, ensure_dir, input_path, output_path
 from planner.errors import BeamrelayError, InputError
 
@@ -217,6 +218,12 @@ def _prctl() -> Any:
         return None
 
 
+def files(kind: str) -> tuple[str, str]:
+    """The default dataset and calibration file names of calibration ``kind`` (relative to
+    the working directory)."""
+    return f"{kind}_data.json", f"{kind}.yaml"
+
+
 class Wizard:
     """The wizard's panel on ``server`` and its steps: collect, calibrate, cancel (one
     :class:`StepRunner`); ``bus``: the console's bus options (endpoint, prefix, zenoh_config);
@@ -225,17 +232,26 @@ class Wizard:
 
     def __init__(self, server: Any, scenario: Path, scene_items: list[Any],
                  bus: dict[str, Any], workdir: Path | None = None) -> None:  # fmt: skip
-        from planner.console.panel import build_calibration_panel
-
         self.scenario, self.bus = scenario, bus
         self.workdir = Path(workdir).absolute() if workdir is not None else default_workdir()
         centre = scene_items[0].world_T_object[:3, 3] if scene_items else [0, 0, 0]
         aim = ",".join(f"{v:.3f}" for v in centre)
-        self.cal = build_calibration_panel(server, aim, self.workdir)
+        self.cal = build_calibration_panel(server, KINDS, aim, self.workdir, files(KINDS[0]))
+        self.cal.kind.on_update(lambda _: self.kind_changed())
         self.steps = StepRunner(lambda text: setattr(self.cal.log, "content", text))
         self.cal.collect.on_click(lambda _: self.collect())
         self.cal.calibrate.on_click(lambda _: self.calibrate())
         self.cal.cancel.on_click(lambda _: self.steps.cancel())
+
+    def kind_changed(self) -> None:
+        """Another calibration kind chosen: file names still at another kind's defaults take
+        this kind's (so a beam calibration never overwrites the hand-eye files); names the
+        operator typed stay."""
+        dataset, output = files(str(self.cal.kind.value))
+        if str(self.cal.dataset.value) in {files(k)[0] for k in KINDS}:
+            self.cal.dataset.value = dataset
+        if str(self.cal.output.value) in {files(k)[1] for k in KINDS}:
+            self.cal.output.value = output
 
     def close(self) -> None:
         """End a running step (SIGTERM, SIGKILL after :data:`STOP_WAIT` s) and refuse more."""

@@ -338,8 +338,8 @@ def test_operator_runs_the_hand_eye_wizard_to_a_calibration_file(system_up, page
     assert float(np.max(np.abs(joints(client)[0] - q_start))) < 3e-3
     click_button(d, "2. Calibrate and write the file")
     wait_text(d, lambda t: "kind: handeye" in t, 120.0, "the report")
-    out = workdir / "calibration.yaml"
-    assert (workdir / "calibration_data.json").is_file() and out.is_file()
+    out = workdir / "handeye.yaml"
+    assert (workdir / "handeye_data.json").is_file() and out.is_file()
     doc = YAML(typ="safe").load(out.read_text())
     assert doc["report"]["kind"] == "handeye" and doc["report"]["solver"]["converged"]
     pose = doc["system"]["camera"]["world_T_camera"]

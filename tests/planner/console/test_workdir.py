@@ -83,13 +83,13 @@ def test_the_wizard_writes_under_its_workdir_and_shows_mistakes_as_one_line(
     wizard.cal.poses.value = 3
     wizard.collect()
     argv = wizard.steps.argv[-1]  # type: ignore[attr-defined]
-    assert argv[argv.index("-o") + 1] == str(wd / "calibration_data.json") and wd.is_dir()
+    assert argv[argv.index("-o") + 1] == str(wd / "handeye_data.json") and wd.is_dir()
     wizard.calibrate()  # no dataset yet
     assert "run step 1 first" in wizard.cal.log.content
-    (wd / "calibration_data.json").write_text("{}")
+    (wd / "handeye_data.json").write_text("{}")
     wizard.calibrate()
     argv = wizard.steps.argv[-1]  # type: ignore[attr-defined]
-    assert argv[argv.index("-o") + 1] == str(wd / "calibration.yaml")
+    assert argv[argv.index("-o") + 1] == str(wd / "handeye.yaml")
     n = len(wizard.steps.argv)  # type: ignore[attr-defined]
     (tmp_path / "file").write_text("")
     for field, text, words in [
@@ -142,3 +142,19 @@ def test_bad_workdir_options_exit_2_with_one_line(tmp_path: Path) -> None:
         "--console-workdir",
         "is a file",
     )
+
+
+def test_each_calibration_kind_has_its_own_default_files(tmp_path: Path, server: Any) -> None:
+    """Choosing beam after hand-eye moves the default names to beam's (a beam calibration
+    never overwrites the hand-eye dataset or file); a name the operator typed stays."""
+    bus = {"endpoint": None, "prefix": "beamrelay", "zenoh_config": None}
+    wizard = Wizard(server, N1, [], bus, workdir=tmp_path)
+    cal = wizard.cal
+    assert (cal.dataset.value, cal.output.value) == ("handeye_data.json", "handeye.yaml")
+    cal.kind.value = "beam"
+    wizard.kind_changed()
+    assert (cal.dataset.value, cal.output.value) == ("beam_data.json", "beam.yaml")
+    cal.output.value = "mine.yaml"
+    cal.kind.value = "handeye"
+    wizard.kind_changed()
+    assert (cal.dataset.value, cal.output.value) == ("handeye_data.json", "mine.yaml")
