@@ -11,6 +11,8 @@ import sys
 import tomllib
 from pathlib import Path
 
+import pytest
+
 from tests.paths import REPO
 
 PACKAGES = ("planner", "schemas", "drivers")
@@ -53,3 +55,41 @@ def test_every_planner_subpackage_has_a_layer() -> None:
         if (p.suffix == ".py" and p.stem != "__init__") or (p / "__init__.py").is_file()
     }
     assert found - named == set(), f"not in the layers contract: {sorted(found - named)}"
+
+
+def import_cycles(packages: tuple[str, ...]) -> list[tuple[str, ...]]:
+    """Each import cycle among ``packages`` (importable from sys.path) as the shortest chain
+    that closes it, once per cycle. Imports under ``if TYPE_CHECKING:`` do not run and do
+    not count; function-local imports do."""
+    import grimp
+
+    graph = grimp.build_graph(*packages, exclude_type_checking_imports=True, cache_dir=None)
+    cycles: dict[frozenset[str], tuple[str, ...]] = {}
+    for module in sorted(graph.modules):
+        for imported in sorted(graph.find_modules_directly_imported_by(module)):
+            back = graph.find_shortest_chain(importer=imported, imported=module)
+            if back is not None:
+                cycles.setdefault(frozenset(back), (module, *back))
+    return sorted(cycles.values())
+
+
+def test_no_import_cycle() -> None:
+    assert import_cycles(PACKAGES) == []
+
+
+def test_an_import_cycle_is_found(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A three-module cycle, one link of it a function-local import, and a TYPE_CHECKING-only
+    pair, in a throw-away package."""
+    pkg = tmp_path / "cyclepkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from cyclepkg import b\n")
+    (pkg / "b.py").write_text("def f():\n    from cyclepkg import c\n")
+    (pkg / "c.py").write_text("import cyclepkg.a\n")
+    (pkg / "d.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+                              "    import cyclepkg.e\n")  # fmt: skip
+    (pkg / "e.py").write_text("import cyclepkg.d\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    found = import_cycles(("cyclepkg",))
+    assert len(found) == 1 and set(found[0]) == {"cyclepkg.a", "cyclepkg.b", "cyclepkg.c"}
+    assert found[0][0] == found[0][-1]  # the chain closes
