@@ -1,5 +1,6 @@
-"""Headless chromium for the console's browser test: start it, count websocket traffic,
-read the page, project world points into the canvas the way the page's camera does."""
+"""Headless chromium for the console's browser test: start it, count websocket traffic and
+the page's frames, read the page, project world points into the canvas the way the page's
+camera does."""
 
 from __future__ import annotations
 
@@ -14,9 +15,16 @@ import numpy as np
 CHROMIUM = ("chromium", "chromium-browser", "google-chrome")
 #: records every message batch the page receives from the server, from before it loads: (time
 #: ms, bytes of binary data in it). viser reads its websocket in a Web Worker that posts the
-#: decoded messages to the page, so the probe listens to the workers' messages.
+#: decoded messages to the page, so the probe listens to the workers' messages. Also the start
+#: (ms) of each of the page's first 4000 animation frames, in ``window.__raf``.
 WS_PROBE = """
 window.__ws = [];
+window.__raf = [];
+(function frame() {
+  if (window.__raf.length >= 4000) return;
+  window.__raf.push(performance.now());
+  requestAnimationFrame(frame);
+})();
 function __binaryBytes(x, depth) {
   if (x == null || depth > 8) return 0;
   if (x instanceof ArrayBuffer) return x.byteLength;
@@ -43,6 +51,23 @@ function f() { n++; if (performance.now() - t0 < arguments_ms) requestAnimationF
                else done(n / ((performance.now() - t0) / 1000)); }
 requestAnimationFrame(f);
 """
+
+
+#: [ms the first message batch over arguments[0] bytes was handled, ms the frame after it
+#: ended (the next frame's start)], on the page's clock (0 = navigation start), or null
+FIRST_BIG_FRAME = """
+const big = window.__ws.find(m => m[1] > arguments[0]);
+const after = big ? window.__raf.filter(t => t > big[0]) : [];
+return after.length >= 2 ? [big[0], after[1]] : null;
+"""
+
+
+def first_frame_after(d: Any, min_bytes: int) -> tuple[float, float] | None:
+    """(s, s) from the page's navigation start to the first message batch over
+    ``min_bytes`` bytes and to the end of the frame that drew it, or None before then: when
+    the page drew it, apart from how slowly a starved browser answers the webdriver."""
+    got = d.execute_script(FIRST_BIG_FRAME, min_bytes)
+    return None if got is None else (1e-3 * float(got[0]), 1e-3 * float(got[1]))
 
 
 def chromium_paths() -> tuple[str, str] | None:
