@@ -22,6 +22,8 @@ def health_markdown(snap: dict[str, Any], rates: dict[str, float], nodes: tuple[
     the scenario names a laser gate (without one nothing switches the laser: no line may say
     it is off)."""
     lines = []
+    hb = snap["heartbeat"]
+    beating = hb is not None and now - hb.at <= HEARTBEAT_STALE
     for node in nodes:
         alive = "up" if node in snap["alive"] else "**DOWN**"
         rate = rates.get(node)
@@ -34,9 +36,10 @@ def health_markdown(snap: dict[str, Any], rates: dict[str, float], nodes: tuple[
                 text += ", **protective stop**"
             if m.fault:
                 text += f", **fault: {m.fault}**"
+                if "heartbeat" in m.fault and beating:  # the stop it caused still stands
+                    text += " (the heartbeat is back; the robot stays stopped until a new motion)"
         lines.append(text)
-    hb = snap["heartbeat"]
-    if hb is None or now - hb.at > HEARTBEAT_STALE:
+    if not beating:
         lines.append("heartbeat: **silent** (robots brake)")
     else:
         lines.append(f"heartbeat: ok, {rates.get('heartbeat', 0.0):.0f} Hz")

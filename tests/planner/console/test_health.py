@@ -110,3 +110,18 @@ def test_the_last_fault_and_the_keep_out_count_stay_on_the_panel() -> None:
     assert "last fault: arm0: protective stop (0 s ago)" in health_markdown(
         live.snapshot(), {}, ("arm0",), clock.t
     )
+
+
+def test_a_stop_for_a_lost_heartbeat_reads_as_past_once_the_heartbeat_is_back() -> None:
+    """'heartbeat: ok' beside 'fault: planner heartbeat lost' once read as a contradiction:
+    the robot line says the heartbeat is back and the stop still stands."""
+    now = 10.0
+    st = RobotStatus(robot="arm0", t=1.0, mode="stopped", fault="planner heartbeat lost: s1")
+    beat = Stamped(Heartbeat(t=1.0, session="s1", seq=3), now - 0.01)
+    s = snap(alive=["arm0"], status={"arm0": Stamped(st, now)}, heartbeat=beat)
+    text = health_markdown(s, {"heartbeat": 100.0}, ("arm0",), now)
+    assert "heartbeat: ok" in text
+    assert ("**fault: planner heartbeat lost: s1** (the heartbeat is back; the robot stays "
+            "stopped until a new motion)") in text  # fmt: skip
+    silent = health_markdown(s | {"heartbeat": None}, {}, ("arm0",), now)
+    assert "heartbeat: **silent**" in silent and "is back" not in silent
