@@ -36,6 +36,8 @@ STOP_SCHEMA: Final = "beamrelay.stop/1"
 SETPOINT_SCHEMA: Final = "beamrelay.setpoint/1"
 TARGET_STREAM_SCHEMA: Final = "beamrelay.target_stream/1"
 CALIBRATION_SCHEMA: Final = "beamrelay.calibration/1"
+TRACK_SCHEMA: Final = "beamrelay.track/1"
+RECOVER_SCHEMA: Final = "beamrelay.recover/1"
 #: largest closed-loop tolerance a request may ask for (m): beyond it, it is a unit mistake
 MAX_TOLERANCE = 0.05
 #: longest dwell a request may ask for (s)
@@ -248,6 +250,16 @@ class RobotStatus(StrictModel):
     laser_on: StrictBool | None = None
     """the laser gate's state, from the driver of the robot that switches it (else null)"""
     safety_mode: str | None = None  # the controller's safety mode (normal, reduced, ...)
+
+
+class RecoverRequest(StrictModel):
+    """An operator's request to recover a UR robot from a protective stop (on
+    ``<prefix>/<robot>/recover``; ``t`` UNIX s, ``operator`` who asked)."""
+
+    schema_: Literal["beamrelay.recover/1"] = Field(default=RECOVER_SCHEMA, alias="schema")
+    robot: str
+    t: Num
+    operator: Annotated[str, Field(max_length=200)] = ""
 
 
 class LaserState(StrictModel):

@@ -14,14 +14,16 @@
 
 from __future__ import annotations
 
-import json
 import sys
 import threading
 import time
 from collections.abc import Callable
 from typing import Any, TextIO
 
-RECOVER_SCHEMA = "beamrelay.recover/1"
+from pydantic import ValidationError
+
+from schemas.messages import RECOVER_SCHEMA, RecoverRequest
+
 MAX_RECOVER_BYTES = 4096
 
 #: UR safety modes (``getSafetyMode()``); 1 and 2 allow motion
@@ -142,18 +144,19 @@ def recover_key(prefix: str, robot: str) -> str:
 
 
 def recover_body(robot: str, operator: str = "") -> bytes:
-    body = {"schema": RECOVER_SCHEMA, "robot": robot, "t": time.time(), "operator": operator}
-    return json.dumps(body).encode()
+    """The :class:`~schemas.messages.RecoverRequest` body asking ``robot`` to recover."""
+    body = RecoverRequest(robot=robot, t=time.time(), operator=operator[:200])
+    return body.model_dump_json(by_alias=True).encode()
 
 
 def parse_recover(payload: bytes, robot: str) -> str:
     """The operator text of a valid recover request for ``robot``; ValueError otherwise."""
     if len(payload) > MAX_RECOVER_BYTES:
         raise ValueError(f"recover body of {len(payload)} bytes > {MAX_RECOVER_BYTES}")
-    body = json.loads(payload)
-    if not isinstance(body, dict) or body.get("schema") != RECOVER_SCHEMA:
-        raise ValueError(f"expected schema {RECOVER_SCHEMA}")
-    if body.get("robot") != robot:
-        raise ValueError(f"recover request for {body.get('robot')!r}, this is {robot!r}")
-    operator = body.get("operator", "")
-    return operator if isinstance(operator, str) else ""
+    try:
+        body = RecoverRequest.model_validate_json(payload)
+    except ValidationError as exc:
+        raise ValueError(f"not a {RECOVER_SCHEMA} body: {exc.errors()[0]['msg']}") from None
+    if body.robot != robot:
+        raise ValueError(f"recover request for {body.robot!r}, this is {robot!r}")
+    return body.operator

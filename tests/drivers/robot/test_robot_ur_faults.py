@@ -237,3 +237,29 @@ def test_watchdog_armed_in_the_first_period_and_refusal_is_a_fault() -> None:
     for _ in range(5):
         period(robot)
     assert robot.measured().mode == "fault"
+
+
+@pytest.mark.parametrize(
+    ("payload", "words"),
+    [
+        (b"not json", "not a beamrelay.recover/1 body"),
+        (b'{"schema": "beamrelay.stop/1", "robot": "arm0", "t": 1}', "not a beamrelay.recover/1"),
+        (b'{"schema": "beamrelay.recover/1", "robot": "arm0", "t": "NaN"}', "not a beamrelay"),
+        (b'{"schema": "beamrelay.recover/1", "robot": "arm0", "t": 1, "operator": 5}', "not a"),
+        (b'{"schema": "beamrelay.recover/1", "robot": "arm1", "t": 1}', "for 'arm1', this is"),
+        (b'{"schema": "beamrelay.recover/1", "robot": "arm0", "t": 1, "x": 1}', "not a"),
+        (b"{" + b" " * 5000 + b"}", "bytes >"),
+    ],
+)
+def test_a_recover_body_is_the_schema_model_or_refused(payload: bytes, words: str) -> None:
+    from drivers.robot.ur_link import parse_recover
+
+    with pytest.raises(ValueError, match=words):
+        parse_recover(payload, "arm0")
+
+
+def test_a_recover_body_round_trips_with_the_operator_cut_to_its_limit() -> None:
+    from drivers.robot.ur_link import parse_recover
+
+    assert parse_recover(recover_body("arm0", "ops"), "arm0") == "ops"
+    assert parse_recover(recover_body("arm0", "x" * 500), "arm0") == "x" * 200
