@@ -29,6 +29,7 @@ from planner.scenario_planner import plan_path_targets as plan_path_targets
 from planner.scenario_planner import plan_points as plan_points
 from planner.scenario_planner import solve_landed_path as solve_landed_path
 from planner.scenario_planner import solve_path as solve_path
+from schemas.plan import PLAN_SCHEMA
 
 if TYPE_CHECKING:
     from planner.model.settings import TrajectorySettings
@@ -36,8 +37,6 @@ if TYPE_CHECKING:
     from planner.path.timing import MoveFn, Trajectory, VisitReport
     from planner.safety.model import Safety
     from planner.verify.spot import Mask
-
-PLAN_SCHEMA = "beamrelay.plan/1"
 
 
 def solution_json(system: System, k: int, sol: Solution) -> dict[str, Any]:

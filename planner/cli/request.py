@@ -18,6 +18,7 @@ from planner.cli.args import parse_xyz
 from planner.cli.node import EndpointOpt, PrefixOpt, ZenohConfigOpt
 from planner.errors import InputError
 from planner.model.status import Status
+from schemas.messages import TRACK_SCHEMA
 
 #: seconds per target added to --timeout for a closed-loop reply (it comes after the motion)
 CLOSED_LOOP_SECONDS_PER_TARGET = 15.0
@@ -213,7 +214,7 @@ def _track_request(
 
     def on_plan(sample: object) -> None:
         body = json.loads(sample.payload.to_bytes())  # type: ignore[attr-defined]
-        if body.get("schema") == "beamrelay.track/1" and body.get("id") == stream:
+        if body.get("schema") == TRACK_SCHEMA and body.get("id") == stream:
             summaries.append(body)
             got.set()
 

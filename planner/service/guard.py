@@ -20,6 +20,7 @@ from typing import Any
 
 from planner.errors import BeamrelayError, InputError
 from planner.service.bus import MAX_PAYLOAD_BYTES
+from planner.service.heartbeat import HEARTBEAT_RATE
 
 log = logging.getLogger("beamrelay.node")
 
@@ -27,8 +28,6 @@ log = logging.getLogger("beamrelay.node")
 QUEUE_SIZE = 64
 #: ... or beyond this many bytes of request bodies in total
 QUEUE_BYTES = 32 * 1024 * 1024
-#: heartbeat rate (Hz); drivers brake after 100 ms of silence
-HEARTBEAT_RATE = 100.0
 #: a request may keep the worker busy this long (s) ...
 WORKER_TIMEOUT = 30.0
 #: ... plus this long per target (s), before the planner counts as wedged

@@ -57,7 +57,7 @@ from planner.service.priority import TIMING_NICE
 from planner.service.setpoints import SetpointStreamer
 from planner.track.correction import SpotCorrection
 from planner.track.follow import TargetFollower
-from schemas.messages import JointState, SpotMessage, TargetStream
+from schemas.messages import TRACK_SCHEMA, JointState, SpotMessage, TargetStream
 
 log = logging.getLogger("beamrelay.track")
 
@@ -65,7 +65,6 @@ log = logging.getLogger("beamrelay.track")
 MAX_STREAM_BYTES = 64 * 1024
 #: s: the session stops when no frame of its stream came this long after its start
 FIRST_FRAME_TIMEOUT = 1.0
-TRACK_SCHEMA = "beamrelay.track/1"
 
 
 class TrackSession:
