@@ -46,6 +46,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from schemas import defaults
 from schemas.messages import LaserState
 
 MAX_SWITCHES = 4096  # switches remembered
@@ -223,7 +224,7 @@ class LaserGate:
             return self.spent
         energy = self.session_energy
         cap = r.max_session_energy
-        period = 1.0 / max(float(getattr(self.backend, "rate", 500.0)), 1.0)
+        period = 1.0 / max(float(getattr(self.backend, "rate", defaults.SERVO_RATE_HZ)), 1.0)
         if (cap is not None and energy is not None and r.power is not None
                 and energy + r.power * period > cap * (1 + 1e-9)):  # fmt: skip
             self.spent = (f"max_session_energy {cap:g} J reached ({energy:.4g} J emitted): "

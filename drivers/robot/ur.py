@@ -68,6 +68,7 @@ from drivers.robot.follower import STOP_ACCELERATION, Reference, TrajectoryFollo
 from drivers.robot.ur_link import MOTION_ALLOWED, AsyncCall, RateLimitedLog, safety_name
 from planner.errors import InputError
 from planner.model.system import Limits
+from schemas import defaults
 
 LOOKAHEAD_RANGE = (0.03, 0.2)  # s, accepted by servoJ
 GAIN_RANGE = (100.0, 2000.0)  # servoJ proportional gain
@@ -102,7 +103,7 @@ class URRobot:
         limits: Limits,
         *,
         robot: str = "",
-        rate: float = 500.0,
+        rate: float = defaults.SERVO_RATE_HZ,
         lookahead_time: float = 0.1,
         gain: float = 300.0,
         watchdog_hz: float = 10.0,

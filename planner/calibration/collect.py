@@ -24,9 +24,10 @@ import numpy as np
 
 from planner.model.system import System
 from planner.model.transforms import Array, inv_T
+from schemas import defaults
 
 LEVER = 0.5  # m: rotation columns are scaled by this to compare with translations
-RATE = 500.0  # Hz, samples of a move
+RATE = defaults.SERVO_RATE_HZ  # Hz, samples of a move
 #: rad/s, the default peak joint speed of a collection move, and the range allowed
 SPEED, SPEED_RANGE = 0.3, (0.01, 1.0)
 

@@ -16,6 +16,7 @@ import typer
 
 from planner.cli.args import command_group
 from planner.errors import InputError
+from schemas import defaults
 
 app = command_group(help="Hardware bring-up: checklist of the arm and the camera.")
 
@@ -167,13 +168,13 @@ class _RealRig:
         if self._receive is None:
             from rtde_receive import RTDEReceiveInterface
 
-            self._receive = RTDEReceiveInterface(self.host, 500.0)
+            self._receive = RTDEReceiveInterface(self.host, defaults.SERVO_RATE_HZ)
         return self._receive
 
     def open_control(self) -> Any:
         from rtde_control import RTDEControlInterface
 
-        return RTDEControlInterface(self.host, 500.0)
+        return RTDEControlInterface(self.host, defaults.SERVO_RATE_HZ)
 
     def camera_check(self) -> Any:
         import pyrealsense2 as rs

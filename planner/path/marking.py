@@ -40,6 +40,7 @@ from planner.path.timing import (
     profile_piece,
     ruckig_move,
 )
+from schemas import defaults
 
 RUN_MARGIN = 1.5  # run-in/run-out length as a multiple of the ramp / look-ahead distance
 SPEED_SLACK = 0.02  # fraction: the marked speed may be this much below/above the spot speed
@@ -114,7 +115,7 @@ def run_samples(spot_speed: float, h: float, rate: float, a_s: float | None = No
 def extend_run(
     system: System, targets: Targets, idx: Array, Q: Array, offset: float,
     spot_speed: float, opts: PathOptions | None = None, *, n: int | None = None,
-    rate: float = 500.0,
+    rate: float = defaults.SERVO_RATE_HZ,
 ) -> MarkRun:  # fmt: skip
     """The stroke of path samples ``idx`` (solved joints ``Q``, len(idx) x nq) extended by a
     run-in and a run-out of ``n`` samples each (default :func:`run_samples` at the nominal
@@ -167,7 +168,7 @@ def sized_run(system: System, targets: Targets, idx: Array, Q: Array, offset: fl
 
 
 def mark_runs(system: System, targets: Targets, Q: Array, arc: Array, spot_speed: float,
-              *, skywriting: bool = True, rate: float = 500.0) -> list[MarkRun]:  # fmt: skip
+              *, skywriting: bool = True, rate: float = defaults.SERVO_RATE_HZ) -> list[MarkRun]:  # fmt: skip
     """The marked runs of a path: each stroke (``targets.meta["strokes"]``, default the whole
     path, back to sample 0 when closed) cut at unsolved samples, extended by a run-in and a
     run-out sized for timing at ``rate`` (Hz, :func:`sized_run`) unless ``skywriting`` is
@@ -260,7 +261,7 @@ def time_run(run: MarkRun, lim: object, spot_speed: float, rate: float, t0: floa
 
 def marking_trajectory(
     system: System, runs: list[MarkRun], q_start: Array | None = None,
-    spot_speed: float = 0.02, rate: float = 500.0, move: MoveFn | None = None,
+    spot_speed: float = 0.02, rate: float = defaults.SERVO_RATE_HZ, move: MoveFn | None = None,
 ) -> Trajectory:  # fmt: skip
     """Approach from ``q_start`` (default home) to the first run's start, each run timed by
     :func:`time_run`, rest-to-rest ``move`` between runs (laser off; from one run's run-out
