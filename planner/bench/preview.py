@@ -3,7 +3,9 @@
 A world-frame ``mode: path`` request through three points on the board of
 ``scenarios/paper_n1.yaml`` (150 mm, resampled every 1 mm: K = 152 samples) is planned with
 its trajectory and every safety rule (:class:`~planner.service.handler.RequestHandler`,
-in-process, no Zenoh) and encoded to the reply's JSON bytes, ``--runs`` times after one
+in-process, no Zenoh), timed at the preview rate as the planner node times a request that is
+not executed (:data:`~planner.service.handler.PREVIEW_RATE`; an execution is planned again at
+the scenario's rate) and encoded to the reply's JSON bytes, ``--runs`` times after one
 warm-up. Reported: the median, p95 and max of the whole request -> bytes time (wall clock
 and process CPU time: the CPU figure is the one to trust on a loaded machine), and a
 breakdown (process CPU time) from the same pipeline run stage by stage: path solve (IK + path NLP + clearance),
@@ -20,6 +22,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -74,6 +77,14 @@ def _preview_request(points: list[Any], mode: str) -> Any:
     })  # fmt: skip
 
 
+def preview_rate() -> float:
+    """Hz: the rate the planner node times a preview at (imported late: the CLI's --help
+    loads no solver)."""
+    from planner.service.handler import PREVIEW_RATE
+
+    return PREVIEW_RATE
+
+
 class Rig:
     """The objects :func:`~planner.service.handler.handler_from_scenario` builds, kept to
     run its plan function stage by stage."""
@@ -93,7 +104,11 @@ class Rig:
         self.system = system_from_scenario(scn)
         self.scenario = resolved_scenario_dict(scn)
         self.options = ik_options(scn.model.solver)
-        self.settings = trajectory_settings(scn)
+        self.settings = replace(trajectory_settings(scn), rate=preview_rate())  # a preview's
+        self.scenario["trajectory"] = {
+            **self.scenario.get("trajectory", {}),
+            "rate": preview_rate(),
+        }
         self.scene = scene_model(scn)
         self.safety = Safety.from_scenario(scn, self.system)
 
@@ -167,13 +182,15 @@ def measure(scenario: Path, runs: int, centre: tuple[float, ...]) -> dict[str, A
     rig = Rig(scenario)
     req = path_request(centre)
     targets = handler.targets(req)
-    encode_json(handler.plan(req, None, trajectory=True))  # warm-up: CasADi builds, caches
+    encode_json(
+        handler.plan(req, None, trajectory=True, rate=preview_rate())
+    )  # warm-up: CasADi builds, caches
     walls, cpus, body = [], [], b""
     per: dict[str, list[float]] = {k: [] for k in STAGES}
     doc: dict[str, Any] = {}
     for _ in range(runs):
         w0, c0 = time.perf_counter(), time.process_time()
-        body = encode_json(handler.plan(req, None, trajectory=True))
+        body = encode_json(handler.plan(req, None, trajectory=True, rate=preview_rate()))
         walls.append(time.perf_counter() - w0)
         cpus.append(time.process_time() - c0)
         secs, doc = rig.stages(targets)
@@ -182,11 +199,13 @@ def measure(scenario: Path, runs: int, centre: tuple[float, ...]) -> dict[str, A
     plan = json.loads(body)
     camera = _camera_figures(handler, rig, centre, runs)
     one = target_request(centre)
-    encode_json(handler.plan(one, None, trajectory=True))
+    encode_json(handler.plan(one, None, trajectory=True, rate=preview_rate()))
     single = []
     for _ in range(runs):
         w0 = time.perf_counter()
-        reply = json.loads(encode_json(handler.plan(one, None, trajectory=True)))
+        reply = json.loads(
+            encode_json(handler.plan(one, None, trajectory=True, rate=preview_rate()))
+        )
         single.append(time.perf_counter() - w0)
     figures = doc["_figures"]
     total, target = stats_ms(walls), stats_ms(single)
@@ -216,12 +235,14 @@ def _camera_figures(handler: Any, rig: Rig, centre: tuple[float, ...], runs: int
         return None
     req = camera_path_request(centre, cam.world_T_camera)
     targets = handler.targets(req)
-    encode_json(handler.plan(req, None, trajectory=True))
+    encode_json(handler.plan(req, None, trajectory=True, rate=preview_rate()))
     walls, n_ok = [], 0
     per: dict[str, list[float]] = {k: [] for k in CAMERA_STAGES}
     for _ in range(runs):
         w0 = time.perf_counter()
-        plan = json.loads(encode_json(handler.plan(req, None, trajectory=True)))
+        plan = json.loads(
+            encode_json(handler.plan(req, None, trajectory=True, rate=preview_rate()))
+        )
         walls.append(time.perf_counter() - w0)
         n_ok = int(plan["metrics"]["n_ok"])
         for k, v in rig.camera_stages(targets).items():

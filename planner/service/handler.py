@@ -33,8 +33,9 @@ if TYPE_CHECKING:
 
 
 class PlanFn(Protocol):
-    """``plan_fn(targets, start, trajectory, dwell=None) -> plan.json dict``: ``dwell`` (s)
-    overrides the scenario's ``trajectory.dwell`` (a request's ``dwell``)."""
+    """``plan_fn(targets, start, trajectory, dwell=None, rate=None) -> plan.json dict``:
+    ``dwell`` (s) overrides the scenario's ``trajectory.dwell`` (a request's ``dwell``),
+    ``rate`` (Hz) its ``trajectory.rate`` (a preview's coarser trajectory)."""
 
     def __call__(
         self,
@@ -42,7 +43,15 @@ class PlanFn(Protocol):
         start: dict[str, Array] | None,
         trajectory: bool,
         dwell: float | None = None,
+        rate: float | None = None,
     ) -> dict[str, Any]: ...
+
+
+#: Hz: the trajectory of a plan that is not executed (a preview) is timed and checked at this
+#: rate, a fifth of the servo rate: the console's preview shows the motion and its laser-on
+#: path at a fifth of the cost; what is executed is planned again and checked at the
+#: scenario's ``trajectory.rate``
+PREVIEW_RATE = defaults.SERVO_RATE_HZ / 5
 
 
 #: path requests are resampled every PATH_SPACING m, at most MAX_PATH_SAMPLES samples
@@ -172,12 +181,17 @@ def make_plan_fn(
         start: dict[str, Array] | None,
         trajectory: bool,
         dwell: float | None = None,
+        rate: float | None = None,
     ) -> dict[str, Any]:
         q0 = None if start is None else system.stack_q(start)
         timing_now, scn_now = timing, scenario
-        if dwell is not None:  # the plan echoes the dwell it was timed with
-            timing_now = replace(timing, dwell=dwell)
-            scn_now = {**scenario, "trajectory": {**scenario.get("trajectory", {}), "dwell": dwell}}
+        changed: dict[str, float] = {}
+        if dwell is not None:
+            timing_now, changed["dwell"] = replace(timing_now, dwell=dwell), dwell
+        if rate is not None and rate < timing.rate:  # never finer than the scenario's
+            timing_now, changed["rate"] = replace(timing_now, rate=rate), rate
+        if changed:  # the plan echoes the dwell and rate it was timed with
+            scn_now = {**scenario, "trajectory": {**scenario.get("trajectory", {}), **changed}}
         if targets.kind == "path":
             targets, sols, _ = rules.path(targets, q0)
         else:
@@ -340,10 +354,15 @@ class RequestHandler:
             raise InputError("JSON nested too deeply", "body") from exc
 
     def plan(
-        self, req: Any, start: dict[str, Array] | None = None, trajectory: bool = False
-    ) -> dict[str, Any]:
-        """plan.json dict for a validated request, starting at ``start`` (rad) or home."""
-        return self.plan_fn(self.targets(req), start, trajectory)
+        self, req: Any, start: dict[str, Array] | None = None, trajectory: bool = False,
+        rate: float | None = None,
+    ) -> dict[str, Any]:  # fmt: skip
+        """plan.json dict for a validated request, starting at ``start`` (rad) or home, its
+        trajectory timed at ``rate`` (Hz; None: the scenario's)."""
+        targets = self.targets(req)
+        if rate is None:  # the scenario's rate (a plan function may take no ``rate``)
+            return self.plan_fn(targets, start, trajectory)
+        return self.plan_fn(targets, start, trajectory, rate=rate)
 
     def warm_up(self) -> float:
         """Plan one target with its trajectory, 0.5 m down the beam at home (reached where

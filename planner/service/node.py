@@ -66,6 +66,7 @@ from planner.service.execution import (
 )
 from planner.service.guard import QUEUE_SIZE, Heartbeat, Job, Progress, Worker
 from planner.service.handler import (
+    PREVIEW_RATE,
     RequestHandler,
     error_body,
     handler_from_scenario,
@@ -387,7 +388,8 @@ class PlannerNode:
         targets = self.with_cloud(handler.targets(req, start), req, start)
         self.progress.targets(len(targets.points))
         timed = (req.execute and not req.closed_loop) or req.trajectory
-        plan = handler.plan_fn(targets, start, timed, dwell=req.dwell)
+        rate = PREVIEW_RATE if timed and not req.execute else None  # a preview: coarser
+        plan = handler.plan_fn(targets, start, timed, dwell=req.dwell, rate=rate)
         plan["id"] = req.id
         for text in plan.get("warnings") or []:  # logged before anything moves
             event(log, "warning", logging.WARNING, id=req.id, text=text)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import time
 
+from planner.service.handler import PREVIEW_RATE
 from tests.cli_run import assert_usage_error, beamrelay
 
 RUNS = 3
@@ -33,8 +34,10 @@ def test_preview_figures_of_the_k152_path() -> None:
     # the whole request and its stages run one by one do the same work: their CPU agrees
     staged = sum(s["median_ms"] for s in stages.values())
     assert 0.5 < staged / doc["total_cpu"]["median_ms"] < 2.0, (staged, doc["total_cpu"])
-    # the laser is on for the marked path: ~ its duration at 500 Hz, few measured by coal
-    assert 0.9 * 150.6e-3 / 0.02 * 500 < doc["beam_samples"] < doc["duration_s"] * 500
+    # the laser is on for the marked path: ~ its duration at the preview rate, few measured
+    # by coal
+    rate = PREVIEW_RATE
+    assert 0.9 * 150.6e-3 / 0.02 * rate < doc["beam_samples"] < doc["duration_s"] * rate
     assert 1 <= doc["beam_measured"] < doc["beam_samples"] / 10
     assert doc["bytes"] > 1e5
     # issue 26's goals for the console's click-to-preview: a 150-sample path, one target

@@ -194,3 +194,32 @@ def test_a_halt_after_the_motion_or_of_an_older_trajectory_stops_nothing(
     fake.status("braking", "y1")
     time.sleep(0.3)
     assert stops.bodies() == []
+
+
+def test_a_preview_is_timed_at_the_preview_rate_and_an_execution_at_the_full_rate(
+    system: System, rig: tuple[PlannerNode, Any, FakeDriver]
+) -> None:
+    """A request for the trajectory without executing it (the console's preview) is timed at
+    PREVIEW_RATE, the rate echoed in its scenario (a check of it uses the same grid); the
+    same targets executed are planned again at the scenario's rate, and that is what the
+    driver gets."""
+    from planner.service.handler import PREVIEW_RATE
+    from schemas.defaults import SERVO_RATE_HZ
+
+    _, client, fake = rig
+    points = reachable_targets(system, 3, seed=41)
+    body = {"schema": "beamrelay.request/1", "id": "pv1", "points": points.tolist(),
+            "trajectory": True}  # fmt: skip
+    ok, reply = ask(client, f"{PREFIX}/plan", json.dumps(body).encode())
+    preview = json.loads(reply)
+    assert ok, preview
+    np.testing.assert_allclose(np.diff(preview["trajectory"]["t"]), 1 / PREVIEW_RATE, rtol=1e-9)
+    assert preview["scenario"]["trajectory"]["rate"] == PREVIEW_RATE < SERVO_RATE_HZ
+    assert fake.trajectories == []  # nothing sent
+    plan = execute(client, points, "ex1")
+    assert plan["execution"] == "accepted"
+    sent = fake.trajectories[-1]
+    np.testing.assert_allclose(np.diff(sent["t"]), 1 / SERVO_RATE_HZ, rtol=1e-9)
+    np.testing.assert_allclose(np.diff(plan["trajectory"]["t"]), 1 / SERVO_RATE_HZ, rtol=1e-9)
+    # the same targets in about the same time: the preview shows the motion to be run
+    assert abs(duration(preview["trajectory"]) - duration(plan["trajectory"])) < 0.05

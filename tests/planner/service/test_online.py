@@ -284,7 +284,8 @@ def test_a_request_in_progress_keeps_its_calibration(nominal: System) -> None:
     started, release = threading.Event(), threading.Event()
     inner = make_plan_fn(nominal, {"name": "t"})
 
-    def slow(targets: Any, start: Any, traj: bool, dwell: float | None = None) -> dict[str, Any]:
+    def slow(targets: Any, start: Any, traj: bool, dwell: float | None = None,
+             rate: float | None = None) -> dict[str, Any]:  # fmt: skip
         started.set()
         release.wait(10)
         return inner(targets, start, traj, dwell)
