@@ -170,13 +170,23 @@ def arm(d: Any, attempts: int = 5) -> str:
     raise AssertionError(f"all {attempts} Arm presses were refused")
 
 
+def gated(text: str) -> str:
+    """A scenario's text with its laser behind a gate on arm0's digital output 0 (5 mW):
+    the page shows the treatment laser's state, and a STOP must switch it off."""
+    at = text.index("    world_T_laser:")
+    end = text.index("\n", at) + 1
+    return text[:end] + "    power: 0.005\n    gate: {robot: arm0, output: 0}\n" + text[end:]
+
+
 @pytest.fixture(scope="module")
 def system_up(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
     tmp_path = tmp_path_factory.mktemp("console")
     if chromium_paths() is None:
         pytest.skip("chromium and chromedriver are not installed (`make sysdeps` installs them)")
     endpoint, port = f"tcp/127.0.0.1:{free_port()}", free_port()
-    argv = [sys.executable, "-m", "planner.cli", "up", str(SCENARIO), "--console",
+    scenario = tmp_path / "paper_n1_gated.yaml"  # the treatment laser behind arm0's gate
+    scenario.write_text(gated(SCENARIO.read_text()))
+    argv = [sys.executable, "-m", "planner.cli", "up", str(scenario), "--console",
             "--console-port", str(port), "--endpoint", endpoint, "--no-live",
             "--log-dir", str(tmp_path / "logs"), "--console-workdir",
             str(tmp_path / WORKDIR)]  # fmt: skip
@@ -528,7 +538,7 @@ def stopped_by(d: Any, client: PlanClient, how: str, path: np.ndarray) -> tuple[
     ``"button"``), press the space bar with the focus on the Execute button (``"space"``) or
     close the browser, the operator's only tab (``"close"``); seconds from
     the press or close to the console's STOP on the bus, and to the arm at rest (its joint
-    speeds below 0.1 mrad/s); the button is the big STOP, with the panel scrolled to its end.
+    speeds below 0.1 mrad/s; the treatment laser's gate then reported off); the button is the big STOP, with the panel scrolled to its end.
     Fails when the STOP reached the bus after the motion had ended:
     the joint states just before it at rest and the arm resting where the trajectory ends (a
     STOP in the still instant between the approach and the path stops the arm short of the
@@ -540,6 +550,7 @@ def stopped_by(d: Any, client: PlanClient, how: str, path: np.ndarray) -> tuple[
     for attempt in range(1 if how == "close" else 3):
         stops = Inbox(client.session, client.keys.stop)
         states = Inbox(client.session, client.keys.joint_states("arm0"))
+        laser = Inbox(client.session, client.keys.laser)
         try:
             stop_button = big_stop(d) if how == "button" else None
             if how == "space":
@@ -563,6 +574,9 @@ def stopped_by(d: Any, client: PlanClient, how: str, path: np.ndarray) -> tuple[
             wait_for(lambda: float(np.max(np.abs(joints(client)[1]))) < 1e-4, 10.0,
                      f"the arm at rest after the {how}")  # fmt: skip
             rest = time.monotonic() - t0
+            # the treatment laser is off once the arm rests: the gate's driver says so
+            wait_for(lambda las=laser: las.bodies() and las.bodies()[-1]["on"] is False, 2.0,
+                     f"the treatment laser reported off after the {how}")  # fmt: skip
             before = [np.max(np.abs(b["qd"])) for t, b in states.items
                       if t_stop - 0.05 <= t <= t_stop and isinstance(b, dict)]  # fmt: skip
             short = float(np.max(np.abs(joints(client)[0] - q_end)))  # rad from the end
@@ -575,4 +589,5 @@ def stopped_by(d: Any, client: PlanClient, how: str, path: np.ndarray) -> tuple[
         finally:
             stops.close()
             states.close()
+            laser.close()
     raise AssertionError(f"the STOP by {how} never reached the bus while the arm moved")
