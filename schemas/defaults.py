@@ -12,6 +12,8 @@ import math
 SERVO_RATE_HZ = 500.0
 """Trajectory sample rate and robot control rate, Hz (``trajectory.rate``; the UR e-Series
 servo rate, one sample per 2 ms controller cycle)."""
+HEARTBEAT_RATE_HZ = 100.0
+"""The planner's heartbeat rate, Hz (the drivers brake after 100 ms of silence)."""
 SPOT_SPEED_MPS = 0.02
 """Speed of the spot along a path, m/s (``trajectory.spot_speed``)."""
 DWELL_S = 0.0

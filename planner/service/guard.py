@@ -20,7 +20,7 @@ from typing import Any
 
 from planner.errors import BeamrelayError, InputError
 from planner.service.bus import MAX_PAYLOAD_BYTES
-from planner.service.heartbeat import HEARTBEAT_RATE
+from schemas import defaults
 
 log = logging.getLogger("beamrelay.node")
 
@@ -244,7 +244,7 @@ class Heartbeat:
         session_id: str,
         progress: Progress,
         on_wedged: Callable[[str], None],
-        rate: float = HEARTBEAT_RATE,
+        rate: float = defaults.HEARTBEAT_RATE_HZ,
         clock: Callable[[], float] = time.monotonic,
         wait: Callable[[float], bool] | None = None,
     ) -> None:

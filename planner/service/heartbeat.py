@@ -50,11 +50,12 @@ from typing import Any
 
 from planner.errors import BeamrelayError
 from planner.service.priority import Policy, raise_priority
+from schemas import defaults
 
 log = logging.getLogger("beamrelay.node")
 
 #: heartbeat rate (Hz); drivers brake after 100 ms of silence
-HEARTBEAT_RATE = 100.0
+HEARTBEAT_RATE = defaults.HEARTBEAT_RATE_HZ
 #: the parent's watchdog writes a tick byte this often (s)
 TICK_PERIOD = 0.05
 #: without a tick for this long (s) the parent counts as unresponsive: no beats

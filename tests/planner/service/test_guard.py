@@ -8,7 +8,8 @@ from typing import Any
 
 import pytest
 
-from planner.service.guard import HEARTBEAT_RATE, Heartbeat, Progress
+from planner.service.guard import Heartbeat, Progress
+from planner.service.heartbeat import HEARTBEAT_RATE
 from tests.fake_clock import FakeClock
 
 T0 = 1000.0

@@ -16,8 +16,8 @@ import pytest
 from drivers.robot.node import HEARTBEAT_TIMEOUT
 from planner.model.system import System
 from planner.service.bus import MAX_PAYLOAD_BYTES, Keys, open_session
-from planner.service.guard import HEARTBEAT_RATE, QUEUE_BYTES, Job, JobQueue, Progress
-from planner.service.heartbeat import BusAddress
+from planner.service.guard import QUEUE_BYTES, Job, JobQueue, Progress
+from planner.service.heartbeat import HEARTBEAT_RATE, BusAddress
 from planner.service.node import PlannerNode, RequestHandler, make_plan_fn
 from tests.drivers.conftest import free_port, wait_for
 from tests.planner.raw_zenoh import Inbox, ask, raw_session, token_exists
