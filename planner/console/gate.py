@@ -11,8 +11,8 @@ can neither read the page (no token) nor open the socket (a foreign Origin, and 
 viser serves its page and socket from one ``websockets`` server and has no hook for this;
 :func:`guarded_serve` wraps the ``process_request`` it passes to ``websockets.asyncio.server
 .serve`` while the viser server starts (and sets the keep-alive pings, so a browser that stops
-answering for :data:`PING_TIMEOUT` is dropped). The page goes out uncompressed
-(:func:`uncompressed`).
+answering for :data:`PING_TIMEOUT` is dropped). The page goes out uncompressed, with the
+space bar's script (:func:`planner.console.hotkeys.with_hotkeys`).
 """
 
 from __future__ import annotations
@@ -108,21 +108,6 @@ def gated(gate: Gate, inner: Callable[..., Any] | None) -> Callable[..., Any]:
     return process_request
 
 
-def uncompressed(inner: Callable[..., Any] | None) -> Callable[..., Any]:
-    """A ``process_request`` asking ``inner`` for an uncompressed answer (the request's
-    ``Accept-Encoding`` removed). viser's page is a small loader around its app, already
-    zstd-compressed: gzip takes 18 % off its 0.8 MB, and cost the server a compression by
-    viser plus a decompression and a compression again to add the space bar's script
-    (:mod:`planner.console.hotkeys`) on every page load, before the first byte went out."""
-
-    def process_request(connection: Any, request: Any) -> Any:
-        if "Accept-Encoding" in request.headers:
-            del request.headers["Accept-Encoding"]
-        return inner(connection, request) if inner is not None else None
-
-    return process_request
-
-
 @contextlib.contextmanager
 def guarded_serve(gate: Gate) -> Iterator[None]:
     """While inside, every ``websockets.asyncio.server.serve`` (viser's server start) passes
@@ -136,8 +121,7 @@ def guarded_serve(gate: Gate) -> Iterator[None]:
     serve = ws_server.serve
 
     def guarded(*args: Any, **kwargs: Any) -> Any:
-        inner = with_hotkeys(kwargs.get("process_request"))
-        kwargs["process_request"] = gated(gate, uncompressed(inner))
+        kwargs["process_request"] = gated(gate, with_hotkeys(kwargs.get("process_request")))
         kwargs["ping_interval"], kwargs["ping_timeout"] = PING_INTERVAL, PING_TIMEOUT
         kwargs["close_timeout"] = CLOSE_TIMEOUT
         return serve(*args, **kwargs)
