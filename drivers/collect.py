@@ -222,17 +222,22 @@ class BusPlanner:
             time.sleep(0.01)
         return "did not arrive in time"
 
-    def markers(self, request: dict[str, Any], timeout: float = 5.0) -> Array | None:
-        """Board points seen now (P x 3, NaN = not seen), or None when the camera did not answer."""
+    def markers(self, request: dict[str, Any], timeout: float = 5.0,
+                attempts: int = 2) -> Array | None:  # fmt: skip
+        """Board points seen now (P x 3, NaN = not seen), or None when the camera did not
+        answer ``attempts`` requests of ``timeout`` s each (a camera busy on a loaded machine
+        answers late; the arm rests meanwhile, so a second request sees the same pose)."""
         key = f"{self.keys.prefix}/camera/markers"
-        for reply in self.session.get(key, payload=json.dumps(request).encode(), timeout=timeout):
-            if reply.ok is None:
-                continue
-            body = json.loads(reply.ok.payload.to_bytes())
-            if "error" in body:
-                raise InputError(f"camera: {body['error']}", key)
-            rows = body["points_camera"]
-            return np.array([[np.nan] * 3 if p is None else p for p in rows], dtype=float)
+        for _ in range(attempts):
+            for reply in self.session.get(key, payload=json.dumps(request).encode(),
+                                          timeout=timeout):  # fmt: skip
+                if reply.ok is None:
+                    continue
+                body = json.loads(reply.ok.payload.to_bytes())
+                if "error" in body:
+                    raise InputError(f"camera: {body['error']}", key)
+                rows = body["points_camera"]
+                return np.array([[np.nan] * 3 if p is None else p for p in rows], dtype=float)
         return None
 
     def spot(self, n: int = 10, min_confidence: float = 0.3, timeout: float = 3.0) -> Array | None:
