@@ -86,7 +86,8 @@ def plan(path: str | Path, *, optimal: bool = False, progress: bool = False) -> 
         progress: show rich progress bars.
 
     Returns:
-        The plan.json document as a dict.
+        The plan.json document as a dict; its trajectory's dense tables (``t``, ``q``,
+        ``qd``, ``qdd``) are numpy arrays (write it with :func:`planner.planning.write_plan`).
     """
     from planner.planning import run_scenario
 

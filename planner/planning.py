@@ -122,7 +122,7 @@ def plan_document(
     if verify and "system" in scenario:
         solutions = verify_solutions(system, scenario, targets, solutions)
     duration = None
-    if trajectory is not None and trajectory.get("t"):
+    if trajectory is not None and len(trajectory.get("t", [])):
         duration = float(trajectory["t"][-1])
     metrics = plan_metrics(solutions, duration)
     metrics["extra"] |= extra or {}
@@ -347,7 +347,7 @@ def run_scenario(
         timed, solutions, path, safe_figures = time_safely(
             system, targets, solutions, settings, safety=guard, order=order, path=path,
             progress=lambda k: bar.update(timing, completed=k + 1))  # fmt: skip
-    traj = None if timed is None else timed.trajectory.to_plan_dict(system)
+    traj = None if timed is None else timed.trajectory.to_plan_arrays(system)
     extra = None if timed is None else timed.figures | safe_figures
     doc = plan_document(system, targets, solutions, resolved, traj, extra,
                         trajectory_requested=True, verify=False)  # fmt: skip

@@ -243,3 +243,76 @@ def _check_robot_row(
         raise FieldError(loc, f"unknown robot {robot!r}")
     if len(q) != len(joint_names[robot]):
         raise FieldError(loc, f"expected {len(joint_names[robot])} numbers, got {len(q)}")
+
+
+TABLE_KEYS: Final = ("t", "q", "qd", "qdd")
+
+
+def take_tables(doc: dict[str, Any]) -> dict[str, Any] | None:
+    """Take the dense tables (``t``, ``q``, ``qd``, ``qdd``) out of a plan document's
+    trajectory, leaving empty ones in their place (one empty table per robot), so that the
+    model validates the rest at its size and :func:`check_tables` the tables with numpy.
+    None when there is no trajectory mapping; put them back with ``traj.update(tables)``."""
+    traj = doc.get("trajectory")
+    if not isinstance(traj, dict):
+        return None
+    tables = {k: traj[k] for k in TABLE_KEYS if k in traj}
+    for k in tables:
+        traj[k] = {r: [] for r in tables[k]} if isinstance(tables[k], dict) else []
+    return tables
+
+
+def check_tables(tables: dict[str, Any], joint_names: dict[str, list[str]]) -> None:
+    """The rules of :class:`Trajectory` and :class:`Plan` for the dense tables (what
+    :func:`take_tables` took), with numpy: finite numbers, times that do not decrease, the
+    robots of ``q`` in every table, one row per time, one number per joint.
+    FieldError at the key path below ``trajectory``."""
+    import numpy as np
+
+    t = _numbers(tables.get("t", []), ("t",))
+    if t.ndim != 1:
+        raise FieldError(("t",), "expected a list of numbers")
+    back = np.flatnonzero(np.diff(t) < 0)
+    if len(back):
+        raise FieldError(("t", int(back[0]) + 1), "times must not decrease")
+    robots = tables.get("q", {})
+    for key in ("q", "qd", "qdd"):
+        table = tables.get(key, {})
+        if not isinstance(table, dict):
+            raise FieldError((key,), "expected a mapping of robot name to rows")
+        if set(table) != set(robots):
+            raise FieldError((key,), f"robots {sorted(table)} differ from q's {sorted(robots)}")
+        for robot, rows in table.items():
+            if robot not in joint_names:
+                raise FieldError((key, robot), f"unknown robot {robot!r}")
+            n = len(joint_names[robot])
+            if isinstance(rows, list):  # ragged (the reader made no array of it)
+                for k, row in enumerate(rows):
+                    if not isinstance(row, list) or len(row) != n:
+                        got = len(row) if isinstance(row, list) else "not a list"
+                        raise FieldError((key, robot, k), f"expected {n} numbers, got {got}")
+            X = _numbers(rows, (key, robot))
+            if X.ndim != 2 and len(X):
+                raise FieldError((key, robot), "expected rows of numbers")
+            if len(X) != len(t):
+                raise FieldError((key, robot), f"expected {len(t)} rows (one per t), got {len(X)}")
+            if len(X) and X.shape[1] != n:
+                raise FieldError((key, robot, 0), f"expected {n} numbers, got {X.shape[1]}")
+
+
+def _numbers(x: Any, loc: tuple[str | int, ...]) -> Any:
+    import numpy as np
+
+    try:
+        a = np.asarray(x)
+    except ValueError:  # ragged
+        raise FieldError(loc, "expected rows of numbers") from None
+    if a.dtype.kind not in "iuf" and a.size:  # strings, booleans, null, mappings
+        raise FieldError(loc, "expected numbers")
+    a = a.astype(float)
+    bad = np.argwhere(~np.isfinite(a))
+    if len(bad):
+        raise FieldError(
+            (*loc, *map(int, bad[0])), f"expected a finite number, got {a[tuple(bad[0])]}"
+        )
+    return a

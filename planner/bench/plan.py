@@ -107,7 +107,7 @@ def run_size(scenario: str, n: int, stages: tuple[str, ...]) -> dict[str, Any]:
         path = Path(tmp) / "plan.json"
         t0 = time.perf_counter()
         doc = plan_document(system, targets, sols, resolved,
-                            traj.to_plan_dict(system), trajectory_requested=True, verify=False)  # fmt: skip
+                            traj.to_plan_arrays(system), trajectory_requested=True, verify=False)  # fmt: skip
         del traj
         with path.open("w") as fh:
             write_plan(doc, fh)
@@ -115,11 +115,11 @@ def run_size(scenario: str, n: int, stages: tuple[str, ...]) -> dict[str, Any]:
         stage("document", t0)
         row["plan_json_mb"] = path.stat().st_size / 1e6
         if "check" in stages:
+            from planner.io.plan_file import read_plan
             from planner.verify.check import check_plan
 
             t0 = time.perf_counter()
-            with path.open() as fh:
-                results = check_plan(json.load(fh))
+            results = check_plan(read_plan(path))
             stage("check", t0)
             row["check_violations"] = sum(len(r.findings) for r in results)
     return row

@@ -43,10 +43,10 @@ def plan(
     """Plan every target of a scenario, time the trajectory, write plan.json, then run the
     checks of 'beamrelay check' on what was written; exit 1 if any target failed or any
     check is violated."""
-    import json
 
     from rich.console import Console
 
+    from planner.io.plan_file import read_plan
     from planner.planning import run_scenario, write_plan
     from planner.verify.check import check_plan
 
@@ -76,8 +76,7 @@ def plan(
     m = doc["metrics"]
     failed = m["n_ok"] < m["n_targets"]
     del outcome, doc  # the check reads the file back: one copy of a large plan in memory
-    with out.open() as fh:
-        written = json.load(fh)
+    written = read_plan(out)
     violations = _print_findings(console, check_plan(written, out.parent), "check of the plan")
     if failed or violations:
         raise SystemExit(1)  # planner.cli.main drops typer.Exit codes (non-standalone click)
@@ -173,13 +172,34 @@ def _slowdowns(outcome: Any) -> Any:
 
 
 def _load_plan(path: Path) -> dict[str, Any]:
-    from schemas.plan import Plan
-    from schemas.yamlio import read_json, validate
+    """plan.json read (its dense tables as arrays, :func:`~planner.io.plan_file.read_plan`)
+    and validated against the schema: the tables with numpy, the rest by the model."""
+    import json
 
-    data = read_json(path)
-    validate(Plan, data, source=str(path))
+    from planner.io.plan_file import read_plan
+    from schemas.common import FieldError
+    from schemas.located import format_loc
+    from schemas.plan import Plan, check_tables, take_tables
+    from schemas.yamlio import validate
+
+    try:
+        data = read_plan(path)
+    except FileNotFoundError:
+        raise InputError("file not found", str(path)) from None
+    except json.JSONDecodeError as exc:
+        raise InputError(f"JSON syntax error: {exc.msg}", f"{path}:{exc.lineno}") from None
+    except (OSError, ValueError) as exc:  # a directory, unreadable, not UTF-8
+        raise InputError(f"cannot read file: {exc}", str(path)) from None
     if not isinstance(data, dict):
         raise InputError("expected a JSON object", str(path))
+    tables = take_tables(data)
+    validate(Plan, data, source=str(path))
+    if tables is not None:
+        try:
+            check_tables(tables, data.get("joint_names") or {})
+        except FieldError as exc:
+            raise InputError(exc.reason, f"{path} {format_loc(('trajectory', *exc.loc))}") from None
+        data["trajectory"].update(tables)
     return data
 
 

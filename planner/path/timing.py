@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -90,18 +90,20 @@ class Trajectory:
                 out.append((s.t0, s.t1))
         return tuple(out)
 
-    def to_plan_dict(self, system: System) -> dict[str, object]:
-        """The plan.json ``trajectory`` mapping (per robot name)."""
+    def to_plan_arrays(self, system: System) -> dict[str, Any]:
+        """The plan.json ``trajectory`` mapping (per robot name) with its dense tables as
+        arrays (views of this trajectory's, no copy): what
+        :func:`planner.io.plan_file.write_plan` writes and ``read_plan`` reads back."""
 
-        def per_robot(X: Array) -> dict[str, list[list[float]]]:
+        def per_robot(X: Array) -> dict[str, Array]:
             out, i = {}, 0
             for r in system.robots:
-                out[r.name] = X[:, i : i + r.nq].tolist()
+                out[r.name] = X[:, i : i + r.nq]
                 i += r.nq
             return out
 
         return {
-            "t": self.t.tolist(),
+            "t": self.t,
             "q": per_robot(self.q),
             "qd": per_robot(self.qd),
             "qdd": per_robot(self.qdd),
@@ -109,6 +111,14 @@ class Trajectory:
             "laser_on": [[t0, t1] for t0, t1 in self.laser_on],
             "slowdowns": [_slowdown_dict(system, s) for s in self.slowdowns],
         }
+
+    def to_plan_dict(self, system: System) -> dict[str, Any]:
+        """The plan.json ``trajectory`` mapping as plain lists (a reply on the bus)."""
+        out = self.to_plan_arrays(system)
+        out["t"] = self.t.tolist()
+        for key in ("q", "qd", "qdd"):
+            out[key] = {r: X.tolist() for r, X in out[key].items()}
+        return out
 
 
 def _slowdown_dict(system: System, s: Slowdown) -> dict[str, object]:

@@ -26,7 +26,7 @@ import numpy as np
 from planner.model.status import Reason
 from planner.model.transforms import Array
 from planner.model.validity import MIN_AHEAD, MIN_FRONT, ahead_ok, front_ok
-from planner.verify.context import CheckResult, PlanContext, spots
+from planner.verify.context import CheckResult, PlanContext, spots, times
 from planner.verify.findings import Finding
 from planner.verify.safety import check_safety, check_trajectory_safety
 from planner.verify.tolerances import (
@@ -147,7 +147,7 @@ def _trajectory_result(ctx: PlanContext, name: str, codes: tuple[str, ...]) -> C
     """Trajectory findings of some codes as a CheckResult: errors are violations, warnings
     are listed, figures are the worst value per code (ratios to the limit for joint rates)."""
     traj = ctx.plan.get("trajectory") or {}
-    res = CheckResult(name, len(traj.get("t") or []))
+    res = CheckResult(name, len(times(ctx.plan)))
     for f in ctx.trajectory_findings:
         if f.code not in codes:
             continue

@@ -23,6 +23,13 @@ from planner.verify.tolerances import Tolerances
 from planner.verify.urdf import UrdfChain
 
 
+def times(plan: Mapping[str, Any]) -> Array:
+    """The trajectory's times (s), empty without a trajectory (its tables may be arrays,
+    :func:`planner.io.plan_file.read_plan`, or lists)."""
+    t = (plan.get("trajectory") or {}).get("t")
+    return np.asarray([] if t is None else t, dtype=float)
+
+
 @dataclass(frozen=True)
 class ArmGeometry:
     """One robot as the checker sees it (all SI, world frame)."""

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from planner.model.transforms import Array
-from planner.verify.context import CheckResult, PlanContext
+from planner.verify.context import CheckResult, PlanContext, times
 from planner.verify.findings import Finding
 from planner.verify.numpy_beam import pose_matrix
 from planner.verify.spot import Mask, segment_mask
@@ -297,9 +297,9 @@ def check_marking(ctx: PlanContext) -> CheckResult:
     and the marked speed (see the module docstring)."""
     traj = ctx.plan.get("trajectory") or {}
     res = CheckResult("laser", 0)
-    if not traj or not traj.get("t"):
+    t = times(ctx.plan)
+    if not len(t):
         return res
-    t = np.asarray(traj["t"], dtype=float)
     if "laser_on" not in traj:
         res.findings.append(
             Finding("laser", None, "trajectory has no laser_on intervals", 0.0, 1.0)

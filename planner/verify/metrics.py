@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from planner.model.status import Status
+from planner.verify.context import times
 from planner.verify.numpy_beam import limits_from_dict
 from planner.verify.spot import segment_mask
 from planner.verify.tolerances import METRIC_SLACK
@@ -49,13 +50,12 @@ def _recomputed(plan: dict[str, Any]) -> dict[str, Any]:
     """The metrics a plan document implies (the ``extra`` figures that can be recomputed)."""
     sols = plan["solutions"]
     ok = [s for s in sols if s.get("status") == Status.OK]
-    traj = plan.get("trajectory") or {}
-    t = traj.get("t") or []
+    t = times(plan)
     out = summary_metrics([float(s.get("error") or 0.0) for s in ok],
                           [float(s.get("solve_time") or 0.0) for s in ok],
                           [s.get("reason") for s in sols if s.get("status") != Status.OK],
-                          len(sols), float(t[-1]) if t else None)  # fmt: skip
-    out["extra"] |= _trajectory_figures(plan) if t else {}
+                          len(sols), float(t[-1]) if len(t) else None)  # fmt: skip
+    out["extra"] |= _trajectory_figures(plan) if len(t) else {}
     return out
 
 

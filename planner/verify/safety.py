@@ -30,7 +30,7 @@ from planner.model.status import Reason
 from planner.model.transforms import Array
 from planner.verify import arms
 from planner.verify import batch_distances as bd
-from planner.verify.context import CheckResult, PlanContext, spots
+from planner.verify.context import CheckResult, PlanContext, spots, times
 from planner.verify.findings import Finding
 from planner.verify.numpy_beam import pose_matrix, trace_rays
 from planner.verify.safety_shapes import (
@@ -351,7 +351,7 @@ def check_trajectory_safety(ctx: PlanContext) -> CheckResult:
     """Every trajectory sample: arms clear (as for the targets); while the laser may be on,
     the beam clear as well (its spot at the nearest target)."""
     traj = ctx.plan.get("trajectory") or {}
-    t = np.asarray(traj.get("t") or [], dtype=float)
+    t = times(ctx.plan)
     res = CheckResult("trajectory safety", len(t))
     if not len(t):
         return res

@@ -12,6 +12,7 @@ import numpy as np
 
 from planner.model.transforms import Array
 from planner.verify import batch_distances as bd
+from planner.verify.context import times
 from planner.verify.safety import Setup, laser_mask, polylines, target_hits
 from planner.verify.safety_shapes import Shape
 
@@ -46,7 +47,7 @@ def keep_out_summary(plan: dict[str, Any], base_dir: Path = Path(".")) -> list[d
         spot, _, _ = spots(ctx.rays.p, ctx.rays.v, ctx.P, ctx.N)
         beams = polylines(setup, ctx.Q, spot, ctx.P)
     traj = plan.get("trajectory") or {}
-    t = np.asarray(traj.get("t") or [], dtype=float)
+    t = times(plan)
     lit = np.flatnonzero(laser_mask(traj, t)) if len(t) else np.zeros(0, dtype=int)
     lit_beams = np.zeros((0, beams.shape[1], 3))
     if len(lit):

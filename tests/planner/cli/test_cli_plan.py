@@ -191,3 +191,53 @@ def test_help_texts_cite_no_spec_sections() -> None:
         done = cli_run.beamrelay(cmd, "--help")
         assert done.returncode == 0
         assert "SPEC" not in done.stdout and "section" not in done.stdout.lower()
+
+
+def _short_row(doc: dict) -> None:  # type: ignore[type-arg]
+    doc["trajectory"]["q"]["arm0"][3] = doc["trajectory"]["q"]["arm0"][3][:5]
+
+
+def _narrow_table(doc: dict) -> None:  # type: ignore[type-arg]
+    doc["trajectory"]["qdd"]["arm0"] = [row[:5] for row in doc["trajectory"]["qdd"]["arm0"]]
+
+
+def _nan_rate(doc: dict) -> None:  # type: ignore[type-arg]
+    doc["trajectory"]["qd"]["arm0"][7][2] = float("nan")
+
+
+def _time_back(doc: dict) -> None:  # type: ignore[type-arg]
+    t = doc["trajectory"]["t"]
+    t[9], t[10] = t[10], t[9]
+
+
+def _one_row_less(doc: dict) -> None:  # type: ignore[type-arg]
+    del doc["trajectory"]["qd"]["arm0"][-1]
+
+
+def _other_robot(doc: dict) -> None:  # type: ignore[type-arg]
+    doc["trajectory"]["qdd"]["arm1"] = doc["trajectory"]["qdd"].pop("arm0")
+
+
+def _strings(doc: dict) -> None:  # type: ignore[type-arg]
+    doc["trajectory"]["t"] = [str(x) for x in doc["trajectory"]["t"]]
+
+
+@pytest.mark.parametrize(
+    ("tamper", "where", "words"),
+    [(_short_row, "trajectory.q.arm0[3]", "expected 6 numbers, got 5"),
+     (_narrow_table, "trajectory.qdd.arm0[0]", "expected 6 numbers, got 5"),
+     (_nan_rate, "trajectory.qd.arm0[7][2]", "expected a finite number, got nan"),
+     (_time_back, "trajectory.t[10]", "times must not decrease"),
+     (_one_row_less, "trajectory.qd.arm0", "rows (one per t)"),
+     (_other_robot, "trajectory.qdd", "differ from q's"),
+     (_strings, "trajectory.t", "expected numbers")],
+)  # fmt: skip
+def test_check_refuses_a_malformed_trajectory_table(written_plan: Path, tmp_path: Path,
+                                                    tamper: Any, where: str, words: str) -> None:  # fmt: skip
+    """The dense tables are validated with numpy (not the model): a stranger's malformed
+    table is one located line, exit 2, as any schema error is."""
+    doc = json.loads(written_plan.read_text())
+    tamper(doc)
+    bad = tmp_path / "malformed.json"
+    bad.write_text(json.dumps(doc))
+    cli_run.assert_usage_error(cli_run.beamrelay("check", bad), where, words)

@@ -124,7 +124,7 @@ def test_path_samples_into_keep_out_become_gaps(curve) -> None:  # type: ignore[
 
 
 def test_planned_path_with_an_eye_checks_clean(tmp_path, curve) -> None:  # type: ignore[no-untyped-def]
-    from planner.planning import run_scenario
+    from planner.planning import plan_json, run_scenario
 
     targets = curve[2]
     text = (REPO / "scenarios" / "curve_path.yaml").read_text()
@@ -135,7 +135,7 @@ def test_planned_path_with_an_eye_checks_clean(tmp_path, curve) -> None:  # type
     out = run_scenario(path, progress=False)
     reasons = {s.reason for s in out.solutions if not s.ok}
     assert reasons == {"keep_out"}
-    doc = json.loads(json.dumps(out.doc))
+    doc = json.loads(plan_json(out.doc))
     results = {r.name: r for r in check_plan(doc)}
     assert not results["safety"].findings and not results["trajectory safety"].findings
     assert results["trajectory safety"].figures["laser_on_samples"] > 100

@@ -15,7 +15,7 @@ import pytest
 from planner.model.kinematics import RobotKinematics
 from planner.model.mirror import Mirror
 from planner.model.transforms import inv_T, look_at
-from planner.planning import run_scenario
+from planner.planning import plan_json, run_scenario
 from planner.verify.check import check_plan
 from planner.verify.numpy_beam import pose_matrix, ur5e_dh_fk
 from planner.verify.safety_shapes import arm_shapes
@@ -27,14 +27,14 @@ Doc = dict[str, Any]
 
 @pytest.fixture(scope="module")
 def face() -> Doc:
-    return json.loads(json.dumps(run_scenario(REPO / "scenarios" / "face_keepout.yaml",
-                                              progress=False).doc))  # fmt: skip
+    return json.loads(plan_json(run_scenario(REPO / "scenarios" / "face_keepout.yaml",
+                                             progress=False).doc))  # fmt: skip
 
 
 @pytest.fixture(scope="module")
 def shared() -> Doc:
-    return json.loads(json.dumps(run_scenario(REPO / "scenarios" / "n2_shared.yaml",
-                                              progress=False).doc))  # fmt: skip
+    return json.loads(plan_json(run_scenario(REPO / "scenarios" / "n2_shared.yaml",
+                                             progress=False).doc))  # fmt: skip
 
 
 def _findings(doc: Doc, name: str) -> list[Any]:
@@ -177,7 +177,7 @@ def test_shared_space_moves_are_detoured(shared: Doc) -> None:
     clearance (the checker says so); with them the plan re-times that move through a
     waypoint and checks clean."""
     plain = run_scenario(REPO / "scenarios" / "n2_shared.yaml", progress=False, safety=False)
-    plain_doc = json.loads(json.dumps(plain.doc))
+    plain_doc = json.loads(plan_json(plain.doc))
     assert any("arm_arm" in f.message for f in _findings(plain_doc, "trajectory safety"))
     assert shared["metrics"]["extra"]["safety_detours"] >= 1
     assert shared["metrics"]["n_ok"] == 25 and not _findings(shared, "trajectory safety")

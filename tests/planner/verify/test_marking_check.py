@@ -5,7 +5,6 @@ malformed ``laser_on``, a tampered exposure."""
 from __future__ import annotations
 
 import copy
-import json
 import subprocess
 import sys
 from pathlib import Path
@@ -141,7 +140,7 @@ def test_missing_and_malformed_laser_on(outcome: PlanOutcome, tmp_path: Path) ->
     for bad in ([[2.0, 1.0]], [[1.0]], "on", [[0.0, 1.0], [0.5, 2.0]], [[0.0, float("nan")]]):
         doc["trajectory"]["laser_on"] = bad
         f = tmp_path / "bad.json"
-        f.write_text(json.dumps(doc))
+        f.write_text(plan_json(doc))
         cli_run.assert_usage_error(cli_run.beamrelay("check", f), "laser_on")
 
 
