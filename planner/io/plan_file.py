@@ -28,7 +28,6 @@ _TOKEN = re.compile(rb'"(?:[^"\\]|\\.)*"|\[')  # a string (skipped whole) or an 
 _NUMERIC = re.compile(rb"[0-9eE+\-.,\s\[\]]*")  # text that can only be numbers in arrays
 _HOLE = b'"\\u0000plan-array-%d"'  # stands in the skeleton for the k-th carved array
 _HOLE_TEXT = "\x00plan-array-"
-_UNBRACKET = bytes.maketrans(b"[]", b"  ")
 
 
 def write_plan(doc: dict[str, Any], out: TextIO, digits: int = 10, chunk: int = 50_000) -> None:
@@ -39,21 +38,29 @@ def write_plan(doc: dict[str, Any], out: TextIO, digits: int = 10, chunk: int = 
     non-finite value in a table (JSON has none)."""
     traj = doc.get("trajectory")
     if not traj:
-        out.write(json.dumps(doc, indent=1))
+        out.write(_text(doc))
         return
+
+    raw = getattr(out, "buffer", None)  # a file's bytes: the rows skip a decode and encode
 
     def rows(x: Any) -> None:
         out.write("[")
+        if raw is not None:
+            out.flush()
         for i in range(0, len(x), chunk):
             part = np.round(np.asarray(x[i : i + chunk], dtype=float), digits)
             if not np.all(np.isfinite(part)):
                 raise ValueError("plan.json: a non-finite value in the trajectory")
             text = orjson.dumps(np.ascontiguousarray(part), option=orjson.OPT_SERIALIZE_NUMPY)
-            out.write(("," if i else "") + text[1:-1].decode())
+            text = (b"," if i else b"") + text[1:-1]
+            if raw is not None:
+                raw.write(text)
+            else:
+                out.write(text.decode())
         out.write("]")
 
     marker = "__TRAJECTORY__"
-    head, tail = json.dumps({**doc, "trajectory": marker}, indent=1).split(json.dumps(marker), 1)
+    head, tail = _text({**doc, "trajectory": marker}).split(json.dumps(marker), 1)
     out.write(head + '{"t":')
     rows(traj["t"])
     for key in ("q", "qd", "qdd"):
@@ -67,6 +74,19 @@ def write_plan(doc: dict[str, Any], out: TextIO, digits: int = 10, chunk: int = 
         if key not in ("t", "q", "qd", "qdd", "segments"):
             out.write(f",\n{json.dumps(key)}:{json.dumps(value)}")
     out.write("}" + tail)
+
+
+def _text(doc: dict[str, Any], one_per_line: int = 20) -> str:
+    """JSON text of a document without its dense tables: a key per line, and a long list
+    (solutions, targets) an item per line, each written by json's C encoder (an indented
+    dump is pure Python: 8 s for 10^5 solutions)."""
+
+    def value(v: Any) -> str:
+        if isinstance(v, list) and len(v) > one_per_line:
+            return "[\n  " + ",\n  ".join(json.dumps(item) for item in v) + "\n ]"
+        return json.dumps(v)
+
+    return "{\n" + ",\n".join(f" {json.dumps(k)}: {value(v)}" for k, v in doc.items()) + "\n}"
 
 
 def plan_json(doc: dict[str, Any], digits: int = 10) -> str:
@@ -122,13 +142,18 @@ def _carve(mm: mmap.mmap) -> tuple[bytes, list[np.ndarray]]:
 
 
 def _closing(mm: mmap.mmap, start: int, stop: int) -> int | None:
-    """The index after the ``]`` that closes the ``[`` at ``start``, if before ``stop``."""
+    """The index after the ``]`` that closes the ``[`` at ``start``, if before ``stop``
+    (brackets counted a window at a time; the closing window scanned for the place)."""
     depth, o = 0, start
     while o < stop:
         w = min(WINDOW, stop - o)
-        a = np.frombuffer(mm, np.uint8, w, o)
+        text = mm[o : o + w]
+        _drop(mm, o, o + w)
+        if depth + text.count(b"[") - text.count(b"]") > 0:
+            depth, o = depth + text.count(b"[") - text.count(b"]"), o + w
+            continue
+        a = np.frombuffer(text, np.uint8)
         d = depth + np.cumsum((a == 91).astype(np.int32) - (a == 93))
-        del a
         shut = np.flatnonzero(d <= 0)
         if len(shut):
             return o + int(shut[0]) + 1
@@ -136,113 +161,76 @@ def _closing(mm: mmap.mmap, start: int, stop: int) -> int | None:
     return None
 
 
+def _drop(mm: mmap.mmap, a: int, b: int) -> None:
+    """Give back the mapped pages of ``mm[a:b]`` read so far (they count as this process's
+    memory while mapped; read again, they come back from the page cache)."""
+    a -= a % mmap.PAGESIZE
+    if b > a and hasattr(mm, "madvise"):
+        mm.madvise(mmap.MADV_DONTNEED, a, min(b, len(mm)) - a)
+
+
 def _parse(mm: mmap.mmap, start: int, end: int) -> np.ndarray | None:
     """The array ``mm[start:end]`` (a 1-D list of numbers, or a list of equally long rows
-    of numbers), or None for any other shape or text numpy cannot read exactly."""
+    of numbers), or None for any other shape or for text orjson rejects (json decides)."""
     head = re.match(rb"\[\s*(\[)?", mm[start : start + 64])
-    try:
-        if head is not None and head.group(1) is None:
-            return _numbers(mm, start + 1, end - 1)
-        return _rows(mm, start + 1, end - 1)
-    except ValueError:  # np.fromstring: a malformed number
-        return None
-
-
-def _read(text: bytes) -> np.ndarray:
-    """The numbers in ``text`` (separated by commas and blanks): integers when none has a
-    point or exponent (as json gives them), else floats. ValueError if one is malformed or
-    beyond int64 (numpy would saturate it; json keeps it exact)."""
-    if any(c in text for c in (b".", b"e", b"E")):
-        return np.fromstring(text, dtype=float, sep=",")
-    vals = np.fromstring(text, dtype=np.int64, sep=",")
-    if np.any((vals >= 2**62) | (vals <= -(2**62))):
-        raise ValueError("an integer beyond int64")
-    return vals
-
-
-def _numbers(mm: mmap.mmap, a: int, b: int) -> np.ndarray | None:
-    """Comma-separated numbers in ``mm[a:b]``, read a window at a time (cut at a comma)."""
-    pieces, o = [], a
+    rows = head is None or head.group(1) is not None
+    sep = b"]" if rows else b","
+    pieces, o, b = [], start + 1, end - 1
     while o < b:
-        cut = b if b - o <= WINDOW else mm.rfind(b",", o, o + WINDOW)
-        if cut <= o:  # a number longer than a window
-            cut = mm.find(b",", o + 1, b) if mm.find(b",", o + 1, b) > o else b
-        text = mm[o:cut]
-        vals = _read(text)
-        if len(vals) != text.count(b",") + 1:  # "1,,2" or a trailing comma
+        cut = b if b - o <= WINDOW else mm.rfind(sep, o, o + WINDOW) + (1 if rows else 0)
+        if cut <= o:  # a row or number longer than a window
+            cut = mm.find(sep, o + 1, b) + (1 if rows else 0)
+            cut = b if cut <= o else cut
+        part = _window(mm[o:cut], rows, pieces[0].shape[1:] if pieces else None)
+        _drop(mm, o, cut)
+        if part is None:
             return None
-        pieces.append(vals)
-        o = cut + 1
-    return _joined(pieces)
-
-
-def _rows(mm: mmap.mmap, a: int, b: int) -> np.ndarray | None:
-    """Rows ``[x,...],[y,...]`` of one length in ``mm[a:b]``, a window of whole rows at a time."""
-    pieces, o, width = [], a, None
-    while o < b:
-        cut = b if b - o <= WINDOW else mm.rfind(b"]", o, o + WINDOW) + 1
-        if cut <= o:  # a row longer than a window
-            cut = mm.find(b"]", o, b) + 1
-        if cut <= o:
-            return None
-        text = mm[o:cut]
-        got = _window_rows(text, width)
-        if got is None:
-            return None
-        vals, width = got
-        pieces.append(vals)
-        if cut == b:
-            break
-        nxt = mm.find(b"[", cut, b)  # the next row, after one comma
-        if nxt < 0 or mm[cut:nxt].strip() != b",":
-            return None
-        o = nxt
-    return _joined(pieces)
-
-
-def _window_rows(text: bytes, width: int | None) -> tuple[np.ndarray, int] | None:
-    """The rows in ``text`` (whole rows, separated by one comma) as a 2-D array, and their
-    length; None unless every row has ``width`` numbers (the first row's, if None)."""
-    a = np.frombuffer(text, np.uint8)
-    opens, closes = np.flatnonzero(a == 91), np.flatnonzero(a == 93)
-    if not len(opens) or len(opens) != len(closes):
+        pieces.append(part)
+        o = cut if rows else cut + 1  # past the separator (a row's comma is in the next window)
+        if rows and o < b:
+            nxt = mm.find(b"[", o, b)
+            if nxt < 0 or mm[o:nxt].strip() != b",":
+                return None
+            o = nxt
+    if not pieces:
         return None
-    if np.any(opens >= closes) or np.any(closes[:-1] >= opens[1:]):
-        return None  # nested deeper than rows
-    commas = np.cumsum(a == 44)
-    inside = commas[closes] - commas[opens]
-    width = int(inside[0]) + 1 if width is None else width
-    between = commas[opens[1:]] - commas[closes[:-1]]
-    if np.any(inside != width - 1) or np.any(between != 1):
-        return None
-    flat = text.translate(_UNBRACKET)
-    if not flat.strip(b" \t\r\n,"):
-        return None  # empty rows: json's
-    vals = _read(flat)
-    if len(vals) != len(opens) * width:
-        return None
-    return vals.reshape(len(opens), width), width
-
-
-def _joined(pieces: list[np.ndarray]) -> np.ndarray:
-    if len(pieces) == 1:
-        return pieces[0]
     if any(p.dtype != pieces[0].dtype for p in pieces):
         pieces = [p.astype(float) for p in pieces]
-    return np.concatenate(pieces)
+    return pieces[0] if len(pieces) == 1 else np.concatenate(pieces)
+
+
+def _window(text: bytes, rows: bool, shape: tuple[int, ...] | None) -> np.ndarray | None:
+    """The numbers (or rows of ``shape``) of one window of an array's text, parsed by
+    orjson, as strict as json; None for anything else, left to json to read or refuse."""
+    try:
+        a = np.array(orjson.loads(b"[" + text + b"]"))
+    except (orjson.JSONDecodeError, ValueError):  # not JSON, ragged rows
+        return None
+    if a.dtype.kind not in "iuf" or a.ndim != (2 if rows else 1) or not a.size:
+        return None
+    if shape is not None and a.shape[1:] != shape:
+        return None
+    if a.dtype.kind == "f" and not any(c in text for c in (b".", b"e", b"E")):
+        return None  # an integer beyond 64 bits, which json keeps exact
+    return a
 
 
 def _with_tables(doc: Any, arrays: list[np.ndarray] | None) -> Any:
     """``doc`` with the trajectory's tables as float64 arrays and, given the carved
     ``arrays``, its holes filled (every other carved array as the list json gives)."""
     traj = doc.get("trajectory") if isinstance(doc, dict) else None
+    tables = 0
     if isinstance(traj, dict):
         for key in set(TABLES) & set(traj):
             if key == "t":
+                tables += _hole(traj[key]) is not None
                 traj[key] = _table(traj[key], arrays)
             elif isinstance(traj[key], dict):
+                tables += sum(_hole(v) is not None for v in traj[key].values())
                 traj[key] = {r: _table(v, arrays) for r, v in traj[key].items()}
-    return doc if arrays is None else _filled(doc, arrays)
+    if arrays is None or tables == len(arrays):  # no hole left to fill
+        return doc
+    return _filled(doc, arrays)
 
 
 def _table(value: Any, arrays: list[np.ndarray] | None) -> Any:

@@ -36,6 +36,7 @@ from planner.verify.tolerances import (
 
 NUMPY_FK = {"ur5e": ur5e_dh_fk}  # model -> batched base_T_flange (M x 6 -> M x 4 x 4)
 CHUNK_ELEMENTS = 1 << 21  # rays x targets per block of the brute-force nearest search
+CHUNK_ROWS = 1 << 18  # trajectory samples per block of the limit checks (~10 MB a table)
 
 
 class _Robot(NamedTuple):
@@ -204,14 +205,42 @@ def matched_deviation(p: Array, v: Array, q: Array, solved: Solved, k: int = 8
     return dev[np.arange(len(q)), best], cand[np.arange(len(q)), best]
 
 
-def _limit_finding(code: str, X: Array, bound: Array, slack: float, t: Array, unit: str) -> Finding:
-    ratio = np.abs(X) / bound[None, :]
-    i, j = (int(x) for x in np.unravel_index(int(np.argmax(ratio)), ratio.shape))
-    worst, lim = float(abs(X[i, j])), float(bound[j])
-    bad = not ratio[i, j] <= 1 + slack
-    msg = f"{code}: max |{X[i, j]:.4g}| {unit} on joint {j} at t = {t[min(i, len(t) - 1)]:.3f} s"
-    msg += f" ({100 * ratio[i, j]:.1f}% of limit {lim:.4g})"
-    return trajectory_finding("error" if bad else "info", code, msg, worst, lim)
+class _Worst(NamedTuple):
+    row: int
+    joint: int
+    value: float  # the table's entry there
+    ratio: float  # its ratio to the bound (NaN where the entry is not a number)
+
+
+def _worst(rows: int, block: Any) -> _Worst:
+    """The largest ratio of a derived table of ``rows`` rows that ``block(a, b)`` gives
+    (rows a..b: the table, its ratios to their bounds), a block of :data:`CHUNK_ROWS` at a
+    time, so that a plan of millions of samples is checked in bounded memory. A NaN ratio
+    is the largest (it never passes)."""
+    best = _Worst(0, 0, float("nan"), -np.inf)
+    for a in range(0, rows, CHUNK_ROWS):
+        X, ratio = block(a, min(rows, a + CHUNK_ROWS))
+        key = np.where(np.isnan(ratio), np.inf, ratio)
+        i, j = (int(x) for x in np.unravel_index(int(np.argmax(key)), key.shape))
+        if a == 0 or key[i, j] > (np.inf if np.isnan(best.ratio) else best.ratio):
+            best = _Worst(a + i, j, float(X[i, j]), float(ratio[i, j]))
+    return best
+
+
+def _limit_finding(code: str, q: Array, order: int, rate: float, bound: Array, slack: float,
+                   t: Array, unit: str) -> Finding:  # fmt: skip
+    """The largest ``order``-th finite difference of ``q`` (a joint rate) against ``bound``."""
+
+    def block(a: int, b: int) -> tuple[Array, Array]:
+        X = np.diff(q[a : b + order], n=order, axis=0) * rate**order
+        return X, np.abs(X) / bound[None, :]
+
+    w = _worst(len(q) - order, block)
+    i, j = w.row, w.joint
+    bad = not w.ratio <= 1 + slack
+    msg = f"{code}: max |{w.value:.4g}| {unit} on joint {j} at t = {t[min(i, len(t) - 1)]:.3f} s"
+    msg += f" ({100 * w.ratio:.1f}% of limit {float(bound[j]):.4g})"
+    return trajectory_finding("error" if bad else "info", code, msg, abs(w.value), float(bound[j]))
 
 
 def _differences(q: Array, rate: float) -> tuple[Array, Array]:
@@ -230,22 +259,38 @@ def _declared(r: _Robot, traj: dict[str, Any], q: Array, t: Array, rate: float) 
     if len(q) < 3:
         return out
     h, jerk = 1.0 / rate, r.limits.jerk
-    for key, code, lim, disc, est, unit in zip(
-        ("qd", "qdd"), ("velocity_declared", "acceleration_declared"),
+    for k, key, code, lim, disc, unit in zip(
+        (0, 1), ("qd", "qdd"), ("velocity_declared", "acceleration_declared"),
         (r.limits.velocity, r.limits.acceleration), (jerk * h * h, jerk * h),
-        _differences(q, rate), ("rad/s", "rad/s^2"), strict=True,
+        ("rad/s", "rad/s^2"), strict=True,
     ):  # fmt: skip
-        X = np.asarray(traj[key][r.name], dtype=float).reshape(q.shape)[1:-1]
+        declared = np.asarray(traj[key][r.name], dtype=float).reshape(q.shape)
         bound = DERIVATIVE_SLACK * lim + disc
-        gap = np.abs(X - est) / bound[None, :]
-        gap = np.where(np.isfinite(gap), gap, np.inf)
-        i, j = (int(x) for x in np.unravel_index(int(np.argmax(gap)), gap.shape))
-        msg = (f"{r.name}: declared {key} on joint {j} at t = {t[i + 1]:.3f} s is {X[i, j]:.4g} "
-               f"{unit}, {gap[i, j] * bound[j]:.4g} {unit} off the differences of the "
+
+        def block(a: int, b: int, k: int = k, declared: Array = declared,
+                  bound: Array = bound) -> tuple[Array, Array]:  # fmt: skip
+            X = declared[a + 1 : b + 1]
+            gap = np.abs(X - _differences(q[a : b + 2], rate)[k]) / bound[None, :]
+            return X, np.where(np.isfinite(gap), gap, np.inf)
+
+        w = _worst(len(q) - 2, block)
+        i, j, g = w.row, w.joint, w.ratio
+        msg = (f"{r.name}: declared {key} on joint {j} at t = {t[i + 1]:.3f} s is {w.value:.4g} "
+               f"{unit}, {g * bound[j]:.4g} {unit} off the differences of the "
                f"positions (allowed {bound[j]:.3g} {unit})")  # fmt: skip
-        out.append(trajectory_finding("info" if gap[i, j] <= 1.0 else "error", code, msg,
-                           float(gap[i, j] * bound[j]), float(bound[j])))  # fmt: skip
+        out.append(trajectory_finding("info" if g <= 1.0 else "error", code, msg,
+                           float(g * bound[j]), float(bound[j])))  # fmt: skip
     return out
+
+
+def _position_excess(q: Array, limits: Limits) -> float:
+    """The largest excess (rad) of ``q`` over its position limits (negative inside), a
+    block of rows at a time."""
+    worst = -np.inf
+    for a in range(0, len(q), CHUNK_ROWS):
+        Q = q[a : a + CHUNK_ROWS]
+        worst = max(worst, float(np.maximum(limits.lower - Q, Q - limits.upper).max()))
+    return worst
 
 
 def trajectory_expected(plan: dict[str, Any]) -> bool:
@@ -284,16 +329,16 @@ def check_trajectory(plan: dict[str, Any], tol: Tolerances | None = None) -> lis
                     "warning", "model_unchecked", f"{r.name}: no numpy model for {r.model}"
                 )
             )
-        viol = np.maximum(r.limits.lower - q, q - r.limits.upper).max()
+        viol = _position_excess(q, r.limits)
         if not viol <= JOINT_SLACK:
             out.append(trajectory_finding("error", "joint_limits", f"{r.name}: position limit exceeded by "
                                f"{viol:.3g} rad", float(viol), 0.0))  # fmt: skip
         for order, (code, unit) in enumerate(
             [("velocity", "rad/s"), ("acceleration", "rad/s^2"), ("jerk", "rad/s^3")], start=1
         ):
-            X = np.diff(q, n=order, axis=0) * rate**order
-            if len(X):
-                f = _limit_finding(f"{code}", X, getattr(r.limits, code), RATE_SLACK, t, unit)
+            if len(q) > order:
+                f = _limit_finding(code, q, order, rate, getattr(r.limits, code), RATE_SLACK,
+                                   t, unit)  # fmt: skip
                 out.append(replace(f, message=f"{r.name}: {f.message}"))
         out += _declared(r, traj, q, t, rate)
     return out

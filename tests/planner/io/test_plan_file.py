@@ -86,10 +86,14 @@ def carved(path: Path) -> int:
 
 
 def written(doc: dict[str, Any], tmp_path: Path, chunk: int = 50_000) -> Path:
+    """The plan written to a file (its rows go to the file's bytes) and, the same text,
+    to a string (its rows decoded)."""
     buf = io.StringIO()
     write_plan(doc, buf, chunk=chunk)
     path = tmp_path / "plan.json"
-    path.write_text(buf.getvalue())
+    with path.open("w") as fh:
+        write_plan(doc, fh, chunk=chunk)
+    assert path.read_text() == buf.getvalue()
     return path
 
 

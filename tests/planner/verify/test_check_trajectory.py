@@ -107,3 +107,26 @@ def test_arrival_checked_at_the_end_of_the_approach(plan):
     bad["trajectory"]["q"]["arm0"][round(seg["t1"] * 500.0)][3] += 2e-3
     found = {f.code: f for f in trajectory_findings(bad)}
     assert found["arrival_deviation"].severity == "error"
+
+
+@pytest.mark.parametrize("kink", [None, 10, 600, -3])
+def test_limits_checked_in_blocks_find_what_one_block_finds(plan, monkeypatch, kink):
+    """The limit checks run a block of samples at a time (bounded memory for millions of
+    samples): with blocks of 7 samples every finding, value and place is the one a single
+    block gives, including a violation on a block's edge and a NaN."""
+    from planner.verify import trajectory as vt
+
+    bad = copy.deepcopy(plan)
+    if kink is not None:
+        q = np.asarray(bad["trajectory"]["q"]["arm0"])
+        q[kink, 1] += 2e-3  # a kink near the start, in the middle, at the end
+        qd = np.asarray(bad["trajectory"]["qd"]["arm0"])
+        qd[kink + 1, 4] = np.nan if kink == 600 else qd[kink + 1, 4] + 0.1
+        bad["trajectory"]["q"]["arm0"], bad["trajectory"]["qd"]["arm0"] = q.tolist(), qd.tolist()
+    whole = [(f.code, f.severity, f.message, f.value) for f in vt.check_trajectory(bad)]
+    monkeypatch.setattr(vt, "CHUNK_ROWS", 7)
+    blocks = [(f.code, f.severity, f.message, f.value) for f in vt.check_trajectory(bad)]
+    assert len(plan["trajectory"]["t"]) > 100 * 7
+    assert blocks == whole
+    if kink is not None:
+        assert {"jerk", "velocity_declared"} <= {c for c, s, _, _ in whole if s == "error"}
