@@ -175,7 +175,8 @@ def _parse(mm: mmap.mmap, start: int, end: int) -> np.ndarray | None:
     head = re.match(rb"\[\s*(\[)?", mm[start : start + 64])
     rows = head is None or head.group(1) is not None
     sep = b"]" if rows else b","
-    pieces, o, b = [], start + 1, end - 1
+    pieces: list[np.ndarray] = []
+    o, b = start + 1, end - 1
     while o < b:
         cut = b if b - o <= WINDOW else mm.rfind(sep, o, o + WINDOW) + (1 if rows else 0)
         if cut <= o:  # a row or number longer than a window
