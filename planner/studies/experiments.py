@@ -22,10 +22,15 @@ TRIALS = 10  # the default of --trials and of `study all`
 
 
 def run(
-    trials: int, seed: int, workers: int | None, scheduler: str | None, closed_loop: bool = True
+    trials: int,
+    seed: int,
+    workers: int | None,
+    scheduler: str | None,
+    closed_loop: bool = True,
+    effects: setup.Effects | None = None,
 ) -> list[dict[str, Any]]:
     """Every trial (parallel over trials; results independent of the executor)."""
-    jobs = [(seed, t, closed_loop) for t in range(trials)]
+    jobs = [(seed, t, closed_loop, None, effects) for t in range(trials)]
     return common.parallel_map(
         run_trial, jobs, workers=workers, scheduler=scheduler, label="experiments"
     )

@@ -21,7 +21,9 @@ normals, and the metric):
 
 The truth (:class:`Unknowns`): what a hand-assembled cell does not know before calibration
 (uniform per component): the laser pose, the mirror on its mount, the camera pose and the
-calibration board on the flange.
+calibration board on the flange; optionally the arm's own kinematic error
+(:mod:`planner.model.kinematic_error`: the true UR5e's DH deltas, while the planner keeps
+the nominal model).
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -37,6 +39,9 @@ from planner.data import scenarios_dir, shipped_scenario
 from planner.model.scene import SceneItem
 from planner.model.system import System
 from planner.model.transforms import Array, make_T, rpy_to_matrix
+
+if TYPE_CHECKING:  # the kinematics (Pinocchio) load when a trial runs, not at --help
+    from planner.model.kinematic_error import KinematicSpread
 
 SCENARIO = shipped_scenario("paper_n1.yaml")
 FACE_PLY = "face_phantom.ply"
@@ -70,6 +75,26 @@ class Unknowns:
 
 NONE = Unknowns(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 """No unknowns: the truth is the nominal geometry."""
+
+
+@dataclass(frozen=True)
+class Effects:
+    """The imperfections of a real cell the simulation adds (default: none of them, the
+    kind simulation): ``robot`` the true arm's kinematic error level
+    (:data:`planner.model.kinematic_error.LEVELS`: none, factory, uncalibrated)."""
+
+    robot: str = "none"
+
+    @property
+    def robot_spread(self) -> KinematicSpread | None:
+        from planner.model.kinematic_error import LEVELS
+
+        return LEVELS[self.robot]
+
+    def describe(self) -> str:
+        """One line: the effects that are on."""
+        on = [f"robot kinematics {self.robot}"] if self.robot != "none" else []
+        return ", ".join(on) or "none"
 
 
 @dataclass(frozen=True)
@@ -118,8 +143,16 @@ def _perturb(T: Array, rng: np.random.Generator, rot: float, pos: float) -> Arra
     return T @ make_T(rpy_to_matrix(rng.uniform(-rot, rot, 3)), rng.uniform(-pos, pos, 3))
 
 
-def draw_truth(nominal: System, u: Unknowns, rng: np.random.Generator) -> Truth:
-    """A random true geometry about ``nominal`` at the levels ``u``."""
+def draw_truth(
+    nominal: System,
+    u: Unknowns,
+    rng: np.random.Generator,
+    robot: KinematicSpread | None = None,
+    robot_rng: np.random.Generator | None = None,
+) -> Truth:
+    """A random true geometry about ``nominal`` at the levels ``u``; with ``robot``, the
+    true arm also has DH deltas drawn at that spread from ``robot_rng`` (a stream of its
+    own, so the other draws do not change with it)."""
     r = nominal.robots[0]
     assert nominal.camera is not None
     laser = _perturb(nominal.world_T_laser, rng, u.laser_rot, u.laser_pos)
@@ -127,6 +160,12 @@ def draw_truth(nominal: System, u: Unknowns, rng: np.random.Generator) -> Truth:
     cam = _perturb(nominal.camera.world_T_camera, rng, u.camera_rot, u.camera_pos)
     board = _perturb(NOMINAL_BOARD, rng, u.board_rot, u.board_pos)
     true = nominal.with_params(world_T_laser=laser, flange_T_mirror={r.name: mount})
+    if robot is not None:
+        from planner.model.kinematic_error import perturbed_ur5e
+
+        err = robot.draw(rng if robot_rng is None else robot_rng, r.nq)
+        arm = replace(r, kinematics=perturbed_ur5e(err, r.kinematics))
+        true = replace(true, robots=(arm, *true.robots[1:]))
     return Truth(replace(true, camera=replace(nominal.camera, world_T_camera=cam)), board)
 
 

@@ -37,6 +37,8 @@ from planner.studies import experiments_setup as setup
 from planner.studies.experiments_cell import FRAMES, Calibrated, Cell, calibrate_cell
 from planner.studies.experiments_metrics import closest_point_error, point_error
 
+ROBOT_STREAM = 1  # third entry of the seed of the true arm's kinematic error
+
 
 def _error(exp: setup.Experiment, k: int, spot_c: Array | None, seen_c: Array) -> float:
     """The paper's metric for target ``k`` (m; NaN when the spot was not seen)."""
@@ -144,15 +146,24 @@ def run_experiment(exp: setup.Experiment, cal: Calibrated, truth: setup.Truth, i
 
 
 def run_trial(
-    seed: int, trial: int, closed_loop: bool = True, unknowns: setup.Unknowns | None = None
+    seed: int,
+    trial: int,
+    closed_loop: bool = True,
+    unknowns: setup.Unknowns | None = None,
+    effects: setup.Effects | None = None,
 ) -> dict[str, Any]:
-    """One trial: its calibration figures and every target's row (``trial`` added)."""
+    """One trial: its calibration figures and every target's row (``trial`` added). The
+    true arm's kinematic error (``effects.robot``) comes from a stream of its own
+    (``[seed, trial, ROBOT_STREAM]``): the other draws stay those of the kind simulation."""
     from planner.ik import BeamIK
     from planner.planning import ik_options
 
+    effects = setup.Effects() if effects is None else effects
     rng = common.trial_rng(seed, trial)
     nominal = setup.nominal_system()
-    truth = setup.draw_truth(nominal, setup.Unknowns() if unknowns is None else unknowns, rng)
+    u = setup.Unknowns() if unknowns is None else unknowns
+    robot_rng = np.random.default_rng(np.random.SeedSequence([seed, trial, ROBOT_STREAM]))
+    truth = setup.draw_truth(nominal, u, rng, effects.robot_spread, robot_rng)
     cal = calibrate_cell(nominal, truth, rng)
     ik = BeamIK(cal.system, ik_options(setup.solver_settings()))
     closed = ClosedLoop(cal) if closed_loop else None
