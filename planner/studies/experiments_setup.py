@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from planner.data import scenarios_dir, shipped_scenario
+from planner.model import d435
 from planner.model.scene import SceneItem
 from planner.model.system import System
 from planner.model.transforms import Array, make_T, rpy_to_matrix
@@ -80,10 +81,18 @@ NONE = Unknowns(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 @dataclass(frozen=True)
 class Effects:
     """The imperfections of a real cell the simulation adds (default: none of them, the
-    kind simulation): ``robot`` the true arm's kinematic error level
-    (:data:`planner.model.kinematic_error.LEVELS`: none, factory, uncalibrated)."""
+    kind simulation): ``camera_noise`` the D435's depth pixels correlated over its census
+    window (with the detectors' real window statistics), ``depth_bias`` the camera's own
+    disparity offset (uniform within the datasheet's bound, :mod:`planner.model.d435`),
+    ``robot`` the true arm's kinematic error level
+    (:data:`planner.model.kinematic_error.LEVELS`: none, factory, uncalibrated) and
+    ``servo_lag`` the arm following servoJ as a UR does while it sweeps a path
+    (:mod:`drivers.robot.servo_lag`)."""
 
+    camera_noise: bool = False
+    depth_bias: bool = False
     robot: str = "none"
+    servo_lag: bool = False
 
     @property
     def robot_spread(self) -> KinematicSpread | None:
@@ -91,18 +100,32 @@ class Effects:
 
         return LEVELS[self.robot]
 
+    def depth_errors(self, nominal: System, rng: np.random.Generator) -> d435.DepthErrors | None:
+        """The true camera's depth errors (None: the kind model); its offset from ``rng``."""
+        if not (self.camera_noise or self.depth_bias):
+            return None
+        assert nominal.camera is not None
+        fx = nominal.camera.intrinsics.fx
+        offset = d435.DepthErrors.draw_offset(rng, fx) if self.depth_bias else 0.0
+        return d435.DepthErrors(self.camera_noise, offset)
+
     def describe(self) -> str:
         """One line: the effects that are on."""
-        on = [f"robot kinematics {self.robot}"] if self.robot != "none" else []
+        on = [name for name, flag in (("camera noise (correlated)", self.camera_noise),
+                                      ("depth bias", self.depth_bias)) if flag]  # fmt: skip
+        on += [f"robot kinematics {self.robot}"] if self.robot != "none" else []
+        on += ["servo lag"] if self.servo_lag else []
         return ", ".join(on) or "none"
 
 
 @dataclass(frozen=True)
 class Truth:
-    """The hidden geometry of one trial: the true system and the true board mount."""
+    """The hidden geometry of one trial: the true system, the true board mount and the
+    true camera's depth errors (None: the kind model)."""
 
     system: System
     flange_T_board: Array
+    depth_errors: d435.DepthErrors | None = None
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ A row per target: ``status`` ok | hidden (target not seen) | unsolved | lost (sp
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -38,6 +39,7 @@ from planner.studies.experiments_cell import FRAMES, Calibrated, Cell, calibrate
 from planner.studies.experiments_metrics import closest_point_error, point_error
 
 ROBOT_STREAM = 1  # third entry of the seed of the true arm's kinematic error
+CAMERA_STREAM = 2  # ... and of the true camera's disparity offset
 
 
 def _error(exp: setup.Experiment, k: int, spot_c: Array | None, seen_c: Array) -> float:
@@ -117,7 +119,7 @@ def plan_targets(metric: str, targets: Array, normals: Array, home: Array, ik: A
 def run_experiment(exp: setup.Experiment, cal: Calibrated, truth: setup.Truth, ik: Any,
                    closed: ClosedLoop | None, seed: Any) -> list[dict[str, Any]]:  # fmt: skip
     """Rows (one per target) of one experiment run (see the module docstring)."""
-    cell = Cell(truth.system, exp.items, seed)
+    cell = Cell(truth.system, exp.items, seed, truth.depth_errors)
     seen_c = cell.see(exp.points)
     targets, normals = planner_targets(seen_c, exp.normals, cal, truth)
     sols = plan_targets(exp.metric, targets, normals, cal.system.home, ik)
@@ -153,8 +155,9 @@ def run_trial(
     effects: setup.Effects | None = None,
 ) -> dict[str, Any]:
     """One trial: its calibration figures and every target's row (``trial`` added). The
-    true arm's kinematic error (``effects.robot``) comes from a stream of its own
-    (``[seed, trial, ROBOT_STREAM]``): the other draws stay those of the kind simulation."""
+    true arm's kinematic error (``effects.robot``) and the true camera's disparity offset
+    (``effects.depth_bias``) come from streams of their own (``[seed, trial, ROBOT_STREAM]``,
+    ``[seed, trial, CAMERA_STREAM]``): the other draws stay those of the kind simulation."""
     from planner.ik import BeamIK
     from planner.planning import ik_options
 
@@ -164,6 +167,8 @@ def run_trial(
     u = setup.Unknowns() if unknowns is None else unknowns
     robot_rng = np.random.default_rng(np.random.SeedSequence([seed, trial, ROBOT_STREAM]))
     truth = setup.draw_truth(nominal, u, rng, effects.robot_spread, robot_rng)
+    camera_rng = np.random.default_rng(np.random.SeedSequence([seed, trial, CAMERA_STREAM]))
+    truth = replace(truth, depth_errors=effects.depth_errors(nominal, camera_rng))
     cal = calibrate_cell(nominal, truth, rng)
     ik = BeamIK(cal.system, ik_options(setup.solver_settings()))
     closed = ClosedLoop(cal) if closed_loop else None
