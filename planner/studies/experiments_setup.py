@@ -157,6 +157,13 @@ def solver_settings() -> Any:
     return load_scenario(SCENARIO).model.solver
 
 
+def spot_speed() -> float:
+    """The scenario's spot speed along a path, m/s (``trajectory.spot_speed``)."""
+    from planner.io.scenario import load_scenario
+
+    return float(load_scenario(SCENARIO).model.trajectory.spot_speed)
+
+
 NOMINAL_BOARD = make_T(p=[0.0, 0.0, 0.01])
 """Nominal ``flange_T_board`` of the hand-eye board (10 mm off the flange, facing out)."""
 
