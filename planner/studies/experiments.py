@@ -144,7 +144,7 @@ def write(
     budget = None
     if ablation is not None:
         budget = abl.summarize(ablation)
-        lines += abl.report_lines(budget, trials, seed)
+        lines += abl.report_lines(budget, trials, seed, abl.calibration(ablation))
         tables["ablation.csv"] = [{k: _round(v) for k, v in r.items()} for r in budget]
     common.write_report(
         out,

@@ -72,8 +72,22 @@ def summarize(rungs: list[tuple[str, list[dict[str, Any]]]]) -> list[dict[str, A
                     step = mean_ci([per[t] - prev[t] for t in common])
                     row[f"{loop}_step_mm"], row[f"{loop}_step_ci_mm"] = step.mean, step.half_width
                 before[(group, loop)] = per
+            for loop in ("true_open", "true_closed"):
+                row[f"{loop}_mm"] = mean_ci(list(_per_trial(trials, group, loop).values())).mean
             rows.append(row)
     return rows
+
+
+def calibration(rungs: list[tuple[str, list[dict[str, Any]]]]) -> list[dict[str, Any]]:
+    """Per rung: the hand-eye and laser + mirror residuals (mm), mean over trials and CI."""
+    out = []
+    for label, trials in rungs:
+        row: dict[str, Any] = {"rung": label}
+        for k in ("handeye", "beam"):
+            ci = mean_ci([t[f"{k}_residual_mm"] for t in trials])
+            row[f"{k}_mm"], row[f"{k}_ci_mm"] = ci.mean, ci.half_width
+        out.append(row)
+    return out
 
 
 def _fmt(mean: float, ci: float) -> str:
@@ -86,25 +100,39 @@ def _step(row: dict[str, Any], loop: str) -> str:
     return f"{row[f'{loop}_step_mm']:+.2f} ± {row[f'{loop}_step_ci_mm']:.2f}"
 
 
-def report_lines(rows: list[dict[str, Any]], trials: int, seed: int) -> list[str]:
-    """The error-budget section of the report."""
+def report_lines(
+    rows: list[dict[str, Any]], trials: int, seed: int, calib: list[dict[str, Any]] | None = None
+) -> list[str]:
+    """The error-budget section of the report (with the calibration residuals per rung)."""
     lines = [
         "## Error budget: one imperfection at a time (`--ablate`)",
         "",
         f"{trials} trials per rung, seed {seed}, the same trials on every rung. Each rung "
         "adds one effect of the real cell to the one above; cells: mean over the per-trial "
         "means ± 95 % CI (t over trials), and what the rung adds (paired per trial, ± 95 % "
-        "CI), mm. Paper: the real robot's mean ± std.",
+        "CI), mm. True: the same metric between the true spot and the true target, without "
+        "the camera. Paper: the real robot's mean ± std.",
         "",
-        "| rung | experiment | open loop | adds (open) | closed loop | adds (closed) | paper |",
-        "|---|---|---|---|---|---|---|",
+        "| rung | experiment | open loop | adds (open) | closed loop | adds (closed) | true open / closed | paper |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         m, s = rep.PAPER_MM[r["experiment"]]
         lines.append(
             f"| {r['rung']} | {r['experiment']} | {_fmt(r['open_mm'], r['open_ci_mm'])} | "
             f"{_step(r, 'open')} | {_fmt(r['closed_mm'], r['closed_ci_mm'])} | "
-            f"{_step(r, 'closed')} | {m:.2f} ± {s:.2f} |"
+            f"{_step(r, 'closed')} | {r['true_open_mm']:.2f} / {r['true_closed_mm']:.2f} | "
+            f"{m:.2f} ± {s:.2f} |"
+        )
+    if calib:
+        (hm, hs), (bm, bs) = rep.PAPER_CALIBRATION_MM["handeye"], rep.PAPER_CALIBRATION_MM["beam"]
+        lines += ["", "Calibration residuals per rung (mean over trials ± 95 % CI, mm):", "",
+                  "| rung | hand-eye, 20 poses | laser + mirror, 16 x 3 |", "|---|---|---|"]  # fmt: skip
+        for c in calib:
+            lines.append(f"| {c['rung']} | {_fmt(c['handeye_mm'], c['handeye_ci_mm'])} | "
+                         f"{_fmt(c['beam_mm'], c['beam_ci_mm'])} |")  # fmt: skip
+        lines.append(
+            f"| paper, real robot (mean ± std) | {hm:.2f} ± {hs:.2f} | {bm:.2f} ± {bs:.2f} |"
         )
     lines += ["", *SOURCES, ""]
     return lines

@@ -66,10 +66,10 @@ def test_the_ladder_adds_one_effect_per_rung() -> None:
 
 
 def _trial(t: int, errors: dict[str, list[float]]) -> dict[str, object]:
-    rows = [{"group": g, "status": "ok", "open_mm": e, "closed_mm": e / 2}
-            for g, es in errors.items() for e in es]  # fmt: skip
+    rows = [{"group": g, "status": "ok", "open_mm": e, "closed_mm": e / 2, "true_open_mm": e / 4,
+             "true_closed_mm": e / 8} for g, es in errors.items() for e in es]  # fmt: skip
     rows.append({"group": "curve", "status": "lost", "open_mm": 99.0, "closed_mm": 99.0})
-    return {"trial": t, "rows": rows}
+    return {"trial": t, "rows": rows, "handeye_residual_mm": 1.0 + t, "beam_residual_mm": 2.0}
 
 
 def test_budget_steps_are_paired_per_trial_means() -> None:
@@ -82,13 +82,17 @@ def test_budget_steps_are_paired_per_trial_means() -> None:
     per_a, per_b = np.array([2.0, 3.0, 4.0]), np.array([3.0, 2.5, 6.0])  # per-trial means
     assert curve_a["open_mm"] == pytest.approx(per_a.mean())
     assert curve_a["open_step_mm"] is None
+    assert curve_a["true_closed_mm"] == pytest.approx(per_a.mean() / 8)
     d = per_b - per_a
     half = stats.t.ppf(0.975, 2) * d.std(ddof=1) / np.sqrt(3)
     assert curve_b["open_step_mm"] == pytest.approx(d.mean())
     assert curve_b["open_step_ci_mm"] == pytest.approx(half)
     assert curve_b["closed_step_mm"] == pytest.approx(d.mean() / 2)
-    lines = abl.report_lines(rows, 3, 0)
+    calib = abl.calibration([("a", a), ("b", b)])
+    assert calib[0]["handeye_mm"] == pytest.approx(2.0) and calib[1]["beam_mm"] == 2.0
+    lines = abl.report_lines(rows, 3, 0, calib)
     assert any("| b | curve |" in line and f"{d.mean():+.2f}" in line for line in lines)
+    assert any(line.startswith("| a | 2.00 ± ") for line in lines)
 
 
 def test_unknown_robot_error_level_is_a_usage_error(tmp_path: Path) -> None:
