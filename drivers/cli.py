@@ -78,9 +78,14 @@ def robot(
     rate: float = typer.Option(defaults.SERVO_RATE_HZ, "--rate", help="Control rate, Hz."),
     state_rate: float = typer.Option(250.0, "--state-rate", help="joint_states rate, Hz (>= 100)."),
     lookahead: float = typer.Option(
-        0.1, "--lookahead", help="servoJ lookahead time, s [0.03, 0.2]."
+        defaults.SERVOJ_LOOKAHEAD_S, "--lookahead", help="servoJ lookahead time, s [0.03, 0.2]."
     ),
-    gain: float = typer.Option(300.0, "--gain", help="servoJ gain [100, 2000]."),
+    gain: float = typer.Option(defaults.SERVOJ_GAIN, "--gain", help="servoJ gain [100, 2000]."),
+    servo_lag: bool = typer.Option(
+        False,
+        "--servo-lag/--no-servo-lag",
+        help="sim: the arm follows its command as a UR follows servoJ (--lookahead, --gain).",
+    ),
     watchdog_hz: float = typer.Option(
         25.0,
         "--rtde-watchdog",
@@ -134,9 +139,11 @@ def robot(
     gate_output = None if emission is None else emission.gate_output
     backend_obj: Any
     if backend == RobotBackendName.sim:
+        from drivers.robot.servo_lag import ServoSettings
         from drivers.robot.sim import SimRobot
 
-        backend_obj = SimRobot(r.joint_names, r.home, r.limits, rate=rate)
+        servo = ServoSettings(lookahead, gain) if servo_lag else None
+        backend_obj = SimRobot(r.joint_names, r.home, r.limits, rate=rate, servo=servo)
     else:
         from drivers.robot.ur import URRobot
 

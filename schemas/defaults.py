@@ -12,6 +12,11 @@ import math
 SERVO_RATE_HZ = 500.0
 """Trajectory sample rate and robot control rate, Hz (``trajectory.rate``; the UR e-Series
 servo rate, one sample per 2 ms controller cycle)."""
+SERVOJ_LOOKAHEAD_S = 0.1
+"""The UR driver's servoJ ``lookahead_time``, s (URScript accepts 0.03-0.2); also the lag of
+the simulated arm's servo model (:mod:`drivers.robot.servo_lag`)."""
+SERVOJ_GAIN = 300.0
+"""The UR driver's servoJ ``gain`` (URScript accepts 100-2000; 300 is its default)."""
 HEARTBEAT_RATE_HZ = 100.0
 """The planner's heartbeat rate, Hz (the drivers brake after 100 ms of silence)."""
 SPOT_SPEED_MPS = 0.02

@@ -10,8 +10,14 @@ frame redraws the D435 depth noise, Gaussian along the pixel's ray with
 
     sigma_z = z^2 * subpixel / (fx * baseline),   subpixel = 0.08 px, baseline = 0.050 m
 
-(Intel's RMS-error model; 1.3 mm at 0.6 m with fx = 430 px). Points are in the camera
-optical frame (x right, y down, z forward), float32; pixels that see nothing are dropped.
+(Intel's RMS-error model; 1.3 mm at 0.6 m with fx = 430 px), independent per pixel. With
+``depth_errors`` (:class:`planner.model.d435.DepthErrors`, one physical camera's) the noise
+is correlated between neighbouring pixels as the D4's census matching makes it (unit white
+noise box-filtered over ``CENSUS_PX`` x ``CENSUS_PX`` pixels of the full image, then scaled
+by sigma_z: correlation (1 - |du|/9)(1 - |dv|/9)) and every depth carries the camera's fixed
+bias (:func:`planner.model.d435.biased_depth` of its disparity offset). Points are in the
+camera optical frame (x right, y down, z forward), float32; pixels that see nothing are
+dropped.
 
 Laser spot: only while the laser is on. With a gate (the scenario's ``laser.gate``,
 ``gated``) that is while the last :class:`schemas.messages.LaserState` on ``<prefix>/laser``
@@ -32,7 +38,10 @@ makes a long, dim spot), at least 0.05. Like the RealSense driver's gated detect
 for the spot only within :attr:`SpotParams.radius <drivers.camera.spot.SpotParams.radius>`
 px of the planner's predicted spot (``<prefix>/camera/predicted``, :meth:`SimCamera.on_predicted`)
 while that prediction is fresh (:data:`drivers.camera.spot.PREDICTION_TTL`); a spot outside
-the window is not detected (counted in :attr:`SimCamera.outside_window`).
+the window is not detected (counted in :attr:`SimCamera.outside_window`). With
+``depth_errors`` the spot and the markers carry the camera's bias and the window statistics of
+correlated pixels (:meth:`planner.model.d435.D435Noise.with_errors`; the spot's depth is the
+window's median, as in :mod:`drivers.camera.realsense`).
 """
 
 from __future__ import annotations
@@ -104,6 +113,7 @@ class SimCamera:
     def __init__(
         self, system: System, items: list[SceneItem], *, stride: int = 1, seed: int | None = None,
         gated: bool = False, clock: Callable[[], float] = time.time,
+        depth_errors: d435.DepthErrors | None = None,
     ) -> None:  # fmt: skip
         from planner.errors import InputError
 
@@ -114,6 +124,7 @@ class SimCamera:
         self.system = system
         self.camera: Camera = system.camera
         self.stride = stride
+        self.depth_errors = depth_errors
         self.rng = np.random.default_rng(seed)
         self.world = MovingScene(items)
         self.scene = self.world.static.raycasting_scene  # the objects that never move
@@ -129,6 +140,7 @@ class SimCamera:
         self._z_static, self._rays_all = z, rays
         self._watch = [self._swept_pixels(j) for j in range(len(self.world.moving))]
         ok = np.isfinite(z)
+        self._ok = ok
         self._z = z[ok].astype(np.float32)
         self._rays = rays[ok].astype(np.float32)
         self._sigma = depth_sigma(self._z, self.camera.intrinsics.fx).astype(np.float32)
@@ -168,14 +180,31 @@ class SimCamera:
         their rays (x/z, y/z, 1), camera frame."""
         if not self.world.has_motion:
             return self._z, self._rays
+        z, ok = self._depth_all()
+        return z[ok].astype(np.float32), self._rays_all[ok].astype(np.float32)
+
+    def _depth_all(self) -> tuple[Array, Array]:
+        """Noiseless depth of every ``stride``-th pixel at the frame's time (inf: nothing)
+        and the mask of those that see something."""
+        if not self.world.has_motion:
+            return self._z_static, self._ok
         z = self._z_static.copy()
         c, R = self.camera.world_T_camera[:3, 3], self.camera.world_T_camera[:3, :3]
         for j, idx in enumerate(self._watch):
             dirs = self._rays_all[idx] @ R.T
             zj = self.world.object_cast(j, np.broadcast_to(c, dirs.shape), dirs, self.t)
             z[idx] = np.minimum(z[idx], zj)
-        ok = np.isfinite(z)
-        return z[ok].astype(np.float32), self._rays_all[ok].astype(np.float32)
+        return z, np.isfinite(z)
+
+    def correlated_field(self) -> Array:
+        """Unit-variance noise of every ``stride``-th pixel (in :func:`pixel_grid` order),
+        correlated as the D4's census window makes it: white noise on the full image
+        box-filtered over ``CENSUS_PX`` x ``CENSUS_PX`` pixels."""
+        k, m = self.camera.intrinsics, d435.CENSUS_PX
+        white = self.rng.standard_normal((k.height + m - 1, k.width + m - 1))
+        c = np.pad(np.cumsum(np.cumsum(white, axis=0), axis=1), ((1, 0), (1, 0)))
+        box = c[m:, m:] - c[:-m, m:] - c[m:, :-m] + c[:-m, :-m]  # m x m sums, height x width
+        return (box[:: self.stride, :: self.stride] / m).ravel()
 
     def frame_time(self) -> float:
         """The simulation time (s) of the current frame (set by :meth:`grab`)."""
@@ -204,16 +233,30 @@ class SimCamera:
 
     def points(self) -> tuple[F32, dict[str, Any]]:
         """One noisy cloud (M x 3 float32, camera frame) and its metadata."""
-        z0, rays = self.depth()
-        if self.world.has_motion:
-            sigma = depth_sigma(z0, self.camera.intrinsics.fx).astype(np.float32)
+        errors = self.depth_errors
+        if errors is not None and (errors.correlated or errors.disparity_offset_px):
+            pts = self._points_with_errors(errors)
         else:
-            sigma = self._sigma
-        z = z0 + sigma * self.rng.standard_normal(len(z0), dtype=np.float32)
-        pts = rays * z[:, None]
+            z0, rays = self.depth()
+            if self.world.has_motion:
+                sigma = depth_sigma(z0, self.camera.intrinsics.fx).astype(np.float32)
+            else:
+                sigma = self._sigma
+            z = z0 + sigma * self.rng.standard_normal(len(z0), dtype=np.float32)
+            pts = rays * z[:, None]
         k = self.camera.intrinsics
         meta = {"width": k.width, "height": k.height, "stride": self.stride, "organized": False}
         return pts, meta
+
+    def _points_with_errors(self, errors: d435.DepthErrors) -> F32:
+        """The cloud with the camera's bias and (when correlated) correlated pixel noise."""
+        z_all, ok = self._depth_all()
+        z0, fx = z_all[ok], self.camera.intrinsics.fx
+        unit = (
+            self.correlated_field()[ok] if errors.correlated else self.rng.standard_normal(len(z0))
+        )
+        z = d435.biased_depth(z0, errors.disparity_offset_px, fx) + depth_sigma(z0, fx) * unit
+        return (self._rays_all[ok] * z[:, None]).astype(np.float32)
 
     def true_spot_world(self) -> tuple[Array, Array, Array] | None:
         """Noiseless spot in the world, the beam direction and surface normal there, or None
@@ -265,7 +308,8 @@ class SimCamera:
         if not self._in_window(u, w):
             self.outside_window += 1
             return None
-        p_noisy = d435.SPOT.with_focal(k.fx).apply(p_c, self.rng)
+        spot = d435.SPOT.with_focal(k.fx).with_errors(self.depth_errors, median=True)
+        p_noisy = spot.apply(p_c, self.rng)
         confidence = max(0.05, abs(float(np.dot(v, normal))))
         return SpotReading(p_noisy, min(confidence, 1.0))
 
@@ -285,7 +329,7 @@ class SimCamera:
         c_T_b = self.camera_T_world @ r.world_T_base @ r.kinematics.fk(self.q[robot]) @ pose
         p = board @ c_T_b[:3, :3].T + c_T_b[:3, 3]
         k = self.camera.intrinsics
-        p = d435.CORNER.with_focal(k.fx).apply(p, self.rng)
+        p = d435.CORNER.with_focal(k.fx).with_errors(self.depth_errors).apply(p, self.rng)
         with np.errstate(divide="ignore", invalid="ignore"):
             u, v = k.fx * p[:, 0] / p[:, 2] + k.cx, k.fy * p[:, 1] / p[:, 2] + k.cy
         seen = (p[:, 2] > 0.1) & (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)

@@ -1,8 +1,11 @@
-"""Simulated arm: a 500 Hz joint-space model whose state is the Ruckig follower's output.
+"""Simulated arm: a 500 Hz joint-space model driven by the Ruckig follower's output.
 
-The arm tracks its commanded state perfectly (a kinematic model: no dynamics, no tracking
-error), so what the camera simulation sees is exactly the jerk-limited motion of
-:class:`drivers.robot.follower.TrajectoryFollower`. Joints in rad, rad/s; time in s.
+By default the arm tracks its commanded state perfectly (a kinematic model: no dynamics, no
+tracking error), so what the camera simulation sees is exactly the jerk-limited motion of
+:class:`drivers.robot.follower.TrajectoryFollower`. With ``servo`` settings it follows the
+command as a UR arm follows servoJ (:mod:`drivers.robot.servo_lag`: it trails a moving
+command by the lookahead time and settles on a held one), as the UR backend's arm does.
+Joints in rad, rad/s; time in s.
 
 Real-time pacing: :meth:`SimRobot.end_period` sleeps to the next multiple of ``dt`` on the
 monotonic clock; when the process falls behind (a loaded machine), :meth:`SimRobot.step`
@@ -17,6 +20,7 @@ from collections.abc import Callable
 
 from drivers.robot.backend import Measured
 from drivers.robot.follower import STOP_ACCELERATION, Reference, TrajectoryFollower
+from drivers.robot.servo_lag import ServoLag, ServoSettings
 from planner.model.system import Limits
 from planner.model.transforms import Array
 from schemas import defaults
@@ -39,12 +43,16 @@ class SimRobot:
         realtime: bool = True,
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
+        servo: ServoSettings | None = None,
     ) -> None:
         self.names = tuple(names)
         self.clock, self.sleep = clock, sleep  # injected by tests
         self.rate = float(rate)
         self.dt = 1.0 / self.rate
         self.follower = TrajectoryFollower(q0, limits, self.dt, stop_acceleration)
+        self.lag = None if servo is None else ServoLag(q0, servo, self.dt)
+        #: s the arm trails its command (the emission supervisor's following check)
+        self.following_lag = 0.0 if servo is None else servo.lookahead_time
         self.realtime = realtime
         self._next = clock()
         self.outputs = 0  # the simulated standard digital outputs (bit k = output k)
@@ -63,6 +71,8 @@ class SimRobot:
             self._next += (n - 1) * self.dt  # the missed periods are simulated now, once
         self.follower.dt = self.dt * self.speed  # the slider slows the trajectory clock
         for _ in range(n):
+            if self.lag is not None:  # the arm moves for one cycle toward the held command
+                self.lag.step(self.follower.q)
             self.follower.step()
         return self.measured()
 
@@ -78,8 +88,10 @@ class SimRobot:
             self._next = now  # hopelessly late: drop the backlog
 
     def measured(self) -> Measured:
+        """The arm's state: the command itself, or the lagging arm behind it."""
         s = self.follower.state
-        return Measured(s.q, s.qd, s.mode, speed=self.speed, outputs=self.outputs)
+        q, qd = (s.q, s.qd) if self.lag is None else (self.lag.q.copy(), self.lag.qd.copy())
+        return Measured(q, qd, s.mode, speed=self.speed, outputs=self.outputs)
 
     def command(self, reference: Reference) -> None:
         self.follower.follow(reference)

@@ -2,7 +2,8 @@
 the hidden truth, the product's calibration collection and calibration code.
 
 - :class:`Cell`: one scene (the objects of one experiment, or one calibration board) seen
-  by :class:`drivers.camera.sim.SimCamera` built on the TRUE system: ``spot(q)`` puts the
+  by :class:`drivers.camera.sim.SimCamera` built on the TRUE system (and the true camera's
+  depth errors, when the trial has them): ``spot(q)`` puts the
   robot at ``q`` (joint states), traces the true beam onto the true objects and returns the
   camera's detected spot (D435 spot noise), averaged over ``frames`` frames; ``see(points)``
   measures target features (D435 corner noise) where the true camera sees them.
@@ -45,11 +46,13 @@ BEAM_POSES = 16  # per board placement
 class Cell:
     """The true system with one scene, seen by the simulated D435 (see module docstring)."""
 
-    def __init__(self, truth: System, items: tuple[SceneItem, ...], seed: Any) -> None:
+    def __init__(self, truth: System, items: tuple[SceneItem, ...], seed: Any,
+                 errors: d435.DepthErrors | None = None) -> None:  # fmt: skip
         from drivers.camera.sim import SimCamera
 
         self.truth = truth
-        self.camera = SimCamera(truth, list(items), stride=64, seed=seed)
+        self.errors = errors  # the true camera's own depth errors (None: the kind model)
+        self.camera = SimCamera(truth, list(items), stride=64, seed=seed, depth_errors=errors)
         self.rng = np.random.default_rng(seed)
 
     def spot(self, q: Array, frames: int = FRAMES) -> Array | None:
@@ -73,7 +76,7 @@ class Cell:
             u, v = k.fx * p[:, 0] / p[:, 2] + k.cx, k.fy * p[:, 1] / p[:, 2] + k.cy
         ok = (hit >= dist - 1e-4) & (p[:, 2] > 0.1) & (u >= 0) & (u < k.width)
         ok &= (v >= 0) & (v < k.height)
-        out = (noise or d435.CORNER).with_focal(k.fx).apply(p, self.rng)
+        out = (noise or d435.CORNER).with_focal(k.fx).with_errors(self.errors).apply(p, self.rng)
         out[~ok] = np.nan
         return out
 
@@ -105,7 +108,8 @@ def calibrate_handeye_cell(nominal: System, truth: Truth, rng: np.random.Generat
 
     board = board_grid()
     qs, _ = handeye_plan(nominal, ROBOT, "eye_to_hand", HANDEYE_POSES, board, NOMINAL_BOARD, rng)
-    cam = SimCamera(truth.system, [], stride=64, seed=int(rng.integers(2**31)))
+    cam = SimCamera(truth.system, [], stride=64, seed=int(rng.integers(2**31)),
+                    depth_errors=truth.depth_errors)  # fmt: skip
     request = {"board_points": board.tolist(), "board_pose": truth.flange_T_board.tolist(),
                "robot": ROBOT}  # fmt: skip
     pts = []
@@ -126,7 +130,8 @@ def calibrate_beam_cell(
     qs, spots, labels = [], [], []
     for b, z in enumerate(CALIBRATION_BOARDS):
         plan, _ = beam_plan(nominal, ROBOT, BEAM_POSES, beam_point(z), rng)
-        cell = Cell(truth.system, (calibration_board(z),), int(rng.integers(2**31)))
+        seed = int(rng.integers(2**31))
+        cell = Cell(truth.system, (calibration_board(z),), seed, truth.depth_errors)
         for q in plan:
             s = cell.spot(q)
             if s is not None:

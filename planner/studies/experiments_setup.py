@@ -21,7 +21,9 @@ normals, and the metric):
 
 The truth (:class:`Unknowns`): what a hand-assembled cell does not know before calibration
 (uniform per component): the laser pose, the mirror on its mount, the camera pose and the
-calibration board on the flange.
+calibration board on the flange; optionally the arm's own kinematic error
+(:mod:`planner.model.kinematic_error`: the true UR5e's DH deltas, while the planner keeps
+the nominal model).
 """
 
 from __future__ import annotations
@@ -29,14 +31,18 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from planner.data import scenarios_dir, shipped_scenario
+from planner.model import d435
 from planner.model.scene import SceneItem
 from planner.model.system import System
 from planner.model.transforms import Array, make_T, rpy_to_matrix
+
+if TYPE_CHECKING:  # the kinematics (Pinocchio) load when a trial runs, not at --help
+    from planner.model.kinematic_error import KinematicSpread
 
 SCENARIO = shipped_scenario("paper_n1.yaml")
 FACE_PLY = "face_phantom.ply"
@@ -73,11 +79,53 @@ NONE = Unknowns(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
+class Effects:
+    """The imperfections of a real cell the simulation adds (default: none of them, the
+    kind simulation): ``camera_noise`` the D435's depth pixels correlated over its census
+    window (with the detectors' real window statistics), ``depth_bias`` the camera's own
+    disparity offset (uniform within the datasheet's bound, :mod:`planner.model.d435`),
+    ``robot`` the true arm's kinematic error level
+    (:data:`planner.model.kinematic_error.LEVELS`: none, factory, uncalibrated) and
+    ``servo_lag`` the arm following servoJ as a UR does while it sweeps a path
+    (:mod:`drivers.robot.servo_lag`)."""
+
+    camera_noise: bool = False
+    depth_bias: bool = False
+    robot: str = "none"
+    servo_lag: bool = False
+
+    @property
+    def robot_spread(self) -> KinematicSpread | None:
+        from planner.model.kinematic_error import LEVELS
+
+        return LEVELS[self.robot]
+
+    def depth_errors(self, nominal: System, rng: np.random.Generator) -> d435.DepthErrors | None:
+        """The true camera's depth errors (None: the kind model); its offset from ``rng``."""
+        if not (self.camera_noise or self.depth_bias):
+            return None
+        assert nominal.camera is not None
+        fx = nominal.camera.intrinsics.fx
+        offset = d435.DepthErrors.draw_offset(rng, fx) if self.depth_bias else 0.0
+        return d435.DepthErrors(self.camera_noise, offset)
+
+    def describe(self) -> str:
+        """One line: the effects that are on."""
+        on = [name for name, flag in (("camera noise (correlated)", self.camera_noise),
+                                      ("depth bias", self.depth_bias)) if flag]  # fmt: skip
+        on += [f"robot kinematics {self.robot}"] if self.robot != "none" else []
+        on += ["servo lag"] if self.servo_lag else []
+        return ", ".join(on) or "none"
+
+
+@dataclass(frozen=True)
 class Truth:
-    """The hidden geometry of one trial: the true system and the true board mount."""
+    """The hidden geometry of one trial: the true system, the true board mount and the
+    true camera's depth errors (None: the kind model)."""
 
     system: System
     flange_T_board: Array
+    depth_errors: d435.DepthErrors | None = None
 
 
 @dataclass(frozen=True)
@@ -109,6 +157,13 @@ def solver_settings() -> Any:
     return load_scenario(SCENARIO).model.solver
 
 
+def spot_speed() -> float:
+    """The scenario's spot speed along a path, m/s (``trajectory.spot_speed``)."""
+    from planner.io.scenario import load_scenario
+
+    return float(load_scenario(SCENARIO).model.trajectory.spot_speed)
+
+
 NOMINAL_BOARD = make_T(p=[0.0, 0.0, 0.01])
 """Nominal ``flange_T_board`` of the hand-eye board (10 mm off the flange, facing out)."""
 
@@ -118,8 +173,16 @@ def _perturb(T: Array, rng: np.random.Generator, rot: float, pos: float) -> Arra
     return T @ make_T(rpy_to_matrix(rng.uniform(-rot, rot, 3)), rng.uniform(-pos, pos, 3))
 
 
-def draw_truth(nominal: System, u: Unknowns, rng: np.random.Generator) -> Truth:
-    """A random true geometry about ``nominal`` at the levels ``u``."""
+def draw_truth(
+    nominal: System,
+    u: Unknowns,
+    rng: np.random.Generator,
+    robot: KinematicSpread | None = None,
+    robot_rng: np.random.Generator | None = None,
+) -> Truth:
+    """A random true geometry about ``nominal`` at the levels ``u``; with ``robot``, the
+    true arm also has DH deltas drawn at that spread from ``robot_rng`` (a stream of its
+    own, so the other draws do not change with it)."""
     r = nominal.robots[0]
     assert nominal.camera is not None
     laser = _perturb(nominal.world_T_laser, rng, u.laser_rot, u.laser_pos)
@@ -127,6 +190,12 @@ def draw_truth(nominal: System, u: Unknowns, rng: np.random.Generator) -> Truth:
     cam = _perturb(nominal.camera.world_T_camera, rng, u.camera_rot, u.camera_pos)
     board = _perturb(NOMINAL_BOARD, rng, u.board_rot, u.board_pos)
     true = nominal.with_params(world_T_laser=laser, flange_T_mirror={r.name: mount})
+    if robot is not None:
+        from planner.model.kinematic_error import perturbed_ur5e
+
+        err = robot.draw(rng if robot_rng is None else robot_rng, r.nq)
+        arm = replace(r, kinematics=perturbed_ur5e(err, r.kinematics))
+        true = replace(true, robots=(arm, *true.robots[1:]))
     return Truth(replace(true, camera=replace(nominal.camera, world_T_camera=cam)), board)
 
 

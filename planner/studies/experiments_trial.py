@@ -13,7 +13,10 @@ Per trial (seeded, independent of how many run and where):
    product's :class:`planner.ik.BeamIK` on the calibrated system (points from home, path
    samples from the previous sample's joints);
 4. open loop: the arm goes to the planned joints, the true beam lands on the true object
-   and the camera measures the spot (mean of 5 frames);
+   and the camera measures the spot (mean of 5 frames); with servo lag
+   (``Effects.servo_lag``) a path (curve, eyebrows) is swept at the scenario's spot speed
+   and each sample is measured as the spot passes it, with the arm where the UR's servoJ
+   follower has it then (:func:`swept_joints`);
 5. closed loop: from there :func:`planner.servo.servo` corrects the spot in the calibrated
    model from the measured spots (the product's servo, default settings) and an
    independent final measurement (5 frames) is taken where it leaves the arm;
@@ -27,6 +30,7 @@ A row per target: ``status`` ok | hidden (target not seen) | unsolved | lost (sp
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -36,6 +40,9 @@ from planner.studies import common
 from planner.studies import experiments_setup as setup
 from planner.studies.experiments_cell import FRAMES, Calibrated, Cell, calibrate_cell
 from planner.studies.experiments_metrics import closest_point_error, point_error
+
+ROBOT_STREAM = 1  # third entry of the seed of the true arm's kinematic error
+CAMERA_STREAM = 2  # ... and of the true camera's disparity offset
 
 
 def _error(exp: setup.Experiment, k: int, spot_c: Array | None, seen_c: Array) -> float:
@@ -112,13 +119,35 @@ def plan_targets(metric: str, targets: Array, normals: Array, home: Array, ik: A
     return out
 
 
+def swept_joints(exp: setup.Experiment, targets: Array, sols: list[Any], speed: float) -> list[Any]:
+    """The joints of the arm when the spot passes each sample of ``exp``'s strokes swept at
+    ``speed`` (m/s along the planned targets, from rest at each stroke's first sample; the
+    command runs linearly through the planned joints) behind a UR's servoJ follower
+    (:func:`drivers.robot.servo_lag.follow`, the driver's settings); the planned joints
+    where there is no stroke; None where nothing was planned."""
+    from drivers.robot.servo_lag import follow
+
+    out = [None if s is None or s.q is None else s.q for s in sols]
+    for stroke in exp.strokes:
+        idx = [int(k) for k in stroke if out[k] is not None]
+        if len(idx) < 2:
+            continue
+        step = np.linalg.norm(np.diff(targets[idx], axis=0), axis=1)
+        t = np.concatenate([[0.0], np.cumsum(step)]) / speed + 1e-9 * np.arange(len(idx))
+        for k, q in zip(idx, follow(t, np.array([out[k] for k in idx])), strict=True):
+            out[k] = q
+    return out
+
+
 def run_experiment(exp: setup.Experiment, cal: Calibrated, truth: setup.Truth, ik: Any,
-                   closed: ClosedLoop | None, seed: Any) -> list[dict[str, Any]]:  # fmt: skip
+                   closed: ClosedLoop | None, seed: Any,
+                   lag: bool = False) -> list[dict[str, Any]]:  # fmt: skip
     """Rows (one per target) of one experiment run (see the module docstring)."""
-    cell = Cell(truth.system, exp.items, seed)
+    cell = Cell(truth.system, exp.items, seed, truth.depth_errors)
     seen_c = cell.see(exp.points)
     targets, normals = planner_targets(seen_c, exp.normals, cal, truth)
     sols = plan_targets(exp.metric, targets, normals, cal.system.home, ik)
+    q_open = swept_joints(exp, targets, sols, setup.spot_speed()) if lag else None
     rows = []
     for k, sol in enumerate(sols):
         row: dict[str, Any] = {"experiment": exp.name, "group": setup.group(exp.name),
@@ -128,7 +157,7 @@ def run_experiment(exp: setup.Experiment, cal: Calibrated, truth: setup.Truth, i
         if sol is not None:
             status, t_ik = ("ok", sol.solve_time) if sol.q is not None else ("unsolved", np.nan)
         if status == "ok":
-            spot = cell.spot(sol.q, FRAMES)
+            spot = cell.spot(sol.q if q_open is None else q_open[k], FRAMES)
             e_open, true_open = _error(exp, k, spot, seen_c), _true_error(exp, k, cell)
             status = "ok" if spot is not None else "lost"
             if closed is not None and spot is not None:
@@ -144,21 +173,33 @@ def run_experiment(exp: setup.Experiment, cal: Calibrated, truth: setup.Truth, i
 
 
 def run_trial(
-    seed: int, trial: int, closed_loop: bool = True, unknowns: setup.Unknowns | None = None
+    seed: int,
+    trial: int,
+    closed_loop: bool = True,
+    unknowns: setup.Unknowns | None = None,
+    effects: setup.Effects | None = None,
 ) -> dict[str, Any]:
-    """One trial: its calibration figures and every target's row (``trial`` added)."""
+    """One trial: its calibration figures and every target's row (``trial`` added). The
+    true arm's kinematic error (``effects.robot``) and the true camera's disparity offset
+    (``effects.depth_bias``) come from streams of their own (``[seed, trial, ROBOT_STREAM]``,
+    ``[seed, trial, CAMERA_STREAM]``): the other draws stay those of the kind simulation."""
     from planner.ik import BeamIK
     from planner.planning import ik_options
 
+    effects = setup.Effects() if effects is None else effects
     rng = common.trial_rng(seed, trial)
     nominal = setup.nominal_system()
-    truth = setup.draw_truth(nominal, setup.Unknowns() if unknowns is None else unknowns, rng)
+    u = setup.Unknowns() if unknowns is None else unknowns
+    robot_rng = np.random.default_rng(np.random.SeedSequence([seed, trial, ROBOT_STREAM]))
+    truth = setup.draw_truth(nominal, u, rng, effects.robot_spread, robot_rng)
+    camera_rng = np.random.default_rng(np.random.SeedSequence([seed, trial, CAMERA_STREAM]))
+    truth = replace(truth, depth_errors=effects.depth_errors(nominal, camera_rng))
     cal = calibrate_cell(nominal, truth, rng)
     ik = BeamIK(cal.system, ik_options(setup.solver_settings()))
     closed = ClosedLoop(cal) if closed_loop else None
     rows = []
     for i, exp in enumerate(setup.experiments(rng)):
-        for r in run_experiment(exp, cal, truth, ik, closed, [seed, trial, i]):
+        for r in run_experiment(exp, cal, truth, ik, closed, [seed, trial, i], effects.servo_lag):
             rows.append({"trial": trial, **r})
     return {
         "trial": trial,
