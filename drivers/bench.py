@@ -96,8 +96,8 @@ def flood_jitter(
     trajectories sent, checked (a verdict) and superseded before they were checked."""
     from drivers.robot.node import RobotNode
     from drivers.robot.sim import SimRobot
+    from planner.bus.session import Keys, open_session
     from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
-    from planner.service.bus import Keys, open_session
 
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     keys, limits, home = Keys("bench"), Limits.ur_default(), np.array(DEFAULT_HOME)

@@ -7,7 +7,7 @@ tokens) in reverse order of declaration. :meth:`LoopNode.wait` blocks until the 
 
 A loop that raises is a dead node, not a quiet one: :attr:`LoopNode.failure` keeps the
 error (one line), the traceback goes to stderr, and the driver command exits non-zero
-(``drivers.cli``), so ``beamrelay up`` sees the exit.
+(``planner.cli.driver``), so ``beamrelay up`` sees the exit.
 """
 
 from __future__ import annotations

@@ -25,7 +25,7 @@ SENDER = """
 import math, os, sys, time
 import numpy as np
 from drivers.bench import peer_session
-from planner.service.bus import Keys
+from planner.bus.session import Keys
 from planner.service.setpoints import SetpointStreamer
 from planner.model.system import DEFAULT_HOME
 os.nice(5)
@@ -57,8 +57,8 @@ def stream_jitter(seconds: float = 5.0, quiet: float = 2.0, garbage: float = 0.0
 
     from drivers.robot.node import RobotNode
     from drivers.robot.sim import SimRobot
+    from planner.bus.session import Keys, open_session
     from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
-    from planner.service.bus import Keys, open_session
 
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     keys, limits = Keys("sbench"), Limits.ur_default()

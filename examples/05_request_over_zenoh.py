@@ -10,7 +10,7 @@ from pathlib import Path
 
 import zenoh
 
-from planner.service.bus import Keys, open_session
+from planner.bus.session import Keys, open_session
 from planner.service.node import PlannerNode, handler_from_scenario
 
 SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "paper_n1.yaml"

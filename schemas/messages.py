@@ -262,6 +262,26 @@ class RecoverRequest(StrictModel):
     operator: Annotated[str, Field(max_length=200)] = ""
 
 
+#: largest recover body read (bytes); a longer one is refused unread
+MAX_RECOVER_BYTES: Final = 4096
+
+
+def parse_recover(payload: bytes, robot: str) -> str:
+    """The operator text of a valid recover request for ``robot`` (what the UR driver acts
+    on and the supervisor logs); ValueError otherwise."""
+    from pydantic import ValidationError
+
+    if len(payload) > MAX_RECOVER_BYTES:
+        raise ValueError(f"recover body of {len(payload)} bytes > {MAX_RECOVER_BYTES}")
+    try:
+        body = RecoverRequest.model_validate_json(payload)
+    except ValidationError as exc:
+        raise ValueError(f"not a {RECOVER_SCHEMA} body: {exc.errors()[0]['msg']}") from None
+    if body.robot != robot:
+        raise ValueError(f"recover request for {body.robot!r}, this is {robot!r}")
+    return body.operator
+
+
 class LaserState(StrictModel):
     """The laser gate as its robot driver last switched it (published on ``<prefix>/laser``
     at every switch and with every status): ``on`` (the treatment gate), ``aim`` (the aiming

@@ -35,11 +35,11 @@ class Ran:
 def _unconfigured_logging() -> Iterator[None]:
     """Logging as in a fresh interpreter: the root logger without handlers and the
     ``beamrelay`` logger not configured (an earlier in-process command may have called
-    :func:`planner.service.events.configure`, which sends its records to the standard error
+    :func:`planner.bus.events.configure`, which sends its records to the standard error
     of that time), so a warning reaches this call's standard error through logging's
     last-resort handler (pytest's capture handlers would take it instead). Both are put back
     afterwards, and a writer this call configured is stopped."""
-    from planner.service import events
+    from planner.bus import events
 
     root, ours = logging.getLogger(), logging.getLogger("beamrelay")
     saved = root.handlers[:], ours.handlers[:], ours.propagate, ours.level, events._listener

@@ -40,8 +40,8 @@ def pytest_configure(config: pytest.Config) -> None:
     """Start Zenoh's runtime threads at the timing priority (when root): the tests are bus
     hubs routing heartbeats and watch 100 ms deadlines, like ``beamrelay up``'s hub. The
     runtime is process-wide and starts with the first session: open one, raised, first."""
-    from planner.service.bus import open_session
-    from planner.service.priority import raised_priority
+    from planner.bus.priority import raised_priority
+    from planner.bus.session import open_session
     from tests.drivers.conftest import free_port
 
     with raised_priority():

@@ -28,7 +28,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from planner.beam.graph import BeamModel
-from planner.service.bus import Keys, open_session
+from planner.bus.session import Keys, open_session
 from planner.service.client import PlanClient, RequestError, make_request
 from planner.service.up import child_commands
 from tests.drivers.conftest import free_port, stop_processes, wait_for

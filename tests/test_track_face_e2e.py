@@ -138,8 +138,8 @@ class Face:
 # --- the running system ---------------------------------------------------------------------
 class Cell:
     def __init__(self, tmp: Path) -> None:
-        from planner.service.bus import open_session
-        from planner.service.priority import raised_priority
+        from planner.bus.priority import raised_priority
+        from planner.bus.session import open_session
 
         self.tmp, self.endpoint = tmp, f"tcp/127.0.0.1:{free_port()}"
         with raised_priority():  # the hub routes the setpoints, as up's does

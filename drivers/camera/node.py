@@ -37,9 +37,9 @@ from typing import Any, Protocol
 import numpy as np
 
 from drivers.loop_node import LoopNode
+from planner.bus.session import JSON, Keys, bulk, decode, encode
 from planner.errors import InputError
 from planner.model.transforms import Array
-from planner.service.bus import JSON, Keys, bulk, decode, encode
 from schemas.messages import JointState, SpotMessage
 from schemas.points import POINTS_SCHEMA, decode_points, points_metadata
 

@@ -1,7 +1,7 @@
 """Simulated marker tracker: the moving targets of a scenario, seen by the D435, on the bus.
 
 Tracked points: the scenario's ``targets.points`` (world frame) that lie on a scene object
-with a ``motion:`` (within :data:`ON_SURFACE` of its surface at rest), one stream per such
+with a ``motion:`` (within :data:`planner.model.scene.ON_SURFACE` of its surface at rest), one stream per such
 object, ``id`` = the object's name. At time ``t`` (the simulation clock,
 :mod:`planner.model.motion`) each point is where the motion puts it, seen through the
 marker noise of the simulated camera's spot model (:class:`planner.track.noise.MarkerNoise`
@@ -18,56 +18,20 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from drivers.camera.sim import SIGMA_PX, SPOT_WINDOW
 from drivers.loop_node import LoopNode
-from planner.model.scene import SceneItem, SceneModel
+from planner.bus.session import Keys
+from planner.model.scene import TrackedObject
 from planner.model.transforms import Array
-from planner.service.bus import Keys
 from planner.track.noise import MarkerNoise
 from schemas.messages import TargetStream
 
-#: m: a target this close to a moving object's surface (at rest) moves with it
-ON_SURFACE = 1e-3
 #: s: default time from a frame's capture to its message
 LATENCY = 0.02
-
-
-@dataclass(frozen=True)
-class TrackedObject:
-    """The targets (world, m, at rest) on one moving scene object."""
-
-    item: SceneItem
-    points: Array
-    normals: Array | None
-
-
-def tracked_objects(
-    items: list[SceneItem], points: Array, normals: Array | None
-) -> list[TrackedObject]:
-    """The moving objects that carry some of ``points`` (K x 3, world), with those points."""
-    out = []
-    P = np.asarray(points, dtype=float).reshape(-1, 3)
-    for item in items:
-        if item.motion is None:
-            continue
-        import dataclasses
-
-        import open3d as o3d
-
-        scene = SceneModel([dataclasses.replace(item, motion=None)]).raycasting_scene
-        d = scene.compute_distance(
-            o3d.core.Tensor.from_numpy(np.ascontiguousarray(P, dtype=np.float32))
-        ).numpy()
-        on = d <= ON_SURFACE
-        if on.any():
-            n = None if normals is None else np.asarray(normals, dtype=float)[on]
-            out.append(TrackedObject(item, P[on], n))
-    return out
 
 
 class SimTracker:
@@ -128,7 +92,7 @@ class TrackerNode(LoopNode):
         self.frames = 0
 
     def start(self) -> TrackerNode:
-        from planner.service.bus import JSON
+        from planner.bus.session import JSON
 
         self._pub = self.session.declare_publisher(self.keys.target_stream, encoding=JSON)
         self._handles.append(self._pub)
@@ -137,7 +101,7 @@ class TrackerNode(LoopNode):
         return self
 
     def _loop(self) -> None:
-        from planner.service.bus import encode
+        from planner.bus.session import encode
 
         next_t = time.monotonic()
         while not self._stop.is_set():

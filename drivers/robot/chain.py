@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from planner.service.bus import decode
-from planner.service.execution import base_id
+from planner.bus.ids import base_id
+from planner.bus.session import decode
 from schemas.messages import RobotStatus
 
 #: longest silence (s, receive clock) of a chain arm's joint states (250 Hz: 12 missed)

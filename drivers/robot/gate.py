@@ -362,6 +362,6 @@ class LaserGate:
                          output=self.output, reason=reason or self.reason,
                          lag=None if last is None else last.lag,
                          latency=None if last is None else last.latency)  # fmt: skip
-        from planner.service.bus import encode
+        from planner.bus.session import encode
 
         self._put(encode(msg))

@@ -22,7 +22,7 @@ worker that dies rejects its body and is restarted.
 
 Bounds (only the newest trajectory matters):
 
-- bodies over :data:`planner.service.bus.MAX_PAYLOAD_BYTES` (4 MiB) are rejected before anything
+- bodies over :data:`planner.bus.session.MAX_PAYLOAD_BYTES` (4 MiB) are rejected before anything
   else (no copy, no parse);
 - at most one body is being parsed and at most one waits; a newer arrival replaces the
   waiting one, which is rejected as superseded (its id is unknown: it was never parsed);
@@ -49,8 +49,8 @@ import numpy as np
 from drivers.robot.follower import Reference
 from drivers.robot.outbox import Outbox
 from drivers.robot.trajectory_check import DEFAULT_PERIOD, check_message
+from planner.bus.session import MAX_PAYLOAD_BYTES
 from planner.model.system import Limits
-from planner.service.bus import MAX_PAYLOAD_BYTES
 
 MAX_REASON = 400  # characters of an unexpected error's text kept in a rejection
 #: the parse worker's nice value (0 default, -20 highest; the control loop asks -10 when it
@@ -81,8 +81,8 @@ def parse_in_worker(
 
     Never raises: any error of any payload becomes a rejection (plain tuples of numpy
     arrays and strings cross the process boundary)."""
+    from planner.bus.session import decode
     from planner.errors import InputError
-    from planner.service.bus import decode
     from schemas.messages import JointTrajectory
 
     msg_id: str | None = None

@@ -113,14 +113,21 @@ from drivers.robot.setpoint_intake import SetpointIntake
 from drivers.robot.streaming import StreamControl
 from drivers.robot.trajectory_check import START_TOLERANCE, check_start
 from drivers.robot.trajectory_check import check_trajectory as check_trajectory
-from drivers.robot.ur_link import RateLimitedLog, parse_recover, recover_key
+from drivers.robot.ur_link import RateLimitedLog, recover_key
+from planner.bus.events import event, stop_fields
+from planner.bus.ids import base_id
+from planner.bus.priority import Priority, raise_priority
+from planner.bus.session import JSON, Keys, decode, encode, urgent
 from planner.errors import InputError
 from planner.model.system import Limits
-from planner.service.bus import JSON, Keys, decode, encode, urgent
-from planner.service.events import event, stop_fields
-from planner.service.execution import base_id
-from planner.service.priority import Priority, raise_priority
-from schemas.messages import Heartbeat, JointState, RobotStatus, StopMessage, TrajectoryAck
+from schemas.messages import (
+    Heartbeat,
+    JointState,
+    RobotStatus,
+    StopMessage,
+    TrajectoryAck,
+    parse_recover,
+)
 
 log = logging.getLogger("beamrelay.driver")
 HEARTBEAT_TIMEOUT = 0.100  # s: longest planner silence before the arm brakes

@@ -4,7 +4,7 @@ A setpoint (:class:`schemas.messages.Setpoint`) is small (~300 bytes) and comes 
 500 Hz, so it is parsed in the Zenoh callback thread, on a cheap path: ``json.loads`` and
 pydantic's JSON parser on the schema (~40 us; the project's untrusted-body reader with
 located errors takes ~130 us), and only a body it refuses goes through
-:func:`planner.service.bus.decode` for an error that names the field. Joints in
+:func:`planner.bus.session.decode` for an error that names the field. Joints in
 rad, rad/s, rad/s^2; ``t`` in the sender's seconds; ``received`` on the driver's monotonic
 clock. Every failed check raises :class:`planner.errors.InputError` whose ``where`` names the
 field and whose reason gives the joint and the figure against its limit.
@@ -69,14 +69,14 @@ class SetpointSample(NamedTuple):
 
 def _validate(body: bytes) -> Setpoint:
     """The schema's verdict: pydantic's own JSON parser first (~40 us); a body it refuses goes
-    through :func:`planner.service.bus.decode` for an error that names the field."""
+    through :func:`planner.bus.session.decode` for an error that names the field."""
     from pydantic import ValidationError
 
     try:
         return Setpoint.model_validate_json(body)
     except (ValidationError, ValueError, ArithmeticError):
         pass
-    from planner.service.bus import decode
+    from planner.bus.session import decode
 
     return decode(body, Setpoint)  # raises InputError (else: the same message)
 

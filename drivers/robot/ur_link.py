@@ -9,7 +9,7 @@
   with the count of repeats suppressed in between.
 - The operator's recover request: ``<prefix>/<robot>/recover``, body
   ``{"schema": "beamrelay.recover/1", "robot": <robot>, "t": <UNIX s>, "operator": <text>}``
-  (:func:`recover_key`, :func:`parse_recover`, :func:`recover_body`).
+  (:func:`recover_key`, :func:`recover_body`; read by :func:`schemas.messages.parse_recover`).
 """
 
 from __future__ import annotations
@@ -20,11 +20,7 @@ import time
 from collections.abc import Callable
 from typing import Any, TextIO
 
-from pydantic import ValidationError
-
-from schemas.messages import RECOVER_SCHEMA, RecoverRequest
-
-MAX_RECOVER_BYTES = 4096
+from schemas.messages import RecoverRequest
 
 #: UR safety modes (``getSafetyMode()``); 1 and 2 allow motion
 SAFETY_MODES = {
@@ -147,16 +143,3 @@ def recover_body(robot: str, operator: str = "") -> bytes:
     """The :class:`~schemas.messages.RecoverRequest` body asking ``robot`` to recover."""
     body = RecoverRequest(robot=robot, t=time.time(), operator=operator[:200])
     return body.model_dump_json(by_alias=True).encode()
-
-
-def parse_recover(payload: bytes, robot: str) -> str:
-    """The operator text of a valid recover request for ``robot``; ValueError otherwise."""
-    if len(payload) > MAX_RECOVER_BYTES:
-        raise ValueError(f"recover body of {len(payload)} bytes > {MAX_RECOVER_BYTES}")
-    try:
-        body = RecoverRequest.model_validate_json(payload)
-    except ValidationError as exc:
-        raise ValueError(f"not a {RECOVER_SCHEMA} body: {exc.errors()[0]['msg']}") from None
-    if body.robot != robot:
-        raise ValueError(f"recover request for {body.robot!r}, this is {robot!r}")
-    return body.operator

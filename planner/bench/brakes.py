@@ -35,7 +35,7 @@ from typing import Annotated, Any
 import typer
 
 from planner.bench.service import DEFAULT_SCENARIO, _free_endpoint
-from planner.service.priority import NO_RT_ENV
+from planner.bus.priority import NO_RT_ENV
 
 PREFIX = "benchbrakes"
 BRAKE = "planner heartbeat lost"
@@ -117,9 +117,9 @@ def execute_for(
 ) -> dict[str, Any]:
     """Execute the scenario's targets, ``batch`` per request, each held ``dwell`` s (the
     arm executes, and watches the heartbeat, for most of the run), for ``seconds`` s."""
+    from planner.bus.priority import raised_priority
     from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
     from planner.service.client import PlanClient, make_request
-    from planner.service.priority import raised_priority
 
     scn = load_scenario(scenario)
     points = targets_from_scenario(scn, system_from_scenario(scn)).points

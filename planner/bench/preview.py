@@ -115,8 +115,8 @@ class Rig:
     def stages(self, targets: Any) -> tuple[dict[str, float], dict[str, Any]]:
         """CPU seconds per stage of one plan of ``targets`` from home (the beam check, which
         runs inside the timing stage, measured again on its result), and the plan document."""
+        from planner.bus.bodies import encode_json
         from planner.planning import plan_document, plan_path_targets, time_safely, verify_solutions
-        from planner.service.bodies import encode_json
 
         s = self.system
         t0 = time.process_time()
@@ -175,7 +175,7 @@ class Rig:
 
 def measure(scenario: Path, runs: int, centre: tuple[float, ...]) -> dict[str, Any]:
     """Total and per-stage latency of ``runs`` previews (see the module docstring)."""
-    from planner.service.bodies import encode_json
+    from planner.bus.bodies import encode_json
     from planner.service.handler import handler_from_scenario
 
     handler = handler_from_scenario(scenario)
@@ -228,7 +228,7 @@ def _camera_figures(handler: Any, rig: Rig, centre: tuple[float, ...], runs: int
                     ) -> dict[str, Any] | None:  # fmt: skip
     """The path as the console sends it (camera frame): whole request (wall) and its path
     solve by stage (CPU); None without a fixed camera."""
-    from planner.service.bodies import encode_json
+    from planner.bus.bodies import encode_json
 
     cam = handler.system.camera
     if cam is None or cam.robot is not None:

@@ -68,7 +68,7 @@ def measure(scenario: Path, seconds: float) -> dict[str, Any]:
     """The figures of the module docstring: ``off`` and ``on`` (bus joint_states) and
     ``ros2`` (the bridge's JointState)."""
     from planner.bench.service import _free_endpoint as free_endpoint
-    from planner.service.bus import open_session
+    from planner.bus.session import open_session
 
     endpoint = free_endpoint()
     prefix = "benchros"

@@ -49,8 +49,8 @@ def measure_latency(
     scenario: Path, n_single: int, n_batch: int, batch: int = 100
 ) -> dict[str, Any]:
     """Round-trip times (s) of single-target and ``batch``-target requests, plus solve rates."""
+    from planner.bus.session import Keys, open_session
     from planner.io.scenario import load_scenario, targets_from_scenario
-    from planner.service.bus import Keys, open_session
     from planner.service.client import PlanClient, make_request
     from planner.service.node import PlannerNode, handler_from_scenario
 
@@ -90,8 +90,8 @@ def measure_joint_states(seconds: float) -> dict[str, float]:
 
     from drivers.robot.node import RobotNode
     from drivers.robot.sim import SimRobot
+    from planner.bus.session import Keys, open_session
     from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
-    from planner.service.bus import Keys, open_session
 
     endpoint = _free_endpoint()
     hub = open_session(listen=True, endpoint=endpoint)
@@ -179,7 +179,7 @@ def measure_heartbeat(scenario: Path, in_process: bool) -> dict[str, dict[str, f
 
     import numpy as np
 
-    from planner.service.bus import Keys, open_session
+    from planner.bus.session import Keys, open_session
     from planner.service.client import PlanClient, make_request
     from planner.service.node import BusAddress, PlannerNode, handler_from_scenario
 

@@ -70,11 +70,12 @@ def run_case(
     moving object (the motion replaced by ``motion`` when given); with keep-out volumes
     attached to the object, its other targets are the markers; figures in m and s."""
     from drivers.camera.sim import SimCamera
-    from drivers.camera.tracker import SimTracker, tracked_objects
+    from drivers.camera.tracker import SimTracker
     from planner.data import shipped_scenario
     from planner.ik import BeamIK
     from planner.io.scenario import load_scenario, scene_objects, system_from_scenario
     from planner.io.scenario import targets_from_scenario as targets_of
+    from planner.model.scene import tracked_objects
     from planner.planning import ik_options
     from planner.safety.model import Safety
     from planner.track.follow import TrackSettings

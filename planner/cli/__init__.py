@@ -18,7 +18,6 @@ from typing import Annotated
 
 import typer
 
-from drivers import cli as driver_cli
 from planner.cli import (
     bench,
     calibrate,
@@ -34,6 +33,7 @@ from planner.cli import (
     ros2,
     study,
 )
+from planner.cli import driver as driver_cli
 from planner.cli.args import command_group
 from planner.errors import InputError
 

@@ -1,7 +1,7 @@
 """``beamrelay calibrate collect handeye|beam``: collect a calibration dataset on the running
 system (real or simulated): planned, well-conditioned poses, each move checked with the
 safety geometry, markers or spots from the camera; writes the dataset file that
-``beamrelay calibrate handeye|beam`` reads. How: :mod:`drivers.collect`.
+``beamrelay calibrate handeye|beam`` reads. How: :mod:`planner.service.collect`.
 """
 
 from __future__ import annotations
@@ -157,8 +157,8 @@ def _run(system: Any, world: Any, robot: str, qs: Any, speed: float, endpoint: s
     """Visit every pose, then return to the start; (joints reached, observations, log lines)."""
     import numpy as np
 
-    from drivers.collect import BusPlanner
-    from planner.service.bus import Keys, open_session
+    from planner.bus.session import Keys, open_session
+    from planner.service.collect import BusPlanner
     from planner.service.heartbeat import BusAddress
 
     _interrupt_on_sigterm()

@@ -67,7 +67,7 @@ def console(
                    err=True)  # fmt: skip
     folder = ensure_dir(workdir, "--workdir") if workdir is not None else None
     check_free(host, port)
-    from planner.service import events
+    from planner.bus import events
 
     events.configure("console")
     app = Console(scenario, host=host, port=port, endpoint=endpoint, prefix=prefix,

@@ -87,8 +87,8 @@ def serve(
     import os
     import threading
 
-    from planner.service import events
-    from planner.service.bus import Keys, open_session
+    from planner.bus import events
+    from planner.bus.session import Keys, open_session
     from planner.service.node import BusAddress, PlannerNode, handler_from_scenario
 
     if ros2:
@@ -102,7 +102,7 @@ def serve(
             typer.echo(f"online calibration: resuming version {online.current.version} from"
                        f" {online.out_file} (remove it to start from the scenario's)", err=True)  # fmt: skip
     events.configure("planner")
-    from planner.service.priority import raised_priority
+    from planner.bus.priority import raised_priority
 
     # its Zenoh threads send the setpoints and stops: real time like a driver's (requests
     # are handed to the worker thread at once; the callbacks only decode small messages)

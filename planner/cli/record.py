@@ -56,7 +56,7 @@ def record(
     ros2 bag read: /<robot>/joint_states and, with --scenario, /tf, /tf_static and
     /beamrelay/markers (the beam, the targets)."""
     from drivers.record import Recorder
-    from planner.service.bus import Keys, open_session
+    from planner.bus.session import Keys, open_session
 
     if duration is not None and not 0 < duration <= 86400:
         raise InputError(f"must be in (0, 86400] s, got {duration:g}", "--duration")
@@ -127,7 +127,7 @@ def replay(
     """Play a recording back onto the bus (original bytes, keys and timing)."""
     from drivers.record import read
     from drivers.record import replay as play
-    from planner.service.bus import open_session
+    from planner.bus.session import open_session
 
     if not recording.is_file():
         raise InputError("recording not found", str(recording))

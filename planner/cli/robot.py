@@ -36,7 +36,7 @@ def recover(
 ) -> None:
     """Acknowledge a robot fault: the driver re-arms (script, RTDE watchdog) if the cause is gone."""
     from drivers.robot.ur_link import recover_body, recover_key
-    from planner.service.bus import Keys, decode, open_session
+    from planner.bus.session import Keys, decode, open_session
     from schemas.messages import RobotStatus
 
     if not name or "/" in name or "*" in name or any(c.isspace() for c in name):

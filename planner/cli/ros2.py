@@ -38,10 +38,10 @@ def bridge(
         raise InputError(f"--rate {rate}: expected 1-1000 Hz")
     if not scenario.is_file():
         raise InputError(f"scenario not found: {scenario}")
+    from planner.bus.session import Keys, open_session
     from planner.io.scenario import load_scenario, scene_objects, system_from_scenario
     from planner.model.scene import SceneModel
     from planner.ros2.bridge import Ros2Bridge
-    from planner.service.bus import Keys, open_session
 
     scn = load_scenario(scenario)
     system = system_from_scenario(scn)

@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
+from planner.bus.session import Keys, decode, update_alive
 from planner.errors import InputError
 from planner.model.transforms import Array
-from planner.service.bus import Keys, decode, update_alive
 from schemas.messages import Heartbeat, JointState, LaserState, RobotStatus, SpotMessage
 
 #: a stream silent for longer than this (s) is shown as stale

@@ -14,9 +14,9 @@ import threading
 import time
 from typing import Any, NamedTuple
 
+from planner.bus.session import JSON, encode, urgent
 from planner.console.sweep import Sweep, sweep_of
 from planner.model.transforms import Array
-from planner.service.bus import JSON, encode, urgent
 from planner.service.client import PlanClient, request_summary, world_T_camera_of
 from schemas.messages import StopMessage
 

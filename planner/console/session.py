@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from planner.bus.events import event
 from planner.console.arming import Arming, treatment
 from planner.console.draw import set_lines
 from planner.console.operator import Answer, BusyError
@@ -28,7 +29,6 @@ from planner.console.report import answer_markdown, late_verdict_line
 from planner.console.targets import Mode, TargetList, build_request, path_points
 from planner.errors import BeamrelayError, InputError
 from planner.model.transforms import inv_T
-from planner.service.events import event
 
 if TYPE_CHECKING:
     from planner.console.app import Console

@@ -16,7 +16,7 @@ can be up to r (1 - cos(pi / resolution)) inside the true surface (0.2 mm for r 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -232,3 +232,38 @@ class SceneModel:
         object surface, and that object's index in :attr:`names` (-1 without objects): the
         same as :meth:`closest`."""
         return self.closest(points)
+
+
+#: m: a target this close to a moving object's surface (at rest) moves with it
+ON_SURFACE = 1e-3
+
+
+@dataclass(frozen=True)
+class TrackedObject:
+    """The targets (world, m, at rest) on one moving scene object."""
+
+    item: SceneItem
+    points: Array
+    normals: Array | None
+
+
+def tracked_objects(
+    items: list[SceneItem], points: Array, normals: Array | None
+) -> list[TrackedObject]:
+    """The moving objects that carry some of ``points`` (K x 3, world), with those points."""
+    out = []
+    P = np.asarray(points, dtype=float).reshape(-1, 3)
+    for item in items:
+        if item.motion is None:
+            continue
+        import open3d as o3d
+
+        scene = SceneModel([replace(item, motion=None)]).raycasting_scene
+        d = scene.compute_distance(
+            o3d.core.Tensor.from_numpy(np.ascontiguousarray(P, dtype=np.float32))
+        ).numpy()
+        on = d <= ON_SURFACE
+        if on.any():
+            n = None if normals is None else np.asarray(normals, dtype=float)[on]
+            out.append(TrackedObject(item, P[on], n))
+    return out

@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.bus.session import JSON, Keys, decode, encode
 from planner.console.live import LiveState
 from planner.errors import InputError
 from planner.model.scene import SceneModel
@@ -63,7 +64,6 @@ from planner.ros2.graph import (
     topic_key,
 )
 from planner.ros2.inputs import INPUTS, target_request
-from planner.service.bus import JSON, Keys, decode, encode
 from schemas.messages import JointTrajectory
 
 log = logging.getLogger(__name__)
@@ -465,7 +465,7 @@ def start_in_process(
 ) -> InProcess:
     """A bridge for one process's own topics (``--ros2`` on ``serve`` and the drivers), on a
     session of its own connected to ``endpoint`` (the bus the process is on), started."""
-    from planner.service.bus import open_session
+    from planner.bus.session import open_session
 
     session = open_session(listen=False, endpoint=endpoint, config_file=zenoh_config)
     bridge = Ros2Bridge(session, system, scene, keys=keys, domain=domain, parts=parts)

@@ -22,6 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from planner.bus.session import Keys, decode
 from planner.errors import InputError
 from planner.model.scene import SceneModel
 from planner.model.system import System
@@ -36,7 +37,6 @@ from planner.ros2.bridge import (
     joint_states_topic,
     trajectory_topic,
 )
-from planner.service.bus import Keys, decode
 from schemas.messages import JointState, JointTrajectory, LaserState, SpotMessage
 from schemas.points import decode_points
 

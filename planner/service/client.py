@@ -26,9 +26,9 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike
 
+from planner.bus.session import JSON, Keys, decode, encode, open_session
 from planner.errors import BeamrelayError, InputError
 from planner.model.transforms import Array, transform_points
-from planner.service.bus import JSON, Keys, decode, encode, open_session
 
 #: a robot within AT_TARGET_Q of q_k (rad, every joint), slower than REST_QD (rad/s) for the
 #: SETTLE s before a frame's capture (the joint states a simulated camera traced the frame
@@ -264,7 +264,7 @@ def measured_spots(plan: dict[str, Any], rec: Recorder, since: float) -> list[Ar
 
 class PlanClient:
     """A connected client session. Use as a context manager. With a Zenoh config file it
-    waits up to ``connect_timeout`` s for the bus host (see :func:`planner.service.bus.zenoh_config`)."""
+    waits up to ``connect_timeout`` s for the bus host (see :func:`planner.bus.session.zenoh_config`)."""
 
     def __init__(
         self,

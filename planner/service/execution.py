@@ -24,9 +24,10 @@ from typing import Any
 
 import numpy as np
 
+from planner.bus.ids import base_id
+from planner.bus.session import decode_sample
 from planner.errors import BeamrelayError
 from planner.model.transforms import Array
-from planner.service.bus import decode_sample
 
 log = logging.getLogger("beamrelay.node")
 
@@ -54,19 +55,6 @@ class ExecuteError(BeamrelayError):
         self.reason = reason
         self.robots = robots
         super().__init__(reason)
-
-
-def base_id(trajectory_id: str | None) -> str | None:
-    """The request id of a trajectory (chunk) id: ``"r#2/5"`` -> ``"r"``; others unchanged."""
-    if trajectory_id is None or "#" not in trajectory_id:
-        return trajectory_id
-    head, _, tail = trajectory_id.rpartition("#")
-    k, _, n = tail.partition("/")
-    return head if k.isdigit() and n.isdigit() and len(tail) <= CHUNK_SUFFIX_MAX else trajectory_id
-
-
-#: longest chunk suffix of a trajectory id after the "#": "<k>/<n>", numbers of 6 digits
-CHUNK_SUFFIX_MAX = 13
 
 
 @dataclass

@@ -18,8 +18,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from planner.bus.session import MAX_PAYLOAD_BYTES
 from planner.errors import BeamrelayError, InputError
-from planner.service.bus import MAX_PAYLOAD_BYTES
 from schemas import defaults
 
 log = logging.getLogger("beamrelay.node")
@@ -270,7 +270,7 @@ class Heartbeat:
             self._thread.join(timeout=2)
 
     def _run(self) -> None:
-        from planner.service.bus import encode
+        from planner.bus.session import encode
         from schemas.messages import Heartbeat as HeartbeatMessage
 
         next_t = self.clock()

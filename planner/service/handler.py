@@ -16,13 +16,13 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
+from planner.bus.bodies import safe_text
+from planner.bus.session import decode, encode
 from planner.errors import BeamrelayError, InputError
 from planner.model.settings import TrajectorySettings
 from planner.model.system import System, Targets
 from planner.model.transforms import Array, transform_points
 from planner.safety.landing import surface_tolerance
-from planner.service.bodies import safe_text
-from planner.service.bus import decode, encode
 from planner.service.execution import ExecuteError
 from schemas import defaults
 

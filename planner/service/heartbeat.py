@@ -24,7 +24,7 @@ identity where access control applies; the host routes its samples. It is starte
 ``python -m planner.service.heartbeat`` (no fork of the planner, no re-import of the
 parent's main module) and prints ``ready`` after its first beat. The whole process (its
 beat loop sleeps every period, Zenoh's threads wait for I/O) runs at real-time priority
-where permitted (:func:`planner.service.priority.raise_priority`) so that a loaded machine
+where permitted (:func:`planner.bus.priority.raise_priority`) so that a loaded machine
 does not delay its beats.
 """
 
@@ -48,8 +48,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from planner.bus.priority import Policy, raise_priority
 from planner.errors import BeamrelayError
-from planner.service.priority import Policy, raise_priority
 from schemas import defaults
 
 log = logging.getLogger("beamrelay.node")
@@ -83,7 +83,7 @@ class BusAddress:
 def child_config(bus: BusAddress, connect_timeout: float = CONNECT_TIMEOUT) -> Any:
     """The heartbeat child's Zenoh config: the planner's (same endpoint, same config file,
     so the same identity), in *client* mode toward the bus, listening nowhere."""
-    from planner.service.bus import _ENDPOINT, _HOST_PORT, zenoh_config
+    from planner.bus.session import _ENDPOINT, _HOST_PORT, zenoh_config
 
     conf = zenoh_config(listen=False, endpoint=bus.endpoint, config_file=bus.config_file,
                         connect_timeout=connect_timeout)  # fmt: skip
@@ -245,7 +245,7 @@ def start_heartbeat(
     from the child process when the node has its ``bus`` address, else from a thread of this
     process (:class:`planner.service.guard.Heartbeat`) publishing through ``session``. Returns
     it and the publisher this process declared for it (None with the child process)."""
-    from planner.service.bus import JSON, urgent
+    from planner.bus.session import JSON, urgent
     from planner.service.guard import Heartbeat
 
     hz = HEARTBEAT_RATE if rate is None else rate
@@ -346,7 +346,7 @@ def main(argv: list[str] | None = None) -> int:
         log.warning("heartbeat %s", got.note)
     import zenoh
 
-    from planner.service.bus import JSON, _zenoh_message, urgent
+    from planner.bus.session import JSON, _zenoh_message, urgent
 
     try:
         bus = BusAddress(args.endpoint, args.zenoh_config)

@@ -48,12 +48,12 @@ import uuid
 from collections.abc import Callable
 from typing import Any
 
+from planner.bus.bodies import encode_json
+from planner.bus.events import event, request_fields, stop_fields, verdict_fields
+from planner.bus.session import JSON, Keys, decode_sample, encode, update_alive, urgent
 from planner.errors import InputError
 from planner.model.system import Targets
 from planner.model.transforms import Array
-from planner.service.bodies import encode_json
-from planner.service.bus import JSON, Keys, decode_sample, encode, update_alive, urgent
-from planner.service.events import event, request_fields, stop_fields, verdict_fields
 from planner.service.execution import (
     ACK_TIMEOUT,
     HALTED_MODES,

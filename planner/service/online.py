@@ -51,6 +51,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.bus.events import event
 from planner.calibration.online import (
     Calibration,
     RefitResult,
@@ -62,7 +63,6 @@ from planner.errors import InputError
 from planner.model.scene import SceneModel
 from planner.model.system import System
 from planner.model.transforms import Array, transform_points
-from planner.service.events import event
 from planner.service.online_file import (
     ONLINE_MARK,
     check_poses,
@@ -370,7 +370,7 @@ class OnlineCalibrator:
 
     def message(self, cal: Calibration) -> bytes:
         """The :class:`~schemas.messages.CalibrationMessage` body of ``cal``."""
-        from planner.service.bus import encode
+        from planner.bus.session import encode
         from schemas.messages import CalibrationMessage
 
         msg = CalibrationMessage(t=self.clock(), version=cal.version, samples=cal.samples,
@@ -391,7 +391,7 @@ def attach(
     and, with :attr:`~OnlineCalibrator.rest_sampling`, takes rest samples from
     ``<prefix>/camera/spot`` (:class:`RestSampler` over ``joints``; the subscriber handles
     returned)."""
-    from planner.service.bus import JSON
+    from planner.bus.session import JSON
 
     pub = session.declare_publisher(keys.calibration)
     online.publish = lambda body: pub.put(body, encoding=JSON)
@@ -424,7 +424,7 @@ class RestSampler:
 
     def callback(self, sample: Any) -> None:
         """Zenoh callback of ``<prefix>/camera/spot``: any body is fine (bad ones are logged)."""
-        from planner.service.bus import MAX_PAYLOAD_BYTES, decode_sample
+        from planner.bus.session import MAX_PAYLOAD_BYTES, decode_sample
         from schemas.messages import SpotMessage
 
         if len(sample.payload) > MAX_PAYLOAD_BYTES:

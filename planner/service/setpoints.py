@@ -18,7 +18,7 @@ fresh), the request ``id`` and a ``seq`` that counts up. What it publishes comes
 aiming beam shows where the beam is while a tracked target is acquired); the others get
 ``false``. Joints in rad and rad/s, times in s.
 
-The streaming thread asks for ``SCHED_FIFO`` (:func:`planner.service.priority.raise_priority`,
+The streaming thread asks for ``SCHED_FIFO`` (:func:`planner.bus.priority.raise_priority`,
 nice as the fallback) like the other threads whose timing keeps the arm safe: a driver
 switches treatment off at the first late setpoint and stops the arm 50 ms into a silent
 stream, and a loaded machine's normal scheduler may leave the thread waiting that long. It
@@ -50,9 +50,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from planner.bus.session import JSON, Keys
 from planner.errors import InputError
 from planner.model.transforms import Array
-from planner.service.bus import JSON, Keys
 from schemas import defaults
 from schemas.messages import SETPOINT_SCHEMA
 
@@ -108,7 +108,7 @@ class SetpointStreamer:
         self._update: _Update | None = None
         self._halt = threading.Event()
         self._thread = threading.Thread(target=self._run, name="setpoint-streamer", daemon=True)
-        self.priority: Any = None  # the streaming thread's (planner.service.priority.Priority)
+        self.priority: Any = None  # the streaming thread's (planner.bus.priority.Priority)
         self.seq = 0  # setpoints sent so far per robot (the next seq)
         self.error: str | None = None
         self.late_max = 0.0  # s: the largest lateness of a period behind its schedule
@@ -168,7 +168,7 @@ class SetpointStreamer:
 
     # -- thread ------------------------------------------------------------------------------
     def _run(self) -> None:
-        from planner.service.priority import raise_priority
+        from planner.bus.priority import raise_priority
 
         self.priority = raise_priority(reset_on_fork=True)
         period = 1.0 / self.rate

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.service.bus import decode_sample
+from planner.bus.session import decode_sample
 from planner.servo.measure import SpotFrame
 
 log = logging.getLogger("beamrelay.node")

@@ -1,6 +1,6 @@
 """Executing a plan's trajectory on the robot drivers, in chunks when it is large (no Zenoh).
 
-A message body may hold at most :data:`~planner.service.bus.MAX_PAYLOAD_BYTES` (4 MiB), about
+A message body may hold at most :data:`~planner.bus.session.MAX_PAYLOAD_BYTES` (4 MiB), about
 13,000 samples of one robot: a long path or a large batch of targets makes a longer
 trajectory (the 1000 targets of the paper's grid: 52,707 samples, 16.7 MB). It is split into
 chunks of at most :data:`CHUNK_BYTES`, each a complete JointTrajectory whose first sample is
@@ -33,12 +33,12 @@ from typing import Any
 
 import numpy as np
 
-from planner.service.bodies import encode_json
+from planner.bus.bodies import encode_json
+from planner.bus.ids import base_id, chunk_id
 from planner.service.execution import (
     AckBoard,
     ExecuteError,
     MotionTracks,
-    base_id,
     execution_verdict,
 )
 
@@ -67,12 +67,6 @@ class Chunk:
     @property
     def nbytes(self) -> int:
         return max(len(b) for b in self.bodies.values())
-
-
-def chunk_id(request_id: str, k: int, n: int, max_length: int = 256) -> str:
-    """``<request id>#<k>/<n>`` (1-based ``k``), the request id cut to fit ``max_length``."""
-    suffix = f"#{k}/{n}"
-    return request_id[: max_length - len(suffix)] + suffix
 
 
 def split_trajectory(

@@ -48,12 +48,12 @@ from typing import Any
 
 import numpy as np
 
+from planner.bus.priority import TIMING_NICE
+from planner.bus.session import Keys, decode, decode_sample
 from planner.errors import InputError
 from planner.model.system import System
 from planner.model.transforms import Array
-from planner.service.bus import Keys, decode, decode_sample
 from planner.service.handler import camera_to_world
-from planner.service.priority import TIMING_NICE
 from planner.service.setpoints import SetpointStreamer
 from planner.track.correction import SpotCorrection
 from planner.track.follow import TargetFollower

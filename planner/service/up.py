@@ -23,8 +23,8 @@ from collections import deque
 from pathlib import Path
 from typing import Any
 
-from planner.errors import InputError
-from planner.service.bus import (
+from planner.bus.priority import raised_priority
+from planner.bus.session import (
     Keys,
     default_endpoint,
     file_sets_endpoints,
@@ -32,7 +32,7 @@ from planner.service.bus import (
     open_session,
     update_alive,
 )
-from planner.service.priority import raised_priority
+from planner.errors import InputError
 from planner.service.supervisor import LogTail, Supervisor
 
 RATE_WINDOW = 2.0  # s over which message rates are averaged
@@ -125,8 +125,8 @@ def has_tracked_targets(scn: Any) -> bool:
     """True when some of the scenario's ``targets.points`` lie on a moving scene object."""
     if scn.model.targets.points is None or not any(o.motion for o in scn.model.scene):
         return False
-    from drivers.camera.tracker import tracked_objects
     from planner.io.scenario import scene_objects, system_from_scenario, targets_from_scenario
+    from planner.model.scene import tracked_objects
 
     t = targets_from_scenario(scn, system_from_scenario(scn))
     return bool(tracked_objects(scene_objects(scn), t.points, t.normals))
@@ -192,7 +192,7 @@ class Health:
         self._tick("camera")
 
     def _on_recover(self, sample: Any) -> None:
-        from drivers.robot.ur_link import parse_recover
+        from schemas.messages import parse_recover
 
         robot = str(sample.key_expr).split("/")[-2]
         try:

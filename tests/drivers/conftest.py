@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from planner.service.bus import Keys, open_session
+from planner.bus.session import Keys, open_session
 from tests.paths import SCENARIOS
 
 

@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 
 from drivers.camera.node import decode_points
+from planner.bus.session import Keys, decode
 from planner.io.scenario import load_scenario, system_from_scenario
 from planner.model.transforms import inv_T
-from planner.service.bus import Keys, decode
 from schemas.messages import JointState, SpotMessage
 from tests import cli_run
 from tests.drivers.camera.test_camera_sim import analytic_spot

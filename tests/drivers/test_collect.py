@@ -177,8 +177,8 @@ def arm0_joints(ep: str, prefix: str) -> Any:
 def test_a_long_slow_move_goes_as_legs_under_the_body_limit() -> None:
     """The wizard's failure: one slow move over most of a joint's range was one 6 MB body,
     which the driver refuses (its limit is 4 MiB)."""
-    from drivers.collect import LEG_BYTES, legs, trajectory_body
-    from planner.service.bus import MAX_PAYLOAD_BYTES
+    from planner.bus.session import MAX_PAYLOAD_BYTES
+    from planner.service.collect import LEG_BYTES, legs, trajectory_body
 
     system = system_from_scenario(load_scenario(SCENARIO))
     q0, q1 = np.zeros(6), np.array([3.0, -1.2, 1.0, 0.5, -2.0, 0.7])
@@ -205,9 +205,9 @@ def test_a_long_slow_move_goes_as_legs_under_the_body_limit() -> None:
 def test_a_move_in_legs_arrives_on_the_simulated_driver(sim_system: Any) -> None:
     """Each leg starts from rest where the last one ended: the real sim driver accepts every
     one, and the arm ends on the target."""
-    from drivers.collect import BusPlanner, trajectory_body
+    from planner.bus.session import Keys
     from planner.safety.geometry import SafetyWorld
-    from planner.service.bus import Keys
+    from planner.service.collect import BusPlanner, trajectory_body
 
     ep, prefix = sim_system
     system = system_from_scenario(load_scenario(SCENARIO))
@@ -248,9 +248,9 @@ def test_a_collection_sent_sigterm_mid_move_exits_at_once_and_the_arm_brakes(
 ) -> None:
     """The wizard's Cancel and a closing console send SIGTERM: the collector exits as on
     Ctrl-C (130, no dataset), its heartbeat stops and the driver brakes the moving arm."""
-    from drivers.collect import BusPlanner
+    from planner.bus.session import Keys
     from planner.safety.geometry import SafetyWorld
-    from planner.service.bus import Keys
+    from planner.service.collect import BusPlanner
 
     ep, prefix = sim_system
     out = tmp_path / "handeye.json"

@@ -13,8 +13,8 @@ from typing import Any
 import pytest
 
 from drivers.robot.node import RobotNode
+from planner.bus.session import Keys, open_session
 from planner.errors import InputError
-from planner.service.bus import Keys, open_session
 from planner.service.supervisor import Supervisor
 from planner.service.up import child_commands, parse_hosts
 from tests import cli_run

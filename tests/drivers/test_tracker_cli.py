@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from planner.bus.session import Keys, decode
 from planner.io.scenario import load_scenario
-from planner.service.bus import Keys, decode
 from planner.service.up import child_commands, has_tracked_targets
 from schemas.messages import TargetStream
 from tests import cli_run

@@ -1,4 +1,4 @@
-"""An outside client: plain ``zenoh`` calls only, sharing no code with planner.service.bus/client."""
+"""An outside client: plain ``zenoh`` calls only, sharing no code with planner.bus.session/client."""
 
 from __future__ import annotations
 

@@ -16,10 +16,10 @@ import pytest
 import yaml
 
 import planner
+from planner.bus.session import encode
 from planner.console.targets import Mode, TargetList, build_request
 from planner.errors import InputError
 from planner.model.transforms import inv_T
-from planner.service.bus import encode
 from planner.service.handler import handler_from_scenario
 from tests.cli_run import beamrelay
 from tests.paths import SCENARIOS

@@ -12,8 +12,8 @@ import pytest
 from drivers.camera.node import CameraNode, decode_points
 from drivers.camera.realsense import DEPTH_UNIT, RealSenseCamera, detect_red_spot, write_recording
 from drivers.camera.sim import build_scene, render_depth
+from planner.bus.session import Keys, decode, open_session
 from planner.io.scenario import load_scenario, scene_objects, system_from_scenario
-from planner.service.bus import Keys, decode, open_session
 from schemas.messages import SpotMessage
 from tests.drivers.conftest import wait_for
 from tests.paths import REPO

@@ -15,8 +15,8 @@ import pytest
 
 from drivers.camera.node import CameraNode
 from drivers.camera.realsense import CameraLostError, RealSenseCamera, write_recording
+from planner.bus.session import Keys, decode, open_session
 from planner.model.system import Intrinsics
-from planner.service.bus import Keys, decode, open_session
 from schemas.messages import SpotMessage
 from tests import cli_run
 from tests.drivers.conftest import wait_for

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.camera.tracker import SimTracker, tracked_objects
+from drivers.camera.tracker import SimTracker
 from planner.io.scenario import load_scenario, scene_objects, system_from_scenario
 from planner.io.scenario import targets_from_scenario as targets_of
-from planner.model.scene import SceneItem
+from planner.model.scene import SceneItem, tracked_objects
 from planner.track.noise import MarkerNoise
 from tests.paths import SCENARIOS
 

@@ -17,8 +17,8 @@ import pytest
 from drivers.robot.follower import STOP_ACCELERATION, STOP_JERK
 from drivers.robot.node import HEARTBEAT_TIMEOUT, PERIOD_LOG, RobotNode
 from drivers.robot.sim import SimRobot
+from planner.bus.session import Keys, open_session
 from planner.model.system import JOINT_NAMES_UR
-from planner.service.bus import Keys, open_session
 from tests.drivers.conftest import wait_for
 from tests.drivers.robot.test_robot_node import HOME, LIMITS, Cell, smooth_move, start_planner
 

@@ -18,8 +18,8 @@ from drivers.robot.node import RobotNode
 from drivers.robot.sim import MAX_CATCH_UP
 from drivers.robot.ur import URRobot
 from drivers.robot.ur_fake import FakeURController
+from planner.bus.session import Keys, open_session
 from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
-from planner.service.bus import Keys, open_session
 from tests.drivers.conftest import Heartbeats, raw_session, wait_for
 from tests.drivers.robot.test_robot_node import Cell, smooth_move
 

@@ -18,8 +18,8 @@ import pytest
 
 from drivers.robot.node import RobotNode
 from drivers.robot.sim import SimRobot
+from planner.bus.session import Keys, open_session
 from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
-from planner.service.bus import Keys, open_session
 from schemas.messages import JointTrajectory, RobotStatus
 from tests.drivers.conftest import Heartbeats, raw_session, wait_for
 

@@ -12,9 +12,9 @@ import pytest
 
 from drivers.robot.node import RobotNode
 from drivers.robot.sim import SimRobot
+from planner.bus.priority import RT_PRIORITY, Policy
+from planner.bus.session import Keys
 from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
-from planner.service.bus import Keys
-from planner.service.priority import RT_PRIORITY, Policy
 from tests.drivers.robot.fake_bus import FakeBus
 
 

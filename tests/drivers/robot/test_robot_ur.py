@@ -12,9 +12,9 @@ from drivers.robot.follower import STOP_JERK, Reference, TrajectoryFollower
 from drivers.robot.node import RobotNode
 from drivers.robot.ur import ARRIVE_TOLERANCE, URRobot
 from drivers.robot.ur_fake import CMD_NONE, CMD_SERVO_STOP, CMD_SERVOJ, FakeURController
+from planner.bus.session import Keys, open_session
 from planner.errors import InputError
 from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
-from planner.service.bus import Keys, open_session
 from tests.drivers.conftest import Heartbeats, raw_session, wait_for
 from tests.drivers.robot.test_robot_node import smooth_move
 

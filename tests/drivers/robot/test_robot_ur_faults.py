@@ -14,8 +14,8 @@ from drivers.robot.node import RobotNode
 from drivers.robot.ur import STALE_AFTER, URRobot
 from drivers.robot.ur_fake import CMD_SERVOJ, FakeURController
 from drivers.robot.ur_link import AsyncCall, RateLimitedLog, recover_body, recover_key
+from planner.bus.session import Keys, decode, open_session
 from planner.errors import InputError
-from planner.service.bus import Keys, decode, open_session
 from schemas.messages import RobotStatus
 from tests.drivers.conftest import raw_session, wait_for
 from tests.drivers.robot.test_robot_ur import HOME, LIMITS, make_robot, period, reference
@@ -252,14 +252,14 @@ def test_watchdog_armed_in_the_first_period_and_refusal_is_a_fault() -> None:
     ],
 )
 def test_a_recover_body_is_the_schema_model_or_refused(payload: bytes, words: str) -> None:
-    from drivers.robot.ur_link import parse_recover
+    from schemas.messages import parse_recover
 
     with pytest.raises(ValueError, match=words):
         parse_recover(payload, "arm0")
 
 
 def test_a_recover_body_round_trips_with_the_operator_cut_to_its_limit() -> None:
-    from drivers.robot.ur_link import parse_recover
+    from schemas.messages import parse_recover
 
     assert parse_recover(recover_body("arm0", "ops"), "arm0") == "ops"
     assert parse_recover(recover_body("arm0", "x" * 500), "arm0") == "x" * 200

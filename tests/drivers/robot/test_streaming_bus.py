@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from planner.service.bus import Keys
+from planner.bus.session import Keys
 from tests.drivers.conftest import wait_for
 from tests.drivers.robot.test_robot_node import HOME, Cell
 

@@ -16,8 +16,8 @@ from drivers.robot.intake import Verdict
 from drivers.robot.node import HEARTBEAT_TIMEOUT, LATE_SETPOINT, RobotNode
 from drivers.robot.setpoint_check import STALE_AFTER
 from drivers.robot.sim import SimRobot
+from planner.bus.session import Keys
 from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
-from planner.service.bus import Keys
 from tests.drivers.robot.fake_bus import FakeBus, SimClock
 
 HOME = np.array(DEFAULT_HOME)

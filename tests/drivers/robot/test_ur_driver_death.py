@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from drivers.robot.ur_fake import FakeURController, serve
-from planner.service.bus import Keys
+from planner.bus.session import Keys
 from tests.drivers.conftest import Heartbeats, raw_session, wait_for
 from tests.drivers.robot.test_robot_node import smooth_move
 from tests.paths import REPO

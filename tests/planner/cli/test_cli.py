@@ -120,7 +120,7 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
 
 
 @pytest.mark.parametrize("module", ["planner.studies.coverage", "planner.bench.safety",
-                                    "planner.cli.node", "drivers.cli"])  # fmt: skip
+                                    "planner.cli.node", "planner.cli.driver"])  # fmt: skip
 def test_a_missing_command_module_fails_loudly(module: str) -> None:
     """A module that cannot be imported (misspelt, deleted, broken) stops the CLI with the
     module's name instead of quietly dropping its commands from ``--help``."""

@@ -14,6 +14,7 @@ from unittest.mock import MagicMock
 import numpy as np
 import pytest
 
+from planner.bus.session import open_session
 from planner.console.app import Console
 from planner.console.cloud import Cloud
 from planner.console.operator import Operator
@@ -21,7 +22,6 @@ from planner.console.panel import Panel
 from planner.console.session import Session
 from planner.console.targets import Mode
 from planner.data import shipped_scenario
-from planner.service.bus import open_session
 from planner.service.client import PlanClient
 from tests.drivers.conftest import free_port, wait_for
 from tests.planner.raw_zenoh import Inbox

@@ -17,6 +17,7 @@ from unittest.mock import MagicMock
 
 import pytest
 
+from planner.bus.session import open_session
 from planner.console.app import Console
 from planner.console.gate import (
     CLOSE_TIMEOUT,
@@ -27,7 +28,6 @@ from planner.console.gate import (
 )
 from planner.console.operator import Operator
 from planner.data import shipped_scenario
-from planner.service.bus import open_session
 from planner.service.client import PlanClient
 from planner.service.token import check_token, new_token
 from tests.drivers.conftest import free_port, wait_for

@@ -52,8 +52,8 @@ def test_a_burst_of_queued_heartbeats_does_not_read_as_a_rate() -> None:
     """100 Hz heartbeats, then 280 ms with none and the 28 queued ones arriving within 23 ms
     (what once read 1275 Hz): the rate over the last second still reads 100 Hz; a stream
     younger than the window is measured over its age; a silent one reads 0."""
+    from planner.bus.session import Keys
     from planner.console.live import RATE_WINDOW, STALE_AFTER, LiveState
-    from planner.service.bus import Keys
     from tests.fake_clock import FakeClock
 
     clock = FakeClock()
@@ -82,8 +82,8 @@ def test_the_last_fault_and_the_keep_out_count_stay_on_the_panel() -> None:
     cleared it; a repeated report keeps its first time; the keep-out count is shown."""
     from types import SimpleNamespace
 
+    from planner.bus.session import Keys
     from planner.console.live import LiveState
-    from planner.service.bus import Keys
     from tests.fake_clock import FakeClock
 
     clock = FakeClock()

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from planner.bus.session import decode, encode
 from planner.console.targets import Mode, TargetList, build_request, path_points
 from planner.errors import InputError
-from planner.service.bus import decode, encode
 from schemas.messages import TargetRequest
 
 UP = np.array([0.0, 0.0, 1.0])

@@ -15,11 +15,11 @@ from typing import Any
 import numpy as np
 import pytest
 
+from planner.bus.session import Keys, encode, open_session
 from planner.model.system import System
 from planner.ros2 import messages as m
 from planner.ros2.bridge import Ros2Bridge
 from planner.ros2.graph import parse_attachment
-from planner.service.bus import Keys, encode, open_session
 from schemas.messages import JointState, JointTrajectory
 from tests.drivers.conftest import wait_for
 from tests.planner.raw_zenoh import raw_session

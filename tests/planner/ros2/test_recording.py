@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 
 from drivers.record import Recorder, read
+from planner.bus.session import Keys, encode, open_session
 from planner.model.system import System
 from planner.ros2 import messages as m
 from planner.ros2.bridge import MARKER_TOPIC
 from planner.ros2.recording import RosTranslator
-from planner.service.bus import Keys, encode, open_session
 from schemas.messages import JointState, JointTrajectory, LaserState
 from schemas.points import points_metadata
 from tests.drivers.conftest import wait_for

@@ -183,7 +183,7 @@ def test_curve_path_on_its_board_and_with_a_post() -> None:
 
 
 def test_node_plan_reports_occluded(tmp_path: Path) -> None:
-    from planner.service.bus import encode
+    from planner.bus.session import encode
     from planner.service.client import make_request
     from planner.service.handler import handler_from_scenario
 
@@ -205,7 +205,7 @@ def test_node_plan_reports_occluded(tmp_path: Path) -> None:
 
 def test_node_plan_applies_the_keep_out_rules(tmp_path: Path) -> None:
     """The running planner node plans under the same safety rules as ``beamrelay plan``."""
-    from planner.service.bus import encode
+    from planner.bus.session import encode
     from planner.service.client import make_request
     from planner.service.handler import handler_from_scenario
 

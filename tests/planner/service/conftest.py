@@ -8,7 +8,7 @@ from contextlib import ExitStack
 import numpy as np
 import pytest
 
-from planner.service.bus import Keys, open_session
+from planner.bus.session import Keys, open_session
 from planner.service.handler import RequestHandler
 from planner.service.heartbeat import BusAddress
 from planner.service.node import PlannerNode

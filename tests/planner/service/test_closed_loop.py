@@ -251,7 +251,7 @@ def replace_config(config: ClosedLoopConfig, **kw: Any) -> ClosedLoopConfig:
                                  {"closed_loop": "yes"}, {"tolerance": float("nan")}])  # fmt: skip
 def test_bad_closed_loop_fields_are_refused_by_the_schema(bad: dict[str, Any]) -> None:
     with pytest.raises(InputError) as info:
-        from planner.service.bus import decode
+        from planner.bus.session import decode
 
         decode(__import__("json").dumps({"schema": "beamrelay.request/1", "id": "x",
                                          "points": [[0, 0, 0.1]], **bad}).encode(),

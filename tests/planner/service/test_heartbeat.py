@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 from drivers.robot.node import HEARTBEAT_TIMEOUT
+from planner.bus.session import Keys, open_session
 from planner.data import shipped_scenario
-from planner.service.bus import Keys, open_session
 from planner.service.heartbeat import (
     HEARTBEAT_RATE,
     STOP,
@@ -376,7 +376,7 @@ def test_the_heartbeat_travels_at_real_time_priority_from_a_raised_process() -> 
     import psutil
     import zenoh
 
-    from planner.service.priority import RT_PRIORITY
+    from planner.bus.priority import RT_PRIORITY
 
     system = system_with_camera()
     endpoint = f"tcp/127.0.0.1:{free_port()}"

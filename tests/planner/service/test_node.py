@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from planner.beam.graph import BeamModel
+from planner.bus.session import Keys, encode, open_session
 from planner.model.system import Camera, Intrinsics, System
 from planner.model.transforms import look_at
-from planner.service.bus import Keys, encode, open_session
 from planner.service.client import PlanClient, RequestError, make_request
 from planner.service.node import PlannerNode, RequestHandler, make_plan_fn, trajectory_messages
 from schemas.messages import JointTrajectory

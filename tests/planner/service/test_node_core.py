@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from planner.bus.session import encode
 from planner.errors import InputError
 from planner.model.settings import TrajectorySettings
 from planner.model.system import System, Targets
 from planner.model.transforms import inv_T, transform_points
 from planner.planning import plan_points
-from planner.service.bus import encode
 from planner.service.client import make_request
 from planner.service.handler import PATH_SPACING, RequestHandler, make_plan_fn, timed_trajectory
 from tests.planner.service.test_node import reachable_targets, system_with_camera

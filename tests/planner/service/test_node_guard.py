@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from drivers.robot.node import HEARTBEAT_TIMEOUT
+from planner.bus.session import MAX_PAYLOAD_BYTES, Keys, open_session
 from planner.model.system import System
-from planner.service.bus import MAX_PAYLOAD_BYTES, Keys, open_session
 from planner.service.guard import QUEUE_BYTES, Job, JobQueue, Progress
 from planner.service.heartbeat import HEARTBEAT_RATE, BusAddress
 from planner.service.node import PlannerNode, RequestHandler, make_plan_fn
@@ -245,7 +245,7 @@ def big_plan(n: int = 20_000) -> dict[str, Any]:
 def test_big_replies_are_encoded_without_starving_the_heartbeat() -> None:
     """The C JSON encoder holds the GIL for a whole call; encode_json splits the work so
     another thread runs in between (same text as json.dumps)."""
-    from planner.service.bodies import encode_json
+    from planner.bus.bodies import encode_json
 
     plan = big_plan()
     whole, gap_whole = max_tick_gap(lambda: json.dumps(plan))

@@ -18,9 +18,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from planner.bus.session import Keys, decode, open_session
 from planner.errors import InputError
 from planner.model.system import System
-from planner.service.bus import Keys, decode, open_session
 from planner.service.node import (
     PlannerNode,
     RequestHandler,

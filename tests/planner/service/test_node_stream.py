@@ -19,12 +19,13 @@ from typing import Any
 import numpy as np
 import pytest
 
+from planner.bus.ids import chunk_id
+from planner.bus.session import MAX_PAYLOAD_BYTES, Keys, open_session
 from planner.model.system import System
-from planner.service.bus import MAX_PAYLOAD_BYTES, Keys, open_session
 from planner.service.execution import ExecuteError
 from planner.service.heartbeat import BusAddress
 from planner.service.node import PlannerNode, RequestHandler, make_plan_fn
-from planner.service.stream import CHUNK_BYTES, chunk_id, split_edges, split_trajectory
+from planner.service.stream import CHUNK_BYTES, split_edges, split_trajectory
 from schemas.messages import JointTrajectory
 from tests.drivers.conftest import free_port, wait_for
 from tests.planner.raw_zenoh import Inbox, ask, raw_session

@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 
 from planner.beam.graph import BeamModel
+from planner.bus.session import Keys, encode, open_session
 from planner.calibration.simulate import simulate_beam
 from planner.data import shipped_scenario
 from planner.errors import InputError
 from planner.io.scenario import load_scenario, system_from_scenario
 from planner.model.system import System
 from planner.model.transforms import axis_angle_to_matrix, inv_T, make_T, transform_points
-from planner.service.bus import Keys, encode, open_session
 from planner.service.client import PlanClient, make_request
 from planner.service.handler import handler_from_scenario
 from planner.service.node import PlannerNode

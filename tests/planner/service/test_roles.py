@@ -1,6 +1,6 @@
 """The shipped role files (scenarios/zenoh/roles/): deny by default, each identity may
 publish only its own keys. Every test opens real Zenoh sessions the way beamrelay opens
-them (:func:`planner.service.bus.zenoh_config`: the host listens with its file, every other
+them (:func:`planner.bus.session.zenoh_config`: the host listens with its file, every other
 process connects as a client), lets one role try every key of conventions section 6, and shows
 that what it may not send reached no subscriber while what it may send did.
 """
@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 import zenoh
 
-from planner.service.bus import zenoh_config
+from planner.bus.session import zenoh_config
 from planner.service.up import ROLES, role_files
 from tests.paths import REPO
 

@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 import pytest
 
+from planner.bus.session import Keys
 from planner.errors import InputError
-from planner.service.bus import Keys
 from planner.service.setpoints import SetpointStreamer
 from schemas.messages import Setpoint
 
@@ -169,8 +169,8 @@ def test_the_sim_driver_process_follows_a_streamed_sine(tmp_path: Path) -> None:
     """``beamrelay driver robot --backend sim`` as its own process; this test plays the
     planner (token, heartbeats, streamer): joint_states follow the sine within a few
     milliseconds of lag; closing the streamer leaves the arm at rest on the last setpoint."""
+    from planner.bus.session import open_session
     from planner.data import shipped_scenario
-    from planner.service.bus import open_session
     from tests.drivers.conftest import Heartbeats, free_port, wait_for
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"

@@ -194,7 +194,7 @@ def test_a_corrected_session_takes_only_camera_frame_frames() -> None:
     import json
     from types import SimpleNamespace
 
-    from planner.service.bus import Keys
+    from planner.bus.session import Keys
     from planner.service.track import TrackSession
 
     class Session:

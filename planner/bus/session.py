@@ -349,8 +349,8 @@ def encode(model: BaseModel | dict[str, Any]) -> bytes:
 def decode(payload: bytes, cls: type[M]) -> M:
     """Parse and validate a JSON body, whatever it holds. Errors are :class:`InputError`
     whose ``where`` is the offending key path (``points[3]``, ``body`` for the whole body),
-    ready for an error reply's ``field`` (see :mod:`planner.service.bodies`)."""
-    from planner.service.bodies import load_json
+    ready for an error reply's ``field`` (see :mod:`planner.bus.bodies`)."""
+    from planner.bus.bodies import load_json
     from schemas.located import validate
 
     if len(payload) > MAX_PAYLOAD_BYTES:

@@ -12,7 +12,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from planner.service import events
+from planner.bus import events
 from planner.service.supervisor import LogTail
 
 

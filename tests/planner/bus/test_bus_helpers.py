@@ -1,4 +1,4 @@
-"""The subscriber helpers of :mod:`planner.service.bus` on hand-made samples: the liveliness
+"""The subscriber helpers of :mod:`planner.bus.session` on hand-made samples: the liveliness
 set and decoding that logs a bad body instead of raising."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 import zenoh
 
-from planner.service.bus import decode_sample, update_alive
+from planner.bus.session import decode_sample, update_alive
 from schemas.messages import LaserState
 
 

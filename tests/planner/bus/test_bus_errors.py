@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from planner.bus.session import check_endpoint, is_local_endpoint, open_session, zenoh_config
 from planner.errors import InputError
-from planner.service.bus import check_endpoint, is_local_endpoint, open_session, zenoh_config
 from tests import cli_run
 from tests.paths import REPO
 

@@ -117,11 +117,11 @@ def robot(
     from drivers.robot.following import spot_gain
     from drivers.robot.gate import Emission
     from drivers.robot.node import RobotNode
+    from planner.bus import events
+    from planner.bus.priority import raised_priority
+    from planner.bus.session import Keys, open_session
     from planner.errors import InputError
     from planner.io.scenario import load_scenario, system_from_scenario
-    from planner.service import events
-    from planner.service.bus import Keys, open_session
-    from planner.service.priority import raised_priority
 
     scn = load_scenario(scenario)
     system = system_from_scenario(scn)
@@ -224,10 +224,10 @@ def camera(
     """Run a camera driver: point cloud and laser spot. With --ros2 the cloud is on ROS 2 too
     (/camera/points, sensor_msgs/PointCloud2; node beamrelay_camera)."""
     from drivers.camera.node import CameraNode
+    from planner.bus.session import Keys, open_session
     from planner.cli.ros2 import check_domain
     from planner.errors import InputError
     from planner.io.scenario import load_scenario, scene_objects, system_from_scenario
-    from planner.service.bus import Keys, open_session
 
     if ros2:
         check_domain(ros_domain)
@@ -280,11 +280,12 @@ def tracker(
     seed: int | None = typer.Option(None, "--seed", help="Noise seed."),
 ) -> None:
     """Run the simulated marker tracker: the scenario's targets on moving objects."""
-    from drivers.camera.tracker import SimTracker, TrackerNode, tracked_objects
+    from drivers.camera.tracker import SimTracker, TrackerNode
+    from planner.bus.session import Keys, open_session
     from planner.errors import InputError
     from planner.io.scenario import load_scenario, scene_objects, system_from_scenario
     from planner.io.scenario import targets_from_scenario as targets_of
-    from planner.service.bus import Keys, open_session
+    from planner.model.scene import tracked_objects
 
     if not 1.0 <= rate <= 200.0:
         raise InputError(f"must be in [1, 200] Hz, got {rate:g}", "--rate")
@@ -362,8 +363,8 @@ def _ros2(
 ) -> Any:
     """A starter of the process's own ROS 2 bridge (:func:`planner.ros2.bridge.start_in_process`),
     called by :func:`_run` once the node is up (on the bus the node is on)."""
+    from planner.bus.session import Keys
     from planner.ros2.bridge import start_in_process
-    from planner.service.bus import Keys
 
     return lambda: start_in_process(system, scene, parts, domain=domain, keys=Keys(prefix),
                                     endpoint=endpoint, zenoh_config=config)  # fmt: skip

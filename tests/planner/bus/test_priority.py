@@ -11,13 +11,13 @@ import sys
 
 import pytest
 
-from planner.service.priority import RT_PRIORITY, TIMING_NICE, Policy, Priority
+from planner.bus.priority import RT_PRIORITY, TIMING_NICE, Policy, Priority
 
 root_only = pytest.mark.skipif(os.geteuid() != 0, reason="SCHED_FIFO and setresuid need root")
 
 PROBE = """
 import json, os, resource, subprocess, sys, threading
-from planner.service.priority import raise_priority, raised_priority
+from planner.bus.priority import raise_priority, raised_priority
 rtprio = {rtprio}
 if rtprio is not None:
     resource.setrlimit(resource.RLIMIT_RTPRIO, (rtprio, resource.getrlimit(resource.RLIMIT_RTPRIO)[1]))

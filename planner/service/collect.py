@@ -30,11 +30,11 @@ from typing import Any
 
 import numpy as np
 
+from planner.bus.session import MAX_PAYLOAD_BYTES, Keys, decode, urgent
 from planner.calibration.collect import min_jerk_move
 from planner.errors import InputError
 from planner.model.system import System
 from planner.model.transforms import Array
-from planner.service.bus import MAX_PAYLOAD_BYTES, Keys, decode, urgent
 from planner.service.heartbeat import BusAddress, HeartbeatError, HeartbeatProcess
 from schemas.messages import JointState, JointTrajectory, RobotStatus, SpotMessage
 
