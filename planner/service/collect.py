@@ -155,6 +155,16 @@ class BusPlanner:
         missing = [r for r in self.system.robot_names if r not in self.q]
         raise InputError(f"no joint states from {', '.join(missing)} (drivers running?)", "bus")
 
+    def wait_rest(self, robot: str, timeout: float = 5.0) -> bool:
+        """Whether ``robot`` rests (idle, no fault) within ``timeout`` s."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            st = self.status.get(robot)
+            if st is not None and st.mode == "idle" and st.fault is None and self.silent is None:
+                return True
+            time.sleep(0.02)
+        return False
+
     def move(self, robot: str, target: Array, speed: float, world: Any) -> str | None:
         """Move ``robot`` to ``target``; None when it arrived, else why not. A move whose
         body would pass ``leg_bytes`` goes as legs along the same joint-space line, each

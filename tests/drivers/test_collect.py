@@ -406,3 +406,60 @@ def test_collect_beam_reads_spots_under_the_aiming_beam_only(tmp_path: Path) -> 
     assert summary["collected"] >= 3
     assert not any(m["on"] for m in states)  # the treatment gate never opened
     assert sum(1 for m in states if m["aim"] and m["reason"] == "aim interval") >= 3
+
+
+class BrakingWorld(SegmentWorld):
+    """A clear world whose driver brakes the ``brakes``-th move halfway with ``why``."""
+
+    def __init__(self, why: str, brakes: int, rests: bool = True) -> None:
+        super().__init__(0.0, set())
+        self.why, self.brakes, self.rests, self.calls = why, brakes, rests, 0
+        self.robot = "arm0"
+
+    def wait_joints(self) -> dict[str, Any]:
+        return {"arm0": pose(self.q)}
+
+    def move(self, robot: str, target: Any, speed: float, world: Any) -> str | None:
+        self.calls += 1
+        if self.calls == self.brakes:
+            self.q = (self.q + float(target[0])) / 2  # stopped on the way
+            return self.why
+        return super().move(robot, target, speed, world)
+
+    def wait_rest(self, robot: str) -> bool:
+        return self.rests
+
+
+@pytest.mark.parametrize(
+    ("why", "rests", "collected"),
+    [("driver braking: no planner alive (watchdog)", True, 3),
+     ("refused by the driver: no heartbeat from planner session p-1 within 100 ms (last: "
+      "130 ms ago)", True, 3),
+     ("driver braking: planner heartbeat lost: session p-1 quiet 0.12 s", True, 3),
+     ("driver braking: no planner alive (watchdog)", False, 2),  # never rests: not again
+     ("driver stopped: stop requested on beamrelay/stop", True, 1),  # the operator's STOP
+     ("driver fault: protective stop", True, 2)],
+)  # fmt: skip
+def test_a_move_braked_on_late_heartbeats_is_made_once_more(
+    capsys: pytest.CaptureFixture[str], why: str, rests: bool, collected: int
+) -> None:
+    """On a loaded machine a driver may brake a collection's move because heartbeats came
+    late; that pose is moved to once more from where the arm rests. A fault is never
+    retried, and the return is then not attempted; after an operator's STOP the arm moves
+    no more (no further pose, no return)."""
+    from types import SimpleNamespace
+
+    from planner.cli.collect import _visit
+
+    bp = BrakingWorld(why, brakes=2, rests=rests)
+    system = SimpleNamespace(robot=lambda name: SimpleNamespace(home=pose(0)))
+    got_q, _, log = _visit(bp, system, "arm0", [pose(1), pose(2), pose(3)], 1.0, None,
+                           lambda b: np.ones(3))  # fmt: skip
+    assert len(got_q) == collected
+    out = capsys.readouterr().out
+    again = collected == 3
+    assert ("once more" in out) == again, out
+    assert log[1] == ("pose 2/3: ok" if again else f"pose 2/3: skipped ({why})")
+    assert ("\nreturned to the start pose" in out) == again, out
+    if "stop requested" in why:
+        assert len(log) == 2 and bp.moves == [0.0, 1.0] and "no further pose" in out
