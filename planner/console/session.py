@@ -164,8 +164,8 @@ class Session:
         if mode is not Mode.POINTS and len(items) >= 2:
             try:
                 P, _ = path_points(self.targets, mode)
-            except ValueError as exc:
-                self.message(f"**path: {exc}**")
+            except (ValueError, InputError) as exc:  # a degenerate click path: said, not drawn
+                self.message(f"**path: {getattr(exc, 'reason', exc)}**")
                 return
             set_lines(self.scene, "/targets/path", [P], TARGET_COLOUR, 3.0)
 

@@ -315,8 +315,8 @@ def targets_from_scenario(scn: LoadedScenario, system: System) -> Targets:
             marked = mark_path(path.points, path.spacing, normals=path.normals, closed=closed,
                                corner_deg=path.corner_deg, smooth=path.smooth,
                                tolerance=scn.model.trajectory.path_tolerance)  # fmt: skip
-        except ValueError as exc:
-            raise ScenarioError(str(exc), scn.where(("targets", "path"))) from None
+        except InputError as exc:  # exc.where: the path's field (points, normals)
+            raise ScenarioError(exc.reason, scn.where(("targets", "path", exc.where))) from None
         points, normals = marked.points, marked.normals
         meta |= {"spacing": path.spacing, "vertices": len(path.points)} | marked.meta()
     points = transform_points(world_T_frame, points)

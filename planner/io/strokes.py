@@ -27,6 +27,7 @@ from itertools import pairwise
 
 import numpy as np
 
+from planner.errors import InputError
 from planner.model.transforms import Array
 
 DEFAULT_CORNER_DEG = 20.0
@@ -205,13 +206,14 @@ def mark_path(
 ) -> MarkedPath:  # fmt: skip
     """Sample a path (vertices n x 3, m; per-vertex ``normals``) into marked strokes.
 
-    Raises ValueError for a path of zero length or opposite normals on one edge."""
+    Raises :class:`~planner.errors.InputError` naming the field (``points``: a path of zero
+    length; ``normals``: opposite normals on one edge)."""
     V = np.asarray(points, dtype=float).reshape(-1, 3)
     N = None if normals is None else np.asarray(normals, dtype=float).reshape(-1, 3)
     N = None if N is None else N / np.linalg.norm(N, axis=1, keepdims=True)
     V, N = _dedup(V, N, closed)
     if len(V) < 2:
-        raise ValueError("path has zero length")
+        raise InputError("path has zero length", "points")
     if smooth and len(V) >= 3:
         return _smooth(V, N, spacing, closed, tolerance)
     corner = float(np.radians(corner_deg))
@@ -220,8 +222,8 @@ def mark_path(
     V, N = _open_polyline(V, N, loop, corner)
     if N is not None:
         for v in np.flatnonzero(np.einsum("ij,ij->i", N[:-1], N[1:]) < -1 + 1e-9):
-            raise ValueError(
-                f"normals of vertices {v} and {v + 1} are opposite; cannot interpolate"
+            raise InputError(
+                f"normals of vertices {v} and {v + 1} are opposite; cannot interpolate", "normals"
             )
     u = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(V, axis=0), axis=1))])
     cuts = [0, *(np.flatnonzero(turn_angles(V) > corner) + 1).tolist(), len(V) - 1]

@@ -335,10 +335,9 @@ class RequestHandler:
                 f"at {1e3 * self.path_spacing:g} mm spacing",
                 "points",
             )
-        try:  # corners above the default corner angle are marked sharp, as in scenarios
-            marked = mark_path(points, self.path_spacing, normals=normals)
-        except ValueError as exc:
-            raise InputError(str(exc), "normals" if "normal" in str(exc) else "points") from exc
+        # corners above the default corner angle are marked sharp, as in scenarios; an
+        # InputError names the request's field (points or normals)
+        marked = mark_path(points, self.path_spacing, normals=normals)
         return Targets(marked.points, marked.normals, kind="path", meta=marked.meta(),
                        surface_tolerance=tol)  # fmt: skip
 

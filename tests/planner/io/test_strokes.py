@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from planner.errors import InputError
 from planner.io.strokes import BLEND_SHARE, CHORD_SHARE, mark_path, turn_angles
 from tests import cli_run
 
@@ -93,10 +94,12 @@ def test_normals_follow_the_polyline() -> None:
     np.testing.assert_allclose(np.linalg.norm(m.normals, axis=1), 1.0, atol=1e-12)
     np.testing.assert_allclose(m.normals[0], [0, 0, 1], atol=1e-12)
     np.testing.assert_allclose(m.normals[-1], [0, 1, 0], atol=1e-12)
-    with pytest.raises(ValueError, match="opposite"):
+    with pytest.raises(InputError, match="opposite") as bad:
         mark_path(V, 0.001, normals=[[0, 0, 1], [0, 0, -1], [0, 0, 1]])
-    with pytest.raises(ValueError, match="zero length"):
+    assert bad.value.where == "normals"  # the field, not text to parse
+    with pytest.raises(InputError, match="zero length") as bad:
         mark_path([[0, 0, 0], [0, 0, 0]], 0.001)
+    assert bad.value.where == "points"
 
 
 def test_smooth_circle_is_one_stroke_on_the_circle() -> None:
