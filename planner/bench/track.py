@@ -64,11 +64,16 @@ def timed_follower(*args: Any, **kw: Any) -> Any:
 
 def run_case(
     motion: ObjectMotion | None, seconds: float, seed: int, latency: float = 0.02,
-    scenario: str = "breathing.yaml",
+    scenario: str = "breathing.yaml", robot_error: str = "none", servo_lag: bool = False,
 ) -> dict[str, Any]:  # fmt: skip
     """Simulate ``seconds`` s of tracking the first target of a shipped ``scenario`` on its
     moving object (the motion replaced by ``motion`` when given); with keep-out volumes
-    attached to the object, its other targets are the markers; figures in m and s."""
+    attached to the object, its other targets are the markers; figures in m and s.
+    ``robot_error`` (:data:`planner.model.kinematic_error.LEVELS`): the true arm, which the
+    camera sees, gets DH deltas of that spread (drawn from ``seed``) while the follower keeps
+    the nominal model; ``servo_lag``: the arm follows its setpoints as servoJ does
+    (:class:`drivers.robot.servo_lag.ServoLag`, the UR driver's settings) instead of
+    reaching each at its time."""
     from drivers.camera.sim import SimCamera
     from drivers.camera.tracker import SimTracker
     from planner.data import shipped_scenario
@@ -89,7 +94,8 @@ def run_case(
     obj = tracked_objects(items, targets.points, targets.normals)[0]
     assert system.camera is not None
     clock = [0.0]
-    cam = SimCamera(system_from_scenario(scn, truth=True), items, seed=seed, clock=lambda: clock[0])
+    truth = _true_arm(system_from_scenario(scn, truth=True), robot_error, seed)
+    cam = SimCamera(truth, items, seed=seed, clock=lambda: clock[0])
     attached = {o.name: o.world_T_object.matrix() for o in scn.model.keep_out
                 if o.attached_to == obj.item.name}  # fmt: skip
     if not attached:
@@ -107,18 +113,37 @@ def run_case(
     markers = obj.points[1:] if attached else None
     follower = timed_follower(ik, q0, first, system.camera.world_T_camera, settings,
                               attached=attached, markers=markers)  # fmt: skip
-    return _simulate(follower, tracker, cam, clock, system, seconds, latency)
+    lag = None
+    if servo_lag:
+        from drivers.robot.servo_lag import ServoLag
+
+        lag = ServoLag(q0, dt=1.0 / settings.rate)
+    return _simulate(follower, tracker, cam, clock, system, seconds, latency, lag)
+
+
+def _true_arm(truth: Any, level: str, seed: int) -> Any:
+    """``truth`` with its first arm's kinematics off the nominal by a draw of ``level``."""
+    from planner.model.kinematic_error import LEVELS, perturbed_ur5e
+
+    spread = LEVELS[level]
+    if spread is None:
+        return truth
+    r = truth.robots[0]
+    err = spread.draw(np.random.default_rng([seed, 1]), r.nq)  # a stream of its own
+    arm = dataclasses.replace(r, kinematics=perturbed_ur5e(err, r.kinematics))
+    return dataclasses.replace(truth, robots=(arm, *truth.robots[1:]))
 
 
 def _simulate(
     follower: Any, tracker: Any, cam: Any, clock: list[float], system: Any, seconds: float,
-    latency: float,
+    latency: float, lag: Any = None,
 ) -> dict[str, Any]:  # fmt: skip
     st = follower.settings
     dt, frame_dt = 1.0 / st.rate, 1.0 / st.frame_rate
     pending: list[tuple[float, Any]] = []  # (receipt time, message)
     arm: list[tuple[float, np.ndarray, bool]] = []  # setpoints: (t, q, laser)
     q_arm, laser = follower.q.copy(), False
+    command = q_arm.copy()  # the last setpoint the arm was sent
     errors, lit, proc, lat, cpu = [], [], [], [], []
     robot = system.robot_names[0]
     obj = tracker.objects[0]
@@ -144,7 +169,10 @@ def _simulate(
         if sp is not None:
             arm.append((sp[0], sp[1], sp[3]))
         while arm and arm[0][0] <= now + 1e-9:  # the arm reaches a setpoint at its time
-            _, q_arm, laser = arm.pop(0)
+            _, command, laser = arm.pop(0)
+            q_arm = command if lag is None else q_arm
+        if lag is not None:  # ... or servoJ pulls it toward the last one, a cycle a period
+            q_arm = lag.step(command)[0]
         follower.on_joint_state(q_arm, now)
         if k % SPOT_EVERY:
             continue
@@ -209,14 +237,25 @@ def command(
     latency: Annotated[
         float, typer.Option("--latency", min=0.0, max=0.033, help="Tracker latency, s.")
     ] = 0.02,
+    robot_error: Annotated[
+        str, typer.Option("--robot-error", help="True arm's DH error: none, factory, uncalibrated.")
+    ] = "none",
+    servo_lag: Annotated[
+        bool, typer.Option("--servo-lag/--no-servo-lag", help="The arm lags as servoJ does.")
+    ] = False,
     as_json: Annotated[
         bool, typer.Option("--json", help="One JSON object on the last line.")
     ] = False,
 ) -> None:
     """Spot error on a moving target (linear 20 mm/s, breathing 5 mm at 0.25 Hz, a turning
     face with keep-out eyes), the frame -> setpoint latency and the setpoint checks' cost,
-    simulated in-process."""
-    figures = {name: run_case(m, seconds, seed, latency, scenario)
+    simulated in-process; optionally with a true arm off the planner's model and servo lag."""
+    from planner.errors import InputError
+    from planner.model.kinematic_error import LEVELS
+
+    if robot_error not in LEVELS:
+        raise InputError(f"choose one of {', '.join(LEVELS)}, not {robot_error!r}", "--robot-error")
+    figures = {name: run_case(m, seconds, seed, latency, scenario, robot_error, servo_lag)
                for name, (scenario, m) in CASES.items()}  # fmt: skip
     for name, f in figures.items():
         mm = {k: (None if v is None else 1e3 * v) for k, v in f.items() if k.endswith("_m")}
