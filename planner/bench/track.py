@@ -259,9 +259,11 @@ def command(
                for name, (scenario, m) in CASES.items()}  # fmt: skip
     for name, f in figures.items():
         mm = {k: (None if v is None else 1e3 * v) for k, v in f.items() if k.endswith("_m")}
+        lit = ("never lit" if mm["rms_laser_on_m"] is None else
+               f"laser-on RMS {mm['rms_laser_on_m']:.3f} mm, p95 {mm['p95_laser_on_m']:.3f} mm")  # fmt: skip
         typer.echo(
-            f"{name:10s} laser-on RMS {mm['rms_laser_on_m']:.3f} mm, p95 {mm['p95_laser_on_m']:.3f}"
-            f" mm (all: RMS {mm['rms_all_m']:.3f}, p95 {mm['p95_all_m']:.3f}, max"
+            f"{name:10s} {lit}"
+            f" (all: RMS {mm['rms_all_m']:.3f}, p95 {mm['p95_all_m']:.3f}, max"
             f" {mm['max_all_m']:.3f} mm); laser on {100 * f['laser_on_fraction']:.1f} %;"
             f" frame -> setpoint p50 {1e3 * f['latency_p50_s']:.2f} ms,"
             f" p99 {1e3 * f['latency_p99_s']:.2f} ms (processing p99"

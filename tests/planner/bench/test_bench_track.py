@@ -67,3 +67,13 @@ def test_a_true_arm_off_the_model_puts_the_spot_off_by_its_static_offset() -> No
     assert offset > 1e-3  # a factory-calibrated arm's error is millimetres at the spot
     assert f["laser_on_fraction"] > 0.9
     assert f["rms_laser_on_m"] == pytest.approx(offset, rel=0.2)
+
+
+def test_the_command_says_never_lit_and_refuses_an_unknown_error_level() -> None:
+    from tests import cli_run
+
+    done = cli_run.beamrelay("bench", "track", "--seconds", "2", "--servo-lag")
+    assert done.returncode == 0, done.stderr
+    assert "linear     never lit" in done.stdout  # 20 mm/s behind a 0.1 s lookahead
+    cli_run.assert_usage_error(cli_run.beamrelay("bench", "track", "--robot-error", "factroy"),
+                               "--robot-error", "factroy")  # fmt: skip
