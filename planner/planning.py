@@ -23,6 +23,7 @@ from planner.model.status import Reason, Status
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
 from planner.scenario_planner import Progress as Progress  # re-exported
+from planner.scenario_planner import ScenarioPlanner
 from planner.scenario_planner import ik_options as ik_options
 from planner.scenario_planner import plan_landed_points as plan_landed_points
 from planner.scenario_planner import plan_path_targets as plan_path_targets
@@ -305,6 +306,39 @@ def time_safely(
     return res.timed, res.solutions, res.path, res.figures
 
 
+@dataclasses.dataclass(frozen=True)
+class Pipeline:
+    """The one planning pipeline, used by ``beamrelay plan`` and the API
+    (:func:`run_scenario`) and by the node (:func:`planner.service.handler.make_plan_fn`):
+    :meth:`solve` (the scenario's rules: IK, scene, safety; then every solution re-verified
+    by the checker's rules, so a rejected one is never visited), then :meth:`time` (the
+    solved targets timed under the safety rules)."""
+
+    rules: ScenarioPlanner
+    scenario: dict[str, Any]  # resolved; echoed in every plan and verified against
+
+    def solve(self, targets: Targets, q_start: Array | None = None,
+              progress: Progress | None = None) -> tuple[Targets, list[Solution], PathResult | None]:  # fmt: skip
+        """(targets as planned, solutions, path) from ``q_start`` (stacked joints; default home)."""
+        path = None
+        if targets.kind == "path":
+            targets, solutions, path = self.rules.path(targets, q_start)
+        else:
+            targets, solutions = self.rules.points(targets, q_start, progress=progress)
+        if "system" in self.scenario:
+            solutions = verify_solutions(self.rules.system, self.scenario, targets, solutions)
+        return targets, solutions, path
+
+    def time(self, targets: Targets, solutions: list[Solution], path: PathResult | None,
+             settings: TrajectorySettings, *, q_start: Array | None = None, order: str = "given",
+             progress: Progress | None = None,
+             ) -> tuple[Timed | None, list[Solution], PathResult | None, dict[str, float]]:  # fmt: skip
+        """:func:`time_safely` under the rules' safety: (timed, solutions, path, figures)."""
+        return time_safely(self.rules.system, targets, solutions, settings,
+                           safety=self.rules.safety, order=order, path=path, progress=progress,
+                           q_start=q_start)  # fmt: skip
+
+
 def run_scenario(
     scenario_path: Any, *, optimal: bool = False, progress: bool = True, scene: bool = True,
     safety: bool = True,
@@ -312,17 +346,17 @@ def run_scenario(
     """Load, plan, time and assemble plan.json for a scenario file (rich progress bars);
     ``scene=False`` skips the occlusion check against the scenario's ``scene:``,
     ``safety=False`` the safety rules (collisions, keep-out, clearance)."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
+    from rich.progress import BarColumn, MofNCompleteColumn, TimeRemainingColumn
+    from rich.progress import Progress as Bars
 
     from planner.io.resolved import resolved_scenario_dict
     from planner.io.scenario import load_scenario, targets_from_scenario, trajectory_settings
-    from planner.scenario_planner import ScenarioPlanner
 
     loaded = load_scenario(scenario_path)
     scn = loaded.model
     resolved = resolved_scenario_dict(loaded)
     rules = ScenarioPlanner.from_scenario(loaded, optimal=optimal, scene=scene, safety=safety)
-    system, guard = rules.system, rules.safety
+    pipeline, system = Pipeline(rules, resolved), rules.system
     targets = targets_from_scenario(loaded, system)
     if scn.targets.frame == "camera" and targets.kind in ("points", "path"):  # seen on a surface
         targets = dataclasses.replace(targets, surface_tolerance=rules.surface_tolerance)
@@ -331,21 +365,18 @@ def run_scenario(
     order = "given" if order_key == "given" else "optimal"
     columns = ("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
                TimeRemainingColumn())  # fmt: skip
-    path = None
-    with Progress(*columns, disable=not progress, transient=True) as bar:
-        if targets.kind == "path":
-            task = bar.add_task("path NLP", total=None)
-            targets, solutions, path = rules.path(targets)
+    with Bars(*columns, disable=not progress, transient=True) as bar:
+        path_nlp = targets.kind == "path"
+        task = bar.add_task("path NLP" if path_nlp else "solving targets",
+                            total=None if path_nlp else len(targets))  # fmt: skip
+        targets, solutions, path = pipeline.solve(
+            targets, progress=lambda k: bar.update(task, completed=k + 1))  # fmt: skip
+        if path_nlp:
             bar.update(task, total=1, completed=1)
-        else:
-            task = bar.add_task("solving targets", total=len(targets))
-            targets, solutions = rules.points(
-                targets, progress=lambda k: bar.update(task, completed=k + 1))  # fmt: skip
-        solutions = verify_solutions(system, resolved, targets, solutions)
         n_ok = sum(s.ok for s in solutions)
         timing = bar.add_task("timing", total=n_ok if targets.kind != "path" else None)
-        timed, solutions, path, safe_figures = time_safely(
-            system, targets, solutions, settings, safety=guard, order=order, path=path,
+        timed, solutions, path, safe_figures = pipeline.time(
+            targets, solutions, path, settings, order=order,
             progress=lambda k: bar.update(timing, completed=k + 1))  # fmt: skip
     traj = None if timed is None else timed.trajectory.to_plan_arrays(system)
     extra = None if timed is None else timed.figures | safe_figures

@@ -169,12 +169,13 @@ def make_plan_fn(
     applies the collision, keep-out and clearance rules to the solutions and the trajectory.
     """
     from planner.ik import IKOptions
-    from planner.planning import plan_document, time_safely, verify_solutions
+    from planner.planning import Pipeline, plan_document
     from planner.scenario_planner import ScenarioPlanner
 
     timing = settings or TrajectorySettings()
     # the targets carry their own surface tolerance (the handler's, for camera-frame ones)
-    rules = ScenarioPlanner(system, options or IKOptions(), scene, safety, 0.0)
+    pipeline = Pipeline(ScenarioPlanner(system, options or IKOptions(), scene, safety, 0.0),
+                        scenario)  # fmt: skip
 
     def plan_fn(
         targets: Targets,
@@ -192,22 +193,11 @@ def make_plan_fn(
             timing_now, changed["rate"] = replace(timing_now, rate=rate), rate
         if changed:  # the plan echoes the dwell and rate it was timed with
             scn_now = {**scenario, "trajectory": {**scenario.get("trajectory", {}), **changed}}
-        if targets.kind == "path":
-            targets, sols, _ = rules.path(targets, q0)
-        else:
-            targets, sols = rules.points(targets, q0)
-        if "system" in scenario:  # re-verified before timing: a rejected one is not visited
-            sols = verify_solutions(system, scenario, targets, sols)
+        targets, sols, _ = pipeline.solve(targets, q0)  # re-verified: a rejected one not visited
         traj = None
-        if trajectory:
-            q_from = system.home if q0 is None else q0
-            if safety is None:
-                traj = timed_trajectory(system, targets, sols, q_from, timing_now)
-            else:
-                timed, sols, _, _ = time_safely(system, targets, sols, timing_now, safety=safety,
-                                                order="given", path=None, progress=None,
-                                                q_start=q_from)  # fmt: skip
-                traj = None if timed is None else timed.trajectory.to_plan_dict(system)
+        if trajectory:  # from the robots' current joints, in the requested order
+            timed, sols, _, _ = pipeline.time(targets, sols, None, timing_now, q_start=q0)
+            traj = None if timed is None else timed.trajectory.to_plan_dict(system)
         doc = plan_document(system, targets, sols, scn_now, traj, verify=False)
         if targets.kind != "path" and scene is not None and not scene.empty:
             add_surface_warnings(doc, targets.points, scene)
@@ -237,21 +227,6 @@ def add_surface_warnings(doc: dict[str, Any], points: Array, scene: Any) -> None
     if len(far) > 5:
         lines.append(f"... and {len(far) - 5} more targets off every surface")
     doc["warnings"] = lines
-
-
-def timed_trajectory(
-    system: System,
-    targets: Targets,
-    sols: list[Any],
-    q_start: Array,
-    settings: TrajectorySettings,
-) -> dict[str, Any] | None:
-    """plan.json ``trajectory`` from ``q_start`` (stacked, rad, the robots' current joints)
-    through the solved targets, in the requested order (``planning.time_solutions``)."""
-    from planner.planning import time_solutions
-
-    timed = time_solutions(system, targets, sols, settings, q_start=q_start, order="given")
-    return None if timed is None else timed.trajectory.to_plan_dict(system)
 
 
 def handler_from_scenario(path: Any, extra_includes: tuple[Any, ...] = ()) -> RequestHandler:

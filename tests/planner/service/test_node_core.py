@@ -10,9 +10,8 @@ from planner.errors import InputError
 from planner.model.settings import TrajectorySettings
 from planner.model.system import System, Targets
 from planner.model.transforms import inv_T, transform_points
-from planner.planning import plan_points
 from planner.service.client import make_request
-from planner.service.handler import PATH_SPACING, RequestHandler, make_plan_fn, timed_trajectory
+from planner.service.handler import PATH_SPACING, RequestHandler, make_plan_fn
 from tests.planner.service.test_node import reachable_targets, system_with_camera
 
 
@@ -59,13 +58,18 @@ def test_path_requests_are_resampled_at_one_millimetre_with_sharp_corners(
     assert exc.value.where == "points" and "2000" in exc.value.reason
 
 
-def test_timed_trajectory_starts_at_the_current_joints(system: System) -> None:
+def test_the_nodes_trajectory_starts_at_the_current_joints(system: System) -> None:
+    """The node's plan function (the one pipeline, from the robots' joints): the trajectory
+    starts where the robots are and visits the targets in the given order."""
     points = reachable_targets(system, 3, seed=7)
     targets = Targets(points)
-    sols = plan_points(system, targets)
     q_now = system.home + 0.03
-    traj = timed_trajectory(system, targets, sols, q_now, TrajectorySettings(dwell=0.2, rate=500.0))
+    plan_fn = make_plan_fn(system, {}, settings=TrajectorySettings(dwell=0.2, rate=500.0))
+    doc = plan_fn(targets, system.split_q(q_now), True)
+    traj = doc["trajectory"]
     assert traj is not None
+    assert [s["status"] for s in doc["solutions"]] == ["ok"] * 3
+    sols = [np.asarray(s["q"]["arm0"]) for s in doc["solutions"]]
     q = np.asarray(traj["q"]["arm0"])
     t = np.asarray(traj["t"])
     np.testing.assert_allclose(q[0], q_now, atol=1e-12)
@@ -75,7 +79,7 @@ def test_timed_trajectory_starts_at_the_current_joints(system: System) -> None:
     for seg, sol in zip(traj["segments"][1::2], sols, strict=True):  # dwells, in given order
         assert seg["t1"] - seg["t0"] == pytest.approx(0.2)
         i = round(seg["t0"] * 500)
-        np.testing.assert_allclose(q[i], sol.q, atol=1e-9)
+        np.testing.assert_allclose(q[i], sol, atol=1e-9)
 
 
 def test_a_path_request_with_a_corner_is_marked_in_two_strokes() -> None:
