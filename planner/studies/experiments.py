@@ -24,6 +24,7 @@ from planner.studies import experiments_ablation as abl
 from planner.studies import experiments_report as rep
 from planner.studies import experiments_setup as setup
 from planner.studies.experiments_trial import run_trial
+from planner.studies.provenance import stamp
 
 TRIALS = 10  # the default of --trials and of `study all`
 
@@ -234,9 +235,8 @@ def command(
     figures = main(trials, seed, out, workers, dask_scheduler, ablate, robot_error.value)
     flags = " --ablate" if ablate else ""
     flags += f" --robot-error {robot_error.value}" if ablate and robot_error != "factory" else ""
-    common.stamp(out / "report.md", common.provenance_lines(
-        f"beamrelay study experiments --trials {trials} --seed {seed} -o {out}{flags}",
-        trials, seed, time.perf_counter() - t0))  # fmt: skip
+    stamp(out / "report.md", f"beamrelay study experiments --trials {trials} --seed {seed}"
+          f" -o {out}{flags}", trials, seed, time.perf_counter() - t0)  # fmt: skip
     common.finish(out, figures, json_out)
 
 
