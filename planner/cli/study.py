@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from planner.cli.args import command_group
 from planner.studies import all as all_studies
+from planner.studies import index as study_index
 
 app = command_group(help="Studies: paper reproductions and reports.", no_args_is_help=True)
 
@@ -14,3 +15,4 @@ STUDIES = {**all_studies.STUDIES, "all": all_studies}
 
 for _name, _module in STUDIES.items():
     app.command(_name)(_module.command)
+app.command("index")(study_index.command)

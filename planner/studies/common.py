@@ -1,6 +1,7 @@
 """Shared plumbing of every study: the common command options, a seeded per-trial RNG, a
 parallel map whose results do not depend on the executor, CSV / markdown / figure output and
-the standard ``report.md`` + ``--json`` ending.
+the standard ``report.md`` + ``--json`` ending (the report stamped with its provenance,
+:mod:`planner.studies.provenance`).
 
 Reproducibility: a job is a pure function of its arguments (a trial draws from
 ``trial_rng(seed, trial)``, i.e. ``SeedSequence([seed, trial])``, or from its own documented
@@ -22,6 +23,7 @@ import numpy as np
 import typer
 
 from planner.errors import InputError
+from planner.studies.provenance import stamp
 
 Rows = Sequence[Mapping[str, Any]]
 
@@ -185,54 +187,6 @@ def write_report(
     return report
 
 
-#: the packages whose versions decide a study's numbers (distribution names)
-PROVENANCE_PACKAGES = ("casadi", "pin", "numpy", "scipy", "open3d", "ruckig", "ur-analytic-ik")
-
-
-def git_commit(folder: Path) -> str:
-    """The checkout's commit (short hash, ``+changes`` when tracked files differ from it),
-    or ``not a git checkout``."""
-    import subprocess
-
-    try:
-        head = subprocess.run(["git", "rev-parse", "--short=12", "HEAD"], cwd=folder,
-                              capture_output=True, text=True, timeout=10, check=True)  # fmt: skip
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
-                               cwd=folder, capture_output=True, text=True, timeout=10)  # fmt: skip
-    except (OSError, subprocess.SubprocessError):
-        return "not a git checkout"
-    return head.stdout.strip() + ("+changes" if dirty.stdout.strip() else "")
-
-
-def provenance_lines(command: str, trials: int, seed: int, seconds: float) -> list[str]:
-    """The report's provenance: the command, commit, package versions, seed, trials, wall
-    time and the machine's cores (so two reports can be told apart and compared)."""
-    import os
-    import platform
-    from importlib import metadata
-
-    def version(name: str) -> str:
-        try:
-            return metadata.version(name)
-        except metadata.PackageNotFoundError:
-            return "not installed"
-
-    repo = Path(__file__).resolve().parents[2]
-    packages = ", ".join(f"{n} {version(n)}" for n in PROVENANCE_PACKAGES)
-    return ["", "## Provenance", "",
-            f"- command: `{command}`",
-            f"- commit: {git_commit(repo)}",
-            f"- seed {seed}, trials {trials}, wall time {seconds:.1f} s on"
-            f" {os.cpu_count()} cores (Python {platform.python_version()})",
-            f"- packages: {packages}", ""]  # fmt: skip
-
-
-def stamp(report: Path, lines: Sequence[str]) -> None:
-    """Append ``lines`` (the provenance) to an existing report."""
-    if report.is_file():
-        report.write_text(report.read_text().rstrip("\n") + "\n" + "\n".join(lines))
-
-
 def finish(
     out: Path, figures: Mapping[str, Any], json_out: bool, report: str = "report.md"
 ) -> None:
@@ -266,9 +220,8 @@ def study_command(
         t0 = time.perf_counter()
         figures = main(trials, seed, out, workers, dask_scheduler)
         name = main.__module__.rsplit(".", 1)[-1].replace("_", "-")
-        stamp(out / report, provenance_lines(f"beamrelay study {name} --trials {trials}"
-                                             f" --seed {seed} -o {out}", trials, seed,
-                                             time.perf_counter() - t0))  # fmt: skip
+        stamp(out / report, f"beamrelay study {name} --trials {trials} --seed {seed} -o {out}",
+              trials, seed, time.perf_counter() - t0)  # fmt: skip
         finish(out, figures, json_out, report)
 
     command.__doc__ = main.__doc__

@@ -8,17 +8,25 @@ The layout is defined here, in code (:func:`coverage_system`), not in a scenario
 study's geometry (mirror sites, sectors) is built around the sphere's centre and the bases'
 azimuths, which a scenario does not carry as such.
 
-With N robots, the beam may be relayed by any ordered sub-chain of them (the robots left out
-park their mirrors outside the beam; parking and robot/beam collisions are not modelled). A
-surface point counts as reached when some sub-chain and relay geometry put the spot on it
-with every condition of a valid solution: joint limits (closed-form IK per robot), front-face hits inside
-the ROI (by construction the beam hits the mirror centre), incidence ≤ 60°, and no
-occlusion by the object of the beam segments (laser → mirror → ... → mirror → target;
-open3d raycasting on the object's mesh; the last segment must meet the surface first at
-the target). The search samples relay geometries (hit distances on the laser ray, mirror
-centre positions around the object, mirror spins), so coverage is a lower bound. The IK at a
-sampled relay geometry is :func:`planner.studies.relay_geometry.mirror_ik` (closed-form
-helpers of :mod:`planner.ik`; ``ClosedForm.search`` picks its own hit points, see there).
+With N robots, the beam may be relayed by any ordered sub-chain of them; the robots left
+out are parked (:func:`planner.studies.coverage_safety.parked_q`, folded away from the
+object) and stay in the cell as obstacles. A surface point counts as reached when some
+sub-chain and relay geometry put the spot on it with every condition of a valid solution:
+joint limits (closed-form IK per robot), front-face hits inside the ROI (by construction the
+beam hits the mirror centre), incidence ≤ 60°, no occlusion by the object of the beam
+segments (laser → mirror → ... → mirror → target; open3d raycasting on the object's mesh;
+the last segment must meet the surface first at the target), and the product's safety rules
+(:class:`planner.safety.Safety`, via :mod:`planner.studies.coverage_safety`): arm-arm
+(parked arms included), arm-self and arm-object clearance, beam-arm (parked arms included),
+keep-out and laser return. Each point is also counted without the safety rules
+(``reached_geometric``), so the report shows what the rules take away and which rules.
+
+Every point counted has a witness configuration that passes every rule, but the search only
+samples relay geometries (hit distances on the laser ray, mirror centre positions around the
+object, mirror spins, the IK branch nearest home, one parking posture), so coverage is a
+lower bound of what the layout allows. The IK at a sampled relay geometry is
+:func:`planner.studies.relay_geometry.mirror_ik` (closed-form helpers of :mod:`planner.ik`;
+``ClosedForm.search`` picks its own hit points, see there).
 
 Directions: the azimuths (10° sectors, 360° around the object) from which a beam reaches
 some surface point at less than 60° from the horizontal.
@@ -30,14 +38,18 @@ from dataclasses import dataclass
 from functools import lru_cache
 from itertools import combinations, pairwise
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
 from planner.model.system import System
 from planner.model.transforms import Array
 from planner.studies import common
-from planner.studies.relay_geometry import laser_ray, mirror_ik, unit
+from planner.studies.relay_geometry import chain_system, laser_ray, mirror_ik, solve_chain, unit
+
+if TYPE_CHECKING:  # the safety rules load Pinocchio and coal: imported when first used
+    from planner.safety import Violation
+    from planner.studies.coverage_safety import ChainRules
 
 TRIALS = 400  # paper scale: the default of --trials and of `study all`
 CENTER = np.array([0.0, 0.0, 0.35])
@@ -173,11 +185,21 @@ def _mirror_ik(system: System, robot: int, hit: Array, v_in: Array, v_out: Array
     return mirror_ik(system.robots[robot], hit, v_in, v_out, SPINS)
 
 
+class Relay(NamedTuple):
+    """A relay onto a target: every hit point in chain order, the unit beam direction onto
+    the target, and the safety rule it breaks (None: it breaks none)."""
+
+    hits: tuple[Array, ...]
+    direction: Array
+    violation: Violation | None
+
+
 def reach_target(
-    system: System, chain: Chain, target: Array, normal: Array
-) -> list[tuple[tuple[Array, ...], Array]]:
-    """Feasible relays for one target: (every hit point in chain order, unit beam direction
-    onto the target), at most one per candidate last-mirror centre."""
+    system: System, chain: Chain, target: Array, normal: Array, rules: ChainRules | None = None
+) -> list[Relay]:
+    """Relays for one target, at most one per candidate last-mirror centre: the first of its
+    prefixes that breaks none of ``rules`` (:mod:`planner.studies.coverage_safety`), else
+    the first geometrically feasible one with the rule it breaks."""
     if len(chain.sites) == 0:
         return []
     d = target - chain.sites
@@ -190,39 +212,68 @@ def reach_target(
     t_hit = first_hits(chain.sites[idx], np.repeat(target[None], len(idx), 0))
     dist = np.linalg.norm(target - chain.sites[idx], axis=1)
     idx = idx[np.abs(t_hit - dist) < 2e-3]
+    laser, sub = laser_ray(system)[0], chain_system(system, chain.robots)
     out = []
     for i in idx:
+        unsafe: Relay | None = None
         for prefix in chain.prefixes[i]:
-            v_in = arriving(system, prefix, chain.sites[i])
-            if _mirror_ik(system, chain.robots[-1], chain.sites[i], v_in, d[i]) is not None:
-                out.append(((*prefix, chain.sites[i]), d[i]))
+            hits = (*prefix, chain.sites[i])
+            q = solve_chain(sub, hits, target, SPINS)
+            if q is None:
+                continue
+            bad = None if rules is None else rules.violation(q, hits, target, laser)
+            if bad is None:
+                out.append(Relay(hits, d[i], None))
                 break
+            unsafe = unsafe or Relay(hits, d[i], bad)
+        else:
+            if unsafe is not None:
+                out.append(unsafe)
     return out
 
 
 def targets_job(n_robots: int, points: Array, normals: Array, ids: Array) -> list[dict[str, Any]]:
-    """Reachability of some surface points by every sub-chain (one parallel job)."""
+    """Reachability of some surface points in the cells of N = 1 .. ``n_robots`` robots by
+    every sub-chain of each (one parallel job): reached with the safety rules applied (the
+    cell's other robots parked), and geometrically (every other condition) alone."""
     system = coverage_system(n_robots)
     chains = _chains(n_robots)
     rows = []
-    for k in ids:
-        for chain in chains:
-            feas = reach_target(system, chain, points[k], normals[k])
-            from_dirs = [-d for _, d in feas]
-            rows.append(
-                {
-                    "point": int(k),
-                    "chain": "-".join(map(str, chain.robots)),
-                    "n_needed": max(chain.robots) + 1,
-                    "reached": int(bool(feas)),
-                    "azimuths_deg": " ".join(
-                        f"{np.degrees(np.arctan2(u[1], u[0])) % 360:.1f}"
-                        for u in from_dirs
-                        if abs(u[2]) < np.sin(MAX_INCIDENCE)
-                    ),
-                }
-            )
+    for n in range(1, n_robots + 1):
+        for k in ids:
+            for chain in (c for c in chains if max(c.robots) < n):
+                rules = _rules(n, chain.robots)
+                relays = reach_target(system, chain, points[k], normals[k], rules)
+                rows.append(_row(n, int(k), chain, relays))
     return rows
+
+
+def _row(n: int, point: int, chain: Chain, relays: list[Relay]) -> dict[str, Any]:
+    """The CSV row of one point, sub-chain and cell of ``n`` robots."""
+    from planner.studies.coverage_safety import rule_name
+
+    safe = [r for r in relays if r.violation is None]
+    broken = sorted({rule_name(r.violation) for r in relays if r.violation is not None})
+    return {
+        "N": n,
+        "point": point,
+        "chain": "-".join(map(str, chain.robots)),
+        "reached": int(bool(safe)),
+        "reached_geometric": int(bool(relays)),
+        "broken": "; ".join(broken) if not safe else "",
+        "azimuths_deg": " ".join(
+            f"{np.degrees(np.arctan2(u[1], u[0])) % 360:.1f}"
+            for u in (-r.direction for r in safe)
+            if abs(u[2]) < np.sin(MAX_INCIDENCE)
+        ),
+    }
+
+
+@lru_cache(maxsize=16)
+def _rules(n_robots: int, robots: tuple[int, ...]) -> ChainRules:
+    from planner.studies.coverage_safety import chain_rules
+
+    return chain_rules(coverage_system(n_robots), robots, CENTER, RADIUS)
 
 
 @lru_cache(maxsize=4)
@@ -255,8 +306,11 @@ def summarize(points: Array, rows: list[dict[str, Any]], n_max: int = 3) -> list
     out = []
     n_sectors = round(360 / SECTOR_DEG)
     for n in range(1, n_max + 1):
-        sel = [r for r in rows if r["n_needed"] <= n]
+        sel = [r for r in rows if r["N"] == n]
         reached = {r["point"] for r in sel if r["reached"]}
+        geometric = {r["point"] for r in sel if r["reached_geometric"]}
+        lost = geometric - reached  # reachable but only by relays that break a rule
+        broken = {c for r in sel if r["point"] in lost for c in r["broken"].split("; ") if c}
         sectors = {int(float(a) // SECTOR_DEG) for r in sel for a in r["azimuths_deg"].split() if a}
         out.append(
             {
@@ -264,6 +318,8 @@ def summarize(points: Array, rows: list[dict[str, Any]], n_max: int = 3) -> list
                 "points_reached": len(reached),
                 "points": len(points),
                 "surface_fraction": len(reached) / len(points),
+                "points_geometric": len(geometric),
+                "rules_broken": "; ".join(sorted(broken)) or "-",
                 "sectors_reached": len(sectors),
                 "direction_fraction": len(sectors) / n_sectors,
             }
@@ -274,7 +330,7 @@ def summarize(points: Array, rows: list[dict[str, Any]], n_max: int = 3) -> list
 def reached_mask(points: Array, rows: list[dict[str, Any]], n: int) -> Array:
     mask = np.zeros(len(points), bool)
     for r in rows:
-        if r["n_needed"] <= n and r["reached"]:
+        if r["N"] == n and r["reached"]:
             mask[r["point"]] = True
     return mask
 
@@ -300,7 +356,7 @@ def plot(points: Array, rows: list[dict[str, Any]], path: Path, n_max: int = 3) 
         ax.set_ylabel("surface elevation (deg)")
         ax.set_xlim(0, 360)
         pax = fig.add_subplot(2, n_max, n_max + n, projection="polar")
-        sel = [r for r in rows if r["n_needed"] <= n]
+        sel = [r for r in rows if r["N"] == n]
         angles = [float(a) for r in sel for a in r["azimuths_deg"].split() if a]
         bins = np.arange(0, 361, SECTOR_DEG)
         hist, _ = np.histogram(angles, bins=bins)
@@ -327,16 +383,25 @@ def write(out: Path, points: Array, rows: list[dict[str, Any]], trials: int, see
         f"Sphere r = {RADIUS * 1000:.0f} mm at {CENTER.tolist()} m, {trials} surface points "
         f"(seed {seed}); laser overhead pointing down; UR5e bases at {BASE_RADIUS} m, azimuths "
         f"{', '.join(f'{a:g}°' for a in AZIMUTHS_DEG)}. Reached = some ordered sub-chain of the N "
-        "robots lights the point with joint limits, ROI, incidence ≤ 60° and no occlusion by the "
-        "object (open3d raycasting of every beam segment). Sampled relay search: a lower bound. "
-        "Details in `planner/studies/coverage.py`.",
+        "robots lights the point with joint limits, ROI, incidence ≤ 60°, no occlusion by the "
+        "object (open3d raycasting of every beam segment) and the product's safety rules "
+        "(`planner.safety.Safety`: arm-arm, arm-self and arm-object clearance 10 mm, beam-arm, "
+        "keep-out, laser return), the robots left out of the sub-chain parked folded away "
+        "from the object and checked as obstacles (arm-arm and beam-arm). Without the safety rules: "
+        "the same without the safety rules; rules broken: those that removed the points "
+        "reached only geometrically. Every point counted has a configuration passing every "
+        "rule, but relay geometries are sampled: a lower bound. Details in "
+        "`planner/studies/coverage.py` and `planner/studies/coverage_safety.py`.",
         "",
     ]
-    header = ["N", "surface reached", "azimuth sectors reached (10°, beam < 60° from horizontal)"]
+    header = ["N", "surface reached", "without the safety rules", "rules broken",
+              "azimuth sectors reached (10°, beam < 60° from horizontal)"]  # fmt: skip
     row = "{N} | {surface_fraction:.1%} ({points_reached}/{points}) "
+    row += "| {geometric_fraction:.1%} ({points_geometric}/{points}) | {rules_broken} "
     row += "| {direction_fraction:.0%} ({sectors_reached}/36) | {paper}"
     paper = {1: "N = 1 experiments only"}
-    cells = [{**s, "paper": paper.get(s["N"], "motivation only (no figure)")} for s in summary]
+    cells = [{**s, "paper": paper.get(s["N"], "motivation only (no figure)"),
+              "geometric_fraction": s["points_geometric"] / s["points"]} for s in summary]  # fmt: skip
     lines += common.table_lines([*header, "paper"], cells, row)
     tables = {"coverage.csv": rows, "summary.csv": summary}
     common.write_report(out, [*lines, ""], tables, image=("coverage maps", "coverage.png"))

@@ -15,6 +15,7 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any
 
+import numpy as np
 import typer
 
 from planner.errors import InputError
@@ -23,6 +24,7 @@ from planner.studies import experiments_ablation as abl
 from planner.studies import experiments_report as rep
 from planner.studies import experiments_setup as setup
 from planner.studies.experiments_trial import run_trial
+from planner.studies.provenance import stamp
 
 TRIALS = 10  # the default of --trials and of `study all`
 
@@ -43,12 +45,17 @@ def run(
 
 
 def _fmt(c: dict[str, float]) -> str:
-    return f"{c['mean_mm']:.2f} ± {c['std_mm']:.2f} (CI ± {c['ci95_mm']:.2f})"
+    """Mean over trials ± 95 % CI half-width [std of the targets]."""
+    return f"{c['mean_mm']:.2f} ± {c['ci95_mm']:.2f} [{c['std_mm']:.2f}]"
+
+
+def _p(p: float) -> str:
+    return "-" if not np.isfinite(p) else f"{p:.2g}" if p >= 1e-3 else f"{p:.1e}"
 
 
 def report_lines(s: dict[str, Any], trials: int, seed: int) -> list[str]:
     """The markdown of the report."""
-    cal, ik = s["calibration_residual_mm"], s["ik_time_s"]
+    cal, ik, sv = s["calibration_residual_mm"], s["ik_time_s"], s["servo_iterations"]
     lines = [
         "# The paper's experiments, end to end on the simulated cell",
         "",
@@ -63,11 +70,13 @@ def report_lines(s: dict[str, Any], trials: int, seed: int) -> list[str]:
         "5-frame measurement. Errors: point-to-point (chessboard, finger) or closest point to "
         "the measured path (curve, face eyebrows), in mm.",
         "",
-        "mean ± std over every measured target of every trial; CI = 95 % confidence "
-        "half-width of the mean over trials (Student t on the per-trial means). True: the same "
-        "metric between the true spot and the true target, without the camera: the calibration "
-        "error plus the error of the target's own measurement (the planner aims at the target "
-        "as the camera measured it; no servo can correct that part).",
+        "Cells: mean over the per-trial means ± its 95 % confidence half-width (Student t "
+        "over trials: the targets of one trial share a calibration, so the trial is the "
+        "independent sample), then [the std of the per-target errors, the spread the paper "
+        "gives]. True: the same metric between the true spot and the true target, without "
+        "the camera: the calibration error plus the error of the target's own measurement "
+        "(the planner aims at the target as the camera measured it; no servo can correct "
+        "that part).",
         "",
         "| experiment | targets measured | open loop (mm) | closed loop (mm) | paper, real robot (mm) | median open / closed (mm) | true open / closed (mm) |",
         "|---|---|---|---|---|---|---|",
@@ -78,25 +87,37 @@ def report_lines(s: dict[str, Any], trials: int, seed: int) -> list[str]:
         med = f"{e['open']['median_mm']:.2f} / {e['closed']['median_mm']:.2f}"
         lines.append(f"| {e['experiment']} | {e['open']['n']}/{e['targets']} | "
                      f"{_fmt(e['open'])} | {_fmt(e['closed'])} | {paper} | {med} | {true} |")  # fmt: skip
-    lines += ["", "## Chessboard placements: two-sample t-tests (paper Fig. 6)", "",
-              "| placements | loop | t | p | dof |", "|---|---|---|---|---|"]  # fmt: skip
-    for t in s["t_tests"]:
-        lines.append(
-            f"| {t['pair']} | {t['loop']} | {t['t']:.2f} | {t['p']:.3g} | {t['dof']:.0f} |"
-        )
+    lines += ["", "## Comparisons: paired t-tests on per-trial means, Holm-corrected", "",
+              "| comparison | difference (mm) | t | dof | p | p (Holm) | pooled p (per target) |",
+              "|---|---|---|---|---|---|---|"]  # fmt: skip
+    for t in s["comparisons"]:
+        lines.append(f"| {t['comparison']} | {t['diff_mm']:+.3f} ± {t['diff_ci95_mm']:.3f} | "
+                     f"{t['t']:.2f} | {t['dof']:.0f} | {_p(t['p'])} | {_p(t['p_holm'])} | "
+                     f"{_p(t['pooled_p'])} |")  # fmt: skip
     lines += [
         "",
-        "Placements: A flat at z = -0.05 m, B at z = 0 tilted 20° toward the mirror, C flat at "
-        "z = +0.05 m shifted 30 mm (Student's t, equal variances, on the per-target errors).",
+        "Placements (the paper's Fig. 6): A flat at z = -0.05 m, B at z = 0 tilted 20° toward "
+        "the mirror, C flat at z = +0.05 m shifted 30 mm. Every trial runs every placement and "
+        "both loops on one calibration, so each comparison is paired on the trial: the "
+        "difference is the mean of the per-trial differences ± 95 % CI, the test Student's "
+        "paired t on them (dof = trials - 1), and p (Holm) is Holm's step-down adjustment over "
+        "the family of all the comparisons above (reject at 0.05 where it is <= 0.05). The "
+        "pooled p is the paper's two-sample test on the per-target errors (equal variances, "
+        "dof = targets - 2): it treats targets that share a calibration as independent, so it "
+        "shrinks with the number of targets per trial and is not a valid test; it is shown "
+        "only for comparison with the paper.",
         "",
         "## Calibration and IK",
         "",
         "| figure | simulated | paper, real robot |",
         "|---|---|---|",
-        f"| hand-eye residual (mm), 20 poses | {cal['handeye']['mean']:.2f} (CI ± {cal['handeye']['half_width']:.2f}) | 1.13 ± 0.50 |",
-        f"| laser + mirror residual (mm), 16 x 3 | {cal['beam']['mean']:.2f} (CI ± {cal['beam']['half_width']:.2f}) | 2.04 ± 1.25 |",
-        f"| IK time per target (s) | {ik['mean']:.4f} ± {ik['std']:.4f} (median {ik['median']:.4f}) | 0.020 ± 0.022 (MATLAB LM) |",
-        f"| servo correction steps per target | {s['servo_iterations_mean']:.2f} | - |",
+        f"| hand-eye residual (mm), 20 poses | {cal['handeye']['mean']:.2f} ± {cal['handeye']['half_width']:.2f} [{cal['handeye']['std']:.2f}] | 1.13 ± 0.50 |",
+        f"| laser + mirror residual (mm), 16 x 3 | {cal['beam']['mean']:.2f} ± {cal['beam']['half_width']:.2f} [{cal['beam']['std']:.2f}] | 2.04 ± 1.25 |",
+        f"| IK time per target (s) | {ik['mean']:.4f} ± {ik['ci95']:.4f} [{ik['std']:.4f}] (median {ik['median']:.4f}) | 0.020 ± 0.022 (MATLAB LM) |",
+        f"| servo correction steps per target | {sv['mean']:.2f} ± {sv['ci95']:.2f} [{sv['std']:.2f}] | - |",
+        "",
+        "Simulated: mean over the per-trial means ± 95 % CI [std over targets or trials]; "
+        "paper: mean ± std.",
         "",
         f"Targets: {s['status']} (hidden: not seen by the camera; lost: spot not seen).",
         "",
@@ -214,9 +235,8 @@ def command(
     figures = main(trials, seed, out, workers, dask_scheduler, ablate, robot_error.value)
     flags = " --ablate" if ablate else ""
     flags += f" --robot-error {robot_error.value}" if ablate and robot_error != "factory" else ""
-    common.stamp(out / "report.md", common.provenance_lines(
-        f"beamrelay study experiments --trials {trials} --seed {seed} -o {out}{flags}",
-        trials, seed, time.perf_counter() - t0))  # fmt: skip
+    stamp(out / "report.md", f"beamrelay study experiments --trials {trials} --seed {seed}"
+          f" -o {out}{flags}", trials, seed, time.perf_counter() - t0)  # fmt: skip
     common.finish(out, figures, json_out)
 
 

@@ -16,7 +16,8 @@ simulated cells, each rung adding one effect to the one before
 
 Per rung and experiment: the mean open / closed loop error over the per-trial means with its
 95 % CI (Student t over trials), and what the rung adds: the mean of the per-trial
-differences to the rung before (paired on the trial) with its CI. mm.
+differences to the rung before (paired on the trial) with its CI and the paired t-test's p,
+Holm-adjusted over every step of the table. mm.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import numpy as np
 
 from planner.studies import experiments_report as rep
 from planner.studies import experiments_setup as setup
-from planner.studies.experiments_metrics import mean_ci
+from planner.studies.experiments_metrics import holm, mean_ci, paired_t
 
 
 def ladder(robot: str = "factory") -> list[tuple[str, setup.Effects]]:
@@ -65,16 +66,22 @@ def summarize(rungs: list[tuple[str, list[dict[str, Any]]]]) -> list[dict[str, A
                 ci = mean_ci(list(per.values()))
                 row[f"{loop}_mm"], row[f"{loop}_ci_mm"] = ci.mean, ci.half_width
                 prev = before.get((group, loop))
-                if prev is None:
-                    row[f"{loop}_step_mm"], row[f"{loop}_step_ci_mm"] = None, None
-                else:
-                    common = sorted(set(per) & set(prev))
-                    step = mean_ci([per[t] - prev[t] for t in common])
-                    row[f"{loop}_step_mm"], row[f"{loop}_step_ci_mm"] = step.mean, step.half_width
+                row[f"{loop}_step_mm"], row[f"{loop}_step_ci_mm"] = None, None
+                row[f"{loop}_step_p"], row[f"{loop}_step_p_holm"] = None, None
+                if prev is not None:
+                    step = paired_t(per, prev)
+                    row[f"{loop}_step_mm"] = step.diff.mean
+                    row[f"{loop}_step_ci_mm"] = step.diff.half_width
+                    row[f"{loop}_step_p"] = step.p
                 before[(group, loop)] = per
             for loop in ("true_open", "true_closed"):
                 row[f"{loop}_mm"] = mean_ci(list(_per_trial(trials, group, loop).values())).mean
             rows.append(row)
+    steps = [
+        (r, loop) for r in rows for loop in ("open", "closed") if r[f"{loop}_step_p"] is not None
+    ]
+    for (r, loop), p in zip(steps, holm([r[f"{loop}_step_p"] for r, loop in steps]), strict=True):
+        r[f"{loop}_step_p_holm"] = float(p)
     return rows
 
 
@@ -95,9 +102,12 @@ def _fmt(mean: float, ci: float) -> str:
 
 
 def _step(row: dict[str, Any], loop: str) -> str:
+    """The step from the rung before ± 95 % CI (p Holm-adjusted over the table's steps)."""
     if row[f"{loop}_step_mm"] is None:
         return "-"
-    return f"{row[f'{loop}_step_mm']:+.2f} ± {row[f'{loop}_step_ci_mm']:.2f}"
+    p = row[f"{loop}_step_p_holm"]
+    p_text = "" if p is None or not np.isfinite(p) else f" (p {p:.2g})"
+    return f"{row[f'{loop}_step_mm']:+.2f} ± {row[f'{loop}_step_ci_mm']:.2f}{p_text}"
 
 
 def report_lines(
@@ -110,7 +120,8 @@ def report_lines(
         f"{trials} trials per rung, seed {seed}, the same trials on every rung. Each rung "
         "adds one effect of the real cell to the one above; cells: mean over the per-trial "
         "means ± 95 % CI (t over trials), and what the rung adds (paired per trial, ± 95 % "
-        "CI), mm. True: the same metric between the true spot and the true target, without "
+        "CI; p: paired t-test on the per-trial means, Holm-adjusted over every step of the "
+        "table), mm. True: the same metric between the true spot and the true target, without "
         "the camera. Paper: the real robot's mean ± std.",
         "",
         "| rung | experiment | open loop | adds (open) | closed loop | adds (closed) | true open / closed | paper |",

@@ -11,6 +11,7 @@ the targets coloured by their error (Fig. 3a).
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -19,6 +20,7 @@ import typer
 from planner.data import shipped_scenario
 from planner.errors import InputError
 from planner.studies import common
+from planner.studies.provenance import stamp
 
 TRIALS = 10  # paper scale
 SCENARIO = shipped_scenario("paper_n1.yaml")
@@ -265,4 +267,9 @@ def command(
     json_out: common.JsonOut = False,
 ) -> None:
     """Paper Fig. 3a: IK error over the 1000-point grid under perturbed geometry."""
-    common.finish(out, main(trials, seed, out, workers, dask_scheduler, scenario), json_out)
+    t0 = time.perf_counter()
+    figures = main(trials, seed, out, workers, dask_scheduler, scenario)
+    flags = "" if scenario == SCENARIO else f" --scenario {scenario}"
+    stamp(out / "report.md", f"beamrelay study ik-grid --trials {trials} --seed {seed} -o {out}"
+          f"{flags}", trials, seed, time.perf_counter() - t0)  # fmt: skip
+    common.finish(out, figures, json_out)

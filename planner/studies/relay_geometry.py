@@ -35,6 +35,11 @@ def unit(v: Array) -> Array:
     return v / np.linalg.norm(v)
 
 
+def chain_system(system: System, robots: Sequence[int]) -> System:
+    """The sub-system of ``system``'s ``robots`` (beam order), same laser and camera."""
+    return System(system.world_T_laser, tuple(system.robots[i] for i in robots), system.camera)
+
+
 def laser_ray(system: System) -> tuple[Array, Array]:
     """Origin and unit direction of the laser beam (world)."""
     return system.world_T_laser[:3, 3].copy(), unit(system.world_T_laser[:3, 2].copy())

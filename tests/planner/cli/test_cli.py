@@ -100,6 +100,7 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
             "experiments",
             "online",
             "all",
+            "index",
         ]
     )
     assert sorted(groups["bench"].commands) == [

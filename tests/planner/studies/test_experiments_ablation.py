@@ -88,6 +88,14 @@ def test_budget_steps_are_paired_per_trial_means() -> None:
     assert curve_b["open_step_mm"] == pytest.approx(d.mean())
     assert curve_b["open_step_ci_mm"] == pytest.approx(half)
     assert curve_b["closed_step_mm"] == pytest.approx(d.mean() / 2)
+    # the paired t-test of the step by hand; the family: curve open and closed (the other
+    # experiments do not change, so their steps have no variance and are no tests)
+    p = 2 * stats.t.sf(abs(d.mean() / (d.std(ddof=1) / np.sqrt(3))), 2)
+    assert curve_b["open_step_p"] == pytest.approx(p)
+    assert curve_b["closed_step_p"] == pytest.approx(p)  # halved errors, same t
+    assert curve_b["open_step_p_holm"] == pytest.approx(min(1.0, 2 * p))
+    face_b = next(r for r in rows if r["rung"] == "b" and r["experiment"] == "face")
+    assert np.isnan(face_b["open_step_p"]) and np.isnan(face_b["open_step_p_holm"])
     calib = abl.calibration([("a", a), ("b", b)])
     assert calib[0]["handeye_mm"] == pytest.approx(2.0) and calib[1]["beam_mm"] == 2.0
     lines = abl.report_lines(rows, 3, 0, calib)

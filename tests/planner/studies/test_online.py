@@ -81,3 +81,31 @@ def test_the_two_surfaces_are_where_the_block_stands(scn) -> None:
         hits = scene.cast(pts + 0.5 * normal, np.tile(-normal, (50, 1)))
         assert np.allclose(hits.t, 0.5, atol=1e-5)  # the face is the first surface from above
         assert {scene.names[i] for i in hits.object} == {name}
+
+
+def _rows(trial: int, taken: dict[int, int], errors: dict[int, list[float]]) -> list[dict]:
+    return [{"trial": trial, "samples": n, "taken": taken[n], "target": j, "surface": "board",
+             "version": 1, "error_mm": e, "refits": taken[n], "accepted": 1}
+            for n, es in errors.items() for j, e in enumerate(es)]  # fmt: skip
+
+
+def test_a_trial_that_gave_up_is_counted_apart(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Trial 2 gave up after 8 samples: it is in the rows of 0 and 5 samples and in none of
+    the 20-sample row's figures, only in its gave_up count."""
+    monkeypatch.setattr(online, "CHECKPOINTS", (0, 5, 20))
+    full = {0: 0, 5: 5, 20: 20}
+    rows = _rows(0, full, {0: [4.0, 6.0], 5: [2.0, 2.0], 20: [1.0, 3.0]})
+    rows += _rows(1, full, {0: [8.0, 8.0], 5: [1.0, np.nan], 20: [2.0, 2.0]})
+    rows += _rows(2, {0: 0, 5: 5, 20: 8}, {0: [9.0, 9.0], 5: [7.0, 7.0], 20: [50.0, 50.0]})
+    by = {s["samples"]: s for s in online.summarise(rows)}
+    assert [by[n]["gave_up"] for n in (0, 5, 20)] == [0, 0, 1]
+    assert [by[n]["trials"] for n in (0, 5, 20)] == [3, 3, 2]
+    # 20 samples: trials 0 and 1 only, per-trial means 2.0 and 2.0
+    assert (by[20]["mean_mm"], by[20]["ci95_mm"], by[20]["max_mm"]) == (2.0, 0.0, 3.0)
+    assert by[20]["median_mm"] == pytest.approx(2.0)
+    # 5 samples: per-trial means 2, 1 (the unsolved target left out), 7; Student t over 3
+    per = np.array([2.0, 1.0, 7.0])
+    half = 4.302652729911275 * per.std(ddof=1) / np.sqrt(3)  # t_{0.975, 2}
+    assert by[5]["mean_mm"] == pytest.approx(per.mean())
+    assert by[5]["ci95_mm"] == pytest.approx(half)
+    assert by[5]["unsolved"] == 1
