@@ -40,6 +40,10 @@ STUDIES: dict[str, Any] = {
 ORDER = tuple(STUDIES)
 
 
+#: what a study runs with beyond its scale and seed, as keyword arguments of its ``main`` and
+#: as options of its command: the experiments with their error budget (one effect at a time)
+OPTIONS: dict[str, tuple[dict[str, Any], str]] = {"experiments": ({"ablate": True}, " --ablate")}
+
 #: the files a study writes (a study's folder holds nothing else)
 OUTPUTS = (".md", ".csv", ".png", ".json")
 
@@ -61,8 +65,9 @@ def run_one(
     mod = STUDIES[name]
     clear_outputs(out / name)
     t0 = time.perf_counter()
-    figures = dict(mod.main(mod.TRIALS, seed, out / name, workers, scheduler))
-    command = f"beamrelay study {name} --trials {mod.TRIALS} --seed {seed} -o {out / name}"
+    kwargs, flags = OPTIONS.get(name, ({}, ""))
+    figures = dict(mod.main(mod.TRIALS, seed, out / name, workers, scheduler, **kwargs))
+    command = f"beamrelay study {name} --trials {mod.TRIALS} --seed {seed} -o {out / name}{flags}"
     stamp(out / name / "report.md", command, mod.TRIALS, seed, time.perf_counter() - t0)
     return figures
 

@@ -17,10 +17,12 @@ def test_all_runs_each_study_at_its_scale_and_links_them(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     calls: list[tuple[str, int, Path]] = []
+    options: dict[str, dict[str, Any]] = {}
 
     def fake(name: str, trials: int) -> SimpleNamespace:
-        def main(t: int, seed: int, out: Path, w: Any, s: Any) -> dict:
+        def main(t: int, seed: int, out: Path, w: Any, s: Any, **kw: Any) -> dict:
             calls.append((name, t, out))
+            options[name] = kw
             return {"study": name}
 
         return SimpleNamespace(TRIALS=trials, main=main)
@@ -34,6 +36,8 @@ def test_all_runs_each_study_at_its_scale_and_links_them(
     index = (tmp_path / "index.md").read_text()
     assert all(f"[{name}/report.md]({name}/report.md)" in index for name in trials)
     assert figures["seconds"]["experiments"] >= 0.0
+    # the committed experiments carry their error budget, and their stamp says so
+    assert options["experiments"] == {"ablate": True} and options["online"] == {}
 
 
 def test_the_hand_chosen_calibration_error_study_is_gone() -> None:
@@ -83,7 +87,7 @@ def test_every_report_states_its_command_commit_versions_seed_and_wall_time(
 
 def _fake_studies() -> dict[str, SimpleNamespace]:
     def fake(name: str) -> SimpleNamespace:
-        def main(t: int, seed: int, out: Path, w: Any, s: Any) -> dict:
+        def main(t: int, seed: int, out: Path, w: Any, s: Any, **kw: Any) -> dict:
             out.mkdir(parents=True, exist_ok=True)
             (out / "report.md").write_text(f"# {name}\n")
             return {"study": name}
@@ -108,7 +112,9 @@ def test_study_all_stamps_each_report_and_indexes_the_stamps(
         report = (tmp_path / name / "report.md").read_text()
         trials = 2 + len(name)
         assert report.startswith(f"# {name}\n") and "## Provenance" in report
-        assert f"`beamrelay study {name} --trials {trials} --seed 5 -o {tmp_path / name}`" in report
+        flags = study_all.OPTIONS.get(name, ({}, ""))[1]  # the experiments: " --ablate"
+        assert (f"`beamrelay study {name} --trials {trials} --seed 5 -o {tmp_path / name}{flags}`"
+                in report)  # fmt: skip
         assert f"- seed 5 (every random draw derives from it), trials {trials}" in report
         row = next(ln for ln in index.splitlines() if ln.startswith(f"| {name} |"))
         assert row.split(" | ")[2:5] == [commit, "5", str(trials)]
