@@ -27,7 +27,7 @@ WINDOW = 1 << 23  # bytes of text parsed at a time
 _TOKEN = re.compile(rb'"(?:[^"\\]|\\.)*"|\[')  # a string (skipped whole) or an array's start
 _NUMERIC = re.compile(rb"[0-9eE+\-.,\s\[\]]*")  # text that can only be numbers in arrays
 _HOLE = b'"\\u0000plan-array-%d"'  # stands in the skeleton for the k-th carved array
-_HOLE_TEXT = "\x00plan-array-"
+_HOLE_TEXT = "\x00plan-array-"  # a hole as json reads it
 
 
 def write_plan(doc: dict[str, Any], out: TextIO, digits: int = 10, chunk: int = 50_000) -> None:
@@ -107,10 +107,11 @@ def read_plan(path: Path) -> Any:
         if fh.seek(0, 2) == 0:
             return json.loads(b"")  # raises, as json.load does
         with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-            if mm.find(_HOLE_TEXT.encode()) >= 0 or mm.find(b"\\u0000plan-array-") >= 0:
-                return _with_tables(json.loads(mm[:]), None)  # a document naming our holes
             skeleton, arrays = _carve(mm)
-    return _with_tables(json.loads(skeleton), arrays)
+            try:
+                return _with_tables(json.loads(skeleton), _Holes(arrays))
+            except _ForgedHoleError:  # strings like our holes: read as json reads it, no carving
+                return _with_tables(json.loads(mm[:]), None)
 
 
 def _carve(mm: mmap.mmap) -> tuple[bytes, list[np.ndarray]]:
@@ -149,15 +150,13 @@ def _closing(mm: mmap.mmap, start: int, stop: int) -> int | None:
         w = min(WINDOW, stop - o)
         text = mm[o : o + w]
         _drop(mm, o, o + w)
-        if depth + text.count(b"[") - text.count(b"]") > 0:
-            depth, o = depth + text.count(b"[") - text.count(b"]"), o + w
+        after = depth + text.count(b"[") - text.count(b"]")
+        if after > 0:  # still open at the window's end
+            depth, o = after, o + w
             continue
         a = np.frombuffer(text, np.uint8)
         d = depth + np.cumsum((a == 91).astype(np.int32) - (a == 93))
-        shut = np.flatnonzero(d <= 0)
-        if len(shut):
-            return o + int(shut[0]) + 1
-        depth, o = int(d[-1]), o + w
+        return o + int(np.flatnonzero(d <= 0)[0]) + 1
     return None
 
 
@@ -216,29 +215,54 @@ def _window(text: bytes, rows: bool, shape: tuple[int, ...] | None) -> np.ndarra
     return a
 
 
-def _with_tables(doc: Any, arrays: list[np.ndarray] | None) -> Any:
-    """``doc`` with the trajectory's tables as float64 arrays and, given the carved
-    ``arrays``, its holes filled (every other carved array as the list json gives)."""
+class _ForgedHoleError(Exception):
+    """The document has a string of its own that reads like one of our holes."""
+
+
+class _Holes:
+    """The carved arrays, each taken once, from the hole that stands for it."""
+
+    def __init__(self, arrays: list[np.ndarray]) -> None:
+        self.arrays = arrays
+        self.taken: set[int] = set()
+
+    def take(self, value: Any) -> np.ndarray | None:
+        """The array ``value`` stands for (None: not a hole). _ForgedHoleError for a string that reads
+        like a hole but is not one of ours: an index out of range, or one taken already."""
+        if not (isinstance(value, str) and value.startswith(_HOLE_TEXT)):
+            return None
+        k = value[len(_HOLE_TEXT) :]
+        if not (k.isascii() and k.isdigit()) or int(k) >= len(self.arrays) or int(k) in self.taken:
+            raise _ForgedHoleError
+        self.taken.add(int(k))
+        return self.arrays[int(k)]
+
+    @property
+    def left(self) -> bool:
+        """Whether some carved array has not been taken yet."""
+        return len(self.taken) < len(self.arrays)
+
+
+def _with_tables(doc: Any, holes: _Holes | None) -> Any:
+    """``doc`` with the trajectory's tables as float64 arrays and, given the carved arrays'
+    ``holes``, every hole filled (every other carved array as the list json gives)."""
     traj = doc.get("trajectory") if isinstance(doc, dict) else None
-    tables = 0
     if isinstance(traj, dict):
         for key in set(TABLES) & set(traj):
             if key == "t":
-                tables += _hole(traj[key]) is not None
-                traj[key] = _table(traj[key], arrays)
+                traj[key] = _table(traj[key], holes)
             elif isinstance(traj[key], dict):
-                tables += sum(_hole(v) is not None for v in traj[key].values())
-                traj[key] = {r: _table(v, arrays) for r, v in traj[key].items()}
-    if arrays is None or tables == len(arrays):  # no hole left to fill
+                traj[key] = {r: _table(v, holes) for r, v in traj[key].items()}
+    if holes is None or not holes.left:
         return doc
-    return _filled(doc, arrays)
+    return _filled(doc, holes)
 
 
-def _table(value: Any, arrays: list[np.ndarray] | None) -> Any:
+def _table(value: Any, holes: _Holes | None) -> Any:
     """A trajectory table as a float array (left as it is when it is not numbers)."""
-    k = _hole(value)
-    if k is not None and arrays is not None:
-        return arrays[k].astype(float, copy=False)
+    carved = None if holes is None else holes.take(value)
+    if carved is not None:
+        return carved.astype(float, copy=False)
     try:  # a small table json read
         a = np.asarray(value)
     except ValueError:  # ragged: the checker reports it
@@ -246,16 +270,10 @@ def _table(value: Any, arrays: list[np.ndarray] | None) -> Any:
     return a.astype(float) if a.dtype.kind in "iuf" else value  # not numbers: likewise
 
 
-def _hole(value: Any) -> int | None:
-    if isinstance(value, str) and value.startswith(_HOLE_TEXT):
-        return int(value[len(_HOLE_TEXT) :])
-    return None
-
-
-def _filled(x: Any, arrays: list[np.ndarray]) -> Any:
+def _filled(x: Any, holes: _Holes) -> Any:
     if isinstance(x, dict):
-        return {k: _filled(v, arrays) for k, v in x.items()}
+        return {k: _filled(v, holes) for k, v in x.items()}
     if isinstance(x, list):
-        return [_filled(v, arrays) for v in x]
-    k = _hole(x)
-    return x if k is None else arrays[k].tolist()
+        return [_filled(v, holes) for v in x]
+    carved = holes.take(x)
+    return x if carved is None else carved.tolist()

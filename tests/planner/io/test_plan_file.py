@@ -130,6 +130,10 @@ HOSTILE = {
     "huge int": '{"order": [1, 2, 99999999999999999999999, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13]}',
     "empty rows": '{"trajectory": {"q": {"a": [[], [], [], [], [], [], [], [], [], [], []]}}}',
     "a string like a hole": '{"s": "\\u0000plan-array-0", "v": [1.5, 2.5, 3.5, 4.5, 5.5, 6.5, 7.5, 8.5, 9.5]}',
+    "a hole spelt with escapes": '{"s": "\\u0000\\u0070lan-array-0", "v": [1.5, 2.5, 3.5, 4.5, 5.5, 6.5, 7.5, 8.5]}',
+    "a hole out of range": '{"trajectory": {"t": "\\u0000plan-array-5"}, "v": [1.5, 2.5, 3.5, 4.5, 5.5, 6.5, 7.5]}',
+    "a hole not a number": '{"trajectory": {"t": "\\u0000plan-array-x"}, "v": [1.5, 2.5, 3.5, 4.5, 5.5, 6.5, 7.5]}',
+    "a table taking another's hole": '{"trajectory": {"t": "\\u0000plan-array-0", "q": {"a": [[1.5, 2.5, 3.5, 4.5, 5.5, 6.5, 7.5]]}}}',
     "brackets in strings": '{"s": "[1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14]", "e": "\\"[1,2]"}',
     "spaces everywhere": '{"trajectory": {"t": [ 0 , 1.0 ,\n 2e0 , -3.5E-1 , 4 , 5 , 6 , 7 , 8 , 9 ] } }',
 }  # fmt: skip
