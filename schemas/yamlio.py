@@ -10,6 +10,7 @@ planner resolves it).
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -98,13 +99,26 @@ def read_yaml(
     return _plain(node, (), shown, origins), origins
 
 
-def read_json(path: str | Path, error_cls: type[InputError] = InputError) -> Any:
-    """Load a JSON file (no line tracking: errors name the key path)."""
-    text = _read_text(path, error_cls, str(path))
+def read_json(
+    path: str | Path,
+    error_cls: type[InputError] = InputError,
+    load: Callable[[Path], Any] | None = None,
+) -> Any:
+    """Load a JSON file (no line tracking: errors name the key path). ``load`` reads the
+    file another way (a path -> document function raising what ``json`` and ``open`` raise,
+    e.g. :func:`planner.io.plan_file.read_plan`), with the same one-line errors."""
     try:
-        return json.loads(text)
+        return (load or _load_json)(Path(path))
+    except FileNotFoundError:
+        raise error_cls("file not found", str(path)) from None
     except json.JSONDecodeError as exc:
         raise error_cls(f"JSON syntax error: {exc.msg}", f"{path}:{exc.lineno}") from None
+    except (OSError, UnicodeDecodeError) as exc:  # a directory, unreadable, not UTF-8
+        raise error_cls(f"cannot read file: {exc}", str(path)) from None
+
+
+def _load_json(path: Path) -> Any:
+    return json.loads(path.read_text(encoding="utf-8"))
 
 
 def _read_text(path: str | Path, error_cls: type[InputError], shown: str) -> str:

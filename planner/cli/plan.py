@@ -174,22 +174,13 @@ def _slowdowns(outcome: Any) -> Any:
 def _load_plan(path: Path) -> dict[str, Any]:
     """plan.json read (its dense tables as arrays, :func:`~planner.io.plan_file.read_plan`)
     and validated against the schema: the tables with numpy, the rest by the model."""
-    import json
-
     from planner.io.plan_file import read_plan
     from schemas.common import FieldError
     from schemas.located import format_loc
     from schemas.plan import Plan, check_tables, take_tables
-    from schemas.yamlio import validate
+    from schemas.yamlio import read_json, validate
 
-    try:
-        data = read_plan(path)
-    except FileNotFoundError:
-        raise InputError("file not found", str(path)) from None
-    except json.JSONDecodeError as exc:
-        raise InputError(f"JSON syntax error: {exc.msg}", f"{path}:{exc.lineno}") from None
-    except (OSError, ValueError) as exc:  # a directory, unreadable, not UTF-8
-        raise InputError(f"cannot read file: {exc}", str(path)) from None
+    data = read_json(path, load=read_plan)
     if not isinstance(data, dict):
         raise InputError("expected a JSON object", str(path))
     tables = take_tables(data)
