@@ -168,11 +168,10 @@ def _simulate(
         sp = follower.setpoint(now)
         if sp is not None:
             arm.append((sp[0], sp[1], sp[3]))
-        while arm and arm[0][0] <= now + 1e-9:  # the arm reaches a setpoint at its time
+        while arm and arm[0][0] <= now + 1e-9:  # the setpoints due by now
             _, command, laser = arm.pop(0)
-            q_arm = command if lag is None else q_arm
-        if lag is not None:  # ... or servoJ pulls it toward the last one, a cycle a period
-            q_arm = lag.step(command)[0]
+        # the arm is at the last one, or servoJ pulls it toward it (a cycle a period)
+        q_arm = command if lag is None else lag.step(command)[0]
         follower.on_joint_state(q_arm, now)
         if k % SPOT_EVERY:
             continue

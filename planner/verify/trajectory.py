@@ -217,13 +217,13 @@ def _worst(rows: int, block: Any) -> _Worst:
     (rows a..b: the table, its ratios to their bounds), a block of :data:`CHUNK_ROWS` at a
     time, so that a plan of millions of samples is checked in bounded memory. A NaN ratio
     is the largest (it never passes)."""
-    best = _Worst(0, 0, float("nan"), -np.inf)
+    best, best_key = _Worst(0, 0, float("nan"), -np.inf), -np.inf
     for a in range(0, rows, CHUNK_ROWS):
         X, ratio = block(a, min(rows, a + CHUNK_ROWS))
-        key = np.where(np.isnan(ratio), np.inf, ratio)
+        key = np.where(np.isnan(ratio), np.inf, ratio)  # ratios are >= 0: the first block wins
         i, j = (int(x) for x in np.unravel_index(int(np.argmax(key)), key.shape))
-        if a == 0 or key[i, j] > (np.inf if np.isnan(best.ratio) else best.ratio):
-            best = _Worst(a + i, j, float(X[i, j]), float(ratio[i, j]))
+        if key[i, j] > best_key:
+            best, best_key = _Worst(a + i, j, float(X[i, j]), float(ratio[i, j])), key[i, j]
     return best
 
 
