@@ -1,10 +1,11 @@
 """``beamrelay study all -o reports``: every study at paper scale, and ``reports/index.md``.
 
-Order: ik-grid, calibration, sensitivity, mirror-sweep, coverage, experiments, online. Each
-study runs its ``main`` at its paper-scale ``TRIALS``, writes into ``OUT/<name>/`` and its
-report is stamped with its provenance (:mod:`planner.studies.provenance`); the index is built
-from those stamps alone: the commit, seed, trials and wall time each report states, and
-whether they all come from one clean commit with one set of packages.
+Order: ik-grid, calibration, sensitivity, mirror-sweep, coverage, experiments, online,
+moving-target. Each study runs its ``main`` at its paper-scale ``TRIALS``, writes into
+``OUT/<name>/`` and its report is stamped with its provenance
+(:mod:`planner.studies.provenance`); the index is built from those stamps alone: the commit,
+seed, trials and wall time each report states, and whether they all come from one clean
+commit with one set of packages.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from planner.studies import (
     experiments,
     ik_grid,
     mirror_sweep,
+    moving_target,
     online,
     sensitivity,
 )
@@ -35,6 +37,7 @@ STUDIES: dict[str, Any] = {
     "coverage": coverage,
     "experiments": experiments,
     "online": online,
+    "moving-target": moving_target,
 }
 """The studies in the order they run (name -> module with ``main`` and ``TRIALS``)."""
 ORDER = tuple(STUDIES)

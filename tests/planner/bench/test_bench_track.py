@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from planner.bench.track import CASES, run_case
+from planner.simcell.tracking import CASES, run_case
 
 
 @pytest.mark.serial
@@ -49,12 +49,12 @@ def test_a_true_arm_off_the_model_puts_the_spot_off_by_its_static_offset() -> No
     calibration's DH error: the tracked spot is off the target by what that arm's error
     does to the beam at the tracking joints, traced on its own at the start pose."""
     from planner.beam.graph import BeamModel
-    from planner.bench.track import _true_arm
     from planner.data import shipped_scenario
     from planner.ik import BeamIK
     from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
     from planner.planning import ik_options
     from planner.safety.model import Safety
+    from planner.simcell.tracking import true_arm
 
     scenario, motion = CASES["breathing"]
     f = run_case(motion, seconds=3.0, seed=1, scenario=scenario, robot_error="factory")
@@ -62,7 +62,7 @@ def test_a_true_arm_off_the_model_puts_the_spot_off_by_its_static_offset() -> No
     system = system_from_scenario(scn)
     p = targets_from_scenario(scn, system).points[0]
     q0 = BeamIK(system, ik_options(scn.model.solver), Safety.from_scenario(scn, system)).solve(p).q
-    truth = _true_arm(system_from_scenario(scn, truth=True), "factory", seed=1)
+    truth = true_arm(system_from_scenario(scn, truth=True), "factory", seed=1)
     offset = BeamModel(truth).trace(q0, p).error
     assert offset > 1e-3  # a factory-calibrated arm's error is millimetres at the spot
     assert f["laser_on_fraction"] > 0.9
