@@ -120,6 +120,7 @@ from planner.bus.priority import Priority, raise_priority
 from planner.bus.session import JSON, Keys, decode, encode, urgent
 from planner.errors import InputError
 from planner.model.system import Limits
+from schemas.brakes import Brake
 from schemas.messages import (
     Heartbeat,
     JointState,
@@ -422,7 +423,7 @@ class RobotNode(StreamingMixin, LoopNode):
         if stop_at is not None and stop_at != self._handled_stop:
             self._handled_stop = stop_at
             self._drop_queued_setpoints()  # sent before the stop, maybe: never a new stream
-            self._safe_stop(f"stop requested on {self.keys.stop}")
+            self._safe_stop(Brake.OPERATOR_STOP.say(f" {self.keys.stop}"))
         while self._triggers:
             self._safe_stop(self._triggers.pop(0))
         if not self.require_planner:
@@ -434,7 +435,7 @@ class RobotNode(StreamingMixin, LoopNode):
             silent = now - self.heartbeats.get(session, -np.inf)
             if silent > HEARTBEAT_TIMEOUT:
                 quiet = "none heard" if np.isinf(silent) else f"silent for {1e3 * silent:.0f} ms"
-                self._safe_stop(f"planner heartbeat lost: session {session} {quiet}")
+                self._safe_stop(Brake.HEARTBEAT_LOST.say(f": session {session} {quiet}"))
                 return
 
     def _safe_stop(self, reason: str, rejected: str | None = None) -> None:
@@ -533,21 +534,22 @@ class RobotNode(StreamingMixin, LoopNode):
         """Rules 2 and 3 of the module docstring (InputError if not)."""
         stop_at = self.stop_requested_at
         if stop_at is not None and received <= stop_at:
-            raise InputError(f"received before the stop requested on {self.keys.stop}", "body")
+            raise InputError(Brake.SENT_BEFORE_STOP.say(f" {self.keys.stop}"), "body")
         if self.backend.follower.mode == "braking":
             raise InputError("the arm is braking: send it once the arm is at rest", "body")
         if not self.require_planner:
             return
         if not self.planner_alive:
-            raise InputError("no planner alive (watchdog): not moving", "body")
+            raise InputError(Brake.NO_PLANNER.say(": not moving"), "body")
         if session is None:
             raise InputError("no planner session given (a planner must send it)", "session")
         silent = self.clock() - self.heartbeats.get(session, -np.inf)
         if silent > HEARTBEAT_TIMEOUT:
             heard = "never" if np.isinf(silent) else f"{1e3 * silent:.0f} ms ago"
             raise InputError(
-                f"no heartbeat from planner session {session} within "
-                f"{1e3 * HEARTBEAT_TIMEOUT:.0f} ms (last: {heard})",
+                Brake.SESSION_SILENT.say(
+                    f" {session} within {1e3 * HEARTBEAT_TIMEOUT:.0f} ms (last: {heard})"
+                ),
                 "session",
             )
 
@@ -555,7 +557,7 @@ class RobotNode(StreamingMixin, LoopNode):
         gate_fault = self.gate.fault if self.gate is not None else None
         fault = m.fault or gate_fault or self.rejection or self.stopped_by
         if fault is None and not self.planner_alive and self.require_planner:
-            fault = "no planner alive (watchdog)"
+            fault = Brake.NO_PLANNER.value
         laser = self.gate.on if self.gate is not None else None
         msg = RobotStatus(
             robot=self.robot, t=time.time(), mode=m.mode, protective_stop=m.protective_stop,

@@ -36,9 +36,10 @@ import typer
 
 from planner.bench.service import DEFAULT_SCENARIO, _free_endpoint
 from planner.bus.priority import NO_RT_ENV
+from schemas.brakes import Brake
 
 PREFIX = "benchbrakes"
-BRAKE = "planner heartbeat lost"
+BRAKE = Brake.HEARTBEAT_LOST.value
 MAX_LOAD = 32  # burners at most
 BURN = "import time\nend = time.monotonic() + {seconds}\nwhile time.monotonic() < end:\n    pass\n"
 

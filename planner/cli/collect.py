@@ -176,14 +176,6 @@ def _run(system: Any, world: Any, robot: str, qs: Any, speed: float, endpoint: s
         session.close()
 
 
-#: what a driver says when it braked because planner heartbeats came late (no planner, or
-#: not this one, within its 100 ms): on a loaded machine, not a fault of the move
-LATE_HEARTBEATS = ("no planner alive (watchdog)", "no heartbeat from planner session",
-                   "planner heartbeat lost")  # fmt: skip
-#: what a driver says after an operator's STOP: the collection ends there
-OPERATOR_STOP = "stop requested on "
-
-
 def _visit(bp: Any, system: Any, robot: str, qs: Any, speed: float, world: Any,
            observe: Any) -> tuple[list[Any], list[Any], list[str]]:  # fmt: skip
     """The poses visited through ``bp`` (a :class:`~planner.service.collect.BusPlanner`),
@@ -192,6 +184,8 @@ def _visit(bp: Any, system: Any, robot: str, qs: Any, speed: float, world: Any,
     reason is not); after an operator's STOP no further pose is visited and the arm stays
     where it braked."""
     import numpy as np
+
+    from schemas.brakes import Brake
 
     got_q: list[Any] = []
     got_p: list[Any] = []
@@ -203,19 +197,19 @@ def _visit(bp: Any, system: Any, robot: str, qs: Any, speed: float, world: Any,
     home = system.robot(robot).home
     for i, q in enumerate(qs):
         why = bp.move(robot, q, speed, world)
-        if why is not None and any(w in why for w in LATE_HEARTBEATS) and bp.wait_rest(robot):
+        if why is not None and why.late_heartbeat and bp.wait_rest(robot):
             typer.echo(f"pose {i + 1}/{len(qs)}: {why}; once more from where the arm rests")
             why = bp.move(robot, q, speed, world)
-        if why is not None and why.startswith("safety check"):
+        if why is not None and why.collided:
             back = bp.move(robot, home, speed, world)  # the direct path collides
             if back is None:  # go through home
                 trail.append(np.array(home, dtype=float))
                 why = bp.move(robot, q, speed, world)
-            elif not back.startswith("safety check"):
+            elif not back.collided:
                 why = back
         if why is None:
             trail.append(np.array(q, dtype=float))
-        elif not why.startswith("safety check"):
+        elif not why.collided:
             lost = True
         obs = observe(bp) if why is None else None
         if why is None and (obs is None or not np.any(np.isfinite(obs))):
@@ -226,7 +220,7 @@ def _visit(bp: Any, system: Any, robot: str, qs: Any, speed: float, world: Any,
         if why is None:
             got_q.append(bp.wait_joints()[robot].copy())
             got_p.append(obs)
-        elif OPERATOR_STOP in why:
+        elif why.brake is Brake.OPERATOR_STOP:
             typer.echo("stopped by the operator: no further pose")
             break
     typer.echo(_return(bp, robot, None if lost else trail, speed, world))
@@ -257,7 +251,7 @@ def _return(bp: Any, robot: str, trail: list[Any] | None, speed: float, world: A
         why = bp.move(robot, trail[0], speed, world)
         if why is None:
             return f"returned to the start pose ({moves + 1} moves)"
-        if not why.startswith("safety check"):
+        if not why.collided:
             return f"not returned to the start pose: {why}"
         trail.pop()
         why = bp.move(robot, trail[-1], speed, world)  # back along a move made on the way out

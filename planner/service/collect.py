@@ -36,7 +36,38 @@ from planner.errors import InputError
 from planner.model.system import System
 from planner.model.transforms import Array
 from planner.service.heartbeat import BusAddress, HeartbeatError, HeartbeatProcess
+from schemas.brakes import Brake, brake_of
 from schemas.messages import JointState, JointTrajectory, RobotStatus, SpotMessage
+
+
+class Why(str):
+    """Why a move did not arrive: the operator's line (this string), and what a caller acts
+    on, read once where the driver's words arrive: ``brake``, the driver's cause
+    (:class:`schemas.brakes.Brake`; None for any other), and ``collided``, the move's own
+    safety check found a collision (it was never sent)."""
+
+    brake: Brake | None
+    collided: bool
+
+    def __new__(cls, text: str, brake: Brake | None = None, collided: bool = False) -> Why:
+        why = super().__new__(cls, text)
+        why.brake, why.collided = brake, collided
+        return why
+
+    @classmethod
+    def driver(cls, head: str, reason: str | None) -> Why:
+        """``head: reason``, with the cause the driver's ``reason`` begins with."""
+        return cls(f"{head}: {reason}", brake_of(reason))
+
+    @property
+    def late_heartbeat(self) -> bool:
+        """The driver braked or refused because planner heartbeats came late."""
+        return self.brake is not None and self.brake.late_heartbeat
+
+    def within(self, context: str) -> Why:
+        """``context: self``, the same cause."""
+        return Why(f"{context}: {self}", self.brake, self.collided)
+
 
 ARRIVE = 2e-3  # rad: the arm counts as on the pose
 SETTLE = 0.3  # s at rest before the camera is asked
@@ -165,13 +196,13 @@ class BusPlanner:
             time.sleep(0.02)
         return False
 
-    def move(self, robot: str, target: Array, speed: float, world: Any) -> str | None:
+    def move(self, robot: str, target: Array, speed: float, world: Any) -> Why | None:
         """Move ``robot`` to ``target``; None when it arrived, else why not. A move whose
         body would pass ``leg_bytes`` goes as legs along the same joint-space line, each
         a minimum-jerk move from rest to rest sent when the last one arrived (a driver joins
         a trajectory only from rest; a slow or long move is a 30 s, 6 MB body at 500 Hz)."""
         if self.silent is not None:  # the drivers would refuse the move
-            return f"no heartbeat: {self.silent}"
+            return Why(f"no heartbeat: {self.silent}")
         q0 = self.wait_joints()[robot]
 
         def size(mv: Any) -> int:
@@ -183,7 +214,7 @@ class BusPlanner:
             last = k == len(waypoints) - 1
             why = self._leg(robot, waypoint, speed, world, SETTLE if last else 0.0)
             if why is not None:
-                return why if len(waypoints) == 1 else f"leg {k + 1}/{len(waypoints)}: {why}"
+                return why if len(waypoints) == 1 else why.within(f"leg {k + 1}/{len(waypoints)}")
         return None
 
     def _acceleration(self, robot: str) -> Array:
@@ -191,7 +222,7 @@ class BusPlanner:
 
     def _leg(
         self, robot: str, target: Array, speed: float, world: Any, settle: float
-    ) -> str | None:
+    ) -> Why | None:
         """One minimum-jerk move from the measured joints, checked, sent, waited for."""
         from planner.safety.sweep import check_sweep
 
@@ -201,16 +232,16 @@ class BusPlanner:
                        for r in self.system.robot_names])  # fmt: skip
         hit = check_sweep(world, mv.t, Q)
         if hit is not None:
-            return f"safety check: {hit}"
+            return Why(f"safety check: {hit}", collided=True)
         ident = uuid.uuid4().hex[:12]
         body = trajectory_body(self.system, robot, ident, self.name, mv)
         if len(body) > MAX_PAYLOAD_BYTES:  # legs() keeps every leg far under it
-            return f"the move's body ({len(body)} bytes) exceeds {MAX_PAYLOAD_BYTES} bytes"
+            return Why(f"the move's body ({len(body)} bytes) exceeds {MAX_PAYLOAD_BYTES} bytes")
         self.session.put(self.keys.trajectory(robot), body)
         return self._arrive(robot, ident, target, float(mv.t[-1]) + 15.0, settle)
 
     def _arrive(self, robot: str, ident: str, target: Array, timeout: float,
-                settle: float = SETTLE) -> str | None:  # fmt: skip
+                settle: float = SETTLE) -> Why | None:  # fmt: skip
         end, rest_since = time.monotonic() + timeout, None
         while time.monotonic() < end:
             st = self.status.get(robot)
@@ -219,9 +250,9 @@ class BusPlanner:
                 time.sleep(0.01)
                 continue
             if not ack.accepted:
-                return f"refused by the driver: {ack.reason}"
+                return Why.driver("refused by the driver", ack.reason)
             if st.mode in ("braking", "stopped", "fault"):
-                return f"driver {st.mode}: {st.fault}"
+                return Why.driver(f"driver {st.mode}", st.fault)
             near = float(np.max(np.abs(self.q[robot] - target))) <= ARRIVE
             if near and st.mode == "idle":
                 rest_since = rest_since or time.monotonic()
@@ -230,7 +261,7 @@ class BusPlanner:
             else:
                 rest_since = None
             time.sleep(0.01)
-        return "did not arrive in time"
+        return Why("did not arrive in time")
 
     def markers(self, request: dict[str, Any], timeout: float = 5.0,
                 attempts: int = 2) -> Array | None:  # fmt: skip

@@ -28,6 +28,7 @@ from planner.calibration.simulate import board_grid
 from planner.io.scenario import load_scenario, system_from_scenario
 from planner.model.system import Intrinsics
 from planner.model.transforms import axis_angle_to_matrix, make_T
+from planner.service.collect import Why
 from tests import cli_run
 from tests.drivers.conftest import free_port, raw_session, wait_for, wait_for_nodes
 from tests.paths import REPO
@@ -54,10 +55,10 @@ class SegmentWorld:
     def __init__(self, start: float, blocked: set[frozenset[float]]) -> None:
         self.q, self.blocked, self.moves = start, blocked, [start]
 
-    def move(self, robot: str, target: Any, speed: float, world: Any) -> str | None:
+    def move(self, robot: str, target: Any, speed: float, world: Any) -> Why | None:
         to = float(np.asarray(target)[0])
         if frozenset((self.q, to)) in self.blocked:
-            return f"safety check: {self.q} -> {to} collides"
+            return Why(f"safety check: {self.q} -> {to} collides", collided=True)
         self.q = to
         self.moves.append(to)
         return None
@@ -419,11 +420,12 @@ class BrakingWorld(SegmentWorld):
     def wait_joints(self) -> dict[str, Any]:
         return {"arm0": pose(self.q)}
 
-    def move(self, robot: str, target: Any, speed: float, world: Any) -> str | None:
+    def move(self, robot: str, target: Any, speed: float, world: Any) -> Why | None:
         self.calls += 1
         if self.calls == self.brakes:
             self.q = (self.q + float(target[0])) / 2  # stopped on the way
-            return self.why
+            head, reason = self.why.split(": ", 1)  # as BusPlanner reads a driver's verdict
+            return Why.driver(head, reason)
         return super().move(robot, target, speed, world)
 
     def wait_rest(self, robot: str) -> bool:
