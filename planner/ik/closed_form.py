@@ -296,20 +296,23 @@ class ClosedForm:
         if stats.grazing == stats.members:
             d = target - self.p0
             off = float(np.linalg.norm(d - (d @ self.v0) * self.v0))
-            return ClosedFormResult(
-                None,
-                Reason.BACK_FACE,
-                {
-                    "target_off_beam_m": off,
-                    "why": "target lies on the incoming beam past every reachable hit point: "
-                    "the mirror would be hit edge-on (front = -n.v = 0)",
-                },
-                stats.members,
-            )
+            why = ("target lies on the incoming beam past every reachable hit point: the mirror"
+                   " would be hit edge-on (front = -n.v = 0)")  # fmt: skip
+            evidence = {"target_off_beam_m": off, "why": why}
+            return ClosedFormResult(None, Reason.BACK_FACE, evidence, stats.members)
         coarse = Stage(_S_OFFSETS, _PSI[::2], (0.5, 1.0))
         q = self._run(target, normal, q_prev, max_incidence, coarse, True, stats)
         if q is not None:
             return ClosedFormResult(q, None, _with_unsafe(stats), stats.members)
+        return self._failure(target, normal, q_prev, max_incidence, stats)
+
+    def _failure(
+        self, target: Array, normal: Array | None, q_prev: Array, max_incidence: float | None,
+        stats: SearchStats,
+    ) -> ClosedFormResult:  # fmt: skip
+        """Why stages 1 and 2 found no member (``stats``): the safety rule that turned down
+        the least unsafe one, joint limits, incidence, or (stage 3, probing outside the ROI)
+        an offset the ROI does not allow; else unreachable."""
         if stats.least_unsafe is not None:
             v = stats.least_unsafe
             evidence = {**v.evidence, "members_unsafe": stats.unsafe,
@@ -340,28 +343,18 @@ class ClosedForm:
         probe = SearchStats()
         if self._run(target, normal, q_prev, None, outside, False, probe) is not None:
             uv = probe.evidence.get("uv_last", [0.0, 0.0])
+            evidence = {
+                "offset_needed_mm": 1e3 * float(np.linalg.norm(np.asarray(uv))),
+                "roi_half_mm": [1e3 * float(x) for x in self.roi_half[-1]],
+                "why": "the arm reaches a mirror pose on this beam only with the hit off the ROI",
+            }
             return ClosedFormResult(
-                None,
-                Reason.OUTSIDE_ROI,
-                {
-                    "offset_needed_mm": 1e3 * float(np.linalg.norm(np.asarray(uv))),
-                    "roi_half_mm": [1e3 * float(x) for x in self.roi_half[-1]],
-                    "why": "the arm reaches a mirror pose on this beam only with the hit off the ROI",
-                },
-                stats.members + probe.members,
+                None, Reason.OUTSIDE_ROI, evidence, stats.members + probe.members
             )
-        return ClosedFormResult(
-            None,
-            Reason.UNREACHABLE,
-            {
-                "members_without_ik": stats.no_ik,
-                "beam_distance_to_base_m": [
-                    float(np.linalg.norm(np.cross(r.world_T_base[:3, 3] - self.p0, self.v0)))
-                    for r in self.system.robots
-                ],
-            },
-            stats.members + probe.members,
-        )
+        distances = [float(np.linalg.norm(np.cross(r.world_T_base[:3, 3] - self.p0, self.v0)))
+                     for r in self.system.robots]  # fmt: skip
+        evidence = {"members_without_ik": stats.no_ik, "beam_distance_to_base_m": distances}
+        return ClosedFormResult(None, Reason.UNREACHABLE, evidence, stats.members + probe.members)
 
 
 def _with_unsafe(stats: SearchStats) -> dict[str, object]:

@@ -209,6 +209,40 @@ class PathNlp(NamedTuple):
     cuts: int = 0  # clearance rows per sample
 
 
+def _objective(Q: Any, C: Any, q_ref: Any, w: Any, closed: bool) -> Any:
+    """Smoothness (joint steps and their differences, wrapping round on a closed path), hit
+    centring and pull to the reference joints, weighted by ``w`` (w_vel, w_acc, w_centre,
+    w_ref, ds)."""
+    ds = w[4]
+    dQ = ca.horzcat(Q[:, 1:] - Q[:, :-1], Q[:, :1] - Q[:, -1:]) if closed else Q[:, 1:] - Q[:, :-1]
+    if closed:
+        d2Q = ca.horzcat(dQ[:, 1:] - dQ[:, :-1], dQ[:, :1] - dQ[:, -1:])
+    else:
+        d2Q = dQ[:, 1:] - dQ[:, :-1]
+    f = w[0] / ds * ca.sumsqr(dQ) + w[1] / ds**3 * ca.sumsqr(d2Q)
+    return f + ds * (w[2] * ca.sum2(C) + w[3] * ca.sumsqr(Q - q_ref))
+
+
+def _options(max_iter: int) -> dict[str, Any]:
+    """IPOPT's settings for the path NLP (warm-started, quiet)."""
+    ipopt = {
+        "print_level": 0,
+        "sb": "yes",
+        "max_iter": max_iter,
+        "tol": 1e-8,
+        "acceptable_tol": 1e-6,
+        "mu_strategy": "adaptive",
+        "warm_start_init_point": "yes",
+        "mu_init": 1e-4,
+        "bound_push": 1e-9,
+        "bound_frac": 1e-9,
+        # AMD ordering: the KKT matrix is banded; MUMPS' automatic choice spent 1.3 s of
+        # symbolic analysis at K = 5000 (AMD: 0.05 s)
+        "mumps_pivot_order": 0,
+    }
+    return {"ipopt": ipopt, "print_time": False}
+
+
 @lru_cache(maxsize=8)
 def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200,
              cuts: int = 0) -> PathNlp:  # fmt: skip
@@ -234,32 +268,9 @@ def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200,
     G, H, C = out["g"], out["h"], out["c"]
     w = syms["weights"]
     ds = w[4]
-    dQ = ca.horzcat(Q[:, 1:] - Q[:, :-1], Q[:, :1] - Q[:, -1:]) if closed else Q[:, 1:] - Q[:, :-1]
-    if closed:
-        d2Q = ca.horzcat(dQ[:, 1:] - dQ[:, :-1], dQ[:, :1] - dQ[:, -1:])
-    else:
-        d2Q = dQ[:, 1:] - dQ[:, :-1]
-    f = w[0] / ds * ca.sumsqr(dQ) + w[1] / ds**3 * ca.sumsqr(d2Q)
-    f += ds * (w[2] * ca.sum2(C) + w[3] * ca.sumsqr(Q - syms["q_ref"]))
+    f = _objective(Q, C, syms["q_ref"], w, closed)
     p = ca.vertcat(*[ca.vec(syms[name]) for name in PATH_PARAMETERS])
-    opts: dict[str, Any] = {
-        "ipopt": {
-            "print_level": 0,
-            "sb": "yes",
-            "max_iter": max_iter,
-            "tol": 1e-8,
-            "acceptable_tol": 1e-6,
-            "mu_strategy": "adaptive",
-            "warm_start_init_point": "yes",
-            "mu_init": 1e-4,
-            "bound_push": 1e-9,
-            "bound_frac": 1e-9,
-            # AMD ordering: the KKT matrix is banded; MUMPS' automatic choice spent 1.3 s of
-            # symbolic analysis at K = 5000 (AMD: 0.05 s)
-            "mumps_pivot_order": 0,
-        },
-        "print_time": False,
-    }
+    opts = _options(max_iter)
     g: Any = ca.vec(ca.vertcat(G, H))
     x = ca.vec(Q)
     # constraint Jacobian, assembled: mapped dense per-sample blocks on the block diagonal

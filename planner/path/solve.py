@@ -227,16 +227,14 @@ def plan_path(
     ``q_start`` (stacked joints, default the robots' home) seeds the first sample.
     ``q_warm`` (K x nq, rad), the solution of a path whose samples lie close to these (the
     same path moved onto its surface), projected onto these samples, is the result when it
-    is valid at every one (the NLP is not run again; the clearance rules and the polish
-    are applied as to an NLP result). Infeasible
-    stretches are reported as :class:`PathGap` and the feasible runs solved separately. Long
-    finely sampled paths are warm-started coarse-to-fine; every solved sample is finally
+    is valid at every one (no NLP; clearance rules and polish as for an NLP result).
+    Infeasible stretches are reported as :class:`PathGap`, the feasible runs solved apart.
+    Long finely sampled paths are warm-started coarse-to-fine; every solved sample is
     polished to machine precision by a minimum-norm Gauss-Newton step (never worse). With
-    ``safety`` rules the closed-form seeds are members that pass them, a run's NLP result
+    ``safety`` the closed-form seeds are members that pass its rules, a run's NLP result
     that breaks a distance rule is re-solved with the clearance as constraints
-    (:mod:`planner.path.clearance`), and a result that still breaks them at more samples
-    than its warm start is dropped for the warm start (the samples are checked afterwards:
-    :func:`planner.safety.occlusion.check_path_safety`).
+    (:mod:`planner.path.clearance`), and one that still breaks them at more samples than its
+    warm start is dropped for it (checked after: :func:`planner.safety.occlusion.check_path_safety`).
     """
     opts = (
         solver_options if isinstance(solver_options, PathOptions)
@@ -271,16 +269,28 @@ def plan_path(
     segments = [_solve_feasible(ctx, safety, targets, Q, NB, k0, k1, ds, closed, reused)
                 for k0, k1 in feasible]  # fmt: skip
     if opts.polish and ok.any():
-        ks = np.flatnonzero(ok)
-        Qp, _, _ = project(ctx, ks, Q[ks], NB[ks])
-        keep = valid_samples(ctx, ks, Qp, NB[ks])
-        Q[ks[keep]] = Qp[keep]
+        _polish(ctx, Q, NB, ok)
     nlp_time = time.perf_counter() - t1
+    err = sample_errors(system, Q, P, targets.normals)
+    gaps = _gaps(P, arc, ok, why)
+    return PathResult(Q, ok, err, arc, tuple(segments), gaps, warm_time, nlp_time)
+
+
+def _polish(ctx: PathContext, Q: Array, NB: Array, ok: Array) -> None:
+    """Every solved sample (``ok``) of ``Q`` to machine precision by a minimum-norm
+    Gauss-Newton step, kept where it is still valid (in place)."""
+    ks = np.flatnonzero(ok)
+    Qp, _, _ = project(ctx, ks, Q[ks], NB[ks])
+    keep = valid_samples(ctx, ks, Qp, NB[ks])
+    Q[ks[keep]] = Qp[keep]
+
+
+def _gaps(P: Array, arc: Array, ok: Array, why: list[Failure | None]) -> tuple[PathGap, ...]:
+    """The unsolved stretches (runs of not ``ok``) with the first sample's failure."""
     gaps = []
-    for k0, k1 in runs(~ok):
+    for k0, k1 in runs(np.logical_not(ok)):
         failure = why[k0] or Failure(Reason.UNREACHABLE)
-        s1 = float(arc[k1]) if k1 < K else float(arc[-1])
+        s1 = float(arc[k1]) if k1 < len(P) else float(arc[-1])
         gaps.append(PathGap(k0, k1, float(arc[k0]), s1, P[k0].copy(), failure.reason,
                             failure.detail))  # fmt: skip
-    err = sample_errors(system, Q, P, targets.normals)
-    return PathResult(Q, ok, err, arc, tuple(segments), tuple(gaps), warm_time, nlp_time)
+    return tuple(gaps)
