@@ -298,7 +298,7 @@ class PartialRobot(StrictModel):
     """A robot override, matched to the scenario's robot of the same ``name``."""
 
     name: Name
-    model: Literal["ur5e"] | None = None
+    model: Name | None = None
     urdf: Name | None = None
     world_T_base: Pose | None = None
     home: JointVector | None = None

@@ -16,8 +16,9 @@ import numpy as np
 from planner.errors import InputError
 from planner.model.status import Status
 from planner.model.transforms import Array
+from planner.verify.arm_models import checker_arm
 from planner.verify.findings import Finding
-from planner.verify.numpy_beam import BeamRays, limits_from_dict, trace_rays, ur5e_dh_fk
+from planner.verify.numpy_beam import BeamRays, limits_from_dict, trace_rays
 from planner.verify.numpy_beam import pose_matrix as pose
 from planner.verify.tolerances import Tolerances
 from planner.verify.urdf import UrdfChain
@@ -32,7 +33,8 @@ def times(plan: Mapping[str, Any]) -> Array:
 
 @dataclass(frozen=True)
 class ArmGeometry:
-    """One robot as the checker sees it (all SI, world frame)."""
+    """One robot as the checker sees it (all SI, world frame); ``batched``: ``fk`` takes
+    joint rows (M x nq -> M x 4 x 4), else one configuration at a time."""
 
     name: str
     fk: Callable[[Array], Array]  # q -> base_T_flange
@@ -41,12 +43,13 @@ class ArmGeometry:
     roi_half: Array
     lower: Array
     upper: Array
+    batched: bool = False
 
     def world_T_mirror(self, Q: Array) -> Array:
         """Mirror poses (M x 4 x 4) of joint rows ``Q`` (M x nq, rad)."""
         Q = np.atleast_2d(np.asarray(Q, dtype=float))
-        if self.fk is ur5e_dh_fk:
-            F = ur5e_dh_fk(Q).reshape(len(Q), 4, 4)
+        if self.batched:
+            F = self.fk(Q).reshape(len(Q), 4, 4)
         else:
             F = np.array([self.fk(q) for q in Q]).reshape(len(Q), 4, 4)
         return self.world_T_base @ F @ self.flange_T_mirror
@@ -58,14 +61,15 @@ def _arm(r: dict[str, Any], i: int, base_dir: Path) -> ArmGeometry:
         mirror = r["mirror"]
         size = np.asarray(mirror["size"], dtype=float)
         margin = float(mirror.get("roi_margin", 0.005))
+        batched = False
         if r.get("urdf"):
             urdf = Path(r["urdf"])
             kin = UrdfChain(urdf if urdf.is_absolute() else base_dir / urdf)
             fk: Callable[[Array], Array] = kin.fk
             n = kin.nq
-        elif (r.get("model") or "ur5e") == "ur5e":
-            fk, n = ur5e_dh_fk, 6
-        else:  # never check another arm with the UR5e's kinematics
+        elif (arm := checker_arm(r.get("model"))) is not None:
+            fk, n, batched = arm.fk, arm.nq, True
+        else:  # never check an arm with another arm's kinematics
             raise InputError(f"no independent kinematics for robot model {r['model']!r}", where)
         limits = limits_from_dict(r.get("limits"), n)
         return ArmGeometry(
@@ -76,6 +80,7 @@ def _arm(r: dict[str, Any], i: int, base_dir: Path) -> ArmGeometry:
             roi_half=size / 2 - margin,
             lower=limits.lower,
             upper=limits.upper,
+            batched=batched,
         )
     except (KeyError, TypeError, ValueError) as exc:
         raise InputError(f"cannot read robot geometry: {exc!r}", where) from exc

@@ -18,12 +18,12 @@ from typing import Any
 import numpy as np
 
 from planner.model.transforms import Array
+from planner.verify.arm_models import checker_arm
 from planner.verify.context import CheckResult, PlanContext, times
 from planner.verify.findings import Finding
 from planner.verify.numpy_beam import pose_matrix
 from planner.verify.spot import Mask, segment_mask
 from planner.verify.trajectory import (
-    NUMPY_FK,
     _robots,
     nearest_spots,
     ray_polyline_closest,
@@ -127,7 +127,7 @@ def marked_speeds(plan: dict[str, Any]) -> tuple[Array, Array, Array] | None:
     traj, scn = plan.get("trajectory") or {}, plan["scenario"]
     spec = _path_spec(scn)
     robots = _robots(scn)
-    if spec is None or not traj or any(r.model not in NUMPY_FK for r in robots):
+    if spec is None or not traj or any(checker_arm(r.model) is None for r in robots):
         return None
     t = np.asarray(traj["t"], dtype=float)
     on = laser_mask(t, traj.get("laser_on"))
@@ -207,7 +207,7 @@ def _deviation(plan: dict[str, Any], t: Array, on: Mask) -> dict[str, tuple[floa
     the scenario's own polyline, with the time (s) where it occurs."""
     traj, scn = plan["trajectory"], plan["scenario"]
     spec, robots = _path_spec(scn), _robots(scn)
-    if spec is None or not on.any() or any(r.model not in NUMPY_FK for r in robots):
+    if spec is None or not on.any() or any(checker_arm(r.model) is None for r in robots):
         return {}
     q = {r.name: np.asarray(traj["q"][r.name], dtype=float)[on] for r in robots}
     p, v = trace_last_ray(scn, q)

@@ -30,18 +30,18 @@ from planner.model.status import Reason
 from planner.model.transforms import Array
 from planner.verify import arms
 from planner.verify import batch_distances as bd
+from planner.verify.arm_models import checker_arm
 from planner.verify.context import CheckResult, PlanContext, spots, times
 from planner.verify.findings import Finding
 from planner.verify.numpy_beam import pose_matrix, trace_rays
 from planner.verify.safety_shapes import (
     Shape,
-    arm_shapes,
     cylinder_inner,
     distance,
-    link_frames_batch,
     near_distances,
     volume,
 )
+from planner.verify.urdf import UrdfChain
 
 #: deg: the camera lens cone (the planner's ``SafetySettings.lens_cone``)
 LENS_CONE_DEG = 45.0
@@ -92,7 +92,14 @@ class Setup:
         for r in sys_["robots"]:
             if r.get("urdf"):
                 unchecked.append(str(r["name"]))
-            robots.append({"name": r["name"], "ur5e": not r.get("urdf"),
+            arm = None if r.get("urdf") else checker_arm(r.get("model"))
+            if arm is not None and arm.shapes is None:
+                unchecked.append(str(r["name"]))
+            urdf = None
+            if r.get("urdf"):
+                path = Path(r["urdf"])
+                urdf = UrdfChain(path if path.is_absolute() else base_dir / path)
+            robots.append({"name": r["name"], "arm": arm, "urdf": urdf,
                            "base": pose_matrix(r.get("world_T_base") or {}),
                            "mirror": pose_matrix(r["mirror"].get("flange_T_mirror") or {}),
                            "size": np.asarray(r["mirror"]["size"], dtype=float)})  # fmt: skip
@@ -112,13 +119,25 @@ class Setup:
                    + UNCERTAINTY_K * float(safety.get("spot_uncertainty") or 0.0))  # fmt: skip
 
     def shapes(self, Q: dict[str, Array]) -> list[list[Shape]]:
-        """Per robot (UR5e only; [] for the others) its shapes at joint rows Q[name]."""
-        return [arm_shapes(r["base"], Q[r["name"]], r["mirror"], r["size"]) if r["ur5e"] else []
+        """Per robot its shapes at joint rows Q[name] ([] for a robot whose twin has none,
+        or a URDF robot: reported unchecked)."""
+        return [r["arm"].shapes(r["base"], Q[r["name"]], r["mirror"], r["size"])
+                if r["arm"] is not None and r["arm"].shapes is not None else []
                 for r in self.robots]  # fmt: skip
 
     def mirrors(self, Q: dict[str, Array]) -> list[Array]:
-        return [r["base"] @ link_frames_batch(Q[r["name"]])[:, 7] @ r["mirror"]
-                for r in self.robots]  # fmt: skip
+        return [r["base"] @ self.flange(r, Q) @ r["mirror"] for r in self.robots]
+
+    @staticmethod
+    def flange(r: dict[str, Any], Q: dict[str, Array]) -> Array:
+        """``base_T_flange`` (M x 4 x 4) of robot ``r`` at its joint rows ``Q[name]``, by the
+        checker's twin of its model or its own reading of the robot's URDF."""
+        rows = np.atleast_2d(Q[r["name"]])
+        if r["urdf"] is not None:
+            return np.array([r["urdf"].fk(q) for q in rows]).reshape(len(rows), 4, 4)
+        if r["arm"] is None:
+            raise ValueError(f"{r['name']}: no independent kinematics to check it with")
+        return r["arm"].fk(rows)
 
 
 def _self_pairs(parts: list[Shape]) -> list[tuple[Shape, Shape]]:
@@ -275,7 +294,7 @@ def _camera_poses(setup: Setup, Q: dict[str, Array], M: int) -> Array | None:
     if cam["robot"] is None:
         return cam["T"]
     r = next(r for r in setup.robots if r["name"] == cam["robot"])
-    return r["base"] @ link_frames_batch(Q[r["name"]])[:, 7] @ cam["T"]
+    return r["base"] @ Setup.flange(r, Q) @ cam["T"]
 
 
 def polylines(setup: Setup, Q: dict[str, Array], ends: Array | None, targets: Array) -> Array:
@@ -320,7 +339,10 @@ def check_safety(ctx: PlanContext) -> CheckResult:
     every keep-out volume."""
     res = CheckResult("safety", len(ctx.solved))
     setup = Setup.from_plan(ctx.plan, getattr(ctx, "base_dir", Path(".")))
-    res.warnings += [f"{n}: a URDF arm; its links are not re-checked" for n in setup.unchecked]
+    res.warnings += [
+        f"{n}: a URDF arm, or a model without checker shapes; its links are not re-checked"
+        for n in setup.unchecked
+    ]
     if not ctx.solved:
         return res
     spot, _, _ = spots(ctx.rays.p, ctx.rays.v, ctx.P, ctx.N)

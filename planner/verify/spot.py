@@ -17,10 +17,10 @@ import numpy as np
 import numpy.typing as npt
 
 from planner.model.transforms import Array
+from planner.verify.arm_models import checker_arm
 from planner.verify.findings import Finding, Severity, trajectory_finding
 from planner.verify.tolerances import Tolerances
 from planner.verify.trajectory import (
-    NUMPY_FK,
     Solved,
     _plane_spots,
     _Robot,
@@ -89,7 +89,7 @@ def check_spot(plan: dict[str, Any], robots: list[_Robot], t: Array, tol: Tolera
     """Spot findings of a plan's trajectory (see the module docstring)."""
 
     traj, scn = plan["trajectory"], plan["scenario"]
-    if any(r.model not in NUMPY_FK for r in robots) or not plan.get("targets"):
+    if any(checker_arm(r.model) is None for r in robots) or not plan.get("targets"):
         return []
     P, normals = _targets(plan)
     path_spec = (scn.get("targets") or {}).get("path")

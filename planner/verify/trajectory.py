@@ -24,8 +24,9 @@ import numpy as np
 from planner.model.limits import Limits
 from planner.model.status import Status
 from planner.model.transforms import Array
+from planner.verify.arm_models import checker_arm
 from planner.verify.findings import Finding, trajectory_finding
-from planner.verify.numpy_beam import limits_from_dict, pose_matrix, trace_rays, ur5e_dh_fk
+from planner.verify.numpy_beam import limits_from_dict, pose_matrix, trace_rays
 from planner.verify.tolerances import (
     DERIVATIVE_SLACK,
     JOINT_SLACK,
@@ -34,9 +35,16 @@ from planner.verify.tolerances import (
     Tolerances,
 )
 
-NUMPY_FK = {"ur5e": ur5e_dh_fk}  # model -> batched base_T_flange (M x 6 -> M x 4 x 4)
 CHUNK_ELEMENTS = 1 << 21  # rays x targets per block of the brute-force nearest search
 CHUNK_ROWS = 1 << 18  # trajectory samples per block of the limit checks (~10 MB a table)
+
+
+def _fk(model: str) -> Any:
+    """The checker's batched ``base_T_flange`` of ``model`` (callers skip a model without
+    a twin, :func:`~planner.verify.arm_models.checker_arm`)."""
+    arm = checker_arm(model)
+    assert arm is not None, model
+    return arm.fk
 
 
 class _Robot(NamedTuple):
@@ -61,7 +69,7 @@ def _robots(scenario: dict[str, Any]) -> list[_Robot]:
 def trace_last_ray(scenario: dict[str, Any], q: dict[str, Array]) -> tuple[Array, Array]:
     """Last ray (origin, unit direction), each (M x 3), after every mirror."""
     world_T_mirrors = [
-        r.world_T_base @ NUMPY_FK[r.model](np.atleast_2d(q[r.name])) @ r.flange_T_mirror
+        r.world_T_base @ _fk(r.model)(np.atleast_2d(q[r.name])) @ r.flange_T_mirror
         for r in _robots(scenario)
     ]
     rays = trace_rays(pose_matrix(scenario["system"]["laser"]["world_T_laser"]), world_T_mirrors)
@@ -323,7 +331,7 @@ def check_trajectory(plan: dict[str, Any], tol: Tolerances | None = None) -> lis
     robots = _robots(scn)
     for r in robots:
         q = np.asarray(traj["q"][r.name], dtype=float)
-        if r.model not in NUMPY_FK:
+        if checker_arm(r.model) is None:
             out.append(
                 trajectory_finding(
                     "warning", "model_unchecked", f"{r.name}: no numpy model for {r.model}"
