@@ -46,6 +46,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from planner.bus.session import encode
 from schemas import defaults
 from schemas.messages import LaserState
 
@@ -362,6 +363,5 @@ class LaserGate:
                          output=self.output, reason=reason or self.reason,
                          lag=None if last is None else last.lag,
                          latency=None if last is None else last.latency)  # fmt: skip
-        from planner.bus.session import encode
 
         self._put(encode(msg))

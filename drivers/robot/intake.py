@@ -46,11 +46,14 @@ from typing import IO, Any, NamedTuple
 
 import numpy as np
 
+import schemas.messages  # noqa: F401  (imports done before "ready")
 from drivers.robot.follower import Reference
 from drivers.robot.outbox import Outbox
 from drivers.robot.trajectory_check import DEFAULT_PERIOD, check_message
-from planner.bus.session import MAX_PAYLOAD_BYTES
+from planner.bus.session import MAX_PAYLOAD_BYTES, decode
+from planner.errors import InputError
 from planner.model.system import Limits
+from schemas.messages import JointTrajectory
 
 MAX_REASON = 400  # characters of an unexpected error's text kept in a rejection
 #: the parse worker's nice value (0 default, -20 highest; the control loop asks -10 when it
@@ -81,9 +84,6 @@ def parse_in_worker(
 
     Never raises: any error of any payload becomes a rejection (plain tuples of numpy
     arrays and strings cross the process boundary)."""
-    from planner.bus.session import decode
-    from planner.errors import InputError
-    from schemas.messages import JointTrajectory
 
     msg_id: str | None = None
     try:
@@ -124,7 +124,6 @@ def worker_main() -> None:
     if setup is None:
         return
     args = pickle.loads(setup)
-    import schemas.messages  # noqa: F401  (imports done before "ready")
 
     _write_frame(out, b"ready")
     while (body := _read_frame(inp)) is not None:

@@ -33,6 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 from drivers.robot.trajectory_check import LIMIT_SLACK, POSITION_NOISE, START_TOLERANCE
+from planner.bus.session import decode
 from planner.errors import InputError
 from planner.model.system import Limits
 from planner.model.transforms import Array
@@ -76,7 +77,6 @@ def _validate(body: bytes) -> Setpoint:
         return Setpoint.model_validate_json(body)
     except (ValidationError, ValueError, ArithmeticError):
         pass
-    from planner.bus.session import decode
 
     return decode(body, Setpoint)  # raises InputError (else: the same message)
 

@@ -58,6 +58,7 @@ recover does, in a helper thread). How to run it on a real arm: ``drivers/README
 
 from __future__ import annotations
 
+import os
 import time
 from typing import Any
 
@@ -65,6 +66,7 @@ import numpy as np
 
 from drivers.robot.backend import Measured
 from drivers.robot.follower import STOP_ACCELERATION, Reference, TrajectoryFollower
+from drivers.robot.ur_fake import FakeURLink
 from drivers.robot.ur_link import MOTION_ALLOWED, AsyncCall, RateLimitedLog, safety_name
 from planner.errors import InputError
 from planner.model.system import Limits
@@ -523,7 +525,6 @@ FAKE_SCHEME = "ur-fake:"  # --host ur-fake:<port>: drivers.robot.ur_fake.serve o
 
 
 def _fake_link(host: str) -> Any:
-    from drivers.robot.ur_fake import FakeURLink
 
     try:
         return FakeURLink(int(host[len(FAKE_SCHEME) :]))
@@ -533,7 +534,6 @@ def _fake_link(host: str) -> Any:
 
 def set_realtime(priority: int) -> str:
     """Put the calling thread under SCHED_FIFO at ``priority``; what happened (one line)."""
-    import os
 
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))

@@ -75,8 +75,8 @@ def measure(n: int, seconds: float = 0.5, seed: int = 0) -> dict[str, Any]:
         beam(i)
 
     setup = Setup(
-        [{"name": r.name, "ur5e": True, "base": r.world_T_base, "mirror": r.mirror.flange_T_mirror,
-          "size": np.asarray(r.mirror.size)} for r in system.robots],
+        [Setup.robot(r.name, r.world_T_base, r.mirror.flange_T_mirror, r.mirror.size)
+         for r in system.robots],
         system.world_T_laser, None, [], [], DEFAULT_CLEARANCE, np.radians(10.0), 0.01, [],
     )  # fmt: skip
     batch = {r.name: q for r, q in zip(system.robots, np.hsplit(Q, n), strict=True)}

@@ -20,7 +20,9 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel
 
+from planner.bus.bodies import load_json
 from planner.errors import InputError
+from schemas.located import validate
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 ENDPOINT_ENV = "BEAMRELAY_ZENOH_ENDPOINT"
@@ -350,8 +352,6 @@ def decode(payload: bytes, cls: type[M]) -> M:
     """Parse and validate a JSON body, whatever it holds. Errors are :class:`InputError`
     whose ``where`` is the offending key path (``points[3]``, ``body`` for the whole body),
     ready for an error reply's ``field`` (see :mod:`planner.bus.bodies`)."""
-    from planner.bus.bodies import load_json
-    from schemas.located import validate
 
     if len(payload) > MAX_PAYLOAD_BYTES:
         raise InputError(

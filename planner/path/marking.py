@@ -26,6 +26,7 @@ from typing import NamedTuple
 import numpy as np
 
 from planner.errors import PlanError
+from planner.model.polyline import runs as _runs
 from planner.model.status import Failure, Reason
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
@@ -174,7 +175,6 @@ def mark_runs(system: System, targets: Targets, Q: Array, arc: Array, spot_speed
     run-out sized for timing at ``rate`` (Hz, :func:`sized_run`) unless ``skywriting`` is
     off (then it is marked from rest to rest: for comparison only). ``Q``: joints per sample
     (NaN rows: unsolved), ``arc``: the samples' arc length (m)."""
-    from planner.model.polyline import runs as _runs
 
     K = len(Q)
     default = (*range(K), 0) if targets.closed and K > 2 else tuple(range(K))

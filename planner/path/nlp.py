@@ -23,9 +23,15 @@ The warm start lives in :mod:`planner.path.warm`, the public entry in :mod:`plan
 
 from __future__ import annotations
 
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
 import time
 from dataclasses import dataclass
 from functools import lru_cache
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import casadi as ca
@@ -117,9 +123,6 @@ def compiled(f: ca.Function) -> ca.Function:
     virtual machine; only for functions the NLP does not differentiate further. Kept in
     memory per (function, compiler, cache directory): generating the source to hash it costs
     ~10 ms a call, and a plan builds several path contexts."""
-    import os
-    import shutil
-    from pathlib import Path
 
     cc = shutil.which("cc") or shutil.which("gcc")
     if cc is None:
@@ -131,11 +134,6 @@ def compiled(f: ca.Function) -> ca.Function:
 @lru_cache(maxsize=64)
 def _compiled(f: ca.Function, cc: str, cache_dir: str) -> ca.Function:
     """:func:`compiled` with the compiler and cache directory resolved (cached in memory)."""
-    import hashlib
-    import os
-    import subprocess
-    import tempfile
-    from pathlib import Path
 
     gen = f"{f.name()}_gen"
     with tempfile.TemporaryDirectory() as tmp:

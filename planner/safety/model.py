@@ -21,6 +21,7 @@ and the world point where it happens. World frame, metres, radians throughout.
 from __future__ import annotations
 
 import itertools
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -357,6 +358,5 @@ def aperture_hits(P: Array, world_T_device: Array, radius: float, cone: float, f
 
 def emit_warning(message: str) -> None:
     """One warning line on stderr."""
-    import sys
 
     print(f"warning: {message}", file=sys.stderr)

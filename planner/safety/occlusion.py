@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
+from planner.beam.trace import mirror_poses, trace_beam
 from planner.model.polyline import runs
 from planner.model.scene import END_MARGIN, START_MARGIN, SceneModel
 from planner.model.status import Reason
@@ -135,7 +136,6 @@ def check_points(
 def _slid(system: System, q: Array, ds: float) -> Array:
     """Joints (stacked, rad) that move robot 0's mirror centre by ``ds`` m along the laser
     beam (one least-squares step through the finite-difference Jacobian of the centre)."""
-    from planner.beam.trace import mirror_poses
 
     nq0 = system.robots[0].nq
     c0 = mirror_poses(system, q)[0][:3, 3]
@@ -157,7 +157,6 @@ def _member(ik: BeamIK, target: Array, normal: Array | None, seed: Array) -> Sol
     if ik.closed_form is None:
         sol = ik.solve(target, normal, seed)
         return sol if sol.ok else None
-    from planner.beam.trace import trace_beam
     from planner.ik import Solution
 
     t0 = time.perf_counter()
@@ -217,7 +216,6 @@ def check_path_safety(
 def unsafe_samples(safety: Safety, Q: Array, points: Array, normals: Array | None) -> Array:
     """(K,) True where the configuration Q[k] (stacked rad) aiming at ``points[k]`` (world)
     breaks a safety rule; NaN rows are not counted."""
-    from planner.beam.trace import trace_beam
     from planner.safety.beam_cover import configs
 
     system, out = safety.system, np.zeros(len(Q), dtype=bool)

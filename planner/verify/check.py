@@ -28,6 +28,8 @@ from planner.model.transforms import Array
 from planner.model.validity import MIN_AHEAD, MIN_FRONT, ahead_ok, front_ok
 from planner.verify.context import CheckResult, PlanContext, spots, times
 from planner.verify.findings import Finding
+from planner.verify.marking import check_marking
+from planner.verify.metrics import metric_findings
 from planner.verify.safety import check_safety, check_trajectory_safety
 from planner.verify.tolerances import (
     INCIDENCE_SLACK,
@@ -187,7 +189,6 @@ def check_trajectory_spot(ctx: PlanContext) -> CheckResult:
 
 def check_metrics(ctx: PlanContext) -> CheckResult:
     """``metrics`` recomputed from the solutions and the trajectory (:mod:`planner.verify.metrics`)."""
-    from planner.verify.metrics import metric_findings
 
     res = CheckResult("metrics", len(ctx.plan.get("metrics") or {}))
     for message, value, bound in metric_findings(ctx.plan):
@@ -198,7 +199,6 @@ def check_metrics(ctx: PlanContext) -> CheckResult:
 def check_laser(ctx: PlanContext) -> CheckResult:
     """The laser gate: on only (and always) in path and dwell segments, the spot on the path
     and at the spot speed while it is on (:mod:`planner.verify.marking`)."""
-    from planner.verify.marking import check_marking
 
     return check_marking(ctx)
 

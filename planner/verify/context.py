@@ -20,6 +20,7 @@ from planner.verify.arm_models import checker_arm
 from planner.verify.findings import Finding
 from planner.verify.numpy_beam import BeamRays, limits_from_dict, trace_rays
 from planner.verify.numpy_beam import pose_matrix as pose
+from planner.verify.spot import trajectory_findings
 from planner.verify.tolerances import Tolerances
 from planner.verify.urdf import UrdfChain
 
@@ -156,7 +157,6 @@ class PlanContext:
 
     @cached_property
     def trajectory_findings(self) -> list[Finding]:
-        from planner.verify.spot import trajectory_findings
 
         return trajectory_findings(self.plan, self.tol)
 

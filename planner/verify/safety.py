@@ -129,6 +129,15 @@ class Setup:
         return [r["base"] @ self.flange(r, Q) @ r["mirror"] for r in self.robots]
 
     @staticmethod
+    def robot(
+        name: str, base: Array, mirror: Array, size: Any, model: str | None = None
+    ) -> dict[str, Any]:
+        """One robot's entry of ``robots``: its ``model``'s checker twin (None: the UR5e),
+        base and mirror poses, mirror size (m)."""
+        return {"name": name, "arm": checker_arm(model), "urdf": None, "base": base,
+                "mirror": mirror, "size": np.asarray(size, dtype=float)}  # fmt: skip
+
+    @staticmethod
     def flange(r: dict[str, Any], Q: dict[str, Array]) -> Array:
         """``base_T_flange`` (M x 4 x 4) of robot ``r`` at its joint rows ``Q[name]``, by the
         checker's twin of its model or its own reading of the robot's URDF."""

@@ -12,7 +12,7 @@ import numpy as np
 
 from planner.model.transforms import Array
 from planner.verify import batch_distances as bd
-from planner.verify.context import times
+from planner.verify.context import PlanContext, spots, times
 from planner.verify.safety import Setup, laser_mask, polylines, target_hits
 from planner.verify.safety_shapes import Shape
 
@@ -37,7 +37,6 @@ def keep_out_summary(plan: dict[str, Any], base_dir: Path = Path(".")) -> list[d
     """Per keep-out volume: the targets inside it, how many of them failed as ``keep_out``,
     and the least distance (m) from it of the beam at every solved
     target and at every trajectory sample while the laser may be on."""
-    from planner.verify.context import PlanContext, spots
 
     ctx = PlanContext(plan, base_dir)
     setup = Setup.from_plan(plan, base_dir)

@@ -22,8 +22,7 @@ def _shape(v: Volume) -> Shape:
 
 def setup(system: System, scene: tuple[Volume, ...] = (), keep: tuple[Volume, ...] = (),
           clearance: float = 0.01) -> Setup:  # fmt: skip
-    robots = [{"name": r.name, "ur5e": True, "base": r.world_T_base,
-               "mirror": r.mirror.flange_T_mirror, "size": np.asarray(r.mirror.size)}
+    robots = [Setup.robot(r.name, r.world_T_base, r.mirror.flange_T_mirror, r.mirror.size)
               for r in system.robots]  # fmt: skip
     cam = None
     if system.camera is not None:
