@@ -1,6 +1,7 @@
 """``beamrelay study all -o reports``: every study at paper scale, and ``reports/index.md``.
 
-Order: ik-grid, calibration, sensitivity, mirror-sweep, coverage, experiments, online. Each
+Order: ik-grid, calibration, sensitivity, mirror-sweep, coverage, experiments,
+experiments-n2, online. Each
 study runs its ``main`` at its paper-scale ``TRIALS``, writes into ``OUT/<name>/`` and its
 report is stamped with its provenance (:mod:`planner.studies.provenance`); the index is built
 from those stamps alone: the commit, seed, trials and wall time each report states, and
@@ -20,6 +21,7 @@ from planner.studies import (
     common,
     coverage,
     experiments,
+    experiments_n2,
     ik_grid,
     mirror_sweep,
     online,
@@ -34,6 +36,7 @@ STUDIES: dict[str, Any] = {
     "mirror-sweep": mirror_sweep,
     "coverage": coverage,
     "experiments": experiments,
+    "experiments-n2": experiments_n2,
     "online": online,
 }
 """The studies in the order they run (name -> module with ``main`` and ``TRIALS``)."""
