@@ -145,11 +145,14 @@ def default_boards() -> list[Board]:
 
 def collect_beam_cell(plan_system: System, truth: Truth, world_T_camera: Array,
                       rng: np.random.Generator, robot: str = ROBOT,
-                      boards: list[Board] | None = None) -> Any:  # fmt: skip
+                      boards: list[Board] | None = None,
+                      scene: tuple[SceneItem, ...] = ()) -> Any:  # fmt: skip
     """Beam data for ``robot``'s mirror: :data:`BEAM_POSES` poses per board planned on
     ``plan_system`` (:func:`planner.calibration.collect.beam_plan`), each spot measured by
     the camera on the true chain up to ``robot`` (the robots after it out of the beam) and
-    mapped to the world with ``world_T_camera``; a :class:`~planner.calibration.beam.BeamData`."""
+    mapped to the world with ``world_T_camera``; a :class:`~planner.calibration.beam.BeamData`.
+    ``scene``: objects in the cell beside each board (a spot on one of them is a point of
+    the ray as good as one on the board, and it may hide the board)."""
     from planner.calibration.beam import BeamData
     from planner.calibration.collect import beam_plan
 
@@ -158,7 +161,7 @@ def collect_beam_cell(plan_system: System, truth: Truth, world_T_camera: Array,
     qs, spots, labels = [], [], []
     for b, (aim, item) in enumerate(default_boards() if boards is None else boards):
         plan, _ = beam_plan(plan_system, robot, BEAM_POSES, aim, rng)
-        cell = Cell(true_chain, (item,), int(rng.integers(2**31)), truth.depth_errors)
+        cell = Cell(true_chain, (item, *scene), int(rng.integers(2**31)), truth.depth_errors)
         for q in plan:
             s = cell.spot(q)
             if s is not None:

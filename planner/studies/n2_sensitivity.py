@@ -113,18 +113,20 @@ TARGETS_TEXT = "4 x 4 x 2 grid of 32 targets (60 x 100 x 50 mm)"
 """The targets, as the report names them (``targets.grid`` of scenarios/n2_relay.yaml)."""
 
 
-def verdict(summary: list[dict[str, Any]]) -> str:
-    """One paragraph: which mirror's rotation and position errors move the spot most."""
+def verdict(summary: list[dict[str, Any]], rot_deg: float, pos_mm: float) -> str:
+    """One paragraph: which mirror's errors move the spot most, per unit and at the given
+    error levels (deg of tilt, mm of offset: e.g. the unknowns before calibration)."""
     per = {s["group"]: s["per_unit"] for s in summary}
-    parts = []
+    parts, at = [], []
     for kind, unit in (("rot", "deg"), ("pos", "mm")):
         a, b = per[f"mirror1_{kind}"], per[f"mirror2_{kind}"]
         worst = "mirror 1" if a > b else "mirror 2"
-        parts.append(f"per {unit} of {'tilt' if kind == 'rot' else 'offset'}, mirror 1 moves "
-                     f"the spot {a:.2f} mm RMS and mirror 2 {b:.2f} mm ({worst} {max(a, b) / min(a, b):.1f}x"
-                     " more)")  # fmt: skip
+        parts.append(f"per {unit}, mirror 1 moves the spot {a:.2f} mm RMS and mirror 2 "
+                     f"{b:.2f} mm ({worst} {max(a, b) / min(a, b):.1f}x)")  # fmt: skip
+    for m in (1, 2):
+        rot, pos = per[f"mirror{m}_rot"] * rot_deg, per[f"mirror{m}_pos"] * pos_mm
+        at.append(f"mirror {m} {rot:.2f} mm from its tilt and {pos:.2f} mm from its offset")
     return (
-        "First order, " + "; ".join(parts) + ". A tilt error is what matters (tens of mm "
-        "per degree against under 1 mm per mm); calibrate the orientation of the mirror "
-        "with the larger figure best."
+        f"First order, {'; '.join(parts)}. At ±{rot_deg:g} deg / ±{pos_mm:g} mm per "
+        f"component: {'; '.join(at)}."
     )

@@ -42,14 +42,15 @@ from planner.studies.experiments_cell import Board, Calibrated
 
 SCENARIO = shipped_scenario("n2_relay.yaml")
 ROBOTS = ("arm0", "arm1")
-MIRROR1_AIM = np.array([-0.60, 0.05, 0.0])
+MIRROR1_AIM = np.array([-0.40, 0.0, 0.0])
 """Where arm0 sends the beam to calibrate mirror 1 (world, m): on arm0's side of the
-screen, in the camera's view (pixel (262, 204) of 848 x 480 at 0.86 m), clear of the
-laser's own path (scenarios/n2_relay.yaml layout)."""
+screen, where the camera sees past the screen's end (pixel (211, 182) of 848 x 480, 1.06 m
+away; nearer the screen it hides the boards), clear of the laser's own path
+(scenarios/n2_relay.yaml layout)."""
 MIRROR1_HEIGHTS = (0.0, 0.075, 0.15)
 """Heights (m) of the flat mirror-1 boards on the ray from arm0's mirror to
-:data:`MIRROR1_AIM`: three distances, as the N = 1 boards (0.15 m: the laser's path, 0.34 m
-from the aim at that height, stays off a 0.3 m board)."""
+:data:`MIRROR1_AIM`: three distances, as the N = 1 boards (at 0.15 m the laser's path is
+0.34 m from the ray, off a 0.3 m board)."""
 MIRROR1_BOARD = 0.3  # m, side: simulate_beam's board (planner.calibration.simulate.BOARD_HALF)
 MIRROR2_HEIGHTS = (0.0, 0.05, 0.10)
 """Heights (m) of the flat mirror-2 boards on the home beam toward the target grid centre
@@ -178,7 +179,7 @@ def calibrate_relay(nominal: System, truth: n1.Truth, rng: np.random.Generator) 
 
     def collect(plan_system: System, robot: str) -> Any:
         boards = calibration_boards(plan_system, robot)
-        return collect_beam_cell(plan_system, truth, w_T_cam, rng, robot, boards)
+        return collect_beam_cell(plan_system, truth, w_T_cam, rng, robot, boards, (screen(),))
 
     system, beams = calibrate_chain(system, collect)
     return RelayCalibrated(
