@@ -23,16 +23,20 @@ Statistics: mean over per-trial means with a 95 % CI (Student t over trials,
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
+import typer
 
 from planner.studies import common
 from planner.studies import n2_sensitivity as sens
 from planner.studies import n2_setup as setup
 from planner.studies.experiments_metrics import mean_ci
 from planner.studies.experiments_report import per_trial, pooled
+from planner.studies.experiments_setup import Effects
+from planner.studies.provenance import stamp
 
 TRIALS = 6  # `study all`: 8 trials took 68 s wall (24 s CPU) on the 2 shared cores at load 9
 EXPERIMENTS = ("chessboard", "curve")
@@ -47,18 +51,27 @@ CAL_FIGURES = {
     "mirror2_residual_mm": "mirror 2 spot residual (mm)",
 }  # fmt: skip
 """Calibration figures of a trial -> their label in the report."""
+IMPERFECT = Effects(camera_noise=True, depth_bias=True, robot="factory")
+"""``--imperfect``: the N = 1 error budget's effects that apply to a relay at rest: the
+D435's correlated pixel noise and its disparity bias, both arms off their nominal model at
+the factory spread (no servo lag: the targets are points and a curve measured at rest)."""
 
 
 def run_trial(seed: int, trial: int, closed_loop: bool = True,
-              unknowns: setup.RelayUnknowns | None = None) -> dict[str, Any]:  # fmt: skip
-    """One trial: its calibration figures and every target's row (``trial`` added)."""
+              unknowns: setup.RelayUnknowns | None = None,
+              imperfect: bool = False) -> dict[str, Any]:  # fmt: skip
+    """One trial: its calibration figures and every target's row (``trial`` added); with
+    ``imperfect`` on the cell of :data:`IMPERFECT`."""
     from planner.ik import BeamIK
     from planner.planning import ik_options
     from planner.studies.experiments_trial import ClosedLoop, run_experiment
 
     rng = common.trial_rng(seed, trial)
     nominal = setup.nominal_system()
-    truth = setup.draw_truth(nominal, unknowns or setup.RelayUnknowns(), rng)
+    effects = IMPERFECT if imperfect else None
+    truth = setup.draw_truth(
+        nominal, unknowns or setup.RelayUnknowns(), rng, effects, [seed, trial]
+    )
     cal = setup.calibrate_relay(nominal, truth, rng)
     figures = setup.calibration_errors(cal.system, truth.system)
     figures["handeye_residual_mm"] = 1e3 * float(np.mean(cal.handeye_residuals))
@@ -74,11 +87,12 @@ def run_trial(seed: int, trial: int, closed_loop: bool = True,
     return {"trial": trial, **figures, "rows": rows}
 
 
-def run(trials: int, seed: int, workers: int | None = None,
-        scheduler: str | None = None) -> tuple[list[dict[str, Any]], Any, list[dict[str, Any]]]:  # fmt: skip
+def run(trials: int, seed: int, workers: int | None = None, scheduler: str | None = None,
+        imperfect: bool = False) -> tuple[list[dict[str, Any]], Any, list[dict[str, Any]]]:  # fmt: skip
     """Every trial (parallel over trials), then the sensitivity at the same trial count:
     (trial results, the sensitivity's nominal solution, its rows)."""
-    results = common.parallel_map(run_trial, [(seed, t) for t in range(trials)],
+    jobs = [(seed, t, True, None, imperfect) for t in range(trials)]
+    results = common.parallel_map(run_trial, jobs,
                                   workers=workers, scheduler=scheduler, label="relay trials")  # fmt: skip
     nominal = sens.solve_nominal()
     per = common.parallel_map(sens.trial_rows, [(nominal, t, seed) for t in range(trials)],
@@ -144,8 +158,11 @@ def plot(rows: list[dict[str, Any]], sens_summary: list[dict[str, Any]], path: P
 
 def report_lines(results: list[dict[str, Any]], acc: list[dict[str, Any]],
                  cal: list[dict[str, Any]], sens_summary: list[dict[str, Any]],
-                 trials: int, seed: int) -> list[str]:  # fmt: skip
+                 trials: int, seed: int, imperfect: bool = False) -> list[str]:  # fmt: skip
     """The markdown report (see the module docstring)."""
+    cell = (f"an imperfect cell ({IMPERFECT.describe()})" if imperfect else "the kind "
+            "simulation (independent D435 pixel noise, no depth bias, exact arms; "
+            "`--imperfect` adds correlated noise, bias and the arms' factory error)")  # fmt: skip
     lines = ["# The N = 2 relay end to end on the simulated cell", "",
              f"{trials} trials, seed {seed}, `scenarios/n2_relay.yaml` (laser -> arm0's mirror -> "
              f"arm1's mirror -> targets behind a screen). Unknowns before calibration (uniform "
@@ -153,7 +170,7 @@ def report_lines(results: list[dict[str, Any]], acc: list[dict[str, Any]],
              "product's code on the simulated D435: hand-eye on arm0 (the camera) and on arm1 "
              "(arm1's placement), then `calibrate_chain`: mirror 1 from 16 poses x 3 boards with "
              "arm1 out of the beam (laser line + mirror 1 plane), then mirror 2 from 16 poses x 3 "
-             "boards with the laser and mirror 1 held at their calibrated values.", "",
+             f"boards with the laser and mirror 1 held at their calibrated values. Cell: {cell}.", "",
              "## Calibration against the truth", "",
              "Mean over trials ± 95 % CI (Student t), and the worst trial. Only what moves the "
              "beam is compared: laser line, mirror planes at home (the gauge directions are "
@@ -186,26 +203,49 @@ def report_lines(results: list[dict[str, Any]], acc: list[dict[str, Any]],
 
 
 def write(out: Path, results: list[dict[str, Any]], nominal: Any,
-          sens_rows: list[dict[str, Any]], trials: int, seed: int) -> dict[str, Any]:  # fmt: skip
+          sens_rows: list[dict[str, Any]], trials: int, seed: int,
+          imperfect: bool = False) -> dict[str, Any]:  # fmt: skip
     """CSV tables, the plot and report.md; returns the figures printed with ``--json``."""
     rows = [r for res in results for r in res["rows"]]
     acc, cal = accuracy(rows), calibration_summary(results)
     sens_summary = sens.summarize(nominal, sens_rows)
     plot(rows, sens_summary, common.out_dir(out) / "experiments_n2.png")
-    lines = report_lines(results, acc, cal, sens_summary, trials, seed)
+    lines = report_lines(results, acc, cal, sens_summary, trials, seed, imperfect)
     trial_figs = [{k: v for k, v in r.items() if k != "rows"} for r in results]
     tables = {"experiments_n2.csv": rows, "calibration.csv": trial_figs,
               "sensitivity.csv": sens_rows, "sensitivity_summary.csv": sens_summary}  # fmt: skip
     common.write_report(out, lines, tables, image=("relay accuracy and sensitivity",
                                                    "experiments_n2.png"))  # fmt: skip
-    return {"study": "experiments-n2", "trials": trials, "seed": seed, "accuracy": acc,
+    return {"study": "experiments-n2", "trials": trials, "seed": seed, "imperfect": imperfect, "accuracy": acc,
             "calibration": cal, "sensitivity": sens_summary}  # fmt: skip
 
 
-def main(trials: int, seed: int, out: Path, workers: int | None, sched: str | None) -> dict:
+def main(trials: int, seed: int, out: Path, workers: int | None, sched: str | None,
+         imperfect: bool = False) -> dict:  # fmt: skip
     """The N = 2 relay end to end: chained calibration, open/closed loop accuracy, each
     mirror's sensitivity."""
-    return write(out, *run(trials, seed, workers, sched), trials, seed)
+    return write(out, *run(trials, seed, workers, sched, imperfect), trials, seed, imperfect)
 
 
-command = common.study_command(main, TRIALS, Path("reports/experiments-n2"))
+Imperfect = Annotated[bool, typer.Option("--imperfect", help="Correlated D435 noise, its depth "
+                                         "bias and both arms' factory kinematic error.")]  # fmt: skip
+
+
+def command(
+    trials: common.Trials = TRIALS,
+    seed: common.Seed = 0,
+    out: common.Out = Path("reports/experiments-n2"),
+    workers: common.Workers = None,
+    dask_scheduler: common.Scheduler = None,
+    json_out: common.JsonOut = False,
+    imperfect: Imperfect = False,
+) -> None:
+    t0 = time.perf_counter()
+    figures = main(trials, seed, out, workers, dask_scheduler, imperfect)
+    flags = " --imperfect" if imperfect else ""
+    stamp(out / "report.md", f"beamrelay study experiments-n2 --trials {trials} --seed {seed}"
+          f" -o {out}{flags}", trials, seed, time.perf_counter() - t0)  # fmt: skip
+    common.finish(out, figures, json_out)
+
+
+command.__doc__ = main.__doc__

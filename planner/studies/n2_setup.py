@@ -93,8 +93,13 @@ def scenario_model() -> Any:
     return load_scenario(SCENARIO)
 
 
-def draw_truth(nominal: System, u: RelayUnknowns, rng: np.random.Generator) -> n1.Truth:
-    """A random true relay about ``nominal`` (see the module docstring)."""
+def draw_truth(nominal: System, u: RelayUnknowns, rng: np.random.Generator,
+               effects: n1.Effects | None = None, seed: Any = None) -> n1.Truth:  # fmt: skip
+    """A random true relay about ``nominal`` (see the module docstring). With ``effects``
+    (:class:`~planner.studies.experiments_setup.Effects`), each true arm also has DH deltas
+    at ``effects.robot``'s spread and the true camera its depth errors, each from a stream
+    of its own (``[*seed, 1]``, ``[*seed, 2]``, as the N = 1 trials draw them), so the other
+    draws stay those of the kind simulation."""
     truth = n1.draw_truth(nominal, u.shared, rng)
     arm1 = nominal.robots[1]
     mount = n1._perturb(arm1.mirror.flange_T_mirror, rng, u.shared.mirror_rot, u.shared.mirror_pos)
@@ -102,7 +107,19 @@ def draw_truth(nominal: System, u: RelayUnknowns, rng: np.random.Generator) -> n
     system = truth.system.with_params(
         flange_T_mirror={arm1.name: mount}, world_T_base={arm1.name: base}
     )
-    return replace(truth, system=system)
+    if effects is None:
+        return replace(truth, system=system)
+    seq = list(seed or [])
+    spread = effects.robot_spread
+    if spread is not None:
+        from planner.model.kinematic_error import perturbed_ur5e
+
+        robot_rng = np.random.default_rng(np.random.SeedSequence([*seq, 1]))
+        arms = [replace(r, kinematics=perturbed_ur5e(spread.draw(robot_rng, r.nq), r.kinematics))
+                for r in system.robots]  # fmt: skip
+        system = replace(system, robots=tuple(arms))
+    camera_rng = np.random.default_rng(np.random.SeedSequence([*seq, 2]))
+    return replace(truth, system=system, depth_errors=effects.depth_errors(nominal, camera_rng))
 
 
 # --- scene ----------------------------------------------------------------------------------

@@ -77,6 +77,23 @@ def _beam_errors(cal: System, truth: System) -> dict[str, float]:
     return out
 
 
+def test_an_imperfect_truth_keeps_the_kind_draws_and_perturbs_both_arms() -> None:
+    from planner.studies.experiments_n2 import IMPERFECT
+
+    nominal = setup.nominal_system()
+    kind = setup.draw_truth(nominal, setup.RelayUnknowns(), np.random.default_rng(9))
+    real = setup.draw_truth(
+        nominal, setup.RelayUnknowns(), np.random.default_rng(9), IMPERFECT, [9]
+    )
+    assert kind.depth_errors is None and real.depth_errors is not None
+    assert np.array_equal(kind.system.world_T_laser, real.system.world_T_laser)
+    for k, r, n in zip(kind.system.robots, real.system.robots, nominal.robots, strict=True):
+        assert np.array_equal(k.mirror.flange_T_mirror, r.mirror.flange_T_mirror)
+        assert np.array_equal(k.kinematics.fk(n.home), n.kinematics.fk(n.home))
+        moved = r.kinematics.fk(n.home)[:3, 3] - n.kinematics.fk(n.home)[:3, 3]
+        assert 1e-5 < np.linalg.norm(moved) < 0.01  # factory spread: sub-millimetre to mm
+
+
 # --- chained calibration --------------------------------------------------------------------
 def test_chained_calibration_recovers_the_truth_from_exact_spots() -> None:
     truth = _truth(3)
