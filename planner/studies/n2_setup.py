@@ -102,8 +102,8 @@ def draw_truth(nominal: System, u: RelayUnknowns, rng: np.random.Generator,
     draws stay those of the kind simulation."""
     truth = n1.draw_truth(nominal, u.shared, rng)
     arm1 = nominal.robots[1]
-    mount = n1._perturb(arm1.mirror.flange_T_mirror, rng, u.shared.mirror_rot, u.shared.mirror_pos)
-    base = n1._perturb(arm1.world_T_base, rng, u.base_rot, u.base_pos)
+    mount = n1.perturb(arm1.mirror.flange_T_mirror, rng, u.shared.mirror_rot, u.shared.mirror_pos)
+    base = n1.perturb(arm1.world_T_base, rng, u.base_rot, u.base_pos)
     system = truth.system.with_params(
         flange_T_mirror={arm1.name: mount}, world_T_base={arm1.name: base}
     )
@@ -138,7 +138,7 @@ def grid_center() -> Array:
 
 
 def _flat_board(name: str, centre: Array, side: float) -> SceneItem:
-    return n1._box(name, make_T(p=centre), (side, side))
+    return n1.board_box(name, make_T(p=centre), (side, side))
 
 
 def _on_ray(origin: Array, through: Array, z: float) -> Array:
@@ -215,8 +215,8 @@ def chessboard() -> n1.Experiment:
     7-corner side along y (the grid's long side)."""
     T = make_T(p=grid_center())
     gx, gy = np.meshgrid(np.arange(-2, 3) * 0.025, np.arange(-3, 4) * 0.025)
-    pts, n = n1._on_plane(T, np.column_stack([gx.ravel(), gy.ravel()]))
-    board = n1._box("chessboard", T, (MIRROR2_BOARD, MIRROR2_BOARD))
+    pts, n = n1.on_plane(T, np.column_stack([gx.ravel(), gy.ravel()]))
+    board = n1.board_box("chessboard", T, (MIRROR2_BOARD, MIRROR2_BOARD))
     return n1.Experiment("chessboard", (board, screen()), pts, n, n1.POINT)
 
 
@@ -225,8 +225,8 @@ def curve() -> n1.Experiment:
     curve's shape scaled to the grid's 100 mm side) on a board 50 mm below the grid centre."""
     T = make_T(p=grid_center() - np.array([0.0, 0.0, 0.05]))
     s = np.linspace(-0.06, 0.06, 40)
-    pts, n = n1._on_plane(T, np.column_stack([0.02 * np.sin(2 * np.pi * s / 0.06), s]))
-    board = n1._box("curve_board", T, (MIRROR2_BOARD, MIRROR2_BOARD))
+    pts, n = n1.on_plane(T, np.column_stack([0.02 * np.sin(2 * np.pi * s / 0.06), s]))
+    board = n1.board_box("curve_board", T, (MIRROR2_BOARD, MIRROR2_BOARD))
     return n1.Experiment("curve", (board, screen()), pts, n, n1.CLOSEST, (np.arange(len(s)),))
 
 
