@@ -276,3 +276,27 @@ def test_a_bad_trial_count_is_one_line_and_exit_2() -> None:
     cmd = [sys.executable, "-m", "planner.cli", "study", "experiments-n2", "--trials", "0"]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=REPO)
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+
+
+@pytest.mark.slow
+def test_study_experiments_n2_one_trial_json(tmp_path: Any) -> None:
+    import json
+
+    cmd = [sys.executable, "-m", "planner.cli", "study", "experiments-n2", "--trials", "1",
+           "--workers", "1", "-o", str(tmp_path), "--json"]  # fmt: skip
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=REPO)
+    assert proc.returncode == 0, proc.stderr
+    fig = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert fig["study"] == "experiments-n2" and fig["trials"] == 1 and not fig["imperfect"]
+    by = {a["experiment"]: a for a in fig["accuracy"]}
+    assert set(by) == {"chessboard", "curve"}
+    for a in by.values():
+        assert a["measured"] == a["targets"] > 0
+        assert 0.0 < a["open_mm"] < 2.0 and 0.0 < a["closed_mm"] < 2.0
+    cal = {c["key"]: c["mean"] for c in fig["calibration"]}
+    assert cal["mirror1_deg"] < 0.1 and cal["mirror2_deg"] < 0.1  # unknowns: 0.5 deg
+    assert len(fig["sensitivity"]) == 18
+    for f in ("report.md", "experiments_n2.png", "experiments_n2.csv", "calibration.csv",
+              "sensitivity.csv", "sensitivity_summary.csv"):  # fmt: skip
+        assert (tmp_path / f).is_file()
+    assert "<!-- provenance" in (tmp_path / "report.md").read_text()
