@@ -147,28 +147,15 @@ def _on_ray(origin: Array, through: Array, z: float) -> Array:
     return origin + d * (z - origin[2]) / d[2]
 
 
-def _mirror_centre(system: System, i: int) -> Array:
-    r = system.robots[i]
-    return (r.world_T_base @ r.kinematics.fk(r.home) @ r.mirror.flange_T_mirror)[:3, 3]
-
-
 def calibration_boards(nominal: System, robot: str) -> list[Board]:
-    """The beam calibration boards of ``robot``'s mirror (aim point, board)."""
-    if robot == ROBOTS[0]:
-        c, through, heights, side = (
-            _mirror_centre(nominal, 0),
-            MIRROR1_AIM,
-            MIRROR1_HEIGHTS,
-            MIRROR1_BOARD,
-        )
-    else:
-        c, through, heights, side = (
-            _mirror_centre(nominal, 1),
-            grid_center(),
-            MIRROR2_HEIGHTS,
-            MIRROR2_BOARD,
-        )
-    aims = [_on_ray(c, through, z) for z in heights]
+    """The beam calibration boards of ``robot``'s mirror (aim point, board): flat, on the
+    ray from its mirror at home through :data:`MIRROR1_AIM` (arm0) or the grid centre."""
+    first = robot == ROBOTS[0]
+    i = 0 if first else 1
+    through = MIRROR1_AIM if first else grid_center()
+    heights, side = (MIRROR1_HEIGHTS, MIRROR1_BOARD) if first else (MIRROR2_HEIGHTS, MIRROR2_BOARD)
+    centre = home_mirror(nominal, i)[:3, 3]
+    aims = [_on_ray(centre, through, z) for z in heights]
     return [(a, _flat_board(f"{robot}_board_z{a[2]:+.3f}", a, side)) for a in aims]
 
 
