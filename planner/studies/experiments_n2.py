@@ -39,7 +39,7 @@ from planner.studies.experiments_setup import Effects
 from planner.studies.provenance import stamp
 from schemas.defaults import SERVO_TOLERANCE_M
 
-TRIALS = 6  # `study all`: 8 trials took 68 s wall (24 s CPU) on the 2 shared cores at load 9
+TRIALS = 6  # `study all`: 21 s CPU; 35 s wall on the 2 shared cores at load 7, 68 s at load 9
 EXPERIMENTS = ("chessboard", "curve")
 LOOPS = ("open", "closed", "true_open", "true_closed")
 CAL_FIGURES = {
