@@ -16,12 +16,19 @@ the laser origin is the point of the calibrated line closest to the nominal orig
 mirror centre is the nominal (CAD) centre, or a measured one (fiducials), projected onto
 the calibrated plane; both orientations are the nominal ones turned by the smallest
 rotation onto the calibrated beam / normal. Units: metres, radians.
+
+N > 1 (:func:`calibrate_chain`): the mirrors are calibrated one after the other in beam
+order, each from spots of the beam leaving it, with the laser and the earlier mirrors held
+at their calibrated values (the residual is the same graph through the whole chain up to
+the calibrated robot); only the last mirror's 3 observable parameters are solved.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import lru_cache
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -292,3 +299,33 @@ def _unit_covariance(sv: Array, Vt: Array) -> Array:
     singular values under 1e-12 of the largest left out, as the fit's covariance does)."""
     inv_sv2 = np.where(sv > sv[0] * 1e-12, 1.0 / np.maximum(sv, 1e-300) ** 2, 0.0)
     return np.asarray((Vt.T * inv_sv2) @ Vt)
+
+
+def with_beam_result(system: System, result: BeamResult) -> System:
+    """``system`` with a beam calibration's laser (when it was an unknown) and mirror mount."""
+    return system.with_params(
+        world_T_laser=result.world_T_laser, flange_T_mirror={result.robot: result.flange_T_mirror}
+    )
+
+
+def calibrate_chain(
+    system: System, collect: Callable[[System, str], BeamData], **options: Any
+) -> tuple[System, list[BeamResult]]:
+    """Every mirror of the chain in beam order, each through :func:`calibrate_beam`.
+
+    For each robot, ``collect(system, robot)`` returns its spots (the beam leaving that
+    robot's mirror: the robots after it out of the beam) given the system calibrated so
+    far, which the fit then holds: the first dataset gives the laser line and mirror 1's
+    plane, the k-th mirror k's plane with the laser and mirrors 1..k-1 at their calibrated
+    values. ``options`` go to :func:`calibrate_beam`. Returns the calibrated system and
+    the results in beam order.
+    """
+    results = []
+    for name in system.robot_names:
+        data = collect(system, name)
+        if data.robot != name:
+            raise DatasetError(f"collected data for {data.robot!r}, expected {name!r}", "robot")
+        result = calibrate_beam(data, system, **options)
+        system = with_beam_result(system, result)
+        results.append(result)
+    return system, results

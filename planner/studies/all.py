@@ -1,8 +1,8 @@
 """``beamrelay study all -o reports``: every study at paper scale, and ``reports/index.md``.
 
-Order: ik-grid, calibration, sensitivity, mirror-sweep, coverage, experiments, online,
-moving-target. Each study runs its ``main`` at its paper-scale ``TRIALS``, writes into
-``OUT/<name>/`` and its report is stamped with its provenance
+Order: ik-grid, calibration, sensitivity, mirror-sweep, coverage, experiments,
+experiments-n2, online, moving-target. Each study runs its ``main`` at its paper-scale
+``TRIALS``, writes into ``OUT/<name>/`` and its report is stamped with its provenance
 (:mod:`planner.studies.provenance`); the index is built from those stamps alone: the commit,
 seed, trials and wall time each report states, and whether they all come from one clean
 commit with one set of packages.
@@ -21,6 +21,7 @@ from planner.studies import (
     common,
     coverage,
     experiments,
+    experiments_n2,
     ik_grid,
     mirror_sweep,
     moving_target,
@@ -36,6 +37,7 @@ STUDIES: dict[str, Any] = {
     "mirror-sweep": mirror_sweep,
     "coverage": coverage,
     "experiments": experiments,
+    "experiments-n2": experiments_n2,
     "online": online,
     "moving-target": moving_target,
 }

@@ -55,10 +55,20 @@ class Cell:
         self.camera = SimCamera(truth, list(items), stride=64, seed=seed, depth_errors=errors)
         self.rng = np.random.default_rng(seed)
 
+    def move(self, q: Array) -> None:
+        """Put the robots at stacked joints ``q`` (rad, beam order; the first robots' only
+        when shorter, e.g. one arm of the chain)."""
+        start = 0
+        for r in self.truth.robots:
+            if start + r.nq > len(q):
+                break
+            self.camera.on_joint_state(r.name, np.asarray(q[start : start + r.nq]))
+            start += r.nq
+
     def spot(self, q: Array, frames: int = FRAMES) -> Array | None:
-        """The measured spot (camera frame, m) with the arm at ``q``: the mean of the
-        ``frames`` detections, None when the camera sees no spot."""
-        self.camera.on_joint_state(ROBOT, q)
+        """The measured spot (camera frame, m) with the arms at stacked joints ``q``: the
+        mean of the ``frames`` detections, None when the camera sees no spot."""
+        self.move(q)
         got = [s.p_camera for s in (self.camera.spot() for _ in range(frames)) if s is not None]
         return np.mean(got, axis=0) if got else None
 
@@ -99,47 +109,75 @@ class Calibrated:
     beam_spots: int
 
 
-def calibrate_handeye_cell(nominal: System, truth: Truth, rng: np.random.Generator) -> Any:
-    """Hand-eye data collected on the simulated cell and calibrated (eye to hand)."""
+def calibrate_handeye_cell(
+    nominal: System, truth: Truth, rng: np.random.Generator, robot: str = ROBOT
+) -> Any:
+    """Hand-eye data collected on the simulated cell with the board on ``robot``'s flange
+    and calibrated (eye to hand: the camera pose in the world through ``robot``'s nominal
+    base)."""
     from drivers.camera.sim import SimCamera
     from planner.calibration.collect import handeye_plan
     from planner.calibration.handeye import HandEyeData, calibrate_handeye
     from planner.calibration.simulate import board_grid
 
     board = board_grid()
-    qs, _ = handeye_plan(nominal, ROBOT, "eye_to_hand", HANDEYE_POSES, board, NOMINAL_BOARD, rng)
+    qs, _ = handeye_plan(nominal, robot, "eye_to_hand", HANDEYE_POSES, board, NOMINAL_BOARD, rng)
     cam = SimCamera(truth.system, [], stride=64, seed=int(rng.integers(2**31)),
                     depth_errors=truth.depth_errors)  # fmt: skip
     request = {"board_points": board.tolist(), "board_pose": truth.flange_T_board.tolist(),
-               "robot": ROBOT}  # fmt: skip
+               "robot": robot}  # fmt: skip
     pts = []
     for q in qs:
-        cam.on_joint_state(ROBOT, q)
+        cam.on_joint_state(robot, q)
         pts.append(cam.markers(request))
-    data = HandEyeData(ROBOT, "eye_to_hand", board, qs, np.array(pts))
+    data = HandEyeData(robot, "eye_to_hand", board, qs, np.array(pts))
     return calibrate_handeye(data, nominal)
 
 
-def calibrate_beam_cell(
-    nominal: System, truth: Truth, world_T_camera: Array, rng: np.random.Generator
-) -> Any:
-    """Beam data (16 poses x 3 boards) collected on the simulated cell and calibrated."""
-    from planner.calibration.beam import BeamData, calibrate_beam
+#: a beam calibration board: where the planned poses aim (world, m) and the board itself
+Board = tuple[Array, SceneItem]
+
+
+def default_boards() -> list[Board]:
+    """The N = 1 boards: flat, at the heights :data:`CALIBRATION_BOARDS`, on the beam."""
+    return [(beam_point(z), calibration_board(z)) for z in CALIBRATION_BOARDS]
+
+
+def collect_beam_cell(plan_system: System, truth: Truth, world_T_camera: Array,
+                      rng: np.random.Generator, robot: str = ROBOT,
+                      boards: list[Board] | None = None,
+                      scene: tuple[SceneItem, ...] = ()) -> Any:  # fmt: skip
+    """Beam data for ``robot``'s mirror: :data:`BEAM_POSES` poses per board planned on
+    ``plan_system`` (:func:`planner.calibration.collect.beam_plan`), each spot measured by
+    the camera on the true chain up to ``robot`` (the robots after it out of the beam) and
+    mapped to the world with ``world_T_camera``; a :class:`~planner.calibration.beam.BeamData`.
+    ``scene``: objects in the cell beside each board (a spot on one of them is a point of
+    the ray as good as one on the board, and it may hide the board)."""
+    from planner.calibration.beam import BeamData
     from planner.calibration.collect import beam_plan
 
+    k = truth.system.robot_names.index(robot) + 1
+    true_chain = replace(truth.system, robots=truth.system.robots[:k])
     qs, spots, labels = [], [], []
-    for b, z in enumerate(CALIBRATION_BOARDS):
-        plan, _ = beam_plan(nominal, ROBOT, BEAM_POSES, beam_point(z), rng)
-        seed = int(rng.integers(2**31))
-        cell = Cell(truth.system, (calibration_board(z),), seed, truth.depth_errors)
+    for b, (aim, item) in enumerate(default_boards() if boards is None else boards):
+        plan, _ = beam_plan(plan_system, robot, BEAM_POSES, aim, rng)
+        cell = Cell(true_chain, (item, *scene), int(rng.integers(2**31)), truth.depth_errors)
         for q in plan:
             s = cell.spot(q)
             if s is not None:
                 qs.append(q)
                 spots.append(transform_points(world_T_camera, s[None])[0])
                 labels.append(b)
-    data = BeamData(ROBOT, np.array(qs), np.array(spots), np.array(labels), len(spots))
-    return calibrate_beam(data, nominal)
+    return BeamData(robot, np.array(qs), np.array(spots), np.array(labels), len(spots))
+
+
+def calibrate_beam_cell(
+    nominal: System, truth: Truth, world_T_camera: Array, rng: np.random.Generator
+) -> Any:
+    """Beam data (16 poses x 3 boards) collected on the simulated cell and calibrated."""
+    from planner.calibration.beam import calibrate_beam
+
+    return calibrate_beam(collect_beam_cell(nominal, truth, world_T_camera, rng), nominal)
 
 
 def calibrate_cell(nominal: System, truth: Truth, rng: np.random.Generator) -> Calibrated:

@@ -168,7 +168,7 @@ NOMINAL_BOARD = make_T(p=[0.0, 0.0, 0.01])
 """Nominal ``flange_T_board`` of the hand-eye board (10 mm off the flange, facing out)."""
 
 
-def _perturb(T: Array, rng: np.random.Generator, rot: float, pos: float) -> Array:
+def perturb(T: Array, rng: np.random.Generator, rot: float, pos: float) -> Array:
     """``T`` times a random rigid error: U(-rot, rot) rpy, U(-pos, pos) per axis."""
     return T @ make_T(rpy_to_matrix(rng.uniform(-rot, rot, 3)), rng.uniform(-pos, pos, 3))
 
@@ -185,10 +185,10 @@ def draw_truth(
     own, so the other draws do not change with it)."""
     r = nominal.robots[0]
     assert nominal.camera is not None
-    laser = _perturb(nominal.world_T_laser, rng, u.laser_rot, u.laser_pos)
-    mount = _perturb(r.mirror.flange_T_mirror, rng, u.mirror_rot, u.mirror_pos)
-    cam = _perturb(nominal.camera.world_T_camera, rng, u.camera_rot, u.camera_pos)
-    board = _perturb(NOMINAL_BOARD, rng, u.board_rot, u.board_pos)
+    laser = perturb(nominal.world_T_laser, rng, u.laser_rot, u.laser_pos)
+    mount = perturb(r.mirror.flange_T_mirror, rng, u.mirror_rot, u.mirror_pos)
+    cam = perturb(nominal.camera.world_T_camera, rng, u.camera_rot, u.camera_pos)
+    board = perturb(NOMINAL_BOARD, rng, u.board_rot, u.board_pos)
     true = nominal.with_params(world_T_laser=laser, flange_T_mirror={r.name: mount})
     if robot is not None:
         from planner.model.kinematic_error import perturbed_ur5e
@@ -205,13 +205,13 @@ def _at(dx: float, dy: float, dz: float) -> Array:
     return CENTER + np.array([dx, dy, dz])
 
 
-def _box(name: str, world_T_top: Array, size: tuple[float, float] = (0.3, 0.3)) -> SceneItem:
+def board_box(name: str, world_T_top: Array, size: tuple[float, float] = (0.3, 0.3)) -> SceneItem:
     """A 10 mm board whose top face is the xy plane of ``world_T_top``."""
     T = world_T_top @ make_T(p=[0.0, 0.0, -0.005])
     return SceneItem(name, "box", T, extents=np.array([*size, 0.01]))
 
 
-def _on_plane(T: Array, uv: Array) -> tuple[Array, Array]:
+def on_plane(T: Array, uv: Array) -> tuple[Array, Array]:
     """Points (u, v, 0) of plane frame ``T`` in the world, and its normal for each."""
     pts = uv @ T[:3, :2].T + T[:3, 3]
     return pts, np.tile(T[:3, 2], (len(pts), 1))
@@ -236,23 +236,23 @@ def beam_point(z: float) -> Array:
 
 def calibration_board(z: float) -> SceneItem:
     """A 0.4 m square board, flat, top at height ``z``, centred on the nominal beam."""
-    return _box(f"board_z{z:+.2f}", make_T(p=beam_point(z)), (0.4, 0.4))
+    return board_box(f"board_z{z:+.2f}", make_T(p=beam_point(z)), (0.4, 0.4))
 
 
 def chessboard(placement: str) -> Experiment:
     """7 x 5 corners (25 mm) on the board at ``placement`` (A, B or C)."""
     T = CHESSBOARD[placement]
     gx, gy = np.meshgrid(np.arange(-3, 4) * 0.025, np.arange(-2, 3) * 0.025)
-    pts, n = _on_plane(T, np.column_stack([gx.ravel(), gy.ravel()]))
-    return Experiment(f"chessboard {placement}", (_box("chessboard", T),), pts, n, POINT)
+    pts, n = on_plane(T, np.column_stack([gx.ravel(), gy.ravel()]))
+    return Experiment(f"chessboard {placement}", (board_box("chessboard", T),), pts, n, POINT)
 
 
 def curve() -> Experiment:
     """60 samples of a sine curve drawn on a board at z = -0.09."""
     s = np.linspace(-0.09, 0.09, 60)
-    pts, n = _on_plane(CURVE_BOARD, np.column_stack([s, 0.035 * np.sin(2 * np.pi * s / 0.09)]))
+    pts, n = on_plane(CURVE_BOARD, np.column_stack([s, 0.035 * np.sin(2 * np.pi * s / 0.09)]))
     strokes = (np.arange(len(s)),)
-    return Experiment("curve", (_box("curve_board", CURVE_BOARD),), pts, n, CLOSEST, strokes)
+    return Experiment("curve", (board_box("curve_board", CURVE_BOARD),), pts, n, CLOSEST, strokes)
 
 
 def face_height(x: Array, y: Array) -> Array:
@@ -330,7 +330,7 @@ def finger(rng: np.random.Generator) -> Experiment:
     pts = (p_local + FINGER_R * n_local) @ axis_T[:3, :3].T + c
     n = n_local @ axis_T[:3, :3].T
     cyl = SceneItem("finger", "cylinder", cyl_T, radius=FINGER_R, height=FINGER_LEN)
-    table = _box("table", make_T(p=_at(0.0, 0.0, -0.04)))
+    table = board_box("table", make_T(p=_at(0.0, 0.0, -0.04)))
     return Experiment("finger", (cyl, table), pts, n, POINT)
 
 

@@ -82,7 +82,7 @@ class ClosedLoop:
         from planner.servo import SpotFrame, average_frames, servo
 
         def measure(q: Array, frames: int) -> Any:
-            cell.camera.on_joint_state("arm0", q)
+            cell.move(q)
             got = [cell.camera.spot() for _ in range(frames)]
             seen = [SpotFrame(s.p_camera, s.confidence) for s in got if s is not None]
             return average_frames(seen, self.world_T_camera)

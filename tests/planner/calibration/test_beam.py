@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from planner.beam.graph import BeamModel
-from planner.calibration.beam import BeamData, apply_gauge, calibrate_beam
+from planner.calibration.beam import BeamData, apply_gauge, calibrate_beam, calibrate_chain
 from planner.calibration.simulate import DepthNoise, simulate_beam
 from planner.errors import CalibrationError, DatasetError
 
@@ -145,3 +145,38 @@ def test_single_board_placement_is_flagged():
     data = simulate_beam(_truth(system, rng), "arm0", 12, 1, aim_world=AIM, rng=rng)
     res = calibrate_beam(data, system, starts=1)
     assert any("single board" in w for w in res.warnings)
+
+
+def test_chain_calibrates_each_mirror_holding_the_ones_before():
+    system = two_robot_system()
+    rng = np.random.default_rng(4)
+    truth = _truth(_truth(system, rng), rng, "arm1", laser=False)
+    seen = []
+
+    def collect(current, robot):
+        seen.append((robot, current.world_T_laser.copy()))
+        return simulate_beam(truth, robot, 8, 3, aim_world=AIM, rng=rng)
+
+    cal, results = calibrate_chain(system, collect)
+    assert [r.robot for r in results] == ["arm0", "arm1"]
+    # arm1's spots were collected (and fitted) with the laser already calibrated
+    assert np.array_equal(seen[0][1], system.world_T_laser)
+    assert np.array_equal(seen[1][1], results[0].world_T_laser)
+    assert np.array_equal(cal.world_T_laser, results[0].world_T_laser)
+    for i, name in enumerate(("arm0", "arm1")):
+        L_t, M_t = apply_gauge(
+            truth.world_T_laser,
+            truth.robots[i].mirror.flange_T_mirror,
+            system.world_T_laser,
+            system.robots[i].mirror.flange_T_mirror,
+        )
+        assert np.abs(cal.robot(name).mirror.flange_T_mirror - M_t).max() <= 1e-9
+        assert np.abs(cal.world_T_laser - L_t).max() <= 1e-9
+    assert set(results[1].std) == {"mirror.rx", "mirror.ry", "mirror.tz"}
+
+
+def test_chain_refuses_data_of_the_wrong_robot():
+    system = two_robot_system()
+    rng = np.random.default_rng(5)
+    with pytest.raises(DatasetError, match="expected 'arm0'"):
+        calibrate_chain(system, lambda s, r: simulate_beam(s, "arm1", 8, 3, aim_world=AIM, rng=rng))
