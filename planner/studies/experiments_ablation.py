@@ -9,9 +9,12 @@ simulated cells, each rung adding one effect to the one before
 2. + camera noise: depth pixels correlated over the D435's census window, the detectors'
    real window statistics (:mod:`planner.model.d435`);
 3. + depth bias: the camera's own disparity offset within the datasheet's 2 % at 2 m;
-4. + robot kinematics: the true UR5e's DH error (:mod:`planner.model.kinematic_error`),
+4. + targets from the cloud: the curve, face and finger targets picked in one frame of the
+   camera's point cloud, their normals fitted to it by SVD, as the paper did
+   (:mod:`planner.studies.experiments_cloud`; the chessboard's corners stay detected);
+5. + robot kinematics: the true UR5e's DH error (:mod:`planner.model.kinematic_error`),
    the planner on the nominal model;
-5. + servo lag: paths swept at the scenario's spot speed behind a UR's servoJ follower
+6. + servo lag: paths swept at the scenario's spot speed behind a UR's servoJ follower
    (:mod:`drivers.robot.servo_lag`).
 
 Per rung and experiment: the mean open / closed loop error over the per-trial means with its
@@ -37,8 +40,9 @@ def ladder(robot: str = "factory") -> list[tuple[str, setup.Effects]]:
         ("kind simulation", setup.Effects()),
         ("+ camera noise (correlated pixels)", setup.Effects(camera_noise=True)),
         ("+ depth bias (datasheet)", setup.Effects(camera_noise=True, depth_bias=True)),
-        (f"+ robot kinematics ({robot})", setup.Effects(True, True, robot)),
-        ("+ servo lag (paths swept)", setup.Effects(True, True, robot, servo_lag=True)),
+        ("+ targets from the cloud (SVD normals)", setup.Effects(True, True, cloud_targets=True)),
+        (f"+ robot kinematics ({robot})", setup.Effects(True, True, robot, cloud_targets=True)),
+        ("+ servo lag (paths swept)", setup.Effects(True, True, robot, True, cloud_targets=True)),
     ]
 
 
@@ -158,6 +162,14 @@ SOURCES = [
     "9 x 9 plane fit (`drivers/camera/markers.py`) - `planner/model/d435.py`;",
     "- depth bias: a disparity offset per camera, uniform within the D400 datasheet's "
     "absolute accuracy (2 % at 2 m; 0.211 px at fx 430 px) - `planner/model/d435.py`;",
+    "- targets from the cloud: one frame of the simulated D435's full-resolution cloud "
+    "(`drivers/camera/sim.py`, with the rungs above' depth noise and bias); the pick is the "
+    "pixel at the target's image (one of the four around it; no further human pick error: "
+    "none is published), its point that pixel's noisy depth deprojected; the normal the "
+    "smallest right singular vector of the cloud within 10 mm of it (the product's own pick, "
+    "`planner/console/picking.py`; the paper gives no radius: 5 depth pixels at 0.85 m, "
+    "~80 points, inside the finger's 9 mm radius of the table) - "
+    "`planner/studies/experiments_cloud.py`;",
     "- robot kinematics: DH deltas (joint zeros, d, a, alpha, Hayati beta) Gaussian with the "
     "RMS deviations of a published UR5e factory calibration from the nominal model "
     "(factory), or of a published UR10 CB3 calibration (uncalibrated) - "

@@ -62,7 +62,13 @@ def test_the_ladder_adds_one_effect_per_rung() -> None:
             f.name for f in fields(setup.Effects) if getattr(a, f.name) != getattr(b, f.name)
         ]
         assert len(changed) == 1, changed
-    assert rungs[-1][1] == setup.Effects(True, True, "uncalibrated", True)
+    assert rungs[-1][1] == setup.Effects(True, True, "uncalibrated", True, cloud_targets=True)
+    # the cloud's rung comes after the camera's depth errors and before the arm's
+    names = [label for label, _ in rungs]
+    cloud = next(i for i, (_, e) in enumerate(rungs) if e.cloud_targets)
+    assert names[cloud - 1].startswith("+ depth bias")
+    assert names[cloud + 1].startswith("+ robot kinematics")
+    assert all(e.cloud_targets for _, e in rungs[cloud:])
 
 
 def _trial(t: int, errors: dict[str, list[float]]) -> dict[str, object]:
