@@ -170,7 +170,8 @@ def write(
     budget = None
     if ablation is not None:
         budget = abl.summarize(ablation)
-        lines += abl.report_lines(budget, trials, seed, abl.calibration(ablation))
+        meas = abl.measurement(ablation)
+        lines += abl.report_lines(budget, trials, seed, abl.calibration(ablation), meas)
         tables["ablation.csv"] = [{k: _round(v) for k, v in r.items()} for r in budget]
     common.write_report(
         out,

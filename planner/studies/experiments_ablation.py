@@ -101,6 +101,39 @@ def calibration(rungs: list[tuple[str, list[dict[str, Any]]]]) -> list[dict[str,
     return out
 
 
+def measurement(rungs: list[tuple[str, list[dict[str, Any]]]]) -> list[dict[str, Any]]:
+    """Per rung and experiment: the measured targets' distance to the true ones (mm) and
+    their normals' angle to the true normals (deg), median and 90th percentile over every
+    seen target of every trial (descriptive: targets of one trial share a camera frame)."""
+    out = []
+    for label, trials in rungs:
+        for group in setup.GROUPS:
+            rows = [r for t in trials for r in t["rows"] if r["group"] == group]
+            row: dict[str, Any] = {"rung": label, "experiment": group}
+            for key in ("target_mm", "normal_deg"):
+                v = np.array([r.get(key, np.nan) for r in rows], dtype=float)
+                v = v[np.isfinite(v)]
+                row[f"{key}_median"] = float(np.median(v)) if len(v) else float("nan")
+                row[f"{key}_p90"] = float(np.percentile(v, 90)) if len(v) else float("nan")
+            out.append(row)
+    return out
+
+
+def _measurement_lines(meas: list[dict[str, Any]]) -> list[str]:
+    """The table of :func:`measurement`: one row per rung, a column per experiment."""
+    lines = ["", "Targets as measured, per rung: distance to the true target (mm) / the normal's "
+             "angle to the true normal (deg), median (90th percentile) over the seen targets "
+             "of all trials:", "",
+             "| rung | " + " | ".join(setup.GROUPS) + " |",
+             "|---|" + "---|" * len(setup.GROUPS)]  # fmt: skip
+    for label in dict.fromkeys(m["rung"] for m in meas):
+        cells = [f"{m['target_mm_median']:.2f} ({m['target_mm_p90']:.2f}) / "
+                 f"{m['normal_deg_median']:.1f} ({m['normal_deg_p90']:.1f})"
+                 for m in meas if m["rung"] == label]  # fmt: skip
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def _fmt(mean: float, ci: float) -> str:
     return f"{mean:.2f} ± {ci:.2f}" if np.isfinite(ci) else f"{mean:.2f}"
 
@@ -115,7 +148,11 @@ def _step(row: dict[str, Any], loop: str) -> str:
 
 
 def report_lines(
-    rows: list[dict[str, Any]], trials: int, seed: int, calib: list[dict[str, Any]] | None = None
+    rows: list[dict[str, Any]],
+    trials: int,
+    seed: int,
+    calib: list[dict[str, Any]] | None = None,
+    meas: list[dict[str, Any]] | None = None,
 ) -> list[str]:
     """The error-budget section of the report (with the calibration residuals per rung)."""
     lines = [
@@ -149,6 +186,7 @@ def report_lines(
         lines.append(
             f"| paper, real robot (mean ± std) | {hm:.2f} ± {hs:.2f} | {bm:.2f} ± {bs:.2f} |"
         )
+    lines += _measurement_lines(meas) if meas else []
     lines += ["", *SOURCES, ""]
     return lines
 

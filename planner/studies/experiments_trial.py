@@ -25,7 +25,8 @@ Per trial (seeded, independent of how many run and where):
 6. errors with the paper's metrics, in the camera frame as the camera measured both spot
    and target (point-to-point, or closest point to the measured path); and the same
    metrics without the camera (``true_*``: the true spot against the true target), which
-   separates the calibration's error from the measurement noise.
+   separates the calibration's error from the measurement noise; and how far the measured
+   target and normal are from the true ones (``target_mm``, ``normal_deg``).
 
 A row per target: ``status`` ok | hidden (target not seen) | unsolved | lost (spot not seen).
 """
@@ -37,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.model.transforms import Array, transform_points
+from planner.model.transforms import Array, inv_T, transform_points
 from planner.studies import common
 from planner.studies import experiments_setup as setup
 from planner.studies.experiments_cell import FRAMES, Calibrated, Cell, calibrate_cell
@@ -107,6 +108,18 @@ def measure_targets(exp: setup.Experiment, cell: Cell, cloud: bool = False) -> t
     return cell.see(exp.points), exp.normals @ cam.world_T_camera[:3, :3]
 
 
+def measurement_errors(exp: setup.Experiment, cell: Cell, seen_c: Array,
+                       normals_c: Array) -> tuple[Array, Array]:  # fmt: skip
+    """How far each measured target is from the true one (m) and its normal from the true
+    normal (rad), in the true camera frame (NaN where not seen)."""
+    cam = cell.truth.camera
+    assert cam is not None
+    R = cam.world_T_camera[:3, :3]
+    true_c = transform_points(inv_T(cam.world_T_camera), exp.points)
+    cos = np.clip(np.einsum("ij,ij->i", normals_c, exp.normals @ R), -1.0, 1.0)
+    return np.linalg.norm(seen_c - true_c, axis=1), np.arccos(cos)
+
+
 def planner_targets(seen_c: Array, normals_c: Array, cal: Calibrated) -> tuple[Array, Array]:
     """The targets as the planner knows them (world, through the calibrated camera pose):
     the measured points (K x 3, NaN rows where not seen) and normals (camera frame, K x 3)."""
@@ -160,13 +173,16 @@ def run_experiment(exp: setup.Experiment, cal: Calibrated, truth: setup.Truth, i
     :func:`measure_targets` picks the targets in the camera's cloud)."""
     cell = Cell(truth.system, exp.items, seed, truth.depth_errors)
     seen_c, normals_c = measure_targets(exp, cell, cloud)
+    d_target, d_normal = measurement_errors(exp, cell, seen_c, normals_c)
     targets, normals = planner_targets(seen_c, normals_c, cal)
     sols = plan_targets(exp.metric, targets, normals, cal.system.home, ik)
     q_open = swept_joints(exp, targets, sols, setup.spot_speed()) if lag else None
     rows = []
     for k, sol in enumerate(sols):
         row: dict[str, Any] = {"experiment": exp.name, "group": setup.group(exp.name),
-                               "target": k, "metric": exp.metric}  # fmt: skip
+                               "target": k, "metric": exp.metric,
+                               "target_mm": 1e3 * d_target[k],
+                               "normal_deg": float(np.degrees(d_normal[k]))}  # fmt: skip
         status, e_open, e_closed, iters, t_ik = "hidden", np.nan, np.nan, 0, np.nan
         true_open, true_closed = np.nan, np.nan
         if sol is not None:

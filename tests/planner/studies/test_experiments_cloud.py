@@ -239,9 +239,10 @@ def test_the_cloud_flag_changes_the_picked_targets_and_not_the_chessboard() -> N
     truth = setup.draw_truth(nominal, setup.Unknowns(), np.random.default_rng(7))
     assert truth.system.camera is not None
     c_T_w = inv_T(truth.system.camera.world_T_camera)
+    seed = [0, 0, 9]
     for exp in (setup.chessboard("B"), setup.curve()):
-        off = measure_targets(exp, Cell(truth.system, exp.items, [0, 0, 9]), cloud=False)
-        on = measure_targets(exp, Cell(truth.system, exp.items, [0, 0, 9]), cloud=True)
+        off = measure_targets(exp, Cell(truth.system, exp.items, seed), cloud=False)
+        on = measure_targets(exp, Cell(truth.system, exp.items, seed), cloud=True)
         if exp.name.startswith("chessboard"):
             assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(on, off, strict=True))
             continue
@@ -251,12 +252,13 @@ def test_the_cloud_flag_changes_the_picked_targets_and_not_the_chessboard() -> N
         assert 0.5 < np.median(theta) < 15.0 and np.max(theta) < 30.0
         d = np.linalg.norm(on[0] - transform_points(c_T_w, exp.points), axis=1)
         assert np.median(d) > 5e-4 and np.max(d) < 0.015  # depth noise, ~2.8 mm per pixel
-    # the trial's rows: the same chessboard, another curve
+    # the trial's rows: the same chessboard, another curve, with those measurement errors
     cal = Calibrated(truth.system, np.zeros(1), np.zeros(1), 0)
     ik = _ik(truth.system)
     for exp, same in ((setup.chessboard("A"), True), (setup.curve(), False)):
-        rows = [
-            run_experiment(exp, cal, truth, ik, None, [0, 0, 2], cloud=c) for c in (False, True)
-        ]
+        rows = [run_experiment(exp, cal, truth, ik, None, seed, cloud=c) for c in (False, True)]
         errors = [[r["open_mm"] for r in rs] for rs in rows]
         assert np.array_equal(errors[0], errors[1], equal_nan=True) == same, exp.name
+        assert max(r["normal_deg"] for r in rows[0]) < 1e-5  # exact normals without the cloud
+    assert np.allclose([r["normal_deg"] for r in rows[1]], theta, atol=1e-6)
+    assert np.allclose([r["target_mm"] for r in rows[1]], 1e3 * d)
