@@ -87,15 +87,15 @@ class Effects:
     ``robot`` the true arm's kinematic error level
     (:data:`planner.model.kinematic_error.LEVELS`: none, factory, uncalibrated) and
     ``servo_lag`` the arm following servoJ as a UR does while it sweeps a path
-    (:mod:`drivers.robot.servo_lag`), ``cloud_targets`` the curve, face and finger targets
-    picked in the camera's point cloud with SVD normals, as the paper did
-    (:mod:`planner.studies.experiments_cloud`; the chessboard's corners are detected)."""
+    (:mod:`drivers.robot.servo_lag`)."""
 
     camera_noise: bool = False
     depth_bias: bool = False
     robot: str = "none"
     servo_lag: bool = False
     cloud_targets: bool = False
+    """The curve, face and finger targets picked in the camera's point cloud with SVD normals,
+    as the paper did (:mod:`planner.studies.experiments_cloud`; the chessboard is detected)."""
 
     @property
     def robot_spread(self) -> KinematicSpread | None:
@@ -118,7 +118,6 @@ class Effects:
                                       ("depth bias", self.depth_bias)) if flag]  # fmt: skip
         on += [f"robot kinematics {self.robot}"] if self.robot != "none" else []
         on += ["servo lag"] if self.servo_lag else []
-        on += ["targets from the cloud (SVD normals)"] if self.cloud_targets else []
         return ", ".join(on) or "none"
 
 
