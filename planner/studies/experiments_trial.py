@@ -123,11 +123,10 @@ def measurement_errors(exp: setup.Experiment, cell: Cell, seen_c: Array,
 def planner_targets(seen_c: Array, normals_c: Array, cal: Calibrated) -> tuple[Array, Array]:
     """The targets as the planner knows them (world, through the calibrated camera pose):
     the measured points (K x 3, NaN rows where not seen) and normals (camera frame, K x 3)."""
-    cam_cal = cal.system.camera
-    assert cam_cal is not None
-    return transform_points(cam_cal.world_T_camera, seen_c), normals_c @ cam_cal.world_T_camera[
-        :3, :3
-    ].T
+    cam = cal.system.camera
+    assert cam is not None
+    T = cam.world_T_camera
+    return transform_points(T, seen_c), normals_c @ T[:3, :3].T
 
 
 def plan_targets(metric: str, targets: Array, normals: Array, home: Array, ik: Any) -> list[Any]:
