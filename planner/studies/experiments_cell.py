@@ -6,7 +6,9 @@ the hidden truth, the product's calibration collection and calibration code.
   depth errors, when the trial has them): ``spot(q)`` puts the
   robot at ``q`` (joint states), traces the true beam onto the true objects and returns the
   camera's detected spot (D435 spot noise), averaged over ``frames`` frames; ``see(points)``
-  measures target features (D435 corner noise) where the true camera sees them.
+  measures target features (D435 corner noise) where the true camera sees them;
+  ``pick(points)`` picks them in one frame of its full-resolution cloud with SVD normals
+  (:mod:`planner.studies.experiments_cloud`).
 - :func:`calibrate_cell`: the paper's procedure. Hand-eye: 20 well-conditioned poses
   planned on the nominal geometry (:func:`planner.calibration.collect.handeye_plan`), the
   board corners measured by the sim camera (``SimCamera.markers``) at the true poses,
@@ -24,11 +26,13 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from planner.model import d435
 from planner.model.scene import SceneItem
 from planner.model.system import System
 from planner.model.transforms import Array, inv_T, transform_points
+from planner.studies.experiments_cloud import CloudTargets, pick_targets
 from planner.studies.experiments_setup import (
     CALIBRATION_BOARDS,
     NOMINAL_BOARD,
@@ -51,6 +55,7 @@ class Cell:
         from drivers.camera.sim import SimCamera
 
         self.truth = truth
+        self.items = items
         self.errors = errors  # the true camera's own depth errors (None: the kind model)
         self.camera = SimCamera(truth, list(items), stride=64, seed=seed, depth_errors=errors)
         self.rng = np.random.default_rng(seed)
@@ -72,9 +77,9 @@ class Cell:
         got = [s.p_camera for s in (self.camera.spot() for _ in range(frames)) if s is not None]
         return np.mean(got, axis=0) if got else None
 
-    def see(self, points_world: Array, noise: d435.D435Noise | None = None) -> Array:
-        """Measured features (K x 3, camera frame, m; NaN where hidden or off the image);
-        ``noise`` defaults to the D435 corner model :data:`planner.model.d435.CORNER`."""
+    def visible(self, points_world: Array) -> tuple[Array, NDArray[np.bool_]]:
+        """Points (K x 3, world, m) in the true camera frame, and whether the true camera
+        sees each (nothing in front, in front of the camera, inside the image)."""
         cam = self.truth.camera
         assert cam is not None
         k, c = cam.intrinsics, cam.world_T_camera[:3, 3]
@@ -86,9 +91,31 @@ class Cell:
             u, v = k.fx * p[:, 0] / p[:, 2] + k.cx, k.fy * p[:, 1] / p[:, 2] + k.cy
         ok = (hit >= dist - 1e-4) & (p[:, 2] > 0.1) & (u >= 0) & (u < k.width)
         ok &= (v >= 0) & (v < k.height)
+        return p, ok
+
+    def see(self, points_world: Array, noise: d435.D435Noise | None = None) -> Array:
+        """Measured features (K x 3, camera frame, m; NaN where hidden or off the image);
+        ``noise`` defaults to the D435 corner model :data:`planner.model.d435.CORNER`."""
+        p, ok = self.visible(points_world)
+        k = self.camera.camera.intrinsics
         out = (noise or d435.CORNER).with_focal(k.fx).with_errors(self.errors).apply(p, self.rng)
         out[~ok] = np.nan
         return out
+
+    def pick(self, points_world: Array) -> CloudTargets:
+        """Targets (K x 3, world, m) picked in one frame of the true camera's full-resolution
+        cloud with their SVD normals (:mod:`planner.studies.experiments_cloud`; camera frame,
+        NaN where hidden); the cloud's noise from a stream of its own."""
+        from drivers.camera.sim import SimCamera
+
+        p, ok = self.visible(points_world)
+        seed = int(self.rng.integers(2**63))
+        cam = SimCamera(self.truth, list(self.items), seed=seed, depth_errors=self.errors)
+        cloud, meta = cam.points()
+        z, rays = cam.depth()  # the same pixels without noise: what the colour image shows
+        clean = np.asarray(rays, dtype=float) * np.asarray(z, dtype=float)[:, None]
+        k, stride = cam.camera.intrinsics, int(meta["stride"])
+        return pick_targets(np.asarray(cloud, dtype=float), clean, p, ok, k, stride)
 
 
 def _cast(scene: Any, origin: Array, dirs: Array) -> Array:

@@ -93,6 +93,9 @@ class Effects:
     depth_bias: bool = False
     robot: str = "none"
     servo_lag: bool = False
+    cloud_targets: bool = False
+    """The curve, face and finger targets picked in the camera's point cloud with SVD normals,
+    as the paper did (:mod:`planner.studies.experiments_cloud`; the chessboard is detected)."""
 
     @property
     def robot_spread(self) -> KinematicSpread | None:

@@ -8,7 +8,9 @@ Per trial (seeded, independent of how many run and where):
 2. calibration on the simulated cell (:func:`~planner.studies.experiments_cell.calibrate_cell`:
    20 hand-eye poses; 16 poses x 3 boards for laser + mirror; D435 noise);
 3. per experiment run (:func:`~planner.studies.experiments_setup.experiments`): the camera
-   measures the targets (D435 corner noise); each target, mapped to the world with the
+   measures the targets (D435 corner noise; with ``Effects.cloud_targets`` the curve, face
+   and finger targets are picked in its point cloud with SVD normals,
+   :mod:`planner.studies.experiments_cloud`); each target, mapped to the world with the
    calibrated camera pose (its normal as the camera sees it, likewise), is planned with the
    product's :class:`planner.ik.BeamIK` on the calibrated system (points from home, path
    samples from the previous sample's joints);
@@ -23,7 +25,8 @@ Per trial (seeded, independent of how many run and where):
 6. errors with the paper's metrics, in the camera frame as the camera measured both spot
    and target (point-to-point, or closest point to the measured path); and the same
    metrics without the camera (``true_*``: the true spot against the true target), which
-   separates the calibration's error from the measurement noise.
+   separates the calibration's error from the measurement noise; and how far the measured
+   target and normal are from the true ones (``target_mm``, ``normal_deg``).
 
 A row per target: ``status`` ok | hidden (target not seen) | unsolved | lost (spot not seen).
 """
@@ -35,10 +38,11 @@ from typing import Any
 
 import numpy as np
 
-from planner.model.transforms import Array, transform_points
+from planner.model.transforms import Array, inv_T, transform_points
 from planner.studies import common
 from planner.studies import experiments_setup as setup
 from planner.studies.experiments_cell import FRAMES, Calibrated, Cell, calibrate_cell
+from planner.studies.experiments_cloud import PICKED
 from planner.studies.experiments_metrics import closest_point_error, point_error
 
 ROBOT_STREAM = 1  # third entry of the seed of the true arm's kinematic error
@@ -91,16 +95,38 @@ class ClosedLoop:
         return res.q, res
 
 
-def planner_targets(
-    seen_c: Array, normals_true: Array, cal: Calibrated, truth: setup.Truth
-) -> tuple[Array, Array]:
+def measure_targets(exp: setup.Experiment, cell: Cell, cloud: bool = False) -> tuple[Array, Array]:
+    """The targets as the true camera measures them (camera frame, m; NaN rows where not
+    seen) and their normals in its frame: with ``cloud``, a picked experiment's
+    (:data:`~planner.studies.experiments_cloud.PICKED`) are picked in the camera's cloud with
+    SVD normals (:meth:`Cell.pick`); else the features are measured with the D435 corner
+    noise (:meth:`Cell.see`) and carry the true normals."""
+    if cloud and setup.group(exp.name) in PICKED:
+        return cell.pick(exp.points)
+    cam = cell.truth.camera
+    assert cam is not None
+    return cell.see(exp.points), exp.normals @ cam.world_T_camera[:3, :3]
+
+
+def measurement_errors(exp: setup.Experiment, cell: Cell, seen_c: Array,
+                       normals_c: Array) -> tuple[Array, Array]:  # fmt: skip
+    """How far each measured target is from the true one (m) and its normal from the true
+    normal (rad), in the true camera frame (NaN where not seen)."""
+    cam = cell.truth.camera
+    assert cam is not None
+    R = cam.world_T_camera[:3, :3]
+    true_c = transform_points(inv_T(cam.world_T_camera), exp.points)
+    cos = np.clip(np.einsum("ij,ij->i", normals_c, exp.normals @ R), -1.0, 1.0)
+    return np.linalg.norm(seen_c - true_c, axis=1), np.arccos(cos)
+
+
+def planner_targets(seen_c: Array, normals_c: Array, cal: Calibrated) -> tuple[Array, Array]:
     """The targets as the planner knows them (world, through the calibrated camera pose):
-    the measured points (K x 3, NaN rows where not seen) and the normals as the camera sees
-    them (the true ones in the true camera frame, mapped with the calibrated pose)."""
-    cam_cal, cam_true = cal.system.camera, truth.system.camera
-    assert cam_cal is not None and cam_true is not None
-    R = cam_cal.world_T_camera[:3, :3] @ cam_true.world_T_camera[:3, :3].T
-    return transform_points(cam_cal.world_T_camera, seen_c), normals_true @ R.T
+    the measured points (K x 3, NaN rows where not seen) and normals (camera frame, K x 3)."""
+    cam = cal.system.camera
+    assert cam is not None
+    T = cam.world_T_camera
+    return transform_points(T, seen_c), normals_c @ T[:3, :3].T
 
 
 def plan_targets(metric: str, targets: Array, normals: Array, home: Array, ik: Any) -> list[Any]:
@@ -140,18 +166,22 @@ def swept_joints(exp: setup.Experiment, targets: Array, sols: list[Any], speed: 
 
 
 def run_experiment(exp: setup.Experiment, cal: Calibrated, truth: setup.Truth, ik: Any,
-                   closed: ClosedLoop | None, seed: Any,
-                   lag: bool = False) -> list[dict[str, Any]]:  # fmt: skip
-    """Rows (one per target) of one experiment run (see the module docstring)."""
+                   closed: ClosedLoop | None, seed: Any, lag: bool = False,
+                   cloud: bool = False) -> list[dict[str, Any]]:  # fmt: skip
+    """Rows (one per target) of one experiment run (see the module docstring; ``cloud``:
+    :func:`measure_targets` picks the targets in the camera's cloud)."""
     cell = Cell(truth.system, exp.items, seed, truth.depth_errors)
-    seen_c = cell.see(exp.points)
-    targets, normals = planner_targets(seen_c, exp.normals, cal, truth)
+    seen_c, normals_c = measure_targets(exp, cell, cloud)
+    d_target, d_normal = measurement_errors(exp, cell, seen_c, normals_c)
+    targets, normals = planner_targets(seen_c, normals_c, cal)
     sols = plan_targets(exp.metric, targets, normals, cal.system.home, ik)
     q_open = swept_joints(exp, targets, sols, setup.spot_speed()) if lag else None
     rows = []
     for k, sol in enumerate(sols):
         row: dict[str, Any] = {"experiment": exp.name, "group": setup.group(exp.name),
-                               "target": k, "metric": exp.metric}  # fmt: skip
+                               "target": k, "metric": exp.metric,
+                               "target_mm": 1e3 * d_target[k],
+                               "normal_deg": float(np.degrees(d_normal[k]))}  # fmt: skip
         status, e_open, e_closed, iters, t_ik = "hidden", np.nan, np.nan, 0, np.nan
         true_open, true_closed = np.nan, np.nan
         if sol is not None:
@@ -199,7 +229,8 @@ def run_trial(
     closed = ClosedLoop(cal) if closed_loop else None
     rows = []
     for i, exp in enumerate(setup.experiments(rng)):
-        for r in run_experiment(exp, cal, truth, ik, closed, [seed, trial, i], effects.servo_lag):
+        args = (exp, cal, truth, ik, closed, [seed, trial, i])
+        for r in run_experiment(*args, effects.servo_lag, effects.cloud_targets):
             rows.append({"trial": trial, **r})
     return {
         "trial": trial,

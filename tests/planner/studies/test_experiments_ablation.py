@@ -62,7 +62,13 @@ def test_the_ladder_adds_one_effect_per_rung() -> None:
             f.name for f in fields(setup.Effects) if getattr(a, f.name) != getattr(b, f.name)
         ]
         assert len(changed) == 1, changed
-    assert rungs[-1][1] == setup.Effects(True, True, "uncalibrated", True)
+    assert rungs[-1][1] == setup.Effects(True, True, "uncalibrated", True, cloud_targets=True)
+    # the cloud's rung comes after the camera's depth errors and before the arm's
+    names = [label for label, _ in rungs]
+    cloud = next(i for i, (_, e) in enumerate(rungs) if e.cloud_targets)
+    assert names[cloud - 1].startswith("+ depth bias")
+    assert names[cloud + 1].startswith("+ robot kinematics")
+    assert all(e.cloud_targets for _, e in rungs[cloud:])
 
 
 def _trial(t: int, errors: dict[str, list[float]]) -> dict[str, object]:
@@ -133,3 +139,20 @@ def test_effects_make_the_true_cameras_errors() -> None:
     b = bias.depth_errors(nominal, np.random.default_rng(5))
     assert a == b and a is not None and not a.correlated
     assert 0 < abs(a.disparity_offset_px) <= d435.max_disparity_offset(430.0)
+
+
+def test_measurement_is_the_median_and_p90_of_the_seen_targets() -> None:
+    rows = [{"group": "curve", "target_mm": float(v), "normal_deg": float(10 * v)}
+            for v in range(1, 11)]  # fmt: skip
+    rows.append({"group": "curve", "target_mm": np.nan, "normal_deg": np.nan})  # hidden
+    rows.append({"group": "face", "target_mm": 2.0, "normal_deg": 0.0})
+    meas = abl.measurement([("rung", [{"trial": 0, "rows": rows}])])
+    curve = next(m for m in meas if m["experiment"] == "curve")
+    assert curve["target_mm_median"] == pytest.approx(5.5)  # of 1..10
+    assert curve["target_mm_p90"] == pytest.approx(9.1)  # linear between 9 and 10
+    assert curve["normal_deg_median"] == pytest.approx(55.0)
+    assert np.isnan(next(m for m in meas if m["experiment"] == "finger")["target_mm_median"])
+    lines = abl.report_lines([], 1, 0, None, meas)
+    # chessboard (none), curve, face: the table's row of the rung, a column per experiment
+    row = "| rung | nan (nan) / nan (nan) | 5.50 (9.10) / 55.0 (91.0) | 2.00 (2.00) / 0.0 (0.0) |"
+    assert any(line.startswith(row) for line in lines), lines
