@@ -28,8 +28,13 @@ def test_all_runs_each_study_at_its_scale_and_links_them(
         return SimpleNamespace(TRIALS=trials, main=main)
 
     trials = {"ik-grid": 7, "calibration": 100, "sensitivity": 5, "mirror-sweep": 3}
-    trials |= {"coverage": 2, "experiments": 10, "experiments-n2": 6, "online": 4,
-               "moving-target": 5}
+    trials |= {
+        "coverage": 2,
+        "experiments": 10,
+        "experiments-n2": 6,
+        "online": 4,
+        "moving-target": 5,
+    }
     monkeypatch.setattr(study_all, "STUDIES", {k: fake(k, n) for k, n in trials.items()})
     figures = study_all.main(1, 0, tmp_path, 1, None)
     assert calls == [(name, trials[name], tmp_path / name) for name in study_all.ORDER]
