@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -11,6 +12,37 @@ from planner.model.system import Intrinsics
 from planner.model.transforms import Array
 
 DEPTH_UNIT = 0.001  # m per z16 count written by write_recording
+
+
+def _software_device(
+    intrinsics: Intrinsics, colour: bool, fps: int
+) -> tuple[Any, list[Any], list[Any], Any]:
+    """A ``rs.software_device`` with a z16 depth sensor (and an rgb8 colour sensor sharing
+    ``intrinsics``, identity extrinsics): (device, sensors, their profiles, rs intrinsics)."""
+    import pyrealsense2 as rs
+
+    k = rs.intrinsics()
+    k.width, k.height = intrinsics.width, intrinsics.height
+    k.fx, k.fy, k.ppx, k.ppy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+    k.model, k.coeffs = rs.distortion.none, [0.0] * 5
+    dev = rs.software_device()
+    sensors, profiles = [], []
+    streams = [("Depth", rs.stream.depth, rs.format.z16, 2)]
+    if colour:
+        streams.append(("Color", rs.stream.color, rs.format.rgb8, 3))
+    for uid, (name, stream, fmt, bpp) in enumerate(streams):
+        s = dev.add_sensor(name)
+        vs = rs.video_stream()
+        vs.type, vs.index, vs.uid, vs.fmt, vs.bpp = stream, 0, uid, fmt, bpp
+        vs.width, vs.height, vs.fps, vs.intrinsics = k.width, k.height, fps, k
+        profiles.append(s.add_video_stream(vs, True))
+        sensors.append(s)
+    sensors[0].add_read_only_option(rs.option.depth_units, DEPTH_UNIT)
+    if colour:
+        ext = rs.extrinsics()
+        ext.rotation, ext.translation = [1.0, 0, 0, 0, 1, 0, 0, 0, 1], [0.0, 0, 0]
+        profiles[0].register_extrinsics_to(profiles[1], ext)
+    return dev, sensors, profiles, k
 
 
 def write_recording(
@@ -33,27 +65,7 @@ def write_recording(
 
     import pyrealsense2 as rs
 
-    k = rs.intrinsics()
-    k.width, k.height = intrinsics.width, intrinsics.height
-    k.fx, k.fy, k.ppx, k.ppy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
-    k.model, k.coeffs = rs.distortion.none, [0.0] * 5
-    dev = rs.software_device()
-    sensors, profiles = [], []
-    streams = [("Depth", rs.stream.depth, rs.format.z16, 2)]
-    if rgb is not None:
-        streams.append(("Color", rs.stream.color, rs.format.rgb8, 3))
-    for uid, (name, stream, fmt, bpp) in enumerate(streams):
-        s = dev.add_sensor(name)
-        vs = rs.video_stream()
-        vs.type, vs.index, vs.uid, vs.fmt, vs.bpp = stream, 0, uid, fmt, bpp
-        vs.width, vs.height, vs.fps, vs.intrinsics = k.width, k.height, fps, k
-        profiles.append(s.add_video_stream(vs, True))
-        sensors.append(s)
-    sensors[0].add_read_only_option(rs.option.depth_units, DEPTH_UNIT)
-    if rgb is not None:
-        ext = rs.extrinsics()
-        ext.rotation, ext.translation = [1.0, 0, 0, 0, 1, 0, 0, 0, 1], [0.0, 0, 0]
-        profiles[0].register_extrinsics_to(profiles[1], ext)
+    dev, sensors, profiles, k = _software_device(intrinsics, rgb is not None, fps)
     recorder = rs.recorder(str(path), dev)
     queue = rs.frame_queue(16)
     for s, p in zip(sensors, profiles, strict=True):
