@@ -5,6 +5,7 @@ All lengths in metres, angles in radians unless the key ends in ``_deg``; every 
 ``Partial*`` models describe ``truth.system`` and ``include:`` files: the same keys, all
 optional (robots still need their ``name``, by which they are matched).
 """
+# long module: the scenario is one pydantic document (SPEC section 4); its models validate against each other
 
 from __future__ import annotations
 

@@ -91,6 +91,7 @@ with the stop deceleration of :mod:`drivers.robot.follower`, drop the queued tra
   received before the stop (also those still being parsed); the first trajectory received
   after it, once the arm is at rest, is judged by the rules above.
 """
+# long module: the robot driver's rules (admission, heartbeat watchdog, stop, laser gate, status) act on one node's state
 
 from __future__ import annotations
 
@@ -169,6 +170,7 @@ class Accepted(NamedTuple):
 class RobotNode(StreamingMixin, LoopNode):
     """Runs one backend on the bus (see the module docstring)."""
 
+    # long: the driver node's 15 keyword settings and its state are assigned in one place; no logic
     def __init__(
         self,
         session: Any,

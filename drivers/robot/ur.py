@@ -55,6 +55,7 @@ hung driver turns the laser off within ``1/watchdog_hz`` s plus a cycle. An RTDE
 (ur_rtde raises RuntimeError) is a fault; nothing reconnects inside the loop (the operator's
 recover does, in a helper thread). How to run it on a real arm: ``drivers/README.md``.
 """
+# long module: one ur_rtde backend: connection, servo session, faults, recovery, safety modes and the RTDE watchdog share its link
 
 from __future__ import annotations
 
@@ -98,6 +99,7 @@ class URRobot:
 
     kind = "ur"
 
+    # long: the UR backend's 16 settings and its three RTDE interfaces are stored in one place; the body only assigns
     def __init__(
         self,
         host: str,

@@ -41,6 +41,7 @@ both). What it models, per 2 ms controller cycle (one cycle per ``waitPeriod`` c
 
 Joints in rad, rad/s; times in s.
 """
+# long module: a fake of ur_rtde's control, receive and IO interfaces that records every call, for the tests without an arm
 
 from __future__ import annotations
 

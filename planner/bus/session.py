@@ -228,6 +228,7 @@ def file_sets_endpoints(conf: Any) -> bool:
     )
 
 
+# long: each Zenoh setting is written out with the reason it has that value (15 lines of docstring)
 def zenoh_config(
     *,
     listen: bool,

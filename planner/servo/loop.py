@@ -123,6 +123,7 @@ def within_tolerance(err: float, m: SpotMeasurement, s: ServoSettings) -> bool:
     return bool(err + s.confidence * standard_error <= s.tolerance)
 
 
+# long: the loop's stops (converged, confirmed, not improving, not seen, refused, aborted, back to best) read as one loop against its docstring
 def servo(
     measure: Measure,
     q0: Array,
