@@ -33,7 +33,7 @@ Every publisher and the node itself declare rmw_zenoh's liveliness tokens
 ``/tf_static`` is transient-local (as tf2 expects): an advanced publisher whose cache a
 late subscriber queries; it is also republished every ``STATIC_PERIOD`` s.
 """
-# long module: the ROS 2 bridge maps every beamrelay key to its ROS 2 message in one table-driven place
+# long module: one bridge node: its bus inputs, its publishing thread and the eight topics it converts share its latest-state store
 
 from __future__ import annotations
 

@@ -46,7 +46,7 @@ region ``max_excursion`` (m) around the first estimate, when a frame's solution 
 ``max_jump`` (rad, any joint) from the current command (the member nearest it lies in
 another posture: the arm is never swept there), or on :meth:`stop`.
 """
-# long module: the target follower's per-frame cycle (predict, IK, laser rule, limits, safety) is one state machine
+# long module: one follower: per frame it predicts, solves, gates the laser and limits the setpoints against one shared state
 
 from __future__ import annotations
 
