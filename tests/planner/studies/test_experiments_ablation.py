@@ -62,7 +62,8 @@ def test_the_ladder_adds_one_effect_per_rung() -> None:
             f.name for f in fields(setup.Effects) if getattr(a, f.name) != getattr(b, f.name)
         ]
         assert len(changed) == 1, changed
-    assert rungs[-1][1] == setup.Effects(True, True, "uncalibrated", True)
+    assert rungs[-1][1] == setup.Effects(True, True, "uncalibrated", True, True)
+    assert "paper" in rungs[-1][0] and rungs[-1][1].paper_calibration
 
 
 def _trial(t: int, errors: dict[str, list[float]]) -> dict[str, object]:
