@@ -15,10 +15,15 @@ fiducials at known places and recorded the robot's joints. Here, per calibration
    settings: 0.3 mm with confidence) drives the spot onto it as the camera sees both (the
    measured spot and the fiducial are mapped with the same camera pose, so its error
    cancels in their difference);
-3. each converged run gives one pair (joints, fiducial position); a run that does not
-   converge is dropped. The pairs are a :class:`planner.calibration.beam.BeamData` whose
-   spots are the fiducial positions: the same residual (the fiducial's distance from the
-   model's last ray) and solver as the 3D-spot design.
+3. each run gives one pair (joints where the servo left the arm, fiducial position): when it
+   converged, and also when it stopped as not improving or at its iteration limit - the
+   camera's noise then decides (correlated depth pixels put single measurements ~0.5 mm
+   apart, beyond the servo's 0.3 mm with confidence) and the arm is left at the best
+   measured joints (or the last, within the noise), where an operator would record them;
+   a run whose spot was not seen or whose step was refused gives none. The pairs are a
+   :class:`planner.calibration.beam.BeamData` whose spots are the fiducial positions: the
+   same residual (the fiducial's distance from the model's last ray) and solver as the
+   3D-spot design.
 
 Units: metres, radians; world frame unless stated.
 """
@@ -44,12 +49,14 @@ GRID = np.array([[x, y, 0.0] for y in _SIDE for x in _SIDE])
 
 class FiducialRuns(NamedTuple):
     """Per board: the fiducials' true and located positions (K x 3), the servo's final
-    joints (K x nq, NaN rows where it did not converge) and its final measured error (m)."""
+    joints (K x nq, NaN rows where it gave no pair), its final measured error (m, NaN
+    likewise) and whether it converged (K,)."""
 
     true_world: Array
     located_world: Array
     q: Array
     error: Array
+    converged: Array
 
 
 def board_fiducials(z: float) -> Array:
@@ -73,11 +80,13 @@ def locate(seen_camera: Array, world_T_camera: Array) -> tuple[Array, Array]:
 
 
 def drive_to_fiducials(cell: Any, model: System, world_T_camera: Array, fiducials: Array,
-                       normal: Array, ik: Any) -> tuple[Array, Array]:  # fmt: skip
+                       normal: Array, ik: Any) -> tuple[Array, Array, Array]:  # fmt: skip
     """Servo the spot onto each fiducial (world, m) in ``model`` (the planner's system),
-    measuring through ``cell``'s camera; (final joints, K x nq, NaN where the servo did not
-    converge; final measured error, m, NaN likewise)."""
-    from planner.servo import Corrector, SpotFrame, average_frames, servo
+    measuring through ``cell``'s camera; (final joints, K x nq, NaN where the run gives no
+    pair (module docstring, 3.); final measured error, m, NaN likewise; converged, K)."""
+    from planner.servo import Corrector, ServoStatus, SpotFrame, average_frames, servo
+
+    recorded = (ServoStatus.CONVERGED, ServoStatus.NOT_IMPROVING, ServoStatus.MAX_ITERATIONS)
 
     corrector = Corrector(model)
 
@@ -89,14 +98,16 @@ def drive_to_fiducials(cell: Any, model: System, world_T_camera: Array, fiducial
 
     qs = np.full((len(fiducials), model.nq), np.nan)
     err = np.full(len(fiducials), np.nan)
+    converged = np.zeros(len(fiducials), dtype=bool)
     for k, f in enumerate(fiducials):
         sol = ik.solve(f, normal, model.home)
         if sol.q is None:
             continue
         res = servo(measure, sol.q, f, normal, corrector)
-        if res.converged:
+        converged[k] = res.converged
+        if res.status in recorded and np.isfinite(res.error_after):
             qs[k], err[k] = res.q, res.error_after
-    return qs, err
+    return qs, err, converged
 
 
 def fiducial_runs(
@@ -119,8 +130,8 @@ def fiducial_runs(
     for z, cell in zip(CALIBRATION_BOARDS, cells, strict=True):
         true = board_fiducials(z)
         located, normal = locate(cell.see(true), world_T_camera)
-        qs, err = drive_to_fiducials(cell, model, world_T_camera, located, normal, ik)
-        out.append(FiducialRuns(true, located, qs, err))
+        qs, err, conv = drive_to_fiducials(cell, model, world_T_camera, located, normal, ik)
+        out.append(FiducialRuns(true, located, qs, err, conv))
     return out
 
 

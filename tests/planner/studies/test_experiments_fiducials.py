@@ -82,7 +82,7 @@ def test_fiducial_pairs_without_noise_recover_the_true_line_and_plane() -> None:
         qs = np.array([ik.solve(p, up, nominal.home).q for p in f])
         for q, p in zip(qs, f, strict=True):  # the data are what they claim, independently
             assert np.linalg.norm(trace_beam(truth.system, q, p, up).spot - p) < 1e-9
-        runs.append(fid.FiducialRuns(f, f, qs, np.zeros(len(f))))
+        runs.append(fid.FiducialRuns(f, f, qs, np.zeros(len(f)), np.ones(len(f), bool)))
     data = fid.fiducial_beam_data("arm0", runs)
     assert len(data.q) == 48 and set(data.boards.tolist()) == {0, 1, 2}
     res = calibrate_beam(data, nominal)
@@ -109,11 +109,15 @@ def test_the_servo_drives_the_true_spot_onto_the_true_fiducials(silent_camera: N
     for z, run in zip(setup.CALIBRATION_BOARDS, runs, strict=True):
         # located without noise: the known pattern where it truly is (open3d: float32)
         assert np.max(np.abs(run.located_world - fid.board_fiducials(z))) < 1e-5
-        ok = np.all(np.isfinite(run.q), axis=1)
-        assert ok.sum() >= 12
+        ok = run.converged
+        assert ok.sum() >= 12 and np.all(np.isfinite(run.q[ok]))
         for q, p in zip(run.q[ok], run.true_world[ok], strict=True):
             assert np.linalg.norm(trace_beam(truth.system, q, p, up).spot - p) < tol + 1e-5
-        assert np.nanmax(run.error) < tol  # what the servo measured at the end
+        assert np.max(run.error[ok]) < tol  # what the servo measured at the end
+        # the runs that stopped short still left the spot near its fiducial (2 x tolerance:
+        # the servo's noise floor, where it stops asking for improvement)
+        kept = np.all(np.isfinite(run.q), axis=1)
+        assert np.nanmax(run.error[kept]) < 2 * tol
 
 
 def test_the_effect_switches_the_calibration_input_data(monkeypatch: pytest.MonkeyPatch) -> None:
