@@ -25,9 +25,12 @@ Both use ``scipy.optimize.least_squares`` (``method="lm"``, MINPACK) with the an
 Jacobian of the CasADi residual. MINPACK's LM needs at least as many residuals as unknowns:
 a shorter residual is padded with zeros (rows of zero Jacobian; they change neither the
 cost nor the steps, and LM's damping handles the rank-deficient Jacobian, as MATLAB's LM
-does). A result counts as solved when the spot error is within the tolerance, every joint
-within its limits and the beam a valid reflection chain (the same validity rule as the
-product's IK).
+does). LM knows no joint limits: each joint of its result is moved by whole turns to the
+equivalent angle (the same pose of a revolute joint) nearest the start configuration, and,
+when that is outside the limits, by one more turn toward them, as the product's analytic
+IK picks its solution (:func:`wrap_joints`). A result counts as solved when the spot error
+is within the tolerance, every joint within its limits and the beam a valid reflection
+chain (the same validity rule as the product's IK).
 """
 
 from __future__ import annotations
@@ -78,6 +81,17 @@ def eq7_residual(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
     return ca.Function("lm_eq7", inputs | outputs, list(inputs), list(outputs))
 
 
+def wrap_joints(q: Array, q_ref: Array, lower: Array, upper: Array) -> Array:
+    """``q`` (rad) with each joint moved by whole turns to the equivalent nearest ``q_ref``,
+    or one turn further when that leaves [lower, upper] and the next one does not."""
+    w = q_ref + (q - q_ref + np.pi) % (2 * np.pi) - np.pi
+    for turn in (2 * np.pi, -2 * np.pi):
+        alt = w + turn
+        fix = ((w < lower) | (w > upper)) & (alt >= lower) & (alt <= upper)
+        w = np.where(fix, alt, w)
+    return w
+
+
 class LMIK:
     """Eq. 7 IK on one system: LM from a start configuration (see the module docstring);
     ``centre_weight`` None: the spot term only."""
@@ -119,8 +133,9 @@ class LMIK:
         res = least_squares(fun, q0, jac=jac, method="lm", xtol=1e-15, ftol=1e-15,
                             gtol=1e-15, max_nfev=MAX_EVALUATIONS)  # fmt: skip
         dt = time.perf_counter() - t0
-        tr = self.model.trace(res.x, target)
-        within = bool(np.all(res.x >= self.system.lower) and np.all(res.x <= self.system.upper))
+        q = wrap_joints(res.x, q0, self.system.lower, self.system.upper)
+        tr = self.model.trace(q, target)
+        within = bool(np.all(q >= self.system.lower) and np.all(q <= self.system.upper))
         solved = tr.valid and within and tr.error <= self.tolerance
         offset = float(np.max(np.linalg.norm(tr.uv, axis=1)))
-        return LMResult(res.x, float(tr.error), solved, dt, int(res.nfev), offset)
+        return LMResult(q, float(tr.error), solved, dt, int(res.nfev), offset)

@@ -59,6 +59,19 @@ def test_eq7_lm_lands_the_hit_on_the_mirror_centre_where_the_closed_form_does(sy
     assert spot_only.error < 1e-9 and spot_only.centre_offset > 0.01
 
 
+def test_lm_joints_are_wrapped_by_whole_turns_into_the_limits() -> None:
+    from planner.studies.lm_ik import wrap_joints
+
+    lo, hi = np.array([-2 * np.pi, -np.pi]), np.array([2 * np.pi, np.pi])
+    q = np.array([-6.34, 0.5 + 4 * np.pi])
+    w = wrap_joints(q, np.zeros(2), lo, hi)
+    assert np.allclose(w, [-6.34 + 2 * np.pi, 0.5])  # nearest the start, same angles
+    assert np.allclose(np.cos(w), np.cos(q)) and np.allclose(np.sin(w), np.sin(q))
+    # nearest the start is outside the limits: one more turn brings it in
+    w = wrap_joints(np.array([6.0, 0.0]), np.array([-6.2, 0.0]), lo, hi)
+    assert np.allclose(w, [6.0 - 2 * np.pi, 0.0]) and np.all(w >= lo)
+
+
 @pytest.mark.slow
 def test_study_compares_beamik_and_lm_and_draws_the_map(tmp_path: Path) -> None:
     text = ik_grid.SCENARIO.read_text().replace("n: [10, 10, 10]", "n: [2, 2, 2]")
