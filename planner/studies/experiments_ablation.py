@@ -179,9 +179,11 @@ SOURCES = [
     "their measurement noise, so the paths can come out lower with it.",
     "- calibration design (last rung, a design, not an imperfection): ours on every rung "
     "above (hand-eye: the best-conditioned 20 of 60 random board-visible poses; laser + "
-    "mirror: 16 joint perturbations per board, each spot measured in 3D by the camera); the "
-    "paper's on the last (hand-eye: 20 random board-visible poses as drawn; laser + mirror: "
-    "the product's IK and servo drive the spot onto 16 fiducials per board, a known 4 x 4 "
-    "pattern located by the calibrated camera, and the (joints, fiducial position) pairs "
-    "are calibrated with the same residual) - `planner/studies/experiments_fiducials.py`.",
+    "mirror: the best-conditioned 16 of 48 joint perturbations per board, each spot "
+    "measured in 3D by the camera); the paper's on the last (hand-eye: 20 random "
+    "board-visible poses as drawn; laser + mirror: the product's IK and servo drive the spot "
+    "onto 16 fiducials per board, a known 4 x 4 pattern located by the calibrated camera, "
+    "and the (joints, fiducial position) pairs are calibrated with the same residual; a run "
+    "that stops at the camera's noise floor short of the servo's 0.3 mm still gives its "
+    "pair) - `planner/studies/experiments_fiducials.py`.",
 ]
