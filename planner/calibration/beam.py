@@ -3,7 +3,8 @@
 Each sample is a spot measured in the world at recorded joints ``q`` (all robots of the
 chain up to the calibrated one). The residual is the planner's own ``beam`` CasADi
 function evaluated with the spot as target and no normal: the vector from the spot to the
-closest point of the last ray. Unknowns are perturbations of ``world_T_laser`` (right,
+closest point of the last ray. The spot may equally be a known fiducial that the spot was
+driven onto at ``q`` (the paper's design): the residual and the solver are the same. Unknowns are perturbations of ``world_T_laser`` (right,
 laser frame) and of the calibrated robot's ``flange_T_mirror`` (right, mirror frame).
 
 Identifiability: a spot constrains only the *line* of the laser and the *plane* of the

@@ -5,11 +5,13 @@
   with the *nominal* geometry). Beam: small joint perturbations around the configuration
   that aims the chain at ``aim`` (the board), kept when the nominal beam stays valid and
   lands within the board (:func:`planner.calibration.simulate.simulate_beam`).
-- Conditioning. Of ``oversample`` x n candidates, greedy selection keeps the n that give
-  the best-conditioned calibration Jacobian at the nominal solution: the hand-eye residual
+- Conditioning (:func:`handeye_plan`, :func:`beam_plan`). Of ``oversample`` x n
+  candidates, greedy selection keeps the n that give the best-conditioned calibration
+  Jacobian at the nominal solution: the hand-eye residual
   Jacobian w.r.t. the 12 pose corrections, rotation columns scaled by :data:`LEVER` (m) so
   rad and m compare; the beam residual Jacobian w.r.t. the observable laser/mirror
   corrections. The condition number (largest / smallest singular value) is reported.
+  The paper's design, :func:`random_handeye_plan`, takes n random candidates as drawn.
 - Moves. Each pose is reached by a minimum-jerk joint move (peak speed ``speed`` rad/s),
   sampled at 500 Hz, checked with the swept collision check
   (:func:`planner.safety.sweep.check_sweep`) before it is sent; a move that fails is skipped.
@@ -114,6 +116,35 @@ def select_conditioned(grams: Array, n: int) -> tuple[list[int], float]:
     return chosen, _gram_condition(G)
 
 
+def _handeye_candidates(system: System, robot: str, mode: str, n: int, board: Array,
+                        board_pose: Array, rng: np.random.Generator,
+                        feasible: Callable[[Array], bool] | None) -> Array:  # fmt: skip
+    """``n`` random board-visible, reachable hand-eye poses (rad) on the nominal geometry
+    (:func:`planner.calibration.simulate.simulate_handeye`), those ``feasible`` rejects
+    dropped (so fewer may remain)."""
+    from planner.calibration.simulate import simulate_handeye
+
+    assert system.camera is not None
+    cam = system.camera.world_T_camera
+    cand = simulate_handeye(system, robot, mode, n, camera_pose=cam, board_pose=board_pose,
+                            board_points=board, rng=rng).q  # fmt: skip
+    if feasible is not None:
+        cand = cand[[bool(feasible(q)) for q in cand]]
+    return cand
+
+
+def _grams(system: System, robot: str, mode: str, qs: Array, board: Array,
+           board_pose: Array) -> Array:  # fmt: skip
+    """Per pose, the Gram matrix ``J^T J`` of its scaled hand-eye Jacobian block."""
+    assert system.camera is not None
+    cam = system.camera.world_T_camera
+    out = []
+    for q in qs:
+        J = handeye_jacobian(system, robot, mode, q[None], board, cam, board_pose)
+        out.append(J.T @ J)
+    return np.array(out)
+
+
 def handeye_plan(
     system: System,
     robot: str,
@@ -127,20 +158,36 @@ def handeye_plan(
 ) -> tuple[Array, float]:
     """n well-conditioned hand-eye poses (rad) and the Jacobian's condition number;
     ``feasible`` (e.g. a static collision check) filters the candidates first."""
-    from planner.calibration.simulate import simulate_handeye
-
-    assert system.camera is not None
-    cam = system.camera.world_T_camera
-    cand = simulate_handeye(system, robot, mode, oversample * n, camera_pose=cam,
-                            board_pose=board_pose, board_points=board, rng=rng).q  # fmt: skip
-    if feasible is not None:
-        cand = cand[[bool(feasible(q)) for q in cand]]
-    grams = []
-    for q in cand:
-        J = handeye_jacobian(system, robot, mode, q[None], board, cam, board_pose)
-        grams.append(J.T @ J)
-    chosen, cond = select_conditioned(np.array(grams), n)
+    cand = _handeye_candidates(system, robot, mode, oversample * n, board, board_pose, rng,
+                               feasible)  # fmt: skip
+    chosen, cond = select_conditioned(_grams(system, robot, mode, cand, board, board_pose), n)
     return cand[chosen], cond
+
+
+def random_handeye_plan(
+    system: System,
+    robot: str,
+    mode: str,
+    n: int,
+    board: Array,
+    board_pose: Array,
+    rng: np.random.Generator,
+    oversample: int = 3,
+    feasible: Callable[[Array], bool] | None = None,
+) -> tuple[Array, float]:
+    """The paper's design: n random hand-eye poses (rad), no selection, and the condition
+    number they happen to give. Poses are drawn as :func:`handeye_plan`'s candidates are
+    (board pose uniform in the middle half of the image, depth 0.35-1.2 m, tilt up to
+    35 deg, random spin; rejected when unreachable or the board leaves the image), so they
+    are uniform within the reachable, board-visible set; the first n that ``feasible``
+    keeps are taken (of ``oversample`` x n drawn when there is a ``feasible``)."""
+    k = n if feasible is None else oversample * n
+    cand = _handeye_candidates(system, robot, mode, k, board, board_pose, rng, feasible)
+    if len(cand) < n:
+        raise ValueError(f"{len(cand)} feasible random poses for {n}")
+    qs = cand[:n]
+    G = _grams(system, robot, mode, qs, board, board_pose).sum(axis=0)
+    return qs, _gram_condition(G)
 
 
 def beam_plan(

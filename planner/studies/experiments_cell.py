@@ -9,14 +9,19 @@ the hidden truth, the product's calibration collection and calibration code.
   measures target features (D435 corner noise) where the true camera sees them;
   ``pick(points)`` picks them in one frame of its full-resolution cloud with SVD normals
   (:mod:`planner.studies.experiments_cloud`).
-- :func:`calibrate_cell`: the paper's procedure. Hand-eye: 20 well-conditioned poses
-  planned on the nominal geometry (:func:`planner.calibration.collect.handeye_plan`), the
-  board corners measured by the sim camera (``SimCamera.markers``) at the true poses,
-  :func:`planner.calibration.handeye.calibrate_handeye`. Beam: 16 poses per board at the
-  three :data:`CALIBRATION_BOARDS` placements (:func:`planner.calibration.collect.beam_plan`),
-  each spot measured by the camera and mapped to the world with the calibrated camera pose,
-  :func:`planner.calibration.beam.calibrate_beam`. The result is the planner's calibrated
-  system (camera, laser, mirror mount).
+- :func:`calibrate_cell`: the calibration, in one of two designs. Ours (default):
+  hand-eye from 20 well-conditioned poses planned on the nominal geometry
+  (:func:`planner.calibration.collect.handeye_plan`: the best-conditioned 20 of 60 random
+  candidates), the board corners measured by the sim camera (``SimCamera.markers``) at the
+  true poses, :func:`planner.calibration.handeye.calibrate_handeye`; beam: 16 poses per
+  board at the three :data:`CALIBRATION_BOARDS` placements
+  (:func:`planner.calibration.collect.beam_plan`), each spot measured in 3D by the camera
+  and mapped to the world with the calibrated camera pose,
+  :func:`planner.calibration.beam.calibrate_beam`. The paper's (``paper=True``): hand-eye
+  from 20 random poses (:func:`planner.calibration.collect.random_handeye_plan`, no
+  selection); beam: the spot servoed onto 16 known fiducials per board and the (joints,
+  fiducial) pairs calibrated (:mod:`planner.studies.experiments_fiducials`). The result is
+  the planner's calibrated system (camera, laser, mirror mount).
 Units: metres, radians; camera = OpenCV optical frame.
 """
 
@@ -137,18 +142,23 @@ class Calibrated:
 
 
 def calibrate_handeye_cell(
-    nominal: System, truth: Truth, rng: np.random.Generator, robot: str = ROBOT
+    nominal: System,
+    truth: Truth,
+    rng: np.random.Generator,
+    robot: str = ROBOT,
+    paper: bool = False,
 ) -> Any:
     """Hand-eye data collected on the simulated cell with the board on ``robot``'s flange
     and calibrated (eye to hand: the camera pose in the world through ``robot``'s nominal
-    base)."""
+    base); poses well-conditioned (ours) or random (``paper``)."""
     from drivers.camera.sim import SimCamera
-    from planner.calibration.collect import handeye_plan
+    from planner.calibration.collect import handeye_plan, random_handeye_plan
     from planner.calibration.handeye import HandEyeData, calibrate_handeye
     from planner.calibration.simulate import board_grid
 
     board = board_grid()
-    qs, _ = handeye_plan(nominal, robot, "eye_to_hand", HANDEYE_POSES, board, NOMINAL_BOARD, rng)
+    plan = random_handeye_plan if paper else handeye_plan
+    qs, _ = plan(nominal, robot, "eye_to_hand", HANDEYE_POSES, board, NOMINAL_BOARD, rng)
     cam = SimCamera(truth.system, [], stride=64, seed=int(rng.integers(2**31)),
                     depth_errors=truth.depth_errors)  # fmt: skip
     request = {"board_points": board.tolist(), "board_pose": truth.flange_T_board.tolist(),
@@ -159,6 +169,12 @@ def calibrate_handeye_cell(
         pts.append(cam.markers(request))
     data = HandEyeData(robot, "eye_to_hand", board, qs, np.array(pts))
     return calibrate_handeye(data, nominal)
+
+
+def board_cells(truth: Truth, rng: np.random.Generator) -> list[Cell]:
+    """One cell per :data:`CALIBRATION_BOARDS` placement, the board alone on the truth."""
+    return [Cell(truth.system, (calibration_board(z),), int(rng.integers(2**31)),
+                 truth.depth_errors) for z in CALIBRATION_BOARDS]  # fmt: skip
 
 
 #: a beam calibration board: where the planned poses aim (world, m) and the board itself
@@ -198,20 +214,35 @@ def collect_beam_cell(plan_system: System, truth: Truth, world_T_camera: Array,
     return BeamData(robot, np.array(qs), np.array(spots), np.array(labels), len(spots))
 
 
-def calibrate_beam_cell(
-    nominal: System, truth: Truth, world_T_camera: Array, rng: np.random.Generator
+def beam_cell_data(
+    nominal: System, truth: Truth, world_T_camera: Array, rng: np.random.Generator, paper: bool
 ) -> Any:
-    """Beam data (16 poses x 3 boards) collected on the simulated cell and calibrated."""
+    """Beam data (16 poses x 3 boards) collected on the simulated cell: 3D spots measured by
+    the camera (ours, :func:`collect_beam_cell`) or (joints, fiducial) pairs (``paper``)."""
+    if paper:
+        from planner.studies.experiments_fiducials import fiducial_beam_data, fiducial_runs
+
+        runs = fiducial_runs(nominal, world_T_camera, board_cells(truth, rng))
+        return fiducial_beam_data(ROBOT, runs)
+    return collect_beam_cell(nominal, truth, world_T_camera, rng)
+
+
+def calibrate_beam_cell(nominal: System, truth: Truth, world_T_camera: Array,
+                        rng: np.random.Generator, paper: bool = False) -> Any:  # fmt: skip
+    """Beam data collected on the simulated cell (:func:`beam_cell_data`) and calibrated."""
     from planner.calibration.beam import calibrate_beam
 
-    return calibrate_beam(collect_beam_cell(nominal, truth, world_T_camera, rng), nominal)
+    return calibrate_beam(beam_cell_data(nominal, truth, world_T_camera, rng, paper), nominal)
 
 
-def calibrate_cell(nominal: System, truth: Truth, rng: np.random.Generator) -> Calibrated:
-    """The paper's calibration on the simulated cell: hand-eye, then laser + mirror."""
+def calibrate_cell(
+    nominal: System, truth: Truth, rng: np.random.Generator, paper: bool = False
+) -> Calibrated:
+    """The calibration on the simulated cell, ours or the paper's design (``paper``):
+    hand-eye, then laser + mirror (see the module docstring)."""
     assert nominal.camera is not None
-    he = calibrate_handeye_cell(nominal, truth, rng)
-    bm = calibrate_beam_cell(nominal, truth, he.camera_pose, rng)
+    he = calibrate_handeye_cell(nominal, truth, rng, paper=paper)
+    bm = calibrate_beam_cell(nominal, truth, he.camera_pose, rng, paper)
     system = nominal.with_params(
         world_T_laser=bm.world_T_laser, flange_T_mirror={ROBOT: bm.flange_T_mirror}
     )

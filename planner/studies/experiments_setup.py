@@ -87,7 +87,10 @@ class Effects:
     ``robot`` the true arm's kinematic error level
     (:data:`planner.model.kinematic_error.LEVELS`: none, factory, uncalibrated) and
     ``servo_lag`` the arm following servoJ as a UR does while it sweeps a path
-    (:mod:`drivers.robot.servo_lag`)."""
+    (:mod:`drivers.robot.servo_lag`). ``paper_calibration`` is not an imperfection but a
+    design: the paper's calibration (hand-eye from random poses, the laser spot servoed onto
+    known fiducials) instead of ours (well-conditioned poses, the spot measured in 3D),
+    :func:`planner.studies.experiments_cell.calibrate_cell`."""
 
     camera_noise: bool = False
     depth_bias: bool = False
@@ -96,6 +99,7 @@ class Effects:
     cloud_targets: bool = False
     """The curve, face and finger targets picked in the camera's point cloud with SVD normals,
     as the paper did (:mod:`planner.studies.experiments_cloud`; the chessboard is detected)."""
+    paper_calibration: bool = False
 
     @property
     def robot_spread(self) -> KinematicSpread | None:
@@ -116,8 +120,10 @@ class Effects:
         """One line: the effects that are on."""
         on = [name for name, flag in (("camera noise (correlated)", self.camera_noise),
                                       ("depth bias", self.depth_bias)) if flag]  # fmt: skip
+        on += ["targets from the cloud (SVD normals)"] if self.cloud_targets else []
         on += [f"robot kinematics {self.robot}"] if self.robot != "none" else []
         on += ["servo lag"] if self.servo_lag else []
+        on += ["the paper's calibration design"] if self.paper_calibration else []
         return ", ".join(on) or "none"
 
 

@@ -47,6 +47,7 @@ from planner.studies.experiments_metrics import closest_point_error, point_error
 
 ROBOT_STREAM = 1  # third entry of the seed of the true arm's kinematic error
 CAMERA_STREAM = 2  # ... and of the true camera's disparity offset
+EXPERIMENT_STREAM = 3  # ... and of the experiments' own draws (the finger's placement)
 
 
 def _error(exp: setup.Experiment, k: int, spot_c: Array | None, seen_c: Array) -> float:
@@ -212,7 +213,10 @@ def run_trial(
     """One trial: its calibration figures and every target's row (``trial`` added). The
     true arm's kinematic error (``effects.robot``) and the true camera's disparity offset
     (``effects.depth_bias``) come from streams of their own (``[seed, trial, ROBOT_STREAM]``,
-    ``[seed, trial, CAMERA_STREAM]``): the other draws stay those of the kind simulation."""
+    ``[seed, trial, CAMERA_STREAM]``): the other draws stay those of the kind simulation.
+    The experiments' own draws (``[seed, trial, EXPERIMENT_STREAM]``) do not depend on how
+    many the calibration took, so the calibration designs
+    (``effects.paper_calibration``) meet the same experiments."""
     from planner.ik import BeamIK
     from planner.planning import ik_options
 
@@ -224,11 +228,12 @@ def run_trial(
     truth = setup.draw_truth(nominal, u, rng, effects.robot_spread, robot_rng)
     camera_rng = np.random.default_rng(np.random.SeedSequence([seed, trial, CAMERA_STREAM]))
     truth = replace(truth, depth_errors=effects.depth_errors(nominal, camera_rng))
-    cal = calibrate_cell(nominal, truth, rng)
+    cal = calibrate_cell(nominal, truth, rng, effects.paper_calibration)
     ik = BeamIK(cal.system, ik_options(setup.solver_settings()))
     closed = ClosedLoop(cal) if closed_loop else None
     rows = []
-    for i, exp in enumerate(setup.experiments(rng)):
+    exp_rng = np.random.default_rng(np.random.SeedSequence([seed, trial, EXPERIMENT_STREAM]))
+    for i, exp in enumerate(setup.experiments(exp_rng)):
         args = (exp, cal, truth, ik, closed, [seed, trial, i])
         for r in run_experiment(*args, effects.servo_lag, effects.cloud_targets):
             rows.append({"trial": trial, **r})

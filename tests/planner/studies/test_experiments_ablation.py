@@ -62,7 +62,10 @@ def test_the_ladder_adds_one_effect_per_rung() -> None:
             f.name for f in fields(setup.Effects) if getattr(a, f.name) != getattr(b, f.name)
         ]
         assert len(changed) == 1, changed
-    assert rungs[-1][1] == setup.Effects(True, True, "uncalibrated", True, cloud_targets=True)
+    last = setup.Effects(True, True, "uncalibrated", True, cloud_targets=True,
+                         paper_calibration=True)  # fmt: skip
+    assert rungs[-1][1] == last
+    assert "paper" in rungs[-1][0] and rungs[-1][1].paper_calibration
     # the cloud's rung comes after the camera's depth errors and before the arm's
     names = [label for label, _ in rungs]
     cloud = next(i for i, (_, e) in enumerate(rungs) if e.cloud_targets)
