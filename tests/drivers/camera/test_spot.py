@@ -12,52 +12,9 @@ import pytest
 
 from drivers.camera.realsense import detect_red_spot
 from drivers.camera.spot import GateHistory, SpotParams, detect_gated_spot, project
+from planner.simcell.detectors import SPOT, frame, scene, spot_light, yuyv_roundtrip
 
-H, W = 480, 848
 FX, Z = 615.0, 0.87  # px, m: D435 colour focal length at 848 x 480, paper_n1 distance
-SPOT = (431.3, 305.6)  # px, true spot centre (sub-pixel)
-ESTOP = (SPOT[0] - 426.0, SPOT[1])  # a red e-stop button 426 px to the left
-
-
-def scene(rng: np.random.Generator, kind: str = "board", estop: bool = True) -> np.ndarray:
-    """Static background (float RGB): a grey board with a light gradient, a red e-stop
-    button, and skin (a hand) for the skin cases."""
-    vv, uu = np.mgrid[0:H, 0:W].astype(float)
-    img = np.empty((H, W, 3))
-    img[:] = 110.0 + 40.0 * uu[..., None] / W  # brighter to the right
-    d = np.hypot(uu - ESTOP[0], vv - ESTOP[1])
-    if estop:
-        img[d <= 28] = (230.0, 25.0, 20.0)  # the e-stop: saturated red, big
-    if kind == "skin":
-        skin = np.hypot((uu - SPOT[0]) / 140.0, (vv - SPOT[1]) / 90.0) <= 1.0
-        tex = 8.0 * np.sin(uu / 3.0) * np.cos(vv / 4.0)  # skin texture
-        img[skin] = np.stack([200 + tex, 140 + tex, 120 + tex], axis=-1)[skin]
-    return img
-
-
-def spot_light(amplitude: tuple[float, float, float], sigma: float) -> np.ndarray:
-    vv, uu = np.mgrid[0:H, 0:W].astype(float)
-    g = np.exp(-((uu - SPOT[0]) ** 2 + (vv - SPOT[1]) ** 2) / (2 * sigma**2))
-    return g[..., None] * np.asarray(amplitude)
-
-
-def frame(base: np.ndarray, light: np.ndarray | None, rng: np.random.Generator) -> np.ndarray:
-    img = base + (0.0 if light is None else light) + rng.normal(0.0, 2.0, base.shape)
-    return np.clip(np.round(img), 0, 255).astype(np.uint8)
-
-
-def yuyv_roundtrip(rgb: np.ndarray) -> np.ndarray:
-    """RGB -> YUYV 4:2:2 (BT.601 full range, chroma averaged over pixel pairs) -> RGB."""
-    f = rgb.astype(float)
-    y = 0.299 * f[..., 0] + 0.587 * f[..., 1] + 0.114 * f[..., 2]
-    cb = -0.168736 * f[..., 0] - 0.331264 * f[..., 1] + 0.5 * f[..., 2]
-    cr = 0.5 * f[..., 0] - 0.418688 * f[..., 1] - 0.081312 * f[..., 2]
-    cb = np.repeat(0.5 * (cb[:, 0::2] + cb[:, 1::2]), 2, axis=1)
-    cr = np.repeat(0.5 * (cr[:, 0::2] + cr[:, 1::2]), 2, axis=1)
-    y, cb, cr = np.round(y), np.round(cb), np.round(cr)  # 8-bit storage
-    out = np.stack([y + 1.402 * cr, y - 0.344136 * cb - 0.714136 * cr, y + 1.772 * cb], -1)
-    return np.clip(np.round(out), 0, 255).astype(np.uint8)
-
 
 CASES = {
     # name: (scene, e-stop, spot amplitude RGB, sigma px, yuyv, px tolerance, min confidence)
