@@ -107,6 +107,7 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
         "brakes",
         "camera",
         "corners",
+        "detectors",
         "ik",
         "marking",
         "path",
