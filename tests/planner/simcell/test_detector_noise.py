@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from drivers.camera.markers import CharucoSpec
+from planner.model import d435
 from planner.simcell import detector_noise as dn
 from planner.simcell.detectors import FRAMES, NOISE_COUNTS, spot_light
 
@@ -66,3 +67,21 @@ def test_random_board_poses_stay_in_the_image_at_their_depth() -> None:
         assert tilt <= dn.MAX_TILT_DEG + 1e-9
     with pytest.raises(ValueError, match="fits"):
         dn.random_board_pose(rng, spec, k, 0.05)  # too close: never inside
+
+
+def test_spot_model_constant_is_the_measured_bright_spot_on_a_board() -> None:
+    """d435.SPOT_PX lies within a fresh measurement's 95 % CI (its condition, another seed)."""
+    cond = dn.SPOT_CONDITIONS[dn.SPOT_MODEL_CONDITION]
+    m = dn.measure_spot_px(cond, samples=80, seed=11)
+    assert m.missed == 0
+    assert m.ci95_px[0] <= d435.SPOT_PX <= m.ci95_px[1], m
+    assert d435.SPOT.lateral_px == d435.SPOT_PX
+
+
+def test_corner_model_constant_is_the_measured_blurred_board_at_0_9_m() -> None:
+    """d435.CORNER_PX lies within a fresh measurement's 95 % CI (its condition, another seed)."""
+    cond = dn.CORNER_CONDITIONS[dn.CORNER_MODEL_CONDITION]
+    m = dn.measure_corner_px(cond, samples=16, seed=11)
+    assert m.points > 100
+    assert m.ci95_px[0] <= d435.CORNER_PX <= m.ci95_px[1], m
+    assert d435.CORNER.lateral_px == d435.CORNER_PX
