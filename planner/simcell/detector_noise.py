@@ -139,7 +139,7 @@ def measure_spot_px(cond: SpotCondition, samples: int = 200, seed: int = 0) -> M
     x = []
     for _ in range(samples):
         true = (CROP // 2 + rng.uniform(-0.5, 0.5), CROP // 2 + rng.uniform(-0.5, 0.5))
-        base = scene(None, cond.background, estop=False, shape=(CROP, CROP), spot=true)
+        base = scene(cond.background, estop=False, shape=(CROP, CROP), spot=true)
         light = spot_light(cond.amplitude, cond.sigma_px, true, (CROP, CROP))
         on, off = gated_frames(base, light, rng, cond.yuyv)
         guess = (true[0] + rng.normal(0, PREDICTION_PX), true[1] + rng.normal(0, PREDICTION_PX))

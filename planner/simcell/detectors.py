@@ -50,7 +50,6 @@ BACKGROUND_COUNTS = 128.0  # around the board: a mid-grey wall
 
 
 def scene(
-    rng: np.random.Generator | None = None,
     kind: str = "board",
     estop: bool = True,
     shape: tuple[int, int] = (H, W),
@@ -58,8 +57,7 @@ def scene(
 ) -> Array:
     """Static background (H x W x 3 float RGB counts): a grey board with a light gradient
     (brighter to the right), a red e-stop button at :data:`ESTOP` (``estop``), and for
-    ``kind="skin"`` a hand's skin with a texture, centred on ``spot`` (px). ``rng`` is
-    unused (the background is deterministic); kept so callers pass one generator."""
+    ``kind="skin"`` a hand's skin with a texture, centred on ``spot`` (px)."""
     if kind not in ("board", "skin"):
         raise ValueError(f"background kind must be board or skin, got {kind!r}")
     vv, uu = np.mgrid[0 : shape[0], 0 : shape[1]].astype(float)

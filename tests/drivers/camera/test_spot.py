@@ -29,7 +29,7 @@ CASES = {
 def test_gated_detection_finds_the_spot(name: str) -> None:
     kind, estop, amp, sigma, yuyv, tol, min_conf = CASES[name]
     rng = np.random.default_rng(7)
-    base, light = scene(rng, kind, estop), spot_light(amp, sigma)
+    base, light = scene(kind, estop), spot_light(amp, sigma)
     params = SpotParams(channel="luma" if yuyv else "red")
     conv = yuyv_roundtrip if yuyv else (lambda x: x)
     on = [conv(frame(base, light, rng)) for _ in range(2)]
@@ -52,7 +52,7 @@ def test_gated_detection_finds_the_spot(name: str) -> None:
 def test_no_spot_when_the_laser_is_dark() -> None:
     """A hand moves in, the laser is off (or disconnected): no spot, whatever is red."""
     rng = np.random.default_rng(3)
-    base = scene(rng, "skin")
+    base = scene("skin")
     on = [frame(base, None, rng) for _ in range(2)]  # gate on, but no light comes
     off = [frame(base, None, rng) for _ in range(2)]
     assert detect_gated_spot(on, off, SPOT) is None
@@ -64,7 +64,7 @@ def test_no_spot_when_the_laser_is_dark() -> None:
 
 def test_spot_outside_the_window_is_not_taken() -> None:
     rng = np.random.default_rng(5)
-    base = scene(rng)
+    base = scene()
     on = [frame(base, spot_light((120.0, 15.0, 10.0), 2.0), rng)]
     off = [frame(base, None, rng)]
     far = (SPOT[0] - 200.0, SPOT[1])
@@ -74,7 +74,7 @@ def test_spot_outside_the_window_is_not_taken() -> None:
 
 def test_two_spots_lower_the_confidence() -> None:
     rng = np.random.default_rng(9)
-    base = scene(rng)
+    base = scene()
     light = spot_light((120.0, 15.0, 10.0), 2.0)
     light2 = np.roll(light, 30, axis=1) * 0.9  # a reflection 30 px to the right
     one = detect_gated_spot([frame(base, light, rng)], [frame(base, None, rng)], SPOT)
@@ -85,7 +85,7 @@ def test_two_spots_lower_the_confidence() -> None:
 
 def test_ir_frames_work_too() -> None:
     rng = np.random.default_rng(11)
-    gray = scene(rng)[..., 1]
+    gray = scene()[..., 1]
     light = spot_light((80.0, 0, 0), 1.5)[..., 0]
     on = [frame(gray, light, rng)]
     off = [frame(gray, None, rng)]

@@ -50,7 +50,7 @@ def test_a_wide_spot_centroid_is_its_centre() -> None:
 
 def test_frames_are_8_bit_and_saturate() -> None:
     rng = np.random.default_rng(0)
-    base = scene(rng, "board", estop=False, shape=(40, 40), spot=(20.0, 20.0))
+    base = scene("board", estop=False, shape=(40, 40), spot=(20.0, 20.0))
     light = spot_light((900.0, 600.0, 500.0), 3.0, (20.0, 20.0), (40, 40))
     img = frame(base, light, rng)
     assert img.dtype == np.uint8
@@ -62,7 +62,7 @@ def test_frames_are_8_bit_and_saturate() -> None:
     on, off = gated_frames(base, light, rng, yuyv=True, frames=3)
     assert len(on) == len(off) == 3 and on[0].shape == (40, 40, 3)
     with pytest.raises(ValueError, match="board or skin"):
-        scene(rng, "grass")
+        scene("grass")
 
 
 def test_yuyv_keeps_grey_and_shares_chroma_over_pairs() -> None:
