@@ -40,7 +40,7 @@ def figures(spot_samples: int, corner_samples: int, seed: int) -> dict[str, dict
 def command(
     samples: Annotated[
         int, typer.Option("--samples", min=2, help="Spot samples per condition (boards: a fifth).")
-    ] = 400,
+    ] = 600,
     seed: Annotated[int, typer.Option("--seed", help="Random seed.")] = 0,
     as_json: Annotated[
         bool, typer.Option("--json", help="One JSON object on the last line.")
