@@ -29,7 +29,8 @@ one the laser counts as always on. The *true* beam - the latest joint states of 
 scene at the frame's time (an object in the way catches the beam there: a moving object
 where it is then), the last one gives the spot. It must be
 inside the image and visible from the camera (no object between), else no spot. The
-detection deprojects the spot's centroid pixel (noise ``SIGMA_PX`` = 0.05 px per axis) with
+detection deprojects the spot's centroid pixel (noise ``SIGMA_PX`` =
+:data:`planner.model.d435.SPOT_PX` per axis) with
 the depth of a plane fitted to the ``SPOT_WINDOW`` x ``SPOT_WINDOW`` pixels around it (noise
 ``sigma_z / SPOT_WINDOW`` along the ray): 0.2 mm at 0.87 m, the paper_n1 camera distance
 (the one D435 model, :data:`planner.model.d435.SPOT`);

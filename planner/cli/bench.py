@@ -8,6 +8,7 @@ from planner.bench import (
     brakes,
     camera,
     corners,
+    detectors,
     ik,
     marking,
     path,
@@ -36,6 +37,7 @@ BENCHMARKS = {
     "track": track,
     "brakes": brakes,
     "camera": camera,
+    "detectors": detectors,
     "ros2": ros2,
 }
 """Command name -> benchmark module (its ``command`` is the sub-command)."""

@@ -20,7 +20,8 @@ deprojection of a noisy pixel with a noisy depth, in the camera optical frame:
   default): a stereo camera whose disparity is off by delta px measures
   ``z_b = z / (1 + z delta / (fx B))`` (:func:`biased_depth`); the datasheet bounds it
   (:data:`Z_ACCURACY`, :func:`max_disparity_offset`).
-- ``pixel_px``: the feature's image-position noise (spot centroid, chessboard corner).
+- ``pixel_px``: the feature's image-position noise (spot centroid, chessboard corner), as the
+  drivers' detectors show it on rendered images (:mod:`planner.simcell.detector_noise`).
 
 Two presets, the ones the drivers' detectors work with: :data:`SPOT` (laser-spot centroid,
 15 x 15 depth window, :mod:`drivers.camera.realsense`) and :data:`CORNER` (ChArUco corner,
@@ -41,9 +42,17 @@ from planner.model.transforms import Array
 SUBPIXEL = 0.08  # px, D435 disparity RMS
 BASELINE = 0.050  # m, D435 stereo baseline
 FOCAL_PX = 430.0  # px, D435 depth focal length at 848 x 480
-SPOT_PX = 0.05  # px, noise of the laser-spot centroid per image axis
+#: px, noise of the laser-spot centroid per image axis: ``beamrelay bench detectors`` (the
+#: drivers' gated detector on rendered frames, 600 samples, seed 0), condition "bright spot on
+#: board" (the paper_n1 camera, fx 430 px, at 0.87 m; an unsaturated spot of a 3 mm beam
+#: blurred as a colour image is): 0.0267 px, 95 % CI [0.0257, 0.0277] (0.054 mm at 0.87 m)
+SPOT_PX = 0.027
 SPOT_WINDOW = 15  # px, side of the depth window whose plane fit gives the spot depth
-CORNER_PX = 0.1  # px, noise of a sub-pixel chessboard corner per image axis
+#: px, noise of a ChArUco corner per image axis: ``beamrelay bench detectors`` (the drivers'
+#: ChArUco detector on rendered boards, 120 random poses, seed 0), condition "corners at 0.9 m,
+#: blurred" (the paper_n1 camera, fx 430 px; 0.5 px optical blur, 2 counts noise): 0.162 px,
+#: 95 % CI [0.150, 0.173] (0.33 mm at 0.87 m; a third of the corners are not found there)
+CORNER_PX = 0.16
 CORNER_WINDOW = 9  # px, side of the depth window of a corner (drivers.camera.markers)
 #: px, side of the D4's census matching window: librealsense's D400 advanced-mode presets
 #: (``param-censususize`` / ``param-censusvsize`` = 9, ``STCensusRadius``). Two depth pixels
@@ -166,6 +175,6 @@ class D435Noise:
 
 
 SPOT = D435Noise(lateral_px=SPOT_PX, window=SPOT_WINDOW)
-"""A laser spot: centroid 0.05 px, depth from a 15 x 15 plane fit (0.19 mm at 0.87 m)."""
+"""A laser spot: centroid :data:`SPOT_PX`, depth from a 15 x 15 plane fit (0.19 mm at 0.87 m)."""
 CORNER = D435Noise(lateral_px=CORNER_PX, window=CORNER_WINDOW)
-"""A ChArUco corner: 0.1 px, depth from a 9 x 9 plane fit (0.31 mm at 0.87 m)."""
+"""A ChArUco corner: :data:`CORNER_PX`, depth from a 9 x 9 plane fit (0.31 mm at 0.87 m)."""

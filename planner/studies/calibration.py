@@ -9,8 +9,8 @@
 3. Parameter error vs number of poses (plot).
 
 Noise: the one D435 model (:mod:`planner.model.d435`): board corners with the corner preset
-(0.1 px, 9 x 9 depth plane fit), laser spots with the spot preset (0.05 px, 15 x 15), as the
-simulated camera measures them.
+(:data:`~planner.model.d435.CORNER_PX`, 9 x 9 depth plane fit), laser spots with the spot
+preset (:data:`~planner.model.d435.SPOT_PX`, 15 x 15), as the simulated camera measures them.
 
 Each trial draws a true system around the nominal one (laser and mirror mount: U(-5, 5)
 deg per axis, the paper's level, U(-10, 10) mm; camera: 0.1 m around its nominal place;
@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.model import d435
 from planner.model.system import System
 from planner.model.transforms import Array
 from planner.studies import common
@@ -303,7 +304,8 @@ def write(out: Path, rows: list[dict[str, Any]], trials: int, seed: int) -> dict
         f"{trials} trials per cell, seed {seed}. Random true systems around the nominal N = 1 UR5e "
         "setup; calibration starts from the nominal values (hand-eye: closed form). D435 "
         "noise: the one model of the simulated camera (`planner.model.d435`): board corners "
-        "0.1 px with a 9 x 9 depth plane fit, laser spots 0.05 px with a 15 x 15 fit.",
+        f"{d435.CORNER_PX:g} px with a 9 x 9 depth plane fit, laser spots {d435.SPOT_PX:g} px "
+        "with a 15 x 15 fit (`beamrelay bench detectors`).",
         "",
         "## Noise-free data: max error of the observable parameters",
         "",

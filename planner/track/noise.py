@@ -18,12 +18,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from planner.calibration.simulate import DepthNoise
+from planner.model import d435
 from planner.model.transforms import Array
 
-#: px, noise of a centroid per image axis (as the sim camera's spot: drivers.camera.sim.SIGMA_PX)
-CENTROID_PX = 0.05
-#: px, side of the window whose plane fit gives the depth (drivers.camera.sim.SPOT_WINDOW)
-WINDOW_PX = 15
+#: px, noise of a centroid per image axis: the D435 model's spot (as the sim camera's)
+CENTROID_PX = d435.SPOT_PX
+#: px, side of the window whose plane fit gives the depth: the D435 model's spot window
+WINDOW_PX = d435.SPOT_WINDOW
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ from planner.io.scenario import load_scenario, system_from_scenario
 from planner.model.system import Intrinsics
 from planner.model.transforms import axis_angle_to_matrix, make_T
 from planner.service.collect import Why
+from planner.simcell.detectors import render_charuco
 from tests import cli_run
 from tests.drivers.conftest import free_port, raw_session, wait_for, wait_for_nodes
 from tests.paths import REPO
@@ -112,27 +113,6 @@ def test_conditioning_selection_and_degenerate_poses() -> None:
     chosen, c = select_conditioned(grams, 4)
     first = np.sqrt(np.linalg.cond(grams[:4].sum(axis=0)))
     assert c < first and len(set(chosen)) == 4
-
-
-def render_charuco(spec: CharucoSpec, k: Intrinsics, c_T_b: np.ndarray) -> tuple[Any, Any]:
-    """A colour image and depth (m) of the board at pose ``c_T_b`` (board frame: OpenCV's)."""
-    import cv2
-
-    ppm = 4000.0  # board image pixels per metre
-    w, h = spec.squares_x * spec.square, spec.squares_y * spec.square
-    img = spec.board().generateImage((round(w * ppm), round(h * ppm)), marginSize=0)
-    K = np.array([[k.fx, 0, k.cx], [0, k.fy, k.cy], [0, 0, 1]])
-    # board pixel (x, y) -> board point (x / ppm, y / ppm, 0); pixel centres at +0.5
-    S = np.array([[1 / ppm, 0, -0.5 / ppm + 0.5 / ppm], [0, 1 / ppm, 0], [0, 0, 1]])
-    S[0, 2] = S[1, 2] = 0.5 / ppm
-    H = K @ np.column_stack([c_T_b[:3, 0], c_T_b[:3, 1], c_T_b[:3, 3]]) @ S
-    gray = cv2.warpPerspective(img, H, (k.width, k.height), flags=cv2.INTER_AREA,
-                               borderValue=128)  # fmt: skip
-    vv, uu = np.mgrid[0 : k.height, 0 : k.width].astype(float)
-    rays = np.stack([(uu - k.cx) / k.fx, (vv - k.cy) / k.fy, np.ones_like(uu)], -1)
-    n = c_T_b[:3, 2]
-    depth = (n @ c_T_b[:3, 3]) / (rays @ n)
-    return np.repeat(gray[..., None], 3, axis=2), depth
 
 
 def test_charuco_corners_deprojected_with_depth() -> None:

@@ -12,52 +12,9 @@ import pytest
 
 from drivers.camera.realsense import detect_red_spot
 from drivers.camera.spot import GateHistory, SpotParams, detect_gated_spot, project
+from planner.simcell.detectors import SPOT, frame, scene, spot_light, yuyv_roundtrip
 
-H, W = 480, 848
 FX, Z = 615.0, 0.87  # px, m: D435 colour focal length at 848 x 480, paper_n1 distance
-SPOT = (431.3, 305.6)  # px, true spot centre (sub-pixel)
-ESTOP = (SPOT[0] - 426.0, SPOT[1])  # a red e-stop button 426 px to the left
-
-
-def scene(rng: np.random.Generator, kind: str = "board", estop: bool = True) -> np.ndarray:
-    """Static background (float RGB): a grey board with a light gradient, a red e-stop
-    button, and skin (a hand) for the skin cases."""
-    vv, uu = np.mgrid[0:H, 0:W].astype(float)
-    img = np.empty((H, W, 3))
-    img[:] = 110.0 + 40.0 * uu[..., None] / W  # brighter to the right
-    d = np.hypot(uu - ESTOP[0], vv - ESTOP[1])
-    if estop:
-        img[d <= 28] = (230.0, 25.0, 20.0)  # the e-stop: saturated red, big
-    if kind == "skin":
-        skin = np.hypot((uu - SPOT[0]) / 140.0, (vv - SPOT[1]) / 90.0) <= 1.0
-        tex = 8.0 * np.sin(uu / 3.0) * np.cos(vv / 4.0)  # skin texture
-        img[skin] = np.stack([200 + tex, 140 + tex, 120 + tex], axis=-1)[skin]
-    return img
-
-
-def spot_light(amplitude: tuple[float, float, float], sigma: float) -> np.ndarray:
-    vv, uu = np.mgrid[0:H, 0:W].astype(float)
-    g = np.exp(-((uu - SPOT[0]) ** 2 + (vv - SPOT[1]) ** 2) / (2 * sigma**2))
-    return g[..., None] * np.asarray(amplitude)
-
-
-def frame(base: np.ndarray, light: np.ndarray | None, rng: np.random.Generator) -> np.ndarray:
-    img = base + (0.0 if light is None else light) + rng.normal(0.0, 2.0, base.shape)
-    return np.clip(np.round(img), 0, 255).astype(np.uint8)
-
-
-def yuyv_roundtrip(rgb: np.ndarray) -> np.ndarray:
-    """RGB -> YUYV 4:2:2 (BT.601 full range, chroma averaged over pixel pairs) -> RGB."""
-    f = rgb.astype(float)
-    y = 0.299 * f[..., 0] + 0.587 * f[..., 1] + 0.114 * f[..., 2]
-    cb = -0.168736 * f[..., 0] - 0.331264 * f[..., 1] + 0.5 * f[..., 2]
-    cr = 0.5 * f[..., 0] - 0.418688 * f[..., 1] - 0.081312 * f[..., 2]
-    cb = np.repeat(0.5 * (cb[:, 0::2] + cb[:, 1::2]), 2, axis=1)
-    cr = np.repeat(0.5 * (cr[:, 0::2] + cr[:, 1::2]), 2, axis=1)
-    y, cb, cr = np.round(y), np.round(cb), np.round(cr)  # 8-bit storage
-    out = np.stack([y + 1.402 * cr, y - 0.344136 * cb - 0.714136 * cr, y + 1.772 * cb], -1)
-    return np.clip(np.round(out), 0, 255).astype(np.uint8)
-
 
 CASES = {
     # name: (scene, e-stop, spot amplitude RGB, sigma px, yuyv, px tolerance, min confidence)
@@ -72,7 +29,7 @@ CASES = {
 def test_gated_detection_finds_the_spot(name: str) -> None:
     kind, estop, amp, sigma, yuyv, tol, min_conf = CASES[name]
     rng = np.random.default_rng(7)
-    base, light = scene(rng, kind, estop), spot_light(amp, sigma)
+    base, light = scene(kind, estop), spot_light(amp, sigma)
     params = SpotParams(channel="luma" if yuyv else "red")
     conv = yuyv_roundtrip if yuyv else (lambda x: x)
     on = [conv(frame(base, light, rng)) for _ in range(2)]
@@ -95,7 +52,7 @@ def test_gated_detection_finds_the_spot(name: str) -> None:
 def test_no_spot_when_the_laser_is_dark() -> None:
     """A hand moves in, the laser is off (or disconnected): no spot, whatever is red."""
     rng = np.random.default_rng(3)
-    base = scene(rng, "skin")
+    base = scene("skin")
     on = [frame(base, None, rng) for _ in range(2)]  # gate on, but no light comes
     off = [frame(base, None, rng) for _ in range(2)]
     assert detect_gated_spot(on, off, SPOT) is None
@@ -107,7 +64,7 @@ def test_no_spot_when_the_laser_is_dark() -> None:
 
 def test_spot_outside_the_window_is_not_taken() -> None:
     rng = np.random.default_rng(5)
-    base = scene(rng)
+    base = scene()
     on = [frame(base, spot_light((120.0, 15.0, 10.0), 2.0), rng)]
     off = [frame(base, None, rng)]
     far = (SPOT[0] - 200.0, SPOT[1])
@@ -117,7 +74,7 @@ def test_spot_outside_the_window_is_not_taken() -> None:
 
 def test_two_spots_lower_the_confidence() -> None:
     rng = np.random.default_rng(9)
-    base = scene(rng)
+    base = scene()
     light = spot_light((120.0, 15.0, 10.0), 2.0)
     light2 = np.roll(light, 30, axis=1) * 0.9  # a reflection 30 px to the right
     one = detect_gated_spot([frame(base, light, rng)], [frame(base, None, rng)], SPOT)
@@ -128,7 +85,7 @@ def test_two_spots_lower_the_confidence() -> None:
 
 def test_ir_frames_work_too() -> None:
     rng = np.random.default_rng(11)
-    gray = scene(rng)[..., 1]
+    gray = scene()[..., 1]
     light = spot_light((80.0, 0, 0), 1.5)[..., 0]
     on = [frame(gray, light, rng)]
     off = [frame(gray, None, rng)]

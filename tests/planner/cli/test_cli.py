@@ -98,7 +98,9 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
             "mirror-sweep",
             "coverage",
             "experiments",
+            "experiments-n2",
             "online",
+            "moving-target",
             "all",
             "index",
         ]
@@ -107,6 +109,7 @@ def test_the_command_tree_is_exactly_the_registered_one() -> None:
         "brakes",
         "camera",
         "corners",
+        "detectors",
         "ik",
         "marking",
         "path",
