@@ -70,6 +70,7 @@ from planner.calibration.beam import (
 )
 from planner.calibration.report import beam_document
 from planner.errors import BeamrelayError, InputError
+from planner.model import d435
 from planner.model.system import System
 from planner.model.transforms import Array
 
@@ -84,9 +85,9 @@ EXACT_M = 1e-6  # m: held-out medians both below this count as equal (far below 
 SIGMA_K = 3.0  # standard deviations a planned mirror hit must keep inside the usable area
 FD_STEP = 1e-6  # rad or m: central-difference step of the hit's parameter Jacobian
 #: m: the least spot noise the mirror test believes: the lateral spot noise of our D435 model
-#: at 1 m (0.05 px at a 430 px focal length, planner/model/d435.py); a fit whose residuals
-#: say less (few samples, exact simulated spots) has been lucky, not precise
-NOISE_FLOOR_M = 1.2e-4
+#: at 1 m (``d435.SPOT_PX`` at its focal length, measured by ``beamrelay bench detectors``); a
+#: fit whose residuals say less (few samples, exact simulated spots) has been lucky, not precise
+NOISE_FLOOR_M = d435.SPOT_PX / d435.FOCAL_PX * 1.0
 
 
 def n_unknowns(system: System) -> int:

@@ -24,7 +24,8 @@ BOARD_HALF = 0.15  # m, half side of a square spot board
 
 
 DepthNoise = D435Noise
-"""The D435 noise model (:mod:`planner.model.d435`); default: one raw depth pixel, 0.1 px."""
+"""The D435 noise model (:mod:`planner.model.d435`); default: one raw depth pixel, the
+ChArUco corner's lateral noise (``d435.CORNER_PX``)."""
 
 
 def board_grid(nx: int = 7, ny: int = 5, spacing: float = 0.03) -> Array:
