@@ -374,7 +374,7 @@ class Plan:
     def from_document(cls, doc: Mapping[str, Any]) -> Plan:
         """The plan of a plan.json document (or reply), its tables as arrays. FieldError
         naming the key path of a missing key or an unknown status, reason or verdict."""
-        traj, verdict = _key(doc, "trajectory", ()), doc.get("execution")
+        traj, verdict = doc.get("trajectory"), doc.get("execution")
         warnings, unanswered = doc.get("warnings"), doc.get("execution_unanswered")
         chunks = doc.get("execution_chunks")
         return cls(
@@ -409,10 +409,12 @@ class Plan:
         doc["metrics"] = self.metrics.to_document()
         for key in _TAIL:
             value = getattr(self, key)
-            if value is not None:
+            if key == "execution_reason" and self.execution is not None:
+                doc[key] = value  # a verdict always says why (null: no reason)
+            elif isinstance(value, StrEnum):
+                doc[key] = value.value
+            elif value is not None:
                 doc[key] = list(value) if isinstance(value, tuple) else value
-        if self.execution is not None:
-            doc["execution"] = self.execution.value
         if self.closed_loop is not None:
             doc["closed_loop"] = dict(self.closed_loop)
         return doc

@@ -40,8 +40,10 @@ from typing import Any
 import numpy as np
 
 from planner.errors import InputError
+from planner.io.plan import Plan, Verdict
+from planner.io.plan import Trajectory as PlanTrajectory
 from planner.model.settings import TrajectorySettings
-from planner.model.status import evidence_text
+from planner.model.status import Status, evidence_text
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
 from planner.service.execution import ExecuteError
@@ -318,22 +320,22 @@ def as_aim(trajectory: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def run_closed_loop(runner: ClosedLoopRunner, plan: dict[str, Any], targets: Targets,
+def run_closed_loop(runner: ClosedLoopRunner, plan: Plan, targets: Targets,
                     start: Array, dwell: float) -> list[dict[str, Any]]:  # fmt: skip
     """Every target of ``plan`` in order; per target the figures of the reply's
     ``closed_loop.targets``. A refused move ends the run (ExecuteError carries the rows so
     far in ``rows``)."""
     runner.q = np.asarray(start, dtype=float)
     rows: list[dict[str, Any]] = []
-    for k, sol in enumerate(plan["solutions"]):
-        row: dict[str, Any] = {"id": plan["targets"][k]["id"], "dwell": 0.0, "treated": False}
+    for k, sol in enumerate(plan.solutions):
+        row: dict[str, Any] = {"id": int(plan.targets.ids[k]), "dwell": 0.0, "treated": False}
         if runner.motion.stop.is_set():
             rows.append(row | {"status": "aborted"})
             continue
-        if sol["status"] != "ok":
+        if sol.status is not Status.OK:
             rows.append(row | {"status": "not_planned"})
             continue
-        q0 = runner.system.stack_q(sol["q"])
+        q0 = runner.system.stack_q(dict(sol.q))
         try:
             res, dwelt = runner.target(k, q0, targets.points[k], targets.normal(k), dwell)
         except ExecuteError as exc:
@@ -396,41 +398,47 @@ def in_camera_frame(rows: list[dict[str, Any]], targets_camera: Array,
         row["measured_error_camera"] = float(np.linalg.norm(s_c - p_c))
 
 
-def execute_closed_loop(plan: dict[str, Any], targets: Targets, req: Any, start: Array,
-                        config: ClosedLoopConfig, motion: Motion, system: System) -> None:  # fmt: skip
-    """Run a closed-loop request's targets from stacked ``start`` (rad) and write the reply's
-    ``closed_loop`` (tolerance m, frames per measurement, dwell s, per-target figures),
-    ``metrics.extra`` (:func:`closed_loop_figures`), ``execution`` and ``execution_reason``."""
-    if all(s["status"] != "ok" for s in plan["solutions"]):
+def execute_closed_loop(plan: Plan, targets: Targets, req: Any, start: Array,
+                        config: ClosedLoopConfig, motion: Motion, system: System) -> Plan:  # fmt: skip
+    """Run a closed-loop request's targets from stacked ``start`` (rad); the plan with the
+    reply's ``closed_loop`` (tolerance m, frames per measurement, dwell s, per-target
+    figures), ``metrics.extra`` (:func:`closed_loop_figures`), ``execution`` and
+    ``execution_reason``."""
+    if not plan.any_ok:
         raise ExecuteError("no target could be solved, nothing to execute", [])
     settings = config.settings
     if req.tolerance is not None:
         settings = replace(settings, tolerance=float(req.tolerance))
     dwell = config.dwell if req.dwell is None else float(req.dwell)
     runner = ClosedLoopRunner(system, config, motion, req.id, settings)
-    verdict, reason = "accepted", None
+    verdict, reason = Verdict.ACCEPTED, None
     try:
         rows = run_closed_loop(runner, plan, targets, start, dwell)
     except ExecuteError as exc:
         rows = list(getattr(exc, "rows", []))
         k = len(rows) - 1
-        rest = [{"id": t["id"], "status": "not_executed", "dwell": 0.0}
-                for t in plan["targets"][len(rows):]]  # fmt: skip
+        rest = [{"id": int(i), "status": "not_executed", "dwell": 0.0}
+                for i in plan.targets.ids[len(rows):]]  # fmt: skip
         rows += rest
-        verdict, reason = "rejected", f"target {k}: {exc.reason}"
+        verdict, reason = Verdict.REJECTED, f"target {k}: {exc.reason}"
     if motion.stop.is_set():
         reason = "closed loop aborted: a stop was seen on the bus"
     if req.frame == "camera":
         in_camera_frame(rows, np.asarray(req.points, dtype=float), system.world_T_camera(start))
-    plan["closed_loop"] = {"tolerance": settings.tolerance, "frames_per_measurement": settings.frames,
-                           "dwell": dwell, "moves": runner.moves, "dropped": runner.dropped,
-                           "frame": req.frame, "targets": rows}  # fmt: skip
-    plan["metrics"].setdefault("extra", {}).update(closed_loop_figures(rows))
-    plan["execution"], plan["execution_reason"] = verdict, reason
+    report = {"tolerance": settings.tolerance, "frames_per_measurement": settings.frames,
+              "dwell": dwell, "moves": runner.moves, "dropped": runner.dropped,
+              "frame": req.frame, "targets": rows}  # fmt: skip
+    return replace(
+        plan,
+        closed_loop=report,
+        execution=verdict,
+        execution_reason=reason,
+        metrics=plan.metrics.with_extra(**closed_loop_figures(rows)),
+    )
 
 
-def execute_on_node(node: Any, plan: dict[str, Any], targets: Targets, req: Any,
-                    start: dict[str, Array], handler: Any) -> None:  # fmt: skip
+def execute_on_node(node: Any, plan: Plan, targets: Targets, req: Any,
+                    start: dict[str, Array], handler: Any) -> Plan:  # fmt: skip
     """:func:`execute_closed_loop` on a :class:`planner.service.node.PlannerNode`: from
     ``start`` (rad per robot), in the calibration of ``handler`` (the one the request was
     planned with), moving through the node's execution, measuring with its spot buffer (and
@@ -439,12 +447,11 @@ def execute_on_node(node: Any, plan: dict[str, Any], targets: Targets, req: Any,
     config = handler.closed_loop
     assert config is not None
     system = handler.system
-    head = {k: plan[k] for k in ("robots", "joint_names", "scenario")}
 
     def send(trajectory: dict[str, Any], move_id: str) -> tuple[str, str | None]:
-        mini = head | {"trajectory": trajectory}
-        node.execution.execute(mini, move_id, node.session_id)
-        return mini["execution"], mini["execution_reason"]
+        mini = replace(plan, trajectory=PlanTrajectory.from_document(trajectory))
+        sent = node.execution.execute(mini, move_id, node.session_id)
+        return str(sent.execution), sent.execution_reason
 
     def rest_at(q: Array) -> bool:
         return bool(node.joints.rests_at(system.split_q(q)))
@@ -459,4 +466,4 @@ def execute_on_node(node: Any, plan: dict[str, Any], targets: Targets, req: Any,
 
     motion = Motion(send, rest_at, node.spots, node.stop_seen, node.progress.tick, laser,
                     predict)  # fmt: skip
-    execute_closed_loop(plan, targets, req, system.stack_q(start), config, motion, system)
+    return execute_closed_loop(plan, targets, req, system.stack_q(start), config, motion, system)

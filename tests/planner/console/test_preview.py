@@ -29,7 +29,7 @@ def world() -> tuple[Any, Any, Any]:
 def plan_of(handler: Any, points: list[list[float]], path: bool = False,
             normals: list[list[float]] | None = None) -> dict[str, Any]:  # fmt: skip
     req = TargetRequest.model_validate(make_request(points, path=path, normals=normals))
-    return handler.plan(req, None, trajectory=True)
+    return handler.plan(req, None, trajectory=True).to_document()
 
 
 def test_beams_end_on_the_planned_spots_and_failures_keep_their_reason(world: Any) -> None:

@@ -117,15 +117,15 @@ def _run(world: SimWorld, bus: FakeBus, k: int, dwell: float | None = 0.1,
     model = world.model
     P = board_targets(k, seed=4)
     targets = Targets(P, np.tile(UP, (k, 1)))
-    plan = make_plan_fn(model, {})(targets, None, False)
-    plan.setdefault("scenario", {})
+    planned = make_plan_fn(model, {})(targets, None, False)
     req = TargetRequest.model_validate({"schema": "beamrelay.request/1", "id": "cl", "execute": True,
                                         "closed_loop": True, "points": P.tolist(), "dwell": dwell})  # fmt: skip
     config = config_of(world, settings)
     ticks: list[float] = []
     check_closed_loop(req, model, config)
-    execute_closed_loop(plan, targets, req, model.home, config, bus.motion(ticks), model)
+    done = execute_closed_loop(planned, targets, req, model.home, config, bus.motion(ticks), model)
     bus.clock.run_all()
+    plan = done.to_document()  # the reply
     plan["_ticks"] = ticks
     plan["_targets"] = P
     return plan
