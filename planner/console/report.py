@@ -12,6 +12,7 @@ from planner.console.operator import Answer
 from planner.console.preview import Preview
 from planner.console.sweep import Sweep
 from planner.io.plan import Plan
+from planner.model.status import Status
 
 #: most per-target rows shown
 MAX_ROWS = 40
@@ -76,7 +77,7 @@ def sweep_line(sw: Sweep) -> str:
 def _measured_rows(rows: list[dict[str, Any]]) -> list[str]:
     out = []
     for r in rows[:MAX_ROWS]:
-        if r["status"] != "ok":
+        if r["status"] != Status.OK:
             continue
         p = ", ".join(f"{1e3 * c:.1f}" for c in r["p"])
         if r["measured_spot"] is None:
