@@ -68,9 +68,10 @@ MAX_IMPLAUSIBLE = 3
 #: s between checks that the robots rest on a move's end / that a dwell is over
 REST_POLL, HOLD_POLL = 0.004, 0.05
 
-MoveFn = Callable[[Array, Array, float, Array, Array | None], dict[str, Any]]
-"""(q_from, q_to stacked rad, dwell s, target world m, normal or None) -> plan.json
-``trajectory`` (laser on while dwelling); ExecuteError when no safe move exists."""
+MoveFn = Callable[[Array, Array, float, Array, Array | None], PlanTrajectory]
+"""(q_from, q_to stacked rad, dwell s, target world m, normal or None) -> the move's
+:class:`~planner.io.plan.Trajectory` (laser on while dwelling); ExecuteError when no safe
+move exists."""
 
 
 def measure_time(frames: int) -> float:
@@ -87,7 +88,7 @@ def make_move_fn(system: System, settings: TrajectorySettings, safety: Any = Non
     from planner.planning import time_safely
 
     def move(q_from: Array, q_to: Array, dwell: float, target: Array,
-             normal: Array | None) -> dict[str, Any]:  # fmt: skip
+             normal: Array | None) -> PlanTrajectory:  # fmt: skip
         tr = trace_beam(system, q_to, target, normal)
         sol = Solution.solved(np.asarray(q_to, dtype=float), tr, 0.0, 0, "servo")
         tg = Targets(np.asarray(target, dtype=float)[None],
@@ -100,7 +101,7 @@ def make_move_fn(system: System, settings: TrajectorySettings, safety: Any = Non
             shown = evidence_text(sols[0].evidence) if sols else ""
             raise ExecuteError(f"closed-loop move refused: {why} ({shown})",
                                list(system.robot_names))  # fmt: skip
-        return timed.trajectory.to_plan_dict(system)
+        return timed.trajectory.to_plan(system)
 
     return move
 
@@ -158,7 +159,8 @@ def check_closed_loop(req: Any, system: System, config: ClosedLoopConfig | None 
 
 @dataclass
 class Motion:
-    """The node's side of the runner: ``send(trajectory, id)`` -> (verdict, reason);
+    """The node's side of the runner: ``send(trajectory, id)`` -> (verdict, reason) of a
+    move's :class:`~planner.io.plan.Trajectory`;
     ``rest_at(q)`` whether every robot rests on stacked ``q`` (rad); the spot buffer; the
     stop event; ``tick()`` reports progress to the worker's watchdog; ``laser`` the gate's
     on-intervals when a robot switches the laser (None: the laser is always on, frames count
@@ -167,7 +169,7 @@ class Motion:
     s, the clock of the frames and the laser's intervals) times every wait, and
     ``wait(s)`` waits at most ``s`` s, True once stopped (None: the stop event's wait)."""
 
-    send: Callable[[dict[str, Any], str], tuple[str, str | None]]
+    send: Callable[[PlanTrajectory, str], tuple[str, str | None]]
     rest_at: Callable[[Array], bool]
     spots: SpotBuffer
     stop: threading.Event
@@ -206,11 +208,11 @@ class ClosedLoopRunner:
             traj = as_aim(traj)
         self.moves += 1
         verdict, reason = self.motion.send(traj, f"{self.request_id[:200]}.cl{self.moves}")
-        if verdict != "accepted":
+        if verdict != Verdict.ACCEPTED:
             raise ExecuteError(reason or "rejected", list(self.system.robot_names))
         self.q = np.asarray(q_to, dtype=float)
         clock = self.motion.clock
-        deadline = clock() + float(traj["t"][-1]) - dwell + ARRIVAL_TIMEOUT
+        deadline = clock() + float(traj.t[-1]) - dwell + ARRIVAL_TIMEOUT
         while not self.motion.stop.is_set():
             self.motion.tick()
             if self.motion.rest_at(self.q):
@@ -311,13 +313,10 @@ class ClosedLoopRunner:
         return res, dwelt
 
 
-def as_aim(trajectory: dict[str, Any]) -> dict[str, Any]:
+def as_aim(trajectory: PlanTrajectory) -> PlanTrajectory:
     """A move's ``trajectory`` with its laser intervals given to the aiming beam
     (``aim_on``) and the treatment gate off throughout."""
-    out = dict(trajectory)
-    out["aim_on"] = out.pop("laser_on", None) or []
-    out["laser_on"] = []
-    return out
+    return replace(trajectory, aim_on=trajectory.laser_on, laser_on=trajectory.laser_on[:0])
 
 
 def run_closed_loop(runner: ClosedLoopRunner, plan: Plan, targets: Targets,
@@ -448,9 +447,9 @@ def execute_on_node(node: Any, plan: Plan, targets: Targets, req: Any,
     assert config is not None
     system = handler.system
 
-    def send(trajectory: dict[str, Any], move_id: str) -> tuple[str, str | None]:
-        mini = replace(plan, trajectory=PlanTrajectory.from_document(trajectory))
-        sent = node.execution.execute(mini, move_id, node.session_id)
+    def send(trajectory: PlanTrajectory, move_id: str) -> tuple[str, str | None]:
+        sent = node.execution.execute(replace(plan, trajectory=trajectory), move_id,
+                                      node.session_id)  # fmt: skip
         return str(sent.execution), sent.execution_reason
 
     def rest_at(q: Array) -> bool:

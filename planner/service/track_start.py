@@ -11,7 +11,6 @@ import numpy as np
 
 from planner.errors import InputError
 from planner.io.plan import Plan, Verdict
-from planner.io.plan import Trajectory as PlanTrajectory
 from planner.model.status import Status
 from planner.model.transforms import Array
 from planner.service.track import TrackSession
@@ -40,7 +39,7 @@ def approach(node: Any, handler: Any, plan: Plan, q0: Array, q1: Array,
     if handler.closed_loop is None:
         raise ExecuteError("no planned approach to the tracked target (this planner has no "
                            "move planner): execute a request to it first", list(system.robot_names))  # fmt: skip
-    traj = PlanTrajectory.from_document(handler.closed_loop.move(q0, q1, 0.0, first, normal))
+    traj = handler.closed_loop.move(q0, q1, 0.0, first, normal)
     traj = dataclasses.replace(traj, laser_on=traj.laser_on[:0])  # laser off throughout
     mini = dataclasses.replace(plan, trajectory=traj)
     sent = node.execution.execute(mini, f"{request_id[:200]}.approach", node.session_id)

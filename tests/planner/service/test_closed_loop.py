@@ -13,6 +13,7 @@ import pytest
 
 from planner.bench.servo_world import UP, SimWorld, board_targets
 from planner.errors import InputError
+from planner.io.plan import Trajectory as PlanTrajectory
 from planner.model.settings import TrajectorySettings
 from planner.model.system import Targets
 from planner.service.closed_loop import (
@@ -63,7 +64,8 @@ class FakeBus:
         self.laser = LaserLog() if gated else None
         self.lie: Any = None  # (move number, p_camera, confidence) -> (p_camera, confidence)
 
-    def send(self, traj: dict[str, Any], move_id: str) -> tuple[str, str | None]:
+    def send(self, move: PlanTrajectory, move_id: str) -> tuple[str, str | None]:
+        traj = move.to_document()  # what the drivers are sent
         self.clock.run_all()  # the previous move's dwell plays out first
         self.sent.append((move_id, traj))
         self.sent_at.append(self.clock())
