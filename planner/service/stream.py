@@ -261,7 +261,7 @@ class Execution:
         total = traj.duration
         moving: set[str] = set()
         begin = time.monotonic()
-        verdict, reason = "accepted", None
+        verdict, reason = Verdict.ACCEPTED, None
         silent: set[str] = set()  # robots that did not answer: they may still accept
         for k, chunk in enumerate(chunks[:2]):
             acks, timeout = self.send(chunk)
@@ -271,23 +271,23 @@ class Execution:
             if k == 0:
                 for robot in moving:
                     begin = self.tracks.accepted(robot, request_id, traj.q[robot][-1], total)
-            if verdict != "accepted":
+            if verdict is not Verdict.ACCEPTED:
                 if len(chunks) > 1:
                     reason = f"chunk {k + 1}/{len(chunks)}: {reason}"
                 break
-        if verdict == "rejected" and moving:
+        if verdict is Verdict.REJECTED and moving:
             reason = f"{reason}; stopped {', '.join(sorted(moving))}: the robots move only together"
             self.send_stop(f"request {request_id}: {reason}")
-        elif verdict == "rejected" and silent:  # a late acceptance must not move the arm
+        elif verdict is Verdict.REJECTED and silent:  # a late acceptance must not move the arm
             reason = f"{reason}; stop sent, so a late acceptance does not move"
             self.send_stop(f"request {request_id}: {reason}")
         unanswered = None
-        if verdict == "rejected" and silent:  # no verdict heard: not known to be refused
+        if verdict is Verdict.REJECTED and silent:  # no verdict heard: not known to be refused
             unanswered = tuple(sorted(silent))
         elif len(chunks) > 1:
             with self._lock:
                 self._stream = _Stream(self, request_id, chunks, begin).start()
-        return replace(plan, execution=Verdict(verdict), execution_reason=reason,
+        return replace(plan, execution=verdict, execution_reason=reason,
                        execution_unanswered=unanswered,
                        execution_chunks=len(chunks) if len(chunks) > 1 else None)  # fmt: skip
 
@@ -365,7 +365,7 @@ class _Stream:
                 verdict, reason = execution_verdict(acks, timeout)
                 if self._cancel.is_set():
                     return
-                if verdict != "accepted":
+                if verdict is not Verdict.ACCEPTED:
                     self._fail(f"chunk {k + 1}/{n}: {reason}")
                     return
                 self.sent = k + 1
