@@ -86,6 +86,10 @@ class SurfaceLanding:
     requested: Array
     offset_m: float
 
+    def to_document(self) -> dict[str, Any]:
+        return {"object": self.object, "requested": self.requested.tolist(),
+                "offset_m": self.offset_m}  # fmt: skip
+
 
 @dataclass(frozen=True)
 class Solution:
@@ -143,9 +147,7 @@ class Solution:
             d["hits"] = [{"robot": h.robot, "p": h.p.tolist(), "uv": h.uv.tolist()}
                          for h in self.hits]  # fmt: skip
         if self.surface is not None:
-            s = self.surface
-            d["surface"] = {"object": s.object, "requested": s.requested.tolist(),
-                            "offset_m": s.offset_m}  # fmt: skip
+            d["surface"] = self.surface.to_document()
         d["solve_time"] = self.solve_time
         d["iterations"] = self.iterations
         return d

@@ -455,11 +455,11 @@ def request_summary(plan: Plan, spots: list[Array | None] | None) -> dict[str, A
         err = None if spot is None else float(np.linalg.norm(spot - aim))
         if err is not None:
             measured.append(err)
-        doc = sol.to_document()  # the summary carries the plan's own figures
+        surface = None if sol.surface is None else sol.surface.to_document()
         rows.append({"id": int(plan.targets.ids[k]), "p": p.tolist(), "status": sol.status,
                      "reason": sol.reason, "planned_error": _finite(sol.error),
                      "measured_spot": None if spot is None else np.asarray(spot).tolist(),
-                     "measured_error": err, "surface": doc.get("surface")})  # fmt: skip
+                     "measured_error": err, "surface": surface})  # fmt: skip
         if servo_rows is not None and k < len(servo_rows):
             rows[-1]["closed_loop"] = {key: servo_rows[k].get(key) for key in CLOSED_LOOP_KEYS}
     out: dict[str, Any] = {
