@@ -48,7 +48,14 @@ from planner.model.system import System, Targets
 from planner.model.transforms import Array
 from planner.service.execution import ExecuteError
 from planner.service.spots import LaserLog, SpotBuffer
-from planner.servo import Corrector, ServoResult, ServoSettings, average_frames, servo
+from planner.servo import (
+    Corrector,
+    ServoResult,
+    ServoSettings,
+    ServoStatus,
+    average_frames,
+    servo,
+)
 from planner.servo.measure import SpotGate, SpotMeasurement, gate_frames
 
 #: camera frame period assumed for the measurement dwell (s; the D435 / sim camera at 30 Hz)
@@ -308,7 +315,7 @@ class ClosedLoopRunner:
         res = servo(self.measure, q0, p, normal, self.config.corrector, self.settings,
                     should_stop=self.motion.stop.is_set)  # fmt: skip
         dwelt = 0.0
-        if res.status == "converged":  # measured within tolerance: treat; else never
+        if res.status is ServoStatus.CONVERGED:  # measured within tolerance: treat; else never
             dwelt = self.hold(dwell)
         return res, dwelt
 
@@ -360,7 +367,7 @@ def closed_loop_figures(rows: list[dict[str, Any]]) -> dict[str, float]:
         r["measured_error_before"] for r in rows if r.get("measured_error_before") is not None
     ]
     out: dict[str, float] = {
-        "closed_loop_converged": float(sum(r["status"] == "converged" for r in rows)),
+        "closed_loop_converged": float(sum(r["status"] == ServoStatus.CONVERGED for r in rows)),
         "closed_loop_targets": float(len(rows)),
     }
     if after:
