@@ -173,29 +173,6 @@ def _slowdowns(outcome: Any) -> Any:
     return table
 
 
-def _load_plan(path: Path) -> dict[str, Any]:
-    """plan.json read (its dense tables as arrays, :func:`~planner.io.plan_file.read_plan`)
-    and validated against the schema: the tables with numpy, the rest by the model."""
-    from planner.io.plan_file import read_plan
-    from schemas.common import FieldError
-    from schemas.located import format_loc
-    from schemas.plan import Plan, check_tables, take_tables
-    from schemas.yamlio import read_json, validate
-
-    data = read_json(path, load=read_plan)
-    if not isinstance(data, dict):
-        raise InputError("expected a JSON object", str(path))
-    tables = take_tables(data)
-    validate(Plan, data, source=str(path))
-    if tables is not None:
-        try:
-            check_tables(tables, data.get("joint_names") or {})
-        except FieldError as exc:
-            raise InputError(exc.reason, f"{path} {format_loc(('trajectory', *exc.loc))}") from None
-        data["trajectory"].update(tables)
-    return data
-
-
 #: check figures that are finite-difference joint rates over their limits
 _RATE_RATIOS = ("velocity_max_ratio", "acceleration_max_ratio", "jerk_max_ratio")
 
@@ -234,9 +211,10 @@ def check(
     from rich.table import Table
 
     from planner.io.plan import Plan
+    from planner.io.plan_file import load_plan
     from planner.verify.check import check_plan
 
-    plan_doc = _load_plan(plan_file)
+    plan_doc = load_plan(plan_file)
     results = check_plan(plan_doc, plan_file.parent)
     console = Console()
     table = Table(title=f"check: {plan_file}")
