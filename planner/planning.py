@@ -12,11 +12,15 @@ sky-writing (:mod:`planner.path.marking`), dense at ``rate``, with the laser gat
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
 from planner.ik import Solution
+from planner.io.plan import Exposure, Hit, Metrics, Plan, PlanTargets, SurfaceLanding
+from planner.io.plan import Solution as PlanSolution
+from planner.io.plan import Trajectory as PlanTrajectory
 from planner.io.plan_file import plan_json as plan_json  # re-exported
 from planner.io.plan_file import write_plan as write_plan
 from planner.model.status import Reason, Status
@@ -30,7 +34,6 @@ from planner.scenario_planner import plan_path_targets as plan_path_targets
 from planner.scenario_planner import plan_points as plan_points
 from planner.scenario_planner import solve_landed_path as solve_landed_path
 from planner.scenario_planner import solve_path as solve_path
-from schemas.plan import PLAN_SCHEMA
 
 if TYPE_CHECKING:
     from planner.model.settings import TrajectorySettings
@@ -40,24 +43,27 @@ if TYPE_CHECKING:
     from planner.verify.spot import Mask
 
 
+def plan_solution(system: System, k: int, sol: Solution) -> PlanSolution:
+    """Target ``k``'s :class:`~planner.io.plan.Solution` (per robot name; world frame, SI)."""
+    surface = sol.evidence.get("surface")  # a camera-frame target landed on its surface
+    landing = None
+    if isinstance(surface, dict):
+        landing = SurfaceLanding(str(surface["object"]), np.asarray(surface["requested"], float),
+                                 float(surface["offset_m"]))  # fmt: skip
+    out = PlanSolution(k, Status(sol.status), None if sol.reason is None else Reason(sol.reason),
+                       solve_time=float(sol.solve_time), iterations=int(sol.iterations),
+                       surface=landing)  # fmt: skip
+    if sol.q is None or sol.hits is None or sol.uv is None or sol.spot is None:
+        return out
+    hits = tuple(Hit(r.name, sol.hits[i], sol.uv[i]) for i, r in enumerate(system.robots))
+    return dataclasses.replace(out, q=system.split_q(sol.q), spot=sol.spot,
+                               error=float(sol.error), incidence=float(sol.incidence),
+                               hits=hits)  # fmt: skip
+
+
 def solution_json(system: System, k: int, sol: Solution) -> dict[str, Any]:
     """One ``solutions[]`` entry of plan.json (world frame, SI)."""
-    reason = None if sol.reason is None else str(sol.reason)
-    d: dict[str, Any] = {"target": k, "status": str(sol.status), "reason": reason}
-    if sol.q is not None and sol.hits is not None and sol.uv is not None and sol.spot is not None:
-        d["q"] = {n: q.tolist() for n, q in system.split_q(sol.q).items()}
-        d["spot"] = sol.spot.tolist()
-        d["error"] = float(sol.error)
-        d["incidence"] = float(sol.incidence)
-        d["hits"] = [
-            {"robot": r.name, "p": sol.hits[i].tolist(), "uv": sol.uv[i].tolist()}
-            for i, r in enumerate(system.robots)
-        ]
-    if "surface" in sol.evidence:  # a camera-frame target landed on its surface
-        d["surface"] = sol.evidence["surface"]
-    d["solve_time"] = float(sol.solve_time)
-    d["iterations"] = int(sol.iterations)
-    return d
+    return plan_solution(system, k, sol).to_document()
 
 
 def plan_metrics(solutions: list[Solution], duration: float | None) -> dict[str, Any]:
@@ -114,37 +120,57 @@ def plan_document(
     trajectory_requested: bool | None = None,
     verify: bool = True,
 ) -> dict[str, Any]:
-    """The whole plan.json dict; ``extra`` figures go in ``metrics.extra``.
+    """The whole plan.json dict of :func:`build_plan` (the ``trajectory`` mapping's tables
+    kept as arrays when given as arrays)."""
+    traj = None if trajectory is None else PlanTrajectory.from_document(trajectory)
+    arrays = trajectory is not None and isinstance(trajectory.get("t"), np.ndarray)
+    return build_plan(system, targets, solutions, scenario, traj, extra,
+                      trajectory_requested=trajectory_requested,
+                      verify=verify).to_document(arrays)  # fmt: skip
 
-    ``trajectory_requested`` (default: a trajectory is given) is written to the plan: with
+
+def build_plan(
+    system: System,
+    targets: Targets,
+    solutions: list[Solution],
+    scenario: dict[str, Any],
+    trajectory: PlanTrajectory | None = None,
+    extra: dict[str, float] | None = None,
+    *,
+    trajectory_requested: bool | None = None,
+    verify: bool = True,
+) -> Plan:
+    """The :class:`~planner.io.plan.Plan` of solved targets; ``extra`` figures go in
+    ``metrics.extra``.
+
+    ``trajectory_requested`` (default: a trajectory is given) is kept in the plan: with
     it true, ``beamrelay check`` requires a trajectory whenever a target is solved. With
     ``verify`` the solutions are first re-verified by :func:`verify_solutions` (needs a
     resolved ``scenario`` with ``system``)."""
     if verify and "system" in scenario:
         solutions = verify_solutions(system, scenario, targets, solutions)
     duration = None
-    if trajectory is not None and len(trajectory.get("t", [])):
-        duration = float(trajectory["t"][-1])
-    metrics = plan_metrics(solutions, duration)
-    metrics["extra"] |= extra or {}
+    if trajectory is not None and len(trajectory.t):
+        duration = float(trajectory.t[-1])
+    metrics = Metrics.from_document(plan_metrics(solutions, duration)).with_extra(**(extra or {}))
     requested = trajectory is not None if trajectory_requested is None else trajectory_requested
-    doc = {
-        "schema": PLAN_SCHEMA,
-        "scenario": scenario,
-        "robots": list(system.robot_names),
-        "joint_names": {r.name: list(r.joint_names) for r in system.robots},
-        "targets": [_target_json(targets, k) for k in range(len(targets))],
-        "solutions": [solution_json(system, k, s) for k, s in enumerate(solutions)],
-        "trajectory": trajectory,
-        "trajectory_requested": bool(requested),
-        "metrics": metrics,
-    }
+    n = targets.normals
+    plan = Plan(
+        scenario, tuple(system.robot_names),
+        {r.name: tuple(r.joint_names) for r in system.robots},
+        PlanTargets(np.arange(len(targets)), targets.points,
+                    None if n is None or not np.isfinite(n).all(axis=1).any() else n),
+        tuple(plan_solution(system, k, s) for k, s in enumerate(solutions)), metrics,
+        trajectory, bool(requested),
+    )  # fmt: skip
     power = ((scenario.get("system") or {}).get("laser") or {}).get("power")
     if power is not None and "targets" in scenario:
         from planner.verify.marking import exposure
 
-        metrics["exposure"] = exposure(doc, float(power))
-    return doc
+        e = exposure(plan.to_document(arrays=True), float(power)) or {}
+        metrics = dataclasses.replace(metrics, exposure=Exposure(**e))
+        plan = dataclasses.replace(plan, metrics=metrics)
+    return plan
 
 
 class Timed(NamedTuple):
@@ -268,15 +294,22 @@ def path_deviation(system: System, targets: Targets, traj: Trajectory) -> float:
     return float(dev.max())
 
 
-class PlanOutcome(NamedTuple):
-    """Everything :func:`run_scenario` made: the plan.json dict and the objects behind it."""
+@dataclasses.dataclass(frozen=True)
+class PlanOutcome:
+    """Everything :func:`run_scenario` made: the :class:`~planner.io.plan.Plan` and the
+    objects behind it."""
 
-    doc: dict[str, Any]
+    plan: Plan
     system: System
     targets: Targets
     timed: Timed | None
     path: PathResult | None
     solutions: list[Solution]
+
+    @functools.cached_property
+    def doc(self) -> dict[str, Any]:
+        """The plan.json document (its trajectory tables as arrays)."""
+        return self.plan.to_document(arrays=True)
 
 
 def time_safely(
@@ -378,11 +411,11 @@ def run_scenario(
         timed, solutions, path, safe_figures = pipeline.time(
             targets, solutions, path, settings, order=order,
             progress=lambda k: bar.update(timing, completed=k + 1))  # fmt: skip
-    traj = None if timed is None else timed.trajectory.to_plan_arrays(system)
+    traj = None if timed is None else timed.trajectory.to_plan(system)
     extra = None if timed is None else timed.figures | safe_figures
-    doc = plan_document(system, targets, solutions, resolved, traj, extra,
-                        trajectory_requested=True, verify=False)  # fmt: skip
-    return PlanOutcome(doc, system, targets, timed, path, solutions)
+    plan = build_plan(system, targets, solutions, resolved, traj, extra,
+                      trajectory_requested=True, verify=False)  # fmt: skip
+    return PlanOutcome(plan, system, targets, timed, path, solutions)
 
 
 def plan_scenario(

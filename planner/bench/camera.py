@@ -51,15 +51,15 @@ def trial(mm: float, deg: float, n: int, seed: int, beam: bool = True) -> list[d
     plan = handler.plan_fn(targets, None, False)
     corrector = Corrector(world.model)
     rows = []
-    for k, sol in enumerate(plan["solutions"]):
-        if sol["status"] != "ok":
+    for k, sol in enumerate(plan.solutions):
+        if not sol.ok:
             continue
-        q = world.model.stack_q(sol["q"])
+        q = world.model.stack_q(dict(sol.q))
         open_spot = world.true_spot(q)
         res = servo(world.measure, q, targets.points[k], targets.normal(k), corrector)
         closed_spot = world.true_spot(res.q)
         rows.append({
-            "offset": abs(float((sol.get("surface") or {}).get("offset_m", 0.0))),
+            "offset": abs(sol.surface.offset_m) if sol.surface is not None else 0.0,
             "open": np.nan if open_spot is None else float(np.linalg.norm(open_spot - P[k])),
             "measured_after": res.error_after,
             "closed": np.nan if closed_spot is None else float(np.linalg.norm(closed_spot - P[k])),

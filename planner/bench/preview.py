@@ -183,14 +183,16 @@ def measure(scenario: Path, runs: int, centre: tuple[float, ...]) -> dict[str, A
     req = path_request(centre)
     targets = handler.targets(req)
     encode_json(
-        handler.plan(req, None, trajectory=True, rate=preview_rate())
+        handler.plan(req, None, trajectory=True, rate=preview_rate()).to_document()
     )  # warm-up: CasADi builds, caches
     walls, cpus, body = [], [], b""
     per: dict[str, list[float]] = {k: [] for k in STAGES}
     doc: dict[str, Any] = {}
     for _ in range(runs):
         w0, c0 = time.perf_counter(), time.process_time()
-        body = encode_json(handler.plan(req, None, trajectory=True, rate=preview_rate()))
+        body = encode_json(
+            handler.plan(req, None, trajectory=True, rate=preview_rate()).to_document()
+        )
         walls.append(time.perf_counter() - w0)
         cpus.append(time.process_time() - c0)
         secs, doc = rig.stages(targets)
@@ -199,12 +201,12 @@ def measure(scenario: Path, runs: int, centre: tuple[float, ...]) -> dict[str, A
     plan = json.loads(body)
     camera = _camera_figures(handler, rig, centre, runs)
     one = target_request(centre)
-    encode_json(handler.plan(one, None, trajectory=True, rate=preview_rate()))
+    encode_json(handler.plan(one, None, trajectory=True, rate=preview_rate()).to_document())
     single = []
     for _ in range(runs):
         w0 = time.perf_counter()
         reply = json.loads(
-            encode_json(handler.plan(one, None, trajectory=True, rate=preview_rate()))
+            encode_json(handler.plan(one, None, trajectory=True, rate=preview_rate()).to_document())
         )
         single.append(time.perf_counter() - w0)
     figures = doc["_figures"]
@@ -235,13 +237,13 @@ def _camera_figures(handler: Any, rig: Rig, centre: tuple[float, ...], runs: int
         return None
     req = camera_path_request(centre, cam.world_T_camera)
     targets = handler.targets(req)
-    encode_json(handler.plan(req, None, trajectory=True, rate=preview_rate()))
+    encode_json(handler.plan(req, None, trajectory=True, rate=preview_rate()).to_document())
     walls, n_ok = [], 0
     per: dict[str, list[float]] = {k: [] for k in CAMERA_STAGES}
     for _ in range(runs):
         w0 = time.perf_counter()
         plan = json.loads(
-            encode_json(handler.plan(req, None, trajectory=True, rate=preview_rate()))
+            encode_json(handler.plan(req, None, trajectory=True, rate=preview_rate()).to_document())
         )
         walls.append(time.perf_counter() - w0)
         n_ok = int(plan["metrics"]["n_ok"])

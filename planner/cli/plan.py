@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from planner.errors import InputError
-from planner.model.status import Status, evidence_text
+from planner.model.status import evidence_text
+
+if TYPE_CHECKING:
+    from planner.io.plan import Plan
 
 
 def _fmt(x: float | None, scale: float, digits: str) -> str:
@@ -55,11 +58,11 @@ def plan(
     if plot is not None:
         _plot_format(plot)
     outcome = run_scenario(scenario, optimal=optimal)
-    doc = outcome.doc
+    plan = outcome.plan
     with out.open("w") as fh:
-        write_plan(doc, fh)
+        write_plan(outcome.doc, fh)
     console = Console()
-    console.print(_summary(doc, scenario.name))
+    console.print(_summary(plan, scenario.name))
     if any(not sol.ok for sol in outcome.solutions):
         console.print(_failures(outcome.solutions))
     if outcome.timed is not None and outcome.timed.trajectory.slowdowns:
@@ -68,14 +71,13 @@ def plan(
     if plot is not None:
         from planner.plot import plot_plan, plot_profiles, profiles_path
 
-        plot_plan(outcome.system, outcome.targets, doc, plot)
+        plot_plan(outcome.system, outcome.targets, outcome.doc, plot)
         console.print(f"wrote {plot}")
-        if doc["trajectory"] is not None:
-            plot_profiles(outcome.system, outcome.targets, doc, profiles_path(plot))
+        if plan.trajectory is not None:
+            plot_profiles(outcome.system, outcome.targets, outcome.doc, profiles_path(plot))
             console.print(f"wrote {profiles_path(plot)}")
-    m = doc["metrics"]
-    failed = m["n_ok"] < m["n_targets"]
-    del outcome, doc  # the check reads the file back: one copy of a large plan in memory
+    failed = plan.metrics.n_ok < plan.metrics.n_targets
+    del outcome, plan  # the check reads the file back: one copy of a large plan in memory
     written = read_plan(out)
     violations = _print_findings(console, check_plan(written, out.parent), "check of the plan")
     if failed or violations:
@@ -114,29 +116,29 @@ def _failures(solutions: list[Any], most: int = 8) -> Any:
     return table
 
 
-def _summary(doc: dict[str, Any], fallback_name: str) -> Any:
+def _summary(plan: Plan, fallback_name: str) -> Any:
     """The plan summary table: targets, failures, errors, solve times, trajectory figures."""
     from rich.table import Table
 
-    m, x = doc["metrics"], doc["metrics"]["extra"]
-    table = Table(title=f"plan: {doc['scenario'].get('name') or fallback_name}")
+    m, x = plan.metrics, plan.metrics.extra
+    table = Table(title=f"plan: {plan.scenario.get('name') or fallback_name}")
     table.add_column("figure")
     table.add_column("value", justify="right")
-    table.add_row("targets", str(m["n_targets"]))
-    table.add_row("solved", str(m["n_ok"]))
+    table.add_row("targets", str(m.n_targets))
+    table.add_row("solved", str(m.n_ok))
     for key, count in sorted(x.items()):
         if key.startswith("failed_"):
             table.add_row(f"failed: {key[7:]}", f"[red]{int(count)}[/]")
-    table.add_row("error median (mm)", _fmt(m["error_median"], 1e3, ".3g"))
-    table.add_row("error max (mm)", _fmt(m["error_max"], 1e3, ".3g"))
-    table.add_row("solve time median (ms)", _fmt(m["solve_time_median"], 1e3, ".3f"))
-    table.add_row("solve time p95 (ms)", _fmt(m["solve_time_p95"], 1e3, ".3f"))
-    if m.get("duration") is None:
+    table.add_row("error median (mm)", _fmt(m.error_median, 1e3, ".3g"))
+    table.add_row("error max (mm)", _fmt(m.error_max, 1e3, ".3g"))
+    table.add_row("solve time median (ms)", _fmt(m.solve_time_median, 1e3, ".3f"))
+    table.add_row("solve time p95 (ms)", _fmt(m.solve_time_p95, 1e3, ".3f"))
+    if m.duration is None:
         table.add_row("trajectory", "none (nothing solved)")
         return table
-    table.add_row("trajectory duration (s)", f"{m['duration']:.2f}")
+    table.add_row("trajectory duration (s)", f"{m.duration:.2f}")
     if "path_time" in x:
-        speed = float(doc["scenario"]["trajectory"]["spot_speed"])
+        speed = float(plan.scenario["trajectory"]["spot_speed"])
         ideal = x["path_length"] / speed
         table.add_row("  on the path (s)", f"{x['path_time']:.2f} (length/speed {ideal:.2f})")
         table.add_row("  path length (mm)", f"{1e3 * x['path_length']:.1f}")
@@ -169,29 +171,6 @@ def _slowdowns(outcome: Any) -> Any:
                       names[s.joint] if s.joint >= 0 else "-",
                       f"{1e3 * s.speed:.2f}")  # fmt: skip
     return table
-
-
-def _load_plan(path: Path) -> dict[str, Any]:
-    """plan.json read (its dense tables as arrays, :func:`~planner.io.plan_file.read_plan`)
-    and validated against the schema: the tables with numpy, the rest by the model."""
-    from planner.io.plan_file import read_plan
-    from schemas.common import FieldError
-    from schemas.located import format_loc
-    from schemas.plan import Plan, check_tables, take_tables
-    from schemas.yamlio import read_json, validate
-
-    data = read_json(path, load=read_plan)
-    if not isinstance(data, dict):
-        raise InputError("expected a JSON object", str(path))
-    tables = take_tables(data)
-    validate(Plan, data, source=str(path))
-    if tables is not None:
-        try:
-            check_tables(tables, data.get("joint_names") or {})
-        except FieldError as exc:
-            raise InputError(exc.reason, f"{path} {format_loc(('trajectory', *exc.loc))}") from None
-        data["trajectory"].update(tables)
-    return data
 
 
 #: check figures that are finite-difference joint rates over their limits
@@ -231,9 +210,11 @@ def check(
     from rich.console import Console
     from rich.table import Table
 
+    from planner.io.plan import Plan
+    from planner.io.plan_file import load_plan
     from planner.verify.check import check_plan
 
-    plan_doc = _load_plan(plan_file)
+    plan_doc = load_plan(plan_file)
     results = check_plan(plan_doc, plan_file.parent)
     console = Console()
     table = Table(title=f"check: {plan_file}")
@@ -244,7 +225,7 @@ def check(
         bad = f"[red]{len(r.findings)}[/]" if r.findings else "0"
         table.add_row(r.name, str(r.checked), bad, figs)
     console.print(table)
-    n_failed = sum(1 for s in plan_doc["solutions"] if s.get("status") != Status.OK)
+    n_failed = sum(not s.ok for s in Plan.from_document(plan_doc).solutions)
     if n_failed:
         console.print(f"{n_failed} target(s) unsolved in the plan (reported, not checked)")
     violations = _print_findings(console, results, "plan")

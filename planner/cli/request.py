@@ -10,7 +10,7 @@ did not converge; 2 bad input or a bus problem (no planner on the bus within --t
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -19,6 +19,9 @@ from planner.cli.node import EndpointOpt, PrefixOpt, ZenohConfigOpt
 from planner.errors import InputError
 from planner.model.status import Status
 from schemas.messages import TRACK_SCHEMA
+
+if TYPE_CHECKING:
+    from planner.io.plan import Plan
 
 #: seconds per target added to --timeout for a closed-loop reply (it comes after the motion)
 CLOSED_LOOP_SECONDS_PER_TARGET = 15.0
@@ -87,6 +90,7 @@ def request(
 
     from rich.console import Console
 
+    from planner.io.plan import Verdict
     from planner.service.client import (
         RequestError,
         make_request,
@@ -126,9 +130,9 @@ def request(
     with client:
         try:
             if execute:
-                plan, spots = client.execute(req, reply_timeout)
+                plan, spots = client.execute_plan(req, reply_timeout)
             else:
-                plan, spots = client.request(req, timeout), None
+                plan, spots = client.plan(req, timeout), None
         except RequestError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(1) from exc
@@ -136,18 +140,18 @@ def request(
     if world_T_camera_of(plan) is None:
         spots = None  # nothing can be measured: no column for it
     print_summary(console, plan, spots)
-    for text in plan.get("warnings") or []:
+    for text in plan.warnings or ():
         console.print(f"warning: {text}", style="yellow", markup=False, soft_wrap=True)
-    rejected = execute and plan.get("execution") != "accepted"
+    rejected = execute and plan.execution is not Verdict.ACCEPTED
     if execute:
-        reason = plan.get("execution_reason") or "no verdict in the reply"
+        reason = plan.execution_reason or "no verdict in the reply"
         console.print(f"execution: REJECTED: {reason}" if rejected else "execution: accepted",
                       style="bold red" if rejected else None, markup=False,
                       soft_wrap=True)  # fmt: skip
     if interruption is not None:
         console.print(f"execution: INTERRUPTED: {interruption}", style="bold red",
                       markup=False, soft_wrap=True)  # fmt: skip
-    servo_rows = (plan.get("closed_loop") or {}).get("targets") or []
+    servo_rows = (plan.closed_loop or {}).get("targets") or []
     if servo_rows:
         print_closed_loop(console, plan)
     if as_json:
@@ -157,12 +161,12 @@ def request(
         rejected
         or unconverged
         or interruption is not None
-        or any(s["status"] != Status.OK for s in plan["solutions"])
+        or any(s.status is not Status.OK for s in plan.solutions)
     ):
         raise typer.Exit(1)
 
 
-def print_closed_loop(console: object, plan: dict) -> None:
+def print_closed_loop(console: object, plan: Plan) -> None:
     """One line per closed-loop target (status, measured error before/after, iterations,
     frames, time, dwell) and the totals."""
     from rich.console import Console
@@ -172,7 +176,8 @@ def print_closed_loop(console: object, plan: dict) -> None:
     def mm(x: float | None) -> str:
         return "-" if x is None else f"{1e3 * x:.3f} mm"
 
-    cl = plan["closed_loop"]
+    cl = plan.closed_loop
+    assert cl is not None
     for r in cl["targets"]:
         why = f" ({r['reason']}: {r.get('detail')})" if r.get("reason") else ""
         console.print(f"closed loop {r['id']}: {r['status']}{why}; measured error "
@@ -181,7 +186,7 @@ def print_closed_loop(console: object, plan: dict) -> None:
                       f"{r.get('time', 0.0):.2f} s, dwell {r.get('dwell', 0.0):.2f} s"
                       f"{'' if r.get('treated', True) else ' (not treated)'}",
                       markup=False, soft_wrap=True)  # fmt: skip
-    x = plan["metrics"].get("extra", {})
+    x = plan.metrics.extra
     console.print(f"closed loop: {x.get('closed_loop_converged', 0):.0f}/{len(cl['targets'])} "
                   f"within {mm(cl['tolerance'])}; measured error median "
                   f"{mm(x.get('measured_error_before_median'))} -> "
@@ -222,8 +227,8 @@ def _track_request(
     with client:
         sub = client.session.declare_subscriber(f"{prefix}/plans", on_plan)
         try:
-            reply = client.request(req, timeout)
-            typer.echo(f"tracking {stream!r}: {reply.get('execution')}", err=as_json)
+            reply = client.plan(req, timeout)
+            typer.echo(f"tracking {stream!r}: {reply.execution}", err=as_json)
             if duration is not None and not got.wait(duration + timeout):
                 raise RequestError(
                     f"no summary of tracking {stream!r} within {duration + timeout:g} s"
@@ -272,42 +277,43 @@ def connect_to_planner(endpoint: str | None, prefix: str, zenoh_config: Path | N
     return client
 
 
-def print_summary(console: object, plan: dict, spots: list | None) -> None:
+def print_summary(console: object, plan: Plan, spots: list | None) -> None:
     """A table of the plan's targets: status, planned error, and measured spot error."""
     import numpy as np
     from rich.console import Console
     from rich.table import Table
 
     assert isinstance(console, Console)
-    table = Table(title=f"plan: {len(plan['targets'])} targets, robots {', '.join(plan['robots'])}")
+    table = Table(title=f"plan: {len(plan.targets)} targets, robots {', '.join(plan.robots)}")
     for col in ("id", "target x y z \\[m]", "status", "planned error \\[mm]", "solve \\[ms]"):
         table.add_column(col)
     if spots is not None:
         table.add_column("measured error \\[mm]")
-    for k, (tgt, sol) in enumerate(zip(plan["targets"], plan["solutions"], strict=True)):
+    for k, sol in enumerate(plan.solutions):
+        p = plan.targets.p[k]
         row = [
-            str(tgt["id"]),
-            " ".join(f"{x:+.4f}" for x in tgt["p"]),
-            sol["status"] if sol["status"] == Status.OK else f"[red]{sol['reason']}[/]",
-            f"{1e3 * sol['error']:.2e}" if sol.get("error") is not None else "-",
-            f"{1e3 * sol['solve_time']:.2f}" if sol.get("solve_time") is not None else "-",
+            str(plan.targets.ids[k]),
+            " ".join(f"{x:+.4f}" for x in p),
+            str(sol.status) if sol.status is Status.OK else f"[red]{sol.reason}[/]",
+            f"{1e3 * sol.error:.2e}" if sol.error is not None else "-",
+            f"{1e3 * sol.solve_time:.2f}",
         ]
         if spots is not None:
             s = spots[k]
-            err = None if s is None else float(np.linalg.norm(s - np.asarray(tgt["p"])))
+            err = None if s is None else float(np.linalg.norm(s - p))
             row.append("not seen" if err is None else f"{1e3 * err:.2f}")
         table.add_row(*row)
     console.print(table)
-    m = plan["metrics"]
-    traj = f"trajectory {m['duration']:.2f} s" if m.get("duration") else "no trajectory"
-    console.print(f"solved {m['n_ok']}/{m['n_targets']}; {traj}")
+    m = plan.metrics
+    traj = f"trajectory {m.duration:.2f} s" if m.duration else "no trajectory"
+    console.print(f"solved {m.n_ok}/{m.n_targets}; {traj}")
     if spots is not None:
         errs = [
-            float(np.linalg.norm(s - np.asarray(t["p"])))
-            for s, t in zip(spots, plan["targets"], strict=True)
+            float(np.linalg.norm(s - p))
+            for s, p in zip(spots, plan.targets.p, strict=True)
             if s is not None
         ]
-        if len(errs) < sum(s["status"] == Status.OK for s in plan["solutions"]):
+        if len(errs) < sum(s.status is Status.OK for s in plan.solutions):
             console.print(
                 "spots are measured while the robots rest on a target: targets passed without "
                 "a pause (scenario trajectory.dwell = 0) or hidden from the camera are not seen"

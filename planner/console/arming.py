@@ -19,6 +19,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
+from planner.io.plan import Plan
+from planner.model.status import Status
+
 #: s an arming lasts
 ARM_WINDOW = 30.0
 #: the fault source of a silent planner heartbeat, and a driver's protective stop
@@ -42,15 +47,14 @@ def request_key(request: dict[str, Any]) -> str:
     return json.dumps(content, sort_keys=True, default=str)
 
 
-def treatment(plan: dict[str, Any], power: float | None) -> str:
+def treatment(plan: Plan, power: float | None) -> str:
     """``N targets, motion T s, laser on L s[, E J]`` of a previewed plan."""
-    traj = plan.get("trajectory") or {}
-    t = traj.get("t") or [0.0]
-    on = sum(max(0.0, b - a) for a, b in traj.get("laser_on") or [])
-    n = len(plan.get("targets") or [])
-    ok = sum(1 for s in plan.get("solutions") or [] if s.get("status") == "ok")
+    traj = plan.trajectory
+    motion = 0.0 if traj is None else traj.duration
+    on = 0.0 if traj is None else float(np.clip(np.diff(traj.laser_on, axis=1), 0.0, None).sum())
+    ok = sum(s.status is Status.OK for s in plan.solutions)
     energy = "" if power is None else f", energy {power * on:.3g} J at {power:g} W"
-    return (f"{ok}/{n} targets, motion {float(t[-1]) - float(t[0]):.1f} s, treatment laser on "
+    return (f"{ok}/{len(plan.targets)} targets, motion {motion:.1f} s, treatment laser on "
             f"{on:.2f} s{energy}")  # fmt: skip
 
 

@@ -16,6 +16,7 @@ from typing import Any, NamedTuple
 
 from planner.bus.session import JSON, encode, urgent
 from planner.console.sweep import Sweep, sweep_of
+from planner.io.plan import Plan, Verdict
 from planner.model.transforms import Array
 from planner.service.client import PlanClient, request_summary, world_T_camera_of
 from schemas.messages import StopMessage
@@ -25,11 +26,11 @@ PLAN_TIMEOUT = 30.0
 
 
 class Answer(NamedTuple):
-    """A reply: the plan dict, the summary (:func:`planner.service.client.request_summary`),
+    """A reply: the :class:`~planner.io.plan.Plan`, the summary (:func:`planner.service.client.request_summary`),
     the round trip (s), the measured spots (world, m; None where unseen) if executed, and
     for an executed path what the camera saw of it (None otherwise)."""
 
-    plan: dict[str, Any]
+    plan: Plan
     summary: dict[str, Any]
     seconds: float
     spots: list[Array | None] | None
@@ -52,8 +53,8 @@ class Operator:
         error reply; BusyError while another request runs."""
         with self._claim():
             t0 = time.perf_counter()
-            plan = self.client.request({**req, "execute": False, "trajectory": True},
-                                       PLAN_TIMEOUT)  # fmt: skip
+            plan = self.client.plan({**req, "execute": False, "trajectory": True},
+                                    PLAN_TIMEOUT)  # fmt: skip
             dt = time.perf_counter() - t0
         return Answer(plan, request_summary(plan, None), dt, None)
 
@@ -62,16 +63,16 @@ class Operator:
         path, for a path request)."""
         with self._claim():
             t0, since = time.perf_counter(), time.monotonic()
-            plan, spots = self.client.execute({**req, "execute": True}, PLAN_TIMEOUT)
+            plan, spots = self.client.execute_plan({**req, "execute": True}, PLAN_TIMEOUT)
             dt = time.perf_counter() - t0
         sweep = self._sweep(plan, since) if req.get("mode") == "path" else None
         return Answer(plan, request_summary(plan, spots), dt, spots, sweep)
 
-    def _sweep(self, plan: dict[str, Any], since: float) -> Sweep | None:
+    def _sweep(self, plan: Plan, since: float) -> Sweep | None:
         """The marked path of an executed ``plan`` from the spots recorded since ``since``
         (monotonic s); None when rejected or the camera is not fixed in the world."""
         world_T_camera = world_T_camera_of(plan)
-        if plan.get("execution") != "accepted" or world_T_camera is None:
+        if plan.execution is not Verdict.ACCEPTED or world_T_camera is None:
             return None
         rec = self.client.recorder
         with rec.lock:

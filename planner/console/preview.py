@@ -10,12 +10,14 @@ joints onto the scene for drawing.
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
 from planner.beam.trace import trace_beam
+from planner.io.plan import Plan, Trajectory
 from planner.model.scene import SceneModel
+from planner.model.status import Status
 from planner.model.system import System
 from planner.model.transforms import Array
 
@@ -48,44 +50,37 @@ class Preview(NamedTuple):
     n: int
 
 
-def preview_of(plan: dict[str, Any], system: System, scene: SceneModel | None) -> Preview:
+def preview_of(plan: Plan, system: System, scene: SceneModel | None) -> Preview:
     """The :class:`Preview` of a plan reply."""
     laser = system.world_T_laser[:3, 3]
     beams, failed, spots = [], [], []
-    for sol in plan["solutions"]:
-        k = int(sol["target"])
-        if sol["status"] == "ok":
-            hits = [np.asarray(h["p"], dtype=float) for h in sol.get("hits", [])]
-            spot = np.asarray(sol["spot"], dtype=float)
-            beams.append(np.vstack([laser, *hits, spot]))
-            spots.append(spot)
+    for sol in plan.solutions:
+        k = sol.target
+        if sol.status is Status.OK and sol.spot is not None:
+            beams.append(np.vstack([laser, *(h.p for h in sol.hits), sol.spot]))
+            spots.append(sol.spot)
         else:
-            p = np.asarray(plan["targets"][k]["p"], dtype=float)
-            failed.append(Failure(k, p, str(sol.get("reason") or "failed"), _detail(sol)))
-    traj = plan.get("trajectory") or {}
-    duration = float(traj["t"][-1]) if traj.get("t") else 0.0
-    sweep = sweep_path(traj, system, scene) if traj.get("t") else np.zeros((0, 3))
+            p = plan.targets.p[int(np.flatnonzero(plan.targets.ids == k)[0])]
+            failed.append(Failure(k, p, str(sol.reason or "failed"), ""))
+    traj = plan.trajectory
+    timed = traj is not None and len(traj.t) > 0
+    duration = float(traj.t[-1]) if traj is not None and timed else 0.0
+    sweep = sweep_path(traj, system, scene) if traj is not None and timed else np.zeros((0, 3))
     if len(sweep) == 0 and spots:
         sweep = np.asarray(spots)
-    metrics = plan.get("metrics", {})
-    return Preview(tuple(beams), tuple(failed), sweep, duration,
-                   int(metrics.get("n_ok", len(beams))), len(plan["solutions"]))  # fmt: skip
+    return Preview(tuple(beams), tuple(failed), sweep, duration, plan.metrics.n_ok,
+                   len(plan.solutions))  # fmt: skip
 
 
-def _detail(sol: dict[str, Any]) -> str:
-    detail = sol.get("detail") or sol.get("message") or ""
-    return str(detail)[:200]
-
-
-def joints_at(traj: dict[str, Any], robots: tuple[str, ...], t: float) -> dict[str, Array]:
+def joints_at(traj: Trajectory, robots: tuple[str, ...], t: float) -> dict[str, Array]:
     """Each robot's joints (rad) at time ``t`` (s, clamped to the trajectory), linearly
     interpolated between the trajectory's samples."""
-    T = np.asarray(traj["t"], dtype=float)
+    T = traj.t
     t = float(np.clip(t, T[0], T[-1]))
     i = int(np.clip(np.searchsorted(T, t) - 1, 0, max(len(T) - 2, 0)))
     out = {}
     for r in robots:
-        Q = np.asarray(traj["q"][r], dtype=float)
+        Q = traj.q[r]
         if len(T) == 1:
             out[r] = Q[0]
             continue
@@ -94,27 +89,23 @@ def joints_at(traj: dict[str, Any], robots: tuple[str, ...], t: float) -> dict[s
     return out
 
 
-def laser_on_mask(traj: dict[str, Any], t: Array) -> Array:
-    """Whether the laser gate is on at each time of ``t`` (s); all True when the plan has
-    no ``laser_on`` intervals."""
-    intervals = traj.get("laser_on")
-    if intervals is None:
-        return np.ones(len(t), dtype=bool)
+def laser_on_mask(traj: Trajectory, t: Array) -> Array:
+    """Whether the laser gate is on at each time of ``t`` (s)."""
     on = np.zeros(len(t), dtype=bool)
-    for t0, t1 in intervals:
+    for t0, t1 in traj.laser_on:
         on |= (t >= t0) & (t <= t1)
     return on
 
 
-def sweep_path(traj: dict[str, Any], system: System, scene: SceneModel | None) -> Array:
+def sweep_path(traj: Trajectory, system: System, scene: SceneModel | None) -> Array:
     """Where the beam lands (world, m) at up to SWEEP_SAMPLES trajectory times while the
     laser is on (times whose reflection chain is invalid are left out)."""
-    T = np.asarray(traj["t"], dtype=float)
+    T = traj.t
     idx = np.unique(np.linspace(0, len(T) - 1, min(len(T), SWEEP_SAMPLES)).astype(int))
     idx = idx[laser_on_mask(traj, T[idx])]
     rays = []
     for i in idx:
-        q = {r: np.asarray(traj["q"][r][i], dtype=float) for r in system.robot_names}
+        q = {r: traj.q[r][i] for r in system.robot_names}
         pts, ok, v = _chain(system, q)
         if ok:
             rays.append((pts[-1], v))

@@ -11,6 +11,8 @@ from typing import Any
 from planner.console.operator import Answer
 from planner.console.preview import Preview
 from planner.console.sweep import Sweep
+from planner.io.plan import Plan
+from planner.model.status import Status
 
 #: most per-target rows shown
 MAX_ROWS = 40
@@ -75,7 +77,7 @@ def sweep_line(sw: Sweep) -> str:
 def _measured_rows(rows: list[dict[str, Any]]) -> list[str]:
     out = []
     for r in rows[:MAX_ROWS]:
-        if r["status"] != "ok":
+        if r["status"] != Status.OK:
             continue
         p = ", ".join(f"{1e3 * c:.1f}" for c in r["p"])
         if r["measured_spot"] is None:
@@ -87,8 +89,10 @@ def _measured_rows(rows: list[dict[str, Any]]) -> list[str]:
     return out
 
 
-def _closed_loop(plan: dict[str, Any]) -> list[str]:
+def _closed_loop(plan: Plan) -> list[str]:
     """What the reply says about closed-loop correction, as it says it (free-form)."""
-    extra = (plan.get("metrics") or {}).get("extra") or {}
-    keys = [k for k in (*plan.keys(), *extra.keys()) if "closed" in k or "servo" in k]
-    return [f"{k}: `{plan.get(k, extra.get(k))}`"[:300] for k in keys]
+    items: list[tuple[str, Any]] = []
+    if plan.closed_loop is not None:
+        items.append(("closed_loop", dict(plan.closed_loop)))
+    items += [(k, v) for k, v in plan.metrics.extra.items() if "closed" in k or "servo" in k]
+    return [f"{k}: `{v}`"[:300] for k, v in items]

@@ -244,10 +244,11 @@ class Session:
 
     def on_scrub(self) -> None:
         """The robots and beam at the scrubber's time of this session's planned trajectory."""
-        if self.answer is None or not (self.answer.plan.get("trajectory") or {}).get("t"):
+        traj = None if self.answer is None else self.answer.plan.trajectory
+        if traj is None or not len(traj.t):
             return
         self.c.scrubbing = True
-        q = joints_at(self.answer.plan["trajectory"], self.c.system.robot_names,
+        q = joints_at(traj, self.c.system.robot_names,
                       float(self.panel.scrub.value))  # fmt: skip
         self.c.pose(q)
 

@@ -1,7 +1,7 @@
 """What the camera saw of an executed path: the marked spots against the planned path.
 
 Pure: the spots a :class:`~planner.service.client.Recorder` collected while the robots moved
-(camera frame, each with the joints at its arrival) and the executed plan.json dict. Each
+(camera frame, each with the joints at its arrival) and the executed plan. Each
 spot is placed on the trajectory by its joints (the nearest trajectory sample in joint
 space, so no clock has to be shared with the drivers); it counts as *marked* when that time
 lies in one of the plan's ``laser_on`` intervals. The marked spots are compared with the
@@ -11,11 +11,12 @@ how much of its length they cover. World frame, metres, seconds.
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
+from planner.io.plan import Plan
 from planner.model.transforms import Array, transform_points
 
 #: m: marked spots closer than this along the path cover the stretch between them
@@ -37,25 +38,25 @@ class Sweep(NamedTuple):
     length: float
 
 
-def sweep_of(plan: dict[str, Any], spots: list[tuple[Array, dict[str, Array]]],
+def sweep_of(plan: Plan, spots: list[tuple[Array, dict[str, Array]]],
              world_T_camera: Array) -> Sweep:  # fmt: skip
     """The :class:`Sweep` of ``spots`` (camera-frame point, joints by robot name in rad) seen
-    while ``plan`` (plan.json dict with a trajectory) was executed."""
-    traj = plan.get("trajectory") or {}
-    path = np.array([t["p"] for t in plan["targets"]], dtype=float).reshape(-1, 3)
+    while ``plan`` (with a trajectory) was executed."""
+    traj = plan.trajectory
+    path = plan.targets.p.reshape(-1, 3)
     length = float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1)))
-    robots = list(traj.get("q", {}))
-    if not robots or not spots:
+    robots = [] if traj is None else list(traj.q)
+    if traj is None or not robots or not spots:
         return Sweep(np.zeros((0, 3)), 0, np.nan, np.nan, 0.0, length)
-    t = np.asarray(traj["t"], dtype=float)
-    Q = np.hstack([np.asarray(traj["q"][r], dtype=float) for r in robots])
+    t = traj.t
+    Q = np.hstack([traj.q[r] for r in robots])
     seen = [(p, q) for p, q in spots if all(r in q for r in robots)]
     if not seen:
         return Sweep(np.zeros((0, 3)), 0, np.nan, np.nan, 0.0, length)
     P = transform_points(world_T_camera, np.array([p for p, _ in seen], dtype=float))
     Qs = np.array([np.concatenate([q[r] for r in robots]) for _, q in seen], dtype=float)
     times = t[_nearest_rows(Q, Qs)]
-    lit = _inside(times, traj.get("laser_on") or [])
+    lit = _inside(times, traj.laser_on.tolist())
     marked = P[lit]
     if not len(marked):
         return Sweep(marked, int(np.sum(~lit)), np.nan, np.nan, 0.0, length)

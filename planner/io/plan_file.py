@@ -114,6 +114,30 @@ def read_plan(path: Path) -> Any:
                 return _with_tables(json.loads(mm[:]), None)
 
 
+def load_plan(path: Path) -> dict[str, Any]:
+    """plan.json read (its dense tables as arrays, :func:`~planner.io.plan_file.read_plan`)
+    and validated against the schema: the tables with numpy, the rest by the model.
+    InputError (one line, naming the file and the key path) when it is not a valid plan."""
+    from planner.errors import InputError
+    from schemas.common import FieldError
+    from schemas.located import format_loc
+    from schemas.plan import Plan, check_tables, take_tables
+    from schemas.yamlio import read_json, validate
+
+    data = read_json(path, load=read_plan)
+    if not isinstance(data, dict):
+        raise InputError("expected a JSON object", str(path))
+    tables = take_tables(data)
+    validate(Plan, data, source=str(path))
+    if tables is not None:
+        try:
+            check_tables(tables, data.get("joint_names") or {})
+        except FieldError as exc:
+            raise InputError(exc.reason, f"{path} {format_loc(('trajectory', *exc.loc))}") from None
+        data["trajectory"].update(tables)
+    return data
+
+
 def _carve(mm: mmap.mmap) -> tuple[bytes, list[np.ndarray]]:
     """The text with every large numeric array replaced by a hole (a string), and the
     arrays. Strings are skipped whole, so a ``[`` is only ever taken outside them."""

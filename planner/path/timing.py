@@ -22,6 +22,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from planner.errors import PlanError
+from planner.io.plan import Trajectory as PlanTrajectory
 from planner.model.system import Limits, System
 from planner.model.transforms import Array
 from planner.path.profile import Profile, path_speed_limit, profile
@@ -111,6 +112,11 @@ class Trajectory:
             "laser_on": [[t0, t1] for t0, t1 in self.laser_on],
             "slowdowns": [_slowdown_dict(system, s) for s in self.slowdowns],
         }
+
+    def to_plan(self, system: System) -> PlanTrajectory:
+        """The plan's :class:`~planner.io.plan.Trajectory` (per robot name; its tables are
+        read-only views of this trajectory's, no copy)."""
+        return PlanTrajectory.from_document(self.to_plan_arrays(system))
 
     def to_plan_dict(self, system: System) -> dict[str, Any]:
         """The plan.json ``trajectory`` mapping as plain lists (a reply on the bus)."""

@@ -28,6 +28,8 @@ from numpy.typing import ArrayLike
 
 from planner.bus.session import JSON, Keys, decode, encode, open_session
 from planner.errors import BeamrelayError, InputError
+from planner.io.plan import Plan, Verdict
+from planner.model.status import Status
 from planner.model.transforms import Array, transform_points
 
 #: a robot within AT_TARGET_Q of q_k (rad, every joint), slower than REST_QD (rad/s) for the
@@ -84,9 +86,9 @@ def make_request(
     return req
 
 
-def world_T_camera_of(plan: dict[str, Any]) -> Array | None:
+def world_T_camera_of(plan: Plan) -> Array | None:
     """The camera pose the plan was made with (resolved scenario), or None."""
-    cam = plan.get("scenario", {}).get("system", {}).get("camera")
+    cam = (plan.scenario.get("system") or {}).get("camera")
     if not cam or "world_T_camera" not in cam:  # none, or on a flange (pose depends on q)
         return None
     return np.asarray(cam["world_T_camera"]["matrix"], dtype=float)
@@ -236,7 +238,7 @@ class Recorder:
             )
 
 
-def measured_spots(plan: dict[str, Any], rec: Recorder, since: float) -> list[Array | None]:
+def measured_spots(plan: Plan, rec: Recorder, since: float) -> list[Array | None]:
     """Median measured spot (world, m) per solution of ``plan``; None where never seen."""
     world_T_camera = world_T_camera_of(plan)
     if world_T_camera is None:
@@ -244,11 +246,11 @@ def measured_spots(plan: dict[str, Any], rec: Recorder, since: float) -> list[Ar
     with rec.lock:
         samples = [s for s in rec.spots if s.arrived >= since and s.rest]
     out: list[Array | None] = []
-    for sol in plan["solutions"]:
-        if sol["status"] != "ok":
+    for sol in plan.solutions:
+        if sol.status is not Status.OK:
             out.append(None)
             continue
-        qk = {r: np.asarray(v) for r, v in sol["q"].items()}
+        qk = sol.q
         hits = [
             s.p_camera
             for s in samples
@@ -365,16 +367,28 @@ class PlanClient:
             raise RequestError(f"planner error: {where}{data.get('error')}", data)
         return dict(data)
 
+    def plan(self, req: dict[str, Any], timeout: float = 10.0) -> Plan:
+        """Send a TargetRequest dict; the :class:`~planner.io.plan.Plan` of the reply, or
+        RequestError with the error."""
+        return Plan.from_document(self.request(req, timeout))
+
     def execute(
         self, req: dict[str, Any], timeout: float = 10.0, settle: float = 0.4
     ) -> tuple[dict[str, Any], list[Array | None]]:
+        """:meth:`execute_plan` with the reply as its plan.json document."""
+        plan, spots = self.execute_plan(req, timeout, settle)
+        return plan.to_document(), spots
+
+    def execute_plan(
+        self, req: dict[str, Any], timeout: float = 10.0, settle: float = 0.4
+    ) -> tuple[Plan, list[Array | None]]:
         """Request with ``execute: true``, wait for the motion, return (plan, measured spots).
 
         Waits the trajectory's duration, then until every robot rests on the trajectory's
         final joints (at most ``timeout`` s more), then ``settle`` seconds more so the camera
         sees the final target; stops waiting when a driver reports a fault or a protective
         stop on this request's trajectory (a lost heartbeat, STOP); returns at once when the drivers
-        rejected the trajectory (``plan["execution"]``); :attr:`interruption` says why a motion
+        rejected the trajectory (``plan.execution``); :attr:`interruption` says why a motion
         did not run to its end. Spots are None where not measured
         (all of them when rejected, or when the plan's scenario has no fixed camera).
         """
@@ -382,26 +396,26 @@ class PlanClient:
         self.interruption = None
         since = time.monotonic()
         if req.get("closed_loop"):  # the node measured: the reply comes after the motion
-            plan = self.request({**req, "execute": True}, timeout)
+            plan = self.plan({**req, "execute": True}, timeout)
             return plan, closed_loop_spots(plan)
-        plan = self.request({**req, "execute": True}, timeout)
-        unmeasured: list[Array | None] = [None] * len(plan["solutions"])
-        if plan.get("execution") == "rejected":  # nothing moves: nothing to wait for
+        plan = self.plan({**req, "execute": True}, timeout)
+        unmeasured: list[Array | None] = [None] * len(plan.solutions)
+        if plan.execution is Verdict.REJECTED:  # nothing moves: nothing to wait for
             return plan, unmeasured
-        traj = plan.get("trajectory") or {}
-        duration = float(traj["t"][-1]) if traj.get("t") else 0.0
-        q_end = {r: np.asarray(q[-1]) for r, q in traj.get("q", {}).items()}
+        traj = plan.trajectory
+        duration = float(traj.t[-1]) if traj is not None and len(traj.t) else 0.0
+        q_end = {} if traj is None else {r: q[-1] for r, q in traj.q.items() if len(q)}
         started = time.monotonic()
         deadline = started + duration + timeout
         # the arm may run late (a dwell looks like the end): wait until it rests at the end,
         # or a driver reports that it stopped this trajectory (a fault, a protective stop)
         reached = False
-        while time.monotonic() < deadline and self.recorder.fault_of(plan.get("id")) is None:
+        while time.monotonic() < deadline and self.recorder.fault_of(plan.id) is None:
             if time.monotonic() - started >= duration and self.recorder.rests_at(q_end):
                 reached = True
                 break
             time.sleep(0.02)
-        self.interruption = self.recorder.fault_of(plan.get("id"))
+        self.interruption = self.recorder.fault_of(plan.id)
         if self.interruption is None and not reached:
             self.interruption = (f"the robots did not come to rest at the trajectory's end "
                                  f"within {duration + timeout:.1f} s")  # fmt: skip
@@ -411,10 +425,10 @@ class PlanClient:
         return plan, measured_spots(plan, self.recorder, since)
 
 
-def closed_loop_spots(plan: dict[str, Any]) -> list[Array | None]:
+def closed_loop_spots(plan: Plan) -> list[Array | None]:
     """The node's last measured spot (world, m) per target of a closed-loop reply."""
-    rows = (plan.get("closed_loop") or {}).get("targets") or []
-    spots: list[Array | None] = [None] * len(plan["solutions"])
+    rows = (plan.closed_loop or {}).get("targets") or []
+    spots: list[Array | None] = [None] * len(plan.solutions)
     for k, row in enumerate(rows[: len(spots)]):
         if row.get("measured_spot") is not None:
             spots[k] = np.asarray(row["measured_spot"], dtype=float)
@@ -426,35 +440,37 @@ CLOSED_LOOP_KEYS = ("status", "iterations", "frames", "time", "measured_error_be
                     "measured_error_camera", "measured_spot_camera", "target_camera")  # fmt: skip
 
 
-def request_summary(plan: dict[str, Any], spots: list[Array | None] | None) -> dict[str, Any]:
+def request_summary(plan: Plan, spots: list[Array | None] | None) -> dict[str, Any]:
     """The figures of one answered request, as plain JSON data: ``id``, ``execution`` and
     ``execution_reason`` (None when not executed), ``n_ok``, ``n_targets``, per target its
     status, reason, planned error and measured error (m; None when not seen; from the
     requested point of a camera-frame target that landed on its surface, which the camera
     saw), and over the measured targets ``measured_error_median`` / ``measured_error_max`` (m)."""
     rows, measured = [], []
-    servo_rows = (plan.get("closed_loop") or {}).get("targets")
-    for k, (tgt, sol) in enumerate(zip(plan["targets"], plan["solutions"], strict=True)):
+    servo_rows = None if plan.closed_loop is None else plan.closed_loop.get("targets")
+    for k, sol in enumerate(plan.solutions):
         spot = None if spots is None else spots[k]
-        aim = (sol.get("surface") or {}).get("requested", tgt["p"])  # the camera's point
-        err = None if spot is None else float(np.linalg.norm(spot - np.asarray(aim)))
+        p = plan.targets.p[k]
+        aim = p if sol.surface is None else sol.surface.requested  # the camera's point
+        err = None if spot is None else float(np.linalg.norm(spot - aim))
         if err is not None:
             measured.append(err)
-        rows.append({"id": tgt["id"], "p": tgt["p"], "status": sol["status"],
-                     "reason": sol.get("reason"), "planned_error": _finite(sol.get("error")),
+        surface = None if sol.surface is None else sol.surface.to_document()
+        rows.append({"id": int(plan.targets.ids[k]), "p": p.tolist(), "status": sol.status,
+                     "reason": sol.reason, "planned_error": _finite(sol.error),
                      "measured_spot": None if spot is None else np.asarray(spot).tolist(),
-                     "measured_error": err, "surface": sol.get("surface")})  # fmt: skip
+                     "measured_error": err, "surface": surface})  # fmt: skip
         if servo_rows is not None and k < len(servo_rows):
             rows[-1]["closed_loop"] = {key: servo_rows[k].get(key) for key in CLOSED_LOOP_KEYS}
     out: dict[str, Any] = {
-        "id": plan.get("id"),
-        "execution": plan.get("execution"),
-        "execution_reason": plan.get("execution_reason"),
-        "execution_unanswered": list(plan.get("execution_unanswered") or []),
-        "n_ok": plan["metrics"]["n_ok"],
-        "n_targets": plan["metrics"]["n_targets"],
-        "duration": plan["metrics"].get("duration"),
-        "warnings": list(plan.get("warnings") or []),
+        "id": plan.id,
+        "execution": plan.execution,
+        "execution_reason": plan.execution_reason,
+        "execution_unanswered": list(plan.execution_unanswered or []),
+        "n_ok": plan.metrics.n_ok,
+        "n_targets": plan.metrics.n_targets,
+        "duration": plan.metrics.duration,
+        "warnings": list(plan.warnings or []),
     }
     if measured:
         out["measured_error_median"] = float(np.median(measured))
@@ -466,7 +482,8 @@ def request_summary(plan: dict[str, Any], spots: list[Array | None] | None) -> d
         if before:
             out["measured_error_before_median"] = float(np.median(before))
             out["measured_error_before_max"] = float(np.max(before))
-        out["closed_loop"] = {k: v for k, v in plan["closed_loop"].items() if k != "targets"}
+        assert plan.closed_loop is not None
+        out["closed_loop"] = {k: v for k, v in plan.closed_loop.items() if k != "targets"}
     out["targets"] = rows
     return out
 

@@ -40,13 +40,22 @@ from typing import Any
 import numpy as np
 
 from planner.errors import InputError
+from planner.io.plan import Plan, Verdict
+from planner.io.plan import Trajectory as PlanTrajectory
 from planner.model.settings import TrajectorySettings
-from planner.model.status import evidence_text
+from planner.model.status import Status, evidence_text
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
 from planner.service.execution import ExecuteError
 from planner.service.spots import LaserLog, SpotBuffer
-from planner.servo import Corrector, ServoResult, ServoSettings, average_frames, servo
+from planner.servo import (
+    Corrector,
+    ServoResult,
+    ServoSettings,
+    ServoStatus,
+    average_frames,
+    servo,
+)
 from planner.servo.measure import SpotGate, SpotMeasurement, gate_frames
 
 #: camera frame period assumed for the measurement dwell (s; the D435 / sim camera at 30 Hz)
@@ -66,9 +75,10 @@ MAX_IMPLAUSIBLE = 3
 #: s between checks that the robots rest on a move's end / that a dwell is over
 REST_POLL, HOLD_POLL = 0.004, 0.05
 
-MoveFn = Callable[[Array, Array, float, Array, Array | None], dict[str, Any]]
-"""(q_from, q_to stacked rad, dwell s, target world m, normal or None) -> plan.json
-``trajectory`` (laser on while dwelling); ExecuteError when no safe move exists."""
+MoveFn = Callable[[Array, Array, float, Array, Array | None], PlanTrajectory]
+"""(q_from, q_to stacked rad, dwell s, target world m, normal or None) -> the move's
+:class:`~planner.io.plan.Trajectory` (laser on while dwelling); ExecuteError when no safe
+move exists."""
 
 
 def measure_time(frames: int) -> float:
@@ -85,7 +95,7 @@ def make_move_fn(system: System, settings: TrajectorySettings, safety: Any = Non
     from planner.planning import time_safely
 
     def move(q_from: Array, q_to: Array, dwell: float, target: Array,
-             normal: Array | None) -> dict[str, Any]:  # fmt: skip
+             normal: Array | None) -> PlanTrajectory:  # fmt: skip
         tr = trace_beam(system, q_to, target, normal)
         sol = Solution.solved(np.asarray(q_to, dtype=float), tr, 0.0, 0, "servo")
         tg = Targets(np.asarray(target, dtype=float)[None],
@@ -98,7 +108,7 @@ def make_move_fn(system: System, settings: TrajectorySettings, safety: Any = Non
             shown = evidence_text(sols[0].evidence) if sols else ""
             raise ExecuteError(f"closed-loop move refused: {why} ({shown})",
                                list(system.robot_names))  # fmt: skip
-        return timed.trajectory.to_plan_dict(system)
+        return timed.trajectory.to_plan(system)
 
     return move
 
@@ -156,7 +166,8 @@ def check_closed_loop(req: Any, system: System, config: ClosedLoopConfig | None 
 
 @dataclass
 class Motion:
-    """The node's side of the runner: ``send(trajectory, id)`` -> (verdict, reason);
+    """The node's side of the runner: ``send(trajectory, id)`` -> (verdict, reason) of a
+    move's :class:`~planner.io.plan.Trajectory`;
     ``rest_at(q)`` whether every robot rests on stacked ``q`` (rad); the spot buffer; the
     stop event; ``tick()`` reports progress to the worker's watchdog; ``laser`` the gate's
     on-intervals when a robot switches the laser (None: the laser is always on, frames count
@@ -165,7 +176,7 @@ class Motion:
     s, the clock of the frames and the laser's intervals) times every wait, and
     ``wait(s)`` waits at most ``s`` s, True once stopped (None: the stop event's wait)."""
 
-    send: Callable[[dict[str, Any], str], tuple[str, str | None]]
+    send: Callable[[PlanTrajectory, str], tuple[str, str | None]]
     rest_at: Callable[[Array], bool]
     spots: SpotBuffer
     stop: threading.Event
@@ -204,11 +215,11 @@ class ClosedLoopRunner:
             traj = as_aim(traj)
         self.moves += 1
         verdict, reason = self.motion.send(traj, f"{self.request_id[:200]}.cl{self.moves}")
-        if verdict != "accepted":
+        if verdict != Verdict.ACCEPTED:
             raise ExecuteError(reason or "rejected", list(self.system.robot_names))
         self.q = np.asarray(q_to, dtype=float)
         clock = self.motion.clock
-        deadline = clock() + float(traj["t"][-1]) - dwell + ARRIVAL_TIMEOUT
+        deadline = clock() + float(traj.t[-1]) - dwell + ARRIVAL_TIMEOUT
         while not self.motion.stop.is_set():
             self.motion.tick()
             if self.motion.rest_at(self.q):
@@ -304,36 +315,33 @@ class ClosedLoopRunner:
         res = servo(self.measure, q0, p, normal, self.config.corrector, self.settings,
                     should_stop=self.motion.stop.is_set)  # fmt: skip
         dwelt = 0.0
-        if res.status == "converged":  # measured within tolerance: treat; else never
+        if res.status is ServoStatus.CONVERGED:  # measured within tolerance: treat; else never
             dwelt = self.hold(dwell)
         return res, dwelt
 
 
-def as_aim(trajectory: dict[str, Any]) -> dict[str, Any]:
+def as_aim(trajectory: PlanTrajectory) -> PlanTrajectory:
     """A move's ``trajectory`` with its laser intervals given to the aiming beam
     (``aim_on``) and the treatment gate off throughout."""
-    out = dict(trajectory)
-    out["aim_on"] = out.pop("laser_on", None) or []
-    out["laser_on"] = []
-    return out
+    return replace(trajectory, aim_on=trajectory.laser_on, laser_on=trajectory.laser_on[:0])
 
 
-def run_closed_loop(runner: ClosedLoopRunner, plan: dict[str, Any], targets: Targets,
+def run_closed_loop(runner: ClosedLoopRunner, plan: Plan, targets: Targets,
                     start: Array, dwell: float) -> list[dict[str, Any]]:  # fmt: skip
     """Every target of ``plan`` in order; per target the figures of the reply's
     ``closed_loop.targets``. A refused move ends the run (ExecuteError carries the rows so
     far in ``rows``)."""
     runner.q = np.asarray(start, dtype=float)
     rows: list[dict[str, Any]] = []
-    for k, sol in enumerate(plan["solutions"]):
-        row: dict[str, Any] = {"id": plan["targets"][k]["id"], "dwell": 0.0, "treated": False}
+    for k, sol in enumerate(plan.solutions):
+        row: dict[str, Any] = {"id": int(plan.targets.ids[k]), "dwell": 0.0, "treated": False}
         if runner.motion.stop.is_set():
             rows.append(row | {"status": "aborted"})
             continue
-        if sol["status"] != "ok":
+        if sol.status is not Status.OK:
             rows.append(row | {"status": "not_planned"})
             continue
-        q0 = runner.system.stack_q(sol["q"])
+        q0 = runner.system.stack_q(dict(sol.q))
         try:
             res, dwelt = runner.target(k, q0, targets.points[k], targets.normal(k), dwell)
         except ExecuteError as exc:
@@ -359,7 +367,7 @@ def closed_loop_figures(rows: list[dict[str, Any]]) -> dict[str, float]:
         r["measured_error_before"] for r in rows if r.get("measured_error_before") is not None
     ]
     out: dict[str, float] = {
-        "closed_loop_converged": float(sum(r["status"] == "converged" for r in rows)),
+        "closed_loop_converged": float(sum(r["status"] == ServoStatus.CONVERGED for r in rows)),
         "closed_loop_targets": float(len(rows)),
     }
     if after:
@@ -396,41 +404,47 @@ def in_camera_frame(rows: list[dict[str, Any]], targets_camera: Array,
         row["measured_error_camera"] = float(np.linalg.norm(s_c - p_c))
 
 
-def execute_closed_loop(plan: dict[str, Any], targets: Targets, req: Any, start: Array,
-                        config: ClosedLoopConfig, motion: Motion, system: System) -> None:  # fmt: skip
-    """Run a closed-loop request's targets from stacked ``start`` (rad) and write the reply's
-    ``closed_loop`` (tolerance m, frames per measurement, dwell s, per-target figures),
-    ``metrics.extra`` (:func:`closed_loop_figures`), ``execution`` and ``execution_reason``."""
-    if all(s["status"] != "ok" for s in plan["solutions"]):
+def execute_closed_loop(plan: Plan, targets: Targets, req: Any, start: Array,
+                        config: ClosedLoopConfig, motion: Motion, system: System) -> Plan:  # fmt: skip
+    """Run a closed-loop request's targets from stacked ``start`` (rad); the plan with the
+    reply's ``closed_loop`` (tolerance m, frames per measurement, dwell s, per-target
+    figures), ``metrics.extra`` (:func:`closed_loop_figures`), ``execution`` and
+    ``execution_reason``."""
+    if not plan.any_ok:
         raise ExecuteError("no target could be solved, nothing to execute", [])
     settings = config.settings
     if req.tolerance is not None:
         settings = replace(settings, tolerance=float(req.tolerance))
     dwell = config.dwell if req.dwell is None else float(req.dwell)
     runner = ClosedLoopRunner(system, config, motion, req.id, settings)
-    verdict, reason = "accepted", None
+    verdict, reason = Verdict.ACCEPTED, None
     try:
         rows = run_closed_loop(runner, plan, targets, start, dwell)
     except ExecuteError as exc:
         rows = list(getattr(exc, "rows", []))
         k = len(rows) - 1
-        rest = [{"id": t["id"], "status": "not_executed", "dwell": 0.0}
-                for t in plan["targets"][len(rows):]]  # fmt: skip
+        rest = [{"id": int(i), "status": "not_executed", "dwell": 0.0}
+                for i in plan.targets.ids[len(rows):]]  # fmt: skip
         rows += rest
-        verdict, reason = "rejected", f"target {k}: {exc.reason}"
+        verdict, reason = Verdict.REJECTED, f"target {k}: {exc.reason}"
     if motion.stop.is_set():
         reason = "closed loop aborted: a stop was seen on the bus"
     if req.frame == "camera":
         in_camera_frame(rows, np.asarray(req.points, dtype=float), system.world_T_camera(start))
-    plan["closed_loop"] = {"tolerance": settings.tolerance, "frames_per_measurement": settings.frames,
-                           "dwell": dwell, "moves": runner.moves, "dropped": runner.dropped,
-                           "frame": req.frame, "targets": rows}  # fmt: skip
-    plan["metrics"].setdefault("extra", {}).update(closed_loop_figures(rows))
-    plan["execution"], plan["execution_reason"] = verdict, reason
+    report = {"tolerance": settings.tolerance, "frames_per_measurement": settings.frames,
+              "dwell": dwell, "moves": runner.moves, "dropped": runner.dropped,
+              "frame": req.frame, "targets": rows}  # fmt: skip
+    return replace(
+        plan,
+        closed_loop=report,
+        execution=verdict,
+        execution_reason=reason,
+        metrics=plan.metrics.with_extra(**closed_loop_figures(rows)),
+    )
 
 
-def execute_on_node(node: Any, plan: dict[str, Any], targets: Targets, req: Any,
-                    start: dict[str, Array], handler: Any) -> None:  # fmt: skip
+def execute_on_node(node: Any, plan: Plan, targets: Targets, req: Any,
+                    start: dict[str, Array], handler: Any) -> Plan:  # fmt: skip
     """:func:`execute_closed_loop` on a :class:`planner.service.node.PlannerNode`: from
     ``start`` (rad per robot), in the calibration of ``handler`` (the one the request was
     planned with), moving through the node's execution, measuring with its spot buffer (and
@@ -439,12 +453,11 @@ def execute_on_node(node: Any, plan: dict[str, Any], targets: Targets, req: Any,
     config = handler.closed_loop
     assert config is not None
     system = handler.system
-    head = {k: plan[k] for k in ("robots", "joint_names", "scenario")}
 
-    def send(trajectory: dict[str, Any], move_id: str) -> tuple[str, str | None]:
-        mini = head | {"trajectory": trajectory}
-        node.execution.execute(mini, move_id, node.session_id)
-        return mini["execution"], mini["execution_reason"]
+    def send(trajectory: PlanTrajectory, move_id: str) -> tuple[str, str | None]:
+        sent = node.execution.execute(replace(plan, trajectory=trajectory), move_id,
+                                      node.session_id)  # fmt: skip
+        return str(sent.execution), sent.execution_reason
 
     def rest_at(q: Array) -> bool:
         return bool(node.joints.rests_at(system.split_q(q)))
@@ -459,4 +472,4 @@ def execute_on_node(node: Any, plan: dict[str, Any], targets: Targets, req: Any,
 
     motion = Motion(send, rest_at, node.spots, node.stop_seen, node.progress.tick, laser,
                     predict)  # fmt: skip
-    execute_closed_loop(plan, targets, req, system.stack_q(start), config, motion, system)
+    return execute_closed_loop(plan, targets, req, system.stack_q(start), config, motion, system)

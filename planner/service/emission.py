@@ -26,15 +26,15 @@ def exposures(spans: list[tuple[float, float]]) -> list[tuple[float, float]]:
     return [(s, on) for s, _, on in out]
 
 
-def emission_excess(trajectory: dict[str, Any], laser: dict[str, Any] | None) -> str | None:
-    """Why the ``laser_on`` intervals of a plan.json ``trajectory`` break the scenario's
-    ``laser`` limits (its resolved mapping: ``power``, ``limits``), or None."""
+def emission_excess(laser_on: Any, laser: dict[str, Any] | None) -> str | None:
+    """Why a trajectory's ``laser_on`` intervals (``[[t0, t1], ...]``, s) break the
+    scenario's ``laser`` limits (its resolved mapping: ``power``, ``limits``), or None."""
     laser = laser or {}
     limits = laser.get("limits") or {}
     power = laser.get("power")
     max_on, max_spot = limits.get("max_on"), limits.get("max_spot_energy")
     max_session = limits.get("max_session_energy")
-    spans = [(float(a), float(b)) for a, b in trajectory.get("laser_on") or []]
+    spans = [(float(a), float(b)) for a, b in laser_on]
     for a, on in exposures(spans):
         where = f"the exposure from t = {a:.3f} s"
         if max_on is not None and on > max_on + SLACK:

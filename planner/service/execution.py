@@ -27,6 +27,7 @@ import numpy as np
 from planner.bus.ids import base_id
 from planner.bus.session import decode_sample
 from planner.errors import BeamrelayError
+from planner.io.plan import Verdict
 from planner.model.transforms import Array
 
 log = logging.getLogger("beamrelay.node")
@@ -229,12 +230,12 @@ def start_state(
     return start | (joints.current(robots=rest) if rest else {})
 
 
-def execution_verdict(acks: dict[str, Any], timeout: float) -> tuple[str, str | None]:
-    """(``accepted`` | ``rejected``, reason naming each robot that did not accept)."""
+def execution_verdict(acks: dict[str, Any], timeout: float) -> tuple[Verdict, str | None]:
+    """(accepted | rejected, reason naming each robot that did not accept)."""
     reasons = []
     for robot, ack in acks.items():
         if ack is None:
             reasons.append(f"no answer from {robot} within {timeout:g} s")
         elif not ack.accepted:
             reasons.append(f"{robot}: {ack.reason or 'rejected without a reason'}")
-    return ("rejected", "; ".join(reasons)) if reasons else ("accepted", None)
+    return (Verdict.REJECTED, "; ".join(reasons)) if reasons else (Verdict.ACCEPTED, None)

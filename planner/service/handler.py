@@ -2,7 +2,7 @@
 
 :class:`RequestHandler` turns a validated :class:`~schemas.messages.TargetRequest` into
 world-frame :class:`~planner.model.system.Targets` (camera-frame points through the calibrated
-``world_T_camera``; path requests resampled every ``PATH_SPACING`` m) and a plan.json dict
+``world_T_camera``; path requests resampled every ``PATH_SPACING`` m) and a :class:`~planner.io.plan.Plan`
 through a *plan function* ``plan_fn(targets, start, trajectory) -> dict``: ``start`` is
 ``{robot: q}`` (rad, the robots' current joints) or None for the scenario's home;
 ``trajectory`` says whether to time a trajectory from ``start``. :func:`make_plan_fn` builds
@@ -19,6 +19,7 @@ import numpy as np
 from planner.bus.bodies import safe_text
 from planner.bus.session import decode, encode
 from planner.errors import BeamrelayError, InputError
+from planner.io.plan import Plan
 from planner.model.settings import TrajectorySettings
 from planner.model.system import System, Targets
 from planner.model.transforms import Array, transform_points
@@ -33,7 +34,7 @@ if TYPE_CHECKING:
 
 
 class PlanFn(Protocol):
-    """``plan_fn(targets, start, trajectory, dwell=None, rate=None) -> plan.json dict``:
+    """``plan_fn(targets, start, trajectory, dwell=None, rate=None) -> Plan``:
     ``dwell`` (s) overrides the scenario's ``trajectory.dwell`` (a request's ``dwell``),
     ``rate`` (Hz) its ``trajectory.rate`` (a preview's coarser trajectory)."""
 
@@ -44,7 +45,7 @@ class PlanFn(Protocol):
         trajectory: bool,
         dwell: float | None = None,
         rate: float | None = None,
-    ) -> dict[str, Any]: ...
+    ) -> Plan: ...
 
 
 #: Hz: the trajectory of a plan that is not executed (a preview) is timed and checked at this
@@ -169,7 +170,7 @@ def make_plan_fn(
     applies the collision, keep-out and clearance rules to the solutions and the trajectory.
     """
     from planner.ik import IKOptions
-    from planner.planning import Pipeline, plan_document
+    from planner.planning import Pipeline, build_plan
     from planner.scenario_planner import ScenarioPlanner
 
     timing = settings or TrajectorySettings()
@@ -183,7 +184,7 @@ def make_plan_fn(
         trajectory: bool,
         dwell: float | None = None,
         rate: float | None = None,
-    ) -> dict[str, Any]:
+    ) -> Plan:
         q0 = None if start is None else system.stack_q(start)
         timing_now, scn_now = timing, scenario
         changed: dict[str, float] = {}
@@ -197,11 +198,11 @@ def make_plan_fn(
         traj = None
         if trajectory:  # from the robots' current joints, in the requested order
             timed, sols, _, _ = pipeline.time(targets, sols, None, timing_now, q_start=q0)
-            traj = None if timed is None else timed.trajectory.to_plan_dict(system)
-        doc = plan_document(system, targets, sols, scn_now, traj, verify=False)
+            traj = None if timed is None else timed.trajectory.to_plan(system)
+        plan = build_plan(system, targets, sols, scn_now, traj, verify=False)
         if targets.kind != "path" and scene is not None and not scene.empty:
-            add_surface_warnings(doc, targets.points, scene)
-        return doc
+            plan = with_surface_warnings(plan, targets.points, scene)
+        return plan
 
     return plan_fn
 
@@ -210,23 +211,23 @@ def make_plan_fn(
 OFF_SURFACE = 0.005
 
 
-def add_surface_warnings(doc: dict[str, Any], points: Array, scene: Any) -> None:
-    """Warn (``doc["warnings"]``, one line each) about targets farther than
+def with_surface_warnings(plan: Plan, points: Array, scene: Any) -> Plan:
+    """``plan`` warning (``warnings``, one line each) about targets farther than
     :data:`OFF_SURFACE` from every surface of ``scene`` (a SceneModel): the spot lands
-    where the beam meets a surface, not on a target in mid-air. Writes the largest
-    distance to ``metrics.extra.surface_distance_max`` (m)."""
+    where the beam meets a surface, not on a target in mid-air; the largest distance in
+    ``metrics.extra.surface_distance_max`` (m)."""
     dist, obj = scene.nearest_surface(points)
-    doc["metrics"]["extra"]["surface_distance_max"] = float(dist.max())
+    plan = replace(plan, metrics=plan.metrics.with_extra(surface_distance_max=float(dist.max())))
     far = np.flatnonzero(dist > OFF_SURFACE)
     if not len(far):
-        return
+        return plan
     names = scene.names
     lines = [f"target {int(k)} is {1e3 * dist[k]:.1f} mm from the nearest surface "
              f"({names[obj[k]]}): the spot lands where the beam meets a surface"
              for k in far[:5]]  # fmt: skip
     if len(far) > 5:
         lines.append(f"... and {len(far) - 5} more targets off every surface")
-    doc["warnings"] = lines
+    return replace(plan, warnings=tuple(lines))
 
 
 def handler_from_scenario(path: Any, extra_includes: tuple[Any, ...] = ()) -> RequestHandler:
@@ -277,7 +278,7 @@ def camera_to_world(
 
 @dataclass
 class RequestHandler:
-    """TargetRequest -> plan.json dict; pure (no Zenoh), used by the node and the tests."""
+    """TargetRequest -> :class:`~planner.io.plan.Plan`; pure (no Zenoh), used by the node and the tests."""
 
     system: System
     plan_fn: PlanFn
@@ -330,8 +331,8 @@ class RequestHandler:
     def plan(
         self, req: Any, start: dict[str, Array] | None = None, trajectory: bool = False,
         rate: float | None = None,
-    ) -> dict[str, Any]:  # fmt: skip
-        """plan.json dict for a validated request, starting at ``start`` (rad) or home, its
+    ) -> Plan:  # fmt: skip
+        """The plan of a validated request, starting at ``start`` (rad) or home, its
         trajectory timed at ``rate`` (Hz; None: the scenario's)."""
         targets = self.targets(req)
         if rate is None:  # the scenario's rate (a plan function may take no ``rate``)

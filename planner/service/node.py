@@ -52,6 +52,7 @@ from planner.bus.bodies import encode_json
 from planner.bus.events import event, request_fields, stop_fields, verdict_fields
 from planner.bus.session import JSON, Keys, decode_sample, encode, update_alive, urgent
 from planner.errors import InputError
+from planner.io.plan import Plan
 from planner.model.system import Targets
 from planner.model.transforms import Array
 from planner.service.execution import (
@@ -378,7 +379,7 @@ class PlannerNode:
         if req.mode == "track":
             from planner.service.track_start import start_track
 
-            return encode_json(start_track(self, req))
+            return encode_json(start_track(self, req).to_document())
         start = None
         if req.execute:
             self.check_drivers()
@@ -390,20 +391,22 @@ class PlannerNode:
         timed = (req.execute and not req.closed_loop) or req.trajectory
         rate = PREVIEW_RATE if timed and not req.execute else None  # a preview: coarser
         plan = handler.plan_fn(targets, start, timed, dwell=req.dwell, rate=rate)
-        plan["id"] = req.id
-        for text in plan.get("warnings") or []:  # logged before anything moves
+        plan = dataclasses.replace(plan, id=req.id)
+        for text in plan.warnings or ():  # logged before anything moves
             event(log, "warning", logging.WARNING, id=req.id, text=text)
         if self.online is not None:
-            plan["metrics"].setdefault("extra", {})["calibration_version"] = version
+            extra = plan.metrics.with_extra(calibration_version=version)
+            plan = dataclasses.replace(plan, metrics=extra)
             self.online.add_planned(plan)  # a refit must keep these hits on the mirror
         if req.execute and req.closed_loop:
             assert start is not None
-            execute_on_node(self, plan, targets, req, start, handler)
+            plan = execute_on_node(self, plan, targets, req, start, handler)
         elif req.execute:
-            self.execute(plan, req.id)
+            plan = self.execute(plan, req.id)
         self.served += 1
-        event(log, "verdict", **verdict_fields(plan))
-        return encode_json(plan)
+        reply = plan.to_document()
+        event(log, "verdict", **verdict_fields(reply))
+        return encode_json(reply)
 
     # --- execution -------------------------------------------------------------------------
     def check_drivers(self) -> None:
@@ -440,12 +443,12 @@ class PlannerNode:
             return False
         return not self._closing.wait(DRIVER_POLL)
 
-    def execute(self, plan: dict[str, Any], request_id: str) -> None:
-        """Send the plan's trajectories, wait for the drivers' verdicts, and write them into
-        ``plan`` (``execution``, ``execution_reason``)."""
-        if all(s["status"] != "ok" for s in plan["solutions"]):
+    def execute(self, plan: Plan, request_id: str) -> Plan:
+        """Send the plan's trajectories, wait for the drivers' verdicts; the plan with them
+        (``execution``, ``execution_reason``)."""
+        if not plan.any_ok:
             raise ExecuteError("no target could be solved, nothing to execute", [])
-        self.execution.execute(plan, request_id, self.session_id)
+        return self.execution.execute(plan, request_id, self.session_id)
 
     def _stop_track(self, reason: str) -> None:
         if self.track is not None and self.track.active:

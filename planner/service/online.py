@@ -60,7 +60,9 @@ from planner.calibration.online import (
     refit,
 )
 from planner.errors import InputError
+from planner.io.plan import Plan
 from planner.model.scene import SceneModel
+from planner.model.status import Status
 from planner.model.system import System
 from planner.model.transforms import Array, transform_points
 from planner.service.online_file import (
@@ -230,17 +232,16 @@ class OnlineCalibrator:
         dist, idx = self.scene.closest(np.asarray(spot_world, dtype=float)[None])
         return self.scene.names[int(idx[0])] if float(dist[0]) <= SURFACE_TOL_M else ""
 
-    def add_planned(self, plan: dict[str, Any]) -> int:
-        """Remember the solved configurations of a plan (plan.json ``solutions[].q`` of the
-        ``ok`` ones): a refit must keep their mirror hits in the usable area. Returns how
-        many; never raises."""
+    def add_planned(self, plan: Plan) -> int:
+        """Remember the solved configurations of a plan (``solutions[].q`` of the ``ok``
+        ones): a refit must keep their mirror hits in the usable area. Returns how many;
+        never raises."""
         n = 0
-        for sol in plan.get("solutions") or []:
-            q = sol.get("q") if isinstance(sol, dict) and sol.get("status") == "ok" else None
-            if not isinstance(q, dict):
+        for sol in plan.solutions:
+            if sol.status is not Status.OK or not sol.q:
                 continue
             try:
-                qs = make_sample(self.nominal, q, np.zeros(3)).q
+                qs = make_sample(self.nominal, dict(sol.q), np.zeros(3)).q
             except InputError:
                 continue
             with self._lock:

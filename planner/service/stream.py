@@ -28,13 +28,14 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from planner.bus.bodies import encode_json
 from planner.bus.ids import base_id, chunk_id
+from planner.io.plan import Plan, Verdict
 from planner.service.execution import (
     AckBoard,
     ExecuteError,
@@ -70,7 +71,7 @@ class Chunk:
 
 
 def split_trajectory(
-    plan: dict[str, Any],
+    plan: Plan,
     request_id: str | None,
     session: str | None,
     max_bytes: int | None = CHUNK_BYTES,
@@ -119,7 +120,7 @@ REST = 1e-9
 
 
 def trajectory_messages(
-    plan: dict[str, Any], request_id: str | None = None, session: str | None = None
+    plan: Plan, request_id: str | None = None, session: str | None = None
 ) -> dict[str, bytes]:
     """One JointTrajectory body per robot from a plan's ``trajectory`` (times from 0),
     carrying the request id and the planner session (the ``laser.gate`` robot also gets
@@ -153,31 +154,31 @@ def split_edges(candidates: Any, n_samples: int, budget: int) -> list[int] | Non
     return [*edges, last]
 
 
-def _samples(plan: dict[str, Any]) -> tuple[Any, dict[str, dict[str, Any]]]:
+def _samples(plan: Plan) -> tuple[Any, dict[str, dict[str, Any]]]:
     """The trajectory's times (s) and per robot q, qd, qdd rows, repeated times dropped."""
-    traj = plan.get("trajectory")
-    if not traj:
-        raise ExecuteError("the plan has no trajectory to execute", list(plan["robots"]))
-    t = np.asarray(traj["t"], dtype=float)
+    traj = plan.trajectory
+    if traj is None or not len(traj.t):
+        raise ExecuteError("the plan has no trajectory to execute", list(plan.robots))
+    t = traj.t
     keep = np.concatenate([[True], np.diff(t) > 0])  # drivers require increasing times
-    rows = {robot: {k: np.asarray(traj[k][robot], dtype=float)[keep] for k in ("q", "qd", "qdd")}
-            for robot in plan["robots"]}  # fmt: skip
+    rows = {robot: {"q": traj.q[robot][keep], "qd": traj.qd[robot][keep],
+                    "qdd": traj.qdd[robot][keep]} for robot in plan.robots}  # fmt: skip
     return t[keep], rows
 
 
 def _chunk_maker(
-    plan: dict[str, Any], t: Any, rows: dict[str, dict[str, Any]], session: str | None
+    plan: Plan, t: Any, rows: dict[str, dict[str, Any]], session: str | None
 ) -> Callable[[str | None, int, int], Chunk]:
     from schemas.messages import TRAJECTORY_SCHEMA, JointTrajectory
 
-    gate = ((plan.get("scenario") or {}).get("system") or {}).get("laser", {}).get("gate") or {}
-    traj = plan.get("trajectory") or {}
-    laser_on, aim_on = ([(float(a), float(b)) for a, b in traj.get(key) or []]
-                        for key in ("laser_on", "aim_on"))  # fmt: skip
+    gate = (scenario_laser(plan.scenario) or {}).get("gate") or {}
+    assert plan.trajectory is not None  # _samples said so
+    laser_on, aim_on = ([(float(a), float(b)) for a, b in ([] if x is None else x)]
+                        for x in (plan.trajectory.laser_on, plan.trajectory.aim_on))  # fmt: skip
 
     def body(robot: str, cid: str | None, a: int, b: int) -> bytes:
         msg = {"schema": TRAJECTORY_SCHEMA, "robot": robot, "id": cid, "session": session,
-               "t": (t[a:b] - t[a]).tolist(), "names": list(plan["joint_names"][robot]),
+               "t": (t[a:b] - t[a]).tolist(), "names": list(plan.joint_names[robot]),
                **{k: v[a:b].tolist() for k, v in rows[robot].items()}}  # fmt: skip
         if robot == gate.get("robot"):  # its digital output switches the laser
             msg["laser_on"] = _clip_intervals(laser_on, float(t[a]), float(t[b - 1]))
@@ -204,6 +205,12 @@ def _clip_intervals(
         if hi > lo:
             out.append([lo - t0, hi - t0])
     return out
+
+
+def scenario_laser(scenario: Any) -> dict[str, Any] | None:
+    """The resolved scenario's ``system.laser`` mapping (power, limits, gate, aim), or None."""
+    laser = ((scenario or {}).get("system") or {}).get("laser")
+    return laser if isinstance(laser, dict) else None
 
 
 class Execution:
@@ -239,22 +246,22 @@ class Execution:
             stream = self._stream
         return None if stream is None or stream.done.is_set() else stream.describe()
 
-    def execute(self, plan: dict[str, Any], request_id: str, session: str | None) -> None:
+    def execute(self, plan: Plan, request_id: str, session: str | None) -> Plan:
         """Send the plan's trajectory (chunked if needed), wait for the verdicts on its first
-        chunks and write ``execution`` / ``execution_reason`` into ``plan``."""
+        chunks; the plan with its ``execution`` verdict and ``execution_reason``."""
         from planner.service.emission import emission_excess
 
-        laser = ((plan.get("scenario") or {}).get("system") or {}).get("laser")
-        over = emission_excess(plan.get("trajectory") or {}, laser)
+        traj = plan.trajectory
+        laser_on = [] if traj is None else traj.laser_on.tolist()
+        over = emission_excess(laser_on, scenario_laser(plan.scenario))
         if over is not None:  # never sent: the gate's driver would cut it short
-            plan["execution"], plan["execution_reason"] = "rejected", f"not sent: {over}"
-            return
+            return replace(plan, execution=Verdict.REJECTED, execution_reason=f"not sent: {over}")
         chunks = split_trajectory(plan, request_id, session, self.chunk_bytes)
-        traj = plan["trajectory"]
-        total = float(traj["t"][-1] - traj["t"][0])
+        assert traj is not None  # split_trajectory said so
+        total = traj.duration
         moving: set[str] = set()
         begin = time.monotonic()
-        verdict, reason = "accepted", None
+        verdict, reason = Verdict.ACCEPTED, None
         silent: set[str] = set()  # robots that did not answer: they may still accept
         for k, chunk in enumerate(chunks[:2]):
             acks, timeout = self.send(chunk)
@@ -263,25 +270,26 @@ class Execution:
             verdict, reason = execution_verdict(acks, timeout)
             if k == 0:
                 for robot in moving:
-                    begin = self.tracks.accepted(robot, request_id, traj["q"][robot][-1], total)
-            if verdict != "accepted":
+                    begin = self.tracks.accepted(robot, request_id, traj.q[robot][-1], total)
+            if verdict is not Verdict.ACCEPTED:
                 if len(chunks) > 1:
                     reason = f"chunk {k + 1}/{len(chunks)}: {reason}"
                 break
-        if verdict == "rejected" and moving:
+        if verdict is Verdict.REJECTED and moving:
             reason = f"{reason}; stopped {', '.join(sorted(moving))}: the robots move only together"
             self.send_stop(f"request {request_id}: {reason}")
-        elif verdict == "rejected" and silent:  # a late acceptance must not move the arm
+        elif verdict is Verdict.REJECTED and silent:  # a late acceptance must not move the arm
             reason = f"{reason}; stop sent, so a late acceptance does not move"
             self.send_stop(f"request {request_id}: {reason}")
-        if verdict == "rejected" and silent:  # no verdict heard: not known to be refused
-            plan["execution_unanswered"] = sorted(silent)
+        unanswered = None
+        if verdict is Verdict.REJECTED and silent:  # no verdict heard: not known to be refused
+            unanswered = tuple(sorted(silent))
         elif len(chunks) > 1:
             with self._lock:
                 self._stream = _Stream(self, request_id, chunks, begin).start()
-        plan["execution"], plan["execution_reason"] = verdict, reason
-        if len(chunks) > 1:
-            plan["execution_chunks"] = len(chunks)
+        return replace(plan, execution=verdict, execution_reason=reason,
+                       execution_unanswered=unanswered,
+                       execution_chunks=len(chunks) if len(chunks) > 1 else None)  # fmt: skip
 
     def send(self, chunk: Chunk) -> tuple[dict[str, Any], float]:
         """Publish one chunk to every robot; ({robot: verdict or None}, the timeout used)."""
@@ -357,7 +365,7 @@ class _Stream:
                 verdict, reason = execution_verdict(acks, timeout)
                 if self._cancel.is_set():
                     return
-                if verdict != "accepted":
+                if verdict is not Verdict.ACCEPTED:
                     self._fail(f"chunk {k + 1}/{n}: {reason}")
                     return
                 self.sent = k + 1

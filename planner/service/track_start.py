@@ -10,6 +10,8 @@ from typing import Any
 import numpy as np
 
 from planner.errors import InputError
+from planner.io.plan import Plan, Verdict
+from planner.model.status import Status
 from planner.model.transforms import Array
 from planner.service.track import TrackSession
 from planner.track.correction import SpotCorrection
@@ -25,7 +27,7 @@ APPROACH_GAP = 0.005
 APPROACH_TIMEOUT = 2.0
 
 
-def approach(node: Any, handler: Any, plan: dict[str, Any], q0: Array, q1: Array,
+def approach(node: Any, handler: Any, plan: Plan, q0: Array, q1: Array,
              first: Array, normal: Array | None, request_id: str) -> Array:  # fmt: skip
     """Move from stacked ``q0`` to the first estimate's solution ``q1`` (rad) with a planned
     trajectory (timed and checked under the safety rules like any plan, laser off) and wait
@@ -38,14 +40,14 @@ def approach(node: Any, handler: Any, plan: dict[str, Any], q0: Array, q1: Array
         raise ExecuteError("no planned approach to the tracked target (this planner has no "
                            "move planner): execute a request to it first", list(system.robot_names))  # fmt: skip
     traj = handler.closed_loop.move(q0, q1, 0.0, first, normal)
-    traj["laser_on"] = []
-    mini = {k: plan[k] for k in ("robots", "joint_names", "scenario")} | {"trajectory": traj}
-    node.execution.execute(mini, f"{request_id[:200]}.approach", node.session_id)
-    if mini["execution"] != "accepted":
-        raise ExecuteError(f"approach to the tracked target refused: {mini['execution_reason']}",
+    traj = dataclasses.replace(traj, laser_on=traj.laser_on[:0])  # laser off throughout
+    mini = dataclasses.replace(plan, trajectory=traj)
+    sent = node.execution.execute(mini, f"{request_id[:200]}.approach", node.session_id)
+    if sent.execution is not Verdict.ACCEPTED:
+        raise ExecuteError(f"approach to the tracked target refused: {sent.execution_reason}",
                            list(system.robot_names))  # fmt: skip
-    deadline = time.monotonic() + float(traj["t"][-1]) + APPROACH_TIMEOUT
-    q_end = {r: np.asarray(traj["q"][r][-1], dtype=float) for r in system.robot_names}
+    deadline = time.monotonic() + float(traj.t[-1]) + APPROACH_TIMEOUT
+    q_end = {r: np.array(traj.q[r][-1], dtype=float) for r in system.robot_names}
     while not node.joints.rests_at(q_end):
         if time.monotonic() > deadline:
             raise ExecuteError(f"the robots did not reach the tracked target's first estimate "
@@ -55,7 +57,7 @@ def approach(node: Any, handler: Any, plan: dict[str, Any], q0: Array, q1: Array
     return system.stack_q(node.joints.current())
 
 
-def start_track(node: Any, req: Any) -> dict[str, Any]:
+def start_track(node: Any, req: Any) -> Plan:
     """Start following the target stream of a validated ``mode: track`` request on a
     :class:`planner.service.node.PlannerNode`; returns the reply document (the plan of the
     first estimate, ``execution: accepted``, ``tracking``). Errors (InputError /
@@ -82,14 +84,13 @@ def start_track(node: Any, req: Any) -> dict[str, Any]:
     normal = None if targets.normals is None else targets.normals[0]
     one = Targets(first[None], None if normal is None else normal[None], kind="points",
                   surface_tolerance=targets.surface_tolerance)  # fmt: skip
-    plan = handler.plan_fn(one, start, False)
-    plan["id"] = req.id
-    sol = plan["solutions"][0]
-    if sol["status"] != "ok":
-        raise ExecuteError(f"the target's first estimate is not reachable: {sol['reason']}",
+    plan = dataclasses.replace(handler.plan_fn(one, start, False), id=req.id)
+    sol = plan.solutions[0]
+    if sol.status is not Status.OK:
+        raise ExecuteError(f"the target's first estimate is not reachable: {sol.reason}",
                            list(system.robot_names))  # fmt: skip
     q0 = system.stack_q(start)
-    q1 = system.stack_q({r: np.asarray(q) for r, q in sol["q"].items()})
+    q1 = system.stack_q(dict(sol.q))
     base = node.track_settings or TrackSettings()
     if req.tolerance is not None and req.tolerance > base.tolerance:
         raise InputError(f"may only tighten the tracking laser-on tolerance "
@@ -101,7 +102,7 @@ def start_track(node: Any, req: Any) -> dict[str, Any]:
         q0 = approach(node, handler, plan, q0, q1, first, normal, req.id)
     cam = None if system.camera is None else system.camera.world_T_camera
     attached = {o["name"]: np.asarray(o["world_T_object"]["matrix"], dtype=float)
-                for o in (plan.get("scenario") or {}).get("keep_out") or []
+                for o in plan.scenario.get("keep_out") or []
                 if o.get("attached_to") == req.id}  # fmt: skip
     rest = targets.points[1:]  # the object's markers: the request's points after the target
     markers = rest if attached and len(rest) >= MIN_MARKERS else None
@@ -110,7 +111,7 @@ def start_track(node: Any, req: Any) -> dict[str, Any]:
                               markers=markers,
                               check=None if rules is None else rules.twin())  # fmt: skip
     follower.warm_up(q1, normal)  # the first frame must not pay for first calls
-    scenario = plan.get("scenario") or {}
+    scenario = plan.scenario
     laser = (scenario.get("system") or {}).get("laser", {})
     gate = laser.get("gate") or {}
     allowance = None
@@ -125,11 +126,9 @@ def start_track(node: Any, req: Any) -> dict[str, Any]:
                               req.id, duration=req.duration, gate_robot=gate.get("robot"),
                               aim=laser.get("aim") is not None, correction=correction,
                               send_stop=node.send_stop, on_end=node.track_ended).start()  # fmt: skip
-    plan["execution"] = "accepted"
-    plan["tracking"] = {"stream": req.id, "duration": req.duration,
-                        "tolerance": settings.tolerance, "rate": settings.rate,
-                        "camera_correction": why}  # fmt: skip
-    return plan
+    tracking = {"stream": req.id, "duration": req.duration, "tolerance": settings.tolerance,
+                "rate": settings.rate, "camera_correction": why}  # fmt: skip
+    return dataclasses.replace(plan, execution=Verdict.ACCEPTED, tracking=tracking)
 
 
 def camera_correction(

@@ -57,14 +57,14 @@ def test_every_entry_point_plans_the_same_targets_alike(tmp_path: Path) -> None:
         api.append((str(sol.status), None if sol.reason is None else str(sol.reason)))
     handler = handler_from_scenario(path)
     body = {"schema": "beamrelay.request/1", "id": "r", "points": POINTS}
-    node = verdicts(handler.plan(handler.parse(encode(body)))["solutions"])
+    node = verdicts(handler.plan(handler.parse(encode(body))).to_document()["solutions"])
     camera = handler.system.camera
     assert camera is not None
     picks = TargetList()
     for p in POINTS:
         picks = picks.add(np.asarray(p))
     req = build_request(picks, Mode.POINTS, camera_T_world=inv_T(camera.world_T_camera))
-    console = verdicts(handler.plan(handler.parse(encode(req)))["solutions"])
+    console = verdicts(handler.plan(handler.parse(encode(req))).to_document()["solutions"])
     print(f"cli {cli}\napi {api}\nnode {node}\nconsole {console}")
     assert cli == api == node == console == EXPECTED
 

@@ -132,7 +132,7 @@ def test_planned_trajectories_of_the_shipped_scenarios_pass(scenario: str) -> No
     from planner.service.node import trajectory_messages
 
     out = run_scenario(REPO / "scenarios" / scenario, progress=False)
-    bodies = trajectory_messages(out.doc)
+    bodies = trajectory_messages(out.plan)
     assert bodies
     for robot, body in bodies.items():
         r = out.system.robot(robot)

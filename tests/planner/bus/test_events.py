@@ -68,7 +68,8 @@ def test_log_tail_gives_complete_new_lines_per_child(tmp_path: Path) -> None:
 
 def test_targets_off_every_surface_are_warned_with_their_distance() -> None:
     from planner.model.scene import SceneItem, SceneModel
-    from planner.service.handler import OFF_SURFACE, add_surface_warnings
+    from planner.service.handler import OFF_SURFACE, with_surface_warnings
+    from tests.planner.service.plans import as_plan
 
     T = np.eye(4)
     T[:3, 3] = [-0.492, -0.55, -0.065]
@@ -77,19 +78,18 @@ def test_targets_off_every_surface_are_warned_with_their_distance() -> None:
     )
     scene = SceneModel([board])
     points = np.array([[-0.49, -0.52, -0.06], [-0.49, -0.52, 0.0], [-0.492, -0.75, -0.065]])
-    doc: dict = {"metrics": {"extra": {}}}
-    add_surface_warnings(doc, points, scene)
+    plan = with_surface_warnings(as_plan({}), points, scene)
     # by hand: the first lies on the top face (z = -0.06), the second 60 mm above it, the
     # third 50 mm beyond the board's -y edge (y = -0.70) in its mid-plane
     expected = [0.0, 0.06, 0.05]
     dist, _ = scene.nearest_surface(points)
     np.testing.assert_allclose(dist, expected, atol=1e-6)
-    assert doc["metrics"]["extra"]["surface_distance_max"] == max(dist)
-    assert doc["warnings"] == [
+    assert plan.metrics.extra["surface_distance_max"] == max(dist)
+    assert plan.warnings == (
         "target 1 is 60.0 mm from the nearest surface (board): the spot lands where the beam "
         "meets a surface",
         "target 2 is 50.0 mm from the nearest surface (board): the spot lands where the beam "
-        "meets a surface"]  # fmt: skip
-    near: dict = {"metrics": {"extra": {}}}
-    add_surface_warnings(near, points[:1] + np.array([0, 0, 0.9 * OFF_SURFACE]), scene)
-    assert "warnings" not in near
+        "meets a surface")  # fmt: skip
+    near_points = points[:1] + np.array([0, 0, 0.9 * OFF_SURFACE])
+    near = with_surface_warnings(as_plan({}), near_points, scene)
+    assert near.warnings is None

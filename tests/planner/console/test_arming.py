@@ -16,6 +16,7 @@ from planner.console.live import Stamped
 from planner.console.session import Session
 from planner.data import shipped_scenario
 from tests.planner.console.test_console_handlers import panel
+from tests.planner.service.plans import as_plan
 
 
 class Clock:
@@ -76,11 +77,11 @@ def test_the_summary_says_what_execute_will_do() -> None:
         "solutions": [{"status": "ok"}, {"status": "ok"}, {"status": "failed"}],
         "trajectory": {"t": [0.5, 4.0], "laser_on": [[1.0, 2.0], [3.0, 3.5]]},
     }
-    text = treatment(plan, 0.005)
+    text = treatment(as_plan(plan), 0.005)
     assert text == ("2/3 targets, motion 3.5 s, treatment laser on 1.50 s, energy 0.0075 J at "
                     "0.005 W")  # fmt: skip
-    assert "energy" not in treatment(plan, None)
-    assert "laser on 0.00 s" in treatment({"trajectory": {"t": [0.0, 1.0]}}, None)
+    assert "energy" not in treatment(as_plan(plan), None)
+    assert "laser on 0.00 s" in treatment(as_plan({"trajectory": {"t": [0.0, 1.0]}}), None)
 
 
 class FakeOperator:
@@ -92,11 +93,11 @@ class FakeOperator:
         self.previews += 1
         plan = {"targets": [{}], "solutions": [{"status": "ok"}],
                 "trajectory": {"t": [0.0, 2.0], "laser_on": [[1.0, 1.4]]}}  # fmt: skip
-        return SimpleNamespace(plan=plan)
+        return SimpleNamespace(plan=as_plan(plan))
 
     def execute(self, request: dict[str, Any]) -> Any:
         self.executed.append(request)
-        return SimpleNamespace(plan={})
+        return SimpleNamespace(plan=as_plan({}))
 
     def stop(self, reason: str = "") -> None:
         pass
@@ -127,7 +128,7 @@ def page() -> tuple[Session, FakeOperator, FakeLive]:
     c.targets = c.targets.add([0.1, 0.2, 0.3], None)
 
     def shown(answer: Any, executed: bool) -> None:
-        c.preview = SimpleNamespace(n_ok=len(answer.plan.get("solutions") or []))  # type: ignore[assignment]
+        c.preview = SimpleNamespace(n_ok=len(answer.plan.solutions))  # type: ignore[assignment]
         c.panel.result.content = "preview shown" if not executed else "executed"
 
     c.show_answer = shown  # type: ignore[method-assign]

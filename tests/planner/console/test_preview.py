@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from planner.console.preview import beam_polyline, joints_at, preview_of
+from planner.io.plan import Plan
 from planner.io.scenario import load_scenario, scene_objects, system_from_scenario
 from planner.model.scene import SceneModel
 from planner.service.client import make_request
@@ -27,7 +28,7 @@ def world() -> tuple[Any, Any, Any]:
 
 
 def plan_of(handler: Any, points: list[list[float]], path: bool = False,
-            normals: list[list[float]] | None = None) -> dict[str, Any]:  # fmt: skip
+            normals: list[list[float]] | None = None) -> Plan:  # fmt: skip
     req = TargetRequest.model_validate(make_request(points, path=path, normals=normals))
     return handler.plan(req, None, trajectory=True)
 
@@ -43,14 +44,15 @@ def test_beams_end_on_the_planned_spots_and_failures_keep_their_reason(world: An
     assert [f.target for f in pv.failed] == [2]
     assert pv.failed[0].reason == "occluded"
     assert np.allclose(pv.failed[0].p, [-0.49, -0.55, -0.2])
-    for beam, sol in zip(pv.beams, plan["solutions"][:2], strict=True):
+    for beam, sol in zip(pv.beams, plan.solutions[:2], strict=True):
         assert np.allclose(beam[0], system.world_T_laser[:3, 3])
-        assert np.allclose(beam[-1], sol["spot"])
+        assert np.allclose(beam[-1], sol.spot)
         # the beam at the solution's joints, traced by the console and raycast onto the board
         # (open3d works in float32: ~1e-6 m over a metre), lands on the same spot
-        q = {r: np.asarray(v) for r, v in sol["q"].items()}
-        assert np.linalg.norm(beam_polyline(system, q, scene)[-1] - np.asarray(sol["spot"])) < 1e-5
-    assert pv.duration == pytest.approx(plan["trajectory"]["t"][-1])
+        q = dict(sol.q)
+        assert np.linalg.norm(beam_polyline(system, q, scene)[-1] - sol.spot) < 1e-5
+    assert plan.trajectory is not None
+    assert pv.duration == pytest.approx(plan.trajectory.t[-1])
 
 
 def test_the_swept_path_lies_on_the_board_along_the_requested_line(world: Any) -> None:
@@ -68,8 +70,9 @@ def test_the_swept_path_lies_on_the_board_along_the_requested_line(world: Any) -
 
 def test_joints_at_interpolates_the_trajectory(world: Any) -> None:
     handler, _, _ = world
-    traj = plan_of(handler, [[-0.52, -0.56, BOARD_TOP]])["trajectory"]
-    T, Q = np.asarray(traj["t"]), np.asarray(traj["q"]["arm0"])
+    traj = plan_of(handler, [[-0.52, -0.56, BOARD_TOP]]).trajectory
+    assert traj is not None
+    T, Q = traj.t, traj.q["arm0"]
     k = len(T) // 2
     assert np.allclose(joints_at(traj, ("arm0",), T[k])["arm0"], Q[k])
     mid = 0.5 * (T[k] + T[k + 1])

@@ -10,14 +10,16 @@ from planner.console.operator import Answer
 from planner.console.preview import Preview
 from planner.console.report import answer_markdown, late_verdict_line, sweep_line
 from planner.console.sweep import Sweep
+from planner.io.plan import Plan
 from planner.service.client import request_summary
+from tests.planner.service.plans import as_plan
 
 
-def plan(n: int) -> dict[str, Any]:
+def plan(n: int, **reply: Any) -> Plan:
     targets = [{"id": k, "p": [0.001 * k, 0.0, 0.0]} for k in range(n)]
     sols = [{"target": k, "status": "ok", "error": 0.0} for k in range(n)]
-    return {"id": "abc", "execution": "accepted", "targets": targets, "solutions": sols,
-            "metrics": {"n_ok": n, "n_targets": n, "duration": 2.5}}  # fmt: skip
+    return as_plan({"id": "abc", "execution": "accepted", "targets": targets, "solutions": sols,
+                    "metrics": {"n_ok": n, "n_targets": n, "duration": 2.5}} | reply)  # fmt: skip
 
 
 def preview(n: int) -> Preview:
@@ -58,8 +60,12 @@ def test_a_verdict_never_heard_reads_waiting_never_rejected() -> None:
     the page says it waits for arm0, and what arm0 answered once its status carries it."""
     from schemas.messages import TrajectoryAck
 
-    p = plan(1) | {"execution": "rejected", "execution_unanswered": ["arm0"],
-                   "execution_reason": "no answer from arm0 within 2 s; stop sent"}  # fmt: skip
+    p = plan(
+        1,
+        execution="rejected",
+        execution_unanswered=["arm0"],
+        execution_reason="no answer from arm0 within 2 s; stop sent",
+    )
     text = answer_markdown(Answer(p, request_summary(p, [None]), 0.4, [None]), preview(1),
                            executed=True)  # fmt: skip
     assert "execution: **waiting for arm0**" in text and "rejected" not in text, text
@@ -68,7 +74,7 @@ def test_a_verdict_never_heard_reads_waiting_never_rejected() -> None:
         "arm0: **accepted** (late: the STOP sent meanwhile brakes it)")  # fmt: skip
     refused = TrajectoryAck(id="abc", accepted=False, reason="q[3]: too fast", t=1.0)
     assert late_verdict_line("arm0", refused) == "arm0: **rejected** (q[3]: too fast)"
-    heard = plan(1) | {"execution": "rejected", "execution_reason": "arm0: q[3]: too fast"}
+    heard = plan(1, execution="rejected", execution_reason="arm0: q[3]: too fast")
     text = answer_markdown(Answer(heard, request_summary(heard, [None]), 0.4, [None]),
                            preview(1), executed=True)  # fmt: skip
     assert "execution: **rejected** (arm0: q[3]: too fast)" in text

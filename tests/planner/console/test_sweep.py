@@ -3,29 +3,31 @@ compared with the planned path (known synthetic sweeps, brute-force distances)."
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
-from typing import Any
 
 import numpy as np
 import pytest
 
 from planner.console.sweep import COVER_GAP, covered_length, polyline_distance, sweep_of
+from planner.io.plan import Plan
 from planner.model.transforms import inv_T, look_at, transform_points
+from tests.planner.service.plans import as_plan
 
 SPEED = 0.1  # m/s of the synthetic spot along x
 LASER_ON = [[0.2, 0.8]]
 world_T_camera = look_at([-1.0, -1.0, 0.5], [0.05, 0.0, 0.0])
 
 
-def plan(laser_on: list[list[float]] = LASER_ON) -> dict[str, Any]:
+def plan(laser_on: list[list[float]] = LASER_ON) -> Plan:
     """A 1 s trajectory of one robot whose first joint is t (rad) and a 100 mm path along x."""
     t = np.linspace(0.0, 1.0, 501)
     q = np.zeros((len(t), 6))
     q[:, 0] = t
     q[:, 1] = -1.0
     targets = [{"id": k, "p": [0.01 * k, 0.0, 0.0]} for k in range(11)]
-    return {"targets": targets,
-            "trajectory": {"t": t.tolist(), "q": {"arm0": q.tolist()}, "laser_on": laser_on}}  # fmt: skip
+    return as_plan({"targets": targets, "trajectory": {"t": t.tolist(), "q": {"arm0": q.tolist()},
+                                                       "laser_on": laser_on}})  # fmt: skip
 
 
 def spots_at(times: np.ndarray, offset: float) -> list[tuple[np.ndarray, dict[str, np.ndarray]]]:
@@ -63,7 +65,7 @@ def test_no_laser_on_interval_marks_nothing_and_empty_inputs_are_no_sweep() -> N
     assert len(sw.marked) == 0 and sw.unlit == len(times) and np.isnan(sw.deviation_max)
     sw = sweep_of(plan(), [], world_T_camera)
     assert len(sw.marked) == 0 and sw.unlit == 0 and sw.length == pytest.approx(0.1)
-    no_traj = {**plan(), "trajectory": None}
+    no_traj = dataclasses.replace(plan(), trajectory=None)
     assert len(sweep_of(no_traj, spots_at(times, 0.0), world_T_camera).marked) == 0
     # spots recorded before any joint state of the robot cannot be placed
     blind = [(p, {}) for p, _ in spots_at(times, 0.0)]

@@ -6,6 +6,8 @@ plane z = -0.06."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -143,11 +145,11 @@ def test_the_gate_robot_gets_the_intervals_and_plays_them(s_curve: PlanOutcome) 
     from schemas.messages import JointTrajectory
 
     doc = s_curve.doc
-    body = trajectory_messages(doc, "r1", "S")["arm0"]
+    body = trajectory_messages(s_curve.plan, "r1", "S")["arm0"]
     msg = JointTrajectory.model_validate_json(body)
     assert msg.laser_on == doc["trajectory"]["laser_on"]
-    plain = dict(doc, scenario=dict(doc["scenario"]))
-    plain["scenario"]["system"] = dict(doc["scenario"]["system"], laser={"world_T_laser": {}})
+    system = dict(doc["scenario"]["system"], laser={"world_T_laser": {}})
+    plain = dataclasses.replace(s_curve.plan, scenario=dict(doc["scenario"], system=system))
     assert JointTrajectory.model_validate_json(trajectory_messages(plain)["arm0"]).laser_on is None
     ref = check_message(msg, "arm0", tuple(msg.names), s_curve.system.limits).reference
     f = TrajectoryFollower(ref.q[0], s_curve.system.limits, 1 / RATE)

@@ -193,7 +193,7 @@ def test_node_plan_reports_occluded(tmp_path: Path) -> None:
     text = text.replace("targets:\n", roof + "targets:\n", 1)
     (tmp_path / "n2_roof.yaml").write_text(text)
     handler = handler_from_scenario(tmp_path / "n2_roof.yaml")
-    doc = handler.plan(handler.parse(encode(make_request([[-0.88, 0.30, 0.05]]))))
+    doc = handler.plan(handler.parse(encode(make_request([[-0.88, 0.30, 0.05]])))).to_document()
     [sol] = doc["solutions"]
     assert (sol["status"], sol["reason"], "q" in sol) == ("failed", "occluded", False)
     extra = doc["metrics"]["extra"]
@@ -215,7 +215,7 @@ def test_node_plan_applies_the_keep_out_rules(tmp_path: Path) -> None:
     handler = handler_from_scenario(tmp_path / "n2_eye.yaml")
     doc = handler.plan(
         handler.parse(encode(make_request([[-0.88, 0.30, 0.05], [-0.86, 0.28, 0.05]])))
-    )
+    ).to_document()
     first, second = doc["solutions"]
     assert (first["status"], first["reason"]) == ("failed", "keep_out")  # inside the eye
     assert second["status"] == "ok"  # 28 mm away: a beam that misses the eye is found

@@ -45,7 +45,7 @@ def setup(tmp_path: Path, extra: str = "") -> tuple[RequestHandler, np.ndarray, 
 
 
 def plan(handler: RequestHandler, req: TargetRequest) -> dict[str, Any]:
-    return handler.plan_fn(handler.targets(req), None, False)
+    return handler.plan_fn(handler.targets(req), None, False).to_document()
 
 
 def test_camera_targets_land_on_their_board_and_world_ones_stay_occluded(tmp_path: Path) -> None:

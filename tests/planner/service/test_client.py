@@ -12,6 +12,7 @@ import pytest
 from planner.model.transforms import look_at, transform_points
 from planner.service import client as cl
 from planner.service.client import PlanClient, Recorder, make_request, measured_spots
+from tests.planner.service.plans import as_plan
 
 
 def rest_at(rec: Recorder, q: np.ndarray, t0: float, t1: float, rate: float = 500.0) -> None:
@@ -23,14 +24,14 @@ def rest_at(rec: Recorder, q: np.ndarray, t0: float, t1: float, rate: float = 50
 def test_spots_are_assigned_to_the_target_the_robot_rests_on() -> None:
     world_T_camera = look_at([1.0, -0.5, 0.8], [0.0, 0.0, 0.0])
     q0, q1 = np.zeros(6), np.full(6, 0.1)
-    plan = {
+    plan = as_plan({
         "scenario": {"system": {"camera": {"world_T_camera": {"matrix": world_T_camera.tolist()}}}},
         "solutions": [
             {"status": "ok", "q": {"arm0": q0.tolist()}},
             {"status": "failed", "q": {}},
             {"status": "ok", "q": {"arm0": q1.tolist()}},
         ],
-    }
+    })  # fmt: skip
     rec = Recorder()
     since = time.monotonic()
     t = 1000.0  # the drivers' and the camera's stamps (UNIX s)
@@ -135,8 +136,9 @@ def fake_client(plan: dict[str, Any], fault: tuple[str, str] | None) -> PlanClie
 
 def moving_plan(duration: float) -> dict[str, Any]:
     q = {"arm0": [[0.0] * 6, [1.0] * 6]}
-    return {"id": "r1", "execution": "accepted", "solutions": [], "scenario": {},
-            "trajectory": {"t": [0.0, duration], "q": q}}  # fmt: skip
+    return as_plan({"id": "r1", "execution": "accepted", "robots": ["arm0"],
+                    "joint_names": {"arm0": [f"j{k}" for k in range(6)]},
+                    "trajectory": {"t": [0.0, duration], "q": q, "qd": q, "qdd": q}}).to_document()  # fmt: skip
 
 
 def test_execute_stops_waiting_when_a_driver_stops_this_trajectory() -> None:

@@ -13,6 +13,7 @@ import pytest
 
 from planner.bench.servo_world import UP, SimWorld, board_targets
 from planner.errors import InputError
+from planner.io.plan import Trajectory as PlanTrajectory
 from planner.model.settings import TrajectorySettings
 from planner.model.system import Targets
 from planner.service.closed_loop import (
@@ -63,7 +64,8 @@ class FakeBus:
         self.laser = LaserLog() if gated else None
         self.lie: Any = None  # (move number, p_camera, confidence) -> (p_camera, confidence)
 
-    def send(self, traj: dict[str, Any], move_id: str) -> tuple[str, str | None]:
+    def send(self, move: PlanTrajectory, move_id: str) -> tuple[str, str | None]:
+        traj = move.to_document()  # what the drivers are sent
         self.clock.run_all()  # the previous move's dwell plays out first
         self.sent.append((move_id, traj))
         self.sent_at.append(self.clock())
@@ -117,15 +119,15 @@ def _run(world: SimWorld, bus: FakeBus, k: int, dwell: float | None = 0.1,
     model = world.model
     P = board_targets(k, seed=4)
     targets = Targets(P, np.tile(UP, (k, 1)))
-    plan = make_plan_fn(model, {})(targets, None, False)
-    plan.setdefault("scenario", {})
+    planned = make_plan_fn(model, {})(targets, None, False)
     req = TargetRequest.model_validate({"schema": "beamrelay.request/1", "id": "cl", "execute": True,
                                         "closed_loop": True, "points": P.tolist(), "dwell": dwell})  # fmt: skip
     config = config_of(world, settings)
     ticks: list[float] = []
     check_closed_loop(req, model, config)
-    execute_closed_loop(plan, targets, req, model.home, config, bus.motion(ticks), model)
+    done = execute_closed_loop(planned, targets, req, model.home, config, bus.motion(ticks), model)
     bus.clock.run_all()
+    plan = done.to_document()  # the reply
     plan["_ticks"] = ticks
     plan["_targets"] = P
     return plan

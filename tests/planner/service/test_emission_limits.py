@@ -7,8 +7,10 @@ from typing import Any
 
 import pytest
 
+from planner.io.plan import Verdict
 from planner.service.emission import emission_excess
 from planner.service.stream import Execution
+from tests.planner.service.plans import as_plan
 
 LASER = {"power": 0.05, "limits": {"max_on": 2.0, "max_spot_energy": 0.05,
                                    "max_session_energy": 0.12}}  # fmt: skip
@@ -28,25 +30,21 @@ def test_intervals_are_checked_against_each_limit(
     laser: dict[str, Any] = dict(LASER)
     if "max_on" in (text or ""):
         laser["power"] = 0.001  # the energies stay far below their limits
-    got = emission_excess({"laser_on": spans}, laser)
+    got = emission_excess(spans, laser)
     assert got == text if text is None else (got is not None and text in got), got
 
 
 def test_no_limits_or_no_power_checks_nothing_but_max_on() -> None:
-    assert emission_excess({"laser_on": [[0, 100.0]]}, {}) is None
-    assert (
-        emission_excess({"laser_on": [[0, 100.0]]}, {"limits": {"max_spot_energy": 1e-6}}) is None
-    )
-    assert "max_on" in (
-        emission_excess({"laser_on": [[0, 3.0]]}, {"limits": {"max_on": 2.0}}) or ""
-    )
+    assert emission_excess([[0, 100.0]], {}) is None
+    assert emission_excess([[0, 100.0]], {"limits": {"max_spot_energy": 1e-6}}) is None
+    assert "max_on" in (emission_excess([[0, 3.0]], {"limits": {"max_on": 2.0}}) or "")
 
 
 def test_execution_refuses_a_trajectory_over_a_limit_without_sending_it() -> None:
     sent: list[Any] = []
     ex = Execution(("arm0",), lambda r, b: sent.append((r, b)), lambda why: None, None, None, 1.0)  # type: ignore[arg-type]
-    plan = {"robots": ["arm0"], "scenario": {"system": {"laser": LASER}},
-            "trajectory": {"t": [0.0, 2.0], "laser_on": [[0.5, 1.9]]}}  # fmt: skip
-    ex.execute(plan, "r1", "S")
-    assert plan["execution"] == "rejected" and not sent
-    assert "not sent: the exposure from t = 0.500 s delivers 0.07 J" in plan["execution_reason"]
+    plan = as_plan({"robots": ["arm0"], "scenario": {"system": {"laser": LASER}},
+                    "trajectory": {"t": [0.0, 2.0], "laser_on": [[0.5, 1.9]]}})  # fmt: skip
+    plan = ex.execute(plan, "r1", "S")
+    assert plan.execution is Verdict.REJECTED and not sent
+    assert "not sent: the exposure from t = 0.500 s delivers 0.07 J" in str(plan.execution_reason)

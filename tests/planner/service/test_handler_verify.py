@@ -29,7 +29,7 @@ def test_a_solution_rejected_by_verification_is_not_in_the_trajectory() -> None:
     limits = scenario["system"]["robots"][0]["limits"]
     side = "upper" if q2[j] > q1[j] else "lower"
     limits[side][j] = float((q1[j] + q2[j]) / 2)
-    plan = make_plan_fn(system, scenario)(targets, None, True)
+    plan = make_plan_fn(system, scenario)(targets, None, True).to_document()
     sols = plan["solutions"]
     assert sols[0]["status"] == "ok"
     assert sols[1]["status"] == "failed" and sols[1]["reason"] == "joint_limits"
@@ -50,7 +50,8 @@ def test_a_request_dwell_overrides_the_scenarios_and_the_plan_says_so(tmp_path) 
     targets = Targets(points, None, kind="points")
     scenario = resolved_scenario_dict(loaded)
     plan_fn = make_plan_fn(system, scenario)
-    plain, dwelt = plan_fn(targets, None, True), plan_fn(targets, None, True, dwell=0.25)
+    plain = plan_fn(targets, None, True).to_document()
+    dwelt = plan_fn(targets, None, True, dwell=0.25).to_document()
     spans = [s["t1"] - s["t0"] for s in dwelt["trajectory"]["segments"] if s["kind"] == "dwell"]
     assert len(spans) == 3 and np.allclose(spans, 0.25, atol=1.5 / 500)  # one sample at 500 Hz
     assert dwelt["scenario"]["trajectory"]["dwell"] == 0.25

@@ -20,6 +20,7 @@ from planner.service.node import PlannerNode, RequestHandler, make_plan_fn, traj
 from schemas.messages import JointTrajectory
 from tests.conftest import make_system
 from tests.drivers.conftest import free_port, wait_for
+from tests.planner.service.plans import as_plan
 
 PREFIX = "nodetest"
 
@@ -254,7 +255,7 @@ def test_trajectory_messages_split_per_robot() -> None:
         "joint_names": {"arm0": [f"j{i}" for i in range(6)]},
         "trajectory": {"t": t, "q": {"arm0": q}, "qd": {"arm0": q}, "qdd": {"arm0": q}},
     }
-    msg = JointTrajectory.model_validate_json(trajectory_messages(plan)["arm0"])
+    msg = JointTrajectory.model_validate_json(trajectory_messages(as_plan(plan))["arm0"])
     assert msg.t == [0.0, 0.002, 0.004]
     assert msg.q == [q[0], q[1], q[3]] and msg.names == plan["joint_names"]["arm0"]
 

@@ -65,7 +65,7 @@ def test_the_nodes_trajectory_starts_at_the_current_joints(system: System) -> No
     targets = Targets(points)
     q_now = system.home + 0.03
     plan_fn = make_plan_fn(system, {}, settings=TrajectorySettings(dwell=0.2, rate=500.0))
-    doc = plan_fn(targets, system.split_q(q_now), True)
+    doc = plan_fn(targets, system.split_q(q_now), True).to_document()
     traj = doc["trajectory"]
     assert traj is not None
     assert [s["status"] for s in doc["solutions"]] == ["ok"] * 3
@@ -94,7 +94,7 @@ def test_a_path_request_with_a_corner_is_marked_in_two_strokes() -> None:
     c = np.array([-0.49, -0.52, 0.0])
     pts = [c, c + np.array([0.02, 0, 0]), c + np.array([0.02, 0.015, 0])]
     req = handler.parse(encode(make_request(pts, path=True, normals=[[0, 0, 1]] * 3)))
-    plan = handler.plan(req, None, trajectory=True)
+    plan = handler.plan(req, None, trajectory=True).to_document()
     assert all(s["status"] == "ok" for s in plan["solutions"])
     laser_on = plan["trajectory"]["laser_on"]
     assert len(laser_on) == 2
@@ -117,7 +117,7 @@ def test_warm_up_plans_one_solved_target_down_the_beam_at_home(system: System) -
 
     def spy(targets: Targets, start: object, trajectory: bool) -> dict[str, object]:
         plan = inner(targets, start, trajectory)
-        plans.append({"targets": targets, "trajectory": trajectory, "plan": plan})
+        plans.append({"targets": targets, "trajectory": trajectory, "plan": plan.to_document()})
         return plan
 
     handler = RequestHandler(system, spy)

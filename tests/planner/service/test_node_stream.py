@@ -29,6 +29,7 @@ from planner.service.stream import CHUNK_BYTES, split_edges, split_trajectory
 from schemas.messages import JointTrajectory
 from tests.drivers.conftest import free_port, wait_for
 from tests.planner.raw_zenoh import Inbox, ask, raw_session
+from tests.planner.service.plans import as_plan
 from tests.planner.service.test_node import reachable_targets, system_with_camera
 
 PREFIX = "streamtest"
@@ -244,7 +245,7 @@ def resting(plan: dict[str, Any]) -> np.ndarray:
 def test_the_paper_sized_trajectory_splits_under_the_body_limit_where_robots_rest() -> None:
     """52,707 samples (the paper grid's 1000 targets): about 17 MB per robot in one body."""
     plan = big_plan(52_707, ("arm0", "arm1"))
-    chunks = split_trajectory(plan, "grid", "sess")
+    chunks = split_trajectory(as_plan(plan), "grid", "sess")
     t, q = np.asarray(plan["trajectory"]["t"]), np.asarray(plan["trajectory"]["q"]["arm1"])
     rest = resting(plan)
     n, start, pieces = len(chunks), 0, []
@@ -275,12 +276,12 @@ def test_a_trajectory_that_never_rests_is_refused_unless_moving_splits_are_allow
         match=r"exceeds the 3145728-byte message size and cannot "
         r"be split where the robots rest: they move for 60\.0 s without a stop",
     ):
-        split_trajectory(plan, "r", "sess")
-    chunks = split_trajectory(plan, "r", "sess", at_rest_only=False)
+        split_trajectory(as_plan(plan), "r", "sess")
+    chunks = split_trajectory(as_plan(plan), "r", "sess", at_rest_only=False)
     assert len(chunks) >= 3 and all(c.nbytes <= CHUNK_BYTES for c in chunks)
     plan = big_plan(30_000, rest_every=20_000)  # a rest point, but chunks would be too long
     with pytest.raises(ExecuteError, match=r"move for 40\.0 s without a stop"):
-        split_trajectory(plan, "r", "sess")
+        split_trajectory(as_plan(plan), "r", "sess")
 
 
 def test_split_edges() -> None:
@@ -295,7 +296,7 @@ def test_split_edges() -> None:
 
 
 def test_a_trajectory_that_fits_stays_one_message_with_the_request_id() -> None:
-    chunks = split_trajectory(big_plan(2000), "small", "sess")
+    chunks = split_trajectory(as_plan(big_plan(2000)), "small", "sess")
     assert len(chunks) == 1 and chunks[0].id == "small" and chunks[0].t0 == 0.0
     assert chunks[0].duration == pytest.approx(1999 * 0.002)
 
@@ -304,7 +305,7 @@ def test_chunk_ids_fit_the_id_length() -> None:
     rid = "x" * 256
     cid = chunk_id(rid, 12, 40)
     assert len(cid) == 256 and cid.endswith("#12/40")
-    for c in split_trajectory(big_plan(30_000), rid, "sess"):
+    for c in split_trajectory(as_plan(big_plan(30_000)), rid, "sess"):
         assert JointTrajectory.model_validate_json(c.bodies["arm0"]).id == c.id
 
 

@@ -29,6 +29,7 @@ from planner.service.online_file import check_output_file, is_online_file
 from schemas.messages import CalibrationMessage, JointState, SpotMessage
 from tests.drivers.conftest import free_port, wait_for
 from tests.planner.raw_zenoh import Inbox, raw_session
+from tests.planner.service.plans import as_plan
 
 PREFIX = "onlinetest"
 AIM = np.array([-0.492, -0.55, -0.06])  # on paper_n1's board
@@ -427,13 +428,15 @@ def test_samples_are_labelled_by_the_scene_object_they_lie_on_and_plans_are_reme
     assert cal._samples[-1].surface == "board"
     assert cal.add_sample({"arm0": nominal.home}, on_board, surface="table")
     assert cal._samples[-1].surface == "table"
-    plan = {"solutions": [
-        {"status": "ok", "q": {"arm0": nominal.home.tolist()}},
-        {"status": "unreachable", "q": {"arm0": nominal.home.tolist()}},
-        {"status": "ok", "q": {"arm0": [0.0] * 3}}, {"status": "ok", "q": None}, "junk",
-    ]}  # fmt: skip
-    assert cal.add_planned(plan) == 1 and cal.add_planned({"solutions": None}) == 0
-    assert cal.add_planned({}) == 0
+    plan = as_plan({"targets": [{"id": k, "p": [0.0, 0.0, 0.0]} for k in range(4)],
+                    "solutions": [
+        {"target": 0, "status": "ok", "q": {"arm0": nominal.home.tolist()}},
+        {"target": 1, "status": "failed", "reason": "unreachable",
+         "q": {"arm0": nominal.home.tolist()}},
+        {"target": 2, "status": "ok", "q": {"arm0": [0.0] * 3}},
+        {"target": 3, "status": "ok", "q": None},
+    ]})  # fmt: skip
+    assert cal.add_planned(plan) == 1 and cal.add_planned(as_plan({})) == 0
 
 
 def _refit_versions(cal: OnlineCalibrator, truth: System, n: int, seed: int) -> None:

@@ -32,7 +32,8 @@ def canned_plan(request: dict[str, Any], verdict: str | None) -> dict[str, Any]:
                        "reason": None if k == 0 else "unreachable", "q": {"arm0": [0.0] * 6},
                        "error": 2e-12 if k == 0 else None, "solve_time": 0.001}
                       for k in range(n)],
-        "trajectory": {"t": [0.0, 30.0], "q": {"arm0": [[0.0] * 6] * 2}},
+        "trajectory": {"t": [0.0, 30.0], "q": {"arm0": [[0.0] * 6] * 2},
+                       "qd": {"arm0": [[0.0] * 6] * 2}, "qdd": {"arm0": [[0.0] * 6] * 2}},
         "metrics": {"n_targets": n, "n_ok": 1, "duration": 30.0},
     }  # fmt: skip
     if verdict is not None:
