@@ -14,11 +14,20 @@ start 0.05 rad away from the arm), and reports :class:`LoopStats` for both windo
 
 from __future__ import annotations
 
+import json
+import os
+import socket
+import subprocess
+import sys
 import time
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 
+from drivers.robot.ur_fake import FakeURController
+from planner.bus.session import Keys, open_session
+from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
 from planner.model.transforms import Array
 from schemas import defaults
 
@@ -70,7 +79,6 @@ def flood_body(
     samples: int, q0: Array, names: list[str], rate: float = defaults.SERVO_RATE_HZ
 ) -> bytes:
     """A valid-looking ``samples``-sample trajectory body (a slow minimum-jerk move)."""
-    import json
 
     t = np.arange(samples) / rate
     x = t / t[-1]
@@ -96,8 +104,6 @@ def flood_jitter(
     trajectories sent, checked (a verdict) and superseded before they were checked."""
     from drivers.robot.node import RobotNode
     from drivers.robot.sim import SimRobot
-    from planner.bus.session import Keys, open_session
-    from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
 
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     keys, limits, home = Keys("bench"), Limits.ur_default(), np.array(DEFAULT_HOME)
@@ -106,7 +112,6 @@ def flood_jitter(
     fake: Any = None
     if backend == "ur":
         from drivers.robot.ur import URRobot
-        from drivers.robot.ur_fake import FakeURController
 
         fake = FakeURController(home, realtime=True, lag=False)
         robot = URRobot("bench", JOINT_NAMES_UR, limits, robot="arm0", control=fake,
@@ -146,8 +151,6 @@ def peer_session(endpoint: str, settle: float = 0.5) -> Any:
     """A plain Zenoh peer session connected to ``endpoint`` (no multicast scouting), ``settle``
     s after opening (for the connection): the load generators' side of a bench, run in their
     own process."""
-    import json
-    import time
 
     import zenoh
 
@@ -182,10 +185,6 @@ print(sent, len(body), flush=True)
 def _flood(endpoint: str, key: str, samples: int, rate: float, seconds: float) -> tuple[int, int]:
     """Run the flood from a separate process (plain Zenoh publisher), so the figures are the
     driver's alone; (bodies sent, bytes per body)."""
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
 
     root = str(Path(__file__).resolve().parents[1])
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([root, os.environ.get("PYTHONPATH", "")]))
@@ -197,7 +196,6 @@ def _flood(endpoint: str, key: str, samples: int, rate: float, seconds: float) -
 
 
 def _free_port() -> int:
-    import socket
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

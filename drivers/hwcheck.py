@@ -45,6 +45,10 @@ from typing import Any
 
 import numpy as np
 
+from drivers.camera.spot import detect_gated_spot
+from drivers.robot.ur_link import MOTION_ALLOWED, safety_name
+from planner.beam.trace import trace_beam
+
 RTDE_PORT, DASHBOARD_PORT = 30004, 29999
 WIGGLE_AMPLITUDE = 0.05  # rad, wrist_3
 WIGGLE_SPEED = 0.1  # rad/s peak
@@ -104,7 +108,6 @@ def check_dashboard(dash: Any) -> Check:
 
 
 def check_rtde(receive: Any, floor: float = 0.05, wait: float = 0.1) -> Check:
-    from drivers.robot.ur_link import MOTION_ALLOWED, safety_name
 
     t0 = float(receive.getTimestamp())
     time.sleep(wait)
@@ -234,9 +237,7 @@ def aim_keep_out(scn: Any, q: Any) -> Check | None:
     """The aim beam at the arm's measured joints ``q`` (rad) against the scenario's keep-out
     volumes (inflated by its margin), out to :data:`SPOT_REACH` m past the last mirror: a
     failed Check when it enters one (the spot test must not light it), else None."""
-    import numpy as np
 
-    from planner.beam.trace import trace_beam
     from planner.io.scenario import system_from_scenario
     from planner.safety.model import Safety
     from planner.safety.occlusion import beam_points
@@ -259,7 +260,6 @@ def aim_keep_out(scn: Any, q: Any) -> Check | None:
 
 def spot_test(grab: Callable[[], Any], set_gate: Callable[[bool], None], frames: int = 3) -> Check:
     """Frames with the gate off, then on: the gated detector must find the spot."""
-    from drivers.camera.spot import detect_gated_spot
 
     set_gate(False)
     off = [grab() for _ in range(frames)]

@@ -14,12 +14,18 @@ verdict (a stream that went stale on a loaded machine braked the arm).
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from drivers.bench import _free_port, loop_stats, node_window
+from planner.bus.session import Keys, open_session
+from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
 
 SENDER = """
 import math, os, sys, time
@@ -50,15 +56,9 @@ with SetpointStreamer(s, Keys(prefix), "bench", ["arm0"], reference=ref, request
 
 def stream_jitter(seconds: float = 5.0, quiet: float = 2.0, garbage: float = 0.0) -> dict[str, Any]:
     """Loop figures without and with the stream (see the module docstring)."""
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
 
     from drivers.robot.node import RobotNode
     from drivers.robot.sim import SimRobot
-    from planner.bus.session import Keys, open_session
-    from planner.model.system import DEFAULT_HOME, JOINT_NAMES_UR, Limits
 
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     keys, limits = Keys("sbench"), Limits.ur_default()

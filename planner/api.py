@@ -16,6 +16,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from planner.verify.check import check_plan as _check
+
 if TYPE_CHECKING:
     from planner.io.scenario import LoadedScenario
     from planner.model.scene import SceneModel
@@ -104,7 +106,6 @@ def check_plan(plan_doc: dict[str, Any], base_dir: str | Path = ".") -> list[Che
     Returns:
         One result per check; each has ``ok`` and its findings.
     """
-    from planner.verify.check import check_plan as _check
 
     return _check(plan_doc, Path(base_dir))
 

@@ -7,6 +7,7 @@ over Zenoh) for a few seconds.
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -15,6 +16,8 @@ from rich.console import Console
 from rich.rule import Rule
 
 from planner.data import scenarios_dir
+from planner.demo_live import run_live_demo
+from planner.verify.safety_report import keep_out_summary
 
 SCENARIOS = scenarios_dir()
 
@@ -66,7 +69,6 @@ def main(out: Path) -> None:
     _safety_steps(console, out)
 
     console.print(Rule("[bold]11. the running system: planner + simulated drivers over Zenoh"))
-    from planner.demo_live import run_live_demo
 
     run_live_demo(n1, seconds=5)
     console.print(Rule("[bold green]demo done"))
@@ -88,11 +90,8 @@ def _safety_steps(console: Console, out: Path) -> None:
          ["plan", str(face), "-o", str(plan_face), "--plot", str(out / "plan_face.png")],
          ok=(0, 1))  # fmt: skip
     _run(console, "    re-verify it (independent numpy geometry)", ["check", str(plan_face)])
-    import json
 
     from rich.table import Table
-
-    from planner.verify.safety_report import keep_out_summary
 
     table = Table(title="keep-out volumes of the face plan (numpy re-check)")
     for col in ("volume", "targets inside", "failed keep_out", "beam min (mm)",

@@ -21,8 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
+from planner.beam.trace import trace_beam
 from planner.data import shipped_scenario
+from planner.model.system import Targets
 from planner.model.transforms import Array
+from planner.service.client import PlanClient, RequestError, make_request
 
 
 def free_endpoint() -> str:
@@ -38,14 +41,12 @@ def surface_targets(scenario_path: Path, n: int) -> Array:
     import open3d as o3d
 
     from drivers.camera.sim import build_scene
-    from planner.beam.trace import trace_beam
     from planner.io.scenario import (
         load_scenario,
         scene_objects,
         system_from_scenario,
         targets_from_scenario,
     )
-    from planner.model.system import Targets
     from planner.planning import plan_points
 
     scn = load_scenario(scenario_path)
@@ -71,8 +72,6 @@ def run_live_demo(scenario_path: Path | str, seconds: float = 5.0, n_targets: in
     """Run the loop on ``scenario_path`` (needs a camera and a scene), print measured errors."""
     from rich.console import Console
     from rich.table import Table
-
-    from planner.service.client import PlanClient, RequestError, make_request
 
     console = Console()
     scenario_path = Path(scenario_path).resolve()

@@ -8,11 +8,13 @@ rest-to-rest moves through the solved points (visit order optimised unless the s
 sky-writing (:mod:`planner.path.marking`), dense at ``rate``, with the laser gate's
 ``laser_on`` intervals. A failed target is a status; it never stops the others.
 """
+# long module: batch planning's pipeline (solve, verify, time, build the plan) in one place, as the issue asked
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -23,9 +25,11 @@ from planner.io.plan import Solution as PlanSolution
 from planner.io.plan import Trajectory as PlanTrajectory
 from planner.io.plan_file import plan_json as plan_json  # re-exported
 from planner.io.plan_file import write_plan as write_plan
+from planner.model.polyline import arc_length
 from planner.model.status import Reason, Status
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
+from planner.path.timing import points_trajectory, ruckig_move
 from planner.scenario_planner import Progress as Progress  # re-exported
 from planner.scenario_planner import ScenarioPlanner
 from planner.scenario_planner import ik_options as ik_options
@@ -34,6 +38,11 @@ from planner.scenario_planner import plan_path_targets as plan_path_targets
 from planner.scenario_planner import plan_points as plan_points
 from planner.scenario_planner import solve_landed_path as solve_landed_path
 from planner.scenario_planner import solve_path as solve_path
+from planner.verify.check import target_findings
+from planner.verify.marking import exposure
+from planner.verify.metrics import summary_metrics
+from planner.verify.spot import segment_mask
+from planner.verify.trajectory import spot_deviation
 
 if TYPE_CHECKING:
     from planner.model.settings import TrajectorySettings
@@ -69,7 +78,6 @@ def solution_json(system: System, k: int, sol: Solution) -> dict[str, Any]:
 def plan_metrics(solutions: list[Solution], duration: float | None) -> dict[str, Any]:
     """``metrics`` of plan.json: medians over solved targets (None when none solved); the
     same computation ``beamrelay check`` repeats on the written plan."""
-    from planner.verify.metrics import summary_metrics
 
     ok = [s for s in solutions if s.ok]
     return summary_metrics([float(s.error) for s in ok], [float(s.solve_time) for s in ok],
@@ -83,9 +91,6 @@ def verify_solutions(
     incidence, mirrors, joint limits, same bounds: :mod:`planner.verify.tolerances`) on the
     resolved ``scenario``; a solution they reject becomes ``failed`` with the check's
     reason and message as evidence. Nothing is re-solved."""
-    from dataclasses import replace
-
-    from planner.verify.check import target_findings
 
     ok = [k for k, s in enumerate(solutions) if s.ok]
     if not ok:
@@ -165,8 +170,6 @@ def build_plan(
     )  # fmt: skip
     power = ((scenario.get("system") or {}).get("laser") or {}).get("power")
     if power is not None and "targets" in scenario:
-        from planner.verify.marking import exposure
-
         e = exposure(plan.to_document(arrays=True), float(power)) or {}
         metrics = dataclasses.replace(metrics, exposure=Exposure(**e))
         plan = dataclasses.replace(plan, metrics=metrics)
@@ -203,7 +206,6 @@ def time_solutions(
     comparison only), laser on only on the path. None if nothing was solved. ``move`` makes
     every rest-to-rest move: the approach, between point targets and between a path's
     strokes (default Ruckig, :mod:`planner.path.timing`)."""
-    from planner.path.timing import points_trajectory
 
     rate = settings.rate
     q0 = system.home if q_start is None else np.asarray(q_start, dtype=float)
@@ -217,7 +219,6 @@ def time_solutions(
         figures = {"duration_given_order": visit.duration_given,
                    "duration_chosen_order": visit.duration_optimised}  # fmt: skip
         return Timed(traj, visit, figures | limit_ratios(system, traj) | posture(system, Q))
-    from planner.model.polyline import arc_length
     from planner.path.marking import mark_runs, marking_trajectory
 
     arc = path.arc if path is not None else arc_length(targets.points)
@@ -263,7 +264,6 @@ def limit_ratios(system: System, traj: Trajectory) -> dict[str, float]:
 
 def _mask(traj: Trajectory, kind: str) -> Mask:
     """Samples of the trajectory inside segments of one kind."""
-    from planner.verify.spot import segment_mask
 
     return segment_mask(traj.t, [s._asdict() for s in traj.segments], kind)
 
@@ -284,7 +284,6 @@ def spot_rays(system: System, Q: Array) -> tuple[Array, Array]:
 def path_deviation(system: System, targets: Targets, traj: Trajectory) -> float:
     """Largest distance (m) of the spot from the target polyline over the ``path`` segments
     (the spot is where the ray meets the nearest sample's plane)."""
-    from planner.verify.trajectory import spot_deviation
 
     mask = _mask(traj, "path")
     if not mask.any():
@@ -325,7 +324,6 @@ def time_safely(
         timed = time_solutions(system, targets, solutions, settings, order=order, path=path,
                                progress=progress, q_start=q0)  # fmt: skip
         return timed, solutions, path, {}
-    from planner.path.timing import ruckig_move
     from planner.safety.timing import safe_timing
 
     def time_fn(sols: list[Solution], pth: PathResult | None, mover: MoveFn) -> Timed | None:

@@ -22,7 +22,10 @@ from planner.beam.trace import mirror_poses, trace_beam
 from planner.model.status import Status
 from planner.model.system import System, Targets
 from planner.model.transforms import Array, inv_T
-from planner.plot_scene import draw_camera, target_marker_size
+from planner.plot_scene import draw_camera, draw_failed, draw_volumes, target_marker_size
+from planner.verify.marking import marked_speeds
+from planner.verify.spot import arrival_mask, segment_mask
+from planner.verify.trajectory import _plane_spots, nearest_spots, spot_deviation
 
 _COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:purple")
 _SEGMENT_COLOURS = {"approach": "0.92", "move": "0.92", "path": "#e3f2e1", "dwell": "#fdf0d5",
@@ -143,7 +146,6 @@ def plot_plan(system: System, targets: Targets, plan: dict[str, Any], path: str 
     title = f"{plan['scenario'].get('name') or ''}: {m['n_ok']}/{m['n_targets']} targets solved"
 
     def overlay(ax: Any) -> list[Array]:
-        from planner.plot_scene import draw_failed, draw_volumes
 
         scn = plan["scenario"]
         drawn = draw_volumes(ax, scn.get("scene") or [], "0.55", "scene")
@@ -176,7 +178,6 @@ def _plane_axes(points: Array) -> tuple[Array, Array, Array]:
 
 def _shade(ax: Any, t: Array, segments: list[dict[str, Any]]) -> None:
     """Shade the segments' time spans by kind: one filled area per kind (any count)."""
-    from planner.verify.spot import segment_mask
 
     for kind in sorted({s["kind"] for s in segments}):
         mask = segment_mask(t, segments, kind)
@@ -190,8 +191,6 @@ def _arrival_spots(system: System, plan: dict[str, Any], targets: Targets, Q: Ar
     solved target whose configuration is nearest (a k-d tree: linear in the targets)."""
     from scipy.spatial import cKDTree
 
-    from planner.verify.trajectory import _plane_spots
-
     solved = [s for s in plan["solutions"] if s["status"] == Status.OK]
     ids = np.array([int(s["target"]) for s in solved])
     _, j = cKDTree(np.array([system.stack_q(s["q"]) for s in solved])).query(Q)
@@ -203,7 +202,6 @@ def _arrival_spots(system: System, plan: dict[str, Any], targets: Targets, Q: Ar
 def _fluence_panel(ax: Any, plan: dict[str, Any]) -> None:
     """Fluence (J/m = power / spot speed) along the marked length (mm), or the marked spot
     speed (mm/s) when the scenario gives no laser power."""
-    from planner.verify.marking import marked_speeds
 
     speeds = marked_speeds(plan)
     if speeds is None:
@@ -226,6 +224,7 @@ def _fluence_panel(ax: Any, plan: dict[str, Any]) -> None:
     ax.grid(alpha=0.3)
 
 
+# long: one figure: joint panels, spot trace and deviation panel drawn in the order they appear
 def plot_profiles(system: System, targets: Targets, plan: dict[str, Any], path: str | Path) -> None:
     """Joint profiles (q rad; qd, qdd in % of each joint's limit) vs t with the segments
     shaded, the spot trace vs the target path (mm, in the targets' principal plane) and the
@@ -236,8 +235,6 @@ def plot_profiles(system: System, targets: Targets, plan: dict[str, Any], path: 
     import matplotlib.pyplot as plt
 
     from planner.planning import spot_rays
-    from planner.verify.spot import arrival_mask, segment_mask
-    from planner.verify.trajectory import nearest_spots, spot_deviation
 
     traj = plan["trajectory"]
     t = np.asarray(traj["t"], dtype=float)

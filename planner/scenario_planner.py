@@ -28,6 +28,8 @@ from planner.model.scene import SceneModel
 from planner.model.status import Reason
 from planner.model.system import System, Targets
 from planner.model.transforms import Array, transform_points
+from schemas.bounds import check_coordinates
+from schemas.common import FieldError
 
 if TYPE_CHECKING:
     from planner.io.scenario import LoadedScenario
@@ -96,8 +98,6 @@ class ScenarioPlanner:
         scenario file's are (InputError naming ``target``: beyond 20 m, behind the camera),
         camera-frame ones mapped through the calibrated camera pose (at joints ``q`` for an
         eye-in-hand camera) and allowed :attr:`surface_tolerance` from their surface."""
-        from schemas.bounds import check_coordinates
-        from schemas.common import FieldError
 
         p = np.asarray(points, dtype=float).reshape(-1, 3)
         n = None if normals is None else np.asarray(normals, dtype=float).reshape(-1, 3)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Annotated, Final, Literal, Self
 
-from pydantic import AfterValidator, Field, StrictBool, model_validator
+from pydantic import AfterValidator, Field, StrictBool, ValidationError, model_validator
 from pydantic_core import PydanticCustomError
 
 from schemas.bounds import check_coordinates
@@ -269,7 +269,6 @@ MAX_RECOVER_BYTES: Final = 4096
 def parse_recover(payload: bytes, robot: str) -> str:
     """The operator text of a valid recover request for ``robot`` (what the UR driver acts
     on and the supervisor logs); ValueError otherwise."""
-    from pydantic import ValidationError
 
     if len(payload) > MAX_RECOVER_BYTES:
         raise ValueError(f"recover body of {len(payload)} bytes > {MAX_RECOVER_BYTES}")

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Final, Literal, Self, get_args
 
+import numpy as np
 from pydantic import Field, model_validator
 
 from schemas.common import (
@@ -267,7 +268,6 @@ def check_tables(tables: dict[str, Any], joint_names: dict[str, list[str]]) -> N
     :func:`take_tables` took), with numpy: finite numbers, times that do not decrease, the
     robots of ``q`` in every table, one row per time, one number per joint.
     FieldError at the key path below ``trajectory``."""
-    import numpy as np
 
     t = _numbers(tables.get("t", []), ("t",))
     if t.ndim != 1:
@@ -301,7 +301,6 @@ def check_tables(tables: dict[str, Any], joint_names: dict[str, list[str]]) -> N
 
 
 def _numbers(x: Any, loc: tuple[str | int, ...]) -> Any:
-    import numpy as np
 
     try:
         a = np.asarray(x)

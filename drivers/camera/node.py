@@ -40,7 +40,7 @@ from drivers.loop_node import LoopNode
 from planner.bus.session import JSON, Keys, bulk, decode, encode
 from planner.errors import InputError
 from planner.model.transforms import Array
-from schemas.messages import JointState, SpotMessage
+from schemas.messages import JointState, LaserState, SpotMessage
 from schemas.points import POINTS_SCHEMA, decode_points, points_metadata
 
 __all__ = [
@@ -141,7 +141,6 @@ class CameraNode(LoopNode):
         return on_state
 
     def _on_laser(self, sample: Any) -> None:
-        from schemas.messages import LaserState
 
         try:
             msg = decode(sample.payload.to_bytes(), LaserState)

@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.camera.markers import CharucoSpec, detect_charuco
 from drivers.camera.node import SpotReading
 from drivers.camera.rs_recording import DEPTH_UNIT as DEPTH_UNIT
 from drivers.camera.rs_recording import write_recording as write_recording
@@ -255,7 +256,6 @@ class RealSenseCamera:
     def markers(self, request: dict[str, Any]) -> Array:
         """ChArUco corners of the last frame (camera frame, m; NaN = not seen); the request's
         ``charuco`` gives the board (:class:`drivers.camera.markers.CharucoSpec` fields)."""
-        from drivers.camera.markers import CharucoSpec, detect_charuco
 
         spec = CharucoSpec(**request.get("charuco", {}))
         depth_m = np.asanyarray(self._depth.get_data()) * self._depth.get_units()

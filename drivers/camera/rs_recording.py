@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Any
 
@@ -61,7 +62,6 @@ def write_recording(
     ``t0_ms``: stamp frame ``i`` at ``t0_ms + i * 1000 / fps`` ms in the ``global_time``
     domain (host UNIX ms, as a live D400 stamps its frames), else device-clock stamps.
     """
-    import time
 
     import pyrealsense2 as rs
 

@@ -58,8 +58,9 @@ from drivers.camera.moving import MovingScene
 from drivers.camera.node import SpotReading
 from drivers.camera.spot import PREDICTION_TTL, SpotParams, project
 from planner.beam.graph import BeamModel
+from planner.errors import InputError
 from planner.model import d435
-from planner.model.scene import SceneItem
+from planner.model.scene import SceneItem, SceneModel
 from planner.model.system import Camera, System
 from planner.model.transforms import Array, inv_T
 
@@ -73,7 +74,6 @@ F32 = NDArray[np.float32]
 def build_scene(items: list[SceneItem]) -> Any:
     """An open3d ``RaycastingScene`` of the scene objects, in the world frame (the planner's
     :class:`planner.model.scene.SceneModel`, so the camera and the occlusion check see one scene)."""
-    from planner.model.scene import SceneModel
 
     return SceneModel(items).raycasting_scene
 
@@ -116,7 +116,6 @@ class SimCamera:
         gated: bool = False, clock: Callable[[], float] = time.time,
         depth_errors: d435.DepthErrors | None = None,
     ) -> None:  # fmt: skip
-        from planner.errors import InputError
 
         if system.camera is None:
             raise InputError(
@@ -168,7 +167,6 @@ class SimCamera:
 
     def _swept_pixels(self, j: int) -> Any:
         """Indices of the pixel rays that meet moving object ``j``'s swept box."""
-        from planner.model.scene import SceneModel
 
         box = SceneModel([self.world.swept_box(j)])
         c, R = self.camera.world_T_camera[:3, 3], self.camera.world_T_camera[:3, :3]

@@ -24,7 +24,7 @@ import numpy as np
 
 from drivers.camera.sim import SIGMA_PX, SPOT_WINDOW
 from drivers.loop_node import LoopNode
-from planner.bus.session import Keys
+from planner.bus.session import JSON, Keys, encode
 from planner.model.scene import TrackedObject
 from planner.model.transforms import Array
 from planner.track.noise import MarkerNoise
@@ -92,7 +92,6 @@ class TrackerNode(LoopNode):
         self.frames = 0
 
     def start(self) -> TrackerNode:
-        from planner.bus.session import JSON
 
         self._pub = self.session.declare_publisher(self.keys.target_stream, encoding=JSON)
         self._handles.append(self._pub)
@@ -101,7 +100,6 @@ class TrackerNode(LoopNode):
         return self
 
     def _loop(self) -> None:
-        from planner.bus.session import encode
 
         next_t = time.monotonic()
         while not self._stop.is_set():

@@ -31,6 +31,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from pydantic import ValidationError
 
 from drivers.robot.trajectory_check import LIMIT_SLACK, POSITION_NOISE, START_TOLERANCE
 from planner.bus.session import decode
@@ -71,7 +72,6 @@ class SetpointSample(NamedTuple):
 def _validate(body: bytes) -> Setpoint:
     """The schema's verdict: pydantic's own JSON parser first (~40 us); a body it refuses goes
     through :func:`planner.bus.session.decode` for an error that names the field."""
-    from pydantic import ValidationError
 
     try:
         return Setpoint.model_validate_json(body)

@@ -180,6 +180,7 @@ def reclassify(fig: dict[str, Any], planner_log: Path) -> None:
     fig["other_faults"] -= extra
 
 
+# long: a typer command: 7 options (15 lines); it runs the loads and prints one line per load
 def command(
     minutes: Annotated[float, typer.Option(help="Continuous execution time (min).")] = 10.0,
     load: Annotated[int, typer.Option(help="CPU-burning processes beside the system.")] = 0,

@@ -18,6 +18,7 @@ from planner.data import shipped_scenario
 DEFAULT_SCENARIO = shipped_scenario("curve_path.yaml")
 
 
+# long: a typer command: it times the path NLP for each sample count K and prints one table
 def command(
     scenario: Annotated[Path, typer.Option(help="Path scenario to sweep.")] = DEFAULT_SCENARIO,
     sizes: Annotated[str, typer.Option(help="Comma-separated sample counts K.")] = "100,1000,5000",

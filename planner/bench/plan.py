@@ -41,6 +41,7 @@ def _maxrss_mb() -> float:
     return rss / 1e6 if sys.platform == "darwin" else rss / 1e3  # bytes on macOS, KiB on Linux
 
 
+# long: one benchmark run: each stage timed in order with its peak memory, and the early exits between stages
 def run_size(scenario: str, n: int, stages: tuple[str, ...]) -> dict[str, Any]:
     """Plan one grid of about ``n`` targets; figures per stage (s, MB)."""
     import numpy as np

@@ -177,6 +177,7 @@ def apply_gauge(
     return L, make_T(R, c0 - n * float(n @ (c0 - c)))
 
 
+# long: the beam fit's stages (gauge, initial guess, robust least squares, covariance, result) in the order the docstring gives them
 def calibrate_beam(
     data: BeamData,
     system: System,

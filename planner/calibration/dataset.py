@@ -17,12 +17,12 @@ from planner.calibration.handeye import HandEyeData
 from planner.errors import DatasetError, InputError
 from planner.model.system import System
 from planner.model.transforms import Array, inv_T, transform_points
+from schemas.calibration import BeamDataset, HandEyeDataset
+from schemas.yamlio import read_json, validate
 
 
 def load_handeye(path: str | Path) -> HandEyeData:
     """Read and validate a ``beamrelay.handeye/1`` file (DatasetError on any problem)."""
-    from schemas.calibration import HandEyeDataset
-    from schemas.yamlio import read_json, validate
 
     raw = read_json(path, DatasetError)
     ds = validate(HandEyeDataset, raw, source=str(path), error_cls=DatasetError)
@@ -44,8 +44,6 @@ def load_beam(path: str | Path, system: System) -> BeamData:
     """Read and validate a ``beamrelay.beam/1`` file; ``spot_camera`` goes to the world with
     the scenario's camera pose (after its includes). A camera on a flange is posed at the
     sample's joints of its robot, which the sample's ``q`` must then hold."""
-    from schemas.calibration import BeamDataset
-    from schemas.yamlio import read_json, validate
 
     raw = read_json(path, DatasetError)
     ds = validate(BeamDataset, raw, source=str(path), error_cls=DatasetError)

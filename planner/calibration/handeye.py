@@ -172,6 +172,7 @@ def _world_T_flange(system: System, robot: str, q: Array) -> Array:
     return r.world_T_base @ r.kinematics.fk(q)
 
 
+# long: the hand-eye fit's stages (closed-form start, joint least squares, residuals, result) in order
 def calibrate_handeye(
     data: HandEyeData,
     system: System,

@@ -75,6 +75,7 @@ class LsqResult(Generic[S]):
     sigma: float
 
 
+# long: one Levenberg-Marquardt loop: step, damping update and the stopping tests read together
 def levenberg_marquardt(
     linearize: Callable[[S], tuple[Array, Array]],
     retract: Callable[[S, Array], S],

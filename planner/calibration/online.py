@@ -47,6 +47,7 @@ Steps, each of which may refuse (the calibration in force is kept, the reason is
 
 Units: metres, radians; frames: world, flange, laser as in the scenario.
 """
+# long module: the online calibrator: samples, the acceptance rule and the mirror test share its state and its history file
 
 from __future__ import annotations
 
@@ -59,6 +60,7 @@ from typing import Any
 import numpy as np
 
 from planner.beam.graph import BeamModel
+from planner.beam.trace import trace_beam
 from planner.calibration.beam import (
     FULL_NAMES,
     OBSERVABLE_LASER,
@@ -68,6 +70,7 @@ from planner.calibration.beam import (
     apply_gauge,
     calibrate_beam,
 )
+from planner.calibration.lsq import exp_T
 from planner.calibration.report import beam_document
 from planner.errors import BeamrelayError, InputError
 from planner.model import d435
@@ -223,6 +226,7 @@ def _distinct(q: Array) -> int:
     return len(keys)
 
 
+# long: the acceptance rule's steps (surfaces, fit, held-out medians, mirror test) in the order of the module docstring
 def refit(
     samples: Sequence[SpotSample],
     current: Calibration,
@@ -362,6 +366,7 @@ def _compare(
     return None
 
 
+# long: a 17-line docstring states the propagation the code follows; the code is 46 lines
 def mirror_margins(
     system: System,
     fit: BeamResult,
@@ -386,8 +391,6 @@ def mirror_margins(
     does not count, except that at a ``measured`` configuration (a spot was seen there, so
     the beam met the mirror) a hit off the mirror's face or behind it contradicts the
     measurement and fails."""
-    from planner.beam.trace import trace_beam
-    from planner.calibration.lsq import exp_T
 
     robot = system.robot_names[-1]
     cols = [FULL_NAMES.index(n) for n in fit.std]

@@ -11,11 +11,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
+from ruamel.yaml import YAML
 
 from planner.calibration.beam import BeamResult
 from planner.calibration.handeye import HandEyeResult
 from planner.errors import InputError
 from planner.model.transforms import Array, matrix_to_quat
+from schemas.calibration import CalibrationFile
 
 PAPER_HANDEYE_MM = (1.13, 0.50)
 PAPER_BEAM_MM = (2.04, 1.25)
@@ -140,10 +143,6 @@ def beam_document(result: BeamResult, dataset: str = "") -> dict[str, Any]:
 
 def write_calibration(path: Path, document: dict[str, Any]) -> None:
     """Validate ``document`` against ``schemas.calibration.CalibrationFile`` and write YAML."""
-    from pydantic import ValidationError
-    from ruamel.yaml import YAML
-
-    from schemas.calibration import CalibrationFile
 
     try:
         CalibrationFile.model_validate(document)

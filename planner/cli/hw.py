@@ -21,6 +21,7 @@ from schemas import defaults
 app = command_group(help="Hardware bring-up: checklist of the arm and the camera.")
 
 
+# long: a typer command: 8 options (25 lines); the hardware check's steps follow in the order they run
 @app.command("check")
 def check(
     host: Annotated[

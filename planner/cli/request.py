@@ -27,6 +27,7 @@ if TYPE_CHECKING:
 CLOSED_LOOP_SECONDS_PER_TARGET = 15.0
 
 
+# long: a typer command: 15 options declared in its signature (52 lines); the request, its wait and its tables follow in order
 def request(
     points: Annotated[
         list[str],

@@ -22,6 +22,7 @@ from typing import Any
 from planner.console.arming import HEARTBEAT, PROTECTIVE_STOP
 from planner.console.cloud import MAX_POINTS, Cloud, cloud_from_sample
 from planner.console.draw import BEAM_COLOUR, RobotDrawing, add_fixed, set_lines
+from planner.console.drawing_loop import DrawLoop
 from planner.console.gate import Gate, guarded_serve
 from planner.console.health import health_markdown
 from planner.console.live import LiveState
@@ -30,8 +31,11 @@ from planner.console.panel import build_panel
 from planner.console.preview import beam_polyline
 from planner.console.session import Session
 from planner.console.view import default_view
+from planner.console.wizard import Wizard
 from planner.errors import InputError
+from planner.model.scene import SceneModel
 from planner.model.transforms import Array
+from planner.service.client import PlanClient
 from planner.service.token import new_token
 
 log = logging.getLogger("beamrelay.console")
@@ -58,7 +62,6 @@ class Console:
             scene_objects,
             system_from_scenario,
         )
-        from planner.model.scene import SceneModel
 
         scn = load_scenario(scenario)
         self.scenario = Path(scenario).resolve()
@@ -83,7 +86,6 @@ class Console:
     # lifecycle ----------------------------------------------------------------------------
     def start(self) -> Console:
         """Connect to the bus, serve the page, start drawing."""
-        from planner.service.client import PlanClient
 
         self.client = PlanClient(**self.bus)  # type: ignore[arg-type]
         self.live = LiveState(self.client.keys)
@@ -165,7 +167,6 @@ class Console:
             session.on_click(event.ray_origin, event.ray_direction)
 
     def _wire_wizard(self) -> None:
-        from planner.console.wizard import Wizard
 
         self.wizard = Wizard(self.server, self.scenario, self.scene_items, self.bus, self.workdir)
 
@@ -204,7 +205,6 @@ class Console:
 
     # drawing loop -------------------------------------------------------------------------
     def _draw_loop(self) -> None:
-        from planner.console.drawing_loop import DrawLoop
 
         DrawLoop(self).run(self._stop, 1.0 / DRAW_RATE, 1.0 / HEALTH_RATE)
 

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from planner.console.session import SPOT_COLOUR
 from planner.errors import InputError
 
 if TYPE_CHECKING:
@@ -116,8 +117,6 @@ class DrawLoop:
         T = c.world_T_camera(c.live.joint_vector(c.system.robot_names))
         p = T[:3, :3] @ np.asarray(snap.value.p_camera, dtype=float) + T[:3, 3]
         if self.spot_node is None:
-            from planner.console.session import SPOT_COLOUR
-
             self.spot_node = c.server.scene.add_icosphere("/spot", radius=0.005, color=SPOT_COLOUR)
         self.spot_node.position = p
         self.spot_node.visible = True

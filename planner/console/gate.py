@@ -26,6 +26,7 @@ from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from planner.console.address import is_loopback
+from planner.console.hotkeys import with_hotkeys
 from planner.service.token import check_token, console_url
 
 COOKIE = "beamrelay_console"
@@ -115,8 +116,6 @@ def guarded_serve(gate: Gate) -> Iterator[None]:
     that does not answer within :data:`PING_TIMEOUT` (+ :data:`CLOSE_TIMEOUT`); the page it
     serves carries the space bar's STOP (:mod:`planner.console.hotkeys`)."""
     import websockets.asyncio.server as ws_server
-
-    from planner.console.hotkeys import with_hotkeys
 
     serve = ws_server.serve
 

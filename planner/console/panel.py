@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from planner.calibration.collect import SPEED, SPEED_RANGE
 from planner.console.targets import Mode
 
 
@@ -100,7 +101,6 @@ def build_calibration_panel(server: Any, kinds: tuple[str, ...], aim: str, workd
     """The wizard's widgets (collapsed): ``kinds`` of calibration (the first chosen),
     ``aim`` the default board centre text, ``workdir`` the working directory the file names
     are relative to (shown), ``files`` the first kind's default dataset and output names."""
-    from planner.calibration.collect import SPEED, SPEED_RANGE
 
     gui = server.gui
     # below every browser's own panel, which is built later, when the browser connects

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from planner.errors import InputError
+from planner.io.strokes import mark_path
 from planner.model.transforms import Array
 from planner.service.client import make_request
 from schemas import defaults
@@ -91,7 +92,6 @@ def path_points(targets: TargetList, mode: Mode, spacing: float = defaults.PATH_
     P, N = targets.points(), targets.normals()
     if mode is not Mode.SMOOTH or len(P) < 3:
         return P, N
-    from planner.io.strokes import mark_path
 
     marked = mark_path(P, spacing, normals=N, smooth=True)
     return marked.points, marked.normals

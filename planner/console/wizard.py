@@ -36,6 +36,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from ruamel.yaml import YAML
+
 from planner.calibration.collect import SPEED, SPEED_RANGE
 from planner.console.panel import build_calibration_panel
 from planner.console.workdir import default_workdir, ensure_dir, input_path, output_path
@@ -96,7 +98,6 @@ def parse_aim(text: str) -> list[float]:
 
 def report_markdown(calibration_yaml: Path) -> str:
     """The ``report:`` of a calibration file: residuals (mm) and parameter deviations."""
-    from ruamel.yaml import YAML
 
     doc = YAML(typ="safe").load(calibration_yaml.read_text())
     report = (doc or {}).get("report") or {}

@@ -6,12 +6,13 @@ Every point is in the world frame (m); joints in rad (rad/s, rad/s^2); times in 
 trajectory's start. The document keeps the key order plan.json is written in, so that a plan
 read and written again gives the same text. Arrays held by a plan are read-only views.
 """
+# long module: the typed plan and its one mapping to and from plan.json (SPEC section 5), field by field
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from typing import Any, Final, TypeVar
 
@@ -324,7 +325,6 @@ class Metrics:
 
     def with_extra(self, **figures: float) -> Metrics:
         """These metrics with ``figures`` added to (or replacing theirs in) ``extra``."""
-        from dataclasses import replace
 
         return replace(self, extra={**self.extra, **figures})
 

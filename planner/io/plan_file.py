@@ -11,6 +11,7 @@ which decides what it means or rejects it.
 
 from __future__ import annotations
 
+import io
 import json
 import mmap
 import re
@@ -19,6 +20,12 @@ from typing import Any, TextIO
 
 import numpy as np
 import orjson
+
+from planner.errors import InputError
+from schemas.common import FieldError
+from schemas.located import format_loc
+from schemas.plan import Plan, check_tables, take_tables
+from schemas.yamlio import read_json, validate
 
 TABLES = ("t", "q", "qd", "qdd")  # the trajectory's dense tables
 BIG = 1 << 16  # bytes of text from which a numeric array is parsed by numpy
@@ -91,7 +98,6 @@ def _text(doc: dict[str, Any], one_per_line: int = 20) -> str:
 
 def plan_json(doc: dict[str, Any], digits: int = 10) -> str:
     """plan.json text (:func:`write_plan`) as a string."""
-    import io
 
     buf = io.StringIO()
     write_plan(doc, buf, digits)
@@ -118,11 +124,6 @@ def load_plan(path: Path) -> dict[str, Any]:
     """plan.json read (its dense tables as arrays, :func:`~planner.io.plan_file.read_plan`)
     and validated against the schema: the tables with numpy, the rest by the model.
     InputError (one line, naming the file and the key path) when it is not a valid plan."""
-    from planner.errors import InputError
-    from schemas.common import FieldError
-    from schemas.located import format_loc
-    from schemas.plan import Plan, check_tables, take_tables
-    from schemas.yamlio import read_json, validate
 
     data = read_json(path, load=read_plan)
     if not isinstance(data, dict):

@@ -19,6 +19,7 @@ import numpy as np
 
 from planner.errors import InputError, ScenarioError
 from planner.io.plausibility import emit, scenario_warnings
+from planner.io.strokes import mark_path
 from planner.model import robots
 from planner.model.motion import motion_from_schema
 from planner.model.scene import SceneItem, SceneModel
@@ -308,7 +309,6 @@ def targets_from_scenario(scn: LoadedScenario, system: System) -> Targets:
         meta["n"] = tuple(spec.grid.n)
     else:
         assert spec.path is not None
-        from planner.io.strokes import mark_path
 
         closed, path = spec.path.closed, spec.path
         try:

@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.bus.session import JSON, Keys, decode, encode
+from planner.bus.session import JSON, Keys, decode, encode, open_session
 from planner.console.live import LiveState
 from planner.errors import InputError
 from planner.model.scene import SceneModel
@@ -66,6 +66,7 @@ from planner.ros2.graph import (
 )
 from planner.ros2.inputs import INPUTS, target_request
 from schemas.messages import JointTrajectory
+from schemas.points import decode_points
 
 log = logging.getLogger(__name__)
 
@@ -410,7 +411,6 @@ class Ros2Bridge:
 
     def publish_cloud(self) -> None:
         """The newest camera cloud, if new, as PointCloud2 in the ``camera`` frame."""
-        from schemas.points import decode_points
 
         self._cloud_seq, sample = self.live.take_points(self._cloud_seq)
         if sample is None:
@@ -466,7 +466,6 @@ def start_in_process(
 ) -> InProcess:
     """A bridge for one process's own topics (``--ros2`` on ``serve`` and the drivers), on a
     session of its own connected to ``endpoint`` (the bus the process is on), started."""
-    from planner.bus.session import open_session
 
     session = open_session(listen=False, endpoint=endpoint, config_file=zenoh_config)
     bridge = Ros2Bridge(session, system, scene, keys=keys, domain=domain, parts=parts)

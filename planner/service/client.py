@@ -11,6 +11,7 @@ target k when every robot was at rest (|qd| below ``REST_QD`` rad/s) for the ``S
 to its capture, within ``AT_TARGET_Q`` rad of the plan's solution ``q_k``. The measured spot of
 target k is the mean of its samples, mapped to the world with the plan's camera pose.
 """
+# long module: the planner's client: requests, execution, verdicts and the plan replies it parses share one session
 
 from __future__ import annotations
 
@@ -31,6 +32,7 @@ from planner.errors import BeamrelayError, InputError
 from planner.io.plan import Plan, Verdict
 from planner.model.status import Status
 from planner.model.transforms import Array, transform_points
+from schemas.messages import JointState, RobotStatus, SpotMessage
 
 #: a robot within AT_TARGET_Q of q_k (rad, every joint), slower than REST_QD (rad/s) for the
 #: SETTLE s before a frame's capture (the joint states a simulated camera traced the frame
@@ -304,7 +306,6 @@ class PlanClient:
 
     def watch(self) -> None:
         """Record every robot's joint states and the camera spot from now on (idempotent)."""
-        from schemas.messages import JointState, RobotStatus, SpotMessage
 
         if self._watching:
             return

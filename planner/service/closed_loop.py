@@ -27,6 +27,7 @@ the commanded beam of every measurement passes the same keep-out and clearance r
 planned dwell. A stop (``<prefix>/stop``) aborts at once: nothing more is sent (the drivers
 brake and switch the laser off themselves), remaining targets are ``aborted``.
 """
+# long module: the closed loop on the bus: moves, spot measurements, servo steps and its report share one run's state
 
 from __future__ import annotations
 
@@ -39,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.beam.trace import trace_beam
 from planner.errors import InputError
 from planner.io.plan import Plan, Verdict
 from planner.io.plan import Trajectory as PlanTrajectory
@@ -90,7 +92,6 @@ def measure_time(frames: int) -> float:
 def make_move_fn(system: System, settings: TrajectorySettings, safety: Any = None) -> MoveFn:
     """Timed moves for the closed loop through :func:`planner.planning.time_safely` (the
     scenario's timing settings with the given dwell; the safety rules when given)."""
-    from planner.beam.trace import trace_beam
     from planner.ik.solve import Solution
     from planner.planning import time_safely
 
@@ -260,7 +261,6 @@ class ClosedLoopRunner:
         return m
 
     def _model_spot(self, q: Array) -> Array:
-        from planner.beam.trace import trace_beam
 
         return trace_beam(self.system, q, self._target, self._normal).spot
 

@@ -29,6 +29,7 @@ from planner.bus.session import decode_sample
 from planner.errors import BeamrelayError
 from planner.io.plan import Verdict
 from planner.model.transforms import Array
+from schemas.messages import JointState
 
 log = logging.getLogger("beamrelay.node")
 
@@ -77,7 +78,6 @@ class JointCache:
     def callback(self, robot: str, nq: int) -> Callable[[Any], None]:
         """Subscriber callback of ``robot``'s ``joint_states``: a state with ``nq`` joints is
         kept, any other body dropped (one that does not decode is logged)."""
-        from schemas.messages import JointState
 
         def cb(sample: Any) -> None:
             msg = decode_sample(sample, JointState, log, f"joint state from {robot}")

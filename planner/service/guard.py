@@ -18,9 +18,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from planner.bus.session import MAX_PAYLOAD_BYTES
+from planner.bus.session import MAX_PAYLOAD_BYTES, encode
 from planner.errors import BeamrelayError, InputError
 from schemas import defaults
+from schemas.messages import Heartbeat as HeartbeatMessage
 
 log = logging.getLogger("beamrelay.node")
 
@@ -270,8 +271,6 @@ class Heartbeat:
             self._thread.join(timeout=2)
 
     def _run(self) -> None:
-        from planner.bus.session import encode
-        from schemas.messages import Heartbeat as HeartbeatMessage
 
         next_t = self.clock()
         while not self._stop.is_set():

@@ -11,21 +11,28 @@ it over :mod:`planner.planning` and :mod:`planner.path.timing`.
 
 from __future__ import annotations
 
+import contextlib
+import json
+import re
+import time
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
+from planner.beam.trace import trace_beam
 from planner.bus.bodies import safe_text
 from planner.bus.session import decode, encode
 from planner.errors import BeamrelayError, InputError
 from planner.io.plan import Plan
+from planner.io.strokes import mark_path
 from planner.model.settings import TrajectorySettings
 from planner.model.system import System, Targets
 from planner.model.transforms import Array, transform_points
 from planner.safety.landing import surface_tolerance
 from planner.service.execution import ExecuteError
 from schemas import defaults
+from schemas.messages import MAX_ID_LENGTH, MAX_REQUEST_POINTS, ErrorReply, TargetRequest
 
 if TYPE_CHECKING:
     from planner.model.scene import SceneModel
@@ -74,7 +81,6 @@ def error_body(exc: BaseException, request_id: str | None = None) -> bytes:
     JSON: texts are made safe (lone surrogates escaped) and cut to :data:`MAX_ERROR_TEXT`.
     ``field`` is the offending key path of an InputError, ``execute`` for a refused
     execution, else null."""
-    from schemas.messages import ErrorReply
 
     try:
         field = None
@@ -98,8 +104,6 @@ def request_id_of(payload: bytes) -> str | None:
     """Best effort: the ``id`` of a (possibly invalid) request body, for error replies;
     None when it cannot be found or is not a string. A large body is not parsed again (that
     would hold the GIL): its ``id`` is looked for among its first 64 KiB."""
-    import json
-    import re
 
     try:
         if len(payload) > PRESCAN_BYTES:
@@ -124,7 +128,6 @@ def prescan_request(payload: bytes) -> None:
     (0.6 s for 4 MB of ``[]``), which would silence the heartbeat thread; numbers go through
     Python hooks and are harmless. Counts are upper bounds (a ``[`` inside a string counts).
     """
-    from schemas.messages import MAX_ID_LENGTH, MAX_REQUEST_POINTS
 
     limits = {
         b"[": (2 * MAX_REQUEST_POINTS + 8, "lists"),
@@ -302,7 +305,6 @@ class RequestHandler:
             tol = self.surface_tolerance
         if req.mode != "path":
             return Targets(points, normals, kind="points", surface_tolerance=tol)
-        from planner.io.strokes import mark_path
 
         length = float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)))
         if length / self.path_spacing > MAX_PATH_SAMPLES:
@@ -319,7 +321,6 @@ class RequestHandler:
 
     def parse(self, payload: bytes) -> Any:
         """Validate a request body (raises InputError naming the field)."""
-        from schemas.messages import TargetRequest
 
         if len(payload) > PRESCAN_BYTES:
             prescan_request(payload)
@@ -347,11 +348,6 @@ class RequestHandler:
         otherwise pays for them (the console's first click-to-preview took 2.3 s, the next
         ones 0.1-0.2 s; the first path 0.5 s more than the next, scipy's import alone).
         Seconds it took; a plan that fails is no error here."""
-        import contextlib
-        import time
-
-        from planner.beam.trace import trace_beam
-        from schemas.messages import TargetRequest
 
         t0 = time.perf_counter()
         beam = trace_beam(self.system, self.system.home, np.zeros(3))

@@ -49,7 +49,9 @@ from pathlib import Path
 from typing import Any
 
 from planner.bus.priority import Policy, raise_priority
+from planner.bus.session import _ENDPOINT, _HOST_PORT, JSON, _zenoh_message, urgent, zenoh_config
 from planner.errors import BeamrelayError
+from planner.service.guard import Heartbeat
 from schemas import defaults
 
 log = logging.getLogger("beamrelay.node")
@@ -83,7 +85,6 @@ class BusAddress:
 def child_config(bus: BusAddress, connect_timeout: float = CONNECT_TIMEOUT) -> Any:
     """The heartbeat child's Zenoh config: the planner's (same endpoint, same config file,
     so the same identity), in *client* mode toward the bus, listening nowhere."""
-    from planner.bus.session import _ENDPOINT, _HOST_PORT, zenoh_config
 
     conf = zenoh_config(listen=False, endpoint=bus.endpoint, config_file=bus.config_file,
                         connect_timeout=connect_timeout)  # fmt: skip
@@ -245,8 +246,6 @@ def start_heartbeat(
     from the child process when the node has its ``bus`` address, else from a thread of this
     process (:class:`planner.service.guard.Heartbeat`) publishing through ``session``. Returns
     it and the publisher this process declared for it (None with the child process)."""
-    from planner.bus.session import JSON, urgent
-    from planner.service.guard import Heartbeat
 
     hz = HEARTBEAT_RATE if rate is None else rate
     if bus is not None:
@@ -345,8 +344,6 @@ def main(argv: list[str] | None = None) -> int:
     if got.policy is not Policy.FIFO:
         log.warning("heartbeat %s", got.note)
     import zenoh
-
-    from planner.bus.session import JSON, _zenoh_message, urgent
 
     try:
         bus = BusAddress(args.endpoint, args.zenoh_config)

@@ -37,6 +37,7 @@ allowance, the node is *failed*: the heartbeat stops, the liveliness token goes 
 ``on_fatal(reason)`` is called (``beamrelay serve`` then exits non-zero, so its supervisor
 restarts it).
 """
+# long module: the planner node: its request queue, heartbeat, execution and replies share one session
 
 from __future__ import annotations
 
@@ -79,6 +80,7 @@ from planner.service.live_cloud import LiveCloud
 from planner.service.online import OnlineCalibrator, attach
 from planner.service.spots import LaserLog, SpotBuffer
 from planner.service.stream import Execution, trajectory_messages
+from schemas.messages import RobotStatus, StopMessage
 
 __all__ = [
     "QUEUE_SIZE",
@@ -287,7 +289,6 @@ class PlannerNode:
             self.on_alive_change(node, up)
 
     def _status_cb(self, robot: str) -> Callable[[Any], None]:
-        from schemas.messages import RobotStatus
 
         def cb(sample: Any) -> None:
             msg = decode_sample(sample, RobotStatus, log, f"status from {robot}")
@@ -466,7 +467,6 @@ class PlannerNode:
 
     def send_stop(self, reason: str) -> None:
         """Publish ``<prefix>/stop`` (every driver brakes, laser off)."""
-        from schemas.messages import StopMessage
 
         msg = StopMessage(t=time.time(), source="planner", reason=reason[:1000])
         self._stop_pub.put(encode(msg), encoding=JSON)

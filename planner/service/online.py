@@ -37,6 +37,7 @@ one before the refit in force) to FILE and its history; the running node sees FI
 within ``POLL_S``, installs it like a refit, drops the samples it had (they would refit the
 same version again) and publishes it.
 """
+# long module: online calibration on the bus: samples at rest, refits and the versions in force share one state
 
 from __future__ import annotations
 
@@ -51,7 +52,9 @@ from typing import Any
 
 import numpy as np
 
+from planner.beam.trace import trace_beam
 from planner.bus.events import event
+from planner.bus.session import JSON, MAX_PAYLOAD_BYTES, decode_sample, encode
 from planner.calibration.online import (
     Calibration,
     RefitResult,
@@ -77,6 +80,7 @@ from planner.service.online_file import (
     version_of,
     write_atomically,
 )
+from schemas.messages import CalibrationMessage, SpotMessage
 
 log = logging.getLogger("beamrelay.online")
 
@@ -93,7 +97,6 @@ MAX_RAY_DISTANCE = 0.06
 def ray_distance(system: Any, q: Array, p: Array) -> float:
     """Distance (m) of the world point ``p`` from the last ray of the beam ``system``
     models at stacked ``q`` (rad); inf when that beam is no valid reflection chain."""
-    from planner.beam.trace import trace_beam
 
     tr = trace_beam(system, np.asarray(q, dtype=float), np.asarray(p, dtype=float))
     return float(tr.error) if tr.target_ahead > 0 else float("inf")
@@ -371,8 +374,6 @@ class OnlineCalibrator:
 
     def message(self, cal: Calibration) -> bytes:
         """The :class:`~schemas.messages.CalibrationMessage` body of ``cal``."""
-        from planner.bus.session import encode
-        from schemas.messages import CalibrationMessage
 
         msg = CalibrationMessage(t=self.clock(), version=cal.version, samples=cal.samples,
                                  calibration=dict(cal.document or {}))  # fmt: skip
@@ -392,7 +393,6 @@ def attach(
     and, with :attr:`~OnlineCalibrator.rest_sampling`, takes rest samples from
     ``<prefix>/camera/spot`` (:class:`RestSampler` over ``joints``; the subscriber handles
     returned)."""
-    from planner.bus.session import JSON
 
     pub = session.declare_publisher(keys.calibration)
     online.publish = lambda body: pub.put(body, encoding=JSON)
@@ -425,8 +425,6 @@ class RestSampler:
 
     def callback(self, sample: Any) -> None:
         """Zenoh callback of ``<prefix>/camera/spot``: any body is fine (bad ones are logged)."""
-        from planner.bus.session import MAX_PAYLOAD_BYTES, decode_sample
-        from schemas.messages import SpotMessage
 
         if len(sample.payload) > MAX_PAYLOAD_BYTES:
             return

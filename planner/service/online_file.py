@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from ruamel.yaml import YAML, YAMLError
 
 from planner.errors import InputError
 from planner.model.system import System
@@ -41,7 +42,6 @@ def check_output_file(path: Path, scenario: Path) -> Path:
 
 def is_online_file(path: Path) -> bool:
     """True when ``path`` is a calibration YAML whose report has the online mark."""
-    from ruamel.yaml import YAML, YAMLError
 
     try:
         doc = YAML(typ="safe", pure=True).load(Path(path).read_text())
@@ -92,7 +92,6 @@ def history_lock(path: Path) -> Iterator[None]:
 
 def read_document(path: Path) -> dict[str, Any]:
     """A calibration YAML written by the online refinement (InputError naming the file)."""
-    from ruamel.yaml import YAML, YAMLError
 
     try:
         doc = YAML(typ="safe", pure=True).load(Path(path).read_text())

@@ -21,6 +21,7 @@ import numpy as np
 
 from planner.bus.session import decode_sample
 from planner.servo.measure import SpotFrame
+from schemas.messages import LaserState, SpotMessage
 
 log = logging.getLogger("beamrelay.node")
 
@@ -46,7 +47,6 @@ class SpotBuffer:
 
     def callback(self, sample: Any) -> None:
         """Subscriber callback of ``<prefix>/camera/spot``: any body (bad ones are logged)."""
-        from schemas.messages import SpotMessage
 
         msg = decode_sample(sample, SpotMessage, log, "spot message")
         if msg is not None:
@@ -95,7 +95,6 @@ class LaserLog:
 
     def callback(self, sample: Any) -> None:
         """Subscriber callback of ``<prefix>/laser``: any body (bad ones are logged)."""
-        from schemas.messages import LaserState
 
         msg = decode_sample(sample, LaserState, log, "laser state")
         if msg is not None:  # lit: the camera sees a spot (treatment or aiming beam)

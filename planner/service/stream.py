@@ -36,12 +36,14 @@ import numpy as np
 from planner.bus.bodies import encode_json
 from planner.bus.ids import base_id, chunk_id
 from planner.io.plan import Plan, Verdict
+from planner.service.emission import emission_excess
 from planner.service.execution import (
     AckBoard,
     ExecuteError,
     MotionTracks,
     execution_verdict,
 )
+from schemas.messages import TRAJECTORY_SCHEMA, JointTrajectory
 
 log = logging.getLogger("beamrelay.node")
 
@@ -169,7 +171,6 @@ def _samples(plan: Plan) -> tuple[Any, dict[str, dict[str, Any]]]:
 def _chunk_maker(
     plan: Plan, t: Any, rows: dict[str, dict[str, Any]], session: str | None
 ) -> Callable[[str | None, int, int], Chunk]:
-    from schemas.messages import TRAJECTORY_SCHEMA, JointTrajectory
 
     gate = (scenario_laser(plan.scenario) or {}).get("gate") or {}
     assert plan.trajectory is not None  # _samples said so
@@ -249,7 +250,6 @@ class Execution:
     def execute(self, plan: Plan, request_id: str, session: str | None) -> Plan:
         """Send the plan's trajectory (chunked if needed), wait for the verdicts on its first
         chunks; the plan with its ``execution`` verdict and ``execution_reason``."""
-        from planner.service.emission import emission_excess
 
         traj = plan.trajectory
         laser_on = [] if traj is None else traj.laser_on.tolist()

@@ -12,10 +12,13 @@ import numpy as np
 from planner.errors import InputError
 from planner.io.plan import Plan, Verdict
 from planner.model.status import Status
+from planner.model.system import Targets
 from planner.model.transforms import Array
+from planner.service.execution import ExecuteError
 from planner.service.track import TrackSession
 from planner.track.correction import SpotCorrection
 from planner.track.follow import TargetFollower
+from schemas.scenario import UNCERTAINTY_K
 
 #: rad/s: a track request starts only while every joint is slower than this
 REST_SPEED = 0.01
@@ -33,7 +36,6 @@ def approach(node: Any, handler: Any, plan: Plan, q0: Array, q1: Array,
     trajectory (timed and checked under the safety rules like any plan, laser off) and wait
     until every robot rests there; the measured joints then. ExecuteError when no safe move
     exists, a driver refuses it or the robots do not arrive."""
-    from planner.service.execution import ExecuteError
 
     system = handler.system
     if handler.closed_loop is None:
@@ -57,13 +59,12 @@ def approach(node: Any, handler: Any, plan: Plan, q0: Array, q1: Array,
     return system.stack_q(node.joints.current())
 
 
+# long: the start of tracking: checks, approach plan, follower and first setpoint, in the order they must happen
 def start_track(node: Any, req: Any) -> Plan:
     """Start following the target stream of a validated ``mode: track`` request on a
     :class:`planner.service.node.PlannerNode`; returns the reply document (the plan of the
     first estimate, ``execution: accepted``, ``tracking``). Errors (InputError /
     ExecuteError) name the field."""
-    from planner.model.system import Targets
-    from planner.service.execution import ExecuteError
     from planner.track.follow import MIN_MARKERS, TrackSettings
 
     if not req.execute:
@@ -116,9 +117,7 @@ def start_track(node: Any, req: Any) -> Plan:
     gate = laser.get("gate") or {}
     allowance = None
     if scenario.get("keep_out"):  # the rules check the model's beam: the bias must fit in
-        from schemas.scenario import UNCERTAINTY_K  # the padding's calibration part (the
-
-        # beam radius part is the beam's own width)
+        # the padding's calibration part (the beam radius part is the beam's own width)
         uncertainty = (scenario.get("safety") or {}).get("spot_uncertainty") or 0.0
         allowance = UNCERTAINTY_K * float(uncertainty)
     correction, why = camera_correction(req, system, laser, settings.tolerance, allowance)

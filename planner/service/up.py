@@ -33,11 +33,16 @@ from planner.bus.session import (
     update_alive,
 )
 from planner.errors import InputError
+from planner.model.scene import tracked_objects
+from planner.service.online_file import check_output_file
 from planner.service.supervisor import LogTail, Supervisor
+from planner.service.token import TOKEN_ENV, console_url, new_token
+from schemas.messages import parse_recover
 
 RATE_WINDOW = 2.0  # s over which message rates are averaged
 
 
+# long: 15 settings (18 lines) and a 10-line docstring; one command line per child process
 def child_commands(
     scenario: Path,
     robots: list[str],
@@ -126,7 +131,6 @@ def has_tracked_targets(scn: Any) -> bool:
     if scn.model.targets.points is None or not any(o.motion for o in scn.model.scene):
         return False
     from planner.io.scenario import scene_objects, system_from_scenario, targets_from_scenario
-    from planner.model.scene import tracked_objects
 
     t = targets_from_scenario(scn, system_from_scenario(scn))
     return bool(tracked_objects(scene_objects(scn), t.points, t.normals))
@@ -192,7 +196,6 @@ class Health:
         self._tick("camera")
 
     def _on_recover(self, sample: Any) -> None:
-        from schemas.messages import parse_recover
 
         robot = str(sample.key_expr).split("/")[-2]
         try:
@@ -278,6 +281,7 @@ def _print_events(console: Any, tail: LogTail | None) -> None:
         console.print(f"{name}: {line}", markup=False, highlight=False, soft_wrap=True)
 
 
+# long: the supervisor's start-up and shutdown sequence, in the order the processes must start and stop
 def run_up(
     scenario: Path,
     *,
@@ -334,8 +338,6 @@ def run_up(
     has_camera = scn.model.system.camera is not None
     online = None
     if online_calibration is not None:  # checked here: a bad FILE is exit 2, not a crash loop
-        from planner.service.online_file import check_output_file
-
         online = check_output_file(online_calibration, scenario)
     argv = child_commands(
         Path(scenario).resolve(), robots, backend=backend, endpoint=endpoint, prefix=prefix,
@@ -355,8 +357,6 @@ def run_up(
     health = Health(session, Keys(prefix))
     env, page = {}, None
     if console_port is not None:  # one token for the launch: a restarted console keeps it
-        from planner.service.token import TOKEN_ENV, console_url, new_token
-
         token = new_token()
         env["console"], page = {TOKEN_ENV: token}, console_url("127.0.0.1", console_port, token)
     sup = Supervisor(argv, log_dir, manual=tuple(robots) if backend == "ur" else (), env=env)

@@ -31,9 +31,11 @@ from typing import NamedTuple
 
 import numpy as np
 
+from drivers.camera.markers import CharucoSpec, detect_charuco
+from drivers.camera.spot import SpotParams, detect_gated_spot
 from planner.model.system import Intrinsics
 from planner.model.transforms import Array, axis_angle_to_matrix, make_T
-from planner.simcell.detectors import gated_frames, render_charuco, scene, spot_light
+from planner.simcell.detectors import NOISE_COUNTS, gated_frames, render_charuco, scene, spot_light
 
 #: the camera of ``scenarios/paper_n1.yaml`` (848 x 480, fx = fy = 430 px): the model's
 #: pixels are this camera's (the simulated camera applies them at the scenario's focal length)
@@ -132,7 +134,6 @@ def rms_ci(x: Array, samples: int, points: int) -> Measured:
 
 def measure_spot_px(cond: SpotCondition, samples: int = 200, seed: int = 0) -> Measured:
     """The gated spot detector's per-axis error (px) under ``cond`` (see the module)."""
-    from drivers.camera.spot import SpotParams, detect_gated_spot
 
     rng = np.random.default_rng(seed)
     params = SpotParams(channel="luma" if cond.yuyv else "red")
@@ -180,8 +181,6 @@ def measure_corner_px(
     cond: CornerCondition, samples: int = 40, seed: int = 0, k: Intrinsics = PAPER_N1
 ) -> Measured:
     """The ChArUco detector's per-axis corner error (px) under ``cond`` (see the module)."""
-    from drivers.camera.markers import CharucoSpec, detect_charuco
-    from planner.simcell.detectors import NOISE_COUNTS
 
     rng = np.random.default_rng(seed)
     spec = CharucoSpec()

@@ -30,7 +30,10 @@ from typing import Any
 
 import numpy as np
 
+from drivers.robot.servo_lag import ServoLag, ServoSettings
+from planner.data import shipped_scenario
 from planner.model.motion import ObjectMotion
+from planner.model.scene import tracked_objects
 
 #: the true spot is traced every SPOT_EVERY control periods (100 Hz)
 SPOT_EVERY = 5
@@ -77,11 +80,9 @@ def run_case(
     reaching each at its time."""
     from drivers.camera.sim import SimCamera
     from drivers.camera.tracker import SimTracker
-    from planner.data import shipped_scenario
     from planner.ik import BeamIK
     from planner.io.scenario import load_scenario, scene_objects, system_from_scenario
     from planner.io.scenario import targets_from_scenario as targets_of
-    from planner.model.scene import tracked_objects
     from planner.planning import ik_options
     from planner.safety.model import Safety
     from planner.track.follow import TrackSettings
@@ -116,8 +117,6 @@ def run_case(
                               attached=attached, markers=markers)  # fmt: skip
     lag = None
     if servo_lag:
-        from drivers.robot.servo_lag import ServoLag, ServoSettings
-
         servo = ServoSettings() if lookahead is None else ServoSettings(lookahead_time=lookahead)
         lag = ServoLag(q0, servo, dt=1.0 / settings.rate)
     return _simulate(follower, tracker, cam, clock, system, seconds, latency, lag)

@@ -292,6 +292,7 @@ def plot(summary: dict[str, Any], path: Path) -> None:
     common.save_figure(fig, path)
 
 
+# long: the report's sections in reading order
 def write(out: Path, rows: list[dict[str, Any]], trials: int, seed: int) -> dict[str, Any]:
     """CSV, PNG and report.md; returns the ``--json`` figures."""
     s = summarize(rows)

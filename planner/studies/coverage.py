@@ -31,6 +31,7 @@ lower bound of what the layout allows. The IK at a sampled relay geometry is
 Directions: the azimuths (10° sectors, 360° around the object) from which a beam reaches
 some surface point at less than 60° from the horizontal.
 """
+# long module: the coverage study's relay enumeration, safety filter and report share its geometry
 
 from __future__ import annotations
 

@@ -53,6 +53,7 @@ def _p(p: float) -> str:
     return "-" if not np.isfinite(p) else f"{p:.2g}" if p >= 1e-3 else f"{p:.1e}"
 
 
+# long: the report's sections in reading order
 def report_lines(s: dict[str, Any], trials: int, seed: int) -> list[str]:
     """The markdown of the report."""
     cal, ik, sv = s["calibration_residual_mm"], s["ik_time_s"], s["servo_iterations"]
