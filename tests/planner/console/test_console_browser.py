@@ -425,7 +425,10 @@ def test_operator_marks_a_clicked_polyline_on_the_board(system_up, page: Page) -
 
         text, since = execute(d, MARKED)
         n_marked, covered, total, median, worst = MARKED.search(text).groups()  # type: ignore[union-attr]
-        assert int(n_marked) > 10 and float(total) == pytest.approx(1e3 * length, abs=1.0)
+        assert int(n_marked) > 10 and float(total) == pytest.approx(1e3 * length, abs=1.0), (
+            f"planned path {total} mm, clicked {1e3 * length:.2f} mm, previewed {n} samples;"
+            f" picks {np.round(1e3 * picked, 1).tolist()} mm; page: {text[-1500:]}"
+        )
         assert float(covered) > 0.9 * float(total), text
         assert float(worst) < 2.0, text  # mm: the beam marked the planned path
 
