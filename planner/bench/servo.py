@@ -24,6 +24,8 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 
+from planner.model.status import ServoStatus
+
 GOAL_M = 0.5e-3
 GOAL_FRAMES = 30  # 1 s of D435 frames at 30 Hz
 
@@ -72,7 +74,7 @@ def _summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
         return np.array([r[k] for r in rows], dtype=float)
 
     out: dict[str, Any] = {"targets": len(rows),
-                           "converged": sum(r["status"] == "converged" for r in rows)}  # fmt: skip
+                           "converged": sum(r["status"] == ServoStatus.CONVERGED for r in rows)}  # fmt: skip
     for k in ("before_m", "after_m", "true_after_m", "frames", "iterations", "compute_s",
               "execution_s"):  # fmt: skip
         v = col(k)

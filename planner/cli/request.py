@@ -17,7 +17,7 @@ import typer
 from planner.cli.args import parse_xyz
 from planner.cli.node import EndpointOpt, PrefixOpt, ZenohConfigOpt
 from planner.errors import InputError
-from planner.model.status import Status
+from planner.model.status import ServoStatus, Status
 from schemas.messages import TRACK_SCHEMA
 
 if TYPE_CHECKING:
@@ -157,7 +157,7 @@ def request(
         print_closed_loop(console, plan)
     if as_json:
         print(json.dumps(request_summary(plan, spots)))
-    unconverged = any(r.get("status") != "converged" for r in servo_rows)
+    unconverged = any(r.get("status") != ServoStatus.CONVERGED for r in servo_rows)
     if (
         rejected
         or unconverged

@@ -62,3 +62,15 @@ def _value_text(value: object, digits: int) -> str:
     if isinstance(value, float):
         return f"{value:.{digits}g}"
     return str(value)
+
+
+class ServoStatus(StrEnum):
+    """How a servo run ended (:mod:`planner.servo.loop`); here, with the other statuses, so
+    that a client reads a closed-loop report's status without loading the servo."""
+
+    CONVERGED = "converged"
+    NOT_IMPROVING = "not_improving"
+    NOT_SEEN = "not_seen"
+    REFUSED = "refused"
+    MAX_ITERATIONS = "max_iterations"
+    ABORTED = "aborted"

@@ -32,26 +32,14 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from enum import StrEnum
 from typing import Any
 
 import numpy as np
 
-from planner.model.status import Failure
+from planner.model.status import Failure, ServoStatus
 from planner.model.transforms import Array
 from planner.servo.measure import Measure, SpotMeasurement, merge
 from planner.servo.step import Corrector, ServoSettings
-
-
-class ServoStatus(StrEnum):
-    """How a servo run ended (see the module docstring)."""
-
-    CONVERGED = "converged"
-    NOT_IMPROVING = "not_improving"
-    NOT_SEEN = "not_seen"
-    REFUSED = "refused"
-    MAX_ITERATIONS = "max_iterations"
-    ABORTED = "aborted"
 
 
 @dataclass(frozen=True)
