@@ -27,13 +27,17 @@ Levels (:class:`KinematicSpread`, Gaussian per parameter, drawn per trial):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pinocchio as pin
 
 from planner.model.kinematics import UR5E_DH, RobotKinematics
 from planner.model.transforms import Array, make_T, rpy_to_matrix
+
+if TYPE_CHECKING:
+    from planner.model.system import Robot
 
 #: Source of :data:`FACTORY`: the deviations from the nominal UR5e kinematics
 #: (``ur_description`` ``config/ur5e/default_kinematics.yaml``) of one UR5e's factory
@@ -155,3 +159,9 @@ def perturbed_ur5e(err: DHError, nominal: RobotKinematics | None = None) -> Robo
     flange.placement = pin.SE3(link_T(n - 1, err))
     model.frames[nominal.flange_id] = flange
     return RobotKinematics(model, name=nominal.name, source=f"{nominal.source} + DH error")
+
+
+def true_robot(robot: Robot, spread: KinematicSpread, rng: np.random.Generator) -> Robot:
+    """``robot`` with a true arm's kinematics: a draw of ``spread`` from ``rng`` applied to its
+    (nominal) kinematics by :func:`perturbed_ur5e`; everything else unchanged."""
+    return replace(robot, kinematics=perturbed_ur5e(spread.draw(rng, robot.nq), robot.kinematics))

@@ -124,14 +124,12 @@ def run_case(
 
 def true_arm(truth: Any, level: str, seed: int) -> Any:
     """``truth`` with its first arm's kinematics off the nominal by a draw of ``level``."""
-    from planner.model.kinematic_error import LEVELS, perturbed_ur5e
+    from planner.model.kinematic_error import LEVELS, true_robot
 
     spread = LEVELS[level]
     if spread is None:
         return truth
-    r = truth.robots[0]
-    err = spread.draw(np.random.default_rng([seed, 1]), r.nq)  # a stream of its own
-    arm = dataclasses.replace(r, kinematics=perturbed_ur5e(err, r.kinematics))
+    arm = true_robot(truth.robots[0], spread, np.random.default_rng([seed, 1]))  # own stream
     return dataclasses.replace(truth, robots=(arm, *truth.robots[1:]))
 
 

@@ -200,10 +200,9 @@ def draw_truth(
     board = perturb(NOMINAL_BOARD, rng, u.board_rot, u.board_pos)
     true = nominal.with_params(world_T_laser=laser, flange_T_mirror={r.name: mount})
     if robot is not None:
-        from planner.model.kinematic_error import perturbed_ur5e
+        from planner.model.kinematic_error import true_robot
 
-        err = robot.draw(rng if robot_rng is None else robot_rng, r.nq)
-        arm = replace(r, kinematics=perturbed_ur5e(err, r.kinematics))
+        arm = true_robot(r, robot, rng if robot_rng is None else robot_rng)
         true = replace(true, robots=(arm, *true.robots[1:]))
     return Truth(replace(true, camera=replace(nominal.camera, world_T_camera=cam)), board)
 

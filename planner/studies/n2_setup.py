@@ -112,11 +112,10 @@ def draw_truth(nominal: System, u: RelayUnknowns, rng: np.random.Generator,
     seq = list(seed or [])
     spread = effects.robot_spread
     if spread is not None:
-        from planner.model.kinematic_error import perturbed_ur5e
+        from planner.model.kinematic_error import true_robot
 
         robot_rng = np.random.default_rng(np.random.SeedSequence([*seq, 1]))
-        arms = [replace(r, kinematics=perturbed_ur5e(spread.draw(robot_rng, r.nq), r.kinematics))
-                for r in system.robots]  # fmt: skip
+        arms = [true_robot(r, spread, robot_rng) for r in system.robots]
         system = replace(system, robots=tuple(arms))
     camera_rng = np.random.default_rng(np.random.SeedSequence([*seq, 2]))
     return replace(truth, system=system, depth_errors=effects.depth_errors(nominal, camera_rng))
