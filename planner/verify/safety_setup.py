@@ -56,19 +56,16 @@ class Setup:
         safety = scn.get("safety") or {}
         robots, unchecked = [], []
         for r in sys_["robots"]:
-            if r.get("urdf"):
-                unchecked.append(str(r["name"]))
-            arm = None if r.get("urdf") else checker_arm(r.get("model"))
-            if arm is not None and arm.shapes is None:
-                unchecked.append(str(r["name"]))
             urdf = None
             if r.get("urdf"):
                 path = Path(r["urdf"])
                 urdf = UrdfChain(path if path.is_absolute() else base_dir / path)
-            robots.append({"name": r["name"], "arm": arm, "urdf": urdf,
-                           "base": pose_matrix(r.get("world_T_base") or {}),
-                           "mirror": pose_matrix(r["mirror"].get("flange_T_mirror") or {}),
-                           "size": np.asarray(r["mirror"]["size"], dtype=float)})  # fmt: skip
+            entry = cls.robot(r["name"], pose_matrix(r.get("world_T_base") or {}),
+                              pose_matrix(r["mirror"].get("flange_T_mirror") or {}),
+                              r["mirror"]["size"], r.get("model"), urdf)  # fmt: skip
+            if urdf is not None or (entry["arm"] is not None and entry["arm"].shapes is None):
+                unchecked.append(str(r["name"]))
+            robots.append(entry)
         cam = sys_.get("camera")
         camera = None
         if cam is not None:
@@ -96,12 +93,14 @@ class Setup:
 
     @staticmethod
     def robot(
-        name: str, base: Array, mirror: Array, size: Any, model: str | None = None
-    ) -> dict[str, Any]:
-        """One robot's entry of ``robots``: its ``model``'s checker twin (None: the UR5e),
-        base and mirror poses, mirror size (m)."""
-        return {"name": name, "arm": checker_arm(model), "urdf": None, "base": base,
-                "mirror": mirror, "size": np.asarray(size, dtype=float)}  # fmt: skip
+        name: str, base: Array, mirror: Array, size: Any, model: str | None = None,
+        urdf: UrdfChain | None = None,
+    ) -> dict[str, Any]:  # fmt: skip
+        """One robot's entry of ``robots``: the checker's reading of its ``urdf``, else its
+        ``model``'s checker twin (None: the UR5e); base and mirror poses, mirror size (m)."""
+        arm = None if urdf is not None else checker_arm(model)
+        return {"name": name, "arm": arm, "urdf": urdf, "base": base, "mirror": mirror,
+                "size": np.asarray(size, dtype=float)}  # fmt: skip
 
     @staticmethod
     def flange(r: dict[str, Any], Q: dict[str, Array]) -> Array:
