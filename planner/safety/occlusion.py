@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from planner.beam.trace import mirror_poses, trace_beam
+from planner.beam.trace import beam_vertices, mirror_poses, trace_beam
 from planner.model.polyline import runs
 from planner.model.scene import END_MARGIN, START_MARGIN, SceneModel
 from planner.model.status import Reason
@@ -45,11 +45,6 @@ def segment_labels(system: System) -> list[str]:
     return [f"{a}->{b}" for a, b in itertools.pairwise(ends)]
 
 
-def beam_points(system: System, hits: Array, spot: Array) -> Array:
-    """The beam's N + 2 vertices (world, m): laser exit, the N mirror hits, the spot."""
-    return np.vstack([system.world_T_laser[:3, 3], np.asarray(hits), np.asarray(spot)])
-
-
 def occlusions(
     system: System, scene: SceneModel, solutions: list[Solution]
 ) -> dict[int, dict[str, object]]:
@@ -59,7 +54,7 @@ def occlusions(
     if scene.empty or not idx:
         return {}
     n_seg = system.n_robots + 1
-    pts = [beam_points(system, solutions[k].hits, solutions[k].spot) for k in idx]  # type: ignore[arg-type]
+    pts = [beam_vertices(system, solutions[k].hits, solutions[k].spot) for k in idx]  # type: ignore[arg-type]
     P = np.stack(pts)  # (M, N + 2, 3)
     blocked = scene.blocked_segments(
         P[:, :-1].reshape(-1, 3), P[:, 1:].reshape(-1, 3), START_MARGIN, END_MARGIN
