@@ -37,7 +37,7 @@ from planner.path.warm import (
     project,
     valid_samples,
 )
-from planner.safety.occlusion import safer_warm_start
+from planner.safety.samples import safer_warm_start
 
 __all__ = [
     "PathGap",
