@@ -32,6 +32,7 @@ from schemas.bounds import check_coordinates
 from schemas.common import FieldError
 
 if TYPE_CHECKING:
+    from planner.ik.closed_form import ClosedForm
     from planner.io.scenario import LoadedScenario
     from planner.path.solve import PathOptions, PathResult
     from planner.safety.model import Safety
@@ -271,7 +272,8 @@ def sweep_solutions(
     from planner.path.solve import plan_path
 
     t0 = time.perf_counter()
-    res = plan_path(system, targets, q_start, opts, safety, q_warm)
+    res = plan_path(system, targets, q_start, opts, safety, q_warm,
+                    seeder=path_seeder(system, safety))  # fmt: skip
     per_sample = (time.perf_counter() - t0) / max(len(targets), 1)
     gap_of = {k: g for g in res.gaps for k in range(g.k0, g.k1)}
     out = []
@@ -285,6 +287,13 @@ def sweep_solutions(
             evidence: dict[str, object] = {"detail": gap.detail if gap is not None else ""}
             out.append(Solution.failed(reason, per_sample, 0, "path", evidence))
     return out, res
+
+
+def path_seeder(system: System, safety: Safety | None = None) -> ClosedForm | None:
+    """What seeds a path sample from scratch (:class:`planner.path.warm.Seeder`): the IK's
+    closed-form family search, its members filtered by the ``safety`` rules as the per-target
+    IK's are; None when an arm has no analytic seed model."""
+    return BeamIK(system, None, safety).closed_form
 
 
 def plan_path_targets(
