@@ -35,7 +35,7 @@ def command(
     from planner.model.polyline import arc_length, resample_polyline
     from planner.model.system import Targets
     from planner.path.solve import plan_path
-    from planner.scenario_planner import path_seeder
+    from planner.plan.scenario_planner import path_seeder
 
     try:
         Ks = [int(k) for k in sizes.split(",")]

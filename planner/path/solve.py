@@ -236,11 +236,11 @@ def plan_path(
     polished to machine precision by a minimum-norm Gauss-Newton step (never worse).
     ``seeder`` finds a sample's configuration from scratch (the pipeline passes the IK's
     closed-form family search, under the same ``safety`` rules:
-    :func:`planner.scenario_planner.path_seeder`); without one, a multi-start one-sample
+    :func:`planner.plan.scenario_planner.path_seeder`); without one, a multi-start one-sample
     NLP does. With ``safety`` a run's NLP result that breaks a distance rule is re-solved
     with the clearance as constraints (:mod:`planner.path.clearance`), and one that still
     breaks them at more samples than its warm start is dropped for it (checked after:
-    :func:`planner.safety.occlusion.check_path_safety`).
+    :func:`planner.plan.gaps.check_path_safety`).
     """
     opts = (
         solver_options if isinstance(solver_options, PathOptions)

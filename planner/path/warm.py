@@ -75,7 +75,7 @@ class Seeder(Protocol):
     that puts the spot on ``target`` (world, m; on its plane when ``normal`` is given) with
     the last ray within ``max_incidence`` (rad) of the normal. The planning pipeline passes
     the IK's closed-form family search, its members filtered by the safety rules
-    (:func:`planner.scenario_planner.path_seeder`); the path never imports the IK."""
+    (:func:`planner.plan.scenario_planner.path_seeder`); the path never imports the IK."""
 
     def search(self, target: Array, normal: Array | None, q_prev: Array,
                max_incidence: float | None = None) -> SeedResult: ...  # fmt: skip

@@ -60,7 +60,7 @@ def test_circle_stays_near_home_and_well_conditioned(circle) -> None:  # type: i
 
 
 def test_plan_reports_the_condition_and_a_short_approach() -> None:
-    from planner.planning import run_scenario
+    from planner.plan.pipeline import run_scenario
 
     o = run_scenario(SCENARIOS / "curve_path.yaml", progress=False)
     x = o.doc["metrics"]["extra"]

@@ -12,10 +12,11 @@ from typing import Any
 import numpy as np
 import pytest
 
+from planner.io.plan_file import plan_json
 from planner.model.kinematics import RobotKinematics
 from planner.model.mirror import Mirror
 from planner.model.transforms import inv_T, look_at
-from planner.planning import plan_json, run_scenario
+from planner.plan.pipeline import run_scenario
 from planner.verify.check import check_plan
 from planner.verify.numpy_beam import pose_matrix, ur5e_dh_fk
 from planner.verify.safety_shapes import arm_shapes

@@ -30,14 +30,14 @@ from planner.model.status import Reason, Status
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
 from planner.path.timing import points_trajectory, ruckig_move
-from planner.scenario_planner import Progress as Progress  # re-exported
-from planner.scenario_planner import ScenarioPlanner
-from planner.scenario_planner import ik_options as ik_options
-from planner.scenario_planner import plan_landed_points as plan_landed_points
-from planner.scenario_planner import plan_path_targets as plan_path_targets
-from planner.scenario_planner import plan_points as plan_points
-from planner.scenario_planner import solve_landed_path as solve_landed_path
-from planner.scenario_planner import solve_path as solve_path
+from planner.plan.scenario_planner import Progress as Progress  # re-exported
+from planner.plan.scenario_planner import ScenarioPlanner
+from planner.plan.scenario_planner import ik_options as ik_options
+from planner.plan.scenario_planner import plan_landed_points as plan_landed_points
+from planner.plan.scenario_planner import plan_path_targets as plan_path_targets
+from planner.plan.scenario_planner import plan_points as plan_points
+from planner.plan.scenario_planner import solve_landed_path as solve_landed_path
+from planner.plan.scenario_planner import solve_path as solve_path
 from planner.verify.check import target_findings
 from planner.verify.marking import exposure
 from planner.verify.metrics import summary_metrics
@@ -317,14 +317,14 @@ def time_safely(
     q_start: Array | None = None,
 ) -> tuple[Timed | None, list[Solution], PathResult | None, dict[str, float]]:  # fmt: skip
     """:func:`time_solutions` (from ``q_start``, default home) under the ``safety`` rules
-    (:func:`planner.safety.timing.safe_timing`: collision-free moves, the whole trajectory
+    (:func:`planner.plan.safe_timing.safe_timing`: collision-free moves, the whole trajectory
     checked densely, unsafe targets dropped); returns (timed, solutions, path, figures)."""
     q0 = system.home if q_start is None else np.asarray(q_start, dtype=float)
     if safety is None:
         timed = time_solutions(system, targets, solutions, settings, order=order, path=path,
                                progress=progress, q_start=q0)  # fmt: skip
         return timed, solutions, path, {}
-    from planner.safety.timing import safe_timing
+    from planner.plan.safe_timing import safe_timing
 
     def time_fn(sols: list[Solution], pth: PathResult | None, mover: MoveFn) -> Timed | None:
         return time_solutions(system, targets, sols, settings, order=order, path=pth,
