@@ -37,7 +37,8 @@ def marking_figures(scenario: Path) -> dict[str, Any]:
     from planner.errors import InputError
     from planner.io.scenario import load_scenario
     from planner.model.settings import TrajectorySettings
-    from planner.plan.pipeline import run_scenario, time_solutions
+    from planner.plan.pipeline import run_scenario
+    from planner.plan.timed import time_solutions
     from planner.verify.check import check_plan
 
     if load_scenario(scenario).model.targets.kind != "path":

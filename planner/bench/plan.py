@@ -55,7 +55,7 @@ def run_size(scenario: str, n: int, stages: tuple[str, ...]) -> dict[str, Any]:
     )
     from planner.path.timing import points_trajectory
     from planner.path.tour import visit_order
-    from planner.plan.pipeline import plan_document, verify_solutions
+    from planner.plan.document import plan_document, verify_solutions
     from planner.plan.scenario_planner import ik_options, plan_points
 
     loaded = load_scenario(scenario)

@@ -116,8 +116,9 @@ class Rig:
         """CPU seconds per stage of one plan of ``targets`` from home (the beam check, which
         runs inside the timing stage, measured again on its result), and the plan document."""
         from planner.bus.bodies import encode_json
-        from planner.plan.pipeline import plan_document, time_safely, verify_solutions
+        from planner.plan.document import plan_document, verify_solutions
         from planner.plan.scenario_planner import plan_path_targets
+        from planner.plan.timed import time_safely
 
         s = self.system
         t0 = time.process_time()

@@ -165,7 +165,7 @@ def make_plan_fn(
     :class:`~planner.ik.IKOptions`; ``settings`` the scenario's ``trajectory`` section. Points
     are solved in order, each seeded by the previous solution (the first by ``start``); the
     trajectory starts at ``start`` (the robots' current joints) instead of home. Solutions
-    are re-verified (:func:`~planner.plan.pipeline.verify_solutions`: the checks of ``beamrelay
+    are re-verified (:func:`~planner.plan.document.verify_solutions`: the checks of ``beamrelay
     check`` on the resolved ``scenario``) *before* the trajectory is timed, so a rejected
     one is never part of it. ``scene`` (a :class:`~planner.model.scene.SceneModel`) makes
     beams that cross it fail as ``occluded`` (camera-frame point targets land on the surface
@@ -173,7 +173,8 @@ def make_plan_fn(
     applies the collision, keep-out and clearance rules to the solutions and the trajectory.
     """
     from planner.ik import IKOptions
-    from planner.plan.pipeline import Pipeline, build_plan
+    from planner.plan.document import build_plan
+    from planner.plan.pipeline import Pipeline
     from planner.plan.scenario_planner import ScenarioPlanner
 
     timing = settings or TrajectorySettings()

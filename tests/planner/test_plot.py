@@ -45,7 +45,7 @@ def test_profiles_written_next_to_the_plot(tmp_path: Path) -> None:
 
 
 def test_arrival_spots_are_the_targets(tmp_path: Path) -> None:
-    from planner.plan.pipeline import spot_rays
+    from planner.plan.timed import spot_rays
     from planner.plot import _arrival_spots
     from planner.verify.spot import arrival_mask
 
