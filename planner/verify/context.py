@@ -1,6 +1,7 @@
 """What every check of :mod:`planner.verify.check` reads: the plan parsed once
 (:class:`PlanContext`: the checker's own arm geometry, tolerances, targets, solved
-configurations, traced lazily) and what a check returns (:class:`CheckResult`).
+configurations, traced lazily, and the safety setup, built lazily) and what a check returns
+(:class:`CheckResult`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from planner.verify.arm_models import checker_arm
 from planner.verify.findings import Finding
 from planner.verify.numpy_beam import BeamRays, limits_from_dict, trace_rays
 from planner.verify.numpy_beam import pose_matrix as pose
+from planner.verify.safety_setup import Setup
 from planner.verify.spot import trajectory_findings
 from planner.verify.tolerances import Tolerances
 from planner.verify.urdf import UrdfChain
@@ -154,6 +156,12 @@ class PlanContext:
             empty = np.zeros((0, 3))
             return BeamRays(empty, empty, [], [], [], [])
         return trace_arms(self.world_T_laser, self.arms, self.Q)
+
+    @cached_property
+    def safety_setup(self) -> Setup:
+        """The plan's safety setup, built once for every safety check (relative scene-mesh
+        and URDF paths from the working directory: the plan's echo has them absolute)."""
+        return Setup.from_plan(self.plan, Path("."))
 
     @cached_property
     def trajectory_findings(self) -> list[Finding]:

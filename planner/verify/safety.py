@@ -20,7 +20,6 @@ distance, and only a sure violation counts. World frame, metres.
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -249,7 +248,7 @@ def check_safety(ctx: PlanContext) -> CheckResult:
     arms and the keep-out volumes and not back into the laser or camera, the target outside
     every keep-out volume."""
     res = CheckResult("safety", len(ctx.solved))
-    setup = Setup.from_plan(ctx.plan, getattr(ctx, "base_dir", Path(".")))
+    setup = ctx.safety_setup
     res.warnings += [
         f"{n}: a URDF arm, or a model without checker shapes; its links are not re-checked"
         for n in setup.unchecked
@@ -288,7 +287,7 @@ def check_trajectory_safety(ctx: PlanContext) -> CheckResult:
     res = CheckResult("trajectory safety", len(t))
     if not len(t):
         return res
-    setup = Setup.from_plan(ctx.plan, getattr(ctx, "base_dir", Path(".")))
+    setup = ctx.safety_setup
     Q = {r["name"]: np.asarray(traj["q"][r["name"]], dtype=float) for r in setup.robots}
     on = laser_mask(traj, t)
     targets = np.array([tg["p"] for tg in ctx.plan["targets"]], dtype=float).reshape(-1, 3)

@@ -18,6 +18,7 @@ from planner.model.transforms import inv_T, look_at
 from planner.planning import plan_json, run_scenario
 from planner.verify.check import check_plan
 from planner.verify.numpy_beam import pose_matrix, ur5e_dh_fk
+from planner.verify.safety_setup import Setup
 from planner.verify.safety_shapes import arm_shapes
 from tests import cli_run
 from tests.paths import REPO
@@ -145,6 +146,24 @@ def test_arm_against_arm(shared: Doc) -> None:
         doc["trajectory"]["q"]["arm1"][i] = reach
     traj = _findings(doc, "trajectory safety")
     assert any("arm_arm" in f.message and "at t = 0.080 s" in f.message for f in traj)
+
+
+def test_the_safety_setup_is_built_once_per_check(face: Doc, monkeypatch: pytest.MonkeyPatch
+                                                  ) -> None:  # fmt: skip
+    """Both safety checks (targets and trajectory) read one setup: the scene and keep-out
+    volumes (and a URDF robot's URDF) are read once per plan."""
+    built: list[Setup] = []
+    from_plan = Setup.from_plan
+
+    def counted(plan: Doc, base_dir: Path) -> Setup:
+        built.append(from_plan(plan, base_dir))
+        return built[-1]
+
+    monkeypatch.setattr(Setup, "from_plan", counted)
+    results = {r.name: r for r in check_plan(face)}
+    assert results["safety"].checked > 0 and results["trajectory safety"].checked > 0
+    assert results["trajectory safety"].figures["laser_on_samples"] > 0  # the beam is checked
+    assert len(built) == 1
 
 
 def test_cli_check_exits_1_on_an_edited_plan(face: Doc, tmp_path: Path) -> None:
