@@ -58,7 +58,10 @@ class ArmGeometry:
         return self.world_T_base @ F @ self.flange_T_mirror
 
 
-def _arm(r: dict[str, Any], i: int, base_dir: Path) -> ArmGeometry:
+def _arm(r: dict[str, Any], i: int, base_dir: Path, urdfs: dict[Path, UrdfChain]
+         ) -> ArmGeometry:  # fmt: skip
+    """Robot ``i`` of the scenario as the checker sees it (a URDF it reads is kept in
+    ``urdfs`` by its path)."""
     where = f"scenario.system.robots[{i}]"
     try:
         mirror = r["mirror"]
@@ -67,7 +70,8 @@ def _arm(r: dict[str, Any], i: int, base_dir: Path) -> ArmGeometry:
         batched = False
         if r.get("urdf"):
             urdf = Path(r["urdf"])
-            kin = UrdfChain(urdf if urdf.is_absolute() else base_dir / urdf)
+            urdf = urdf if urdf.is_absolute() else base_dir / urdf
+            kin = urdfs[urdf] = UrdfChain(urdf)
             fk: Callable[[Array], Array] = kin.fk
             n = kin.nq
         elif (arm := checker_arm(r.get("model"))) is not None:
@@ -129,7 +133,8 @@ class PlanContext:
             scn = plan["scenario"]
             system = scn["system"]
             self.world_T_laser = pose(system["laser"]["world_T_laser"], "scenario.system.laser")
-            self.arms = [_arm(r, i, base_dir) for i, r in enumerate(system["robots"])]
+            self.urdfs: dict[Path, UrdfChain] = {}  # the URDFs read, by path
+            self.arms = [_arm(r, i, base_dir, self.urdfs) for i, r in enumerate(system["robots"])]
             self.tol = Tolerances.from_scenario(scn)
             self.targets = {int(t["id"]): t for t in plan["targets"]}
             self.solutions = list(plan["solutions"])
@@ -161,7 +166,7 @@ class PlanContext:
     def safety_setup(self) -> Setup:
         """The plan's safety setup, built once for every safety check (relative scene-mesh
         and URDF paths from the working directory: the plan's echo has them absolute)."""
-        return Setup.from_plan(self.plan, Path("."))
+        return Setup.from_plan(self.plan, Path("."), self.urdfs)
 
     @cached_property
     def trajectory_findings(self) -> list[Finding]:

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from planner.model.kinematics import RobotKinematics
+from planner.model.kinematics import RobotKinematics, ur5e_urdf_path
 from planner.model.mirror import Mirror
 from planner.model.transforms import inv_T, look_at
 from planner.planning import plan_json, run_scenario
@@ -20,6 +20,7 @@ from planner.verify.check import check_plan
 from planner.verify.numpy_beam import pose_matrix, ur5e_dh_fk
 from planner.verify.safety_setup import Setup
 from planner.verify.safety_shapes import arm_shapes
+from planner.verify.urdf import UrdfChain
 from tests import cli_run
 from tests.paths import REPO
 
@@ -151,12 +152,13 @@ def test_arm_against_arm(shared: Doc) -> None:
 def test_the_safety_setup_is_built_once_per_check(face: Doc, monkeypatch: pytest.MonkeyPatch
                                                   ) -> None:  # fmt: skip
     """Both safety checks (targets and trajectory) read one setup: the scene and keep-out
-    volumes (and a URDF robot's URDF) are read once per plan."""
+    volumes are read once per plan, a URDF robot's URDF once per plan as well (the setup
+    takes the context's reading)."""
     built: list[Setup] = []
     from_plan = Setup.from_plan
 
-    def counted(plan: Doc, base_dir: Path) -> Setup:
-        built.append(from_plan(plan, base_dir))
+    def counted(plan: Doc, *args: Any) -> Setup:
+        built.append(from_plan(plan, *args))
         return built[-1]
 
     monkeypatch.setattr(Setup, "from_plan", counted)
@@ -164,6 +166,19 @@ def test_the_safety_setup_is_built_once_per_check(face: Doc, monkeypatch: pytest
     assert results["safety"].checked > 0 and results["trajectory safety"].checked > 0
     assert results["trajectory safety"].figures["laser_on_samples"] > 0  # the beam is checked
     assert len(built) == 1
+    read: list[Path] = []
+    init = UrdfChain.__init__
+
+    def reading(self: UrdfChain, path: Path, **kwargs: str) -> None:
+        read.append(path)
+        init(self, path, **kwargs)
+
+    monkeypatch.setattr(UrdfChain, "__init__", reading)
+    doc = copy.deepcopy(face)
+    doc["scenario"]["system"]["robots"][0]["urdf"] = str(ur5e_urdf_path())
+    results = {r.name: r for r in check_plan(doc)}
+    assert any("a URDF arm" in w for w in results["safety"].warnings)
+    assert len(built) == 2 and read == [ur5e_urdf_path()]  # the arm's URDF is read once
 
 
 def test_cli_check_exits_1_on_an_edited_plan(face: Doc, tmp_path: Path) -> None:
