@@ -115,6 +115,26 @@ def spots(p: Array, v: Array, targets: Array, normals: Array) -> tuple[Array, Ar
     return p + s[:, None] * v, s, inc
 
 
+def _tables_as_arrays(plan: dict[str, Any]) -> dict[str, Any]:
+    """The plan with its trajectory's ``t``, ``q``, ``qd`` and ``qdd`` tables as float64
+    arrays (as :func:`planner.io.plan_file.read_plan` gives them), so that the checks do not
+    each convert a document's lists again; the document itself is left as it is. A table
+    that is not numeric is left as a list (each check reads it as before)."""
+    traj = plan.get("trajectory")
+    if not isinstance(traj, dict):
+        return plan
+    tables: dict[str, Any] = {}
+    try:
+        if traj.get("t") is not None:
+            tables["t"] = np.asarray(traj["t"], dtype=float)
+        for key in ("q", "qd", "qdd"):
+            if isinstance(traj.get(key), dict):
+                tables[key] = {n: np.asarray(v, dtype=float) for n, v in traj[key].items()}
+    except (TypeError, ValueError):
+        return plan
+    return {**plan, "trajectory": {**traj, **tables}}
+
+
 @dataclass
 class CheckResult:
     name: str
@@ -126,7 +146,7 @@ class CheckResult:
 
 class PlanContext:
     """A parsed plan: geometry, tolerances, targets and solved configurations, traced once
-    (batched) lazily."""
+    (batched) lazily; :attr:`plan` is the document with its trajectory's tables as arrays."""
 
     def __init__(self, plan: dict[str, Any], base_dir: Path = Path(".")) -> None:
         try:
@@ -147,7 +167,7 @@ class PlanContext:
                       for a in self.arms}  # fmt: skip
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"not a plan document: missing or bad {exc!r}") from exc
-        self.plan = plan
+        self.plan = _tables_as_arrays(plan)
 
     @property
     def tolerance(self) -> float:
