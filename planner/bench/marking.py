@@ -48,8 +48,9 @@ def marking_figures(scenario: Path) -> dict[str, Any]:
     plan_s = time.perf_counter() - t0
     if o.timed is None:
         raise InputError("no sample of the path could be solved", str(scenario))
-    figures = {f"{r.name}.{k}": v for r in check_plan(o.doc) for k, v in r.figures.items()}
-    violations = sum(len(r.findings) for r in check_plan(o.doc))
+    results = check_plan(o.doc)
+    figures = {f"{r.name}.{k}": v for r in results for k, v in r.figures.items()}
+    violations = sum(len(r.findings) for r in results)
     settings = TrajectorySettings.from_mapping(o.doc["scenario"]["trajectory"])
     rest = time_solutions(o.system, o.targets, o.solutions, settings,
                           path=o.path, skywriting=False)  # fmt: skip
