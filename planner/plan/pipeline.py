@@ -16,6 +16,14 @@ import functools
 from typing import TYPE_CHECKING, Any
 
 from planner.io.plan import Plan
+from planner.io.resolved import resolved_scenario_dict
+from planner.io.scenario import (
+    LoadedScenario,
+    load_scenario,
+    targets_from_scenario,
+    trajectory_settings,
+)
+from planner.model.settings import TrajectorySettings
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
 from planner.plan.document import build_plan, verify_solutions
@@ -24,7 +32,6 @@ from planner.plan.timed import Timed, time_safely
 
 if TYPE_CHECKING:
     from planner.ik import Solution
-    from planner.model.settings import TrajectorySettings
     from planner.path.result import PathResult
 
 
@@ -56,6 +63,17 @@ class Pipeline:
 
     rules: ScenarioPlanner
     scenario: dict[str, Any]  # resolved; echoed in every plan and verified against
+    settings: TrajectorySettings  # the scenario's ``trajectory`` section
+
+    @classmethod
+    def from_scenario(cls, loaded: LoadedScenario, *, optimal: bool = False, scene: bool = True,
+                      safety: bool = True) -> Pipeline:  # fmt: skip
+        """The pipeline of a loaded scenario (``beamrelay plan``, the API's plans and the
+        node's handler): its rules (:meth:`ScenarioPlanner.from_scenario`; ``scene=False``
+        without the occlusion check, ``safety=False`` without the safety rules), its resolved
+        document and its trajectory settings."""
+        rules = ScenarioPlanner.from_scenario(loaded, optimal=optimal, scene=scene, safety=safety)
+        return cls(rules, resolved_scenario_dict(loaded), trajectory_settings(loaded))
 
     def solve(self, targets: Targets, q_start: Array | None = None,
               progress: Progress | None = None) -> tuple[Targets, list[Solution], PathResult | None]:  # fmt: skip
@@ -89,18 +107,14 @@ def run_scenario(
     from rich.progress import BarColumn, MofNCompleteColumn, TimeRemainingColumn
     from rich.progress import Progress as Bars
 
-    from planner.io.resolved import resolved_scenario_dict
-    from planner.io.scenario import load_scenario, targets_from_scenario, trajectory_settings
-
     loaded = load_scenario(scenario_path)
     scn = loaded.model
-    resolved = resolved_scenario_dict(loaded)
-    rules = ScenarioPlanner.from_scenario(loaded, optimal=optimal, scene=scene, safety=safety)
-    pipeline, system = Pipeline(rules, resolved), rules.system
+    pipeline = Pipeline.from_scenario(loaded, optimal=optimal, scene=scene, safety=safety)
+    rules, resolved, settings = pipeline.rules, pipeline.scenario, pipeline.settings
+    system = rules.system
     targets = targets_from_scenario(loaded, system)
     if scn.targets.frame == "camera" and targets.kind in ("points", "path"):  # seen on a surface
         targets = dataclasses.replace(targets, surface_tolerance=rules.surface_tolerance)
-    settings = trajectory_settings(loaded)
     order_key = settings.order or scn.targets.order
     order = "given" if order_key == "given" else "optimal"
     columns = ("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),

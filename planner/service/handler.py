@@ -36,6 +36,7 @@ from schemas.messages import MAX_ID_LENGTH, MAX_REQUEST_POINTS, ErrorReply, Targ
 
 if TYPE_CHECKING:
     from planner.model.scene import SceneModel
+    from planner.plan.pipeline import Pipeline
     from planner.safety.model import Safety
     from planner.service.closed_loop import ClosedLoopConfig
 
@@ -173,14 +174,21 @@ def make_plan_fn(
     applies the collision, keep-out and clearance rules to the solutions and the trajectory.
     """
     from planner.ik import IKOptions
-    from planner.plan.document import build_plan
     from planner.plan.pipeline import Pipeline
     from planner.plan.scenario_planner import ScenarioPlanner
 
-    timing = settings or TrajectorySettings()
     # the targets carry their own surface tolerance (the handler's, for camera-frame ones)
-    pipeline = Pipeline(ScenarioPlanner(system, options or IKOptions(), scene, safety, 0.0),
-                        scenario)  # fmt: skip
+    rules = ScenarioPlanner(system, options or IKOptions(), scene, safety, 0.0)
+    return pipeline_plan_fn(Pipeline(rules, scenario, settings or TrajectorySettings()))
+
+
+def pipeline_plan_fn(pipeline: Pipeline) -> PlanFn:
+    """The node's plan function over ``pipeline`` (a :class:`~planner.plan.pipeline.Pipeline`):
+    what :func:`make_plan_fn` describes."""
+    from planner.plan.document import build_plan
+
+    system, scenario, timing = pipeline.rules.system, pipeline.scenario, pipeline.settings
+    scene = pipeline.rules.scene
 
     def plan_fn(
         targets: Targets,
@@ -237,17 +245,15 @@ def with_surface_warnings(plan: Plan, points: Array, scene: Any) -> Plan:
 def handler_from_scenario(path: Any, extra_includes: tuple[Any, ...] = ()) -> RequestHandler:
     """A :class:`RequestHandler` for a scenario file (calibration applied via ``include:``;
     ``extra_includes`` after the scenario's own, e.g. the online calibration file)."""
-    from planner.io.resolved import resolved_scenario_dict
-    from planner.io.scenario import load_scenario, trajectory_settings
-    from planner.plan.scenario_planner import ScenarioPlanner
+    from planner.io.scenario import load_scenario
+    from planner.plan.pipeline import Pipeline
     from planner.service.closed_loop import closed_loop_config
 
     scn = load_scenario(path, extra_includes)
-    rules = ScenarioPlanner.from_scenario(scn)  # the rules `beamrelay plan` and the API use
+    pipeline = Pipeline.from_scenario(scn)  # the pipeline `beamrelay plan` and the API use
+    rules, settings = pipeline.rules, pipeline.settings
     system, safety, model = rules.system, rules.safety, scn.model
-    settings = trajectory_settings(scn)
-    plan_fn = make_plan_fn(system, resolved_scenario_dict(scn), rules.options, settings,
-                           rules.scene, safety)  # fmt: skip
+    plan_fn = pipeline_plan_fn(pipeline)
     laser = model.system.laser
     gated = laser.gate is not None
     # ungated (simulation only: --backend ur needs a gate), the laser is always on: there is
