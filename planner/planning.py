@@ -98,7 +98,8 @@ def verify_solutions(
     doc = {"scenario": scenario, "targets": [_target_json(targets, k) for k in ok],
            "solutions": [solution_json(system, k, solutions[k]) for k in ok]}  # fmt: skip
     out = list(solutions)
-    for f in reversed(target_findings(doc)):  # the first finding of a target wins
+    surfaces = {r.name: r.mirror.surface.spec for r in system.robots}  # the checker's faces
+    for f in reversed(target_findings(doc, surfaces=surfaces)):  # a target's first finding wins
         if f.target is None:
             continue
         evidence = {"check": f.message, "value": f.value, "bound": f.bound}
@@ -274,7 +275,7 @@ def spot_rays(system: System, Q: Array) -> tuple[Array, Array]:
     from planner.beam.graph import beam_function, system_params
 
     N = system.n_robots
-    f = beam_function(tuple(r.kinematics for r in system.robots)).map(len(Q))
+    f = beam_function(system.kinematics, system.surfaces).map(len(Q))
     zeros = np.zeros((3, len(Q)))
     out = f(q=Q.T, **system_params(system), target=zeros, normal=zeros)
     hits, dirs = np.asarray(out["hits"]), np.asarray(out["dirs"])
