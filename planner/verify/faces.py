@@ -47,12 +47,44 @@ class FlatFace:
         return np.asarray(world_T_mirror[:, :3, 2])
 
 
-Face = FlatFace
+@dataclass(frozen=True)
+class SphereFace:
+    """The cap through the mirror origin of the sphere centred ``radius`` (m, signed: > 0
+    concave) along mirror +z; its outward normal is ``(centre - x) / radius``."""
+
+    radius: float
+
+    def intersect(self, world_T_mirror: Array, p: Array, v: Array) -> tuple[Array, Array, Array]:
+        """Both roots of ``|p + t v - centre| = |radius|``; the one on the cap (outward
+        normal along mirror +z there) is the hit; a miss gives inf and NaN."""
+        axis = world_T_mirror[:, :3, 2]
+        centre = world_T_mirror[:, :3, 3] + self.radius * axis
+        w = p - centre
+        a, b, c = _dot(v, v), _dot(v, w), _dot(w, w) - self.radius**2
+        disc = b * b - a * c
+        root = np.sqrt(np.where(disc >= 0.0, disc, np.nan))
+        ts = np.stack([(-b - root) / a, (-b + root) / a], axis=1)  # (M, 2)
+        hits = p[:, None, :] + ts[..., None] * v[:, None, :]
+        up = np.einsum("mkj,mj->mk", centre[:, None, :] - hits, axis) / self.radius
+        k = np.argmax(np.where(np.isfinite(up), up, -np.inf), axis=1)
+        t = np.where(disc >= 0.0, ts[np.arange(len(k)), k], np.inf)
+        h = hits[np.arange(len(k)), k]
+        return t, h, _uv(world_T_mirror, h)
+
+    def normal(self, world_T_mirror: Array, hit: Array) -> Array:
+        """Unit outward normals (M x 3, world) at the hits."""
+        centre = world_T_mirror[:, :3, 3] + self.radius * world_T_mirror[:, :3, 2]
+        n = (centre - hit) / self.radius
+        return np.asarray(n / np.linalg.norm(n, axis=1, keepdims=True))
+
+
+Face = FlatFace | SphereFace
 FLAT_FACE = FlatFace()
 
 #: shape name -> the checker's face for a spec of that shape
 FACES: dict[str, Callable[[Mapping[str, Any]], Face]] = {
     "flat": lambda spec: FLAT_FACE,
+    "sphere": lambda spec: SphereFace(float(spec["radius"])),
 }
 
 
