@@ -49,7 +49,7 @@ class Sphere(Surface):
         R = self.radius
         a = float(vl @ vl)
         b = float(vl @ pl) - R * vl[2]
-        c = float(pl @ pl) - 2.0 * R * pl[2]  # |pl - C|^2 - R^2 without cancellation
+        c = float(pl @ pl) - 2.0 * R * pl[2]  # = |pl - C|^2 - R^2, the R^2 cancelled exactly
         disc = b * b - a * c
         if disc < 0.0:
             return np.inf
