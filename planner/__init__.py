@@ -6,7 +6,8 @@ The curated API (imported lazily, so ``import planner`` and ``beamrelay --help``
   per-target solver under the scenario's rules (safety, occlusion, bounds: what ``plan``
   applies); :func:`plan` a scenario -> plan.json dict;
   :func:`check_plan` re-verifies one; :func:`calibrate_handeye`, :func:`calibrate_beam`.
-- Model types: :class:`System`, :class:`Robot`, :class:`Mirror`, :class:`Limits`,
+- Model types: :class:`System`, :class:`Robot`, :class:`Mirror` (its face a
+  :class:`Surface`: flat, or e.g. a :class:`Sphere` built in code), :class:`Limits`,
   :class:`Targets`, :class:`BeamModel` (forward trace), :class:`IKOptions`,
   :class:`TrajectorySettings`; robot models by name: :func:`robot_model`,
   :func:`register_model`.
@@ -38,6 +39,8 @@ _EXPORTS = {
     "System": "planner.model.system",
     "Robot": "planner.model.system",
     "Mirror": "planner.model.system",
+    "Surface": "planner.model.mirror",
+    "Sphere": "planner.model.mirror_sphere",
     "Limits": "planner.model.system",
     "Targets": "planner.model.system",
     "robot_model": "planner.model.robots",

@@ -1,6 +1,7 @@
 """The beam chain as one named CasADi function (paper Eqs. 1-2).
 
-``beam_function(kinematics)`` builds, once per tuple of robot models, the function
+``beam_function(kinematics, surfaces)`` builds, once per chain (the tuple of robot models and
+the tuple of their mirrors' surfaces, :class:`planner.model.mirror.Surface`), the function
 
     inputs : q (nq x 1, all robots stacked), world_T_laser (4x4),
              world_T_base (4 x 4N, horizontally stacked), flange_T_mirror (4 x 4N),
@@ -25,7 +26,7 @@ import numpy as np
 
 from planner.beam.trace import BeamTrace, mirror_poses
 from planner.model.kinematics import RobotKinematics
-from planner.model.mirror import intersect_sx, normal_sx, reflect_sx
+from planner.model.mirror import Surface
 from planner.model.system import System
 from planner.model.transforms import Array
 
@@ -59,20 +60,21 @@ def beam_chain(
     world_T_base: list[ca.SX],
     flange_T_mirror: list[ca.SX],
     kinematics: tuple[RobotKinematics, ...],
+    surfaces: tuple[Surface, ...],
 ) -> tuple[list[ca.SX], list[ca.SX], list[ca.SX], list[ca.SX], list[ca.SX], list[ca.SX]]:
     """Symbolic trace of the chain: (hits, uv, dirs, front, ahead, world_T_mirror) per mirror,
-    through the mirror seam's CasADi twin (:mod:`planner.model.mirror`)."""
+    each mirror's face asked through its surface's CasADi twin (:mod:`planner.model.mirror`)."""
     p = world_T_laser[:3, 3]
     v = world_T_laser[:3, 2]
     hits, uvs, dirs, fronts, aheads, mirrors = [], [], [v], [], [], []
     i0 = 0
-    for i, kin in enumerate(kinematics):
+    for i, (kin, surface) in enumerate(zip(kinematics, surfaces, strict=True)):
         qi = q[i0 : i0 + kin.nq]
         i0 += kin.nq
         world_T_mirror = ca.mtimes([world_T_base[i], kin.casadi_fk_expr(qi), flange_T_mirror[i]])
-        t, h, uv = intersect_sx(world_T_mirror, p, v)
-        fronts.append(-ca.dot(normal_sx(world_T_mirror, h), v))
-        v = reflect_sx(world_T_mirror, v, h)
+        t, h, uv = surface.intersect_sx(world_T_mirror, p, v)
+        fronts.append(-ca.dot(surface.normal_sx(world_T_mirror, h), v))
+        v = surface.reflect_sx(world_T_mirror, v, h)
         p = h
         hits.append(h)
         uvs.append(uv)
@@ -115,14 +117,17 @@ def chain_symbols(kinematics: tuple[RobotKinematics, ...]) -> ChainSymbols:
 
 
 @lru_cache(maxsize=32)
-def beam_function(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
-    """The named beam function for a chain of robot models (cached per chain)."""
+def beam_function(
+    kinematics: tuple[RobotKinematics, ...], surfaces: tuple[Surface, ...]
+) -> ca.Function:
+    """The named beam function for a chain of robot models and their mirrors' surfaces
+    (cached per chain)."""
     sym = chain_symbols(kinematics)
     target = ca.SX.sym("target", 3)
     normal = ca.SX.sym("normal", 3)
 
     hits, uvs, dirs, fronts, aheads, _ = beam_chain(
-        sym.q, sym.world_T_laser, sym.bases, sym.mounts, kinematics
+        sym.q, sym.world_T_laser, sym.bases, sym.mounts, kinematics, surfaces
     )
     p, v = hits[-1], dirs[-1]
 
@@ -168,7 +173,7 @@ class BeamModel:
 
     def __init__(self, system: System) -> None:
         self.system = system
-        self.function = beam_function(tuple(r.kinematics for r in system.robots))
+        self.function = beam_function(system.kinematics, system.surfaces)
         self.params = system_params(system)
 
     def _call(self, q: Array, target: Array, normal: Array) -> dict[str, Array]:

@@ -42,8 +42,9 @@ from planner.calibration.lsq import (
     levenberg_marquardt,
     null_directions,
 )
-from planner.errors import CalibrationError, DatasetError
+from planner.errors import CalibrationError, DatasetError, InputError
 from planner.model.kinematics import RobotKinematics
+from planner.model.mirror import Surface
 from planner.model.system import System
 from planner.model.transforms import Array, axis_angle_to_matrix, make_T
 
@@ -104,9 +105,24 @@ class BeamResult:
     sigma: float = float("nan")  # m: residual noise the fit's residuals give
 
 
+def plane_fit_refusal(system: System, robot: str) -> str | None:
+    """Why this calibration cannot fit ``robot``'s mirror, in one line (None: it can). It fits
+    a mirror *plane*: its gauge (in-plane slide and spin unobservable) and its 3 observable
+    parameters hold for a flat face only (a sphere shows its in-plane slide and has a
+    radius), so any other :class:`~planner.model.mirror.Surface` is refused, not fitted."""
+    surface = system.robot(robot).mirror.surface
+    if surface.is_flat:
+        return None
+    return (f"the beam calibration fits a mirror plane; {robot}'s mirror is {surface!r}, not"
+            " flat: measure its mount another way")  # fmt: skip
+
+
 @lru_cache(maxsize=16)
-def beam_residual(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
-    """Spot residual through :func:`planner.beam.graph.beam_function` for the last mirror's mount.
+def beam_residual(
+    kinematics: tuple[RobotKinematics, ...], surfaces: tuple[Surface, ...]
+) -> ca.Function:
+    """Spot residual through :func:`planner.beam.graph.beam_function` for the last mirror's mount
+    (each mirror's face as ``surfaces`` says; the fitted last one is flat, a plane).
 
     inputs: q, d_laser (6), d_mirror (6), world_T_laser, world_T_base (4x4N),
     flange_T_mirror (4x4N), spot (3); outputs: r (3), J (3x12, w.r.t. [d_laser; d_mirror]).
@@ -118,7 +134,7 @@ def beam_residual(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
     mounts = sym.flange_T_mirror
     last = mounts[:, 4 * (N - 1) :] @ delta_T(dm)
     mounts_d = ca.horzcat(mounts[:, : 4 * (N - 1)], last) if N > 1 else last
-    out = beam_function(kinematics)(
+    out = beam_function(kinematics, surfaces)(
         q=sym.q,
         world_T_laser=sym.world_T_laser @ delta_T(dl),
         world_T_base=sym.world_T_base,
@@ -135,8 +151,10 @@ def beam_residual(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
 
 
 @lru_cache(maxsize=64)
-def _mapped(kinematics: tuple[RobotKinematics, ...], n: int) -> ca.Function:
-    return beam_residual(kinematics).map(n, "serial")
+def _mapped(
+    kinematics: tuple[RobotKinematics, ...], surfaces: tuple[Surface, ...], n: int
+) -> ca.Function:
+    return beam_residual(kinematics, surfaces).map(n, "serial")
 
 
 def _min_rotation(a: Array, b: Array) -> Array:
@@ -188,13 +206,17 @@ def calibrate_beam(
     seed: int = 0,
     mirror_centre: Array | None = None,
 ) -> BeamResult:
-    """Laser line (if ``data.robot`` is first in the chain) and the robot's mirror plane."""
+    """Laser line (if ``data.robot`` is first in the chain) and the robot's mirror plane (a
+    curved mirror is refused: :func:`plane_fit_refusal`)."""
     names = system.robot_names
     if data.robot not in names:
         raise DatasetError(f"unknown robot {data.robot!r}; robots: {', '.join(names)}", "robot")
+    if (why := plane_fit_refusal(system, data.robot)) is not None:
+        raise InputError(why, f"robot {data.robot}")
     idx = names.index(data.robot)
     chain = system.robots[: idx + 1]
     kin = tuple(r.kinematics for r in chain)
+    surfaces = tuple(r.mirror.surface for r in chain)
     nq = sum(k.nq for k in kin)
     K = len(data.q)
     if data.q.ndim != 2 or data.q.shape[1] != nq:
@@ -211,7 +233,7 @@ def calibrate_beam(
     M_nom = chain[-1].mirror.flange_T_mirror
     bases = np.hstack([r.world_T_base for r in chain])
     others = np.hstack([r.mirror.flange_T_mirror for r in chain[:-1]]) if idx else np.zeros((4, 0))
-    fn = _mapped(kin, K)
+    fn = _mapped(kin, surfaces, K)
     q_h, spot_h = data.q.T, data.spots_world.T
 
     def full_linearize(L: Array, M: Array) -> tuple[Array, Array]:

@@ -24,6 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from planner.errors import InputError
 from planner.model.system import System
 from planner.model.transforms import Array, inv_T
 from schemas import defaults
@@ -199,13 +200,19 @@ def beam_plan(
     oversample: int = 3,
     feasible: Callable[[Array], bool] | None = None,
 ) -> tuple[Array, float]:
-    """n well-conditioned beam poses (stacked chain joints) aiming at ``aim`` (world, m)."""
+    """n well-conditioned beam poses (stacked chain joints) aiming at ``aim`` (world, m), for
+    the plane fit of :func:`planner.calibration.beam.calibrate_beam` (which refuses a curved
+    mirror: so does this, :func:`~planner.calibration.beam.plane_fit_refusal`)."""
     from planner.calibration.beam import (
         OBSERVABLE_LASER,
         OBSERVABLE_MIRROR,
         _mapped,
+        plane_fit_refusal,
     )
     from planner.calibration.simulate import simulate_beam
+
+    if (why := plane_fit_refusal(system, robot)) is not None:
+        raise InputError(why, f"robot {robot}")
 
     data = simulate_beam(system, robot, oversample * n, 1, aim_world=aim, rng=rng)
     if feasible is not None:
@@ -214,13 +221,13 @@ def beam_plan(
     names = system.robot_names
     idx = names.index(robot)
     chain = system.robots[: idx + 1]
-    kin = tuple(r.kinematics for r in chain)
+    kin, surfaces = tuple(r.kinematics for r in chain), tuple(r.mirror.surface for r in chain)
     cols = (OBSERVABLE_LASER if idx == 0 else []) + OBSERVABLE_MIRROR
     bases = np.hstack([r.world_T_base for r in chain])
     mounts = np.hstack([r.mirror.flange_T_mirror for r in chain])
 
     k = len(data.q)
-    out = _mapped(kin, k)(data.q.T, np.zeros(6), np.zeros(6), system.world_T_laser, bases,
+    out = _mapped(kin, surfaces, k)(data.q.T, np.zeros(6), np.zeros(6), system.world_T_laser, bases,
                           mounts, data.spots_world.T)  # fmt: skip
     Jk: Array = np.asarray(out[1]).reshape(3, k, 12).transpose(1, 0, 2)  # (k, 3, 12)
     Jk[..., [0, 1, 2, 6, 7, 8]] *= LEVER

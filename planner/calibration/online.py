@@ -15,6 +15,10 @@ scenario's nominal poses, so repeated refits never drift along the unobservable 
 
 Steps, each of which may refuse (the calibration in force is kept, the reason is given):
 
+0. the last mirror is flat: the refit fits a plane, so a curved mirror
+   (:attr:`planner.model.mirror.Surface.is_flat` false) is refused at once, every time
+   (:func:`planner.calibration.beam.plane_fit_refusal`); the planner goes on with the
+   calibration in force;
 1. at least :func:`min_samples` samples at that many distinct configurations: one per
    unknown, 7 for N = 1 (2 equations per spot: 4 spots determine the 7 unknowns, but then
    a bad spot cannot show in the residuals, and the cross-validation below fits 4/5 of the
@@ -69,6 +73,7 @@ from planner.calibration.beam import (
     BeamResult,
     apply_gauge,
     calibrate_beam,
+    plane_fit_refusal,
 )
 from planner.calibration.lsq import exp_T
 from planner.calibration.report import beam_document
@@ -247,6 +252,8 @@ def refit(
     least ``first_version`` (a history that already holds higher numbers).
     """
     k = len(samples)
+    if (why := plane_fit_refusal(nominal, nominal.robot_names[-1])) is not None:
+        return _refuse(current, k, why)
     need = min_samples(nominal)
     if k < need:
         return _refuse(current, k, f"{k} samples; a refit needs at least {need}")

@@ -146,6 +146,7 @@ def aim_chain(system: System, robot: str, aim_world: Array) -> Array:
             goal = np.asarray(aim_world, dtype=float)
         out = (goal - c) / np.linalg.norm(goal - c)
         n = (out - v) / np.linalg.norm(out - v)
+        # the mirror's +z is its face's normal at its centre, whatever the face's shape
         R = _min_rotation(w_T_m_home[:3, 2], n) @ w_T_m_home[:3, :3]
         q = ik_near(r, make_T(R, c) @ inv_T(r.mirror.flange_T_mirror), r.home)
         if q is None:

@@ -8,6 +8,13 @@ inv(flange_T_mirror)`` and the UR analytic IK gives up to 8 joint branches, each
 target to machine precision. For N > 1 the intermediate hit points are free too (seeded at
 the mirrors' current centres); every bounce normal is again a bisector.
 
+Nothing here assumes a flat mirror: the mirror is placed through the seam
+(:meth:`planner.model.mirror.Mirror.place`), which puts the face point over ``(u, v)`` on
+the hit with the bisector as the face's normal there, whatever the face's shape (a flat face
+has the same normal everywhere, a curved one tilts its frame to match); an offset over which
+the face has no point is skipped like a pose without IK. Every member is traced again by
+the caller before it is accepted.
+
 :class:`ClosedForm` searches (s, psi, u, v) in a fixed priority order, nearest the previous
 configuration first, and returns the first member inside the joint limits and the ROI, or
 the reason none is (with the numbers). World frame, metres, radians.
@@ -201,6 +208,9 @@ class ClosedForm:
         for psi in stage.psi:
             for uv in uvs:
                 T = r.mirror.place(h, n, x_ref, psi, uv)
+                if not np.isfinite(T).all():  # the face has no point over uv
+                    stats.no_ik += 1
+                    continue
                 base_T_flange = self.base_T_world[i] @ T @ self.mirror_T_flange[i]
                 branches = self.seeds[i].analytic_ik(base_T_flange)
                 if not branches:

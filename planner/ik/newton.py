@@ -16,14 +16,17 @@ import numpy as np
 
 from planner.beam.graph import beam_function, system_params
 from planner.model.kinematics import RobotKinematics
+from planner.model.mirror import Surface
 from planner.model.system import System
 from planner.model.transforms import Array
 
 
 @lru_cache(maxsize=16)
-def residual_function(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
+def residual_function(
+    kinematics: tuple[RobotKinematics, ...], surfaces: tuple[Surface, ...]
+) -> ca.Function:
     """Named ``beam_newton``: (q, params, target, normal) -> (residual 3, d residual/dq 3xnq)."""
-    beam = beam_function(kinematics)
+    beam = beam_function(kinematics, surfaces)
     args = {name: ca.SX.sym(name, beam.sparsity_in(name)) for name in beam.name_in()}
     residual = beam.call(args)["residual"]
     outputs = {"residual": residual, "jacobian": ca.jacobian(residual, args["q"])}
@@ -41,7 +44,7 @@ class Newton:
 
     def __init__(self, system: System) -> None:
         self.system = system
-        self.function = residual_function(tuple(r.kinematics for r in system.robots))
+        self.function = residual_function(system.kinematics, system.surfaces)
         self.params = system_params(system)
 
     def _eval(self, q: Array, target: Array, normal: Array) -> tuple[Array, Array]:

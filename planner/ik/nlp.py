@@ -32,6 +32,7 @@ import numpy as np
 
 from planner.beam.graph import ChainSymbols, beam_chain, chain_symbols, system_params
 from planner.model.kinematics import RobotKinematics
+from planner.model.mirror import Surface
 from planner.model.system import System
 from planner.model.transforms import Array, plane_basis
 from planner.model.validity import MIN_AHEAD, MIN_FRONT, MIN_ROI_MARGIN
@@ -66,17 +67,17 @@ GEOMETRY = tuple(name for name in ChainSymbols._fields if name != "q")
 
 @lru_cache(maxsize=8)
 def build_solver(
-    kinematics: tuple[RobotKinematics, ...], max_iter: int = 200, tol: float = 1e-10,
-    cuts: int = 0,
+    kinematics: tuple[RobotKinematics, ...], surfaces: tuple[Surface, ...], max_iter: int = 200,
+    tol: float = 1e-10, cuts: int = 0,
 ) -> tuple[ca.Function, Array, Array]:  # fmt: skip
-    """The ``beam_ik`` nlpsol (IPOPT, expanded, silent) for a chain of robot models, with
-    its constraint bounds (lbg, ubg; ``cuts`` clearance rows last, bounds set per call)."""
+    """The ``beam_ik`` nlpsol (IPOPT, expanded, silent) for a chain of robot models and their
+    mirrors' surfaces, with its constraint bounds (lbg, ubg; ``cuts`` clearance rows last, bounds set per call)."""
     N = len(kinematics)
     sym = chain_symbols(kinematics)
     q = sym.q
     P = _problem_parameters(q.size1(), cuts) | {name: getattr(sym, name) for name in GEOMETRY}
     hits, uvs, dirs, fronts, aheads, _ = beam_chain(
-        q, sym.world_T_laser, sym.bases, sym.mounts, kinematics
+        q, sym.world_T_laser, sym.bases, sym.mounts, kinematics, surfaces
     )
     p, v = hits[-1], dirs[-1]
     m, e1, e2 = P["plane"][:, 0], P["plane"][:, 1], P["plane"][:, 2]
@@ -125,9 +126,9 @@ class BeamNLP:
         self, system: System, *, max_iter: int = 200, centre_weight: float = 100.0
     ) -> None:
         self.system = system
-        kins = tuple(r.kinematics for r in system.robots)
-        self.kinematics, self.max_iter = kins, max_iter
-        self.solver, self.lbg, self.ubg = build_solver(kins, max_iter)
+        self.kinematics, self.surfaces = system.kinematics, system.surfaces
+        self.max_iter = max_iter
+        self.solver, self.lbg, self.ubg = build_solver(self.kinematics, self.surfaces, max_iter)
         self.geometry = system_params(system)
         self.centre_weight = centre_weight
 
@@ -159,8 +160,8 @@ class BeamNLP:
         solver, lbg, ubg = self.solver, self.lbg, self.ubg
         if cuts is not None:
             A, lb = cuts
-            solver, lbg, ubg = build_solver(self.kinematics, min(self.max_iter, CUT_MAX_ITER),
-                                            cuts=len(A))  # fmt: skip
+            solver, lbg, ubg = build_solver(self.kinematics, self.surfaces,
+                                            min(self.max_iter, CUT_MAX_ITER), cuts=len(A))  # fmt: skip
             values = {"cuts": np.asarray(A, dtype=float)} | values
             lbg = np.concatenate([lbg[: len(lbg) - len(A)], lb])
         p = np.concatenate([np.asarray(x, dtype=float).ravel(order="F") for x in values.values()])

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from planner.model.limits import Limits as Limits  # re-exported
-from planner.model.mirror import Mirror
+from planner.model.mirror import Mirror, Surface
 from planner.model.transforms import Array
 
 if TYPE_CHECKING:
@@ -91,6 +91,17 @@ class System:
     @property
     def robot_names(self) -> tuple[str, ...]:
         return tuple(r.name for r in self.robots)
+
+    @property
+    def kinematics(self) -> tuple[RobotKinematics, ...]:
+        """Each robot's model, chain order (with :attr:`surfaces`: the key of the CasADi
+        functions built on the chain)."""
+        return tuple(r.kinematics for r in self.robots)
+
+    @property
+    def surfaces(self) -> tuple[Surface, ...]:
+        """Each robot's mirror surface, chain order."""
+        return tuple(r.mirror.surface for r in self.robots)
 
     def robot(self, name: str) -> Robot:
         for r in self.robots:

@@ -80,7 +80,7 @@ def clear_run(
     lin = linearizer or Linearizer(safety)
     n, nq = len(ks), ctx.system.nq
     rows: list[dict[tuple[str, int], ClearanceRow]] = [{} for _ in range(n)]
-    nlp = path_nlp(ctx.kin, n, closed, ctx.opts.max_iter, PATH_ROWS)
+    nlp = path_nlp(ctx.kin, ctx.surfaces, n, closed, ctx.opts.max_iter, PATH_ROWS)
     best, best_bad, iters, status = Q, before, 0, ""
     active = np.array(dist_bad, dtype=bool)
     idx = [int(k) for k in ks]

@@ -39,10 +39,12 @@ import numpy as np
 
 from planner.beam.graph import ChainSymbols, beam_chain, chain_symbols, system_params
 from planner.model.kinematics import RobotKinematics
+from planner.model.mirror import Surface
 from planner.model.system import System
 from planner.model.transforms import Array, plane_bases, plane_basis
 
 Chain = tuple[RobotKinematics, ...]
+Surfaces = tuple[Surface, ...]  # each mirror's face, chain order: with Chain, the cache key
 
 
 @dataclass(frozen=True)
@@ -71,13 +73,15 @@ SAMPLE_INPUTS = (*ChainSymbols._fields, *SAMPLE_DATA)
 PATH_PARAMETERS = (*GEOMETRY, *SAMPLE_DATA, "q_ref", "weights")
 
 
-def _sample_exprs(kinematics: Chain) -> tuple[dict[str, ca.SX], dict[str, ca.SX]]:
+def _sample_exprs(
+    kinematics: Chain, surfaces: Surfaces
+) -> tuple[dict[str, ca.SX], dict[str, ca.SX]]:
     """Per-sample inputs (by :data:`SAMPLE_INPUTS` name) and the expressions built on them."""
     sym = chain_symbols(kinematics)
     target, nbar = ca.SX.sym("target", 3), ca.SX.sym("nbar", 3)
     has, E = ca.SX.sym("has_normal"), ca.SX.sym("tangents", 3, 2)
     hits, uvs, dirs, fronts, aheads, _ = beam_chain(
-        sym.q, sym.world_T_laser, sym.bases, sym.mounts, kinematics
+        sym.q, sym.world_T_laser, sym.bases, sym.mounts, kinematics, surfaces
     )
     p, v = hits[-1], dirs[-1]
     s = ca.dot(nbar, target - p) / ca.dot(nbar, v)
@@ -99,17 +103,17 @@ def _function(name: str, ins: dict[str, ca.SX], outs: dict[str, ca.SX]) -> ca.Fu
 
 
 @lru_cache(maxsize=16)
-def sample_function(kinematics: Chain) -> ca.Function:
+def sample_function(kinematics: Chain, surfaces: Surfaces) -> ca.Function:
     """Per-sample constraints: g (2, spot offset on the target plane, m), h (4N+2: ROI
     margins (m), front (-n.v), ahead (m), target ahead (m), cos incidence), centring cost."""
-    ins, out = _sample_exprs(kinematics)
+    ins, out = _sample_exprs(kinematics, surfaces)
     return _function("path_sample", ins, {"g": out["g"], "h": out["h"], "c": ca.sumsqr(out["r"])})
 
 
 @lru_cache(maxsize=16)
-def step_function(kinematics: Chain) -> ca.Function:
+def step_function(kinematics: Chain, surfaces: Surfaces) -> ca.Function:
     """Per-sample values and Jacobians for the continuation chain."""
-    ins, out = _sample_exprs(kinematics)
+    ins, out = _sample_exprs(kinematics, surfaces)
     q = ins["q"]
     outs = {"g": out["g"], "Jg": ca.jacobian(out["g"], q), "r": out["r"],
             "Jr": ca.jacobian(out["r"], q), "h": out["h"], "dir": out["dir"], "spot": out["spot"]}  # fmt: skip
@@ -160,18 +164,18 @@ def _compiled(f: ca.Function, cc: str, cache_dir: str) -> ca.Function:
 
 
 @lru_cache(maxsize=16)
-def sample_jacobian(kinematics: Chain) -> ca.Function:
+def sample_jacobian(kinematics: Chain, surfaces: Surfaces) -> ca.Function:
     """Per-sample constraints [g; h] (2 + 4N + 2) and their dense Jacobian in q, expanded
     SX: mapped over K it gives the block-diagonal constraint Jacobian of the path NLP."""
-    ins, out = _sample_exprs(kinematics)
+    ins, out = _sample_exprs(kinematics, surfaces)
     gh = ca.vertcat(out["g"], out["h"])
     return _function("path_jac", ins, {"gh": gh, "J": ca.densify(ca.jacobian(gh, ins["q"]))})
 
 
 @lru_cache(maxsize=16)
-def sample_hessian(kinematics: Chain) -> ca.Function:
+def sample_hessian(kinematics: Chain, surfaces: Surfaces) -> ca.Function:
     """Per-sample Hessian (nq x nq) of lam . [g; h] + w_c * centring with respect to q."""
-    ins, out = _sample_exprs(kinematics)
+    ins, out = _sample_exprs(kinematics, surfaces)
     lam = ca.SX.sym("lam", 2 + out["h"].size1())
     wc = ca.SX.sym("wc")
     L = ca.dot(lam, ca.vertcat(out["g"], out["h"])) + wc * ca.sumsqr(out["r"])
@@ -242,13 +246,13 @@ def _options(max_iter: int) -> dict[str, Any]:
 
 
 @lru_cache(maxsize=8)
-def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200,
+def path_nlp(kinematics: Chain, surfaces: Surfaces, K: int, closed: bool, max_iter: int = 200,
              cuts: int = 0) -> PathNlp:  # fmt: skip
     """The IPOPT solver for K samples; parameters packed by :func:`pack_params` (then the
     ``cuts`` clearance rows per sample, module docstring)."""
     t0 = time.perf_counter()
     nq = sum(k.nq for k in kinematics)
-    F = sample_function(kinematics)
+    F = sample_function(kinematics, surfaces)
     Q = ca.MX.sym("Q", nq, K)
     chain = chain_symbols(kinematics)
     syms = {name: ca.MX.sym(name, *getattr(chain, name).shape) for name in GEOMETRY}
@@ -272,7 +276,7 @@ def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200,
     g: Any = ca.vec(ca.vertcat(G, H))
     x = ca.vec(Q)
     # constraint Jacobian, assembled: mapped dense per-sample blocks on the block diagonal
-    jac_out = compiled(sample_jacobian(kinematics)).map(K)(q=Q, **per_sample)
+    jac_out = compiled(sample_jacobian(kinematics, surfaces)).map(K)(q=Q, **per_sample)
     GH, JB = jac_out["gh"], jac_out["J"]
     m = int(GH.size1())
     jac = ca.MX(ca.diagcat(*[ca.Sparsity.dense(m, nq)] * K), ca.vec(JB))
@@ -292,7 +296,7 @@ def path_nlp(kinematics: Chain, K: int, closed: bool, max_iter: int = 200,
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.size1())
     LG = ca.reshape(lam_g[: m * K], m, K)
     wc = ca.repmat(lam_f * w[2] * ds, 1, K)
-    B = compiled(sample_hessian(kinematics)).map(K)(q=Q, **per_sample, lam=LG, wc=wc)["H"]
+    B = compiled(sample_hessian(kinematics, surfaces)).map(K)(q=Q, **per_sample, lam=LG, wc=wc)["H"]
     blocks = ca.MX(ca.diagcat(*[ca.Sparsity.dense(nq, nq)] * K), ca.vec(B))
     M1, M2 = _smoothness_hessians(nq, K, closed) if K > 1 else (ca.DM(nq, nq), ca.DM(nq, nq))
     Hl = blocks + lam_f * (w[0] / ds * M1 + w[1] / ds**3 * M2 + 2 * w[3] * ds * ca.DM.eye(nq * K))

@@ -73,7 +73,7 @@ def sample_errors(system: System, Q: Array, points: Array, normals: Array | None
     """Spot error (m) of every sample through the beam function (NaN rows -> NaN)."""
     from planner.beam.graph import beam_function
 
-    f = beam_function(tuple(r.kinematics for r in system.robots))
+    f = beam_function(system.kinematics, system.surfaces)
     K = len(Q)
     geo = system_params(system)
     nrm = np.zeros((K, 3)) if normals is None else np.nan_to_num(np.asarray(normals, float))
@@ -132,7 +132,7 @@ def _solve_run(ctx: PathContext, ks: Indices, Q0: Array, NB: Array, ds: float, c
     opts, n = ctx.opts, len(ks)
     weights = _weights(opts, ds)
     cached = path_nlp.cache_info().hits
-    nlp = path_nlp(ctx.kin, n, closed, opts.max_iter)
+    nlp = path_nlp(ctx.kin, ctx.surfaces, n, closed, opts.max_iter)
     build = 0.0 if path_nlp.cache_info().hits > cached else nlp.build_time
     t0 = time.perf_counter()
     Qs, stats = ctx.solve(nlp, list(ks), Q0, NB, weights)

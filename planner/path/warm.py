@@ -30,6 +30,7 @@ from planner.path.nlp import (
     Chain,
     PathNlp,
     PathOptions,
+    Surfaces,
     compiled,
     constraint_lower_bounds,
     path_nlp,
@@ -89,8 +90,9 @@ class PathContext:
         self, system: System, targets: Targets, opts: PathOptions, seeder: Seeder | None = None
     ) -> None:
         self.system, self.opts = system, opts
-        self.kin: Chain = tuple(r.kinematics for r in system.robots)
-        self.step = compiled(step_function(self.kin))
+        self.kin: Chain = system.kinematics
+        self.surfaces: Surfaces = system.surfaces
+        self.step = compiled(step_function(self.kin, self.surfaces))
         self.geo = {name: ca.DM(x) for name, x in system_params(system).items()}
         self.P = np.asarray(targets.points, dtype=float)
         K = len(self.P)
@@ -177,7 +179,7 @@ class PathContext:
                 if why is None:
                     return q, nbar, None
                 best = (q, nbar, why)
-        nlp = path_nlp(self.kin, 1, False, self.opts.max_iter)
+        nlp = path_nlp(self.kin, self.surfaces, 1, False, self.opts.max_iter)
         for q0 in guesses:
             nbar = self.plane(k, q0)
             Q, _ = self.solve(nlp, [k], q0[None, :], nbar[None, :], (0.0, 0.0, 1e-2, 1.0, 1.0))
@@ -312,7 +314,7 @@ def valid_samples(ctx: PathContext, ks: Indices, Q: Array, NB: Array) -> Array:
     :meth:`PathContext.why`: spot on target, joint limits, every reflection constraint)."""
     ks = np.asarray(ks, dtype=int)
     has = ctx.has[ks][None, :].astype(float)
-    out = compiled(sample_function(ctx.kin)).map(len(ks))(
+    out = compiled(sample_function(ctx.kin, ctx.surfaces)).map(len(ks))(
         q=Q.T, **ctx.geo, target=ctx.P[ks].T, nbar=NB.T, has_normal=has,
         tangents=tangents_batch(NB),
     )  # fmt: skip

@@ -69,7 +69,8 @@ def verify_solutions(
     doc = {"scenario": scenario, "targets": [_target_json(targets, k) for k in ok],
            "solutions": [solution_json(system, k, solutions[k]) for k in ok]}  # fmt: skip
     out = list(solutions)
-    for f in reversed(target_findings(doc)):  # the first finding of a target wins
+    surfaces = {r.name: r.mirror.surface.spec for r in system.robots}  # the checker's faces
+    for f in reversed(target_findings(doc, surfaces=surfaces)):  # a target's first finding wins
         if f.target is None:
             continue
         evidence = {"check": f.message, "value": f.value, "bound": f.bound}

@@ -129,7 +129,7 @@ def spot_rays(system: System, Q: Array) -> tuple[Array, Array]:
     """Last ray (origin, unit direction), each M x 3 in the world frame, of configurations
     ``Q`` (M x nq) through the planner's beam function."""
     N = system.n_robots
-    f = beam_function(tuple(r.kinematics for r in system.robots)).map(len(Q))
+    f = beam_function(system.kinematics, system.surfaces).map(len(Q))
     zeros = np.zeros((3, len(Q)))
     out = f(q=Q.T, **system_params(system), target=zeros, normal=zeros)
     hits, dirs = np.asarray(out["hits"]), np.asarray(out["dirs"])

@@ -238,7 +238,8 @@ def camera_lens(
 
 
 def trace(world: SafetyWorld, q: Array) -> tuple[Array, Array]:
-    """The beam at stacked joints ``q`` by the beam model's plane intersections: the points
+    """The beam at stacked joints ``q`` through each mirror's surface (the seam of
+    :mod:`planner.model.mirror`, as the beam model traces it): the points
     laser exit, hit on mirror 1, ..., hit on mirror N ((N + 1) x 3, world, m; a miss gives
     NaN) and the unit direction leaving the last mirror."""
     world.update(q)
@@ -257,6 +258,6 @@ def trace(world: SafetyWorld, q: Array) -> tuple[Array, Array]:
 
 def beam_points(world: SafetyWorld, q: Array, end: Array | Sequence[float]) -> Array:
     """The polyline laser -> mirror hits -> ``end`` at stacked joints ``q``, the mirror hits
-    by the beam model's plane intersection (world, m); a miss gives NaN rows."""
+    through each mirror's surface (world, m); a miss gives NaN rows."""
     pts, _ = trace(world, q)
     return np.vstack([pts, np.asarray(end, dtype=float)])

@@ -104,12 +104,16 @@ def capsule_placement(a: Array, b: Array) -> tuple[Array, float]:
 
 
 def mirror_boxes(robot: Robot, blocks: MirrorBlocks) -> list[tuple[str, Array, Array]]:
-    """``(name, flange_T_box centre, full extents)`` of the mirror plate and its mount."""
+    """``(name, flange_T_box centre, full extents)`` of the mirror plate and its mount. The
+    plate reaches from the face's highest point down to ``thickness`` below its lowest
+    (:meth:`planner.model.mirror.Surface.depth`; mirror z in [-thickness, 0] when flat)."""
     fTm = robot.mirror.flange_T_mirror
     w, h = robot.mirror.size
-    plate = fTm @ make_T(p=[0.0, 0.0, -blocks.thickness / 2])
-    out = [("mirror", plate, np.array([w, h, blocks.thickness]))]
-    back = fTm @ np.array([0.0, 0.0, -blocks.thickness, 1.0])
+    lo, hi = robot.mirror.surface.depth((w, h))
+    t = blocks.thickness + (hi - lo)
+    plate = fTm @ make_T(p=[0.0, 0.0, hi - t / 2])
+    out = [("mirror", plate, np.array([w, h, t]))]
+    back = fTm @ np.array([0.0, 0.0, hi - t, 1.0])
     height = float(back[2]) - blocks.mount_gap
     if height > 1e-3:
         centre = make_T(p=[back[0], back[1], height / 2])

@@ -28,6 +28,7 @@ import pinocchio as pin
 
 from planner.beam.graph import beam_chain, chain_symbols, system_params
 from planner.model.kinematics import RobotKinematics
+from planner.model.mirror import Surface
 from planner.model.transforms import Array
 from planner.safety.model import Safety
 
@@ -55,12 +56,14 @@ class ClearanceRow(NamedTuple):
 
 
 @lru_cache(maxsize=16)
-def hit_jacobian(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
+def hit_jacobian(
+    kinematics: tuple[RobotKinematics, ...], surfaces: tuple[Surface, ...]
+) -> ca.Function:
     """``beam_hit_jac``: the mirror hits (3 x N, world m) and their Jacobian in the stacked
     joints (3N x nq, rows hit-major: x, y, z of hit 0, then hit 1, ...), geometry inputs by
     name as in :func:`planner.beam.graph.beam_function`."""
     sym = chain_symbols(kinematics)
-    hits, *_ = beam_chain(sym.q, sym.world_T_laser, sym.bases, sym.mounts, kinematics)
+    hits, *_ = beam_chain(sym.q, sym.world_T_laser, sym.bases, sym.mounts, kinematics, surfaces)
     H = ca.vertcat(*hits)
     ins = sym._asdict()
     outs = {"hits": ca.horzcat(*hits), "J": ca.densify(ca.jacobian(H, sym.q))}
@@ -71,7 +74,7 @@ def polyline_jacobians(safety: Safety, q: Array) -> Array:
     """dP/dq of the beam polyline laser exit, N hits, spot ((N + 2) x 3 x nq): the hits'
     from the beam graph, the fixed laser exit's and the target-held spot's zero."""
     system = safety.system
-    f = hit_jacobian(tuple(r.kinematics for r in system.robots))
+    f = hit_jacobian(system.kinematics, system.surfaces)
     J = np.asarray(f(q=q, **system_params(system))["J"], dtype=float)
     N = system.n_robots
     out = np.zeros((N + 2, 3, system.nq))

@@ -138,14 +138,15 @@ TRACE_CHUNK = 512
 
 
 @lru_cache(maxsize=16)
-def _trace_function(kinematics: tuple[Any, ...]) -> ca.Function:
-    """The mirror hits (3 x N) and the last direction of a chain, symbolic in q and the
-    geometry (the beam function's chain without its target outputs; cached per chain)."""
+def _trace_function(kinematics: tuple[Any, ...], surfaces: tuple[Any, ...]) -> ca.Function:
+    """The mirror hits (3 x N) and the last direction of a chain of robot models and mirror
+    surfaces, symbolic in q and the geometry (the beam function's chain without its target
+    outputs; cached per chain)."""
     from planner.beam.graph import beam_chain, chain_symbols
 
     sym = chain_symbols(kinematics)
     hits, _, dirs, _, _, _ = beam_chain(sym.q, sym.world_T_laser, sym.bases, sym.mounts,
-                                        kinematics)  # fmt: skip
+                                        kinematics, surfaces)  # fmt: skip
     names = ["q", "world_T_laser", "world_T_base", "flange_T_mirror"]
     return ca.Function("trace", [sym.q, sym.world_T_laser, sym.world_T_base,
                                  sym.flange_T_mirror], [ca.horzcat(*hits), dirs[-1]],
@@ -153,8 +154,8 @@ def _trace_function(kinematics: tuple[Any, ...]) -> ca.Function:
 
 
 @lru_cache(maxsize=64)
-def _trace_map(kinematics: tuple[Any, ...], n: int) -> ca.Function:
-    return _trace_function(kinematics).map(n)
+def _trace_map(kinematics: tuple[Any, ...], surfaces: tuple[Any, ...], n: int) -> ca.Function:
+    return _trace_function(kinematics, surfaces).map(n)
 
 
 def trace_batch(safety: Safety, Q: Array) -> tuple[Array, Array]:
@@ -165,11 +166,10 @@ def trace_batch(safety: Safety, Q: Array) -> tuple[Array, Array]:
 
     system = safety.system
     N, M = system.n_robots, len(Q)
-    kin = tuple(r.kinematics for r in system.robots)
     prm = system_params(system)
     geo = [prm["world_T_laser"], prm["world_T_base"], prm["flange_T_mirror"]]
     n = min(TRACE_CHUNK, 1 << max(M - 1, 0).bit_length())
-    f = _trace_map(kin, n)
+    f = _trace_map(system.kinematics, system.surfaces, n)
     hits, dirs = np.empty((M, N, 3)), np.empty((M, 3))
     for a in range(0, M, n):
         q = Q[a : a + n]

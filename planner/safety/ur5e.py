@@ -37,7 +37,8 @@ class MirrorBlocks:
     """The mirror plate and its mount as boxes (m).
 
     The plate is ``size`` (from the robot's :class:`~planner.model.system.Mirror`) by
-    ``thickness``, behind the reflective face (mirror frame z in [-thickness, 0]). The mount
+    ``thickness``, behind the reflective face (mirror frame z in [-thickness, 0] for a flat
+    face; a curved one's plate also spans the face's depth). The mount
     is a block of ``mount_width`` x ``mount_width`` on the flange face (flange frame z = 0),
     under the mirror centre, up to ``mount_gap`` below the plate's back (flange frame z). No
     mount is built when the plate's back is closer than ``mount_gap`` + 1 mm to the flange.

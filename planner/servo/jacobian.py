@@ -1,9 +1,10 @@
 """The spot Jacobian on a target's surface plane, through the beam graph.
 
-``spot_jacobian_function(kinematics)`` (named ``servo_spot``, built once per chain of robot
-models) takes the inputs of :func:`planner.beam.graph.beam_function` and returns the spot on
-the plane through ``target`` normal to ``normal`` (world, m), its derivative with respect to
-every robot's joints stacked (3 x nq, m/rad) and the last ray's unit direction.
+``spot_jacobian_function(kinematics, surfaces)`` (named ``servo_spot``, built once per chain
+of robot models and mirror surfaces) takes the inputs of
+:func:`planner.beam.graph.beam_function` and returns the spot on the plane through ``target``
+normal to ``normal`` (world, m), its derivative with respect to every robot's joints stacked
+(3 x nq, m/rad) and the last ray's unit direction.
 
 :class:`SpotModel` binds it to one system (the *calibrated model*: its geometry is the one
 the servo corrects) and expresses spot errors in the target's surface frame: the two in-plane
@@ -23,6 +24,7 @@ import numpy as np
 
 from planner.beam.graph import beam_function, system_params
 from planner.model.kinematics import RobotKinematics
+from planner.model.mirror import Surface
 from planner.model.system import System
 from planner.model.transforms import Array, plane_basis
 
@@ -30,11 +32,13 @@ SPOT_JACOBIAN_OUTPUTS = ["spot", "jacobian", "direction"]
 
 
 @lru_cache(maxsize=16)
-def spot_jacobian_function(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
+def spot_jacobian_function(
+    kinematics: tuple[RobotKinematics, ...], surfaces: tuple[Surface, ...]
+) -> ca.Function:
     """Named ``servo_spot``: beam inputs (``q``, geometry, ``target``, non-zero ``normal``) ->
     ``spot`` (3, world m), ``jacobian`` (3 x nq, d spot / dq, m/rad) and ``direction`` (3,
     unit last ray)."""
-    beam = beam_function(kinematics)
+    beam = beam_function(kinematics, surfaces)
     args = {name: ca.SX.sym(name, beam.sparsity_in(name)) for name in beam.name_in()}
     out = beam.call(args)
     spot = out["spot"]
@@ -71,7 +75,7 @@ class SpotModel:
 
     def __init__(self, system: System) -> None:
         self.system = system
-        self.function = spot_jacobian_function(tuple(r.kinematics for r in system.robots))
+        self.function = spot_jacobian_function(system.kinematics, system.surfaces)
         self.params = system_params(system)
 
     def evaluate(self, q: Array, target: Array, normal: Array) -> SpotJacobian:

@@ -43,6 +43,7 @@ import casadi as ca
 import numpy as np
 
 from planner.model.kinematics import RobotKinematics
+from planner.model.mirror import Surface
 from planner.model.system import System
 from planner.model.transforms import Array
 
@@ -63,7 +64,9 @@ class LMResult(NamedTuple):
 
 
 @lru_cache(maxsize=16)
-def eq7_residual(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
+def eq7_residual(
+    kinematics: tuple[RobotKinematics, ...], surfaces: tuple[Surface, ...]
+) -> ca.Function:
     """Named ``lm_eq7``: (q, geometry, target, normal, weight) -> residual (3 + 3N: spot -
     target, then weight * (h_i - c_i) per mirror, world m) and its Jacobian w.r.t. q."""
     from planner.beam.graph import beam_chain, beam_function, chain_symbols
@@ -71,9 +74,9 @@ def eq7_residual(kinematics: tuple[RobotKinematics, ...]) -> ca.Function:
     sym = chain_symbols(kinematics)
     target, normal, w = ca.SX.sym("target", 3), ca.SX.sym("normal", 3), ca.SX.sym("weight")
     args = {**sym._asdict(), "target": target, "normal": normal}
-    spot_residual = beam_function(kinematics).call(args)["residual"]
+    spot_residual = beam_function(kinematics, surfaces).call(args)["residual"]
     hits, _, _, _, _, mirrors = beam_chain(sym.q, sym.world_T_laser, sym.bases, sym.mounts,
-                                           kinematics)  # fmt: skip
+                                           kinematics, surfaces)  # fmt: skip
     off = [h - M[:3, 3] for h, M in zip(hits, mirrors, strict=True)]
     r = ca.vertcat(spot_residual, w * ca.vertcat(*off))
     inputs = {**args, "weight": w}
@@ -105,8 +108,8 @@ class LMIK:
         self.system = system
         self.tolerance = tolerance
         self.centre_weight = centre_weight
-        kin = tuple(r.kinematics for r in system.robots)
-        self.function = residual_function(kin) if centre_weight is None else eq7_residual(kin)
+        chain = system.kinematics, system.surfaces
+        self.function = residual_function(*chain) if centre_weight is None else eq7_residual(*chain)
         self.params = system_params(system)
         self.model = BeamModel(system)
 

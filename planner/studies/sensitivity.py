@@ -92,7 +92,7 @@ def grid_targets(
 
 
 @lru_cache(maxsize=8)
-def sensitivity_function(kinematics: tuple[Any, ...]) -> Any:
+def sensitivity_function(kinematics: tuple[Any, ...], surfaces: tuple[Any, ...]) -> Any:
     """CasADi function ``J(q, params, target) -> ∂residual/∂δ`` (3 x (6 + 6N)).
 
     δ = [laser_rot, laser_pos, mirror_rot_0, mirror_pos_0, ...], each 3 components, applied
@@ -123,7 +123,7 @@ def sensitivity_function(kinematics: tuple[Any, ...]) -> Any:
         d = delta[6 + 6 * i : 12 + 6 * i]
         M_rot = ca.mtimes(sym.mounts[i], small_T(d[0:3], zero))
         mounts.append(M_rot + ca.vertcat(ca.horzcat(ca.SX.zeros(3, 3), d[3:6]), ca.SX.zeros(1, 4)))
-    hits, _, dirs, _, _, _ = beam_chain(sym.q, laser, sym.bases, mounts, kinematics)
+    hits, _, dirs, _, _, _ = beam_chain(sym.q, laser, sym.bases, mounts, kinematics, surfaces)
     p, v = hits[-1], dirs[-1]
     residual = p + ca.dot(v, target - p) * v - target
     J = ca.substitute(ca.jacobian(residual, delta), delta, ca.SX.zeros(delta.shape))
@@ -136,7 +136,7 @@ def jacobians(system: System, qs: Array, targets: Array) -> Array:
     """``∂residual/∂δ`` per target, shape (K, 3, 6 + 6N) (metres per rad / per metre)."""
     from planner.beam.graph import system_params
 
-    fn = sensitivity_function(tuple(r.kinematics for r in system.robots))
+    fn = sensitivity_function(system.kinematics, system.surfaces)
     par = {name: x for name, x in system_params(system).items() if name in fn.name_in()}
     return np.stack(
         [np.asarray(fn(q=q, **par, target=t)["J"]) for q, t in zip(qs, targets, strict=True)]

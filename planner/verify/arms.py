@@ -75,7 +75,8 @@ class ArmShapes:
 def arm_shapes(
     world_T_base: Array, q: Array, flange_T_mirror: Array, size: tuple[float, float]
 ) -> ArmShapes:
-    """Capsules and boxes (wrist_3, mirror plate, mount) of a UR5e at joints ``q`` (rad)."""
+    """Capsules and boxes (wrist_3, mirror plate, mount) of a UR5e at joints ``q`` (rad); the
+    plate is a flat mirror's (a plan file describes flat mirrors, conventions section 3)."""
     F = world_T_base @ link_frames(q)
     caps = []
     for name, link, a, b, r in CAPSULES:

@@ -16,7 +16,7 @@ solved target visited) and the ``metrics``, recomputed from the solutions and th
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -132,10 +132,12 @@ def check_limits(ctx: PlanContext) -> CheckResult:
     return res
 
 
-def target_findings(plan: dict[str, Any], base_dir: Path = Path(".")) -> list[Finding]:
+def target_findings(plan: dict[str, Any], base_dir: Path = Path("."),
+                    surfaces: Mapping[str, Mapping[str, Any]] | None = None) -> list[Finding]:  # fmt: skip
     """The per-target violations (spot, mirrors, joint limits) of a plan's solved targets:
-    what planning uses to decide that a solution is ok."""
-    ctx = PlanContext(plan, base_dir)
+    what planning uses to decide that a solution is ok. ``surfaces``: the mirrors' shapes
+    when not flat (:class:`~planner.verify.context.PlanContext`)."""
+    ctx = PlanContext(plan, base_dir, surfaces)
     return [f for check in (check_spots, check_mirrors, check_limits) for f in check(ctx).findings]
 
 

@@ -18,6 +18,7 @@ from planner.errors import InputError
 from planner.model.status import Status
 from planner.model.transforms import Array
 from planner.verify.arm_models import checker_arm
+from planner.verify.faces import FLAT_FACE, Face, face_from_spec
 from planner.verify.findings import Finding
 from planner.verify.numpy_beam import BeamRays, limits_from_dict, trace_rays
 from planner.verify.numpy_beam import pose_matrix as pose
@@ -47,6 +48,7 @@ class ArmGeometry:
     lower: Array
     upper: Array
     batched: bool = False
+    face: Face = FLAT_FACE  # the checker's own face of this arm's mirror
 
     def world_T_mirror(self, Q: Array) -> Array:
         """Mirror poses (M x 4 x 4) of joint rows ``Q`` (M x nq, rad)."""
@@ -58,10 +60,10 @@ class ArmGeometry:
         return self.world_T_base @ F @ self.flange_T_mirror
 
 
-def _arm(r: dict[str, Any], i: int, base_dir: Path, urdfs: dict[Path, UrdfChain]
-         ) -> ArmGeometry:  # fmt: skip
+def _arm(r: dict[str, Any], i: int, base_dir: Path, urdfs: dict[Path, UrdfChain],
+         surfaces: Mapping[str, Mapping[str, Any]]) -> ArmGeometry:  # fmt: skip
     """Robot ``i`` of the scenario as the checker sees it (a URDF it reads is kept in
-    ``urdfs`` by its path)."""
+    ``urdfs`` by its path; ``surfaces``: the shapes of mirrors that are not flat)."""
     where = f"scenario.system.robots[{i}]"
     try:
         mirror = r["mirror"]
@@ -88,6 +90,7 @@ def _arm(r: dict[str, Any], i: int, base_dir: Path, urdfs: dict[Path, UrdfChain]
             lower=limits.lower,
             upper=limits.upper,
             batched=batched,
+            face=face_from_spec(surfaces.get(str(r["name"])), f"{where}.mirror"),
         )
     except (KeyError, TypeError, ValueError) as exc:
         raise InputError(f"cannot read robot geometry: {exc!r}", where) from exc
@@ -96,7 +99,8 @@ def _arm(r: dict[str, Any], i: int, base_dir: Path, urdfs: dict[Path, UrdfChain]
 def trace_arms(world_T_laser: Array, arms: list[ArmGeometry], q: Mapping[str, Any]) -> BeamRays:
     """The checker's beam trace of the joint rows ``q[arm name]`` ((M, nq) or one (nq,)
     configuration, rad), every arm's mirror in chain order."""
-    return trace_rays(world_T_laser, [arm.world_T_mirror(q[arm.name]) for arm in arms])
+    return trace_rays(world_T_laser, [arm.world_T_mirror(q[arm.name]) for arm in arms],
+                      [arm.face for arm in arms])  # fmt: skip
 
 
 def spots(p: Array, v: Array, targets: Array, normals: Array) -> tuple[Array, Array, Array]:
@@ -146,15 +150,20 @@ class CheckResult:
 
 class PlanContext:
     """A parsed plan: geometry, tolerances, targets and solved configurations, traced once
-    (batched) lazily; :attr:`plan` is the document with its trajectory's tables as arrays."""
+    (batched) lazily; :attr:`plan` is the document with its trajectory's tables as arrays. A
+    plan document describes flat mirrors; ``surfaces`` (robot name -> shape spec,
+    :func:`planner.verify.faces.face_from_spec`) says which are not, for a system built in
+    code with curved ones."""
 
-    def __init__(self, plan: dict[str, Any], base_dir: Path = Path(".")) -> None:
+    def __init__(self, plan: dict[str, Any], base_dir: Path = Path("."),
+                 surfaces: Mapping[str, Mapping[str, Any]] | None = None) -> None:  # fmt: skip
         try:
             scn = plan["scenario"]
             system = scn["system"]
             self.world_T_laser = pose(system["laser"]["world_T_laser"], "scenario.system.laser")
             self.urdfs: dict[Path, UrdfChain] = {}  # the URDFs read, by path
-            self.arms = [_arm(r, i, base_dir, self.urdfs) for i, r in enumerate(system["robots"])]
+            self.arms = [_arm(r, i, base_dir, self.urdfs, surfaces or {})
+                         for i, r in enumerate(system["robots"])]  # fmt: skip
             self.tol = Tolerances.from_scenario(scn)
             self.targets = {int(t["id"]): t for t in plan["targets"]}
             self.solutions = list(plan["solutions"])

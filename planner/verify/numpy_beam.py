@@ -3,8 +3,9 @@
 Shared by :mod:`planner.verify.check` (solved targets) and :mod:`planner.verify.trajectory` (dense
 trajectories): the UR5e forward kinematics by standard DH, the pose
 mappings, the robots' joint limits as written in a resolved scenario, and the reflection
-chain, written again from the conventions rather than taken from the planner's
-CasADi graph. Units SI, poses ``a_T_b``, all rays in the world frame.
+chain over the checker's own mirror faces (:mod:`planner.verify.faces`), written again from
+the conventions rather than taken from the planner's CasADi graph. Units SI, poses
+``a_T_b``, all rays in the world frame.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import numpy as np
 from planner.errors import InputError
 from planner.model.limits import Limits
 from planner.model.transforms import Array, make_T, quat_to_matrix, rpy_to_matrix
+from planner.verify.faces import FLAT_FACE, Face, reflect
 
 UR5E_D = (0.1625, 0.0, 0.0, 0.1333, 0.0997, 0.0996)  # m
 UR5E_A = (0.0, -0.425, -0.3922, 0.0, 0.0, 0.0)  # m
@@ -87,47 +89,24 @@ class BeamRays(NamedTuple):
     ahead: list[Array]
 
 
-def _dot(a: Array, b: Array) -> Array:
-    """Row-wise dot products of two (M, 3) arrays."""
-    return np.einsum("ij,ij->i", a, b)
-
-
-def mirror_intersect(world_T_mirror: Array, p: Array, v: Array) -> tuple[Array, Array, Array]:
-    """The checker's own mirror surface (flat: the z = 0 plane of the mirror frame): where
-    the M rays ``p + t v`` (M x 3, world) meet the mirrors at ``world_T_mirror`` (M x 4 x 4):
-    (t (M,) m, hit (M x 3) world, uv (M x 2) mirror x/y m)."""
-    c, n = world_T_mirror[:, :3, 3], world_T_mirror[:, :3, 2]
-    t = _dot(n, c - p) / _dot(n, v)
-    h = p + t[:, None] * v
-    uv = np.stack([_dot(world_T_mirror[:, :3, k], h - c) for k in (0, 1)], axis=1)
-    return t, h, uv
-
-
-def mirror_normal(world_T_mirror: Array, hit: Array) -> Array:
-    """Unit face normals (M x 3, world) of the mirrors at the hits (flat: mirror +z)."""
-    return np.asarray(world_T_mirror[:, :3, 2])
-
-
-def mirror_reflect(world_T_mirror: Array, v: Array, hit: Array) -> Array:
-    """Directions (M x 3) of the rays ``v`` reflected at ``hit``: v - 2 (v.n) n."""
-    n = mirror_normal(world_T_mirror, hit)
-    return np.asarray(v - 2 * _dot(v, n)[:, None] * n)
-
-
-def trace_rays(world_T_laser: Array, world_T_mirrors: Sequence[Array]) -> BeamRays:
-    """Reflect the laser beam off each mirror in turn (:func:`mirror_intersect`,
-    :func:`mirror_reflect`); ``world_T_mirrors`` holds one (M, 4, 4) stack per mirror, the M
-    configurations traced side by side."""
+def trace_rays(
+    world_T_laser: Array, world_T_mirrors: Sequence[Array], faces: Sequence[Face] | None = None
+) -> BeamRays:
+    """Reflect the laser beam off each mirror in turn, each through its own face of
+    :mod:`planner.verify.faces` (``faces``, chain order; None: all flat, as every mirror a
+    plan document describes); ``world_T_mirrors`` holds one (M, 4, 4) stack per mirror, the
+    M configurations traced side by side."""
     M = len(world_T_mirrors[0]) if len(world_T_mirrors) else 1
     p = np.tile(world_T_laser[:3, 3], (M, 1))
     v = np.tile(world_T_laser[:3, 2] / np.linalg.norm(world_T_laser[:3, 2]), (M, 1))
     rays = BeamRays(p, v, [], [], [], [])
-    for wTm in world_T_mirrors:
-        t, h, uv = mirror_intersect(wTm, p, v)
+    faces = [FLAT_FACE] * len(world_T_mirrors) if faces is None else faces
+    for wTm, face in zip(world_T_mirrors, faces, strict=True):
+        t, h, uv = face.intersect(wTm, p, v)
         rays.hits.append(h)
         rays.uv.append(uv)
-        rays.front.append(-_dot(mirror_normal(wTm, h), v))
+        rays.front.append(-np.einsum("ij,ij->i", face.normal(wTm, h), v))
         rays.ahead.append(t)
-        v = mirror_reflect(wTm, v, h)
+        v = reflect(face, wTm, v, h)
         p = h
     return rays._replace(p=p, v=v)

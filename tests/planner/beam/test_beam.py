@@ -90,12 +90,12 @@ unit = st.tuples(*[st.floats(-1, 1)] * 3).map(np.array).filter(lambda x: np.lina
 @settings(max_examples=200, deadline=None)
 @given(v=unit, n=unit)
 def test_reflection_properties(v: np.ndarray, n: np.ndarray) -> None:
-    from planner.model.mirror import Mirror, reflect_sx
+    from planner.model.mirror import FLAT, Mirror
 
     v, n = v / np.linalg.norm(v), n / np.linalg.norm(n)
     T = ca.SX.sym("world_T_mirror", 4, 4)
     vs = ca.SX.sym("v", 3)
-    reflect = ca.Function("r", [vs, T], [reflect_sx(T, vs, ca.SX.zeros(3))])
+    reflect = ca.Function("r", [vs, T], [FLAT.reflect_sx(T, vs, ca.SX.zeros(3))])
     M = Mirror(np.eye(4)).place(np.zeros(3), n, np.array([1.0, 0.0, 0.0]), 0.0, np.zeros(2))
 
     def f(v: np.ndarray, n: np.ndarray) -> np.ndarray:
@@ -132,7 +132,7 @@ def test_moving_mirror_in_its_plane_keeps_spot(du: float, dv: float, seed: int) 
 @pytest.mark.parametrize("n", [1, 2])
 def test_jacobians_match_finite_differences(n: int) -> None:
     system = make_system(n, seed=3)
-    f = beam_function(tuple(r.kinematics for r in system.robots))
+    f = beam_function(system.kinematics, system.surfaces)
     params = system_params(system)
     rng = np.random.default_rng(0)
     q = system.home + rng.uniform(-0.2, 0.2, system.nq)

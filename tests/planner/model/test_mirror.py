@@ -13,9 +13,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from planner.beam.trace import trace_beam
-from planner.model.mirror import Mirror, intersect_sx, reflect_sx
+from planner.model.mirror import FLAT, Flat, Mirror
 from planner.model.transforms import Array, axis_angle_to_matrix, inv_T, make_T
-from planner.verify.numpy_beam import mirror_intersect, mirror_reflect
+from planner.verify.faces import FLAT_FACE, reflect
 from tests.conftest import make_system
 
 
@@ -45,14 +45,14 @@ def test_intersect_and_reflect_match_hand_geometry(seed: int) -> None:
     np.testing.assert_allclose(w - (w @ n) * n, v - (v @ n) * n, atol=1e-12)  # tangent kept
     # the CasADi twin and the checker's own flat surface give the same numbers
     T, ps, vs = ca.SX.sym("T", 4, 4), ca.SX.sym("p", 3), ca.SX.sym("v", 3)
-    t_sx, h_sx, uv_sx = intersect_sx(T, ps, vs)
-    f = ca.Function("f", [T, ps, vs], [t_sx, h_sx, uv_sx, reflect_sx(T, vs, h_sx)])
+    t_sx, h_sx, uv_sx = FLAT.intersect_sx(T, ps, vs)
+    f = ca.Function("f", [T, ps, vs], [t_sx, h_sx, uv_sx, FLAT.reflect_sx(T, vs, h_sx)])
     out = [np.asarray(x).ravel() for x in f(M, p, v)]
     for a, b in zip(out, [np.atleast_1d(t), hit, uv, w], strict=True):
         np.testing.assert_allclose(a, b, atol=1e-12)
-    tc, hc, uvc = mirror_intersect(M[None], p[None], v[None])
+    tc, hc, uvc = FLAT_FACE.intersect(M[None], p[None], v[None])
     np.testing.assert_allclose(np.concatenate([tc, hc[0], uvc[0]]), [t, *hit, *uv], atol=1e-12)
-    np.testing.assert_allclose(mirror_reflect(M[None], v[None], hc)[0], w, atol=1e-12)
+    np.testing.assert_allclose(reflect(FLAT_FACE, M[None], v[None], hc)[0], w, atol=1e-12)
 
 
 def test_parallel_ray_misses() -> None:
@@ -68,7 +68,7 @@ def test_place_puts_the_hit_at_uv_with_the_normal() -> None:
 
 
 @dataclass(frozen=True)
-class RaisedMirror(Mirror):
+class Raised(Flat):
     """A test surface: the face lies ``lift`` metres above the mirror frame's z = 0."""
 
     lift: float = 0.0
@@ -78,12 +78,13 @@ class RaisedMirror(Mirror):
 
 
 def test_planner_trace_goes_through_the_seam() -> None:
-    """Swapping the surface of every robot changes trace_beam exactly as moving the flat
-    mirror would: the numpy trace asks the Mirror, it does not intersect planes itself."""
+    """Swapping the surface of every robot's mirror changes trace_beam exactly as moving the
+    flat mirror would: the numpy trace asks the mirror's surface, it does not intersect
+    planes itself."""
     system = make_system(2, seed=3)
     lift = 0.004
     raised = replace(system, robots=tuple(
-        replace(r, mirror=RaisedMirror(r.mirror.flange_T_mirror, lift=lift)) for r in system.robots
+        replace(r, mirror=replace(r.mirror, surface=Raised(lift=lift))) for r in system.robots
     ))  # fmt: skip
     moved = system.with_params(flange_T_mirror={
         r.name: r.mirror.flange_T_mirror @ make_T(p=[0, 0, lift]) for r in system.robots
@@ -93,6 +94,11 @@ def test_planner_trace_goes_through_the_seam() -> None:
     np.testing.assert_allclose(a.hits, b.hits, atol=1e-12)
     np.testing.assert_allclose(a.spot, b.spot, atol=1e-12)
     assert np.abs(a.hits - trace_beam(system, q, target).hits).max() > 1e-3
+
+
+def test_a_mirror_is_flat_unless_told() -> None:
+    m = Mirror(np.eye(4))
+    assert m.surface == FLAT and m.surface.is_flat and m.surface.spec == {"shape": "flat"}
 
 
 def _unit(x: Array) -> Array:

@@ -11,12 +11,12 @@ from tests.conftest import make_system
 
 def test_sample_inputs_are_the_chain_symbols_by_name() -> None:
     system = make_system(2)
-    kin = tuple(r.kinematics for r in system.robots)
-    f = sample_function(kin)
+    chain = system.kinematics, system.surfaces
+    f = sample_function(*chain)
     assert tuple(f.name_in()) == SAMPLE_INPUTS
     assert tuple(f.name_in())[: len(ChainSymbols._fields)] == ChainSymbols._fields
     assert set(system_params(system)) == set(ChainSymbols._fields) - {"q"}
-    assert set(system_params(system)) < set(beam_function(kin).name_in())
+    assert set(system_params(system)) < set(beam_function(*chain).name_in())
 
 
 def test_pack_params_places_every_value_under_its_name() -> None:

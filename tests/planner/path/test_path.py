@@ -154,7 +154,7 @@ def test_valid_samples_agrees_with_why(fine):
     ok = valid_samples(ctx, ks, Qb, NB)
 
     def sample(k: int) -> tuple[np.ndarray, np.ndarray]:
-        out = sample_function(ctx.kin)(q=Qb[k], **ctx.geo, target=ctx.P[k], nbar=NB[k],
+        out = sample_function(ctx.kin, ctx.surfaces)(q=Qb[k], **ctx.geo, target=ctx.P[k], nbar=NB[k],
                                        has_normal=1.0, tangents=tangents(NB[k]))  # fmt: skip
         return out["g"], out["h"]
 
@@ -220,10 +220,11 @@ def test_compiled_functions_match_the_sx_originals(tmp_path, monkeypatch):
     import casadi as ca
 
     from planner.model.kinematics import RobotKinematics
+    from planner.model.mirror import FLAT
     from planner.path.nlp import _compiled, compiled, sample_hessian
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
-    f = sample_hessian((RobotKinematics.ur5e(),))
+    f = sample_hessian((RobotKinematics.ur5e(),), (FLAT,))
     fc = compiled(f)
     assert fc is not f and list(tmp_path.joinpath("beamrelay").glob("*.so"))
     rng = np.random.default_rng(2)

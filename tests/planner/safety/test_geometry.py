@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from planner.errors import InputError
+from planner.model.build import ur5e_robot
+from planner.model.mirror_sphere import Sphere
 from planner.model.transforms import make_T
 from planner.safety import (
     UR5E_BOXES,
@@ -25,7 +29,9 @@ from planner.safety import (
     violations,
     worst,
 )
+from planner.safety.geometry import mirror_boxes
 from planner.safety.shapes import Volume
+from planner.safety.ur5e import DEFAULT_MIRROR_BLOCKS
 from planner.verify import arms
 from planner.verify.numpy_beam import ur5e_dh_fk
 from tests.planner.safety.worlds import REACH, UPRIGHT, parallel_slack, relay, single
@@ -200,3 +206,23 @@ def test_bad_joint_vectors_are_rejected():
         WORLD.update(np.zeros(6))
     with pytest.raises(InputError):
         WORLD.update(np.full(12, np.nan))
+
+
+@pytest.mark.parametrize("radius", [0.4, -0.4])
+def test_a_curved_mirrors_plate_spans_its_face(radius: float) -> None:
+    """The collision plate reaches from the face's highest point to ``thickness`` below its
+    lowest (a concave rim stands proud of the vertex, a convex one falls behind it); a
+    flat mirror's plate is [-thickness, 0] as before."""
+    blocks = DEFAULT_MIRROR_BLOCKS
+    flat = ur5e_robot("arm0")
+    curved = replace(flat, mirror=replace(flat.mirror, surface=Sphere(radius)))
+    half = np.hypot(*flat.mirror.size) / 2
+    sag = radius - np.sign(radius) * np.sqrt(radius**2 - half**2)
+    (_, fTp, ext), *_ = mirror_boxes(flat, blocks)
+    (_, cTp, cext), *_ = mirror_boxes(curved, blocks)
+    mTf = np.linalg.inv(flat.mirror.flange_T_mirror)
+    top, bottom = (mTf @ cTp)[2, 3] + cext[2] / 2, (mTf @ cTp)[2, 3] - cext[2] / 2
+    assert top == pytest.approx(max(sag, 0.0), abs=1e-15)
+    assert bottom == pytest.approx(min(sag, 0.0) - blocks.thickness, abs=1e-15)
+    assert (mTf @ fTp)[2, 3] == pytest.approx(-blocks.thickness / 2, abs=1e-15)
+    assert ext[2] == blocks.thickness
