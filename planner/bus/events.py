@@ -22,6 +22,8 @@ import sys
 import time
 from typing import IO
 
+from schemas.status import ServoStatus, Status
+
 #: the strftime format of an event's time (UTC); milliseconds and ``Z`` are appended
 TIME_FORMAT = "%Y-%m-%dT%H:%M:%S"
 
@@ -98,7 +100,7 @@ def verdict_fields(plan: dict[str, object]) -> dict[str, object]:
     assert isinstance(sols, list)
     reasons: dict[str, int] = {}
     for s in sols:
-        if s.get("status") != "ok":
+        if s.get("status") != Status.OK:
             reasons[str(s.get("reason"))] = reasons.get(str(s.get("reason")), 0) + 1
     out: dict[str, object] = {"id": plan.get("id"),
                               "solved": f"{len(sols) - sum(reasons.values())}/{len(sols)}"}  # fmt: skip
@@ -111,7 +113,8 @@ def verdict_fields(plan: dict[str, object]) -> dict[str, object]:
     closed = plan.get("closed_loop")
     rows = (closed.get("targets") if isinstance(closed, dict) else None) or []
     if rows:
-        out["converged"] = f"{sum(r.get('status') == 'converged' for r in rows)}/{len(rows)}"
+        converged = sum(r.get("status") == ServoStatus.CONVERGED for r in rows)
+        out["converged"] = f"{converged}/{len(rows)}"
     return out
 
 

@@ -93,6 +93,6 @@ def _closed_loop(plan: Plan) -> list[str]:
     """What the reply says about closed-loop correction, as it says it (free-form)."""
     items: list[tuple[str, Any]] = []
     if plan.closed_loop is not None:
-        items.append(("closed_loop", dict(plan.closed_loop)))
+        items.append(("closed_loop", plan.closed_loop.to_document()))
     items += [(k, v) for k, v in plan.metrics.extra.items() if "closed" in k or "servo" in k]
     return [f"{k}: `{v}`"[:300] for k, v in items]
