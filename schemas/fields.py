@@ -9,6 +9,7 @@ files from elsewhere are validated by the pydantic models first.
 from __future__ import annotations
 
 import contextlib
+import re
 from collections.abc import Mapping
 from enum import StrEnum
 from typing import Any, TypeVar
@@ -41,7 +42,7 @@ def parse_enum(kind: type[E], value: Any, loc: Loc) -> E:
         return kind(value)
     except ValueError:
         allowed = ", ".join(m.value for m in kind)
-        raise FieldError(loc, f"unknown {kind.__name__.lower()} {value!r} ({allowed})") from None
+        raise FieldError(loc, f"unknown {_words(kind)} {value!r} ({allowed})") from None
 
 
 def parse_either(kinds: tuple[type[StrEnum], ...], value: Any, loc: Loc) -> StrEnum:
@@ -51,4 +52,9 @@ def parse_either(kinds: tuple[type[StrEnum], ...], value: Any, loc: Loc) -> StrE
         with contextlib.suppress(ValueError):
             return kind(value)
     allowed = ", ".join(m.value for kind in kinds for m in kind)
-    raise FieldError(loc, f"unknown {kinds[0].__name__.lower()} {value!r} ({allowed})")
+    raise FieldError(loc, f"unknown {_words(kinds[0])} {value!r} ({allowed})")
+
+
+def _words(kind: type[StrEnum]) -> str:
+    """An enum's name as words: ``ServoStatus`` -> ``servo status``."""
+    return re.sub(r"(?<!^)(?=[A-Z])", " ", kind.__name__).lower()
