@@ -459,16 +459,14 @@ def request_summary(plan: Plan, spots: list[Array | None] | None) -> dict[str, A
     status, reason, planned error and measured error (m; None when not seen; from the
     requested point of a camera-frame target that landed on its surface, which the camera
     saw), and over the measured targets ``measured_error_median`` / ``measured_error_max`` (m)."""
-    rows, measured = [], []
+    rows = []
+    errors = measured_errors(plan, spots)
+    measured = [e for e in errors if e is not None]
     report = plan.closed_loop
     servo_rows = None if report is None else report.targets
     for k, sol in enumerate(plan.solutions):
-        spot = None if spots is None else spots[k]
+        spot, err = None if spots is None else spots[k], errors[k]
         p = plan.targets.p[k]
-        aim = p if sol.surface is None else sol.surface.requested  # the camera's point
-        err = None if spot is None else float(np.linalg.norm(spot - aim))
-        if err is not None:
-            measured.append(err)
         surface = None if sol.surface is None else sol.surface.to_document()
         rows.append({"id": int(plan.targets.ids[k]), "p": p.tolist(), "status": sol.status,
                      "reason": sol.reason, "planned_error": _finite(sol.error),
@@ -498,6 +496,18 @@ def request_summary(plan: Plan, spots: list[Array | None] | None) -> dict[str, A
             out["measured_error_before_max"] = float(np.max(before))
         out["closed_loop"] = report.to_document(targets=False)
     out["targets"] = rows
+    return out
+
+
+def measured_errors(plan: Plan, spots: list[Array | None] | None) -> list[float | None]:
+    """Each target's measured error (m; None when not seen): the distance of its measured
+    spot from its point, or from the requested point of a camera-frame target that landed
+    on its surface (which the camera saw)."""
+    out: list[float | None] = []
+    for k, sol in enumerate(plan.solutions):
+        spot = None if spots is None else spots[k]
+        aim = plan.targets.p[k] if sol.surface is None else sol.surface.requested
+        out.append(None if spot is None else float(np.linalg.norm(spot - aim)))
     return out
 
 
