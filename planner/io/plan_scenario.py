@@ -46,9 +46,11 @@ class PlannedScenario:
         return validate(model, self._read(*path), prefix=("scenario", *path))
 
     @cached_property
-    def laser(self) -> Laser:
-        """``system.laser``: its pose, power, gate, aim, limits and beam radius."""
-        return self._section(Laser, "system", "laser")
+    def laser(self) -> Laser | None:
+        """``system.laser``: its pose, power, gate, aim, limits and beam radius (None in a
+        partial document without one)."""
+        path = ("system", "laser")
+        return None if self._read(*path) is None else self._section(Laser, *path)
 
     @property
     def world_T_camera(self) -> Array | None:

@@ -118,17 +118,19 @@ def start_track(node: Any, req: Any) -> Plan:
         # padding's calibration part (the beam radius part is the beam's own width)
         allowance = UNCERTAINTY_K * scenario.safety.spot_uncertainty
     correction, why = camera_correction(req, system, laser, settings.tolerance, allowance)
+    gate = None if laser is None else laser.gate
     node.track = TrackSession(node.session, node.keys, node.session_id, system, follower,
                               req.id, duration=req.duration,
-                              gate_robot=None if laser.gate is None else laser.gate.robot,
-                              aim=laser.aim is not None, correction=correction,
+                              gate_robot=None if gate is None else gate.robot,
+                              aim=laser is not None and laser.aim is not None,
+                              correction=correction,
                               send_stop=node.send_stop, on_end=node.track_ended).start()  # fmt: skip
     tracking = TrackingReport(req.id, req.duration, settings.tolerance, settings.rate, why)
     return dataclasses.replace(plan, execution=Verdict.ACCEPTED, tracking=tracking)
 
 
 def camera_correction(
-    req: Any, system: Any, laser: Laser, tolerance: float,
+    req: Any, system: Any, laser: Laser | None, tolerance: float,
     max_bias: float | None = None,
 ) -> tuple[SpotCorrection | None, str]:  # fmt: skip
     """The camera-frame spot correction of a track request
@@ -143,7 +145,7 @@ def camera_correction(
         return None, "off: no camera"
     if system.camera.robot is not None:  # frames and spots would map through other joints
         return None, "off: the camera moves with an arm"
-    if laser.gate is not None and laser.aim is None:
+    if laser is not None and laser.gate is not None and laser.aim is None:
         return None, "off: no aiming beam (laser.aim) to measure the spot with"
     return SpotCorrection(system, system.world_T_camera, tolerance=tolerance,
                           max_bias=max_bias), "on"  # fmt: skip

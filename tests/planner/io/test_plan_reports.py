@@ -147,7 +147,8 @@ def test_the_resolved_scenario_reads_typed_and_names_a_bad_key() -> None:
     }  # fmt: skip
     scenario = Plan.from_document(doc).resolved
     assert scenario.name == "small" and scenario.trajectory.spot_speed == 0.03
-    assert scenario.laser.gate is not None and scenario.laser.gate.robot == "arm0"
+    assert scenario.laser is not None and scenario.laser.gate is not None
+    assert scenario.laser.gate.robot == "arm0"
     assert scenario.laser.aim == "gate" and scenario.safety.spot_uncertainty == 0.0
     assert [(o.name, o.attached_to) for o in scenario.keep_out] == [("eye", "phantom")]
     np.testing.assert_array_equal(scenario.world_T_camera, np.eye(4))
