@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
-from typing import Any
+from typing import Any, Final
 
 from pydantic import ConfigDict, with_config
 
@@ -33,6 +33,8 @@ class SegmentKind(StrEnum):
     RUN_OUT = "run_out"  # leaving a path along its extension, laser off
     DWELL = "dwell"  # held on a target
 
+
+_KIND_TEXT: Final = {k: k.value for k in SegmentKind}  # plain strings, looked up fast
 
 #: the spans in which the laser gate may be on
 LASER_KINDS = frozenset({SegmentKind.PATH, SegmentKind.DWELL})
@@ -64,7 +66,7 @@ class Segment:
         return cls(kind, float(required(d, "t0", loc)), float(required(d, "t1", loc)))
 
     def to_document(self) -> dict[str, Any]:
-        return {"kind": self.kind.value, "t0": self.t0, "t1": self.t1}
+        return {"kind": _KIND_TEXT[self.kind], "t0": self.t0, "t1": self.t1}
 
 
 @with_config(_STRICT)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
@@ -212,11 +212,14 @@ class Trajectory:
         return d
 
 
+_KINDS: Final = {k.value: k for k in SegmentKind}  # a dict lookup: 2x faster than SegmentKind(x)
+
+
 def _segments(rows: list[Mapping[str, Any]], loc: Loc) -> tuple[Segment, ...]:
     """The segments of a trajectory (one per dwell: 10^5 of them for as many targets), read
     at once; when one is malformed, read again one by one for the error naming it."""
     try:
-        return tuple(Segment(SegmentKind(s["kind"]), float(s["t0"]), float(s["t1"])) for s in rows)
+        return tuple(Segment(_KINDS[s["kind"]], float(s["t0"]), float(s["t1"])) for s in rows)
     except (KeyError, TypeError, ValueError):
         return tuple(Segment.from_document(s, (*loc, i)) for i, s in enumerate(rows))
 
