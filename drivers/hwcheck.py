@@ -47,7 +47,7 @@ import numpy as np
 
 from drivers.camera.spot import detect_gated_spot
 from drivers.robot.ur_link import MOTION_ALLOWED, safety_name
-from planner.beam.trace import trace_beam
+from planner.beam.trace import beam_vertices, trace_beam
 
 RTDE_PORT, DASHBOARD_PORT = 30004, 29999
 WIGGLE_AMPLITUDE = 0.05  # rad, wrist_3
@@ -240,7 +240,6 @@ def aim_keep_out(scn: Any, q: Any) -> Check | None:
 
     from planner.io.scenario import system_from_scenario
     from planner.safety.model import Safety
-    from planner.safety.occlusion import beam_points
 
     system = system_from_scenario(scn)
     if system.n_robots != 1:
@@ -250,7 +249,7 @@ def aim_keep_out(scn: Any, q: Any) -> Check | None:
     tr = trace_beam(system, q, np.zeros(3))
     end = tr.hits[-1] + SPOT_REACH * tr.dirs[-1]
     tr = trace_beam(system, q, end)
-    bad = Safety.from_scenario(scn, system).geometry(beam_points(system, tr.hits, tr.spot))
+    bad = Safety.from_scenario(scn, system).geometry(beam_vertices(system, tr.hits, tr.spot))
     if bad is None:
         return None
     return Check("spot", "fail", f"not lit: the aim beam at the arm's joints would enter a "

@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from planner.io.scenario import LoadedScenario
     from planner.model.scene import SceneModel
     from planner.model.system import System, Targets
-    from planner.scenario_planner import ScenarioPlanner
+    from planner.plan.scenario_planner import ScenarioPlanner
     from planner.verify.context import CheckResult
 
 
@@ -60,7 +60,7 @@ def load(path: str | Path) -> Setup:
 
 def solver(scenario: str | Path | Setup, *, optimal: bool = False) -> ScenarioPlanner:
     """A per-target solver under every rule of the scenario, the one ``beamrelay plan`` and
-    the planner node use (:class:`planner.scenario_planner.ScenarioPlanner`): solver
+    the planner node use (:class:`planner.plan.scenario_planner.ScenarioPlanner`): solver
     settings, safety rules (a target in a keep-out volume fails as ``keep_out``), the
     scene's occlusion (a target under the board fails as ``occluded``), the bounds of a
     scenario file (a target in millimetres is an InputError).
@@ -73,7 +73,7 @@ def solver(scenario: str | Path | Setup, *, optimal: bool = False) -> ScenarioPl
         ``.solve(target, normal=None, q_prev=None, frame="world")`` returns a Solution;
         ``.system`` is the model, ``.ik`` the bare IK under the safety rules.
     """
-    from planner.scenario_planner import ScenarioPlanner
+    from planner.plan.scenario_planner import ScenarioPlanner
 
     setup = scenario if isinstance(scenario, Setup) else load(scenario)
     return ScenarioPlanner.from_scenario(setup.scenario, system=setup.system, optimal=optimal)
@@ -89,9 +89,9 @@ def plan(path: str | Path, *, optimal: bool = False, progress: bool = False) -> 
 
     Returns:
         The plan.json document as a dict; its trajectory's dense tables (``t``, ``q``,
-        ``qd``, ``qdd``) are numpy arrays (write it with :func:`planner.planning.write_plan`).
+        ``qd``, ``qdd``) are numpy arrays (write it with :func:`planner.io.plan_file.write_plan`).
     """
-    from planner.planning import run_scenario
+    from planner.plan.pipeline import run_scenario
 
     return run_scenario(path, optimal=optimal, progress=progress).doc
 

@@ -47,7 +47,7 @@ def surface_targets(scenario_path: Path, n: int) -> Array:
         system_from_scenario,
         targets_from_scenario,
     )
-    from planner.planning import plan_points
+    from planner.plan.scenario_planner import plan_points
 
     scn = load_scenario(scenario_path)
     system = system_from_scenario(scn)

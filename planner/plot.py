@@ -234,7 +234,7 @@ def plot_profiles(system: System, targets: Targets, plan: dict[str, Any], path: 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from planner.planning import spot_rays
+    from planner.plan.timed import spot_rays
 
     traj = plan["trajectory"]
     t = np.asarray(traj["t"], dtype=float)

@@ -172,7 +172,7 @@ def test_function_local_imports_are_of_heavy_dependencies_only() -> None:
 def test_the_reach_follows_module_level_imports() -> None:
     assert heavy_reach("planner.beam.graph") == "casadi"
     assert heavy_reach("planner.model.transforms") is None
-    assert why_local("planner.planning", "casadi") == HEAVY["casadi"]
-    assert why_local("planner.planning", "json") is None
-    assert why_local("planner.planning", "planner.beam.graph.BeamModel") == "loads casadi"
+    assert why_local("planner.plan.pipeline", "casadi") == HEAVY["casadi"]
+    assert why_local("planner.plan.pipeline", "json") is None
+    assert why_local("planner.plan.pipeline", "planner.beam.graph.BeamModel") == "loads casadi"
     assert why_local("planner.cli.plan", "json") == LAZY_PACKAGES["planner.cli"]

@@ -56,6 +56,11 @@ def mirror_poses(system: System, q: Array) -> list[Array]:
     return out
 
 
+def beam_vertices(system: System, hits: Array, spot: Array) -> Array:
+    """The beam's N + 2 vertices (world, m): laser exit, the N mirror hits, the spot."""
+    return np.vstack([system.world_T_laser[:3, 3], np.asarray(hits), np.asarray(spot)])
+
+
 def spot_on_target(p: Array, v: Array, target: Array, normal: Array | None) -> tuple[float, float]:
     """Ray parameter ``s`` (m) of the spot of the ray ``p + s v`` (unit ``v``) for a target:
     on the target's tangent plane with a ``normal``, else the point closest to the target;

@@ -6,7 +6,7 @@ true camera also displaced from its calibrated pose by ``mm`` along and ``deg`` 
 directions (per trial). Targets are points of the board as the *true* camera sees them
 (camera frame, with the board's normal), sent as a ``frame: camera`` request through the
 node's request handler: mapped with the calibrated camera pose, landed on the board
-(:mod:`planner.safety.landing`), solved. Figures per camera error: the landing offset, the
+(:mod:`planner.plan.landing`), solved. Figures per camera error: the landing offset, the
 open-loop true error (the truth's spot at the planned joints vs the true board point), the
 closed-loop measured error (camera frame) and true error after the servo
 (:func:`planner.servo.servo` on the simulated D435 from the open-loop joints).

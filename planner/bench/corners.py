@@ -144,7 +144,7 @@ def plan_polyline(line: Polyline, base: dict[str, Any], workdir: Path, name: str
     import yaml
 
     from planner.io.plan_file import write_plan
-    from planner.planning import run_scenario
+    from planner.plan.pipeline import run_scenario
     from planner.verify.check import check_plan
 
     path = workdir / f"{name}.yaml"

@@ -26,7 +26,8 @@ def _run(scenario: Path, optimal: bool) -> dict[str, Any]:
         system_from_scenario,
         targets_from_scenario,
     )
-    from planner.planning import ik_options, plan_document
+    from planner.plan.document import plan_document
+    from planner.plan.scenario_planner import ik_options
     from planner.verify.check import check_plan
 
     loaded = load_scenario(scenario)

@@ -37,7 +37,8 @@ def marking_figures(scenario: Path) -> dict[str, Any]:
     from planner.errors import InputError
     from planner.io.scenario import load_scenario
     from planner.model.settings import TrajectorySettings
-    from planner.planning import run_scenario, time_solutions
+    from planner.plan.pipeline import run_scenario
+    from planner.plan.timed import time_solutions
     from planner.verify.check import check_plan
 
     if load_scenario(scenario).model.targets.kind != "path":
@@ -47,8 +48,9 @@ def marking_figures(scenario: Path) -> dict[str, Any]:
     plan_s = time.perf_counter() - t0
     if o.timed is None:
         raise InputError("no sample of the path could be solved", str(scenario))
-    figures = {f"{r.name}.{k}": v for r in check_plan(o.doc) for k, v in r.figures.items()}
-    violations = sum(len(r.findings) for r in check_plan(o.doc))
+    results = check_plan(o.doc)
+    figures = {f"{r.name}.{k}": v for r in results for k, v in r.figures.items()}
+    violations = sum(len(r.findings) for r in results)
     settings = TrajectorySettings.from_mapping(o.doc["scenario"]["trajectory"])
     rest = time_solutions(o.system, o.targets, o.solutions, settings,
                           path=o.path, skywriting=False)  # fmt: skip

@@ -35,6 +35,7 @@ def command(
     from planner.model.polyline import arc_length, resample_polyline
     from planner.model.system import Targets
     from planner.path.solve import plan_path
+    from planner.plan.scenario_planner import path_seeder
 
     try:
         Ks = [int(k) for k in sizes.split(",")]
@@ -52,7 +53,7 @@ def command(
             base.points, length / (K - 1) * (1 - 1e-9), False, base.normals
         )
         pts, nrm = pts[:K], None if nrm is None else nrm[:K]
-        res = plan_path(system, Targets(pts, nrm, kind="path"))
+        res = plan_path(system, Targets(pts, nrm, kind="path"), seeder=path_seeder(system))
         seg = max(res.segments, key=lambda s: s.k1 - s.k0)
         rows.append({
             "K": len(pts), "warm_s": res.warm_time, "nlp_build_s": seg.build_time,

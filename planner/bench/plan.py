@@ -46,6 +46,7 @@ def run_size(scenario: str, n: int, stages: tuple[str, ...]) -> dict[str, Any]:
     """Plan one grid of about ``n`` targets; figures per stage (s, MB)."""
     import numpy as np
 
+    from planner.io.plan_file import write_plan
     from planner.io.resolved import resolved_scenario_dict
     from planner.io.scenario import (
         load_scenario,
@@ -54,13 +55,8 @@ def run_size(scenario: str, n: int, stages: tuple[str, ...]) -> dict[str, Any]:
     )
     from planner.path.timing import points_trajectory
     from planner.path.tour import visit_order
-    from planner.planning import (
-        ik_options,
-        plan_document,
-        plan_points,
-        verify_solutions,
-        write_plan,
-    )
+    from planner.plan.document import plan_document, verify_solutions
+    from planner.plan.scenario_planner import ik_options, plan_points
 
     loaded = load_scenario(scenario)
     model = loaded.model

@@ -97,7 +97,7 @@ class Rig:
             system_from_scenario,
             trajectory_settings,
         )
-        from planner.planning import ik_options
+        from planner.plan.scenario_planner import ik_options
         from planner.safety.model import Safety
 
         scn = load_scenario(scenario)
@@ -116,7 +116,9 @@ class Rig:
         """CPU seconds per stage of one plan of ``targets`` from home (the beam check, which
         runs inside the timing stage, measured again on its result), and the plan document."""
         from planner.bus.bodies import encode_json
-        from planner.planning import plan_document, plan_path_targets, time_safely, verify_solutions
+        from planner.plan.document import plan_document, verify_solutions
+        from planner.plan.scenario_planner import plan_path_targets
+        from planner.plan.timed import time_safely
 
         s = self.system
         t0 = time.process_time()
@@ -140,10 +142,10 @@ class Rig:
         return secs, doc | {"_figures": figures}
 
     def camera_stages(self, targets: Any) -> dict[str, float]:
-        """CPU seconds of a camera-frame path's solve (:func:`~planner.scenario_planner.
+        """CPU seconds of a camera-frame path's solve (:func:`~planner.plan.scenario_planner.
         solve_landed_path` run step by step): both sweeps and the landing between them."""
-        from planner.safety.landing import land_path
-        from planner.scenario_planner import path_options, sweep_solutions
+        from planner.plan.landing import land_path
+        from planner.plan.scenario_planner import path_options, sweep_solutions
 
         s, opts = self.system, path_options(self.options)
         t0 = time.process_time()

@@ -106,7 +106,7 @@ def ik_figures(scenario: str, count: int, block: int = 50) -> dict[str, Any]:
     targets of ``scenario``, blocks of ``block`` targets alternating between the two."""
     from planner.ik import BeamIK
     from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
-    from planner.planning import ik_options
+    from planner.plan.scenario_planner import ik_options
     from planner.safety.model import Safety
 
     scn = load_scenario(scenario)
@@ -132,7 +132,7 @@ def ik_figures(scenario: str, count: int, block: int = 50) -> dict[str, Any]:
 def plan_figures(scenario: str) -> dict[str, Any]:
     """The whole plan of ``scenario`` with the safety rules: planning time (s), the dense
     trajectory check time (s) and samples, and their ratio."""
-    from planner.planning import run_scenario
+    from planner.plan.pipeline import run_scenario
 
     t0 = time.perf_counter()
     out = run_scenario(scenario, progress=False)

@@ -49,8 +49,8 @@ def plan(
 
     from rich.console import Console
 
-    from planner.io.plan_file import read_plan
-    from planner.planning import run_scenario, write_plan
+    from planner.io.plan_file import read_plan, write_plan
+    from planner.plan.pipeline import run_scenario
     from planner.verify.check import check_plan
 
     if out.parent and not out.parent.exists():

@@ -184,7 +184,7 @@ class Targets:
     meta: dict[str, object] = field(default_factory=dict)
     surface_tolerance: float = 0.0
     """m: how far a target may lie from the scene surface that carries it and still be
-    planned onto it (:mod:`planner.safety.landing`; camera-frame point targets); 0: exact"""
+    planned onto it (:mod:`planner.plan.landing`; camera-frame point targets); 0: exact"""
     cloud: Array | None = None
     """(N, 3) world points of the camera's live cloud around the targets (m, through the
     calibrated camera pose): a surface that can carry them where the scene has none"""

@@ -9,7 +9,7 @@ the re-solve from an optimum ill-conditioned), re-linearised at each new result,
 rounds at most; a sample that breaks a rule in a later round gets rows too.
 The caller keeps the result only if it is valid and breaks the rules at fewer samples than
 the plain one; samples left unsafe become gaps afterwards
-(:func:`planner.safety.occlusion.check_path_safety`). World frame, metres, radians.
+(:func:`planner.plan.gaps.check_path_safety`). World frame, metres, radians.
 """
 
 from __future__ import annotations

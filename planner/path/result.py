@@ -1,7 +1,7 @@
 """What a path solve returns: joints per sample, the feasible runs and the gaps between them.
 
-Kept apart from :mod:`planner.path.solve` so that the safety rules that drop path samples
-(:mod:`planner.safety.occlusion`) read and rebuild results without importing the solver.
+Kept apart from :mod:`planner.path.solve` so that the planning post-steps that drop path
+samples (:mod:`planner.plan.gaps`) read and rebuild results without importing the solver.
 Points in the world frame, lengths in metres, joints in rad.
 """
 

@@ -32,12 +32,13 @@ if TYPE_CHECKING:
 from planner.path.warm import (
     Indices,
     PathContext,
+    Seeder,
     coarse_indices,
     continuation_chain,
     project,
     valid_samples,
 )
-from planner.safety.occlusion import safer_warm_start
+from planner.safety.samples import safer_warm_start
 
 __all__ = [
     "PathGap",
@@ -221,6 +222,8 @@ def plan_path(
     solver_options: PathOptions | dict[str, object] | None = None,
     safety: Safety | None = None,
     q_warm: Array | None = None,
+    *,
+    seeder: Seeder | None = None,
 ) -> PathResult:
     """Joint configurations sweeping the spot along ``targets`` (resampled path, world frame).
 
@@ -230,23 +233,21 @@ def plan_path(
     is valid at every one (no NLP; clearance rules and polish as for an NLP result).
     Infeasible stretches are reported as :class:`PathGap`, the feasible runs solved apart.
     Long finely sampled paths are warm-started coarse-to-fine; every solved sample is
-    polished to machine precision by a minimum-norm Gauss-Newton step (never worse). With
-    ``safety`` the closed-form seeds are members that pass its rules, a run's NLP result
-    that breaks a distance rule is re-solved with the clearance as constraints
-    (:mod:`planner.path.clearance`), and one that still breaks them at more samples than its
-    warm start is dropped for it (checked after: :func:`planner.safety.occlusion.check_path_safety`).
+    polished to machine precision by a minimum-norm Gauss-Newton step (never worse).
+    ``seeder`` finds a sample's configuration from scratch (the pipeline passes the IK's
+    closed-form family search, under the same ``safety`` rules:
+    :func:`planner.plan.scenario_planner.path_seeder`); without one, a multi-start one-sample
+    NLP does. With ``safety`` a run's NLP result that breaks a distance rule is re-solved
+    with the clearance as constraints (:mod:`planner.path.clearance`), and one that still
+    breaks them at more samples than its warm start is dropped for it (checked after:
+    :func:`planner.plan.gaps.check_path_safety`).
     """
     opts = (
         solver_options if isinstance(solver_options, PathOptions)
         else PathOptions(**(solver_options or {}))  # type: ignore[arg-type]
     )  # fmt: skip
     q_start = system.home if q_start is None else np.asarray(q_start, dtype=float)
-    ctx = PathContext(system, targets, opts)
-    if safety is not None and ctx.closed_form is not None:
-        from planner.ik.closed_form import ClosedForm
-        from planner.ik.safe_members import MemberSafety
-
-        ctx.closed_form = ClosedForm(system, MemberSafety(safety))
+    ctx = PathContext(system, targets, opts, seeder)
     K, P = len(ctx.P), ctx.P
     arc = arc_length(P)
     t0 = time.perf_counter()

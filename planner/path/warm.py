@@ -1,7 +1,8 @@
 """Warm start of the path NLP: a per-sample seed and continuation chain.
 
-A single sample is seeded by the closed-form family search of :mod:`planner.ik.closed_form`
-(else a multi-start one-sample NLP); the chain then walks along the path with
+A single sample is seeded by the caller's :class:`Seeder` (the planning pipeline passes the
+IK's closed-form family search; without one, a multi-start one-sample NLP); the chain then
+walks along the path with
 equality-constrained Newton steps (spot on the sample, a centring pull), extrapolating the
 previous two samples. Where no valid configuration is found the sample gets a failure reason
 with evidence, and the chain re-seeds further on and extends backward into the gap.
@@ -14,7 +15,7 @@ Gauss-Newton onto the targets; the coarse-to-fine warm start and the final polis
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Protocol
 
 import casadi as ca
 import numpy as np
@@ -57,22 +58,36 @@ def _constraint_failure(i: int, n_robots: int) -> tuple[Reason, str]:
     return Reason.UNREACHABLE, "incidence"
 
 
-def _closed_form(system: System) -> Any:
-    """The IK engineer's closed-form family search for this system, if it applies."""
-    try:
-        from planner.ik.closed_form import ClosedForm
-    except ImportError:
-        return None
-    try:
-        return ClosedForm(system)
-    except ValueError:  # some robot has no analytic seed model
-        return None
+class SeedResult(Protocol):
+    """A :class:`Seeder`'s answer: stacked joints ``q`` (rad), or None with the failure
+    ``reason`` and its ``evidence``."""
+
+    @property
+    def q(self) -> Array | None: ...
+    @property
+    def reason(self) -> Reason | None: ...
+    @property
+    def evidence(self) -> dict[str, object]: ...
+
+
+class Seeder(Protocol):
+    """A configuration for one sample from scratch: the one nearest ``q_prev`` (stacked rad)
+    that puts the spot on ``target`` (world, m; on its plane when ``normal`` is given) with
+    the last ray within ``max_incidence`` (rad) of the normal. The planning pipeline passes
+    the IK's closed-form family search, its members filtered by the safety rules
+    (:func:`planner.plan.scenario_planner.path_seeder`); the path never imports the IK."""
+
+    def search(self, target: Array, normal: Array | None, q_prev: Array,
+               max_incidence: float | None = None) -> SeedResult: ...  # fmt: skip
 
 
 class PathContext:
-    """Numbers of one planning call: system geometry, targets, plane normals, bounds."""
+    """Numbers of one planning call: system geometry, targets, plane normals, bounds, and
+    the ``seeder`` of a sample from scratch (None: a multi-start one-sample NLP)."""
 
-    def __init__(self, system: System, targets: Targets, opts: PathOptions) -> None:
+    def __init__(
+        self, system: System, targets: Targets, opts: PathOptions, seeder: Seeder | None = None
+    ) -> None:
         self.system, self.opts = system, opts
         self.kin: Chain = tuple(r.kinematics for r in system.robots)
         self.step = compiled(step_function(self.kin))
@@ -87,7 +102,7 @@ class PathContext:
         self.valid_lbh = validity_bounds(self.lbh, opts)
         self.N = system.n_robots
         self.max_inc = float(np.radians(opts.max_incidence_deg))
-        self.closed_form = _closed_form(system)
+        self.seeder = seeder
 
     def eval(self, k: int, q: Array, nbar: Array) -> list[Array]:
         """The step function's outputs (``path_step``: g, Jg, r, Jr, h, dir, spot) at sample
@@ -147,12 +162,12 @@ class PathContext:
         return q, self.why(k, q, g, h)
 
     def seed(self, k: int, guesses: list[Array]) -> tuple[Array, Array, Failure | None]:
-        """A valid configuration for sample k from scratch: the closed-form family search of
-        :mod:`planner.ik.closed_form` when available, else a multi-start single-sample NLP."""
+        """A valid configuration for sample k from scratch: the :class:`Seeder`'s when there
+        is one and it finds one, else a multi-start single-sample NLP."""
         best: tuple[Array, Array, Failure | None] | None = None
         normal = self.nbar[k] if self.has[k] else None
-        if self.closed_form is not None:
-            res = self.closed_form.search(self.P[k], normal, guesses[0], self.max_inc)
+        if self.seeder is not None:
+            res = self.seeder.search(self.P[k], normal, guesses[0], self.max_inc)
             if res.q is None and res.reason is not None:
                 failure = Failure(res.reason, str(res.evidence))
                 best = (guesses[0], self.plane(k, guesses[0]), failure)

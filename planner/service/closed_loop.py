@@ -91,10 +91,10 @@ def measure_time(frames: int) -> float:
 
 
 def make_move_fn(system: System, settings: TrajectorySettings, safety: Any = None) -> MoveFn:
-    """Timed moves for the closed loop through :func:`planner.planning.time_safely` (the
+    """Timed moves for the closed loop through :func:`planner.plan.timed.time_safely` (the
     scenario's timing settings with the given dwell; the safety rules when given)."""
     from planner.ik.solve import Solution
-    from planner.planning import time_safely
+    from planner.plan.timed import time_safely
 
     def move(q_from: Array, q_to: Array, dwell: float, target: Array,
              normal: Array | None) -> PlanTrajectory:  # fmt: skip

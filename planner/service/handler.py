@@ -6,7 +6,7 @@ world-frame :class:`~planner.model.system.Targets` (camera-frame points through 
 through a *plan function* ``plan_fn(targets, start, trajectory) -> dict``: ``start`` is
 ``{robot: q}`` (rad, the robots' current joints) or None for the scenario's home;
 ``trajectory`` says whether to time a trajectory from ``start``. :func:`make_plan_fn` builds
-it over :mod:`planner.planning` and :mod:`planner.path.timing`.
+it over :mod:`planner.plan.pipeline` and :mod:`planner.path.timing`.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from planner.io.strokes import mark_path
 from planner.model.settings import TrajectorySettings
 from planner.model.system import System, Targets
 from planner.model.transforms import Array, transform_points
-from planner.safety.landing import surface_tolerance
+from planner.plan.landing import surface_tolerance
 from planner.service.execution import ExecuteError
 from schemas import defaults
 from schemas.messages import MAX_ID_LENGTH, MAX_REQUEST_POINTS, ErrorReply, TargetRequest
@@ -159,13 +159,13 @@ def make_plan_fn(
     scene: SceneModel | None = None,
     safety: Safety | None = None,
 ) -> PlanFn:
-    """The node's plan function over :mod:`planner.planning` for one (calibrated) system.
+    """The node's plan function over :mod:`planner.plan.pipeline` for one (calibrated) system.
 
     ``scenario`` is the resolved scenario dict echoed in every plan; ``options`` an
     :class:`~planner.ik.IKOptions`; ``settings`` the scenario's ``trajectory`` section. Points
     are solved in order, each seeded by the previous solution (the first by ``start``); the
     trajectory starts at ``start`` (the robots' current joints) instead of home. Solutions
-    are re-verified (:func:`~planner.planning.verify_solutions`: the checks of ``beamrelay
+    are re-verified (:func:`~planner.plan.document.verify_solutions`: the checks of ``beamrelay
     check`` on the resolved ``scenario``) *before* the trajectory is timed, so a rejected
     one is never part of it. ``scene`` (a :class:`~planner.model.scene.SceneModel`) makes
     beams that cross it fail as ``occluded`` (camera-frame point targets land on the surface
@@ -173,8 +173,9 @@ def make_plan_fn(
     applies the collision, keep-out and clearance rules to the solutions and the trajectory.
     """
     from planner.ik import IKOptions
-    from planner.planning import Pipeline, build_plan
-    from planner.scenario_planner import ScenarioPlanner
+    from planner.plan.document import build_plan
+    from planner.plan.pipeline import Pipeline
+    from planner.plan.scenario_planner import ScenarioPlanner
 
     timing = settings or TrajectorySettings()
     # the targets carry their own surface tolerance (the handler's, for camera-frame ones)
@@ -238,7 +239,7 @@ def handler_from_scenario(path: Any, extra_includes: tuple[Any, ...] = ()) -> Re
     ``extra_includes`` after the scenario's own, e.g. the online calibration file)."""
     from planner.io.resolved import resolved_scenario_dict
     from planner.io.scenario import load_scenario, trajectory_settings
-    from planner.scenario_planner import ScenarioPlanner
+    from planner.plan.scenario_planner import ScenarioPlanner
     from planner.service.closed_loop import closed_loop_config
 
     scn = load_scenario(path, extra_includes)
@@ -291,7 +292,7 @@ class RequestHandler:
     track_ik: Any = None  # a BeamIK for ``mode: track`` (None: tracking refused)
     surface_tolerance: float = field(default_factory=surface_tolerance)
     """m: how far a camera-frame point target may lie from the surface that carries it
-    (:mod:`planner.safety.landing`)"""
+    (:mod:`planner.plan.landing`)"""
 
     def targets(self, req: Any, start: dict[str, Array] | None = None) -> Targets:
         """World-frame targets of a validated TargetRequest (points in metres); camera-frame

@@ -4,7 +4,7 @@
 buffers, not decoded: the planner's callbacks never spend a frame's decode time), and
 :meth:`LiveCloud.around` decodes it only when a request asks: the cloud's points near the
 targets, in the world through the calibrated camera pose. Those are what
-:func:`planner.safety.landing.cloud_landings` lands camera-frame targets on where the scene
+:func:`planner.plan.landing.cloud_landings` lands camera-frame targets on where the scene
 has no surface carrying them (a face, a hand: what the scenario does not model).
 """
 

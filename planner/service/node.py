@@ -203,7 +203,7 @@ class PlannerNode:
     def with_cloud(self, targets: Targets, req: Any, start: dict[str, Array] | None) -> Targets:
         """Camera-frame point targets with a fixed camera's live cloud around them (world,
         through its calibrated pose) as a surface that may carry them
-        (:func:`planner.safety.landing.cloud_landings`); other targets as they are."""
+        (:func:`planner.plan.landing.cloud_landings`); other targets as they are."""
         cam = self.handler.system.camera
         if req.frame != "camera" or targets.kind != "points" or targets.surface_tolerance <= 0:
             return targets

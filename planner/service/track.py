@@ -8,7 +8,7 @@
   ignored (the node keeps serving); camera-frame points are mapped to the world with the
   calibrated camera pose at the arms' latest measured joints (as requests are:
   :func:`planner.service.handler.camera_to_world`), and the first estimate lands on the
-  surface that carries it (:mod:`planner.safety.landing`). The tracked point is the stream's point nearest the request's
+  surface that carries it (:mod:`planner.plan.landing`). The tracked point is the stream's point nearest the request's
   first point (chosen on the first frame, then fixed by index); so are the follower's
   markers (the request's other points, at least 3, when keep-out volumes are attached to
   the stream: their rigid motion moves them). The subscriber's callback only keeps the

@@ -83,7 +83,7 @@ def run_case(
     from planner.ik import BeamIK
     from planner.io.scenario import load_scenario, scene_objects, system_from_scenario
     from planner.io.scenario import targets_from_scenario as targets_of
-    from planner.planning import ik_options
+    from planner.plan.scenario_planner import ik_options
     from planner.safety.model import Safety
     from planner.track.follow import TrackSettings
 

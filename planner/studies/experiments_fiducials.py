@@ -120,7 +120,7 @@ def fiducial_runs(
     from dataclasses import replace
 
     from planner.ik import BeamIK
-    from planner.planning import ik_options
+    from planner.plan.scenario_planner import ik_options
     from planner.studies.experiments_setup import solver_settings
 
     assert nominal.camera is not None

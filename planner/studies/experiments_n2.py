@@ -64,7 +64,7 @@ def run_trial(seed: int, trial: int, closed_loop: bool = True,
     """One trial: its calibration figures and every target's row (``trial`` added); with
     ``imperfect`` on the cell of :data:`IMPERFECT`."""
     from planner.ik import BeamIK
-    from planner.planning import ik_options
+    from planner.plan.scenario_planner import ik_options
     from planner.studies.experiments_trial import ClosedLoop, run_experiment
 
     rng = common.trial_rng(seed, trial)

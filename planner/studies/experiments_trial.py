@@ -218,7 +218,7 @@ def run_trial(
     many the calibration took, so the calibration designs
     (``effects.paper_calibration``) meet the same experiments."""
     from planner.ik import BeamIK
-    from planner.planning import ik_options
+    from planner.plan.scenario_planner import ik_options
 
     effects = setup.Effects() if effects is None else effects
     rng = common.trial_rng(seed, trial)

@@ -102,7 +102,7 @@ def run_trial(scenario: str, seed: int, trial: int) -> dict[str, Any]:
 
     from planner.ik import BeamIK
     from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
-    from planner.planning import ik_options
+    from planner.plan.scenario_planner import ik_options
     from planner.studies.lm_ik import CENTRE_WEIGHT, LMIK
 
     loaded = load_scenario(scenario)

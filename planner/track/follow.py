@@ -56,11 +56,10 @@ from typing import Any
 
 import numpy as np
 
-from planner.beam.trace import trace_beam
+from planner.beam.trace import beam_vertices, trace_beam
 from planner.calibration.handeye import fit_rigid
 from planner.ik import BeamIK
 from planner.model.transforms import Array
-from planner.safety.occlusion import beam_points
 from planner.track.noise import MarkerNoise
 from planner.track.predict import ConstantVelocity, KalmanCV, Prediction
 from schemas import defaults
@@ -305,7 +304,7 @@ class TargetFollower:
         self._J, self._J_at = self._jacobian(q, self.first, normal), np.asarray(q, dtype=float)
         if self.check is not None:  # its collision world is built on first use
             tr = trace_beam(self.ik.system, q, self.first, normal)
-            self.check.config(q, beam_points(self.ik.system, tr.hits, tr.spot))
+            self.check.config(q, beam_vertices(self.ik.system, tr.hits, tr.spot))
 
     def _halt(self, reason: str, t0: float) -> tuple[FrameOutcome, None]:
         self.stop(reason)
@@ -360,7 +359,7 @@ class TargetFollower:
         system = self.ik.system
         tr = trace_beam(system, q, self.segment.target_b, self.segment.normal)
         self.checked += 1
-        bad = self.check.config(q, beam_points(system, tr.hits, tr.spot))
+        bad = self.check.config(q, beam_vertices(system, tr.hits, tr.spot))
         return None if bad is None else f"{bad.reason}: {bad.text}"
 
     def on_joint_state(self, q_measured: Array, t: float) -> None:

@@ -1,6 +1,7 @@
 """What every check of :mod:`planner.verify.check` reads: the plan parsed once
 (:class:`PlanContext`: the checker's own arm geometry, tolerances, targets, solved
-configurations, traced lazily) and what a check returns (:class:`CheckResult`).
+configurations, traced lazily, and the safety setup, built lazily) and what a check returns
+(:class:`CheckResult`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from planner.verify.arm_models import checker_arm
 from planner.verify.findings import Finding
 from planner.verify.numpy_beam import BeamRays, limits_from_dict, trace_rays
 from planner.verify.numpy_beam import pose_matrix as pose
+from planner.verify.safety_setup import Setup
 from planner.verify.spot import trajectory_findings
 from planner.verify.tolerances import Tolerances
 from planner.verify.urdf import UrdfChain
@@ -56,7 +58,10 @@ class ArmGeometry:
         return self.world_T_base @ F @ self.flange_T_mirror
 
 
-def _arm(r: dict[str, Any], i: int, base_dir: Path) -> ArmGeometry:
+def _arm(r: dict[str, Any], i: int, base_dir: Path, urdfs: dict[Path, UrdfChain]
+         ) -> ArmGeometry:  # fmt: skip
+    """Robot ``i`` of the scenario as the checker sees it (a URDF it reads is kept in
+    ``urdfs`` by its path)."""
     where = f"scenario.system.robots[{i}]"
     try:
         mirror = r["mirror"]
@@ -65,7 +70,8 @@ def _arm(r: dict[str, Any], i: int, base_dir: Path) -> ArmGeometry:
         batched = False
         if r.get("urdf"):
             urdf = Path(r["urdf"])
-            kin = UrdfChain(urdf if urdf.is_absolute() else base_dir / urdf)
+            urdf = urdf if urdf.is_absolute() else base_dir / urdf
+            kin = urdfs[urdf] = UrdfChain(urdf)
             fk: Callable[[Array], Array] = kin.fk
             n = kin.nq
         elif (arm := checker_arm(r.get("model"))) is not None:
@@ -109,6 +115,26 @@ def spots(p: Array, v: Array, targets: Array, normals: Array) -> tuple[Array, Ar
     return p + s[:, None] * v, s, inc
 
 
+def _tables_as_arrays(plan: dict[str, Any]) -> dict[str, Any]:
+    """The plan with its trajectory's ``t``, ``q``, ``qd`` and ``qdd`` tables as float64
+    arrays (as :func:`planner.io.plan_file.read_plan` gives them), so that the checks do not
+    each convert a document's lists again; the document itself is left as it is. A table
+    that is not numeric is left as a list (each check reads it as before)."""
+    traj = plan.get("trajectory")
+    if not isinstance(traj, dict):
+        return plan
+    tables: dict[str, Any] = {}
+    try:
+        if traj.get("t") is not None:
+            tables["t"] = np.asarray(traj["t"], dtype=float)
+        for key in ("q", "qd", "qdd"):
+            if isinstance(traj.get(key), dict):
+                tables[key] = {n: np.asarray(v, dtype=float) for n, v in traj[key].items()}
+    except (TypeError, ValueError):
+        return plan
+    return {**plan, "trajectory": {**traj, **tables}}
+
+
 @dataclass
 class CheckResult:
     name: str
@@ -120,14 +146,15 @@ class CheckResult:
 
 class PlanContext:
     """A parsed plan: geometry, tolerances, targets and solved configurations, traced once
-    (batched) lazily."""
+    (batched) lazily; :attr:`plan` is the document with its trajectory's tables as arrays."""
 
     def __init__(self, plan: dict[str, Any], base_dir: Path = Path(".")) -> None:
         try:
             scn = plan["scenario"]
             system = scn["system"]
             self.world_T_laser = pose(system["laser"]["world_T_laser"], "scenario.system.laser")
-            self.arms = [_arm(r, i, base_dir) for i, r in enumerate(system["robots"])]
+            self.urdfs: dict[Path, UrdfChain] = {}  # the URDFs read, by path
+            self.arms = [_arm(r, i, base_dir, self.urdfs) for i, r in enumerate(system["robots"])]
             self.tol = Tolerances.from_scenario(scn)
             self.targets = {int(t["id"]): t for t in plan["targets"]}
             self.solutions = list(plan["solutions"])
@@ -140,7 +167,7 @@ class PlanContext:
                       for a in self.arms}  # fmt: skip
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"not a plan document: missing or bad {exc!r}") from exc
-        self.plan = plan
+        self.plan = _tables_as_arrays(plan)
 
     @property
     def tolerance(self) -> float:
@@ -154,6 +181,12 @@ class PlanContext:
             empty = np.zeros((0, 3))
             return BeamRays(empty, empty, [], [], [], [])
         return trace_arms(self.world_T_laser, self.arms, self.Q)
+
+    @cached_property
+    def safety_setup(self) -> Setup:
+        """The plan's safety setup, built once for every safety check (relative scene-mesh
+        and URDF paths from the working directory: the plan's echo has them absolute)."""
+        return Setup.from_plan(self.plan, Path("."), self.urdfs)
 
     @cached_property
     def trajectory_findings(self) -> list[Finding]:

@@ -119,24 +119,41 @@ def _path_spec(scn: dict[str, Any]) -> dict[str, Any] | None:
     return spec if isinstance(spec, dict) else None
 
 
-def marked_speeds(plan: dict[str, Any]) -> tuple[Array, Array, Array] | None:
+def laser_on_rays(plan: dict[str, Any], on: Mask) -> tuple[Array, Array] | None:
+    """The last ray (origins, unit directions, each L x 3) at the laser-on samples ``on`` of
+    a path plan's trajectory; None when the plan has no path or no trajectory, no sample is
+    on, or an arm has no numpy model."""
+    traj, scn = plan.get("trajectory") or {}, plan["scenario"]
+    robots = _robots(scn)
+    if _path_spec(scn) is None or not traj or not on.any():
+        return None
+    if any(checker_arm(r.model) is None for r in robots):
+        return None
+    return trace_last_ray(scn, {r.name: np.asarray(traj["q"][r.name], dtype=float)[on]
+                                for r in robots})  # fmt: skip
+
+
+def marked_speeds(plan: dict[str, Any], rays: tuple[Array, Array] | None = None
+                  ) -> tuple[Array, Array, Array] | None:  # fmt: skip
     """Spot speed (m/s) over every step between consecutive laser-on samples of a path plan,
     the step's start time (s) and the marked arc length there (m, cumulated over the
     marks). None when the plan has no path, no laser-on step or an arm without a numpy
-    model."""
-    traj, scn = plan.get("trajectory") or {}, plan["scenario"]
-    spec = _path_spec(scn)
-    robots = _robots(scn)
-    if spec is None or not traj or any(checker_arm(r.model) is None for r in robots):
+    model. ``rays``: the :func:`laser_on_rays` of the plan, when already traced."""
+    traj = plan.get("trajectory") or {}
+    spec = _path_spec(plan["scenario"])
+    if spec is None or not traj:
         return None
     t = np.asarray(traj["t"], dtype=float)
     on = laser_mask(t, traj.get("laser_on"))
     step = on[:-1] & on[1:]
     if not step.any():
         return None
+    if rays is None:
+        rays = laser_on_rays(plan, on)
+    if rays is None:  # an arm without a numpy model
+        return None
+    p, v = rays
     idx = np.flatnonzero(on)
-    p, v = trace_last_ray(scn, {r.name: np.asarray(traj["q"][r.name], dtype=float)[idx]
-                                for r in robots})  # fmt: skip
     P, N = _targets(plan)
     spot = np.full((len(t), 3), np.nan)
     spot[idx] = spots_on_path(p, v, P, N, bool(spec.get("closed", False)))
@@ -151,8 +168,13 @@ def exposure(plan: dict[str, Any], power: float | None) -> dict[str, float | Non
     per dwell (J, the scenario's dwell on points)."""
     if power is None:
         return None
+    return _exposure(plan, power, marked_speeds(plan))
+
+
+def _exposure(plan: dict[str, Any], power: float, speeds: tuple[Array, Array, Array] | None
+              ) -> dict[str, float | None]:  # fmt: skip
+    """:func:`exposure` from the plan's :func:`marked_speeds`."""
     out: dict[str, float | None] = {"fluence_min": None, "fluence_max": None, "dwell_energy": None}
-    speeds = marked_speeds(plan)
     if speeds is not None and len(speeds[0]):
         v = speeds[0]
         out["fluence_min"] = float(power / v.max())
@@ -202,15 +224,16 @@ def _gate_findings(
     return out
 
 
-def _deviation(plan: dict[str, Any], t: Array, on: Mask) -> dict[str, tuple[float, float]]:
-    """Largest distance (m) of the spot at laser-on samples from the sampled path and from
-    the scenario's own polyline, with the time (s) where it occurs."""
-    traj, scn = plan["trajectory"], plan["scenario"]
-    spec, robots = _path_spec(scn), _robots(scn)
-    if spec is None or not on.any() or any(checker_arm(r.model) is None for r in robots):
+def _deviation(plan: dict[str, Any], t: Array, on: Mask, rays: tuple[Array, Array] | None
+               ) -> dict[str, tuple[float, float]]:  # fmt: skip
+    """Largest distance (m) of the spot at laser-on samples (their ``rays``,
+    :func:`laser_on_rays`) from the sampled path and from the scenario's own polyline, with
+    the time (s) where it occurs."""
+    scn = plan["scenario"]
+    spec = _path_spec(scn)
+    if spec is None or rays is None:
         return {}
-    q = {r.name: np.asarray(traj["q"][r.name], dtype=float)[on] for r in robots}
-    p, v = trace_last_ray(scn, q)
+    p, v = rays
     P, N = _targets(plan)
     closed = bool(spec.get("closed", False))
     out = {}
@@ -235,10 +258,10 @@ def point_deviation_to_segments(x: Array, a: Array, ab: Array, ab2: Array) -> Ar
                                      axis=2).min(axis=1))  # fmt: skip
 
 
-def _speed_findings(plan: dict[str, Any], rate: float) -> tuple[list[tuple[str, float, float]],
-                                                                 dict[str, float]]:  # fmt: skip
-    """Marked speed against the spot speed (reported slowdowns may be slower only)."""
-    speeds = marked_speeds(plan)
+def _speed_findings(plan: dict[str, Any], rate: float, speeds: tuple[Array, Array, Array] | None
+                    ) -> tuple[list[tuple[str, float, float]], dict[str, float]]:  # fmt: skip
+    """Marked speed (the plan's :func:`marked_speeds`) against the spot speed (reported
+    slowdowns may be slower only)."""
     if speeds is None:
         return [], {}
     v, ts, _ = speeds
@@ -271,11 +294,13 @@ def _speed_findings(plan: dict[str, Any], rate: float) -> tuple[list[tuple[str, 
     return [(msg, float(v[i]), v0)], figures
 
 
-def _exposure_findings(plan: dict[str, Any]) -> list[tuple[str, float, float]]:
-    """``metrics.exposure`` against the one recomputed from the trajectory and power."""
+def _exposure_findings(plan: dict[str, Any], speeds: tuple[Array, Array, Array] | None
+                       ) -> list[tuple[str, float, float]]:  # fmt: skip
+    """``metrics.exposure`` against the one recomputed from the trajectory (its
+    :func:`marked_speeds`) and power."""
     reported = (plan.get("metrics") or {}).get("exposure")
     power = ((plan["scenario"].get("system") or {}).get("laser") or {}).get("power")
-    want = exposure(plan, None if power is None else float(power))
+    want = None if power is None else _exposure(plan, float(power), speeds)
     if reported is None and want is None:
         return []
     if reported is None or want is None:
@@ -309,14 +334,16 @@ def check_marking(ctx: PlanContext) -> CheckResult:
     res.checked = int(on.sum())
     found = _gate_findings(t, on, list(traj.get("segments") or []))
     figures: dict[str, float] = {"laser_on_s": float(sum(b - a for a, b in traj["laser_on"]))}
-    for key, (value, at) in _deviation(ctx.plan, t, on).items():
+    rays = laser_on_rays(ctx.plan, on)  # traced once for the deviation and the marked speeds
+    for key, (value, at) in _deviation(ctx.plan, t, on, rays).items():
         figures[key] = value
         if not ctx.tol.deviation_ok(value):
             what = "the path" if key.startswith("laser") else "the scenario's polyline"
             found.append((f"laser on with the spot {1e3 * value:.4f} mm from {what} at t = "
                           f"{at:.3f} s (tolerance {1e3 * ctx.tol.path:.4f} mm)", value, ctx.tol.path))  # fmt: skip
-    speed, speed_figures = _speed_findings(ctx.plan, ctx.tol.rate)
-    found += speed + _exposure_findings(ctx.plan)
+    speeds = marked_speeds(ctx.plan, rays)
+    speed, speed_figures = _speed_findings(ctx.plan, ctx.tol.rate, speeds)
+    found += speed + _exposure_findings(ctx.plan, speeds)
     figures |= speed_figures
     res.findings += [Finding("laser", None, m, value, bound) for m, value, bound in found]
     res.figures = figures

@@ -20,7 +20,6 @@ distance, and only a sure violation counts. World frame, metres.
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -31,7 +30,7 @@ from planner.verify import arms
 from planner.verify import batch_distances as bd
 from planner.verify.context import CheckResult, PlanContext, spots, times
 from planner.verify.findings import Finding
-from planner.verify.numpy_beam import trace_rays
+from planner.verify.numpy_beam import BeamRays, trace_rays
 from planner.verify.safety_setup import Hit, Setup
 from planner.verify.safety_shapes import (
     Shape,
@@ -71,12 +70,14 @@ def _collect(hits: list[Hit], d: Array, bound: float, check: str, what: str, rea
         hits.append(Hit(int(m), check, what, float(d[m]), bound, reason))
 
 
-def arm_hits(setup: Setup, Q: dict[str, Array]) -> tuple[list[Hit], list[str]]:
-    """Arm-arm, arm-self and arm-scene violations at joint rows Q; and warnings."""
+def arm_hits(setup: Setup, Q: dict[str, Array], shapes: list[list[Shape]] | None = None
+             ) -> tuple[list[Hit], list[str]]:  # fmt: skip
+    """Arm-arm, arm-self and arm-scene violations at joint rows Q (``shapes``: the arms'
+    shapes there, :meth:`Setup.shapes`, when already placed); and warnings."""
     hits: list[Hit] = []
     warnings: list[str] = []
     c = setup.clearance
-    per_robot = setup.shapes(Q)
+    per_robot = setup.shapes(Q) if shapes is None else shapes
     for i, parts in enumerate(per_robot):
         name = setup.robots[i]["name"]
         for a, b in _self_pairs(parts):
@@ -142,12 +143,14 @@ def _aperture(P: Array, T: Array, radius: float, cone: float, first: int) -> tup
     return np.asarray((dist <= radius).any(axis=1)), np.asarray(dist.min(axis=1))
 
 
-def beam_hits(setup: Setup, Q: dict[str, Array], P: Array) -> list[Hit]:
+def beam_hits(setup: Setup, Q: dict[str, Array], P: Array,
+              shapes: list[list[Shape]] | None = None) -> list[Hit]:  # fmt: skip
     """Beam violations of polylines P (M x (N + 2) x 3: laser exit, hits, spot) at joint
-    rows Q: arm parts, keep-out volumes, laser aperture, camera lens."""
+    rows Q (``shapes``: the arms' shapes there, when already placed): arm parts, keep-out
+    volumes, laser aperture, camera lens."""
     hits: list[Hit] = []
     c = setup.clearance
-    per_robot = setup.shapes(Q)
+    per_robot = setup.shapes(Q) if shapes is None else shapes
     for k in range(P.shape[1] - 1):
         seg = Shape(f"beam[{k}]", "capsule", A=P[:, k], B=P[:, k + 1])
         label = _segment_label(setup, k)
@@ -208,12 +211,14 @@ def _camera_poses(setup: Setup, Q: dict[str, Array], M: int) -> Array | None:
     return r["base"] @ Setup.flange(r, Q) @ cam["T"]
 
 
-def polylines(setup: Setup, Q: dict[str, Array], ends: Array | None, targets: Array) -> Array:
-    """Beams at joint rows Q: laser exit, mirror hits, then ``ends`` (M x 3) or, without
-    them, the point of the last ray nearest the closest target ahead when it passes within
-    :data:`ON_TARGET` of it, else :data:`BEYOND` m out (a beam off the targets must stay
-    clear that far)."""
-    rays = trace_rays(setup.laser, setup.mirrors(Q))
+def polylines(setup: Setup, Q: dict[str, Array], ends: Array | None, targets: Array,
+              rays: BeamRays | None = None) -> Array:  # fmt: skip
+    """Beams at joint rows Q (``rays``: their trace, when already traced): laser exit,
+    mirror hits, then ``ends`` (M x 3) or, without them, the point of the last ray nearest
+    the closest target ahead when it passes within :data:`ON_TARGET` of it, else
+    :data:`BEYOND` m out (a beam off the targets must stay clear that far)."""
+    if rays is None:
+        rays = trace_rays(setup.laser, setup.mirrors(Q))
     if ends is None:
         ends = rays.p + BEYOND * rays.v
         for a in range(0, len(rays.p), 256):
@@ -249,7 +254,7 @@ def check_safety(ctx: PlanContext) -> CheckResult:
     arms and the keep-out volumes and not back into the laser or camera, the target outside
     every keep-out volume."""
     res = CheckResult("safety", len(ctx.solved))
-    setup = Setup.from_plan(ctx.plan, getattr(ctx, "base_dir", Path(".")))
+    setup = ctx.safety_setup
     res.warnings += [
         f"{n}: a URDF arm, or a model without checker shapes; its links are not re-checked"
         for n in setup.unchecked
@@ -257,8 +262,9 @@ def check_safety(ctx: PlanContext) -> CheckResult:
     if not ctx.solved:
         return res
     spot, _, _ = spots(ctx.rays.p, ctx.rays.v, ctx.P, ctx.N)
-    found, warnings = arm_hits(setup, ctx.Q)
-    found += beam_hits(setup, ctx.Q, polylines(setup, ctx.Q, spot, ctx.P))
+    shapes = setup.shapes(ctx.Q)
+    found, warnings = arm_hits(setup, ctx.Q, shapes)
+    found += beam_hits(setup, ctx.Q, polylines(setup, ctx.Q, spot, ctx.P, ctx.rays), shapes)
     found += target_hits(setup, ctx.P)
     res.warnings += sorted(set(warnings))
     for m, h in sorted(_worst_per_row(found).items()):
@@ -288,7 +294,7 @@ def check_trajectory_safety(ctx: PlanContext) -> CheckResult:
     res = CheckResult("trajectory safety", len(t))
     if not len(t):
         return res
-    setup = Setup.from_plan(ctx.plan, getattr(ctx, "base_dir", Path(".")))
+    setup = ctx.safety_setup
     Q = {r["name"]: np.asarray(traj["q"][r["name"]], dtype=float) for r in setup.robots}
     on = laser_mask(traj, t)
     targets = np.array([tg["p"] for tg in ctx.plan["targets"]], dtype=float).reshape(-1, 3)
@@ -296,11 +302,13 @@ def check_trajectory_safety(ctx: PlanContext) -> CheckResult:
     for a in range(0, len(t), CHUNK):
         rows = np.arange(a, min(a + CHUNK, len(t)))
         Qc = {k: v[rows] for k, v in Q.items()}
-        hits, _ = arm_hits(setup, Qc)
+        shapes = setup.shapes(Qc)
+        hits, _ = arm_hits(setup, Qc, shapes)
         lit = np.flatnonzero(on[rows])
         if len(lit):
             Ql = {k: v[lit] for k, v in Qc.items()}
-            beam = beam_hits(setup, Ql, polylines(setup, Ql, None, targets))
+            lit_shapes = [[s.rows(lit) for s in parts] for parts in shapes]
+            beam = beam_hits(setup, Ql, polylines(setup, Ql, None, targets), lit_shapes)
             hits += [h._replace(row=int(lit[h.row])) for h in beam]
         for h in hits:
             tt, _, n = first.get(h.check, (np.inf, h, 0))

@@ -6,6 +6,7 @@ laser, camera, scene and keep-out volumes, clearances), and the violation record
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -50,7 +51,10 @@ class Setup:
     margin: float = 0.0
 
     @classmethod
-    def from_plan(cls, plan: dict[str, Any], base_dir: Path) -> Setup:
+    def from_plan(cls, plan: dict[str, Any], base_dir: Path,
+                  urdfs: Mapping[Path, UrdfChain] | None = None) -> Setup:  # fmt: skip
+        """The setup of a plan document (relative mesh and URDF paths from ``base_dir``; a
+        URDF already read, in ``urdfs`` by its path, is not read again)."""
         scn = plan["scenario"]
         sys_ = scn["system"]
         safety = scn.get("safety") or {}
@@ -59,7 +63,9 @@ class Setup:
             urdf = None
             if r.get("urdf"):
                 path = Path(r["urdf"])
-                urdf = UrdfChain(path if path.is_absolute() else base_dir / path)
+                path = path if path.is_absolute() else base_dir / path
+                known = None if urdfs is None else urdfs.get(path)
+                urdf = UrdfChain(path) if known is None else known
             entry = cls.robot(r["name"], pose_matrix(r.get("world_T_base") or {}),
                               pose_matrix(r["mirror"].get("flange_T_mirror") or {}),
                               r["mirror"]["size"], r.get("model"), urdf)  # fmt: skip

@@ -11,6 +11,7 @@ measured. World frame, metres, radians.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -44,11 +45,12 @@ def link_frames_batch(Q: Array) -> Array:
     return out
 
 
-@dataclass
+@dataclass(frozen=True)
 class Shape:
     """One solid for M configurations: ``kind`` capsule (``A``, ``B`` (M, 3), ``r``), box
     (``T`` (M, 4, 4), ``ext`` (3,)), sphere (``A`` centre, ``r``), cylinder (``T``, ``r``,
-    ``h`` along z) or hull (``planes`` (F, 4), ``A`` a centre, ``r`` bounding radius)."""
+    ``h`` along z) or hull (``planes`` (F, 4), ``A`` a centre, ``r`` bounding radius).
+    Frozen: its bounding spheres are computed once, however many pairs it is measured in."""
 
     name: str
     kind: str
@@ -61,6 +63,7 @@ class Shape:
     h: float = 0.0
     planes: Array = field(default_factory=lambda: np.zeros((0, 4)))
 
+    @cached_property
     def sphere(self) -> tuple[Array, Array]:
         """Bounding spheres: centres (M, 3) and radius (m)."""
         if self.kind == "capsule":
@@ -174,8 +177,8 @@ def _cylinder_axis(c: Shape) -> Shape:
 def near_distances(a: Shape, b: Shape, within: float) -> Array:
     """Distances (M,) of a to b, measured only where their bounding spheres are closer than
     ``within`` (m); +inf elsewhere."""
-    ca, ra = a.sphere()
-    cb, rb = b.sphere()
+    ca, ra = a.sphere
+    cb, rb = b.sphere
     lower = np.linalg.norm(ca - cb, axis=-1) - ra - rb
     M = max(len(np.atleast_1d(lower)), 1)
     out = np.full(M, np.inf)

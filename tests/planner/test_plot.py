@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 
 from planner.model.kinematics import RobotKinematics
-from planner.planning import run_scenario
+from planner.plan.pipeline import run_scenario
 from planner.plot import arm_points, plot_profiles, profiles_path
 from planner.verify.numpy_beam import ur5e_dh_fk
-from tests.planner.test_planning import write_scenario
+from tests.planner.plan.test_pipeline import write_scenario
 
 DH_LENGTHS = [0.1625, 0.425, 0.3922, 0.1333, 0.0997, 0.0996]  # conventions section 2: d and a
 
@@ -45,7 +45,7 @@ def test_profiles_written_next_to_the_plot(tmp_path: Path) -> None:
 
 
 def test_arrival_spots_are_the_targets(tmp_path: Path) -> None:
-    from planner.planning import spot_rays
+    from planner.plan.timed import spot_rays
     from planner.plot import _arrival_spots
     from planner.verify.spot import arrival_mask
 

@@ -51,7 +51,7 @@ def test_failed_targets_by_reason() -> None:
 
 
 def test_plan_picture_of_the_face(tmp_path: Path) -> None:
-    from planner.planning import run_scenario
+    from planner.plan.pipeline import run_scenario
     from planner.plot import plot_plan
     from tests.paths import REPO
 

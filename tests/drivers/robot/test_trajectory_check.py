@@ -128,7 +128,7 @@ def test_planned_trajectories_of_the_shipped_scenarios_pass(scenario: str) -> No
     pass through the worker's full path, also with positions rounded to 1e-10 rad as
     plan.json writes them."""
 
-    from planner.planning import run_scenario
+    from planner.plan.pipeline import run_scenario
     from planner.service.node import trajectory_messages
 
     out = run_scenario(REPO / "scenarios" / scenario, progress=False)

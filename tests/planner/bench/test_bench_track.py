@@ -52,7 +52,7 @@ def test_a_true_arm_off_the_model_puts_the_spot_off_by_its_static_offset() -> No
     from planner.data import shipped_scenario
     from planner.ik import BeamIK
     from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
-    from planner.planning import ik_options
+    from planner.plan.scenario_planner import ik_options
     from planner.safety.model import Safety
     from planner.simcell.tracking import true_arm
 

@@ -13,7 +13,7 @@ import pytest
 
 from planner.cli import main
 from tests import cli_run
-from tests.planner.test_planning import CURVE, SCENARIO, write_scenario
+from tests.planner.plan.test_pipeline import CURVE, SCENARIO, write_scenario
 from tests.planner.verify.test_check import ramp_trajectory
 
 

@@ -17,7 +17,7 @@ import pytest
 from planner.io.plan import Plan, Verdict
 from planner.io.plan_file import plan_json, read_plan, write_plan
 from planner.model.status import Reason, Status
-from planner.planning import run_scenario
+from planner.plan.pipeline import run_scenario
 from schemas.common import FieldError
 from tests.paths import SCENARIOS
 

@@ -9,7 +9,7 @@ import pytest
 
 from planner.ik import Solution
 from planner.model.status import Failure, Reason, Status
-from planner.planning import solution_json
+from planner.plan.document import solution_json
 from schemas.plan import FAILURE_REASONS
 from schemas.plan import Reason as SchemaReason
 from schemas.plan import Solution as SchemaSolution

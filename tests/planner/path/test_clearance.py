@@ -12,7 +12,7 @@ import pytest
 
 from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
 from planner.model.transforms import make_T
-from planner.planning import ik_options, solve_path
+from planner.plan.scenario_planner import ik_options, solve_path
 from planner.safety import sphere
 from planner.safety.model import Safety
 from tests.paths import REPO

@@ -13,7 +13,8 @@ import pytest
 
 from planner.io.strokes import turn_angles
 from planner.model.settings import TrajectorySettings
-from planner.planning import PlanOutcome, run_scenario, time_solutions
+from planner.plan.pipeline import PlanOutcome, run_scenario
+from planner.plan.timed import time_solutions
 from planner.verify.check import check_plan
 from planner.verify.marking import laser_mask
 from planner.verify.spot import segment_mask

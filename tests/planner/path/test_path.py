@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from planner.beam.graph import BeamModel
+from planner.ik.closed_form import ClosedForm
 from planner.model.system import Targets
 from planner.path.nlp import constraint_lower_bounds
 from planner.path.solve import PathOptions, plan_path, resample_polyline, tangents
@@ -21,7 +22,7 @@ def curve():
     loaded = load_scenario(SCENARIO)
     system = system_from_scenario(loaded)
     targets = targets_from_scenario(loaded, system)
-    return system, targets, plan_path(system, targets)
+    return system, targets, plan_path(system, targets, seeder=ClosedForm(system))
 
 
 def test_resample_spacing_and_ends():
@@ -62,7 +63,7 @@ def test_gap_is_reported(curve):
         [targets.points[:40], targets.points[39] + [[0, 0, 5.0]], targets.points[40:80]]
     )
     nrm = np.vstack([targets.normals[:40], [[0, 0, 1.0]], targets.normals[40:80]])
-    res = plan_path(system, Targets(far, nrm, kind="path"))
+    res = plan_path(system, Targets(far, nrm, kind="path"), seeder=ClosedForm(system))
     assert [(g.k0, g.k1) for g in res.gaps] == [(40, 41)]
     assert res.gaps[0].reason in {"unreachable", "outside_roi", "joint_limits", "back_face"}
     assert res.ok.sum() == 80 and np.nanmax(res.error) < 1e-8
@@ -115,7 +116,7 @@ def fine(curve):
     system, targets, _ = curve
     pts, nrm = resample_polyline(targets.points, 0.25e-3, False, targets.normals)
     pts, nrm = pts[:240], nrm[:240]
-    ctx = PathContext(system, Targets(pts, nrm, kind="path"), PathOptions())
+    ctx = PathContext(system, Targets(pts, nrm, kind="path"), PathOptions(), ClosedForm(system))
     Q, NB, why = continuation_chain(ctx, system.home)
     assert all(w is None for w in why)
     return ctx, Q, NB
@@ -201,7 +202,8 @@ def test_fine_closed_path_coarse_to_fine(curve):
     real = path_mod._coarse_to_fine
     path_mod._coarse_to_fine = lambda *a: calls.append(a[-1]) or real(*a)  # type: ignore[assignment]
     try:
-        res = plan_path(system, Targets(pts, nrm, kind="path", closed=True))
+        res = plan_path(system, Targets(pts, nrm, kind="path", closed=True),
+                        seeder=ClosedForm(system))  # fmt: skip
     finally:
         path_mod._coarse_to_fine = real
     assert calls == [True] and res.complete
@@ -251,7 +253,7 @@ def test_a_path_moved_along_its_beams_reuses_the_solved_joints(curve):
     (independent numpy trace), as smooth as before."""
     system, targets, res = curve
     moved = Targets(along_own_beams(system, res, targets, 0.004), targets.normals, kind="path")
-    again = plan_path(system, moved, q_warm=res.q)
+    again = plan_path(system, moved, q_warm=res.q, seeder=ClosedForm(system))
     assert again.complete and [s.status for s in again.segments] == ["previous path"]
     model = BeamModel(system)
     errs = [model.trace(q, p, n).error for q, p, n in
@@ -268,6 +270,6 @@ def test_a_warm_start_that_does_not_fit_is_not_used(curve):
     holed = res.q.copy()
     holed[5] = np.nan
     for q_warm in (holed, res.q[:-1]):
-        again = plan_path(system, targets, q_warm=q_warm)
+        again = plan_path(system, targets, q_warm=q_warm, seeder=ClosedForm(system))
         assert "previous path" not in [s.status for s in again.segments]
         np.testing.assert_allclose(again.q, res.q, atol=1e-9)

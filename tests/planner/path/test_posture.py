@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from planner.ik.closed_form import ClosedForm
 from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
 from planner.path.solve import jacobian_condition, plan_path
 from planner.verify.numpy_beam import ur5e_dh_fk
@@ -47,7 +48,7 @@ def circle(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped
 
 def test_circle_stays_near_home_and_well_conditioned(circle) -> None:  # type: ignore[no-untyped-def]
     system, targets = circle
-    res = plan_path(system, targets)
+    res = plan_path(system, targets, seeder=ClosedForm(system))
     assert res.ok.all()
     # before: the elbow went to -0.02 rad (straight arm), condition number ~600
     assert np.abs(res.q[:, 2] - system.home[2]).max() < 0.1
@@ -59,7 +60,7 @@ def test_circle_stays_near_home_and_well_conditioned(circle) -> None:  # type: i
 
 
 def test_plan_reports_the_condition_and_a_short_approach() -> None:
-    from planner.planning import run_scenario
+    from planner.plan.pipeline import run_scenario
 
     o = run_scenario(SCENARIOS / "curve_path.yaml", progress=False)
     x = o.doc["metrics"]["extra"]

@@ -62,7 +62,7 @@ def test_colliding_move_between_strokes_is_detoured() -> None:
 
 
 def test_stroke_without_a_detour_fails_whole_as_collision() -> None:
-    from planner.safety.timing import _whole_strokes
+    from planner.plan.safe_timing import _whole_strokes
 
     system = relay(gap=0.9)
     rules = Safety(system, settings=SafetySettings(clearance=0.45))  # never met

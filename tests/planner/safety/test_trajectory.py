@@ -99,7 +99,7 @@ def curve():  # type: ignore[no-untyped-def]
 
 
 def test_path_samples_into_keep_out_become_gaps(curve) -> None:  # type: ignore[no-untyped-def]
-    from planner.planning import ik_options, solve_path
+    from planner.plan.scenario_planner import ik_options, solve_path
 
     scn, system, targets = curve
     k = len(targets) // 2
@@ -124,7 +124,8 @@ def test_path_samples_into_keep_out_become_gaps(curve) -> None:  # type: ignore[
 
 
 def test_planned_path_with_an_eye_checks_clean(tmp_path, curve) -> None:  # type: ignore[no-untyped-def]
-    from planner.planning import plan_json, run_scenario
+    from planner.io.plan_file import plan_json
+    from planner.plan.pipeline import run_scenario
 
     targets = curve[2]
     text = (REPO / "scenarios" / "curve_path.yaml").read_text()
@@ -150,7 +151,7 @@ def test_unsafe_path_nlp_result_falls_back_to_its_warm_start(tmp_path, monkeypat
     sample solved and clear by the numpy geometry."""
     import planner.path.solve as path_solve
     from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
-    from planner.planning import ik_options, solve_path
+    from planner.plan.scenario_planner import ik_options, solve_path
     from tests.planner.verify.test_plan_check_agreement import N3_SQUARE
 
     (tmp_path / "n3.yaml").write_text(N3_SQUARE)

@@ -11,7 +11,7 @@ from planner.data import shipped_scenario
 from planner.io.resolved import resolved_scenario_dict
 from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
 from planner.model.system import Targets
-from planner.planning import plan_points
+from planner.plan.scenario_planner import plan_points
 from planner.service.handler import make_plan_fn
 
 

@@ -213,7 +213,7 @@ def silent_camera(monkeypatch: pytest.MonkeyPatch) -> None:
 
 def _ik(system: object) -> object:
     from planner.ik import BeamIK
-    from planner.planning import ik_options
+    from planner.plan.scenario_planner import ik_options
 
     return BeamIK(system, ik_options(setup.solver_settings()))  # type: ignore[arg-type]
 

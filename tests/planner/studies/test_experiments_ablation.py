@@ -23,7 +23,7 @@ from planner.studies.experiments_trial import plan_targets, swept_joints
 
 def _ik(system: object) -> object:
     from planner.ik import BeamIK
-    from planner.planning import ik_options
+    from planner.plan.scenario_planner import ik_options
 
     return BeamIK(system, ik_options(setup.solver_settings()))  # type: ignore[arg-type]
 

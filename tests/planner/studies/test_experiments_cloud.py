@@ -229,7 +229,7 @@ def test_cloud_picks_lie_on_the_true_surface_within_the_depth_noise() -> None:
 
 def _ik(system: object) -> object:
     from planner.ik import BeamIK
-    from planner.planning import ik_options
+    from planner.plan.scenario_planner import ik_options
 
     return BeamIK(system, ik_options(setup.solver_settings()))  # type: ignore[arg-type]
 

@@ -70,7 +70,7 @@ def test_fiducial_pairs_without_noise_recover_the_true_line_and_plane() -> None:
     """Joints that put the TRUE spot exactly on each fiducial (the truth's own IK), with
     the fiducials' true positions: the calibration gives the truth's line and plane."""
     from planner.ik import BeamIK
-    from planner.planning import ik_options
+    from planner.plan.scenario_planner import ik_options
 
     nominal = setup.nominal_system()
     truth = setup.draw_truth(nominal, setup.Unknowns(), np.random.default_rng(3))

@@ -188,7 +188,7 @@ def test_the_servo_moves_both_arms_to_correct_a_model_millimetres_off(
     1 mm off per component, the chessboard's spots are ~2 mm off; closed loop brings each
     within the servo's tolerance (noiseless camera: the measured error is the true one)."""
     from planner.ik import BeamIK
-    from planner.planning import ik_options
+    from planner.plan.scenario_planner import ik_options
     from planner.studies import experiments_setup as n1
     from planner.studies.experiments_cell import Calibrated
     from planner.studies.experiments_trial import ClosedLoop, run_experiment

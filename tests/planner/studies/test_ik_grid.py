@@ -41,7 +41,7 @@ def test_eq7_lm_lands_the_hit_on_the_mirror_centre_where_the_closed_form_does(sy
     spot too, but with the hit off centre (outside the ROI: what the term is for)."""
     from planner.ik import BeamIK
     from planner.io.scenario import targets_from_scenario
-    from planner.planning import ik_options
+    from planner.plan.scenario_planner import ik_options
     from planner.studies.lm_ik import CENTRE_WEIGHT
 
     loaded = load_scenario(ik_grid.SCENARIO)

@@ -11,7 +11,7 @@ from planner.beam.trace import trace_beam
 from planner.data import shipped_scenario
 from planner.ik import BeamIK
 from planner.io.scenario import load_scenario, system_from_scenario
-from planner.planning import ik_options
+from planner.plan.scenario_planner import ik_options
 from planner.safety.model import Safety
 from planner.track.follow import TargetFollower, TrackSettings
 

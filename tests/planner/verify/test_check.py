@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from planner.errors import InputError
-from planner.planning import plan_scenario
+from planner.plan.pipeline import plan_scenario
 from planner.verify.check import check_plan
-from tests.planner.test_planning import write_scenario
+from tests.planner.plan.test_pipeline import write_scenario
 
 
 @pytest.fixture(scope="module")

@@ -12,13 +12,16 @@ from typing import Any
 import numpy as np
 import pytest
 
-from planner.model.kinematics import RobotKinematics
+from planner.io.plan_file import plan_json
+from planner.model.kinematics import RobotKinematics, ur5e_urdf_path
 from planner.model.mirror import Mirror
 from planner.model.transforms import inv_T, look_at
-from planner.planning import plan_json, run_scenario
+from planner.plan.pipeline import run_scenario
 from planner.verify.check import check_plan
 from planner.verify.numpy_beam import pose_matrix, ur5e_dh_fk
+from planner.verify.safety_setup import Setup
 from planner.verify.safety_shapes import arm_shapes
+from planner.verify.urdf import UrdfChain
 from tests import cli_run
 from tests.paths import REPO
 
@@ -145,6 +148,38 @@ def test_arm_against_arm(shared: Doc) -> None:
         doc["trajectory"]["q"]["arm1"][i] = reach
     traj = _findings(doc, "trajectory safety")
     assert any("arm_arm" in f.message and "at t = 0.080 s" in f.message for f in traj)
+
+
+def test_the_safety_setup_is_built_once_per_check(face: Doc, monkeypatch: pytest.MonkeyPatch
+                                                  ) -> None:  # fmt: skip
+    """Both safety checks (targets and trajectory) read one setup: the scene and keep-out
+    volumes are read once per plan, a URDF robot's URDF once per plan as well (the setup
+    takes the context's reading)."""
+    built: list[Setup] = []
+    from_plan = Setup.from_plan
+
+    def counted(plan: Doc, *args: Any) -> Setup:
+        built.append(from_plan(plan, *args))
+        return built[-1]
+
+    monkeypatch.setattr(Setup, "from_plan", counted)
+    results = {r.name: r for r in check_plan(face)}
+    assert results["safety"].checked > 0 and results["trajectory safety"].checked > 0
+    assert results["trajectory safety"].figures["laser_on_samples"] > 0  # the beam is checked
+    assert len(built) == 1
+    read: list[Path] = []
+    init = UrdfChain.__init__
+
+    def reading(self: UrdfChain, path: Path, **kwargs: str) -> None:
+        read.append(path)
+        init(self, path, **kwargs)
+
+    monkeypatch.setattr(UrdfChain, "__init__", reading)
+    doc = copy.deepcopy(face)
+    doc["scenario"]["system"]["robots"][0]["urdf"] = str(ur5e_urdf_path())
+    results = {r.name: r for r in check_plan(doc)}
+    assert any("a URDF arm" in w for w in results["safety"].warnings)
+    assert len(built) == 2 and read == [ur5e_urdf_path()]  # the arm's URDF is read once
 
 
 def test_cli_check_exits_1_on_an_edited_plan(face: Doc, tmp_path: Path) -> None:

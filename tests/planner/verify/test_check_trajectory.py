@@ -31,6 +31,7 @@ def _scenario_dict(system, rate, speed):
 
 @pytest.fixture(scope="module")
 def plan():
+    from planner.ik.closed_form import ClosedForm
     from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
     from planner.path.solve import plan_path
     from planner.path.timing import path_trajectory
@@ -39,7 +40,7 @@ def plan():
     system = system_from_scenario(loaded)
     targets = targets_from_scenario(loaded, system)
     assert targets.normals is not None
-    res = plan_path(system, targets)
+    res = plan_path(system, targets, seeder=ClosedForm(system))
     speed = loaded.model.trajectory.spot_speed
     traj = path_trajectory(system, [(res.q, res.arc)], spot_speed=speed, rate=500.0)
     return {

@@ -29,8 +29,8 @@ def test_trajectory_and_target_findings_are_one_type(plan_doc: dict) -> None:  #
 
 @pytest.fixture(scope="module")
 def plan_doc(tmp_path_factory: pytest.TempPathFactory) -> dict:  # type: ignore[type-arg]
-    from planner.planning import plan_scenario
-    from tests.planner.test_planning import write_scenario
+    from planner.plan.pipeline import plan_scenario
+    from tests.planner.plan.test_pipeline import write_scenario
 
     doc, _, _ = plan_scenario(write_scenario(tmp_path_factory.mktemp("f")), progress=False)
     return doc

@@ -12,8 +12,10 @@ from typing import Any
 
 import pytest
 
+from planner.io.plan_file import plan_json
 from planner.model.settings import TrajectorySettings
-from planner.planning import PlanOutcome, plan_json, run_scenario, time_solutions
+from planner.plan.pipeline import PlanOutcome, run_scenario
+from planner.plan.timed import time_solutions
 from tests import cli_run
 
 # The curve_path layout; an L of two 10 mm edges on the board (a 90 deg corner: two strokes).

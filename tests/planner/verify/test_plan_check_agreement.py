@@ -136,7 +136,7 @@ def test_incidence_at_the_limit_agrees(tmp_path: Path) -> None:
 
     # beyond the slack both reject, the same targets: the checker, and planning's verdict
     from planner.io.scenario import load_scenario, system_from_scenario, targets_from_scenario
-    from planner.planning import verify_solutions
+    from planner.plan.document import verify_solutions
 
     tight = copy.deepcopy(doc)
     over = float(np.degrees(inc.max() - 2 * INCIDENCE_SLACK))

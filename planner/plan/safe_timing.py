@@ -22,13 +22,13 @@ import numpy as np
 
 from planner.model.polyline import runs
 from planner.model.transforms import Array
+from planner.plan.gaps import SampleGap, failed_with, split_path
 from planner.safety.model import Safety, Violation, clearance_violation, emit_warning
-from planner.safety.occlusion import SampleGap, failed_with, split_path
 from planner.safety.trajectory import MoveFn, SafeMover, TrajectoryCheck, check_trajectory
 
 if TYPE_CHECKING:
     from planner.ik import Solution
-    from planner.path.solve import PathResult
+    from planner.path.result import PathResult
 
 #: re-timing rounds after dropping unsafe targets
 ROUNDS = 4

@@ -10,8 +10,8 @@ with evidence: the segment (``laser->arm0``, ``arm0->arm1``, ``arm1->target``) a
 points, the object, the world point where the beam meets it and the blocked configuration.
 Point targets first try other members of the closed-form family (the first hit slid along
 the incoming beam, :func:`check_points`); path samples become gaps (:func:`check_path`).
-An empty scene returns the input untouched. The same gap machinery
-(:func:`split_path`) drops path samples that break a safety rule (:func:`check_path_safety`).
+An empty scene returns the input untouched; blocked path samples are dropped by the gap
+machinery of :mod:`planner.plan.gaps`.
 """
 
 from __future__ import annotations
@@ -19,21 +19,21 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import time
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from planner.beam.trace import mirror_poses, trace_beam
-from planner.model.polyline import runs
+from planner.beam.trace import beam_vertices, mirror_poses, trace_beam
+from planner.ik import Solution
 from planner.model.scene import END_MARGIN, START_MARGIN, SceneModel
 from planner.model.status import Reason
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
-from planner.path.result import PathGap, PathResult
+from planner.path.result import PathResult
+from planner.plan.gaps import SampleGap, failed_with, split_path
 
 if TYPE_CHECKING:
-    from planner.ik import BeamIK, Solution
-    from planner.safety.model import Safety
+    from planner.ik import BeamIK
 
 #: m, slides of the first mirror's hit along the laser beam tried for an occluded target
 RETRY_SHIFTS = (0.05, -0.05, 0.12, -0.12, 0.25, -0.25)
@@ -45,11 +45,6 @@ def segment_labels(system: System) -> list[str]:
     return [f"{a}->{b}" for a, b in itertools.pairwise(ends)]
 
 
-def beam_points(system: System, hits: Array, spot: Array) -> Array:
-    """The beam's N + 2 vertices (world, m): laser exit, the N mirror hits, the spot."""
-    return np.vstack([system.world_T_laser[:3, 3], np.asarray(hits), np.asarray(spot)])
-
-
 def occlusions(
     system: System, scene: SceneModel, solutions: list[Solution]
 ) -> dict[int, dict[str, object]]:
@@ -59,7 +54,7 @@ def occlusions(
     if scene.empty or not idx:
         return {}
     n_seg = system.n_robots + 1
-    pts = [beam_points(system, solutions[k].hits, solutions[k].spot) for k in idx]  # type: ignore[arg-type]
+    pts = [beam_vertices(system, solutions[k].hits, solutions[k].spot) for k in idx]  # type: ignore[arg-type]
     P = np.stack(pts)  # (M, N + 2, 3)
     blocked = scene.blocked_segments(
         P[:, :-1].reshape(-1, 3), P[:, 1:].reshape(-1, 3), START_MARGIN, END_MARGIN
@@ -83,16 +78,6 @@ def occlusions(
             "q": None if q is None else [float(x) for x in q],
         }
     return out
-
-
-def failed_with(sol: Solution, reason: Reason | str, evidence: dict[str, object]) -> Solution:
-    """``sol`` as a failed target (no configuration, spot or hits) with ``reason``; the
-    evidence is kept under the reason's key."""
-    from planner.ik import Solution
-
-    why = Reason(reason)
-    evidence = {**sol.evidence, str(why): evidence}
-    return Solution.failed(why, sol.solve_time, sol.iterations, sol.method, evidence)
 
 
 def failed_occluded(sol: Solution, evidence: dict[str, object]) -> Solution:
@@ -157,8 +142,6 @@ def _member(ik: BeamIK, target: Array, normal: Array | None, seed: Array) -> Sol
     if ik.closed_form is None:
         sol = ik.solve(target, normal, seed)
         return sol if sol.ok else None
-    from planner.ik import Solution
-
     t0 = time.perf_counter()
     cf = ik.closed_form.search(target, normal, seed, ik.options.max_incidence)
     if cf.q is None:
@@ -183,115 +166,3 @@ def check_path(
                   f"{np.round(np.asarray(ev['point']), 4).tolist()} m")  # fmt: skip
         gaps[k] = SampleGap("occluded", ev, detail, np.asarray(ev["point"], dtype=float))
     return split_path(solutions, path, gaps)
-
-
-def check_path_safety(
-    system: System, safety: Safety, solutions: list[Solution], path: PathResult
-) -> tuple[list[Solution], PathResult]:
-    """Path samples whose configuration or beam breaks a safety rule (arm collision, beam
-    through an arm, into a keep-out volume or back into the laser or camera) become gaps
-    with the rule's reason (``collision``, ``occluded``, ``keep_out``) and evidence."""
-    from planner.safety.beam_cover import configs
-
-    gaps: dict[int, SampleGap] = {}
-    p0 = system.world_T_laser[:3, 3]
-    ks, qs, polylines = [], [], []
-    for k, sol in enumerate(solutions):
-        if not sol.ok or sol.q is None or sol.hits is None or sol.spot is None:
-            continue
-        ks.append(k)
-        qs.append(np.asarray(sol.q, dtype=float))
-        polylines.append(np.vstack([p0, sol.hits, sol.spot]))
-    if not ks:
-        return split_path(solutions, path, gaps)
-    Q, P = np.array(qs), np.array(polylines)
-    for k, bad in zip(ks, configs(safety, Q, P), strict=True):
-        sol = solutions[k]
-        if bad is not None:
-            point = np.asarray(bad.evidence.get("point", sol.spot), dtype=float)
-            gaps[k] = SampleGap(bad.reason, dict(bad.evidence), bad.text, point)
-    return split_path(solutions, path, gaps)
-
-
-def unsafe_samples(safety: Safety, Q: Array, points: Array, normals: Array | None) -> Array:
-    """(K,) True where the configuration Q[k] (stacked rad) aiming at ``points[k]`` (world)
-    breaks a safety rule; NaN rows are not counted."""
-    from planner.safety.beam_cover import configs
-
-    system, out = safety.system, np.zeros(len(Q), dtype=bool)
-    p0 = system.world_T_laser[:3, 3]
-    ks = np.flatnonzero(np.all(np.isfinite(Q), axis=1))
-    P = []
-    for k in ks:
-        n = None if normals is None or not np.all(np.isfinite(normals[k])) else normals[k]
-        ev = trace_beam(system, Q[k], points[k], n)
-        P.append(np.vstack([p0, ev.hits, ev.spot]))
-    if len(ks):
-        out[ks] = [v is not None for v in configs(safety, Q[ks], np.array(P))]
-    return out
-
-
-def safer_warm_start(
-    safety: Safety, Q_nlp: Array, Q_warm: Array, ks: Any, targets: Targets,
-    bad_nlp: int | None = None,
-) -> bool:  # fmt: skip
-    """True when the path NLP's samples ``ks`` break the safety rules more often than their
-    warm start (then the warm start is kept); ``bad_nlp``: at how many samples ``Q_nlp``
-    breaks them, when the caller already counted (:func:`unsafe_samples` otherwise)."""
-    P = targets.points[ks]
-    N = None if targets.normals is None else targets.normals[ks]
-    if bad_nlp is None:
-        bad_nlp = int(unsafe_samples(safety, Q_nlp, P, N).sum())
-    return bad_nlp > 0 and bad_nlp > int(unsafe_samples(safety, Q_warm, P, N).sum())
-
-
-class SampleGap(NamedTuple):
-    """Why one path sample is dropped: status ``reason``, ``evidence``, a one-line
-    ``detail`` and the world ``point`` (m) where it happens."""
-
-    reason: str
-    evidence: dict[str, object]
-    detail: str
-    point: Array
-
-
-def split_path(
-    solutions: list[Solution], path: PathResult, gaps: dict[int, SampleGap]
-) -> tuple[list[Solution], PathResult]:
-    """Drop the samples in ``gaps`` (by sample index): their solutions fail with the gap's
-    reason and evidence, the path result loses them (q NaN, ok False), consecutive dropped
-    samples with one reason become one :class:`~planner.path.solve.PathGap`, and the
-    feasible segments split around them."""
-    if not gaps:
-        return solutions, path
-    out = list(solutions)
-    for k, gap in gaps.items():
-        out[k] = failed_with(solutions[k], gap.reason, gap.evidence)
-    mask = np.zeros(len(solutions), dtype=bool)
-    mask[list(gaps)] = True
-    q, ok = path.q.copy(), path.ok & ~mask
-    q[mask] = np.nan
-    new_gaps = list(path.gaps)
-    for k0, k1 in runs(mask):
-        for a, b in _same_reason(gaps, k0, k1):
-            g = gaps[a]
-            p = solutions[a].spot if solutions[a].spot is not None else g.point
-            new_gaps.append(PathGap(a, b, float(path.arc[a]), float(path.arc[b - 1]),
-                                    np.asarray(p), Reason(g.reason), g.detail))  # fmt: skip
-    segments = []
-    for seg in path.segments:
-        for a, b in runs(ok[seg.k0 : seg.k1]):
-            segments.append(seg._replace(k0=seg.k0 + a, k1=seg.k0 + b))
-    new = dataclasses.replace(path, q=q, ok=ok, segments=tuple(segments),
-                              gaps=tuple(sorted(new_gaps, key=lambda g: g.k0)))  # fmt: skip
-    return out, new
-
-
-def _same_reason(gaps: dict[int, SampleGap], k0: int, k1: int) -> list[tuple[int, int]]:
-    """Split the run k0..k1 of dropped samples where the reason changes."""
-    out, a = [], k0
-    for k in range(k0 + 1, k1 + 1):
-        if k == k1 or gaps[k].reason != gaps[a].reason:
-            out.append((a, k))
-            a = k
-    return out

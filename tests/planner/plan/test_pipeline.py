@@ -11,19 +11,13 @@ import numpy as np
 import pytest
 
 from planner.ik import IKOptions, Solution
+from planner.io.plan_file import plan_json
 from planner.model.settings import TrajectorySettings
 from planner.model.system import Targets
-from planner.planning import (
-    PlanOutcome,
-    plan_document,
-    plan_json,
-    plan_points,
-    plan_scenario,
-    run_scenario,
-    solve_path,
-    spot_rays,
-    time_solutions,
-)
+from planner.plan.document import plan_document
+from planner.plan.pipeline import PlanOutcome, plan_scenario, run_scenario
+from planner.plan.scenario_planner import plan_points, solve_path
+from planner.plan.timed import spot_rays, time_solutions
 from planner.verify.check import check_plan
 from planner.verify.context import ArmGeometry, trace_arms
 from planner.verify.numpy_beam import ur5e_dh_fk
@@ -217,7 +211,7 @@ def test_path_gap_becomes_a_move(curve_outcome: PlanOutcome) -> None:
 def test_write_plan_in_small_chunks(grid_outcome: PlanOutcome) -> None:
     import io
 
-    from planner.planning import write_plan
+    from planner.io.plan_file import write_plan
 
     doc = grid_outcome.doc
     buf = io.StringIO()
@@ -236,7 +230,7 @@ def test_write_plan_in_small_chunks(grid_outcome: PlanOutcome) -> None:
 def test_a_rejected_path_sample_splits_the_sweep(curve_outcome: PlanOutcome) -> None:
     from dataclasses import replace
 
-    from planner.planning import verify_solutions
+    from planner.plan.document import verify_solutions
 
     o = curve_outcome
     k = len(o.solutions) // 2

@@ -1,7 +1,7 @@
 """One set of rules for every entry point: the scenario's planner.
 
 :meth:`ScenarioPlanner.from_scenario` is the one constructor behind ``beamrelay plan``
-(:func:`planner.planning.run_scenario`), the planner node and the console that talks to it
+(:func:`planner.plan.pipeline.run_scenario`), the planner node and the console that talks to it
 (:func:`planner.service.handler.handler_from_scenario`) and the notebook API
 (:func:`planner.api.solver`). It holds what the scenario says a plan must obey: the system,
 the solver settings, the scene (occlusion), the safety rules (keep-out volumes, clearances,
@@ -28,13 +28,18 @@ from planner.model.scene import SceneModel
 from planner.model.status import Reason
 from planner.model.system import System, Targets
 from planner.model.transforms import Array, transform_points
+from planner.path.solve import PathOptions, plan_path
+from planner.plan.gaps import check_path_safety
+from planner.plan.landing import land_on_surfaces, land_path, surface_tolerance
+from planner.plan.occlusion import check_path, check_points
+from planner.safety.model import Safety
 from schemas.bounds import check_coordinates
 from schemas.common import FieldError
 
 if TYPE_CHECKING:
+    from planner.ik.closed_form import ClosedForm
     from planner.io.scenario import LoadedScenario
-    from planner.path.solve import PathOptions, PathResult
-    from planner.safety.model import Safety
+    from planner.path.result import PathResult
 
 Progress = Callable[[int], None]
 
@@ -59,8 +64,6 @@ class ScenarioPlanner:
         ``scene=False`` / ``safety=False`` leave out the occlusion check / the safety rules
         (``beamrelay plan --no-scene`` style studies only)."""
         from planner.io.scenario import scene_model, system_from_scenario
-        from planner.safety.landing import surface_tolerance
-        from planner.safety.model import Safety
 
         model = loaded.model
         system = system_from_scenario(loaded) if system is None else system
@@ -153,7 +156,7 @@ def plan_points(
     """Solve every target in order; each solve starts from the last solved configuration
     (``q_start``, default home, at first). ``progress(k)`` is called after target k. With a
     ``scene``, beams that cross it are re-solved or fail as ``occluded``
-    (:func:`planner.safety.occlusion.check_points`). With ``safety`` rules every solution
+    (:func:`planner.plan.occlusion.check_points`). With ``safety`` rules every solution
     passes them, or the target fails with their reason (:class:`planner.ik.BeamIK`).
     Targets with a ``surface_tolerance`` are solved on the surface they land on
     (:func:`plan_landed_points` gives those targets)."""
@@ -171,7 +174,7 @@ def plan_landed_points(
 ) -> tuple[Targets, list[Solution]]:
     """:func:`plan_points` and the targets it solved: those with a ``surface_tolerance``
     moved onto the scene surface their beam lands on
-    (:func:`planner.safety.landing.land_on_surfaces`) before the occlusion check."""
+    (:func:`planner.plan.landing.land_on_surfaces`) before the occlusion check."""
     ik = BeamIK(system, options, safety)
     q_prev = system.home if q_start is None else np.asarray(q_start, dtype=float)
     out = []
@@ -184,12 +187,8 @@ def plan_landed_points(
             progress(k)
     scene = None if scene is None or scene.empty else scene
     if targets.surface_tolerance > 0 and (scene is not None or targets.cloud is not None):
-        from planner.safety.landing import land_on_surfaces
-
         targets, out = land_on_surfaces(ik, scene, targets, out)
     if scene is not None:
-        from planner.safety.occlusion import check_points
-
         out = check_points(ik, scene, targets, out)
     return targets, out
 
@@ -205,8 +204,8 @@ def solve_path(
     """A continuous sweep through :func:`planner.path.solve.plan_path`: per-sample solutions (a
     sample in a gap is ``failed`` with the gap's reason and evidence) and the path result.
     With a ``scene``, samples whose beam crosses it become ``occluded`` gaps
-    (:func:`planner.safety.occlusion.check_path`); with ``safety`` rules, samples that
-    break them become gaps with their reason (:func:`~planner.safety.occlusion.check_path_safety`).
+    (:func:`planner.plan.occlusion.check_path`); with ``safety`` rules, samples that
+    break them become gaps with their reason (:func:`~planner.plan.gaps.check_path_safety`).
     A path with a ``surface_tolerance`` is swept on the surface it lands on
     (:func:`solve_landed_path` gives those samples: call it for a camera-frame path, whose
     solutions belong to the moved samples)."""
@@ -223,14 +222,12 @@ def solve_landed_path(
 ) -> tuple[Targets, list[Solution], PathResult]:
     """:func:`solve_path` and the samples it swept: a path with a ``surface_tolerance`` (in
     the camera frame) is swept once, moved onto the scene surface its beam lands on
-    (:func:`planner.safety.landing.land_path`), and swept again there (warm-started from
+    (:func:`planner.plan.landing.land_path`), and swept again there (warm-started from
     the first sweep's joints: each landed sample lies on its first beam), before the
     occlusion check."""
     opts = path_options(options)
     out, res = sweep_solutions(system, targets, opts, q_start, safety)
     if scene is not None and not scene.empty and targets.surface_tolerance > 0:
-        from planner.safety.landing import land_path
-
         moved = land_path(scene, targets, out)
         if moved is not None:
             targets, found = moved
@@ -238,27 +235,21 @@ def solve_landed_path(
             out = [_landed(sol, found[k]) if k in found and sol.ok else sol
                    for k, sol in enumerate(out)]  # fmt: skip
     if scene is not None and not scene.empty:
-        from planner.safety.occlusion import check_path
-
         out, res = check_path(system, scene, out, res)
     if safety is not None:
-        from planner.safety.occlusion import check_path_safety
-
         out, res = check_path_safety(system, safety, out, res)
     return targets, out, res
 
 
 def path_options(options: IKOptions) -> PathOptions:
     """The path NLP's options of the IK's (tolerance, iterations, incidence limit)."""
-    from planner.path.solve import PathOptions
-
     inc = 90.0 if options.max_incidence is None else float(np.degrees(options.max_incidence))
     return PathOptions(tolerance=options.tolerance, max_iter=options.max_iter,
                        max_incidence_deg=inc)  # fmt: skip
 
 
 def _landed(sol: Solution, landing: Any) -> Solution:
-    """``sol`` carrying its sample's :class:`~planner.safety.landing.Landing`."""
+    """``sol`` carrying its sample's :class:`~planner.plan.landing.Landing`."""
     return dataclasses.replace(sol, evidence={**sol.evidence, "surface": landing.to_json()})
 
 
@@ -268,10 +259,9 @@ def sweep_solutions(
 ) -> tuple[list[Solution], PathResult]:  # fmt: skip
     """:func:`planner.path.solve.plan_path` as per-sample solutions (see :func:`solve_path`;
     ``q_warm``: its warm start, the joints of a nearby solved path)."""
-    from planner.path.solve import plan_path
-
     t0 = time.perf_counter()
-    res = plan_path(system, targets, q_start, opts, safety, q_warm)
+    res = plan_path(system, targets, q_start, opts, safety, q_warm,
+                    seeder=path_seeder(system, safety))  # fmt: skip
     per_sample = (time.perf_counter() - t0) / max(len(targets), 1)
     gap_of = {k: g for g in res.gaps for k in range(g.k0, g.k1)}
     out = []
@@ -285,6 +275,13 @@ def sweep_solutions(
             evidence: dict[str, object] = {"detail": gap.detail if gap is not None else ""}
             out.append(Solution.failed(reason, per_sample, 0, "path", evidence))
     return out, res
+
+
+def path_seeder(system: System, safety: Safety | None = None) -> ClosedForm | None:
+    """What seeds a path sample from scratch (:class:`planner.path.warm.Seeder`): the IK's
+    closed-form family search, its members filtered by the ``safety`` rules as the per-target
+    IK's are; None when an arm has no analytic seed model."""
+    return BeamIK(system, None, safety).closed_form
 
 
 def plan_path_targets(

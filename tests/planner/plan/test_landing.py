@@ -14,11 +14,11 @@ from planner.ik import IKOptions
 from planner.model.scene import SceneModel
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
-from planner.planning import plan_landed_points, plan_points
-from planner.safety.landing import landings, surface_tolerance
+from planner.plan.landing import landings, surface_tolerance
+from planner.plan.scenario_planner import plan_landed_points, plan_points
 from schemas.defaults import SURFACE_TOLERANCE_M
 from tests.planner.ik import ik_systems as sy
-from tests.planner.safety.test_occlusion import box
+from tests.planner.plan.test_occlusion import box
 
 UP = np.array([0.0, 0.0, 1.0])
 TOP = np.array([0.3, 0.3, 0.0])  # a point of the board's top face (z = 0)
@@ -102,7 +102,7 @@ def test_a_target_off_the_live_cloud_lands_on_the_surface_the_cloud_shows(dz: fl
     on the plane z = 0 where the beam meets it (numpy line-plane intersection) to within the
     plane fit's error (0.5 mm depth noise averaged over ~30 points), not at the target's own
     depth."""
-    from planner.safety.landing import CLOUD
+    from planner.plan.landing import CLOUD
 
     rng = np.random.default_rng(4)
     system = sy.n1()
@@ -125,7 +125,7 @@ def test_the_cloud_carries_no_target_where_it_is_no_surface() -> None:
     scene already carries: no cloud landing."""
     from types import SimpleNamespace
 
-    from planner.safety.landing import cloud_landings
+    from planner.plan.landing import cloud_landings
 
     rng = np.random.default_rng(5)
     flat = plane_cloud(rng, noise=0.0)

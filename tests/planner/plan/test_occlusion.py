@@ -22,8 +22,9 @@ from planner.model.scene import SceneModel
 from planner.model.settings import TrajectorySettings
 from planner.model.system import System, Targets
 from planner.model.transforms import Array, make_T
-from planner.planning import ik_options, plan_points, solve_path, time_solutions
-from planner.safety.occlusion import check_points, occlusions, segment_labels
+from planner.plan.occlusion import check_points, occlusions, segment_labels
+from planner.plan.scenario_planner import ik_options, plan_points, solve_path
+from planner.plan.timed import time_solutions
 from tests.paths import REPO
 from tests.planner.ik import ik_systems as sy
 from tests.planner.model.test_scene import box_entry
