@@ -29,7 +29,8 @@ from numpy.typing import ArrayLike
 
 from planner.bus.session import JSON, Keys, decode, encode, open_session
 from planner.errors import BeamrelayError, InputError
-from planner.io.plan import ClosedLoopTarget, Plan, Verdict
+from planner.io.plan import Plan, Verdict
+from planner.io.plan_reports import ClosedLoopTarget
 from planner.model.status import Status
 from planner.model.transforms import Array, transform_points
 from schemas.messages import JointState, RobotStatus, SpotMessage

@@ -10,7 +10,8 @@ from typing import Any
 import numpy as np
 
 from planner.errors import InputError
-from planner.io.plan import Plan, TrackingReport, Verdict
+from planner.io.plan import Plan, Verdict
+from planner.io.plan_reports import TrackingReport
 from planner.model.status import Status
 from planner.model.system import Targets
 from planner.model.transforms import Array
