@@ -189,7 +189,7 @@ def print_closed_loop(console: object, plan: Plan) -> None:
                       f"dwell {r.dwell:.2f} s{' (not treated)' if r.treated is False else ''}",
                       markup=False, soft_wrap=True)  # fmt: skip
     x = plan.metrics.extra
-    console.print(f"closed loop: {x.get('closed_loop_converged', 0):.0f}/{len(cl.targets)} "
+    console.print(f"closed loop: {cl.converged}/{len(cl.targets)} "
                   f"within {mm(cl.tolerance)}; measured error median "
                   f"{mm(x.get('measured_error_before_median'))} -> "
                   f"{mm(x.get('measured_error_median'))}, max "
