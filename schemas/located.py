@@ -10,6 +10,7 @@ of a loaded document (see :mod:`schemas.yamlio`); :func:`validate` turns a pydan
 from __future__ import annotations
 
 import copy
+import dataclasses
 import difflib
 import re
 import types
@@ -112,7 +113,7 @@ def explain(err: ErrorDetails, model: type[BaseModel] | None = None) -> tuple[Lo
         if isinstance(cause, FieldError):
             return (*loc, *cause.loc), cause.reason
         return loc, str(cause) if cause is not None else err["msg"]
-    if kind == "extra_forbidden":
+    if kind in ("extra_forbidden", "unexpected_keyword_argument"):  # a model's, a dataclass's
         return loc, _unknown_key(model, loc)
     if kind == "missing":
         return loc, "missing required key"
@@ -139,7 +140,7 @@ def explain(err: ErrorDetails, model: type[BaseModel] | None = None) -> tuple[Lo
     }
     if kind in simple:
         return loc, f"{simple[kind]}, got {describe(value)}"
-    if kind == "literal_error":
+    if kind in ("literal_error", "enum"):
         return loc, f"expected {ctx.get('expected')}, got {describe(value)}"
     bounds = {"greater_than": ">", "greater_than_equal": ">=", "less_than": "<"}
     bounds["less_than_equal"] = "<="
@@ -180,18 +181,26 @@ def _keys_at(model: type[BaseModel], loc: Loc) -> list[str] | None:
     tp: Any = model
     for part in loc:
         tp = _unwrap(tp)
-        if isinstance(tp, type) and issubclass(tp, BaseModel):
-            fields = {f.alias or n: f for n, f in tp.model_fields.items()}
+        fields = _fields_of(tp)
+        if fields is not None:
             if part not in fields:
                 return None
-            tp = fields[str(part)].annotation
+            tp = fields[str(part)]
         elif typing.get_origin(tp) in (list, dict):
             tp = typing.get_args(tp)[-1]
         else:
             return None
-    tp = _unwrap(tp)
+    fields = _fields_of(_unwrap(tp))
+    return None if fields is None else list(fields)
+
+
+def _fields_of(tp: Any) -> dict[str, Any] | None:
+    """Key -> type of a model's or a dataclass's fields (None for any other type)."""
     if isinstance(tp, type) and issubclass(tp, BaseModel):
-        return [f.alias or n for n, f in tp.model_fields.items()]
+        return {f.alias or n: f.annotation for n, f in tp.model_fields.items()}
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
+        hints = typing.get_type_hints(tp, include_extras=True)
+        return {f.name: hints[f.name] for f in dataclasses.fields(tp)}
     return None
 
 

@@ -6,10 +6,10 @@ rad (rad/s, rad/s^2); times in seconds from the trajectory start.
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Final, Literal, Self, get_args
+from typing import Annotated, Any, Final, Literal, Self
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import AfterValidator, Field, model_validator
 
 from schemas.common import (
     FieldError,
@@ -21,20 +21,11 @@ from schemas.common import (
     Vec2,
     Vec3,
 )
+from schemas.plan_records import Metrics, Segment, Slowdown
+from schemas.status import Reason, Status
 
 PLAN_SCHEMA: Final = "beamrelay.plan/1"
-Reason = Literal[
-    "unreachable",
-    "outside_roi",
-    "joint_limits",
-    "back_face",
-    "occluded",
-    "keep_out",
-    "collision",
-    "solver_failed",
-]
-Status = Literal["ok", "failed"]
-FAILURE_REASONS: Final[tuple[str, ...]] = get_args(Reason)
+FAILURE_REASONS: Final[tuple[str, ...]] = tuple(r.value for r in Reason)
 JointRows = list[JointVector]
 
 
@@ -84,48 +75,19 @@ class Solution(StrictModel):
 
     @model_validator(mode="after")
     def _reason(self) -> Self:
-        if self.status == "ok" and self.reason is not None:
+        if self.status is Status.OK and self.reason is not None:
             raise FieldError(("reason",), "must be null when status is ok")
-        if self.status == "failed" and self.reason is None:
+        if self.status is Status.FAILED and self.reason is None:
             raise FieldError(
                 ("reason",), f"required when status is failed: {', '.join(FAILURE_REASONS)}"
             )
         return self
 
 
-class Segment(StrictModel):
-    """A labelled time span ``[t0, t1]`` (s) of the trajectory: ``approach``/``move`` (spot
-    not on a target), ``run_in``/``run_out`` (spot accelerating onto / leaving a path along
-    its extension, laser off), ``path`` (spot on the path), ``dwell`` (spot held on a
-    target)."""
-
-    kind: Literal["approach", "move", "run_in", "path", "run_out", "dwell"]
-    t0: Num
-    t1: Num
-
-    @model_validator(mode="after")
-    def _ordered(self) -> Self:
-        if self.t1 < self.t0:
-            raise FieldError(("t1",), f"ends before t0 ({self.t0:g})")
-        return self
-
-
-class Slowdown(StrictModel):
-    """Where the marked spot runs slower than the spot speed because a joint limit binds:
-    arc length ``s0``..``s1`` (m) along the path, trajectory time ``t0``..``t1`` (s), the
-    binding ``limit`` (``position``: a joint position limit, ``reach``: the spot's line
-    leaves the workspace, where a run-in or run-out could not be laid long enough), the
-    joint (``robot``, index ``joint``; -1 and null when no one joint is named) and the
-    slowest speed reached (m/s)."""
-
-    s0: Num
-    s1: Num
-    t0: Num
-    t1: Num
-    limit: Literal["spot", "velocity", "acceleration", "jerk", "position", "reach"]
-    robot: str | None = None
-    joint: int = -1
-    speed: NonNegNum
+def _ordered(segment: Segment) -> Segment:
+    if segment.t1 < segment.t0:
+        raise FieldError(("t1",), f"ends before t0 ({segment.t0:g})")
+    return segment
 
 
 class Trajectory(StrictModel):
@@ -138,7 +100,7 @@ class Trajectory(StrictModel):
     q: dict[str, JointRows]
     qd: dict[str, JointRows]
     qdd: dict[str, JointRows]
-    segments: list[Segment] = Field(default_factory=list)
+    segments: list[Annotated[Segment, AfterValidator(_ordered)]] = Field(default_factory=list)
     laser_on: list[Annotated[list[Num], Field(min_length=2, max_length=2)]] = Field(
         default_factory=list
     )
@@ -164,32 +126,6 @@ class Trajectory(StrictModel):
                         (key, robot), f"expected {len(self.t)} rows (one per t), got {len(rows)}"
                     )
         return self
-
-
-class Exposure(StrictModel):
-    """What the laser deposits (with ``laser.power``): fluence along paths (J/m = power /
-    spot speed) at its smallest and largest over the marked samples, energy per dwell (J)."""
-
-    fluence_min: NonNegNum | None = None
-    fluence_max: NonNegNum | None = None
-    dwell_energy: NonNegNum | None = None
-
-
-class Metrics(StrictModel):
-    """Summary figures; medians over solved targets (None when nothing was solved).
-
-    Errors in m, times in s. Further numeric figures go in ``extra``.
-    """
-
-    n_targets: NonNegInt
-    n_ok: NonNegInt
-    error_max: NonNegNum | None = None
-    error_median: NonNegNum | None = None
-    solve_time_median: NonNegNum | None = None
-    solve_time_p95: NonNegNum | None = None
-    duration: NonNegNum | None = None
-    exposure: Exposure | None = None
-    extra: dict[str, Num] = Field(default_factory=dict)
 
 
 class Plan(StrictModel):

@@ -20,7 +20,10 @@ import logging.handlers
 import queue
 import sys
 import time
-from typing import IO
+from collections.abc import Sequence
+from typing import IO, Any, Protocol
+
+from schemas.status import ServoStatus, Status
 
 #: the strftime format of an event's time (UTC); milliseconds and ``Z`` are appended
 TIME_FORMAT = "%Y-%m-%dT%H:%M:%S"
@@ -91,27 +94,43 @@ def request_fields(req: object) -> dict[str, object]:
             "frame": getattr(req, "frame", None)}  # fmt: skip
 
 
-def verdict_fields(plan: dict[str, object]) -> dict[str, object]:
+class Planned(Protocol):
+    """What :func:`verdict_fields` reads of a plan (:class:`planner.io.plan.Plan`, which the
+    bus does not import): its request id, its solutions' ``status`` and ``reason``, the
+    execution verdict and reason, the closed-loop report's rows' ``status``."""
+
+    @property
+    def id(self) -> str | None: ...
+    @property
+    def solutions(self) -> Sequence[Any]: ...
+    @property
+    def execution(self) -> str | None: ...
+    @property
+    def execution_reason(self) -> str | None: ...
+    @property
+    def closed_loop(self) -> Any: ...
+
+
+def verdict_fields(plan: Planned) -> dict[str, object]:
     """The verdict of a planned (and maybe executed) request: id, solved/targets, failure
     reasons with counts, execution verdict and reason, closed-loop convergence."""
-    sols = plan.get("solutions") or []
-    assert isinstance(sols, list)
+    sols = plan.solutions
     reasons: dict[str, int] = {}
     for s in sols:
-        if s.get("status") != "ok":
-            reasons[str(s.get("reason"))] = reasons.get(str(s.get("reason")), 0) + 1
-    out: dict[str, object] = {"id": plan.get("id"),
+        if s.status is not Status.OK:
+            reasons[str(s.reason)] = reasons.get(str(s.reason), 0) + 1
+    out: dict[str, object] = {"id": plan.id,
                               "solved": f"{len(sols) - sum(reasons.values())}/{len(sols)}"}  # fmt: skip
     if reasons:
         out["failed"] = ",".join(f"{k}:{n}" for k, n in sorted(reasons.items()))
-    if plan.get("execution") is not None:
-        out["execution"] = plan.get("execution")
-        if plan.get("execution_reason"):
-            out["execution_reason"] = plan.get("execution_reason")
-    closed = plan.get("closed_loop")
-    rows = (closed.get("targets") if isinstance(closed, dict) else None) or []
+    if plan.execution is not None:
+        out["execution"] = plan.execution
+        if plan.execution_reason:
+            out["execution_reason"] = plan.execution_reason
+    rows = () if plan.closed_loop is None else plan.closed_loop.targets
     if rows:
-        out["converged"] = f"{sum(r.get('status') == 'converged' for r in rows)}/{len(rows)}"
+        converged = sum(r.status is ServoStatus.CONVERGED for r in rows)
+        out["converged"] = f"{converged}/{len(rows)}"
     return out
 
 

@@ -121,7 +121,7 @@ def _summary(plan: Plan, fallback_name: str) -> Any:
     from rich.table import Table
 
     m, x = plan.metrics, plan.metrics.extra
-    table = Table(title=f"plan: {plan.scenario.get('name') or fallback_name}")
+    table = Table(title=f"plan: {plan.resolved.name or fallback_name}")
     table.add_column("figure")
     table.add_column("value", justify="right")
     table.add_row("targets", str(m.n_targets))
@@ -138,7 +138,7 @@ def _summary(plan: Plan, fallback_name: str) -> Any:
         return table
     table.add_row("trajectory duration (s)", f"{m.duration:.2f}")
     if "path_time" in x:
-        speed = float(plan.scenario["trajectory"]["spot_speed"])
+        speed = plan.resolved.trajectory.spot_speed
         ideal = x["path_length"] / speed
         table.add_row("  on the path (s)", f"{x['path_time']:.2f} (length/speed {ideal:.2f})")
         table.add_row("  path length (mm)", f"{1e3 * x['path_length']:.1f}")

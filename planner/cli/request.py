@@ -17,7 +17,7 @@ import typer
 from planner.cli.args import parse_xyz
 from planner.cli.node import EndpointOpt, PrefixOpt, ZenohConfigOpt
 from planner.errors import InputError
-from planner.model.status import ServoStatus, Status
+from planner.model.status import Status
 from schemas.messages import TRACK_SCHEMA
 
 if TYPE_CHECKING:
@@ -152,12 +152,12 @@ def request(
     if interruption is not None:
         console.print(f"execution: INTERRUPTED: {interruption}", style="bold red",
                       markup=False, soft_wrap=True)  # fmt: skip
-    servo_rows = (plan.closed_loop or {}).get("targets") or []
+    servo_rows = () if plan.closed_loop is None else plan.closed_loop.targets
     if servo_rows:
         print_closed_loop(console, plan)
     if as_json:
         print(json.dumps(request_summary(plan, spots)))
-    unconverged = any(r.get("status") != ServoStatus.CONVERGED for r in servo_rows)
+    unconverged = not all(r.converged for r in servo_rows)
     if (
         rejected
         or unconverged
@@ -179,17 +179,18 @@ def print_closed_loop(console: object, plan: Plan) -> None:
 
     cl = plan.closed_loop
     assert cl is not None
-    for r in cl["targets"]:
-        why = f" ({r['reason']}: {r.get('detail')})" if r.get("reason") else ""
-        console.print(f"closed loop {r['id']}: {r['status']}{why}; measured error "
-                      f"{mm(r.get('measured_error_before'))} -> {mm(r.get('measured_error_after'))}"
-                      f", {r.get('iterations', 0)} corrections, {r.get('frames', 0)} frames, "
-                      f"{r.get('time', 0.0):.2f} s, dwell {r.get('dwell', 0.0):.2f} s"
-                      f"{'' if r.get('treated', True) else ' (not treated)'}",
+    for r in cl.targets:
+        why = f" ({r.reason}: {r.detail})" if r.reason is not None else ""
+        s = r.servo
+        before, after = (None, None) if s is None else (s.error_before, s.error_after)
+        steps, frames, seconds = (0, 0, 0.0) if s is None else (s.iterations, s.frames, s.time)
+        console.print(f"closed loop {r.id}: {r.status}{why}; measured error {mm(before)} -> "
+                      f"{mm(after)}, {steps} corrections, {frames} frames, {seconds:.2f} s, "
+                      f"dwell {r.dwell:.2f} s{' (not treated)' if r.treated is False else ''}",
                       markup=False, soft_wrap=True)  # fmt: skip
     x = plan.metrics.extra
-    console.print(f"closed loop: {x.get('closed_loop_converged', 0):.0f}/{len(cl['targets'])} "
-                  f"within {mm(cl['tolerance'])}; measured error median "
+    console.print(f"closed loop: {cl.converged}/{len(cl.targets)} "
+                  f"within {mm(cl.tolerance)}; measured error median "
                   f"{mm(x.get('measured_error_before_median'))} -> "
                   f"{mm(x.get('measured_error_median'))}, max "
                   f"{mm(x.get('measured_error_before_max'))} -> {mm(x.get('measured_error_max'))}",

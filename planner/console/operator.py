@@ -18,7 +18,7 @@ from planner.bus.session import JSON, encode, urgent
 from planner.console.sweep import Sweep, sweep_of
 from planner.io.plan import Plan, Verdict
 from planner.model.transforms import Array
-from planner.service.client import PlanClient, request_summary, world_T_camera_of
+from planner.service.client import PlanClient, world_T_camera_of
 from schemas.messages import StopMessage
 
 #: seconds to wait for a plan reply
@@ -26,12 +26,11 @@ PLAN_TIMEOUT = 30.0
 
 
 class Answer(NamedTuple):
-    """A reply: the :class:`~planner.io.plan.Plan`, the summary (:func:`planner.service.client.request_summary`),
-    the round trip (s), the measured spots (world, m; None where unseen) if executed, and
-    for an executed path what the camera saw of it (None otherwise)."""
+    """A reply: the :class:`~planner.io.plan.Plan`, the round trip (s), the measured spots
+    (world, m; None where unseen) if executed, and for an executed path what the camera saw
+    of it (None otherwise)."""
 
     plan: Plan
-    summary: dict[str, Any]
     seconds: float
     spots: list[Array | None] | None
     sweep: Sweep | None = None
@@ -56,7 +55,7 @@ class Operator:
             plan = self.client.plan({**req, "execute": False, "trajectory": True},
                                     PLAN_TIMEOUT)  # fmt: skip
             dt = time.perf_counter() - t0
-        return Answer(plan, request_summary(plan, None), dt, None)
+        return Answer(plan, dt, None)
 
     def execute(self, req: dict[str, Any]) -> Answer:
         """Plan and execute ``req``, wait for the motion, measure the spots (and the marked
@@ -66,7 +65,7 @@ class Operator:
             plan, spots = self.client.execute_plan({**req, "execute": True}, PLAN_TIMEOUT)
             dt = time.perf_counter() - t0
         sweep = self._sweep(plan, since) if req.get("mode") == "path" else None
-        return Answer(plan, request_summary(plan, spots), dt, spots, sweep)
+        return Answer(plan, dt, spots, sweep)
 
     def _sweep(self, plan: Plan, since: float) -> Sweep | None:
         """The marked path of an executed ``plan`` from the spots recorded since ``since``

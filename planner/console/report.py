@@ -8,11 +8,15 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from planner.console.operator import Answer
 from planner.console.preview import Preview
 from planner.console.sweep import Sweep
 from planner.io.plan import Plan
 from planner.model.status import Status
+from planner.model.transforms import Array
+from planner.service.client import measured_errors
 
 #: most per-target rows shown
 MAX_ROWS = 40
@@ -22,39 +26,41 @@ def answer_markdown(answer: Answer, pv: Preview, executed: bool, faults: tuple[s
                     ) -> str:  # fmt: skip
     """Markdown summary of one reply (see the module docstring); ``faults``: what the robot
     drivers reported wrong after the motion (a stop, a lost heartbeat), shown first."""
-    s = answer.summary
+    plan = answer.plan
     head = (f"**{pv.n_ok}/{pv.n} targets solved**, trajectory {pv.duration:.2f} s, "
-            f"reply in {1e3 * answer.seconds:.0f} ms (request {s.get('id')})")  # fmt: skip
+            f"reply in {1e3 * answer.seconds:.0f} ms (request {plan.id})")  # fmt: skip
     lines = [head]
+    errors = measured_errors(plan, answer.spots)
     if executed:
-        lines.append(execution_line(s))
+        lines.append(execution_line(plan))
         lines += [f"**driver: {f}**" for f in faults]
-        if "measured_error_median" in s and answer.sweep is None:
+        measured = [e for e in errors if e is not None]
+        if measured and answer.sweep is None:
             lines.append(
-                f"measured error: median {1e3 * s['measured_error_median']:.2f} mm, "
-                f"max {1e3 * s['measured_error_max']:.2f} mm over {s['n_measured']} targets"
+                f"measured error: median {1e3 * float(np.median(measured)):.2f} mm, "
+                f"max {1e3 * max(measured):.2f} mm over {len(measured)} targets"
             )
-        lines += _closed_loop(answer.plan)
+        lines += _closed_loop(plan)
         if answer.sweep is not None:
             lines.append(sweep_line(answer.sweep))
     for f in pv.failed[:MAX_ROWS]:
         detail = f": {f.detail}" if f.detail else ""
         lines.append(f"#{f.target} failed: **{f.reason}**{detail}")
     if executed and answer.sweep is None:  # a path's samples: the marked path says it
-        lines += _measured_rows(s["targets"])
+        lines += _measured_rows(plan, answer.spots, errors)
     return "  \n".join(lines)
 
 
-def execution_line(summary: dict[str, Any]) -> str:
+def execution_line(plan: Plan) -> str:
     """``execution: ...`` of a reply. A robot whose verdict the planner never heard is
     *waiting*, not rejected: its driver may have accepted late (the planner then sent STOP,
     so a late acceptance brakes); :func:`late_verdict_line` says what it answered."""
-    waiting = summary.get("execution_unanswered") or []
-    reason = f" ({summary['execution_reason']})" if summary.get("execution_reason") else ""
+    waiting = plan.execution_unanswered or ()
+    reason = f" ({plan.execution_reason})" if plan.execution_reason else ""
     if waiting:
         return (f"execution: **waiting for {', '.join(waiting)}** (no verdict heard; STOP sent, "
                 f"so a late acceptance brakes){reason}")  # fmt: skip
-    return f"execution: **{summary.get('execution') or 'not executed'}**{reason}"
+    return f"execution: **{plan.execution or 'not executed'}**{reason}"
 
 
 def late_verdict_line(robot: str, ack: Any) -> str:
@@ -74,18 +80,20 @@ def sweep_line(sw: Sweep) -> str:
             f"{sw.unlit} spots seen with the laser planned off")  # fmt: skip
 
 
-def _measured_rows(rows: list[dict[str, Any]]) -> list[str]:
+def _measured_rows(plan: Plan, spots: list[Array | None] | None,
+                   errors: list[float | None]) -> list[str]:  # fmt: skip
     out = []
-    for r in rows[:MAX_ROWS]:
-        if r["status"] != Status.OK:
+    for k, sol in enumerate(plan.solutions[:MAX_ROWS]):
+        if sol.status is not Status.OK:
             continue
-        p = ", ".join(f"{1e3 * c:.1f}" for c in r["p"])
-        if r["measured_spot"] is None:
-            out.append(f"#{r['id']} planned ({p}) mm: spot not measured")
+        target = int(plan.targets.ids[k])
+        p = ", ".join(f"{1e3 * c:.1f}" for c in plan.targets.p[k].tolist())
+        spot, err = None if spots is None else spots[k], errors[k]
+        if spot is None or err is None:
+            out.append(f"#{target} planned ({p}) mm: spot not measured")
         else:
-            m = ", ".join(f"{1e3 * c:.1f}" for c in r["measured_spot"])
-            out.append(f"#{r['id']} planned ({p}) measured ({m}) mm, "
-                       f"error {1e3 * r['measured_error']:.2f} mm")  # fmt: skip
+            m = ", ".join(f"{1e3 * c:.1f}" for c in np.asarray(spot).tolist())
+            out.append(f"#{target} planned ({p}) measured ({m}) mm, error {1e3 * err:.2f} mm")
     return out
 
 
@@ -93,6 +101,6 @@ def _closed_loop(plan: Plan) -> list[str]:
     """What the reply says about closed-loop correction, as it says it (free-form)."""
     items: list[tuple[str, Any]] = []
     if plan.closed_loop is not None:
-        items.append(("closed_loop", dict(plan.closed_loop)))
+        items.append(("closed_loop", plan.closed_loop.to_document()))
     items += [(k, v) for k, v in plan.metrics.extra.items() if "closed" in k or "servo" in k]
     return [f"{k}: `{v}`"[:300] for k, v in items]

@@ -221,10 +221,7 @@ class Session:
         if answer.sweep is not None and len(answer.sweep.marked):
             self.scene.add_point_cloud("/preview/marked", answer.sweep.marked,
                                        colors=SPOT_COLOUR, point_size=0.003)  # fmt: skip
-        summary = answer.summary
-        self.waiting = {
-            r: str(summary.get("id")) for r in summary.get("execution_unanswered") or []
-        }
+        self.waiting = {r: str(answer.plan.id) for r in answer.plan.execution_unanswered or ()}
         faults = self.c.robot_faults() if executed else {}
         self.message(answer_markdown(answer, self.preview, executed,
                                      tuple(f"{r}: {f}" for r, f in sorted(faults.items()))))  # fmt: skip

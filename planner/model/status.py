@@ -1,35 +1,18 @@
-"""What became of a target: a :class:`Status` and, when it failed, a :class:`Reason`.
+"""What became of a target: a :class:`Status` and, when it failed, a :class:`Reason`
+(the file format's string enums, :mod:`schemas.status`, re-exported here with the servo's
+:class:`ServoStatus`), and a :class:`Failure`: the reason with its evidence.
 
-String enums, so plan.json carries exactly the strings the file format names (``ok``,
-``failed``; ``unreachable``, ``outside_roi``, ...): ``Status.OK == "ok"`` and
-``json.dumps(Reason.OCCLUDED) == '"occluded"'``. Inside the planner a reason travels as the
-enum, next to a free-text detail, never folded into one ``"reason: detail"`` string.
+Inside the planner a reason travels as the enum, next to a free-text detail, never folded
+into one ``"reason: detail"`` string.
 """
 
 from __future__ import annotations
 
-from enum import StrEnum
 from typing import NamedTuple
 
+from schemas.status import Interruption, Reason, ServoStatus, Status
 
-class Status(StrEnum):
-    """Outcome of one target."""
-
-    OK = "ok"
-    FAILED = "failed"
-
-
-class Reason(StrEnum):
-    """Why a target failed (machine-readable, as written to plan.json)."""
-
-    UNREACHABLE = "unreachable"  # no configuration sends the beam there (reach, incidence)
-    OUTSIDE_ROI = "outside_roi"  # only with a mirror hit outside its region of interest
-    JOINT_LIMITS = "joint_limits"  # only outside the joint position limits
-    BACK_FACE = "back_face"  # only with the beam on a mirror's back face or the target behind
-    OCCLUDED = "occluded"  # the beam crosses a scene object or a robot link
-    KEEP_OUT = "keep_out"  # the beam (or the target) inside a keep-out volume
-    COLLISION = "collision"  # arms, or an arm and the scene, closer than the clearance
-    SOLVER_FAILED = "solver_failed"  # the solver gave no usable answer
+__all__ = ["Failure", "Interruption", "Reason", "ServoStatus", "Status", "evidence_text"]
 
 
 class Failure(NamedTuple):
@@ -62,15 +45,3 @@ def _value_text(value: object, digits: int) -> str:
     if isinstance(value, float):
         return f"{value:.{digits}g}"
     return str(value)
-
-
-class ServoStatus(StrEnum):
-    """How a servo run ended (:mod:`planner.servo.loop`); here, with the other statuses, so
-    that a client reads a closed-loop report's status without loading the servo."""
-
-    CONVERGED = "converged"
-    NOT_IMPROVING = "not_improving"
-    NOT_SEEN = "not_seen"
-    REFUSED = "refused"
-    MAX_ITERATIONS = "max_iterations"
-    ABORTED = "aborted"

@@ -42,6 +42,7 @@ from planner.path.timing import (
     ruckig_move,
 )
 from schemas import defaults
+from schemas.plan_records import SegmentKind
 
 RUN_MARGIN = 1.5  # run-in/run-out length as a multiple of the ramp / look-ahead distance
 SPEED_SLACK = 0.02  # fraction: the marked speed may be this much below/above the spot speed
@@ -252,8 +253,10 @@ def time_run(run: MarkRun, lim: object, spot_speed: float, rate: float, t0: floa
     whole = profile_piece(prof, run.q[-1])
     i0, i1 = marked_span(prof.s, run)
     pieces = []
-    for kind, a, b in (("run_in", 0, i0), ("path", i0, i1), ("run_out", i1, len(prof.s) - 1)):
-        if b > a or kind == "path":
+    spans = ((SegmentKind.RUN_IN, 0, i0), (SegmentKind.PATH, i0, i1),
+             (SegmentKind.RUN_OUT, i1, len(prof.s) - 1))  # fmt: skip
+    for kind, a, b in spans:
+        if b > a or kind is SegmentKind.PATH:
             sl = slice(a, b + 1)
             pieces.append(_Piece(whole.q[sl], whole.qd[sl], whole.qdd[sl], kind))
     return pieces, marked_slowdowns(prof, run, i0, i1, spot_speed, t0, rate)
@@ -276,7 +279,7 @@ def marking_trajectory(
     n_samples = 1
     for n, run in enumerate(runs):
         Qm, QDm, QDDm = move(prev, run.q[0], lim, rate)
-        pieces.append(_Piece(Qm, QDm, QDDm, "approach" if n == 0 else "move"))
+        pieces.append(_Piece(Qm, QDm, QDDm, SegmentKind.APPROACH if n == 0 else SegmentKind.MOVE))
         n_samples += len(Qm) - 1
         prev = run.q[0]
         if len(run.q) < 2:

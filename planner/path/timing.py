@@ -29,17 +29,16 @@ from planner.path.profile import Profile, path_speed_limit, profile
 from planner.path.rest_to_rest import move_time
 from planner.path.tour import visit_order
 from schemas import defaults
+from schemas.plan_records import LASER_KINDS, SegmentKind
 
 __all__ = ["Profile", "path_speed_limit", "profile"]  # re-exported
 
-SEGMENT_KINDS = ("approach", "move", "run_in", "path", "run_out", "dwell")
-LASER_KINDS = ("path", "dwell")  # segments in which the laser is on
 #: a rest-to-rest move ``(q0, q1, limits, rate) -> (q, qd, qdd)`` sampled at ``rate``
 MoveFn = Callable[[Array, Array, Limits, float], tuple[Array, Array, Array]]
 
 
 class Segment(NamedTuple):
-    kind: str  # one of SEGMENT_KINDS
+    kind: SegmentKind
     t0: float  # s
     t1: float  # s
 
@@ -108,7 +107,7 @@ class Trajectory:
             "q": per_robot(self.q),
             "qd": per_robot(self.qd),
             "qdd": per_robot(self.qdd),
-            "segments": [{"kind": s.kind, "t0": s.t0, "t1": s.t1} for s in self.segments],
+            "segments": [{"kind": s.kind.value, "t0": s.t0, "t1": s.t1} for s in self.segments],
             "laser_on": [[t0, t1] for t0, t1 in self.laser_on],
             "slowdowns": [_slowdown_dict(system, s) for s in self.slowdowns],
         }
@@ -145,7 +144,7 @@ class _Piece(NamedTuple):
     q: Array
     qd: Array
     qdd: Array
-    kind: str
+    kind: SegmentKind
 
 
 # ------------------------------------------------------------------------------------------
@@ -244,7 +243,7 @@ def _assemble(
     return joiner.trajectory(slowdowns)
 
 
-def _hold(q: Array, seconds: float, rate: float, kind: str) -> _Piece:
+def _hold(q: Array, seconds: float, rate: float, kind: SegmentKind) -> _Piece:
     m = round(seconds * rate)
     Q = np.tile(q, (m + 1, 1))
     return _Piece(Q, np.zeros_like(Q), np.zeros_like(Q), kind)
@@ -275,14 +274,14 @@ def points_trajectory(
     prev = q0
     for n, k in enumerate(idx[seq]):
         Qm, QDm, QDDm = move(prev, Q[k], lim, rate)
-        joiner.add(_Piece(Qm, QDm, QDDm, "approach" if n == 0 else "move"))
+        joiner.add(_Piece(Qm, QDm, QDDm, SegmentKind.APPROACH if n == 0 else SegmentKind.MOVE))
         if dwell > 0:
-            joiner.add(_hold(Q[k], dwell, rate, "dwell"))
+            joiner.add(_hold(Q[k], dwell, rate, SegmentKind.DWELL))
         prev = Q[k]
         if progress is not None:
             progress(n)
     if not len(idx):
-        joiner.add(_hold(q0, 0.0, rate, "dwell"))
+        joiner.add(_hold(q0, 0.0, rate, SegmentKind.DWELL))
     traj = joiner.trajectory()
     return traj, VisitReport(idx[seq], traj.duration, estimate(given), estimate(seq))
 
@@ -310,7 +309,7 @@ def _slowdowns(arc: Array, speed: Array, code: Array, joint: Array) -> tuple[Slo
     return tuple(out)
 
 
-def profile_piece(prof: Profile, q_end: Array, kind: str = "path") -> _Piece:
+def profile_piece(prof: Profile, q_end: Array, kind: SegmentKind = SegmentKind.PATH) -> _Piece:
     """Joints, velocities and accelerations along a timed profile (the last sample exactly
     ``q_end``)."""
     spline, s, sd, sdd = prof.spline, prof.s, prof.sd, prof.sdd
@@ -347,7 +346,7 @@ def path_trajectory(
     i0 = 0  # index of the current piece's first sample
     for n, (Qp, arc) in enumerate(runs):
         Qm, QDm, QDDm = move(prev, Qp[0], lim, rate)
-        pieces.append(_Piece(Qm, QDm, QDDm, "approach" if n == 0 else "move"))
+        pieces.append(_Piece(Qm, QDm, QDDm, SegmentKind.APPROACH if n == 0 else SegmentKind.MOVE))
         i0 += len(Qm) - 1
         if len(Qp) < 2:
             prev = Qp[0]

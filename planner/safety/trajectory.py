@@ -27,12 +27,11 @@ from planner.model.transforms import Array
 from planner.safety.beam_cover import advance, coverable, pair_slack, pair_table
 from planner.safety.model import Safety, Violation
 from planner.safety.sweep import SweepViolation, check_sweep
+from schemas.plan_records import LASER_KINDS
 
 MoveFn = Callable[[Array, Array, Limits, float], tuple[Array, Array, Array]]
 #: waypoints tried per colliding move
 DETOUR_TRIES = 40
-#: segment kinds during which the laser may be on
-LASER_KINDS = ("path", "dwell")
 
 
 class MoveFailure(NamedTuple):

@@ -30,6 +30,7 @@ from numpy.typing import ArrayLike
 from planner.bus.session import JSON, Keys, decode, encode, open_session
 from planner.errors import BeamrelayError, InputError
 from planner.io.plan import Plan, Verdict
+from planner.io.plan_reports import ClosedLoopTarget
 from planner.model.status import Status
 from planner.model.transforms import Array, transform_points
 from schemas.messages import JointState, RobotStatus, SpotMessage
@@ -89,11 +90,9 @@ def make_request(
 
 
 def world_T_camera_of(plan: Plan) -> Array | None:
-    """The camera pose the plan was made with (resolved scenario), or None."""
-    cam = (plan.scenario.get("system") or {}).get("camera")
-    if not cam or "world_T_camera" not in cam:  # none, or on a flange (pose depends on q)
-        return None
-    return np.asarray(cam["world_T_camera"]["matrix"], dtype=float)
+    """The camera pose the plan was made with (resolved scenario), or None (no camera, or
+    one on a flange: its pose depends on the joints)."""
+    return plan.resolved.world_T_camera
 
 
 class Spot(NamedTuple):
@@ -428,17 +427,31 @@ class PlanClient:
 
 def closed_loop_spots(plan: Plan) -> list[Array | None]:
     """The node's last measured spot (world, m) per target of a closed-loop reply."""
-    rows = (plan.closed_loop or {}).get("targets") or []
-    spots: list[Array | None] = [None] * len(plan.solutions)
-    for k, row in enumerate(rows[: len(spots)]):
-        if row.get("measured_spot") is not None:
-            spots[k] = np.asarray(row["measured_spot"], dtype=float)
-    return spots
+    n = len(plan.solutions)
+    return [None] * n if plan.closed_loop is None else plan.closed_loop.spots(n)
 
 
-CLOSED_LOOP_KEYS = ("status", "iterations", "frames", "time", "measured_error_before",
-                    "measured_error_after", "dwell", "treated", "reason", "detail",
-                    "measured_error_camera", "measured_spot_camera", "target_camera")  # fmt: skip
+def closed_loop_row(row: ClosedLoopTarget) -> dict[str, Any]:
+    """A closed-loop row's figures in a request summary (JSON data; None where the row has
+    none): status, iterations, frames, time (s), measured error before and after (m), dwell
+    (s), treated, reason and detail, and the camera-frame figures (m)."""
+    s = row.servo
+
+    def run(key: str) -> Any:
+        return None if s is None else getattr(s, key)
+
+    return {"status": row.status, "iterations": run("iterations"), "frames": run("frames"),
+            "time": run("time"), "measured_error_before": run("error_before"),
+            "measured_error_after": run("error_after"), "dwell": row.dwell,
+            "treated": row.treated, "reason": row.reason,
+            "detail": row.detail,
+            "measured_error_camera": row.error_camera,
+            "measured_spot_camera": _list(row.spot_camera),
+            "target_camera": _list(row.target_camera)}  # fmt: skip
+
+
+def _list(x: Array | None) -> list[float] | None:
+    return None if x is None else x.tolist()
 
 
 def request_summary(plan: Plan, spots: list[Array | None] | None) -> dict[str, Any]:
@@ -447,22 +460,21 @@ def request_summary(plan: Plan, spots: list[Array | None] | None) -> dict[str, A
     status, reason, planned error and measured error (m; None when not seen; from the
     requested point of a camera-frame target that landed on its surface, which the camera
     saw), and over the measured targets ``measured_error_median`` / ``measured_error_max`` (m)."""
-    rows, measured = [], []
-    servo_rows = None if plan.closed_loop is None else plan.closed_loop.get("targets")
+    rows = []
+    errors = measured_errors(plan, spots)
+    measured = [e for e in errors if e is not None]
+    report = plan.closed_loop
+    servo_rows = None if report is None else report.targets
     for k, sol in enumerate(plan.solutions):
-        spot = None if spots is None else spots[k]
+        spot, err = None if spots is None else spots[k], errors[k]
         p = plan.targets.p[k]
-        aim = p if sol.surface is None else sol.surface.requested  # the camera's point
-        err = None if spot is None else float(np.linalg.norm(spot - aim))
-        if err is not None:
-            measured.append(err)
         surface = None if sol.surface is None else sol.surface.to_document()
         rows.append({"id": int(plan.targets.ids[k]), "p": p.tolist(), "status": sol.status,
                      "reason": sol.reason, "planned_error": _finite(sol.error),
                      "measured_spot": None if spot is None else np.asarray(spot).tolist(),
                      "measured_error": err, "surface": surface})  # fmt: skip
         if servo_rows is not None and k < len(servo_rows):
-            rows[-1]["closed_loop"] = {key: servo_rows[k].get(key) for key in CLOSED_LOOP_KEYS}
+            rows[-1]["closed_loop"] = closed_loop_row(servo_rows[k])
     out: dict[str, Any] = {
         "id": plan.id,
         "execution": plan.execution,
@@ -477,15 +489,26 @@ def request_summary(plan: Plan, spots: list[Array | None] | None) -> dict[str, A
         out["measured_error_median"] = float(np.median(measured))
         out["measured_error_max"] = float(np.max(measured))
         out["n_measured"] = len(measured)
-    if servo_rows is not None:
-        before = [r["measured_error_before"] for r in servo_rows
-                  if r.get("measured_error_before") is not None]  # fmt: skip
+    if report is not None:
+        before = [r.servo.error_before for r in report.targets
+                  if r.servo is not None and r.servo.error_before is not None]  # fmt: skip
         if before:
             out["measured_error_before_median"] = float(np.median(before))
             out["measured_error_before_max"] = float(np.max(before))
-        assert plan.closed_loop is not None
-        out["closed_loop"] = {k: v for k, v in plan.closed_loop.items() if k != "targets"}
+        out["closed_loop"] = report.to_document(targets=False)
     out["targets"] = rows
+    return out
+
+
+def measured_errors(plan: Plan, spots: list[Array | None] | None) -> list[float | None]:
+    """Each target's measured error (m; None when not seen): the distance of its measured
+    spot from its point, or from the requested point of a camera-frame target that landed
+    on its surface (which the camera saw)."""
+    out: list[float | None] = []
+    for k, sol in enumerate(plan.solutions):
+        spot = None if spots is None else spots[k]
+        aim = plan.targets.p[k] if sol.surface is None else sol.surface.requested
+        out.append(None if spot is None else float(np.linalg.norm(spot - aim)))
     return out
 
 

@@ -34,7 +34,7 @@ from __future__ import annotations
 import json
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -44,8 +44,9 @@ from planner.beam.trace import trace_beam
 from planner.errors import InputError
 from planner.io.plan import Plan, Verdict
 from planner.io.plan import Trajectory as PlanTrajectory
+from planner.io.plan_reports import ClosedLoopReport, ClosedLoopTarget, FramesDropped, ServoFigures
 from planner.model.settings import TrajectorySettings
-from planner.model.status import Status, evidence_text
+from planner.model.status import Interruption, Status, evidence_text
 from planner.model.system import System, Targets
 from planner.model.transforms import Array
 from planner.service.execution import ExecuteError
@@ -203,7 +204,7 @@ class ClosedLoopRunner:
         self.moves = 0
         self._target = np.zeros(3)
         self._normal: Array | None = None
-        self.dropped = {"low_confidence": 0, "implausible": 0}  # frames gated out
+        self.dropped = FramesDropped()  # frames gated out
         self._run = 0  # implausible frames in a row
         self._bias: Array | None = None  # last measured spot - model spot, this target
 
@@ -283,8 +284,8 @@ class ClosedLoopRunner:
         """The frames that pass the plausibility gate; ExecuteError after
         :data:`MAX_IMPLAUSIBLE` implausible ones in a row."""
         kept, weak, far = gate_frames(got, world_T_camera, predicted, gate)
-        self.dropped["low_confidence"] += weak
-        self.dropped["implausible"] += far
+        self.dropped = FramesDropped(self.dropped.low_confidence + weak,
+                                     self.dropped.implausible + far)  # fmt: skip
         self._run = 0 if any(f.p_camera is not None for f in kept) else self._run + far
         if self._run >= MAX_IMPLAUSIBLE:
             raise ExecuteError(f"{self._run} implausible spots in a row (each over "
@@ -327,47 +328,65 @@ def as_aim(trajectory: PlanTrajectory) -> PlanTrajectory:
 
 
 def run_closed_loop(runner: ClosedLoopRunner, plan: Plan, targets: Targets,
-                    start: Array, dwell: float) -> list[dict[str, Any]]:  # fmt: skip
-    """Every target of ``plan`` in order; per target the figures of the reply's
+                    start: Array, dwell: float) -> list[ClosedLoopTarget]:  # fmt: skip
+    """Every target of ``plan`` in order; per target its row of the reply's
     ``closed_loop.targets``. A refused move ends the run (ExecuteError carries the rows so
     far in ``rows``)."""
     runner.q = np.asarray(start, dtype=float)
-    rows: list[dict[str, Any]] = []
+    rows: list[ClosedLoopTarget] = []
     for k, sol in enumerate(plan.solutions):
-        row: dict[str, Any] = {"id": int(plan.targets.ids[k]), "dwell": 0.0, "treated": False}
+        target = int(plan.targets.ids[k])
         if runner.motion.stop.is_set():
-            rows.append(row | {"status": "aborted"})
+            rows.append(ClosedLoopTarget(target, ServoStatus.ABORTED))
             continue
         if sol.status is not Status.OK:
-            rows.append(row | {"status": "not_planned"})
+            rows.append(ClosedLoopTarget(target, ServoStatus.NOT_PLANNED))
             continue
         q0 = runner.system.stack_q(dict(sol.q))
         try:
             res, dwelt = runner.target(k, q0, targets.points[k], targets.normal(k), dwell)
         except ExecuteError as exc:
             if runner.motion.stop.is_set():  # a stop made the drivers brake: not a refusal
-                rows.append(row | {"status": "aborted", "reason": "stop", "detail": exc.reason})
+                rows.append(ClosedLoopTarget(target, ServoStatus.ABORTED,
+                                             reason=Interruption.STOP, detail=exc.reason))  # fmt: skip
                 continue
-            rows.append(row | {"status": "rejected", "reason": "execution", "detail": exc.reason})
+            rows.append(ClosedLoopTarget(target, ServoStatus.REJECTED,
+                                         reason=Interruption.EXECUTION, detail=exc.reason))  # fmt: skip
             exc.rows = rows  # type: ignore[attr-defined]
             raise
-        rows.append(row | res.to_json() | {"dwell": dwelt, "treated": dwelt > 0,
-                                           "q": runner.system.split_q(res.q)})  # fmt: skip
-        for robot, q in rows[-1]["q"].items():
-            rows[-1]["q"][robot] = [float(x) for x in q]
+        rows.append(served_row(target, res, dwelt, runner.system.split_q(res.q)))
     return rows
 
 
-def closed_loop_figures(rows: list[dict[str, Any]]) -> dict[str, float]:
+def served_row(target: int, res: ServoResult, dwelt: float,
+               q: Mapping[str, Array]) -> ClosedLoopTarget:  # fmt: skip
+    """The row of a servoed target: its servo result, the treatment dwell held (s) and the
+    joints the arms were left at (rad per robot)."""
+
+    def num(x: float) -> float | None:
+        return None if not np.isfinite(x) else float(x)
+
+    figures = ServoFigures(
+        res.iterations, res.frames, float(res.time), num(res.error_before), num(res.error_after),
+        np.asarray(res.errors, dtype=float).reshape(-1),
+        None if res.spot is None else np.asarray(res.spot, dtype=float),
+        {robot: np.asarray(x, dtype=float) for robot, x in q.items()},
+    )  # fmt: skip
+    failure = res.failure
+    return ClosedLoopTarget(target, res.status, dwelt, dwelt > 0, figures,
+                            None if failure is None else failure.reason,
+                            None if failure is None else failure.detail)  # fmt: skip
+
+
+def closed_loop_figures(rows: Sequence[ClosedLoopTarget]) -> dict[str, float]:
     """``metrics.extra`` figures of a closed-loop run (m, s): the measured error after and
     before the servo (median, max over the targets measured), targets converged, frames,
     iterations and servo time (max; median time)."""
-    after = [r["measured_error_after"] for r in rows if r.get("measured_error_after") is not None]
-    before = [
-        r["measured_error_before"] for r in rows if r.get("measured_error_before") is not None
-    ]
+    served = [r.servo for r in rows if r.servo is not None]
+    after = [s.error_after for s in served if s.error_after is not None]
+    before = [s.error_before for s in served if s.error_before is not None]
     out: dict[str, float] = {
-        "closed_loop_converged": float(sum(r["status"] == ServoStatus.CONVERGED for r in rows)),
+        "closed_loop_converged": float(sum(r.converged for r in rows)),
         "closed_loop_targets": float(len(rows)),
     }
     if after:
@@ -376,39 +395,41 @@ def closed_loop_figures(rows: list[dict[str, Any]]) -> dict[str, float]:
     if before:
         out |= {"measured_error_before_median": float(np.median(before)),
                 "measured_error_before_max": float(np.max(before))}  # fmt: skip
-    served = [r for r in rows if "frames" in r]
     if served:
-        out |= {"closed_loop_frames_max": float(max(r["frames"] for r in served)),
-                "closed_loop_iterations_max": float(max(r["iterations"] for r in served)),
-                "closed_loop_time_median": float(np.median([r["time"] for r in served])),
-                "closed_loop_time_max": float(max(r["time"] for r in served))}  # fmt: skip
+        out |= {"closed_loop_frames_max": float(max(s.frames for s in served)),
+                "closed_loop_iterations_max": float(max(s.iterations for s in served)),
+                "closed_loop_time_median": float(np.median([s.time for s in served])),
+                "closed_loop_time_max": float(max(s.time for s in served))}  # fmt: skip
     return out
 
 
-def in_camera_frame(rows: list[dict[str, Any]], targets_camera: Array,
-                    world_T_camera: Array) -> None:  # fmt: skip
-    """Add to each row of a camera-frame request its target and last measured spot as the
-    camera sees them (``target_camera``, ``measured_spot_camera``, m, optical frame) and
-    ``measured_error_camera`` (m). ``world_T_camera`` is the calibrated camera pose the
-    request's points were mapped to the world with (at the request's start joints); a fixed
-    camera's spots were mapped with the same one, so its extrinsic error drops out of the
-    difference the servo drove to zero."""
+def in_camera_frame(rows: Sequence[ClosedLoopTarget], targets_camera: Array,
+                    world_T_camera: Array) -> list[ClosedLoopTarget]:  # fmt: skip
+    """The rows of a camera-frame request with their target and last measured spot as the
+    camera sees them (``target_camera``, ``spot_camera``, m, optical frame) and
+    ``error_camera`` (m). ``world_T_camera`` is the calibrated camera pose the request's
+    points were mapped to the world with (at the request's start joints); a fixed camera's
+    spots were mapped with the same one, so its extrinsic error drops out of the difference
+    the servo drove to zero."""
     camera_T_world = np.linalg.inv(world_T_camera)
-    for row, p_c in zip(rows, targets_camera, strict=False):
-        row["target_camera"] = [float(x) for x in p_c]
-        spot = row.get("measured_spot")
+    out = list(rows)
+    for k, (row, p_c) in enumerate(zip(rows, targets_camera, strict=False)):
+        p_c = np.asarray(p_c, dtype=float)
+        spot = None if row.servo is None else row.servo.spot
         if spot is None:
+            out[k] = replace(row, target_camera=p_c)
             continue
-        s_c = camera_T_world[:3, :3] @ np.asarray(spot, dtype=float) + camera_T_world[:3, 3]
-        row["measured_spot_camera"] = [float(x) for x in s_c]
-        row["measured_error_camera"] = float(np.linalg.norm(s_c - p_c))
+        s_c = camera_T_world[:3, :3] @ spot + camera_T_world[:3, 3]
+        out[k] = replace(row, target_camera=p_c, spot_camera=s_c,
+                         error_camera=float(np.linalg.norm(s_c - p_c)))  # fmt: skip
+    return out
 
 
 def execute_closed_loop(plan: Plan, targets: Targets, req: Any, start: Array,
                         config: ClosedLoopConfig, motion: Motion, system: System) -> Plan:  # fmt: skip
     """Run a closed-loop request's targets from stacked ``start`` (rad); the plan with the
-    reply's ``closed_loop`` (tolerance m, frames per measurement, dwell s, per-target
-    figures), ``metrics.extra`` (:func:`closed_loop_figures`), ``execution`` and
+    reply's ``closed_loop`` (:class:`~planner.io.plan_reports.ClosedLoopReport`),
+    ``metrics.extra`` (:func:`closed_loop_figures`), ``execution`` and
     ``execution_reason``."""
     if not plan.any_ok:
         raise ExecuteError("no target could be solved, nothing to execute", [])
@@ -423,17 +444,17 @@ def execute_closed_loop(plan: Plan, targets: Targets, req: Any, start: Array,
     except ExecuteError as exc:
         rows = list(getattr(exc, "rows", []))
         k = len(rows) - 1
-        rest = [{"id": int(i), "status": "not_executed", "dwell": 0.0}
-                for i in plan.targets.ids[len(rows):]]  # fmt: skip
-        rows += rest
+        rows += [ClosedLoopTarget(int(i), ServoStatus.NOT_EXECUTED, treated=None)
+                 for i in plan.targets.ids[len(rows):]]  # fmt: skip
         verdict, reason = Verdict.REJECTED, f"target {k}: {exc.reason}"
     if motion.stop.is_set():
         reason = "closed loop aborted: a stop was seen on the bus"
     if req.frame == "camera":
-        in_camera_frame(rows, np.asarray(req.points, dtype=float), system.world_T_camera(start))
-    report = {"tolerance": settings.tolerance, "frames_per_measurement": settings.frames,
-              "dwell": dwell, "moves": runner.moves, "dropped": runner.dropped,
-              "frame": req.frame, "targets": rows}  # fmt: skip
+        rows = in_camera_frame(
+            rows, np.asarray(req.points, dtype=float), system.world_T_camera(start)
+        )
+    report = ClosedLoopReport(settings.tolerance, settings.frames, dwell, runner.moves,
+                              runner.dropped, req.frame, tuple(rows))  # fmt: skip
     return replace(
         plan,
         closed_loop=report,

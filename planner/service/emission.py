@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from schemas.scenario import LaserLimits
+
 SLACK = 1e-9  # s
 #: s dark between two intervals for them to count as two exposures (the driver's rule)
 COOL_DOWN = 0.5
@@ -26,14 +28,12 @@ def exposures(spans: list[tuple[float, float]]) -> list[tuple[float, float]]:
     return [(s, on) for s, _, on in out]
 
 
-def emission_excess(laser_on: Any, laser: dict[str, Any] | None) -> str | None:
+def emission_excess(laser_on: Any, power: float | None, limits: LaserLimits) -> str | None:
     """Why a trajectory's ``laser_on`` intervals (``[[t0, t1], ...]``, s) break the
-    scenario's ``laser`` limits (its resolved mapping: ``power``, ``limits``), or None."""
-    laser = laser or {}
-    limits = laser.get("limits") or {}
-    power = laser.get("power")
-    max_on, max_spot = limits.get("max_on"), limits.get("max_spot_energy")
-    max_session = limits.get("max_session_energy")
+    scenario's ``laser.limits`` at its ``laser.power`` (W; None: unknown, then only
+    ``max_on`` is checked), or None."""
+    max_on, max_spot = limits.max_on, limits.max_spot_energy
+    max_session = limits.max_session_energy
     spans = [(float(a), float(b)) for a, b in laser_on]
     for a, on in exposures(spans):
         where = f"the exposure from t = {a:.3f} s"

@@ -405,9 +405,8 @@ class PlannerNode:
         elif req.execute:
             plan = self.execute(plan, req.id)
         self.served += 1
-        reply = plan.to_document()
-        event(log, "verdict", **verdict_fields(reply))
-        return encode_json(reply)
+        event(log, "verdict", **verdict_fields(plan))
+        return encode_json(plan.to_document())
 
     # --- execution -------------------------------------------------------------------------
     def check_drivers(self) -> None:

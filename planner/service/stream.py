@@ -172,7 +172,8 @@ def _chunk_maker(
     plan: Plan, t: Any, rows: dict[str, dict[str, Any]], session: str | None
 ) -> Callable[[str | None, int, int], Chunk]:
 
-    gate = (scenario_laser(plan.scenario) or {}).get("gate") or {}
+    laser = plan.resolved.laser
+    gate = None if laser is None else laser.gate
     assert plan.trajectory is not None  # _samples said so
     laser_on, aim_on = ([(float(a), float(b)) for a, b in ([] if x is None else x)]
                         for x in (plan.trajectory.laser_on, plan.trajectory.aim_on))  # fmt: skip
@@ -181,7 +182,7 @@ def _chunk_maker(
         msg = {"schema": TRAJECTORY_SCHEMA, "robot": robot, "id": cid, "session": session,
                "t": (t[a:b] - t[a]).tolist(), "names": list(plan.joint_names[robot]),
                **{k: v[a:b].tolist() for k, v in rows[robot].items()}}  # fmt: skip
-        if robot == gate.get("robot"):  # its digital output switches the laser
+        if gate is not None and robot == gate.robot:  # its digital output switches the laser
             msg["laser_on"] = _clip_intervals(laser_on, float(t[a]), float(t[b - 1]))
             if aim_on:  # the aiming beam of a measurement (same driver, its own output)
                 msg["aim_on"] = _clip_intervals(aim_on, float(t[a]), float(t[b - 1]))
@@ -206,12 +207,6 @@ def _clip_intervals(
         if hi > lo:
             out.append([lo - t0, hi - t0])
     return out
-
-
-def scenario_laser(scenario: Any) -> dict[str, Any] | None:
-    """The resolved scenario's ``system.laser`` mapping (power, limits, gate, aim), or None."""
-    laser = ((scenario or {}).get("system") or {}).get("laser")
-    return laser if isinstance(laser, dict) else None
 
 
 class Execution:
@@ -253,7 +248,8 @@ class Execution:
 
         traj = plan.trajectory
         laser_on = [] if traj is None else traj.laser_on.tolist()
-        over = emission_excess(laser_on, scenario_laser(plan.scenario))
+        laser = plan.resolved.laser
+        over = None if laser is None else emission_excess(laser_on, laser.power, laser.limits)
         if over is not None:  # never sent: the gate's driver would cut it short
             return replace(plan, execution=Verdict.REJECTED, execution_reason=f"not sent: {over}")
         chunks = split_trajectory(plan, request_id, session, self.chunk_bytes)

@@ -11,6 +11,7 @@ import numpy as np
 
 from planner.errors import InputError
 from planner.io.plan import Plan, Verdict
+from planner.io.plan_reports import TrackingReport
 from planner.model.status import Status
 from planner.model.system import Targets
 from planner.model.transforms import Array
@@ -18,7 +19,7 @@ from planner.service.execution import ExecuteError
 from planner.service.track import TrackSession
 from planner.track.correction import SpotCorrection
 from planner.track.follow import TargetFollower
-from schemas.scenario import UNCERTAINTY_K
+from schemas.scenario import UNCERTAINTY_K, Laser
 
 #: rad/s: a track request starts only while every joint is slower than this
 REST_SPEED = 0.01
@@ -102,9 +103,9 @@ def start_track(node: Any, req: Any) -> Plan:
     if gap > APPROACH_GAP:  # the first move is a planned, checked trajectory, not a stream
         q0 = approach(node, handler, plan, q0, q1, first, normal, req.id)
     cam = None if system.camera is None else system.camera.world_T_camera
-    attached = {o["name"]: np.asarray(o["world_T_object"]["matrix"], dtype=float)
-                for o in plan.scenario.get("keep_out") or []
-                if o.get("attached_to") == req.id}  # fmt: skip
+    scenario = plan.resolved
+    attached = {o.name: o.world_T_object.matrix() for o in scenario.keep_out
+                if o.attached_to == req.id}  # fmt: skip
     rest = targets.points[1:]  # the object's markers: the request's points after the target
     markers = rest if attached and len(rest) >= MIN_MARKERS else None
     rules = handler.track_ik.safety
@@ -112,26 +113,25 @@ def start_track(node: Any, req: Any) -> Plan:
                               markers=markers,
                               check=None if rules is None else rules.twin())  # fmt: skip
     follower.warm_up(q1, normal)  # the first frame must not pay for first calls
-    scenario = plan.scenario
-    laser = (scenario.get("system") or {}).get("laser", {})
-    gate = laser.get("gate") or {}
+    laser = scenario.laser
     allowance = None
-    if scenario.get("keep_out"):  # the rules check the model's beam: the bias must fit in
-        # the padding's calibration part (the beam radius part is the beam's own width)
-        uncertainty = (scenario.get("safety") or {}).get("spot_uncertainty") or 0.0
-        allowance = UNCERTAINTY_K * float(uncertainty)
+    if scenario.keep_out:  # the rules check the model's beam: the bias must fit in the
+        # padding's calibration part (the beam radius part is the beam's own width)
+        allowance = UNCERTAINTY_K * scenario.safety.spot_uncertainty
     correction, why = camera_correction(req, system, laser, settings.tolerance, allowance)
+    gate = None if laser is None else laser.gate
     node.track = TrackSession(node.session, node.keys, node.session_id, system, follower,
-                              req.id, duration=req.duration, gate_robot=gate.get("robot"),
-                              aim=laser.get("aim") is not None, correction=correction,
+                              req.id, duration=req.duration,
+                              gate_robot=None if gate is None else gate.robot,
+                              aim=laser is not None and laser.aim is not None,
+                              correction=correction,
                               send_stop=node.send_stop, on_end=node.track_ended).start()  # fmt: skip
-    tracking = {"stream": req.id, "duration": req.duration, "tolerance": settings.tolerance,
-                "rate": settings.rate, "camera_correction": why}  # fmt: skip
+    tracking = TrackingReport(req.id, req.duration, settings.tolerance, settings.rate, why)
     return dataclasses.replace(plan, execution=Verdict.ACCEPTED, tracking=tracking)
 
 
 def camera_correction(
-    req: Any, system: Any, laser: dict[str, Any], tolerance: float,
+    req: Any, system: Any, laser: Laser | None, tolerance: float,
     max_bias: float | None = None,
 ) -> tuple[SpotCorrection | None, str]:  # fmt: skip
     """The camera-frame spot correction of a track request
@@ -146,7 +146,7 @@ def camera_correction(
         return None, "off: no camera"
     if system.camera.robot is not None:  # frames and spots would map through other joints
         return None, "off: the camera moves with an arm"
-    if laser.get("gate") is not None and laser.get("aim") is None:
+    if laser is not None and laser.gate is not None and laser.aim is None:
         return None, "off: no aiming beam (laser.aim) to measure the spot with"
     return SpotCorrection(system, system.world_T_camera, tolerance=tolerance,
                           max_bias=max_bias), "on"  # fmt: skip

@@ -14,6 +14,7 @@ import numpy as np
 
 from planner.bus import events
 from planner.service.supervisor import LogTail
+from schemas.status import Reason, ServoStatus, Status
 
 
 def test_event_lines_are_one_line_each_with_utc_time_and_quoted_values() -> None:
@@ -40,10 +41,14 @@ def test_event_lines_are_one_line_each_with_utc_time_and_quoted_values() -> None
 
 
 def test_verdict_fields_count_failures_and_convergence() -> None:
-    plan = {"id": "r9", "execution": "rejected", "execution_reason": "arm0: start away",
-            "solutions": [{"status": "ok"}, {"status": "failed", "reason": "occluded"},
-                          {"status": "failed", "reason": "occluded"}],
-            "closed_loop": {"targets": [{"status": "converged"}, {"status": "not_seen"}]}}  # fmt: skip
+    ok, occluded = Status.OK, SimpleNamespace(status=Status.FAILED, reason=Reason.OCCLUDED)
+    rows = [
+        SimpleNamespace(status=ServoStatus.CONVERGED),
+        SimpleNamespace(status=ServoStatus.NOT_SEEN),
+    ]
+    plan = SimpleNamespace(id="r9", execution="rejected", execution_reason="arm0: start away",
+                           solutions=[SimpleNamespace(status=ok, reason=None), occluded, occluded],
+                           closed_loop=SimpleNamespace(targets=rows))  # fmt: skip
     assert events.verdict_fields(plan) == {
         "id": "r9", "solved": "1/3", "failed": "occluded:2", "execution": "rejected",
         "execution_reason": "arm0: start away", "converged": "1/2"}  # fmt: skip

@@ -11,7 +11,6 @@ from planner.console.preview import Preview
 from planner.console.report import answer_markdown, late_verdict_line, sweep_line
 from planner.console.sweep import Sweep
 from planner.io.plan import Plan
-from planner.service.client import request_summary
 from tests.planner.service.plans import as_plan
 
 
@@ -29,7 +28,7 @@ def preview(n: int) -> Preview:
 def test_an_executed_path_reports_its_marked_sweep_instead_of_per_sample_rows() -> None:
     p = plan(120)
     sw = Sweep(np.zeros((80, 3)), 12, 0.00031, 0.00092, 0.1184, 0.119)
-    text = answer_markdown(Answer(p, request_summary(p, [None] * 120), 0.4, [None] * 120, sw),
+    text = answer_markdown(Answer(p, 0.4, [None] * 120, sw),
                            preview(120), executed=True)  # fmt: skip
     assert "**120/120 targets solved**" in text and "execution: **accepted**" in text
     assert ("marked path: 80 spots with the laser on, covering 118.4 of 119.0 mm; distance to "
@@ -41,7 +40,7 @@ def test_an_executed_path_reports_its_marked_sweep_instead_of_per_sample_rows() 
 def test_points_keep_their_rows_and_driver_faults_come_first() -> None:
     p = plan(2)
     spots = [np.array([0.0, 0.0005, 0.0]), None]
-    text = answer_markdown(Answer(p, request_summary(p, spots), 0.4, spots), preview(2),
+    text = answer_markdown(Answer(p, 0.4, spots), preview(2),
                            executed=True, faults=("arm0: heartbeat lost",))  # fmt: skip
     lines = text.split("  \n")
     assert lines[2] == "**driver: arm0: heartbeat lost**"
@@ -66,7 +65,7 @@ def test_a_verdict_never_heard_reads_waiting_never_rejected() -> None:
         execution_unanswered=["arm0"],
         execution_reason="no answer from arm0 within 2 s; stop sent",
     )
-    text = answer_markdown(Answer(p, request_summary(p, [None]), 0.4, [None]), preview(1),
+    text = answer_markdown(Answer(p, 0.4, [None]), preview(1),
                            executed=True)  # fmt: skip
     assert "execution: **waiting for arm0**" in text and "rejected" not in text, text
     late = TrajectoryAck(id="abc", accepted=True, t=1.0)
@@ -75,6 +74,6 @@ def test_a_verdict_never_heard_reads_waiting_never_rejected() -> None:
     refused = TrajectoryAck(id="abc", accepted=False, reason="q[3]: too fast", t=1.0)
     assert late_verdict_line("arm0", refused) == "arm0: **rejected** (q[3]: too fast)"
     heard = plan(1, execution="rejected", execution_reason="arm0: q[3]: too fast")
-    text = answer_markdown(Answer(heard, request_summary(heard, [None]), 0.4, [None]),
+    text = answer_markdown(Answer(heard, 0.4, [None]),
                            preview(1), executed=True)  # fmt: skip
     assert "execution: **rejected** (arm0: q[3]: too fast)" in text

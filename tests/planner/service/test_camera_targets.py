@@ -13,6 +13,8 @@ from typing import Any
 import numpy as np
 import pytest
 
+from planner.io.plan_reports import ClosedLoopTarget, ServoFigures
+from planner.model.status import ServoStatus
 from planner.model.transforms import axis_angle_to_matrix, inv_T, make_T, transform_points
 from planner.service.closed_loop import in_camera_frame
 from planner.service.handler import RequestHandler, handler_from_scenario
@@ -80,14 +82,20 @@ def test_closed_loop_rows_of_a_camera_request_are_in_the_camera_frame() -> None:
     world_T_camera = make_T(axis_angle_to_matrix([0.3, -0.2, 0.1]), [-1.0, -1.0, 0.5])
     p_cam = np.array([[0.01, 0.02, 0.8], [0.0, -0.03, 0.9]])
     spot_cam = p_cam[0] + [2e-4, -1e-4, 0.0]
-    rows: list[dict[str, Any]] = [
-        {"measured_spot": transform_points(world_T_camera, spot_cam).tolist()},
-        {"measured_spot": None},
-    ]
-    in_camera_frame(rows, p_cam, world_T_camera)
-    np.testing.assert_allclose(rows[0]["measured_spot_camera"], spot_cam, atol=1e-12)
-    assert rows[0]["measured_error_camera"] == pytest.approx(np.sqrt(5e-8), rel=1e-9)
-    assert rows[1]["target_camera"] == p_cam[1].tolist() and "measured_error_camera" not in rows[1]
+
+    def row(k: int, status: ServoStatus, spot: np.ndarray | None) -> ClosedLoopTarget:
+        run = ServoFigures(1, 3, 0.1, 1e-3, None if spot is None else 1e-4,
+                           np.array([1e-3, np.nan]), spot, {"arm0": np.zeros(6)})  # fmt: skip
+        return ClosedLoopTarget(k, status, servo=run)
+
+    spot_world = transform_points(world_T_camera, spot_cam)
+    rows = in_camera_frame([row(0, ServoStatus.CONVERGED, spot_world),
+                            row(1, ServoStatus.NOT_SEEN, None)], p_cam, world_T_camera)  # fmt: skip
+    assert rows[0].spot_camera is not None and rows[0].error_camera is not None
+    np.testing.assert_allclose(rows[0].spot_camera, spot_cam, atol=1e-12)
+    assert rows[0].error_camera == pytest.approx(np.sqrt(5e-8), rel=1e-9)
+    doc = rows[1].to_document()
+    assert doc["target_camera"] == p_cam[1].tolist() and "measured_error_camera" not in doc
 
 
 def test_a_scenarios_camera_frame_targets_land_on_their_board(tmp_path: Path) -> None:

@@ -4,6 +4,7 @@ spot buffer at 30 Hz by a thread), plus the watchdog and the request checks."""
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from typing import Any
@@ -13,8 +14,10 @@ import pytest
 
 from planner.bench.servo_world import UP, SimWorld, board_targets
 from planner.errors import InputError
+from planner.io.plan import Plan
 from planner.io.plan import Trajectory as PlanTrajectory
 from planner.model.settings import TrajectorySettings
+from planner.model.status import Interruption, ServoStatus
 from planner.model.system import Targets
 from planner.service.closed_loop import (
     FRAME_PERIOD,
@@ -128,6 +131,8 @@ def _run(world: SimWorld, bus: FakeBus, k: int, dwell: float | None = 0.1,
     done = execute_closed_loop(planned, targets, req, model.home, config, bus.motion(ticks), model)
     bus.clock.run_all()
     plan = done.to_document()  # the reply
+    text = json.dumps(plan)  # the typed report reads back from the reply exactly
+    assert json.dumps(Plan.from_document(json.loads(text)).to_document()) == text
     plan["_ticks"] = ticks
     plan["_targets"] = P
     return plan
@@ -200,6 +205,16 @@ def test_a_rejected_move_ends_the_run_naming_the_target(world: SimWorld) -> None
     assert plan["execution"] == "rejected"
     assert plan["execution_reason"].startswith("target 1: arm0: simulated refusal")
     assert [r["status"] for r in rows] == ["converged", "rejected", "not_executed"]
+    report = Plan.from_document(plan).closed_loop  # the reply, typed
+    assert (
+        report is not None
+        and report.converged == 1 == plan["metrics"]["extra"]["closed_loop_converged"]
+    )
+    first, refused, rest = report.targets
+    assert (refused.status, refused.reason) == (ServoStatus.REJECTED, Interruption.EXECUTION)
+    assert (rest.status, rest.treated, rest.servo) == (ServoStatus.NOT_EXECUTED, None, None)
+    assert first.servo is not None and first.servo.error_after is not None
+    assert first.servo.error_after <= 0.3e-3 and first.servo.spot is not None
 
 
 def _req(**kw: Any) -> TargetRequest:

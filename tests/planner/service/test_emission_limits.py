@@ -10,6 +10,7 @@ import pytest
 from planner.io.plan import Verdict
 from planner.service.emission import emission_excess
 from planner.service.stream import Execution
+from schemas.scenario import LaserLimits
 from tests.planner.service.plans import as_plan
 
 LASER = {"power": 0.05, "limits": {"max_on": 2.0, "max_spot_energy": 0.05,
@@ -30,20 +31,21 @@ def test_intervals_are_checked_against_each_limit(
     laser: dict[str, Any] = dict(LASER)
     if "max_on" in (text or ""):
         laser["power"] = 0.001  # the energies stay far below their limits
-    got = emission_excess(spans, laser)
+    got = emission_excess(spans, laser["power"], LaserLimits(**laser["limits"]))
     assert got == text if text is None else (got is not None and text in got), got
 
 
 def test_no_limits_or_no_power_checks_nothing_but_max_on() -> None:
-    assert emission_excess([[0, 100.0]], {}) is None
-    assert emission_excess([[0, 100.0]], {"limits": {"max_spot_energy": 1e-6}}) is None
-    assert "max_on" in (emission_excess([[0, 3.0]], {"limits": {"max_on": 2.0}}) or "")
+    assert emission_excess([[0, 100.0]], None, LaserLimits()) is None
+    assert emission_excess([[0, 100.0]], None, LaserLimits(max_spot_energy=1e-6)) is None
+    assert "max_on" in (emission_excess([[0, 3.0]], None, LaserLimits(max_on=2.0)) or "")
 
 
 def test_execution_refuses_a_trajectory_over_a_limit_without_sending_it() -> None:
     sent: list[Any] = []
     ex = Execution(("arm0",), lambda r, b: sent.append((r, b)), lambda why: None, None, None, 1.0)  # type: ignore[arg-type]
-    plan = as_plan({"robots": ["arm0"], "scenario": {"system": {"laser": LASER}},
+    laser = {"world_T_laser": {}} | LASER
+    plan = as_plan({"robots": ["arm0"], "scenario": {"system": {"laser": laser}},
                     "trajectory": {"t": [0.0, 2.0], "laser_on": [[0.5, 1.9]]}})  # fmt: skip
     plan = ex.execute(plan, "r1", "S")
     assert plan.execution is Verdict.REJECTED and not sent

@@ -14,6 +14,7 @@ from planner.beam.trace import trace_beam
 from planner.ik import BeamIK
 from planner.model.transforms import axis_angle_to_matrix, inv_T, look_at, make_T
 from planner.track.correction import RESTART_AFTER, SpotCorrection
+from schemas.scenario import Laser
 from tests.planner.ik import ik_systems as sy
 
 P = np.array([0.3, 0.3, 0.3])  # m: the true target (world)
@@ -179,7 +180,8 @@ def test_the_correction_is_on_only_where_the_camera_can_see_the_beam() -> None:
         ("camera", system, {"gate": gate, "aim": aim}, "on"),
         ("camera", system, {}, "on"),  # ungated (simulation): the laser is always on
     ]
-    for frame, sys_, laser, why in cases:
+    for frame, sys_, keys, why in cases:
+        laser = Laser.model_validate({"world_T_laser": {}} | keys)
         c, said = camera_correction(SimpleNamespace(frame=frame), sys_, laser, 5e-4, 0.002)
         assert said == why and (c is not None) == (why == "on")
         if c is not None:
