@@ -36,7 +36,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -60,6 +60,12 @@ from planner.servo import (
     servo,
 )
 from planner.servo.measure import SpotGate, SpotMeasurement, gate_frames
+
+if TYPE_CHECKING:
+    from planner.service.handler import RequestHandler
+    from planner.service.ports import ClosedLoopPort
+    from schemas.messages import TargetRequest
+
 
 #: camera frame period assumed for the measurement dwell (s; the D435 / sim camera at 30 Hz)
 FRAME_PERIOD = 1.0 / 30.0
@@ -145,7 +151,9 @@ NO_AIM = ("closed_loop needs laser.aim: measurements use the aiming beam, never 
           "gate (aim: gate for a rig whose only laser is a low-power diagnostic diode)")  # fmt: skip
 
 
-def check_closed_loop(req: Any, system: System, config: ClosedLoopConfig | None = None) -> None:
+def check_closed_loop(
+    req: TargetRequest, system: System, config: ClosedLoopConfig | None = None
+) -> None:
     """InputError naming the field when a request's ``closed_loop`` cannot be served (with
     ``config``: no aiming beam, or a tolerance looser than the scenario's)."""
     if not req.closed_loop:
@@ -425,7 +433,7 @@ def in_camera_frame(rows: Sequence[ClosedLoopTarget], targets_camera: Array,
     return out
 
 
-def execute_closed_loop(plan: Plan, targets: Targets, req: Any, start: Array,
+def execute_closed_loop(plan: Plan, targets: Targets, req: TargetRequest, start: Array,
                         config: ClosedLoopConfig, motion: Motion, system: System) -> Plan:  # fmt: skip
     """Run a closed-loop request's targets from stacked ``start`` (rad); the plan with the
     reply's ``closed_loop`` (:class:`~planner.io.plan_reports.ClosedLoopReport`),
@@ -464,8 +472,8 @@ def execute_closed_loop(plan: Plan, targets: Targets, req: Any, start: Array,
     )
 
 
-def execute_on_node(node: Any, plan: Plan, targets: Targets, req: Any,
-                    start: dict[str, Array], handler: Any) -> Plan:  # fmt: skip
+def execute_on_node(node: ClosedLoopPort, plan: Plan, targets: Targets, req: TargetRequest,
+                    start: dict[str, Array], handler: RequestHandler) -> Plan:  # fmt: skip
     """:func:`execute_closed_loop` on a :class:`planner.service.node.PlannerNode`: from
     ``start`` (rad per robot), in the calibration of ``handler`` (the one the request was
     planned with), moving through the node's execution, measuring with its spot buffer (and

@@ -39,6 +39,7 @@ if TYPE_CHECKING:
     from planner.plan.pipeline import Pipeline
     from planner.safety.model import Safety
     from planner.service.closed_loop import ClosedLoopConfig
+    from schemas.messages import TargetRequest
 
 
 class PlanFn(Protocol):
@@ -300,7 +301,7 @@ class RequestHandler:
     """m: how far a camera-frame point target may lie from the surface that carries it
     (:mod:`planner.plan.landing`)"""
 
-    def targets(self, req: Any, start: dict[str, Array] | None = None) -> Targets:
+    def targets(self, req: TargetRequest, start: dict[str, Array] | None = None) -> Targets:
         """World-frame targets of a validated TargetRequest (points in metres); camera-frame
         points through the calibrated camera pose at ``start`` (rad per robot; None: home,
         which only an eye-in-hand camera's pose depends on)."""
@@ -337,7 +338,7 @@ class RequestHandler:
             raise InputError("JSON nested too deeply", "body") from exc
 
     def plan(
-        self, req: Any, start: dict[str, Array] | None = None, trajectory: bool = False,
+        self, req: TargetRequest, start: dict[str, Array] | None = None, trajectory: bool = False,
         rate: float | None = None,
     ) -> Plan:  # fmt: skip
         """The plan of a validated request, starting at ``start`` (rad) or home, its

@@ -80,7 +80,7 @@ from planner.service.live_cloud import LiveCloud
 from planner.service.online import OnlineCalibrator, attach
 from planner.service.spots import LaserLog, SpotBuffer
 from planner.service.stream import Execution, trajectory_messages
-from schemas.messages import RobotStatus, StopMessage
+from schemas.messages import RobotStatus, StopMessage, TargetRequest
 
 __all__ = [
     "QUEUE_SIZE",
@@ -200,7 +200,9 @@ class PlannerNode:
         self._started = time.monotonic()
         return self
 
-    def with_cloud(self, targets: Targets, req: Any, start: dict[str, Array] | None) -> Targets:
+    def with_cloud(
+        self, targets: Targets, req: TargetRequest, start: dict[str, Array] | None
+    ) -> Targets:
         """Camera-frame point targets with a fixed camera's live cloud around them (world,
         through its calibrated pose) as a surface that may carry them
         (:func:`planner.plan.landing.cloud_landings`); other targets as they are."""

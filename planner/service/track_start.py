@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -21,6 +21,12 @@ from planner.track.correction import SpotCorrection
 from planner.track.follow import TargetFollower
 from schemas.scenario import UNCERTAINTY_K, Laser
 
+if TYPE_CHECKING:
+    from planner.service.handler import RequestHandler
+    from planner.service.ports import ClosedLoopPort, TrackPort
+    from schemas.messages import TargetRequest
+
+
 #: rad/s: a track request starts only while every joint is slower than this
 REST_SPEED = 0.01
 #: rad: farther than this from the first estimate's solution, the arm goes there with a
@@ -31,7 +37,7 @@ APPROACH_GAP = 0.005
 APPROACH_TIMEOUT = 2.0
 
 
-def approach(node: Any, handler: Any, plan: Plan, q0: Array, q1: Array,
+def approach(node: ClosedLoopPort, handler: RequestHandler, plan: Plan, q0: Array, q1: Array,
              first: Array, normal: Array | None, request_id: str) -> Array:  # fmt: skip
     """Move from stacked ``q0`` to the first estimate's solution ``q1`` (rad) with a planned
     trajectory (timed and checked under the safety rules like any plan, laser off) and wait
@@ -61,7 +67,7 @@ def approach(node: Any, handler: Any, plan: Plan, q0: Array, q1: Array,
 
 
 # long: the start of tracking: checks, approach plan, follower and first setpoint, in the order they must happen
-def start_track(node: Any, req: Any) -> Plan:
+def start_track(node: TrackPort, req: TargetRequest) -> Plan:
     """Start following the target stream of a validated ``mode: track`` request on a
     :class:`planner.service.node.PlannerNode`; returns the reply document (the plan of the
     first estimate, ``execution: accepted``, ``tracking``). Errors (InputError /
@@ -131,7 +137,7 @@ def start_track(node: Any, req: Any) -> Plan:
 
 
 def camera_correction(
-    req: Any, system: Any, laser: Laser | None, tolerance: float,
+    req: TargetRequest, system: Any, laser: Laser | None, tolerance: float,
     max_bias: float | None = None,
 ) -> tuple[SpotCorrection | None, str]:  # fmt: skip
     """The camera-frame spot correction of a track request
