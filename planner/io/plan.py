@@ -22,6 +22,7 @@ from planner.io.plan_reports import ClosedLoopReport, ClosedLoopTarget, Tracking
 from planner.io.plan_scenario import PlannedScenario
 from planner.io.plan_tables import Hit, PlanTargets, Solution, SurfaceLanding, Trajectory
 from schemas.fields import parse_enum, required
+from schemas.plan import PLAN_SCHEMA
 from schemas.plan_records import Exposure, Metrics, Segment, SegmentKind, Slowdown
 
 __all__ = [
@@ -29,8 +30,6 @@ __all__ = [
     "Plan", "PlanTargets", "PlannedScenario", "Segment", "SegmentKind", "Slowdown",
     "Solution", "SurfaceLanding", "TrackingReport", "Trajectory", "Verdict", "parse_enum",
 ]  # fmt: skip
-
-PLAN_SCHEMA: Final = "beamrelay.plan/1"
 
 
 class Verdict(StrEnum):

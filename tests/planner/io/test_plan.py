@@ -124,7 +124,14 @@ def test_plan_is_frozen() -> None:
 def test_an_unknown_enum_names_its_field(
     where: tuple[str | int, ...], value: str, message: str
 ) -> None:
-    doc = small_doc()
+    assert_an_unknown_value_names_its_field(small_doc(), where, value, message)
+
+
+def assert_an_unknown_value_names_its_field(
+    doc: dict[str, Any], where: tuple[str | int, ...], value: str, message: str
+) -> None:
+    """``doc`` with ``value`` put at key path ``where`` reads as a one-line FieldError that
+    starts with ``message`` and names ``where``."""
     parent: Any = doc
     for key in where[:-1]:
         parent = parent[key]

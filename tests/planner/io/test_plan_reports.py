@@ -17,7 +17,7 @@ from planner.errors import InputError
 from planner.io.plan import ClosedLoopReport, Plan, SegmentKind, TrackingReport
 from planner.model.status import Interruption, Reason, ServoStatus
 from schemas.common import FieldError
-from tests.planner.io.test_plan import small_doc
+from tests.planner.io.test_plan import assert_an_unknown_value_names_its_field, small_doc
 
 SERVED = {"iterations": 2, "frames": 9, "time": 0.75, "measured_error_before": 0.004,
           "measured_error_after": 0.0001, "errors": [0.004, None, 0.0001],
@@ -109,15 +109,7 @@ def test_a_tracking_report_reads_back_to_the_same_json() -> None:
 def test_an_unknown_status_reason_or_kind_names_its_key_path(
     where: tuple[str | int, ...], value: str, message: str
 ) -> None:
-    doc = reply(closed_loop=closed_loop())
-    parent: Any = doc
-    for key in where[:-1]:
-        parent = parent[key]
-    parent[where[-1]] = value
-    with pytest.raises(FieldError) as err:
-        Plan.from_document(doc)
-    assert str(err.value).startswith(message) and "\n" not in str(err.value)
-    assert err.value.loc == where
+    assert_an_unknown_value_names_its_field(reply(closed_loop=closed_loop()), where, value, message)
 
 
 def test_a_missing_report_key_names_its_key_path() -> None:
